@@ -1,0 +1,1 @@
+//! sinew-curves: filled by its own issue; the crate builds empty until then.

@@ -1,0 +1,1 @@
+//! sinew-labcheck: property tests of the sinew crates live in `tests/`.

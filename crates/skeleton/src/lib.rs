@@ -1,0 +1,666 @@
+//! Joint trees, poses and forward kinematics for sinew, plus the inverse-kinematics
+//! vocabulary every solver shares.
+//!
+//! - [`Skeleton`]: joints with a parent index, in topological order (every parent comes
+//!   before its children), each with a local offset from its parent and an optional name.
+//!   A chain ([`Skeleton::chain`]) is the special case where joint `i` hangs from `i - 1`.
+//! - [`Pose`]: one local rotation per joint.
+//! - [`GlobalPose`]: what forward kinematics computes, the global rotation and position of
+//!   every joint. [`Skeleton::forward_kinematics`] fills all of it;
+//!   [`Skeleton::forward_kinematics_from`] recomputes one joint and its descendants only.
+//! - [`ik`]: chains inside a skeleton, solve settings and reports, the closed-form answer
+//!   for a target out of reach, and the [`ik::IkSolver`] trait the solver crates implement.
+//!
+//! Forward kinematics follows the course lab exactly: a root joint takes its local
+//! rotation and offset as global; for a joint `i` with parent `p`,
+//! `G[i] = normalize(G[p] * L[i])` and `P[i] = P[p] + G[p] * offset[i]`. So a joint's
+//! rotation moves its children, not itself: the bone from `p` to `i` is turned by `L[p]`.
+//!
+//! Architecture invariant: depends on sinew-math only (serde behind the `serde` feature).
+
+pub mod ik;
+
+use sinew_math::{DQuat, DVec3};
+use std::fmt;
+
+/// One joint as given to [`Skeleton::new`].
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct JointDef {
+    /// A name for messages and scenes; optional.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub name: Option<String>,
+    /// The parent joint's index, which must be smaller than this joint's; `None` for a root.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub parent: Option<usize>,
+    /// The offset from the parent joint in the parent's frame (for a root: its position).
+    pub offset: DVec3,
+}
+
+/// Why a skeleton, a pose or a chain was refused. Every variant names the joint.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SkeletonError {
+    /// A skeleton needs at least one joint.
+    Empty,
+    /// A joint's parent does not come before it (topological order is required).
+    ParentNotBefore {
+        /// The joint, with its name when it has one.
+        joint: String,
+        /// The parent index it gave.
+        parent: usize,
+    },
+    /// A joint's offset has a NaN or infinite component.
+    NonFiniteOffset {
+        /// The joint, with its name when it has one.
+        joint: String,
+    },
+    /// A joint index is not in the skeleton.
+    JointOutOfRange {
+        /// The index given.
+        index: usize,
+        /// The number of joints.
+        len: usize,
+    },
+    /// A chain's base is not an ancestor of (or equal to) its effector.
+    NotAnAncestor {
+        /// The base joint.
+        base: String,
+        /// The effector joint.
+        effector: String,
+    },
+    /// A pose has a different number of rotations than the skeleton has joints.
+    PoseLength {
+        /// Joints in the skeleton.
+        expected: usize,
+        /// Rotations in the pose.
+        got: usize,
+    },
+    /// A local rotation is zero or has a NaN or infinite component.
+    InvalidRotation {
+        /// The joint, with its name when it has one.
+        joint: String,
+    },
+}
+
+impl fmt::Display for SkeletonError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Empty => write!(f, "the skeleton has no joints"),
+            Self::ParentNotBefore { joint, parent } => write!(
+                f,
+                "{joint}: parent index {parent} does not come before the joint (joints must be in topological order)"
+            ),
+            Self::NonFiniteOffset { joint } => {
+                write!(f, "{joint}: offset has a NaN or infinite component")
+            }
+            Self::JointOutOfRange { index, len } => write!(
+                f,
+                "joint index {index} is out of range (the skeleton has {len} joints)"
+            ),
+            Self::NotAnAncestor { base, effector } => write!(
+                f,
+                "{base} is not an ancestor of {effector}, so they do not bound a chain"
+            ),
+            Self::PoseLength { expected, got } => write!(
+                f,
+                "the pose has {got} rotations but the skeleton has {expected} joints"
+            ),
+            Self::InvalidRotation { joint } => write!(
+                f,
+                "{joint}: local rotation is zero or has a NaN or infinite component"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for SkeletonError {}
+
+/// A tree of joints in topological order; see the [crate docs](crate).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Skeleton {
+    parents: Vec<Option<usize>>,
+    offsets: Vec<DVec3>,
+    names: Vec<Option<String>>,
+    /// One past the largest index among each joint's descendants (at least `i + 1`):
+    /// every descendant of `i` lies in `i + 1 .. span_end[i]`.
+    span_end: Vec<usize>,
+    /// Whether each joint's descendants fill its span exactly (depth-first order, as a
+    /// chain is), so forward kinematics from a joint needs no membership test.
+    contiguous: bool,
+}
+
+impl Skeleton {
+    /// A skeleton from its joints, validated: at least one joint, every parent index
+    /// smaller than its child's, every offset finite.
+    pub fn new(joints: impl IntoIterator<Item = JointDef>) -> Result<Self, SkeletonError> {
+        let mut parents = Vec::new();
+        let mut offsets = Vec::new();
+        let mut names = Vec::new();
+        for (i, joint) in joints.into_iter().enumerate() {
+            let label = || joint_label(i, joint.name.as_deref());
+            if let Some(parent) = joint.parent
+                && parent >= i
+            {
+                return Err(SkeletonError::ParentNotBefore {
+                    joint: label(),
+                    parent,
+                });
+            }
+            if !joint.offset.is_finite() {
+                return Err(SkeletonError::NonFiniteOffset { joint: label() });
+            }
+            parents.push(joint.parent);
+            offsets.push(joint.offset);
+            names.push(joint.name);
+        }
+        if parents.is_empty() {
+            return Err(SkeletonError::Empty);
+        }
+        let n = parents.len();
+        let mut span_end: Vec<usize> = (1..=n).collect();
+        let mut descendants = vec![0usize; n];
+        for i in (0..n).rev() {
+            if let Some(p) = parents[i] {
+                span_end[p] = span_end[p].max(span_end[i]);
+                descendants[p] += descendants[i] + 1;
+            }
+        }
+        let contiguous = (0..n).all(|i| span_end[i] - i - 1 == descendants[i]);
+        Ok(Self {
+            parents,
+            offsets,
+            names,
+            span_end,
+            contiguous,
+        })
+    }
+
+    /// A serial chain: joint 0 is the root at `root`, joint `i >= 1` hangs from joint
+    /// `i - 1` with local offset `offsets[i - 1]`. So `offsets.len()` bones.
+    pub fn chain(root: DVec3, offsets: &[DVec3]) -> Result<Self, SkeletonError> {
+        let root = JointDef {
+            name: None,
+            parent: None,
+            offset: root,
+        };
+        let rest = offsets.iter().enumerate().map(|(i, &offset)| JointDef {
+            name: None,
+            parent: Some(i),
+            offset,
+        });
+        Self::new(std::iter::once(root).chain(rest))
+    }
+
+    /// The number of joints (at least one).
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.parents.len()
+    }
+
+    /// Always `false`: a skeleton has at least one joint. Present for API symmetry.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    /// The parent of joint `i`, `None` for a root.
+    ///
+    /// # Panics
+    /// If `i` is out of range.
+    #[must_use]
+    pub fn parent(&self, i: usize) -> Option<usize> {
+        self.parents[i]
+    }
+
+    /// The local offset of joint `i` from its parent (for a root, its position).
+    ///
+    /// # Panics
+    /// If `i` is out of range.
+    #[must_use]
+    pub fn offset(&self, i: usize) -> DVec3 {
+        self.offsets[i]
+    }
+
+    /// The name of joint `i`, if it has one.
+    ///
+    /// # Panics
+    /// If `i` is out of range.
+    #[must_use]
+    pub fn name(&self, i: usize) -> Option<&str> {
+        self.names[i].as_deref()
+    }
+
+    /// The length of the bone from joint `i`'s parent to joint `i` (0 for a root).
+    ///
+    /// # Panics
+    /// If `i` is out of range.
+    #[must_use]
+    pub fn bone_length(&self, i: usize) -> f64 {
+        if self.parents[i].is_some() {
+            self.offsets[i].length()
+        } else {
+            0.0
+        }
+    }
+
+    /// "joint 3" or `joint 3 "elbow"`, for messages.
+    #[must_use]
+    pub fn label(&self, i: usize) -> String {
+        joint_label(i, self.names.get(i).and_then(|n| n.as_deref()))
+    }
+
+    /// Checks that `i` is a joint index.
+    pub fn check_index(&self, i: usize) -> Result<(), SkeletonError> {
+        if i < self.len() {
+            Ok(())
+        } else {
+            Err(SkeletonError::JointOutOfRange {
+                index: i,
+                len: self.len(),
+            })
+        }
+    }
+
+    /// Whether joint `a` is joint `b` or one of its ancestors. O(depth of `b`).
+    #[must_use]
+    pub fn is_ancestor_or_self(&self, a: usize, b: usize) -> bool {
+        let mut j = Some(b);
+        while let Some(k) = j {
+            if k == a {
+                return true;
+            }
+            if k < a {
+                return false;
+            }
+            j = self.parents[k];
+        }
+        false
+    }
+
+    /// The rest pose: every local rotation the identity.
+    #[must_use]
+    pub fn rest_pose(&self) -> Pose {
+        Pose {
+            rotations: vec![DQuat::IDENTITY; self.len()],
+        }
+    }
+
+    /// Forward kinematics of `pose` into `out` (resized to fit): every joint's global
+    /// rotation and position. O(joints), no allocation once `out` has the right size.
+    pub fn forward_kinematics(
+        &self,
+        pose: &Pose,
+        out: &mut GlobalPose,
+    ) -> Result<(), SkeletonError> {
+        self.check_pose(pose)?;
+        out.resize(self.len());
+        for i in 0..self.len() {
+            self.update_joint(pose, out, i)?;
+        }
+        Ok(())
+    }
+
+    /// Recomputes joint `joint` and its descendants only, leaving every other entry of
+    /// `out` as it was. `out` must hold forward kinematics of a pose that agrees with
+    /// `pose` on every joint outside that subtree (typically: the same pose before the
+    /// subtree's rotations changed). Cost: O(size of the subtree) for a depth-first
+    /// ordered skeleton such as a chain, O(joints after `joint`) otherwise.
+    pub fn forward_kinematics_from(
+        &self,
+        pose: &Pose,
+        joint: usize,
+        out: &mut GlobalPose,
+    ) -> Result<(), SkeletonError> {
+        self.check_pose(pose)?;
+        self.check_index(joint)?;
+        if out.positions.len() != self.len() {
+            // Nothing valid to start from: compute everything.
+            return self.forward_kinematics(pose, out);
+        }
+        self.update_joint(pose, out, joint)?;
+        let span = joint + 1..self.span_end[joint];
+        if self.contiguous {
+            for i in span {
+                self.update_joint(pose, out, i)?;
+            }
+        } else {
+            out.dirty.fill(false);
+            out.dirty[joint] = true;
+            for i in span {
+                if let Some(p) = self.parents[i]
+                    && out.dirty[p]
+                {
+                    out.dirty[i] = true;
+                    self.update_joint(pose, out, i)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn check_pose(&self, pose: &Pose) -> Result<(), SkeletonError> {
+        if pose.rotations.len() == self.len() {
+            Ok(())
+        } else {
+            Err(SkeletonError::PoseLength {
+                expected: self.len(),
+                got: pose.rotations.len(),
+            })
+        }
+    }
+
+    /// The lab's FK rule for one joint, given that its parent is up to date.
+    #[inline]
+    fn update_joint(
+        &self,
+        pose: &Pose,
+        out: &mut GlobalPose,
+        i: usize,
+    ) -> Result<(), SkeletonError> {
+        let local = pose.rotations[i];
+        if !local.is_finite() || local.length_squared() == 0.0 {
+            return Err(SkeletonError::InvalidRotation {
+                joint: self.label(i),
+            });
+        }
+        match self.parents[i] {
+            None => {
+                out.rotations[i] = local.normalize();
+                out.positions[i] = self.offsets[i];
+            }
+            Some(p) => {
+                let parent_rotation = out.rotations[p];
+                out.rotations[i] = (parent_rotation * local).normalize();
+                out.positions[i] = out.positions[p] + parent_rotation * self.offsets[i];
+            }
+        }
+        Ok(())
+    }
+}
+
+fn joint_label(i: usize, name: Option<&str>) -> String {
+    match name {
+        Some(name) => format!("joint {i} \"{name}\""),
+        None => format!("joint {i}"),
+    }
+}
+
+/// A pose: one local rotation per joint, in the skeleton's joint order.
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct Pose {
+    /// Local rotation of each joint relative to its parent (for a root: global).
+    pub rotations: Vec<DQuat>,
+}
+
+/// Global rotations and positions of every joint, as forward kinematics computes them.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GlobalPose {
+    /// Global rotation of each joint.
+    pub rotations: Vec<DQuat>,
+    /// Global position of each joint.
+    pub positions: Vec<DVec3>,
+    /// Scratch for forward kinematics from a joint in non-depth-first skeletons.
+    dirty: Vec<bool>,
+}
+
+impl GlobalPose {
+    /// An empty global pose; forward kinematics sizes it.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    fn resize(&mut self, n: usize) {
+        self.rotations.resize(n, DQuat::IDENTITY);
+        self.positions.resize(n, DVec3::ZERO);
+        self.dirty.resize(n, false);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::{FRAC_PI_2, PI};
+
+    fn joint(parent: Option<usize>, offset: DVec3) -> JointDef {
+        JointDef {
+            name: None,
+            parent,
+            offset,
+        }
+    }
+
+    fn close(a: DVec3, b: DVec3, tol: f64) -> bool {
+        (a - b).length() <= tol
+    }
+
+    #[test]
+    fn rejects_bad_skeletons_naming_the_joint() {
+        assert_eq!(Skeleton::new([]), Err(SkeletonError::Empty));
+        let bad_parent = Skeleton::new([
+            joint(None, DVec3::ZERO),
+            JointDef {
+                name: Some("elbow".into()),
+                parent: Some(1),
+                offset: DVec3::X,
+            },
+        ]);
+        let err = bad_parent.unwrap_err();
+        assert_eq!(
+            err,
+            SkeletonError::ParentNotBefore {
+                joint: "joint 1 \"elbow\"".into(),
+                parent: 1
+            }
+        );
+        assert!(err.to_string().contains("joint 1 \"elbow\""));
+        let nan = Skeleton::chain(DVec3::ZERO, &[DVec3::X, DVec3::new(f64::NAN, 0.0, 0.0)]);
+        assert_eq!(
+            nan.unwrap_err(),
+            SkeletonError::NonFiniteOffset {
+                joint: "joint 2".into()
+            }
+        );
+        let inf = Skeleton::chain(DVec3::new(0.0, f64::INFINITY, 0.0), &[]);
+        assert!(matches!(inf, Err(SkeletonError::NonFiniteOffset { .. })));
+    }
+
+    #[test]
+    fn quarter_turns_on_a_chain() {
+        // Three unit bones along x; joint 1 turns a quarter about z, joint 2 another.
+        let skel = Skeleton::chain(DVec3::new(1.0, 2.0, 3.0), &[DVec3::X; 3]).unwrap();
+        let mut pose = skel.rest_pose();
+        let quarter = DQuat::from_rotation_z(FRAC_PI_2);
+        pose.rotations[1] = quarter;
+        pose.rotations[2] = quarter;
+        let mut g = GlobalPose::new();
+        skel.forward_kinematics(&pose, &mut g).unwrap();
+        let base = DVec3::new(1.0, 2.0, 3.0);
+        let expected = [
+            base,
+            base + DVec3::X,
+            base + DVec3::X + DVec3::Y,
+            base + DVec3::X + DVec3::Y - DVec3::X,
+        ];
+        for (i, e) in expected.iter().enumerate() {
+            assert!(
+                close(g.positions[i], *e, 1e-15),
+                "joint {i}: {} vs {e}",
+                g.positions[i]
+            );
+        }
+        // The effector's global rotation is the half turn about z.
+        assert!(g.rotations[2].angle_between(DQuat::from_rotation_z(PI)) < 1e-15);
+    }
+
+    #[test]
+    fn a_full_turn_is_the_rest_pose() {
+        let skel = Skeleton::chain(DVec3::ZERO, &[DVec3::new(0.3, 0.1, -0.2); 5]).unwrap();
+        let mut pose = skel.rest_pose();
+        let mut rest = GlobalPose::new();
+        skel.forward_kinematics(&pose, &mut rest).unwrap();
+        // Four quarter turns about a tilted axis on every joint: each joint's product is
+        // a full turn (-1 as a quaternion), which is the same rotation.
+        let axis = DVec3::new(1.0, 2.0, 2.0) / 3.0;
+        let quarter = DQuat::from_axis_angle(axis, FRAC_PI_2);
+        pose.rotations = vec![quarter * quarter * quarter * quarter; 6];
+        let mut g = GlobalPose::new();
+        skel.forward_kinematics(&pose, &mut g).unwrap();
+        for i in 0..6 {
+            assert!(close(g.positions[i], rest.positions[i], 1e-14));
+        }
+    }
+
+    /// Root at origin; two branches: 1 (x) -> 3 (x), and 2 (y) -> 4 (z). Joint order is
+    /// topological but not depth-first.
+    fn three_level_tree() -> Skeleton {
+        Skeleton::new([
+            joint(None, DVec3::ZERO),
+            joint(Some(0), DVec3::X),
+            joint(Some(0), DVec3::Y),
+            joint(Some(1), DVec3::X),
+            joint(Some(2), DVec3::Z),
+        ])
+        .unwrap()
+    }
+
+    #[test]
+    fn three_level_tree_by_hand() {
+        let skel = three_level_tree();
+        let mut pose = skel.rest_pose();
+        // Root: quarter about z, so x -> y and y -> -x.
+        pose.rotations[0] = DQuat::from_rotation_z(FRAC_PI_2);
+        // Joint 2: quarter about x in its parent's frame, so its child's offset z -> -y,
+        // then the root's rotation maps -y -> x.
+        pose.rotations[2] = DQuat::from_rotation_x(FRAC_PI_2);
+        let mut g = GlobalPose::new();
+        skel.forward_kinematics(&pose, &mut g).unwrap();
+        let expected = [
+            DVec3::ZERO,
+            DVec3::Y,
+            -DVec3::X,
+            DVec3::Y * 2.0,
+            -DVec3::X + DVec3::X,
+        ];
+        for (i, e) in expected.iter().enumerate() {
+            assert!(
+                close(g.positions[i], *e, 1e-15),
+                "joint {i}: {} vs {e}",
+                g.positions[i]
+            );
+        }
+    }
+
+    fn wobbly_pose(n: usize, seed: u64) -> Pose {
+        let mut state = seed;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        };
+        Pose {
+            rotations: (0..n)
+                .map(|_| {
+                    DQuat::from_axis_angle(
+                        DVec3::new(next(), next(), next() + 2.0).normalize(),
+                        3.0 * next(),
+                    )
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn fk_from_a_joint_equals_full_fk() {
+        let chain =
+            Skeleton::chain(DVec3::new(0.0, 0.5, 0.0), &[DVec3::new(0.15, 0.0, 0.0); 7]).unwrap();
+        for skel in [three_level_tree(), chain] {
+            let n = skel.len();
+            let before = wobbly_pose(n, 1);
+            let mut incremental = GlobalPose::new();
+            skel.forward_kinematics(&before, &mut incremental).unwrap();
+            for joint in 0..n {
+                // Change the subtree of `joint` only, then update from it.
+                let mut after = before.clone();
+                let other = wobbly_pose(n, 7 + joint as u64);
+                for i in 0..n {
+                    if skel.is_ancestor_or_self(joint, i) {
+                        after.rotations[i] = other.rotations[i];
+                    }
+                }
+                let mut g = incremental.clone();
+                skel.forward_kinematics_from(&after, joint, &mut g).unwrap();
+                let mut full = GlobalPose::new();
+                skel.forward_kinematics(&after, &mut full).unwrap();
+                assert_eq!(g.positions, full.positions, "from joint {joint}");
+                assert_eq!(g.rotations, full.rotations, "from joint {joint}");
+            }
+        }
+    }
+
+    #[test]
+    fn fk_preserves_bone_lengths() {
+        let offsets: Vec<DVec3> = (0..200)
+            .map(|i| DVec3::new(1.0 + i as f64, -0.5, 0.25 * i as f64) * 10f64.powi(i % 7 - 3))
+            .collect();
+        let skel = Skeleton::chain(DVec3::ZERO, &offsets).unwrap();
+        let pose = wobbly_pose(skel.len(), 42);
+        let mut g = GlobalPose::new();
+        skel.forward_kinematics(&pose, &mut g).unwrap();
+        for i in 1..skel.len() {
+            let length = (g.positions[i] - g.positions[i - 1]).length();
+            let rest = skel.bone_length(i);
+            // Positions are absolute, so their difference carries round-off of the
+            // positions' size; 1e-12 relative holds wherever that is below the bone.
+            let roundoff =
+                4.0 * f64::EPSILON * g.positions[i].length().max(g.positions[i - 1].length());
+            assert!(
+                (length - rest).abs() <= 1e-12 * rest + roundoff,
+                "bone {i}: {length} vs {rest}"
+            );
+        }
+    }
+
+    #[test]
+    fn bad_poses_are_errors() {
+        let skel = Skeleton::chain(DVec3::ZERO, &[DVec3::X; 2]).unwrap();
+        let mut g = GlobalPose::new();
+        let short = Pose {
+            rotations: vec![DQuat::IDENTITY; 2],
+        };
+        assert_eq!(
+            skel.forward_kinematics(&short, &mut g),
+            Err(SkeletonError::PoseLength {
+                expected: 3,
+                got: 2
+            })
+        );
+        let mut nan = skel.rest_pose();
+        nan.rotations[1] = DQuat::from_xyzw(f64::NAN, 0.0, 0.0, 1.0);
+        assert_eq!(
+            skel.forward_kinematics(&nan, &mut g),
+            Err(SkeletonError::InvalidRotation {
+                joint: "joint 1".into()
+            })
+        );
+        let mut zero = skel.rest_pose();
+        zero.rotations[2] = DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0);
+        assert!(skel.forward_kinematics(&zero, &mut g).is_err());
+        assert!(matches!(
+            skel.forward_kinematics_from(&skel.rest_pose(), 3, &mut g),
+            Err(SkeletonError::JointOutOfRange { index: 3, len: 3 })
+        ));
+    }
+
+    #[test]
+    fn unnormalized_rotations_are_normalized() {
+        let skel = Skeleton::chain(DVec3::ZERO, &[DVec3::X; 2]).unwrap();
+        let mut pose = skel.rest_pose();
+        pose.rotations[1] = DQuat::from_rotation_z(FRAC_PI_2) * 3.0;
+        let mut g = GlobalPose::new();
+        skel.forward_kinematics(&pose, &mut g).unwrap();
+        assert!(close(g.positions[2], DVec3::new(1.0, 1.0, 0.0), 1e-15));
+    }
+}
