@@ -1,2 +1,124 @@
-//! xtask
-fn main() {}
+//! `cargo xtask`: sinew's scene runner (and, as they land, benchmarks and the stress grid).
+//!
+//! `cargo xtask run-scene [FILE]` reads a RON scene (default `scenes/lab4.ron`), checks
+//! every task before running any, runs the tasks it names and nothing else, prints a
+//! summary table and writes `metrics.json` to `target/scenes/<scene>/` (or `--out DIR`).
+//! See `docs/scenes.md` for the schema and every metric key.
+
+mod report;
+mod scene;
+mod spec;
+mod tasks;
+
+use clap::{Parser, Subcommand};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+/// sinew's developer tasks.
+#[derive(Parser)]
+#[command(name = "cargo xtask", bin_name = "cargo xtask", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a RON scene file (default: scenes/lab4.ron, the whole course lab).
+    RunScene(RunSceneArgs),
+}
+
+#[derive(clap::Args)]
+struct RunSceneArgs {
+    /// The scene file to run (default: scenes/lab4.ron).
+    file: Option<PathBuf>,
+    /// Run every scene in scenes/ (not its subfolders).
+    #[arg(long, conflicts_with = "file")]
+    all: bool,
+    /// List the scenes in scenes/ with their descriptions and exit.
+    #[arg(long, conflicts_with_all = ["file", "all"])]
+    list: bool,
+    /// Write outputs here instead of `target/scenes/<scene>/` (with --all: one subfolder per scene).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Print the metrics as JSON on stdout instead of the summary table.
+    #[arg(long)]
+    json: bool,
+    /// Print nothing but errors.
+    #[arg(long)]
+    quiet: bool,
+}
+
+/// The workspace root, from this crate's manifest directory.
+pub fn project_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("xtask lives one level below the workspace root")
+        .to_path_buf()
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::RunScene(args) => run_scene_command(&args),
+    }
+}
+
+fn run_scene_command(args: &RunSceneArgs) -> ExitCode {
+    let scenes_dir = project_root().join("scenes");
+    if args.list {
+        return match scene::list_scenes(&scenes_dir) {
+            Ok(list) => {
+                for (path, description) in list {
+                    let name = path.file_stem().unwrap_or_default().to_string_lossy();
+                    println!("{name:<28} {description}");
+                }
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("error: {e}");
+                ExitCode::from(2)
+            }
+        };
+    }
+    let files = if args.all {
+        match scene::list_scenes(&scenes_dir) {
+            Ok(list) => list.into_iter().map(|(p, _)| p).collect(),
+            Err(e) => {
+                eprintln!("error: {e}");
+                return ExitCode::from(2);
+            }
+        }
+    } else {
+        vec![
+            args.file
+                .clone()
+                .unwrap_or_else(|| scenes_dir.join("lab4.ron")),
+        ]
+    };
+    let mut worst = ExitCode::SUCCESS;
+    for file in &files {
+        let out_dir = match (&args.out, args.all) {
+            (Some(out), true) => out.join(scene::scene_name(file)),
+            (Some(out), false) => out.clone(),
+            (None, _) => project_root()
+                .join("target/scenes")
+                .join(scene::scene_name(file)),
+        };
+        let options = report::Options {
+            json: args.json,
+            quiet: args.quiet,
+        };
+        let code = match scene::load(file) {
+            Err(e) => {
+                eprintln!("error: {e}");
+                ExitCode::from(2)
+            }
+            Ok(loaded) => report::run_and_report(&loaded, &out_dir, &options),
+        };
+        if code != ExitCode::SUCCESS {
+            worst = code;
+        }
+    }
+    worst
+}

@@ -1,0 +1,243 @@
+//! The scene schema and its loading: a scene is a description plus a list of tagged
+//! tasks, so new task kinds are new variants of [`Task`] and nothing else changes.
+//!
+//! Loading reports a malformed file as `file:line:col: what was expected` (with the
+//! nearest known name for a misspelt field or task kind), and a well-formed file with a
+//! bad value as `file: task "name": item: what is wrong`. Every task is checked before
+//! any runs.
+
+use crate::tasks::{self, TaskSpec};
+use serde::Deserialize;
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// A scene file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// One line saying what the scene shows (for `--list` and the summary).
+    pub description: String,
+    /// The tasks, run in order.
+    pub tasks: Vec<Task>,
+}
+
+/// One task of a scene; the variant is the task kind.
+#[derive(Debug, Deserialize)]
+pub enum Task {
+    /// Forward kinematics of a skeleton in a given pose.
+    Fk(tasks::fk::FkTask),
+}
+
+impl Task {
+    /// The task's behaviour, whatever its kind.
+    pub fn spec(&self) -> &dyn TaskSpec {
+        match self {
+            Task::Fk(t) => t,
+        }
+    }
+}
+
+/// A scene read from disk and checked.
+pub struct LoadedScene {
+    /// The file it came from.
+    pub path: PathBuf,
+    /// The scene's name: the file stem.
+    pub name: String,
+    /// Its contents.
+    pub scene: Scene,
+}
+
+/// Why a scene could not be loaded.
+#[derive(Debug)]
+pub enum SceneError {
+    /// The file could not be read.
+    Io { path: PathBuf, message: String },
+    /// The file is not a valid scene (syntax or schema); with its position.
+    Parse {
+        path: PathBuf,
+        line: usize,
+        col: usize,
+        message: String,
+    },
+    /// A value is out of range or inconsistent.
+    Invalid {
+        path: PathBuf,
+        task: String,
+        message: String,
+    },
+}
+
+impl fmt::Display for SceneError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Io { path, message } => write!(f, "{}: {message}", path.display()),
+            Self::Parse {
+                path,
+                line,
+                col,
+                message,
+            } => write!(f, "{}:{line}:{col}: {message}", path.display()),
+            Self::Invalid {
+                path,
+                task,
+                message,
+            } => write!(f, "{}: task \"{task}\": {message}", path.display()),
+        }
+    }
+}
+
+/// The scene's name: the file stem.
+pub fn scene_name(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scene".to_string())
+}
+
+/// Reads, parses and checks a scene file.
+pub fn load(path: &Path) -> Result<LoadedScene, SceneError> {
+    let text = std::fs::read_to_string(path).map_err(|e| SceneError::Io {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let scene = parse(path, &text)?;
+    for task in &scene.tasks {
+        let spec = task.spec();
+        spec.validate().map_err(|message| SceneError::Invalid {
+            path: path.to_path_buf(),
+            task: spec.name().to_string(),
+            message,
+        })?;
+    }
+    let mut seen = std::collections::HashSet::new();
+    for task in &scene.tasks {
+        let name = task.spec().name();
+        if !seen.insert(name) {
+            return Err(SceneError::Invalid {
+                path: path.to_path_buf(),
+                task: name.to_string(),
+                message: "another task has the same name (names must be unique: they name outputs)"
+                    .into(),
+            });
+        }
+    }
+    Ok(LoadedScene {
+        path: path.to_path_buf(),
+        name: scene_name(path),
+        scene,
+    })
+}
+
+/// Parses scene text; errors carry the position and, for misspelt names, a suggestion.
+pub fn parse(path: &Path, text: &str) -> Result<Scene, SceneError> {
+    let options = ron::Options::default().with_default_extension(
+        ron::extensions::Extensions::IMPLICIT_SOME
+            | ron::extensions::Extensions::UNWRAP_VARIANT_NEWTYPES,
+    );
+    options
+        .from_str::<Scene>(text)
+        .map_err(|e| SceneError::Parse {
+            path: path.to_path_buf(),
+            line: e.span.start.line,
+            col: e.span.start.col,
+            message: describe_ron_error(&e.code),
+        })
+}
+
+fn describe_ron_error(code: &ron::Error) -> String {
+    let suggestion = match code {
+        ron::Error::NoSuchStructField {
+            expected, found, ..
+        }
+        | ron::Error::NoSuchEnumVariant {
+            expected, found, ..
+        } => nearest(found, expected),
+        _ => None,
+    };
+    match suggestion {
+        Some(s) => format!("{code} (did you mean `{s}`?)"),
+        None => code.to_string(),
+    }
+}
+
+/// The known name closest to `found` by edit distance, if it is close enough to be a typo.
+fn nearest<'a>(found: &str, known: &[&'a str]) -> Option<&'a str> {
+    known
+        .iter()
+        .map(|k| (edit_distance(&found.to_lowercase(), &k.to_lowercase()), *k))
+        .filter(|&(d, k)| d <= 2.max(k.len() / 3))
+        .min_by_key(|&(d, _)| d)
+        .map(|(_, k)| k)
+}
+
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut diagonal = row[0];
+        row[0] = i + 1;
+        for (j, &cb) in b.iter().enumerate() {
+            let substitute = diagonal + usize::from(ca != cb);
+            diagonal = row[j + 1];
+            row[j + 1] = substitute.min(row[j] + 1).min(diagonal + 1);
+        }
+    }
+    row[b.len()]
+}
+
+/// Every `*.ron` file directly in `dir`, sorted, with its description (the first line of
+/// a failed parse is reported in place of a description).
+pub fn list_scenes(dir: &Path) -> Result<Vec<(PathBuf, String)>, String> {
+    let entries = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let mut files: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "ron"))
+        .collect();
+    files.sort();
+    Ok(files
+        .into_iter()
+        .map(|p| {
+            let description = match std::fs::read_to_string(&p) {
+                Ok(text) => match parse(&p, &text) {
+                    Ok(scene) => scene.description,
+                    Err(e) => format!("(invalid: {e})"),
+                },
+                Err(e) => format!("(unreadable: {e})"),
+            };
+            (p, description)
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn suggests_the_nearest_name() {
+        assert_eq!(
+            nearest("skeletn", &["name", "skeleton", "pose"]),
+            Some("skeleton")
+        );
+        assert_eq!(nearest("Fkk", &["Fk", "Ik"]), Some("Fk"));
+        assert_eq!(nearest("zzzzzz", &["name", "skeleton"]), None);
+        assert_eq!(edit_distance("kitten", "sitting"), 3);
+    }
+
+    #[test]
+    fn syntax_errors_have_line_and_column() {
+        let err = parse(
+            Path::new("x.ron"),
+            "Scene(\n  description: \"d\",\n  tasks: [ Fk( ],\n)",
+        )
+        .unwrap_err();
+        let text = err.to_string();
+        assert!(text.starts_with("x.ron:3:"), "{text}");
+    }
+
+    #[test]
+    fn unknown_fields_suggest_the_nearest() {
+        let err = parse(Path::new("x.ron"), "Scene(descripton: \"d\", tasks: [])").unwrap_err();
+        let text = err.to_string();
+        assert!(text.contains("did you mean `description`"), "{text}");
+    }
+}

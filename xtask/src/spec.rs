@@ -1,0 +1,114 @@
+//! Scene-file descriptions shared by several task kinds: skeletons and joint rotations.
+//! They build the library types and check every value on the way, naming the item.
+
+use serde::Deserialize;
+use sinew_math::{DQuat, DVec3, try_unit};
+use sinew_skeleton::{JointDef, Pose, Skeleton};
+
+/// A skeleton in a scene.
+#[derive(Debug, Deserialize)]
+pub enum SkeletonSpec {
+    /// A serial chain: the root at `root`, then `bones` bones of `length` along `direction`.
+    Chain {
+        /// Root position (default the origin).
+        #[serde(default)]
+        root: DVec3,
+        /// Number of bones (joints minus one).
+        bones: usize,
+        /// Length of every bone.
+        length: f64,
+        /// Direction of every bone's rest offset (default +x).
+        #[serde(default = "default_direction")]
+        direction: DVec3,
+    },
+    /// Explicit joints in topological order.
+    Joints(Vec<JointDef>),
+}
+
+fn default_direction() -> DVec3 {
+    DVec3::X
+}
+
+/// The most joints a scene may ask for (a bound so a typo cannot exhaust memory).
+pub const MAX_JOINTS: usize = 1_000_000;
+
+impl SkeletonSpec {
+    /// Builds the skeleton, or says which item is wrong.
+    pub fn build(&self) -> Result<Skeleton, String> {
+        match self {
+            Self::Chain {
+                root,
+                bones,
+                length,
+                direction,
+            } => {
+                if *bones >= MAX_JOINTS {
+                    return Err(format!(
+                        "skeleton: bones = {bones}, at most {} allowed",
+                        MAX_JOINTS - 1
+                    ));
+                }
+                if !(length.is_finite() && *length >= 0.0) {
+                    return Err(format!(
+                        "skeleton: length = {length}, must be finite and >= 0"
+                    ));
+                }
+                let Some(dir) = try_unit(*direction) else {
+                    return Err(format!(
+                        "skeleton: direction = {direction} has no direction (zero or NaN)"
+                    ));
+                };
+                Skeleton::chain(*root, &vec![dir * *length; *bones])
+                    .map_err(|e| format!("skeleton: {e}"))
+            }
+            Self::Joints(joints) => {
+                if joints.len() > MAX_JOINTS {
+                    return Err(format!(
+                        "skeleton: {} joints, at most {MAX_JOINTS} allowed",
+                        joints.len()
+                    ));
+                }
+                Skeleton::new(joints.iter().cloned()).map_err(|e| format!("skeleton: {e}"))
+            }
+        }
+    }
+}
+
+/// A rotation of one joint, given as an axis and an angle in degrees. Several entries for
+/// one joint compose in order (each later one applied after the earlier ones).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JointRotation {
+    /// The joint index.
+    pub joint: usize,
+    /// The rotation axis (any length but zero), in the parent's frame.
+    pub axis: DVec3,
+    /// The angle in degrees (right-handed about the axis).
+    pub degrees: f64,
+}
+
+/// The pose given by `rotations` on `skeleton`: identity everywhere else.
+pub fn build_pose(skeleton: &Skeleton, rotations: &[JointRotation]) -> Result<Pose, String> {
+    let mut pose = skeleton.rest_pose();
+    for (k, r) in rotations.iter().enumerate() {
+        if r.joint >= skeleton.len() {
+            return Err(format!(
+                "pose[{k}]: joint {} is out of range (the skeleton has {} joints)",
+                r.joint,
+                skeleton.len()
+            ));
+        }
+        let Some(axis) = try_unit(r.axis) else {
+            return Err(format!(
+                "pose[{k}]: axis {} has no direction (zero or NaN)",
+                r.axis
+            ));
+        };
+        if !r.degrees.is_finite() {
+            return Err(format!("pose[{k}]: degrees = {} is not finite", r.degrees));
+        }
+        let q = DQuat::from_axis_angle(axis, r.degrees.to_radians());
+        pose.rotations[r.joint] = (q * pose.rotations[r.joint]).normalize();
+    }
+    Ok(pose)
+}

@@ -1,0 +1,70 @@
+//! Task kinds: each module holds one kind's scene fields ([`TaskSpec::validate`] checks
+//! them) and how to run it. A task returns its metrics (documented per kind in
+//! `docs/scenes.md`), a one-line headline for the summary table, and the checks it
+//! failed (expectations written in the scene).
+
+pub mod fk;
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Metrics of one task, written under `"metrics"` in `metrics.json`.
+pub type Metrics = serde_json::Map<String, serde_json::Value>;
+
+/// What the runner hands a task.
+pub struct RunContext {
+    /// The scene's output folder (exists when the task runs).
+    pub out_dir: PathBuf,
+}
+
+/// What a task produced.
+pub struct TaskOutput {
+    /// Metric keys and values.
+    pub metrics: Metrics,
+    /// A short human summary for the table.
+    pub headline: String,
+    /// Expectations written in the scene that did not hold; any makes the run fail.
+    pub failures: Vec<String>,
+}
+
+/// A task kind's behaviour.
+pub trait TaskSpec {
+    /// The task's name (unique in its scene).
+    fn name(&self) -> &str;
+    /// The task kind, as in the scene file (`Fk`, ...).
+    fn kind(&self) -> &'static str;
+    /// Checks every value; the message names the item and what is allowed.
+    fn validate(&self) -> Result<(), String>;
+    /// Runs the task.
+    fn run(&self, ctx: &RunContext) -> Result<TaskOutput, String>;
+}
+
+/// Median wall time in nanoseconds of `f`, over enough calls to fill about `budget_ms`
+/// (at least 5, at most 100 000).
+pub fn median_time_ns(budget_ms: f64, mut f: impl FnMut()) -> f64 {
+    let start = Instant::now();
+    f();
+    let first = start.elapsed().as_secs_f64();
+    let runs = ((budget_ms * 1e-3 / first.max(1e-9)) as usize).clamp(5, 100_000);
+    let mut times = Vec::with_capacity(runs);
+    for _ in 0..runs {
+        let t = Instant::now();
+        f();
+        times.push(t.elapsed().as_secs_f64() * 1e9);
+    }
+    median(&mut times)
+}
+
+/// The median of `values` (sorted in place); NaN for an empty slice.
+pub fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    if n % 2 == 1 {
+        values[n / 2]
+    } else {
+        0.5 * (values[n / 2 - 1] + values[n / 2])
+    }
+}
