@@ -10,6 +10,8 @@
 //!   [`Skeleton::forward_kinematics_from`] recomputes one joint and its descendants only.
 //! - [`ik`]: chains inside a skeleton, solve settings and reports, the closed-form answer
 //!   for a target out of reach, and the [`ik::IkSolver`] trait the solver crates implement.
+//! - [`track`]: trajectory tracking with any solver (warm starts, per-frame records,
+//!   continuity measure and the optional per-frame rotation limit, the lab's Q3).
 //!
 //! Forward kinematics follows the course lab exactly: a root joint takes its local
 //! rotation and offset as global; for a joint `i` with parent `p`,
@@ -19,6 +21,7 @@
 //! Architecture invariant: depends on sinew-math only (serde behind the `serde` feature).
 
 pub mod ik;
+pub mod track;
 
 use sinew_math::{DQuat, DVec3};
 use std::fmt;
