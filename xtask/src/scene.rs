@@ -26,6 +26,10 @@ pub struct Scene {
 pub enum Task {
     /// Forward kinematics of a skeleton in a given pose.
     Fk(tasks::fk::FkTask),
+    /// Inverse kinematics: a chain tracking targets with CCD or FABRIK.
+    Ik(tasks::ik::IkTask),
+    /// Points on a curve, uniform in parameter or evenly spaced by arc length.
+    Curve(tasks::curve::CurveTask),
 }
 
 impl Task {
@@ -33,6 +37,8 @@ impl Task {
     pub fn spec(&self) -> &dyn TaskSpec {
         match self {
             Task::Fk(t) => t,
+            Task::Ik(t) => t,
+            Task::Curve(t) => t,
         }
     }
 }

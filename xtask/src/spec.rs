@@ -112,3 +112,30 @@ pub fn build_pose(skeleton: &Skeleton, rotations: &[JointRotation]) -> Result<Po
     }
     Ok(pose)
 }
+
+/// The most points a sampling may ask for (a bound so a typo cannot exhaust memory).
+pub const MAX_SAMPLES: usize = 10_000_000;
+
+/// Builds `curve` and checks `sampling` against it, naming the bad field.
+pub fn build_sampled(
+    curve: &sinew_curves::CurveSpec,
+    sampling: &sinew_curves::Sampling,
+) -> Result<sinew_curves::Curve, String> {
+    use sinew_curves::Sampling;
+    let curve = curve.build().map_err(|e| format!("curve: {e}"))?;
+    match *sampling {
+        Sampling::Uniform { n } | Sampling::ArcLength { n, .. } if n > MAX_SAMPLES => {
+            return Err(format!("sampling: n = {n}, at most {MAX_SAMPLES} allowed"));
+        }
+        Sampling::ArcSpacing { spacing, .. } => {
+            let length = curve.exact_length().unwrap_or(0.0);
+            if spacing > 0.0 && length / spacing > MAX_SAMPLES as f64 {
+                return Err(format!(
+                    "sampling: spacing = {spacing} gives more than {MAX_SAMPLES} points"
+                ));
+            }
+        }
+        _ => {}
+    }
+    Ok(curve)
+}

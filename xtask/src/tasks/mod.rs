@@ -3,7 +3,9 @@
 //! `docs/scenes.md`), a one-line headline for the summary table, and the checks it
 //! failed (expectations written in the scene).
 
+pub mod curve;
 pub mod fk;
+pub mod ik;
 
 use std::path::PathBuf;
 use std::time::Instant;

@@ -1,0 +1,319 @@
+//! The `Ik` task: a chain tracks a target (a point, a list of points, or a sampled
+//! curve) with CCD or FABRIK, each frame warm-started from the previous one, through the
+//! shared tracker (`sinew_skeleton::track`). Covers the lab's W1 flower, Q1 (a target out
+//! of reach), Q2 (a low iteration cap) and Q3 (a per-frame rotation limit).
+
+use super::{Metrics, RunContext, TaskOutput, TaskSpec, median};
+use crate::spec::{SkeletonSpec, build_sampled};
+use serde::Deserialize;
+use serde_json::json;
+use sinew_curves::{CurveSpec, Sampling};
+use sinew_ik_ccd::CcdSolver;
+use sinew_ik_fabrik::{FabrikOptions, FabrikSolver};
+use sinew_math::{DVec3, angle_between};
+use sinew_skeleton::ik::{Chain, IkSolver, SolveSettings, StopReason};
+use sinew_skeleton::track::{TrackSettings, Tracker};
+use sinew_skeleton::{GlobalPose, Skeleton};
+use std::time::Instant;
+
+/// Scene fields of an `Ik` task.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IkTask {
+    /// Unique name in the scene.
+    pub name: String,
+    /// The skeleton.
+    pub skeleton: SkeletonSpec,
+    /// The chain inside it (default: joint 0 to the last joint).
+    #[serde(default)]
+    pub chain: Option<ChainSpec>,
+    /// The solver.
+    pub solver: SolverSpec,
+    /// Iteration cap and tolerance (default 100 and 1e-6).
+    #[serde(default)]
+    pub settings: SolveSettings,
+    /// The lab's Q3: the largest local rotation change of any joint between frames, in
+    /// radians; a frame that jumps more is clamped to it (default: no limit).
+    #[serde(default)]
+    pub max_rotation_change: Option<f64>,
+    /// What to track.
+    pub target: TargetSpec,
+    /// Fail the task if the largest final error of a frame exceeds this.
+    #[serde(default)]
+    pub expect_error_max: Option<f64>,
+}
+
+/// The chain's ends.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChainSpec {
+    /// The base joint (its position does not move).
+    pub base: usize,
+    /// The effector joint.
+    pub effector: usize,
+}
+
+/// The solver and its options.
+#[derive(Debug, Deserialize)]
+pub enum SolverSpec {
+    /// Cyclic coordinate descent; `extrapolation` (default true) turns on the sweep
+    /// extrapolation, `false` gives plain CCD.
+    Ccd {
+        /// Sweep extrapolation (default true).
+        #[serde(default = "yes")]
+        extrapolation: bool,
+    },
+    /// FABRIK; `mode: hybrid` (default) or `plain`.
+    Fabrik(#[serde(default)] FabrikOptions),
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// The targets, one per frame.
+#[derive(Debug, Deserialize)]
+pub enum TargetSpec {
+    /// One target, one frame.
+    Point(DVec3),
+    /// A list of targets, one per frame.
+    Points(Vec<DVec3>),
+    /// Points on a curve, one per frame.
+    Curve {
+        /// The curve.
+        curve: CurveSpec,
+        /// How to take the points.
+        sampling: Sampling,
+    },
+}
+
+impl TargetSpec {
+    fn points(&self) -> Result<Vec<DVec3>, String> {
+        let points = match self {
+            Self::Point(p) => vec![*p],
+            Self::Points(ps) => ps.clone(),
+            Self::Curve { curve, sampling } => {
+                let curve = build_sampled(curve, sampling).map_err(|e| format!("target: {e}"))?;
+                curve
+                    .sample(sampling)
+                    .map_err(|e| format!("target: sampling: {e}"))?
+                    .points
+            }
+        };
+        if points.is_empty() {
+            return Err("target: no points".into());
+        }
+        if let Some(k) = points.iter().position(|p| !p.is_finite()) {
+            return Err(format!("target: point {k} ({}) is not finite", points[k]));
+        }
+        Ok(points)
+    }
+}
+
+/// Everything an `Ik` task runs with, built from its fields.
+struct Built {
+    skeleton: Skeleton,
+    chain: Chain,
+    solver: Box<dyn IkSolver>,
+    tracker: Tracker,
+    targets: Vec<DVec3>,
+}
+
+impl IkTask {
+    fn build(&self) -> Result<Built, String> {
+        let skeleton = self.skeleton.build()?;
+        let chain = match &self.chain {
+            None => Chain::whole(&skeleton),
+            Some(c) => Chain::new(&skeleton, c.base, c.effector),
+        }
+        .map_err(|e| format!("chain: {e}"))?;
+        let solver: Box<dyn IkSolver> = match &self.solver {
+            SolverSpec::Ccd { extrapolation } => {
+                Box::new(CcdSolver::new().with_extrapolation(*extrapolation))
+            }
+            SolverSpec::Fabrik(options) => {
+                Box::new(FabrikSolver::with_options(*options).map_err(|e| format!("solver: {e}"))?)
+            }
+        };
+        let tracker = Tracker::new(TrackSettings {
+            solve: self.settings,
+            max_rotation_change: self.max_rotation_change,
+        })
+        .map_err(|e| format!("settings: {e}"))?;
+        let targets = self.target.points()?;
+        Ok(Built {
+            skeleton,
+            chain,
+            solver,
+            tracker,
+            targets,
+        })
+    }
+}
+
+impl TaskSpec for IkTask {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn kind(&self) -> &'static str {
+        "Ik"
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        self.build()?;
+        if let Some(x) = self.expect_error_max
+            && !(x.is_finite() && x >= 0.0)
+        {
+            return Err(format!("expect_error_max = {x}, must be finite and >= 0"));
+        }
+        Ok(())
+    }
+
+    fn run(&self, ctx: &RunContext) -> Result<TaskOutput, String> {
+        let Built {
+            skeleton,
+            chain,
+            mut solver,
+            mut tracker,
+            targets,
+        } = self.build()?;
+        tracker.reserve(targets.len());
+        let mut pose = skeleton.rest_pose();
+        let mut global = GlobalPose::new();
+        skeleton
+            .forward_kinematics(&pose, &mut global)
+            .map_err(|e| e.to_string())?;
+        let mut frame_ns = Vec::with_capacity(targets.len());
+        for &target in &targets {
+            let start = Instant::now();
+            tracker
+                .step(
+                    solver.as_mut(),
+                    &skeleton,
+                    &chain,
+                    &mut pose,
+                    &mut global,
+                    target,
+                )
+                .map_err(|e| e.to_string())?;
+            frame_ns.push(start.elapsed().as_secs_f64() * 1e9);
+        }
+        let summary = tracker.summary();
+        let records = tracker.records();
+
+        let mut csv = String::from(
+            "frame,target_x,target_y,target_z,error,iterations,stop,rotation_change,clamped\n",
+        );
+        for (i, r) in records.iter().enumerate() {
+            csv.push_str(&format!(
+                "{i},{},{},{},{},{},{},{},{}\n",
+                r.target.x,
+                r.target.y,
+                r.target.z,
+                r.error,
+                r.iterations,
+                r.stop,
+                r.rotation_change,
+                r.clamped
+            ));
+        }
+        let csv_path = ctx.out_dir.join(format!("{}.frames.csv", self.name));
+        std::fs::write(&csv_path, csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+
+        let out_of_reach = records
+            .iter()
+            .filter(|r| r.stop == StopReason::OutOfReach)
+            .count();
+        // The final pose's shape: the largest angle between consecutive bones (0 for a
+        // straight chain), and for a target out of reach how far the error is from the
+        // least possible, distance - reach (0 for the closed-form answer).
+        let joints = chain.joints();
+        let bend_max = joints
+            .windows(3)
+            .map(|w| {
+                let a = global.positions[w[1]] - global.positions[w[0]];
+                let b = global.positions[w[2]] - global.positions[w[1]];
+                angle_between(a, b)
+            })
+            .fold(0.0, f64::max);
+        let last = targets[targets.len() - 1];
+        let distance = global.positions[chain.base()].distance(last);
+        let closed_form_gap = (distance >= chain.reach())
+            .then(|| records[records.len() - 1].error - (distance - chain.reach()));
+        let mut failures = Vec::new();
+        if let Some(limit) = self.expect_error_max
+            && summary.error_max > limit
+        {
+            failures.push(format!(
+                "largest frame error {:.3e} > expected at most {limit:.1e}",
+                summary.error_max
+            ));
+        }
+        // Bone lengths are an invariant of every solver: check them always, relative
+        // to the chain's reach (positions carry round-off of their own size).
+        let scale = chain
+            .reach()
+            .max(global.positions[chain.base()].length())
+            .max(1.0);
+        if summary.bone_length_error_max > 1e-12 * scale {
+            failures.push(format!(
+                "bone length error {:.3e} exceeds 1e-12 of the chain's scale",
+                summary.bone_length_error_max
+            ));
+        }
+        let mut metrics = Metrics::new();
+        metrics.insert("solver".into(), json!(solver_label(&self.solver)));
+        metrics.insert("frames".into(), json!(summary.frames));
+        metrics.insert("error_mean".into(), json!(summary.error_mean));
+        metrics.insert("error_max".into(), json!(summary.error_max));
+        metrics.insert("iterations_total".into(), json!(summary.iterations_total));
+        metrics.insert("converged_frames".into(), json!(summary.converged_frames));
+        metrics.insert("out_of_reach_frames".into(), json!(out_of_reach));
+        metrics.insert("clamped_frames".into(), json!(summary.clamped_frames));
+        metrics.insert(
+            "bone_length_error_max".into(),
+            json!(summary.bone_length_error_max),
+        );
+        metrics.insert(
+            "rotation_jump_max_rad".into(),
+            json!(summary.rotation_jump_max_rad),
+        );
+        metrics.insert(
+            "time_per_frame_ns_median".into(),
+            json!(median(&mut frame_ns)),
+        );
+        metrics.insert("final_bend_max_rad".into(), json!(bend_max));
+        metrics.insert("closed_form_gap".into(), json!(closed_form_gap));
+        let headline = format!(
+            "{} {} frames: error mean {:.1e} max {:.1e}, {}/{} within tol, {} iterations",
+            solver_label(&self.solver),
+            summary.frames,
+            summary.error_mean,
+            summary.error_max,
+            summary.converged_frames,
+            summary.frames,
+            summary.iterations_total
+        );
+        Ok(TaskOutput {
+            metrics,
+            headline,
+            failures,
+        })
+    }
+}
+
+fn solver_label(s: &SolverSpec) -> &'static str {
+    match s {
+        SolverSpec::Ccd {
+            extrapolation: true,
+        } => "ccd",
+        SolverSpec::Ccd {
+            extrapolation: false,
+        } => "ccd-plain",
+        SolverSpec::Fabrik(o) => match o.mode {
+            sinew_ik_fabrik::FabrikMode::Hybrid => "fabrik",
+            sinew_ik_fabrik::FabrikMode::Plain => "fabrik-plain",
+        },
+    }
+}
