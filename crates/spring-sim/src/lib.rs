@@ -1,1 +1,53 @@
-//! sinew-spring-sim: filled by its own issue; the crate builds empty until then.
+//! sinew-spring-sim: mass-spring systems (the lab cloth, ropes, your own) integrated by
+//! backward Euler solved as a minimization with Newton's method on a sparse Hessian
+//! (faer), and, for comparison, by explicit symplectic Euler and by the lab report's
+//! flawed method.
+//!
+//! - [`model`]: particles, springs, material, validation with errors naming the item,
+//!   builders ([`ClothGrid`] for WORKLOADS.md W4-W6, [`Rope`]).
+//! - [`spring`]: per-spring energy, gradient, exact Hessian block and its PSD projection.
+//! - [`newton`]: [`BackwardEuler`], Newton with Armijo backtracking on the incremental
+//!   potential over the free particles, stopping at `|grad g|_inf <= tol m_min / h^2`.
+//! - [`linear`]: the sparse Cholesky (symbolic once per topology) and block-Jacobi PCG
+//!   solvers behind one choice, [`LinearSolverChoice`].
+//! - [`integrator`]: [`Simulation`] and [`Integrator`], the one stepping call for every
+//!   integrator; [`report`]: [`StepReport`].
+//! - [`explicit`], [`mod@reference`]: comparison integrators.
+//! - [`metrics`]: [`metrics::run`], a whole run with the metrics scene runners print.
+//!
+//! Linear solver choice (`Auto`): the first step uses PCG, the second the direct solve;
+//! from then on each step uses the one with the smaller measured time per step (the
+//! smallest of its last 8 step times), and the other is timed again after
+//! `reprobe_interval` steps so a change of regime is noticed.
+//!
+//! ```
+//! use sinew_spring_sim::{ClothGrid, Integrator, Simulation, SpringSystem};
+//! let cloth = SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap();
+//! let mut sim = Simulation::new(cloth, Integrator::default()).unwrap();
+//! let report = sim.step(1.0 / 60.0).unwrap();
+//! assert!(report.residual <= report.tolerance);
+//! ```
+//!
+//! Derivations: docs/spring-sim.md. Measurements: docs/bench/spring-sim.md.
+
+pub mod explicit;
+pub mod integrator;
+pub mod linear;
+pub mod metrics;
+pub mod model;
+pub mod newton;
+mod pattern;
+pub mod reference;
+pub mod report;
+pub mod spring;
+
+pub use explicit::SymplecticEuler;
+pub use integrator::{Integrator, Simulation};
+pub use linear::{FactorStructure, LinearSolverChoice, LinearSolverKind};
+pub use metrics::{RunMetrics, run};
+pub use model::{
+    ClothGrid, Energies, Material, ModelError, Particle, Rope, Spring, SpringSpec, SpringSystem,
+};
+pub use newton::{BackwardEuler, InitialGuess, NewtonSettings};
+pub use pattern::HessianPattern;
+pub use report::{IntegratorKind, StepError, StepReport, StopReason};

@@ -1,0 +1,376 @@
+//! Linear solvers for the Newton system `H dx = -grad g`, behind one interface.
+//!
+//! - [`DirectSolver`]: faer's sparse Cholesky through the low-level API, with the
+//!   symbolic factorization (AMD ordering, simplicial or supernodal structure) computed
+//!   once per topology and the factor values and workspaces allocated once and reused.
+//!   A failed factorization is retried on `H + sigma I` with a growing shift; the shifts
+//!   are counted for the step report.
+//! - [`PcgSolver`]: conjugate gradients preconditioned by the inverse 3x3 diagonal blocks
+//!   (block Jacobi), to a relative residual, on the same assembled matrix.
+//!
+//! Which one a step uses is decided by the integrator (see `LinearSolverChoice`).
+
+use crate::pattern::HessianPattern;
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::sparse::linalg::SupernodalThreshold;
+use faer::sparse::linalg::cholesky::{
+    CholeskySymbolicParams, SymbolicCholesky, SymbolicCholeskyRaw, SymmetricOrdering,
+    factorize_symbolic_cholesky,
+};
+use faer::{Conj, MatMut, Par, Side};
+use sinew_math::{DMat3, DVec3};
+
+/// Which linear solver the Newton iterations use.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum LinearSolverChoice {
+    /// Sparse Cholesky every Newton iteration.
+    Direct,
+    /// Block-Jacobi preconditioned conjugate gradients.
+    Pcg,
+    /// Chosen per step from the measured time per step of each (see the crate docs).
+    #[default]
+    Auto,
+}
+
+/// The solver a step actually used.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum LinearSolverKind {
+    /// Sparse Cholesky.
+    Direct,
+    /// Preconditioned conjugate gradients.
+    Pcg,
+}
+
+impl LinearSolverKind {
+    /// A short name for reports.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Direct => "direct",
+            Self::Pcg => "pcg",
+        }
+    }
+}
+
+/// Which factorization structure the direct solver uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum FactorStructure {
+    /// Supernodal (measured faster here on every lab-cloth size, see
+    /// /work/shared/FAER-NOTES.md and docs/bench/spring-sim.md).
+    #[default]
+    Supernodal,
+    /// Simplicial.
+    Simplicial,
+    /// faer's own flop-ratio rule.
+    FaerAuto,
+}
+
+/// What one direct solve did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DirectOutcome {
+    /// How many shifted retries were needed (0: the matrix factored as is).
+    pub shifts: usize,
+    /// Whether every factorization failed (the right-hand side is then untouched).
+    pub failed: bool,
+}
+
+/// Sparse Cholesky with a symbolic factorization built once and reused buffers.
+pub struct DirectSolver {
+    symbolic: SymbolicCholesky<usize>,
+    factor_values: Vec<f64>,
+    shifted_values: Vec<f64>,
+    factor_work: MemBuffer,
+    solve_work: MemBuffer,
+}
+
+impl std::fmt::Debug for DirectSolver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // faer's work buffers have no Debug; show the sizes that matter.
+        f.debug_struct("DirectSolver")
+            .field("supernodal", &self.is_supernodal())
+            .field("factor_len", &self.factor_values.len())
+            .finish_non_exhaustive()
+    }
+}
+
+impl DirectSolver {
+    /// The symbolic factorization of `pattern`'s matrix with the given structure.
+    pub fn new(pattern: &HessianPattern, structure: FactorStructure) -> Result<Self, String> {
+        let threshold = match structure {
+            FactorStructure::Supernodal => SupernodalThreshold::FORCE_SUPERNODAL,
+            FactorStructure::Simplicial => SupernodalThreshold::FORCE_SIMPLICIAL,
+            FactorStructure::FaerAuto => SupernodalThreshold::AUTO,
+        };
+        let params = CholeskySymbolicParams {
+            supernodal_flop_ratio_threshold: threshold,
+            ..Default::default()
+        };
+        let symbolic = factorize_symbolic_cholesky(
+            pattern.symbolic.as_ref(),
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            params,
+        )
+        .map_err(|e| format!("symbolic Cholesky factorization failed: {e:?}"))?;
+        let factor_values = vec![0.0; symbolic.len_val()];
+        let factor_work = MemBuffer::new(
+            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+        );
+        let solve_work = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
+        Ok(Self {
+            symbolic,
+            factor_values,
+            shifted_values: vec![0.0; pattern.nnz()],
+            factor_work,
+            solve_work,
+        })
+    }
+
+    /// Whether the factorization is supernodal.
+    #[must_use]
+    pub fn is_supernodal(&self) -> bool {
+        matches!(self.symbolic.raw(), SymbolicCholeskyRaw::Supernodal(_))
+    }
+
+    /// Number of stored factor entries.
+    #[must_use]
+    pub fn factor_len(&self) -> usize {
+        self.factor_values.len()
+    }
+
+    /// Factors the matrix (lower triangle `values` on `pattern`) and only that, for
+    /// benchmarks of the numeric factorization. Returns whether it succeeded.
+    pub fn factor_only(&mut self, pattern: &HessianPattern, values: &[f64]) -> bool {
+        let stack = MemStack::new(&mut self.factor_work);
+        self.symbolic
+            .factorize_numeric_llt(
+                &mut self.factor_values,
+                pattern.matrix(values),
+                Side::Lower,
+                LltRegularization::default(),
+                Par::Seq,
+                stack,
+                Default::default(),
+            )
+            .is_ok()
+    }
+
+    /// Solves `A x = rhs` in place if `A` factors as it is; returns false (and leaves
+    /// `rhs` untouched) when it is not numerically positive definite.
+    pub fn solve_unshifted(
+        &mut self,
+        pattern: &HessianPattern,
+        values: &[f64],
+        rhs: &mut [f64],
+    ) -> bool {
+        let stack = MemStack::new(&mut self.factor_work);
+        let Ok(llt) = self.symbolic.factorize_numeric_llt(
+            &mut self.factor_values,
+            pattern.matrix(values),
+            Side::Lower,
+            LltRegularization::default(),
+            Par::Seq,
+            stack,
+            Default::default(),
+        ) else {
+            return false;
+        };
+        let stack = MemStack::new(&mut self.solve_work);
+        let n = rhs.len();
+        llt.solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(rhs, n, 1),
+            Par::Seq,
+            stack,
+        );
+        true
+    }
+
+    /// Solves `A x = rhs` in place. On a failed factorization, retries with
+    /// `A + sigma I`, sigma starting at `1e-10` times the largest diagonal entry and
+    /// growing 1000-fold, at most four times.
+    pub fn solve(
+        &mut self,
+        pattern: &HessianPattern,
+        values: &[f64],
+        rhs: &mut [f64],
+    ) -> DirectOutcome {
+        let mut outcome = DirectOutcome::default();
+        let max_diag = pattern
+            .diag_slots
+            .iter()
+            .flat_map(|s| [s[0], s[3], s[5]])
+            .map(|k| values[k].abs())
+            .fold(0.0, f64::max);
+        let mut sigma = 1e-10 * max_diag.max(f64::MIN_POSITIVE);
+        loop {
+            let matrix_values: &[f64] = if outcome.shifts == 0 {
+                values
+            } else {
+                self.shifted_values.copy_from_slice(values);
+                for s in &pattern.diag_slots {
+                    for k in [s[0], s[3], s[5]] {
+                        self.shifted_values[k] += sigma;
+                    }
+                }
+                sigma *= 1e3;
+                &self.shifted_values
+            };
+            let stack = MemStack::new(&mut self.factor_work);
+            let factored = self.symbolic.factorize_numeric_llt(
+                &mut self.factor_values,
+                pattern.matrix(matrix_values),
+                Side::Lower,
+                LltRegularization::default(),
+                Par::Seq,
+                stack,
+                Default::default(),
+            );
+            match factored {
+                Ok(llt) => {
+                    let stack = MemStack::new(&mut self.solve_work);
+                    let n = rhs.len();
+                    llt.solve_in_place_with_conj(
+                        Conj::No,
+                        MatMut::from_column_major_slice_mut(rhs, n, 1),
+                        Par::Seq,
+                        stack,
+                    );
+                    return outcome;
+                }
+                Err(_) if outcome.shifts < 4 => outcome.shifts += 1,
+                Err(_) => {
+                    outcome.failed = true;
+                    return outcome;
+                }
+            }
+        }
+    }
+}
+
+/// What one PCG solve did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PcgOutcome {
+    /// CG iterations.
+    pub iterations: usize,
+    /// Final `|r| / |b|` (Euclidean).
+    pub relative_residual: f64,
+    /// Whether a search direction of non-positive curvature was met (the matrix is not
+    /// positive definite); the iterate before it is returned.
+    pub negative_curvature: bool,
+}
+
+/// Block-Jacobi preconditioned conjugate gradients with owned buffers.
+#[derive(Debug, Default)]
+pub struct PcgSolver {
+    inverse_blocks: Vec<DMat3>,
+    r: Vec<f64>,
+    z: Vec<f64>,
+    p: Vec<f64>,
+    ap: Vec<f64>,
+}
+
+impl PcgSolver {
+    /// Buffers for `pattern`'s dimension.
+    #[must_use]
+    pub fn new(pattern: &HessianPattern) -> Self {
+        let n = pattern.dim();
+        Self {
+            inverse_blocks: vec![DMat3::IDENTITY; n / 3],
+            r: vec![0.0; n],
+            z: vec![0.0; n],
+            p: vec![0.0; n],
+            ap: vec![0.0; n],
+        }
+    }
+
+    fn precondition(&self, r: &[f64], z: &mut [f64]) {
+        for (f, inv) in self.inverse_blocks.iter().enumerate() {
+            let v = inv.mul_vec3(DVec3::new(r[3 * f], r[3 * f + 1], r[3 * f + 2]));
+            z[3 * f] = v.x;
+            z[3 * f + 1] = v.y;
+            z[3 * f + 2] = v.z;
+        }
+    }
+
+    /// Solves `A x = b` to `|b - A x| <= rtol |b|` or `max_iterations`, starting from the
+    /// `x` given (a warm start; zeros for none).
+    pub fn solve(
+        &mut self,
+        pattern: &HessianPattern,
+        values: &[f64],
+        b: &[f64],
+        x: &mut [f64],
+        rtol: f64,
+        max_iterations: usize,
+    ) -> PcgOutcome {
+        for (f, inv) in self.inverse_blocks.iter_mut().enumerate() {
+            let block = pattern.diag_block(values, f);
+            // The diagonal blocks of an SPD matrix are SPD; the guard keeps a NaN out if
+            // a caller passes something else.
+            let d = block.determinant();
+            *inv = if d.is_finite() && d > 0.0 {
+                block.inverse()
+            } else {
+                DMat3::IDENTITY
+            };
+        }
+        let b_norm = dot(b, b).sqrt();
+        if b_norm == 0.0 {
+            x.fill(0.0);
+            return PcgOutcome::default();
+        }
+        pattern.sym_matvec(values, x, &mut self.ap);
+        for ((r, b), ap) in self.r.iter_mut().zip(b).zip(&self.ap) {
+            *r = b - ap;
+        }
+        let mut r_norm = dot(&self.r, &self.r).sqrt();
+        let mut z = std::mem::take(&mut self.z);
+        self.precondition(&self.r, &mut z);
+        self.z = z;
+        self.p.copy_from_slice(&self.z);
+        let mut rz = dot(&self.r, &self.z);
+        let mut iterations = 0;
+        let mut negative_curvature = false;
+        while r_norm > rtol * b_norm && iterations < max_iterations {
+            pattern.sym_matvec(values, &self.p, &mut self.ap);
+            let pap = dot(&self.p, &self.ap);
+            // NaN counts as non-positive curvature too.
+            if pap.is_nan() || pap <= 0.0 {
+                negative_curvature = true;
+                break;
+            }
+            let alpha = rz / pap;
+            for (((x, r), p), ap) in x.iter_mut().zip(&mut self.r).zip(&self.p).zip(&self.ap) {
+                *x += alpha * p;
+                *r -= alpha * ap;
+            }
+            iterations += 1;
+            r_norm = dot(&self.r, &self.r).sqrt();
+            let mut z = std::mem::take(&mut self.z);
+            self.precondition(&self.r, &mut z);
+            self.z = z;
+            let rz_new = dot(&self.r, &self.z);
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for (p, z) in self.p.iter_mut().zip(&self.z) {
+                *p = z + beta * *p;
+            }
+        }
+        PcgOutcome {
+            iterations,
+            relative_residual: r_norm / b_norm,
+            negative_curvature,
+        }
+    }
+}
+
+/// Euclidean dot product.
+#[must_use]
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}

@@ -1,0 +1,773 @@
+//! The mass-spring model: particles, springs, material, their validation, and the
+//! builders (the lab cloth of WORKLOADS.md W4, a rope, and a user's own particles and
+//! springs).
+//!
+//! Every constructor validates its input and returns a [`ModelError`] that names the
+//! offending item (particle index, spring index, field) instead of panicking or letting a
+//! NaN reach the integrators. Duplicate springs (the same unordered pair twice) are
+//! rejected: they would only be a second spring in parallel, which a user writes as one
+//! spring with the summed stiffness, and a duplicate is far more often a builder bug.
+
+use sinew_math::DVec3;
+use std::fmt;
+
+/// One particle: its state and mass, and whether it is fixed in place.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct Particle {
+    /// Position in scene units.
+    pub position: DVec3,
+    /// Velocity in scene units per second.
+    pub velocity: DVec3,
+    /// Mass; must be positive and finite (a fixed particle still needs one, for the
+    /// energy report and the stopping rule's scale is taken over free particles only).
+    pub mass: f64,
+    /// A fixed particle never moves: it is removed from the unknowns of the implicit
+    /// solve and skipped by the explicit integrators.
+    pub fixed: bool,
+}
+
+impl Particle {
+    /// A free particle at rest at `position` with mass `mass`.
+    #[must_use]
+    pub fn at_rest(position: DVec3, mass: f64) -> Self {
+        Self {
+            position,
+            velocity: DVec3::ZERO,
+            mass,
+            fixed: false,
+        }
+    }
+}
+
+/// A spring as the user describes it: rest length and stiffness may be left to defaults.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct SpringSpec {
+    /// The two particle indices.
+    pub particles: [usize; 2],
+    /// Rest length; `None` means the initial distance between the two particles.
+    pub rest_length: Option<f64>,
+    /// Stiffness; `None` means [`Material::stiffness`].
+    pub stiffness: Option<f64>,
+}
+
+impl SpringSpec {
+    /// A spring between `a` and `b` with the initial distance as rest length and the
+    /// material's stiffness.
+    #[must_use]
+    pub fn between(a: usize, b: usize) -> Self {
+        Self {
+            particles: [a, b],
+            rest_length: None,
+            stiffness: None,
+        }
+    }
+}
+
+/// A resolved spring: energy `k/2 (|x_a - x_b| - L)^2`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct Spring {
+    /// First particle index.
+    pub a: usize,
+    /// Second particle index.
+    pub b: usize,
+    /// Rest length `L >= 0`.
+    pub rest_length: f64,
+    /// Stiffness `k >= 0`.
+    pub stiffness: f64,
+}
+
+/// Material constants shared by the whole system.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default))]
+pub struct Material {
+    /// Default spring stiffness, used by springs that do not give their own.
+    pub stiffness: f64,
+    /// Axial damping coefficient `c >= 0`: each spring exerts `-c (u . (v_a - v_b)) u` on
+    /// `a` (and the opposite on `b`), `u` its unit direction.
+    pub damping: f64,
+    /// Gravity acceleration (the lab: 0.3 along -y).
+    pub gravity: DVec3,
+}
+
+impl Default for Material {
+    /// The lab's material: stiffness 100, damping 0.2, gravity 0.3 along -y.
+    fn default() -> Self {
+        Self {
+            stiffness: 100.0,
+            damping: 0.2,
+            gravity: DVec3::new(0.0, -0.3, 0.0),
+        }
+    }
+}
+
+/// Invalid model or step input, naming the offending item.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ModelError {
+    /// A particle field is NaN or infinite.
+    NonFiniteParticle {
+        /// Particle index.
+        particle: usize,
+        /// The field: "position", "velocity" or "mass".
+        field: &'static str,
+    },
+    /// A particle's mass is zero or negative.
+    NonPositiveMass {
+        /// Particle index.
+        particle: usize,
+        /// The mass given.
+        mass: f64,
+    },
+    /// A spring refers to a particle that does not exist.
+    ParticleOutOfRange {
+        /// Spring index.
+        spring: usize,
+        /// The bad particle index.
+        particle: usize,
+        /// Number of particles.
+        len: usize,
+    },
+    /// A spring from a particle to itself.
+    SelfSpring {
+        /// Spring index.
+        spring: usize,
+        /// The particle.
+        particle: usize,
+    },
+    /// Two springs join the same unordered pair of particles.
+    DuplicateSpring {
+        /// Spring index of the second occurrence.
+        spring: usize,
+        /// Index of the first spring with the same pair.
+        first: usize,
+        /// The pair.
+        particles: [usize; 2],
+    },
+    /// A spring's stiffness is negative or not finite.
+    BadStiffness {
+        /// Spring index (`None`: the material's default stiffness).
+        spring: Option<usize>,
+        /// The value given.
+        value: f64,
+    },
+    /// A spring's rest length is negative or not finite.
+    BadRestLength {
+        /// Spring index.
+        spring: usize,
+        /// The value given.
+        value: f64,
+    },
+    /// A material field other than the stiffness is invalid (negative damping, NaN).
+    BadMaterial {
+        /// The field: "damping" or "gravity".
+        field: &'static str,
+    },
+    /// The time step is not positive and finite.
+    BadTimeStep {
+        /// The value given.
+        dt: f64,
+    },
+    /// A builder parameter is invalid.
+    BadParameter {
+        /// The parameter's name.
+        name: &'static str,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
+    /// A mismatch between a system and a workspace built for another topology.
+    TopologyMismatch,
+}
+
+impl fmt::Display for ModelError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::NonFiniteParticle { particle, field } => {
+                write!(f, "particle {particle}: {field} is not finite")
+            }
+            Self::NonPositiveMass { particle, mass } => {
+                write!(f, "particle {particle}: mass {mass} is not positive")
+            }
+            Self::ParticleOutOfRange {
+                spring,
+                particle,
+                len,
+            } => write!(
+                f,
+                "spring {spring}: particle index {particle} out of range (there are {len} particles)"
+            ),
+            Self::SelfSpring { spring, particle } => {
+                write!(f, "spring {spring}: joins particle {particle} to itself")
+            }
+            Self::DuplicateSpring {
+                spring,
+                first,
+                particles,
+            } => write!(
+                f,
+                "spring {spring}: duplicates spring {first} (particles {} and {}); duplicate springs are rejected",
+                particles[0], particles[1]
+            ),
+            Self::BadStiffness {
+                spring: Some(s),
+                value,
+            } => write!(f, "spring {s}: stiffness {value} is negative or not finite"),
+            Self::BadStiffness {
+                spring: None,
+                value,
+            } => write!(
+                f,
+                "material: default stiffness {value} is negative or not finite"
+            ),
+            Self::BadRestLength { spring, value } => write!(
+                f,
+                "spring {spring}: rest length {value} is negative or not finite"
+            ),
+            Self::BadMaterial { field } => {
+                write!(f, "material: {field} is negative or not finite")
+            }
+            Self::BadTimeStep { dt } => {
+                write!(f, "time step {dt} is not positive and finite")
+            }
+            Self::BadParameter { name, reason } => write!(f, "parameter {name}: {reason}"),
+            Self::TopologyMismatch => write!(
+                f,
+                "the system's particles, springs or fixed set differ from the ones the integrator was built for"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for ModelError {}
+
+/// Checks a time step: positive and finite.
+pub fn check_time_step(dt: f64) -> Result<(), ModelError> {
+    if dt.is_finite() && dt > 0.0 {
+        Ok(())
+    } else {
+        Err(ModelError::BadTimeStep { dt })
+    }
+}
+
+/// A validated mass-spring system: the state the integrators advance.
+///
+/// The topology (particle count, springs, fixed set) is fixed after construction; only
+/// positions and velocities change, so integrators can build their sparsity pattern once.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpringSystem {
+    positions: Vec<DVec3>,
+    velocities: Vec<DVec3>,
+    masses: Vec<f64>,
+    fixed: Vec<bool>,
+    springs: Vec<Spring>,
+    material: Material,
+}
+
+impl SpringSystem {
+    /// Validates and builds a system from the user's particles and springs.
+    pub fn new(
+        particles: &[Particle],
+        springs: &[SpringSpec],
+        material: Material,
+    ) -> Result<Self, ModelError> {
+        if !(material.stiffness.is_finite() && material.stiffness >= 0.0) {
+            return Err(ModelError::BadStiffness {
+                spring: None,
+                value: material.stiffness,
+            });
+        }
+        if !(material.damping.is_finite() && material.damping >= 0.0) {
+            return Err(ModelError::BadMaterial { field: "damping" });
+        }
+        if !material.gravity.is_finite() {
+            return Err(ModelError::BadMaterial { field: "gravity" });
+        }
+        for (i, p) in particles.iter().enumerate() {
+            if !p.position.is_finite() {
+                return Err(ModelError::NonFiniteParticle {
+                    particle: i,
+                    field: "position",
+                });
+            }
+            if !p.velocity.is_finite() {
+                return Err(ModelError::NonFiniteParticle {
+                    particle: i,
+                    field: "velocity",
+                });
+            }
+            if !p.mass.is_finite() {
+                return Err(ModelError::NonFiniteParticle {
+                    particle: i,
+                    field: "mass",
+                });
+            }
+            if p.mass <= 0.0 {
+                return Err(ModelError::NonPositiveMass {
+                    particle: i,
+                    mass: p.mass,
+                });
+            }
+        }
+        let n = particles.len();
+        let mut resolved = Vec::with_capacity(springs.len());
+        // First spring seen for each unordered pair, to reject duplicates with a name.
+        let mut seen = std::collections::HashMap::with_capacity(springs.len());
+        for (s, spec) in springs.iter().enumerate() {
+            let [a, b] = spec.particles;
+            for p in [a, b] {
+                if p >= n {
+                    return Err(ModelError::ParticleOutOfRange {
+                        spring: s,
+                        particle: p,
+                        len: n,
+                    });
+                }
+            }
+            if a == b {
+                return Err(ModelError::SelfSpring {
+                    spring: s,
+                    particle: a,
+                });
+            }
+            let key = (a.min(b), a.max(b));
+            if let Some(&first) = seen.get(&key) {
+                return Err(ModelError::DuplicateSpring {
+                    spring: s,
+                    first,
+                    particles: [a, b],
+                });
+            }
+            seen.insert(key, s);
+            let stiffness = spec.stiffness.unwrap_or(material.stiffness);
+            if !(stiffness.is_finite() && stiffness >= 0.0) {
+                return Err(ModelError::BadStiffness {
+                    spring: Some(s),
+                    value: stiffness,
+                });
+            }
+            let rest_length = spec
+                .rest_length
+                .unwrap_or_else(|| particles[a].position.distance(particles[b].position));
+            if !(rest_length.is_finite() && rest_length >= 0.0) {
+                return Err(ModelError::BadRestLength {
+                    spring: s,
+                    value: rest_length,
+                });
+            }
+            resolved.push(Spring {
+                a,
+                b,
+                rest_length,
+                stiffness,
+            });
+        }
+        Ok(Self {
+            positions: particles.iter().map(|p| p.position).collect(),
+            velocities: particles
+                .iter()
+                .map(|p| if p.fixed { DVec3::ZERO } else { p.velocity })
+                .collect(),
+            masses: particles.iter().map(|p| p.mass).collect(),
+            fixed: particles.iter().map(|p| p.fixed).collect(),
+            springs: resolved,
+            material,
+        })
+    }
+
+    /// The lab cloth (WORKLOADS.md W4 and its variants): see [`ClothGrid`].
+    pub fn cloth(grid: &ClothGrid) -> Result<Self, ModelError> {
+        grid.build()
+    }
+
+    /// A rope: see [`Rope`].
+    pub fn rope(rope: &Rope) -> Result<Self, ModelError> {
+        rope.build()
+    }
+
+    /// Number of particles.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    /// Whether there are no particles.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+
+    /// Particle positions.
+    #[must_use]
+    pub fn positions(&self) -> &[DVec3] {
+        &self.positions
+    }
+
+    /// Particle velocities (zero for fixed particles).
+    #[must_use]
+    pub fn velocities(&self) -> &[DVec3] {
+        &self.velocities
+    }
+
+    /// Particle masses.
+    #[must_use]
+    pub fn masses(&self) -> &[f64] {
+        &self.masses
+    }
+
+    /// Which particles are fixed.
+    #[must_use]
+    pub fn fixed(&self) -> &[bool] {
+        &self.fixed
+    }
+
+    /// The resolved springs.
+    #[must_use]
+    pub fn springs(&self) -> &[Spring] {
+        &self.springs
+    }
+
+    /// The material.
+    #[must_use]
+    pub fn material(&self) -> &Material {
+        &self.material
+    }
+
+    /// Sets the damping coefficient (a material change, not a topology change).
+    pub fn set_damping(&mut self, damping: f64) -> Result<(), ModelError> {
+        if !(damping.is_finite() && damping >= 0.0) {
+            return Err(ModelError::BadMaterial { field: "damping" });
+        }
+        self.material.damping = damping;
+        Ok(())
+    }
+
+    /// Replaces the whole state; lengths must match and every value be finite. Velocities
+    /// of fixed particles are stored as zero.
+    pub fn set_state(
+        &mut self,
+        positions: &[DVec3],
+        velocities: &[DVec3],
+    ) -> Result<(), ModelError> {
+        if positions.len() != self.len() || velocities.len() != self.len() {
+            return Err(ModelError::BadParameter {
+                name: "state",
+                reason: "length differs from the particle count",
+            });
+        }
+        for (i, (x, v)) in positions.iter().zip(velocities).enumerate() {
+            if !x.is_finite() {
+                return Err(ModelError::NonFiniteParticle {
+                    particle: i,
+                    field: "position",
+                });
+            }
+            if !v.is_finite() {
+                return Err(ModelError::NonFiniteParticle {
+                    particle: i,
+                    field: "velocity",
+                });
+            }
+        }
+        self.positions.copy_from_slice(positions);
+        for (i, v) in velocities.iter().enumerate() {
+            self.velocities[i] = if self.fixed[i] { DVec3::ZERO } else { *v };
+        }
+        Ok(())
+    }
+
+    /// Mutable access to positions and velocities together, for integrators in this crate.
+    pub(crate) fn state_mut(&mut self) -> (&mut [DVec3], &mut [DVec3]) {
+        (&mut self.positions, &mut self.velocities)
+    }
+
+    /// The mutable state next to the read-only model, for explicit integrators.
+    pub(crate) fn parts_mut(&mut self) -> StateAndModel<'_> {
+        StateAndModel {
+            positions: &mut self.positions,
+            velocities: &mut self.velocities,
+            masses: &self.masses,
+            fixed: &self.fixed,
+            springs: &self.springs,
+            material: &self.material,
+        }
+    }
+
+    /// Smallest mass over free particles (the scale of the stopping rule); 1 if none.
+    #[must_use]
+    pub fn min_free_mass(&self) -> f64 {
+        let m = self
+            .masses
+            .iter()
+            .zip(&self.fixed)
+            .filter(|(_, f)| !**f)
+            .map(|(m, _)| *m)
+            .fold(f64::INFINITY, f64::min);
+        if m.is_finite() { m } else { 1.0 }
+    }
+
+    /// The energies of the current state.
+    #[must_use]
+    pub fn energies(&self) -> Energies {
+        let kinetic = self
+            .masses
+            .iter()
+            .zip(&self.velocities)
+            .map(|(m, v)| 0.5 * m * v.length_squared())
+            .sum();
+        let spring = self
+            .springs
+            .iter()
+            .map(|s| {
+                crate::spring::energy(
+                    self.positions[s.a],
+                    self.positions[s.b],
+                    s.rest_length,
+                    s.stiffness,
+                )
+            })
+            .sum();
+        let gravity = self
+            .masses
+            .iter()
+            .zip(&self.positions)
+            .map(|(m, x)| -m * self.material.gravity.dot(*x))
+            .sum();
+        Energies {
+            kinetic,
+            spring,
+            gravity,
+        }
+    }
+
+    /// Whether two systems have the same topology (particle count, fixed set, spring
+    /// pairs), so an integrator workspace built for one fits the other.
+    #[must_use]
+    pub fn same_topology(&self, other: &Self) -> bool {
+        self.fixed == other.fixed
+            && self.springs.len() == other.springs.len()
+            && self
+                .springs
+                .iter()
+                .zip(&other.springs)
+                .all(|(s, t)| s.a == t.a && s.b == t.b)
+    }
+}
+
+/// Split borrows of a system: mutable state, read-only model.
+pub(crate) struct StateAndModel<'a> {
+    pub(crate) positions: &'a mut [DVec3],
+    pub(crate) velocities: &'a mut [DVec3],
+    pub(crate) masses: &'a [f64],
+    pub(crate) fixed: &'a [bool],
+    pub(crate) springs: &'a [Spring],
+    pub(crate) material: &'a Material,
+}
+
+/// Mechanical energies of a state.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct Energies {
+    /// `sum m |v|^2 / 2`.
+    pub kinetic: f64,
+    /// `sum k (l - L)^2 / 2`.
+    pub spring: f64,
+    /// `-sum m g . x` (zero at the origin).
+    pub gravity: f64,
+}
+
+impl Energies {
+    /// Kinetic + spring + gravity.
+    #[must_use]
+    pub fn total(&self) -> f64 {
+        self.kinetic + self.spring + self.gravity
+    }
+}
+
+/// The lab cloth on an `n x n` grid (WORKLOADS.md W4): particle `(i, j)` at
+/// `origin + (spacing i, 0, spacing j)`, index `i n + j`; springs from `(i, j)` to
+/// `(i-1, j)`, `(i-2, j)`, `(i, j-1)`, `(i, j-2)`, `(i-1, j-1)`, `(i-1, j+1)` where they
+/// exist (structural, bending skip-one, shear), rest length = initial distance.
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default))]
+pub struct ClothGrid {
+    /// Particles per side (the lab: 11).
+    pub size: usize,
+    /// Grid spacing (the lab: 0.2).
+    pub spacing: f64,
+    /// Position of particle (0, 0) (the lab: (0, 1.5, -1)).
+    pub origin: DVec3,
+    /// Mass per particle.
+    pub mass: f64,
+    /// Material (stiffness of every spring, damping, gravity).
+    pub material: Material,
+    /// Fixed particles as grid coordinates (the lab: (0, 0) and (0, size - 1)).
+    pub fixed: Vec<(usize, usize)>,
+}
+
+impl Default for ClothGrid {
+    /// The lab cloth with the lab's damping 0.2 ([`ClothGrid::lab`]).
+    fn default() -> Self {
+        Self::lab(0.2)
+    }
+}
+
+impl ClothGrid {
+    /// The lab cloth W4: 11 x 11, spacing 0.2, origin (0, 1.5, -1), mass 1, stiffness
+    /// 100, damping `damping`, gravity 0.3 along -y, corners (0, 0) and (0, 10) fixed.
+    #[must_use]
+    pub fn lab(damping: f64) -> Self {
+        Self::lab_sized(11, 0.2, damping)
+    }
+
+    /// W4's pattern with `size` particles per side and the given spacing, placed like the
+    /// lab (origin (0, 1.5, -1)), corners (0, 0) and (0, size - 1) fixed.
+    #[must_use]
+    pub fn lab_sized(size: usize, spacing: f64, damping: f64) -> Self {
+        Self {
+            size,
+            spacing,
+            origin: DVec3::new(0.0, 1.5, -1.0),
+            mass: 1.0,
+            material: Material {
+                damping,
+                ..Material::default()
+            },
+            fixed: vec![(0, 0), (0, size.saturating_sub(1))],
+        }
+    }
+
+    /// Builds the system.
+    pub fn build(&self) -> Result<SpringSystem, ModelError> {
+        let n = self.size;
+        if n == 0 {
+            return Err(ModelError::BadParameter {
+                name: "size",
+                reason: "must be at least 1",
+            });
+        }
+        if !(self.spacing.is_finite() && self.spacing > 0.0) {
+            return Err(ModelError::BadParameter {
+                name: "spacing",
+                reason: "must be positive and finite",
+            });
+        }
+        if !self.origin.is_finite() {
+            return Err(ModelError::BadParameter {
+                name: "origin",
+                reason: "must be finite",
+            });
+        }
+        let mut particles = Vec::with_capacity(n * n);
+        for i in 0..n {
+            for j in 0..n {
+                let position =
+                    self.origin + DVec3::new(self.spacing * i as f64, 0.0, self.spacing * j as f64);
+                particles.push(Particle::at_rest(position, self.mass));
+            }
+        }
+        for &(i, j) in &self.fixed {
+            if i >= n || j >= n {
+                return Err(ModelError::BadParameter {
+                    name: "fixed",
+                    reason: "grid coordinate out of range",
+                });
+            }
+            particles[i * n + j].fixed = true;
+        }
+        let idx = |i: usize, j: usize| i * n + j;
+        let mut springs = Vec::with_capacity(6 * n * n);
+        for i in 0..n {
+            for j in 0..n {
+                let here = idx(i, j);
+                if i >= 1 {
+                    springs.push(SpringSpec::between(here, idx(i - 1, j)));
+                }
+                if i >= 2 {
+                    springs.push(SpringSpec::between(here, idx(i - 2, j)));
+                }
+                if j >= 1 {
+                    springs.push(SpringSpec::between(here, idx(i, j - 1)));
+                }
+                if j >= 2 {
+                    springs.push(SpringSpec::between(here, idx(i, j - 2)));
+                }
+                if i >= 1 && j >= 1 {
+                    springs.push(SpringSpec::between(here, idx(i - 1, j - 1)));
+                }
+                if i >= 1 && j + 1 < n {
+                    springs.push(SpringSpec::between(here, idx(i - 1, j + 1)));
+                }
+            }
+        }
+        SpringSystem::new(&particles, &springs, self.material)
+    }
+}
+
+/// A rope: `segments + 1` particles on a straight line from `start` in `direction`, each
+/// `segment_length` apart, neighbours joined by springs, particle 0 fixed.
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct Rope {
+    /// Number of springs.
+    pub segments: usize,
+    /// Rest length of each spring (the initial spacing).
+    pub segment_length: f64,
+    /// First (fixed) particle.
+    pub start: DVec3,
+    /// Direction of the rope (need not be unit).
+    pub direction: DVec3,
+    /// Mass per particle.
+    pub mass: f64,
+    /// Material.
+    pub material: Material,
+}
+
+impl Rope {
+    /// Builds the system.
+    pub fn build(&self) -> Result<SpringSystem, ModelError> {
+        if self.segments == 0 {
+            return Err(ModelError::BadParameter {
+                name: "segments",
+                reason: "must be at least 1",
+            });
+        }
+        if !(self.segment_length.is_finite() && self.segment_length > 0.0) {
+            return Err(ModelError::BadParameter {
+                name: "segment_length",
+                reason: "must be positive and finite",
+            });
+        }
+        let Some(dir) = sinew_math::try_unit(self.direction) else {
+            return Err(ModelError::BadParameter {
+                name: "direction",
+                reason: "must be a finite non-zero vector",
+            });
+        };
+        if !self.start.is_finite() {
+            return Err(ModelError::BadParameter {
+                name: "start",
+                reason: "must be finite",
+            });
+        }
+        let mut particles: Vec<Particle> = (0..=self.segments)
+            .map(|i| {
+                Particle::at_rest(
+                    self.start + dir * (self.segment_length * i as f64),
+                    self.mass,
+                )
+            })
+            .collect();
+        particles[0].fixed = true;
+        let springs: Vec<SpringSpec> = (1..=self.segments)
+            .map(|i| SpringSpec {
+                particles: [i - 1, i],
+                rest_length: Some(self.segment_length),
+                stiffness: None,
+            })
+            .collect();
+        SpringSystem::new(&particles, &springs, self.material)
+    }
+}

@@ -1,0 +1,167 @@
+//! The reduced system's unknowns and the sparsity pattern of its Newton matrix, built once
+//! per topology.
+//!
+//! Fixed particles are removed: only free particles get unknowns (three each, `3 f + c`
+//! for free index `f` and axis `c`). The Newton matrix is stored as the lower triangle of
+//! a compressed sparse column (CSC) matrix, with, for every free particle, the six lower
+//! entries of its diagonal block and, for every spring between two free particles, the
+//! nine entries of the off-diagonal block below the diagonal. Each spring knows the value
+//! slots of its blocks, so assembly is a sweep over springs writing into a value array;
+//! the structure never changes.
+
+use crate::model::SpringSystem;
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMat};
+use sinew_math::DMat3;
+
+/// Marks a fixed particle in [`HessianPattern::free_index`].
+pub(crate) const FIXED: usize = usize::MAX;
+
+/// The lower entries of a 3x3 diagonal block, in CSC order:
+/// (0,0), (1,0), (2,0), (1,1), (2,1), (2,2).
+const DIAG_ENTRIES: [(usize, usize); 6] = [(0, 0), (1, 0), (2, 0), (1, 1), (2, 1), (2, 2)];
+
+/// Unknown numbering and matrix structure of the reduced Newton system.
+#[derive(Debug)]
+pub struct HessianPattern {
+    /// Particle -> free index, or [`FIXED`].
+    pub(crate) free_index: Vec<usize>,
+    /// Free index -> particle.
+    pub(crate) free_particles: Vec<usize>,
+    /// Lower-triangular CSC structure of the `3 nfree x 3 nfree` matrix.
+    pub(crate) symbolic: SymbolicSparseColMat<usize>,
+    /// Per free particle: value slots of its diagonal block's lower entries.
+    pub(crate) diag_slots: Vec<[usize; 6]>,
+    /// Per spring: value slots of its off-diagonal block (entry `(r, c)` at `3 c + r`),
+    /// `None` unless both ends are free.
+    pub(crate) off_slots: Vec<Option<[usize; 9]>>,
+}
+
+impl HessianPattern {
+    /// Builds the pattern for `system`'s topology.
+    #[must_use]
+    pub fn new(system: &SpringSystem) -> Self {
+        let mut free_index = vec![FIXED; system.len()];
+        let mut free_particles = Vec::new();
+        for (p, &fixed) in system.fixed().iter().enumerate() {
+            if !fixed {
+                free_index[p] = free_particles.len();
+                free_particles.push(p);
+            }
+        }
+        let nfree = free_particles.len();
+        // For each free particle, the free neighbours with a larger free index: the
+        // block rows below its diagonal block.
+        let mut below: Vec<Vec<usize>> = vec![Vec::new(); nfree];
+        for s in system.springs() {
+            let (fa, fb) = (free_index[s.a], free_index[s.b]);
+            if fa != FIXED && fb != FIXED {
+                below[fa.min(fb)].push(fa.max(fb));
+            }
+        }
+        for list in &mut below {
+            list.sort_unstable();
+            list.dedup();
+        }
+        let n = 3 * nfree;
+        let mut col_ptr = Vec::with_capacity(n + 1);
+        let mut row_idx = Vec::new();
+        col_ptr.push(0usize);
+        for (p, list) in below.iter().enumerate() {
+            for c in 0..3 {
+                for r in c..3 {
+                    row_idx.push(3 * p + r);
+                }
+                for &q in list {
+                    for r in 0..3 {
+                        row_idx.push(3 * q + r);
+                    }
+                }
+                col_ptr.push(row_idx.len());
+            }
+        }
+        let diag_slots = (0..nfree)
+            .map(|p| DIAG_ENTRIES.map(|(r, c)| col_ptr[3 * p + c] + (r - c)))
+            .collect();
+        let off_slots = system
+            .springs()
+            .iter()
+            .map(|s| {
+                let (fa, fb) = (free_index[s.a], free_index[s.b]);
+                if fa == FIXED || fb == FIXED {
+                    return None;
+                }
+                let (col, row) = (fa.min(fb), fa.max(fb));
+                // The neighbour list was built from these very springs.
+                let k = below[col].binary_search(&row).unwrap_or(0);
+                let mut slots = [0usize; 9];
+                for c in 0..3 {
+                    for r in 0..3 {
+                        slots[3 * c + r] = col_ptr[3 * col + c] + (3 - c) + 3 * k + r;
+                    }
+                }
+                Some(slots)
+            })
+            .collect();
+        let symbolic = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
+        Self {
+            free_index,
+            free_particles,
+            symbolic,
+            diag_slots,
+            off_slots,
+        }
+    }
+
+    /// Number of unknowns (three per free particle).
+    #[must_use]
+    pub fn dim(&self) -> usize {
+        3 * self.free_particles.len()
+    }
+
+    /// Number of stored (lower-triangle) entries.
+    #[must_use]
+    pub fn nnz(&self) -> usize {
+        self.symbolic.row_idx().len()
+    }
+
+    /// The matrix with the given values (lower triangle).
+    #[must_use]
+    pub(crate) fn matrix<'a>(&'a self, values: &'a [f64]) -> SparseColMatRef<'a, usize, f64> {
+        SparseColMatRef::new(self.symbolic.as_ref(), values)
+    }
+
+    /// The diagonal block of free particle `f` read back from `values`.
+    #[must_use]
+    pub(crate) fn diag_block(&self, values: &[f64], f: usize) -> DMat3 {
+        let s = &self.diag_slots[f];
+        let (a00, a10, a20, a11, a21, a22) = (
+            values[s[0]],
+            values[s[1]],
+            values[s[2]],
+            values[s[3]],
+            values[s[4]],
+            values[s[5]],
+        );
+        DMat3::from_cols_array(&[a00, a10, a20, a10, a11, a21, a20, a21, a22])
+    }
+
+    /// `y = A x` for the symmetric matrix whose lower triangle has `values`.
+    pub(crate) fn sym_matvec(&self, values: &[f64], x: &[f64], y: &mut [f64]) {
+        y.fill(0.0);
+        let col_ptr = self.symbolic.col_ptr();
+        let row_idx = self.symbolic.row_idx();
+        for j in 0..self.dim() {
+            let xj = x[j];
+            let (start, end) = (col_ptr[j], col_ptr[j + 1]);
+            // The first entry of every column is its diagonal entry.
+            let mut acc = values[start] * xj;
+            for k in start + 1..end {
+                let i = row_idx[k];
+                let v = values[k];
+                y[i] += v * xj;
+                acc += v * x[i];
+            }
+            y[j] += acc;
+        }
+    }
+}

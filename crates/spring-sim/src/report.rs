@@ -1,0 +1,158 @@
+//! What a step reports: the integrator, the solve (iterations, residual, backtracks, why
+//! it stopped, the linear solver and its fallbacks) and the energies before and after.
+//!
+//! One report type serves every integrator, so a scene runner prints the same metrics
+//! whatever integrator the scene chose; fields that do not apply stay at zero or `None`.
+
+use crate::linear::LinearSolverKind;
+use crate::model::Energies;
+
+/// Which integrator made a step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum IntegratorKind {
+    /// Backward Euler by Newton (this crate's implicit integrator).
+    BackwardEuler,
+    /// Explicit symplectic Euler with substeps (the course's starter code).
+    SymplecticEuler,
+    /// The lab report's flawed Newton variant, for comparison only.
+    FlawedReportMethod,
+}
+
+impl IntegratorKind {
+    /// A short name for reports and scene files.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::BackwardEuler => "backward_euler",
+            Self::SymplecticEuler => "symplectic_euler",
+            Self::FlawedReportMethod => "flawed_report_method",
+        }
+    }
+}
+
+/// Why a step's solve stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum StopReason {
+    /// `|grad g|_inf` reached the tolerance.
+    Converged,
+    /// The iteration cap was reached first.
+    IterationCap,
+    /// The line search could not decrease `g` (the iterate is at round-off level of a
+    /// minimum, or the direction was useless); the last accepted iterate is kept.
+    LineSearchStalled,
+    /// A fixed number of iterations or substeps, no convergence test (explicit
+    /// integrators and the flawed reference).
+    FixedWork,
+    /// A non-finite value appeared; the system was left as it was before the step.
+    NonFinite,
+}
+
+/// The report of one step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct StepReport {
+    /// The integrator.
+    pub integrator: IntegratorKind,
+    /// Newton (or fixed) iterations.
+    pub iterations: usize,
+    /// Final `|grad g|_inf` (a force); 0 for explicit integrators.
+    pub residual: f64,
+    /// The absolute tolerance `tol * m_min / h^2` the residual was held to.
+    pub tolerance: f64,
+    /// Step halvings in the line searches.
+    pub backtracks: usize,
+    /// Why the solve stopped.
+    pub stop: StopReason,
+    /// The linear solver used for this step.
+    pub linear_solver: Option<LinearSolverKind>,
+    /// Total PCG iterations (also counts PCG used as a fallback).
+    pub linear_iterations: usize,
+    /// Factorizations retried on a shifted matrix.
+    pub shifted_factorizations: usize,
+    /// Iterations where every factorization failed and PCG solved instead.
+    pub direct_failures: usize,
+    /// Iterations where the solve gave no descent direction and the mass-scaled
+    /// gradient was used.
+    pub descent_fallbacks: usize,
+    /// Newton iterations that used the exact (unprojected) Hessian because it was
+    /// positive definite and the projected one was converging slowly.
+    pub exact_hessian_iterations: usize,
+    /// Explicit substeps (1 for implicit steps).
+    pub substeps: usize,
+    /// Energies at the start of the step.
+    pub energy_before: Energies,
+    /// Energies at the end of the step.
+    pub energy_after: Energies,
+}
+
+impl StepReport {
+    /// An empty report for `integrator`.
+    #[must_use]
+    pub fn new(integrator: IntegratorKind) -> Self {
+        Self {
+            integrator,
+            iterations: 0,
+            residual: 0.0,
+            tolerance: 0.0,
+            backtracks: 0,
+            stop: StopReason::FixedWork,
+            linear_solver: None,
+            linear_iterations: 0,
+            shifted_factorizations: 0,
+            direct_failures: 0,
+            descent_fallbacks: 0,
+            exact_hessian_iterations: 0,
+            substeps: 1,
+            energy_before: Energies::default(),
+            energy_after: Energies::default(),
+        }
+    }
+
+    /// Fallback events of any kind in this step (shifted factorizations, failed
+    /// factorizations, descent fallbacks).
+    #[must_use]
+    pub fn fallback_events(&self) -> usize {
+        self.shifted_factorizations + self.direct_failures + self.descent_fallbacks
+    }
+}
+
+/// Why a step could not be taken. The system is left as it was before the step.
+#[derive(Clone, Debug, PartialEq)]
+pub enum StepError {
+    /// Invalid input (time step, settings, topology), naming the item.
+    Invalid(crate::model::ModelError),
+    /// A non-finite value appeared (an explicit integrator above its stability limit,
+    /// or the flawed reference method); names the first particle affected.
+    NonFinite {
+        /// The integrator.
+        integrator: IntegratorKind,
+        /// The first particle with a non-finite position or velocity.
+        particle: usize,
+    },
+}
+
+impl std::fmt::Display for StepError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Invalid(e) => write!(f, "{e}"),
+            Self::NonFinite {
+                integrator,
+                particle,
+            } => write!(
+                f,
+                "{}: particle {particle} became non-finite; the step was undone",
+                integrator.name()
+            ),
+        }
+    }
+}
+
+impl std::error::Error for StepError {}
+
+impl From<crate::model::ModelError> for StepError {
+    fn from(e: crate::model::ModelError) -> Self {
+        Self::Invalid(e)
+    }
+}

@@ -1,0 +1,124 @@
+//! Per-spring kernels: energy, gradient, exact Hessian block and its positive
+//! semidefinite projection, and the frozen-direction axial damping term.
+//!
+//! With `d = x_a - x_b`, `l = |d|`, `u = d / l` and `E = k/2 (l - L)^2`:
+//! - `dE/dx_a = k (l - L) u = -dE/dx_b`;
+//! - the Hessian is `[[K, -K], [-K, K]]` with `K = k [u u^T + (1 - L/l)(I - u u^T)]`;
+//! - the projection onto PSD matrices clamps `1 - L/l` at 0 (the block's eigenvalues are
+//!   `k` along `u` and `k (1 - L/l)` twice across it, and the 6x6 Hessian's nonzero
+//!   eigenvalues are twice those of `K`, with the same eigenvectors).
+//!
+//! The derivation is in docs/spring-sim.md. The lab report's block
+//! `k [(1 - L/l) I + u u^T]` is wrong (see [`crate::reference`]).
+
+use sinew_math::{DMat3, DVec3, try_unit};
+
+/// `u u^T`.
+#[must_use]
+pub fn outer(u: DVec3) -> DMat3 {
+    DMat3::from_cols(u * u.x, u * u.y, u * u.z)
+}
+
+/// The direction and length of `d`, computed without underflow; `None` for a zero (or
+/// non-finite) vector.
+#[must_use]
+fn direction_and_length(d: DVec3) -> Option<(DVec3, f64)> {
+    try_unit(d).map(|u| (u, u.dot(d)))
+}
+
+/// Spring energy `k/2 (|x_a - x_b| - L)^2`.
+#[must_use]
+pub fn energy(x_a: DVec3, x_b: DVec3, rest_length: f64, stiffness: f64) -> f64 {
+    let l = (x_a - x_b).length();
+    0.5 * stiffness * (l - rest_length) * (l - rest_length)
+}
+
+/// The change of the spring energy when the spring vector goes from `d` to `d + delta`,
+/// computed from the difference itself, `k/2 (l' - l)(l' + l - 2L)` with
+/// `l' - l = delta . (2d + delta) / (l' + l)`, so it keeps its relative accuracy when the
+/// change is far below the energy (the line search compares such changes near
+/// convergence).
+#[must_use]
+pub fn energy_change(d: DVec3, delta: DVec3, rest_length: f64, stiffness: f64) -> f64 {
+    let l = d.length();
+    let l_new = (d + delta).length();
+    let sum = l + l_new;
+    if sum == 0.0 {
+        return 0.0;
+    }
+    let dl = delta.dot(2.0 * d + delta) / sum;
+    0.5 * stiffness * dl * (sum - 2.0 * rest_length)
+}
+
+/// Gradient of the spring energy with respect to `x_a` (the one for `x_b` is its
+/// negative). Zero at zero length, where the energy has a cone point and zero is a
+/// subgradient.
+#[must_use]
+pub fn gradient(x_a: DVec3, x_b: DVec3, rest_length: f64, stiffness: f64) -> DVec3 {
+    match direction_and_length(x_a - x_b) {
+        Some((u, l)) => stiffness * (l - rest_length) * u,
+        None => DVec3::ZERO,
+    }
+}
+
+/// The 3x3 block `K` of the spring Hessian (it enters as `+K` on the `(a, a)` and
+/// `(b, b)` blocks and `-K` on `(a, b)` and `(b, a)`).
+///
+/// With `clamp`, `1 - L/l` is clamped at 0, which is the exact projection of the spring's
+/// Hessian onto positive semidefinite matrices; without it, the exact (possibly
+/// indefinite) Hessian. At zero length there is no direction: a zero-rest-length spring
+/// has the exact Hessian `k I`; otherwise the clamped block is 0 (the projection of every
+/// nearby Hessian is `k u u^T` for some `u`, and no `u` is preferred) and the unclamped
+/// one does not exist, so 0 is returned too.
+#[must_use]
+pub fn hessian_block(
+    x_a: DVec3,
+    x_b: DVec3,
+    rest_length: f64,
+    stiffness: f64,
+    clamp: bool,
+) -> DMat3 {
+    let (isotropic, axial, u) = hessian_coefficients(x_a - x_b, rest_length, stiffness, clamp);
+    DMat3::from_diagonal(DVec3::splat(isotropic)) + outer(u) * axial
+}
+
+/// The block of [`hessian_block`] as `K = isotropic I + axial u u^T` (with
+/// `isotropic = k (1 - L/l)`, clamped or not, and `axial = k - isotropic`), for `d = x_a -
+/// x_b`: the form the assembly uses to write the six distinct entries directly.
+#[must_use]
+#[inline]
+pub fn hessian_coefficients(
+    d: DVec3,
+    rest_length: f64,
+    stiffness: f64,
+    clamp: bool,
+) -> (f64, f64, DVec3) {
+    if rest_length == 0.0 {
+        return (stiffness, 0.0, DVec3::ZERO);
+    }
+    // The plain length is enough unless it underflows; then fall back to the scaled
+    // computation so tiny springs keep their direction.
+    let l = d.length();
+    let (u, l) = if l > 1e-150 && l.is_finite() {
+        (d / l, l)
+    } else {
+        match direction_and_length(d) {
+            Some(ul) => ul,
+            None => return (0.0, 0.0, DVec3::ZERO),
+        }
+    };
+    let mut across = 1.0 - rest_length / l;
+    if clamp {
+        across = across.max(0.0);
+    }
+    let isotropic = stiffness * across;
+    (isotropic, stiffness - isotropic, u)
+}
+
+/// The frozen direction of a spring for the axial damping term: the unit vector along
+/// `x_a - x_b` at the start of the step, or zero for a zero-length spring (which then
+/// has no axial damping in that step).
+#[must_use]
+pub fn damping_direction(x_a: DVec3, x_b: DVec3) -> DVec3 {
+    try_unit(x_a - x_b).unwrap_or(DVec3::ZERO)
+}

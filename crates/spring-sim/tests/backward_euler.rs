@@ -1,0 +1,371 @@
+//! Backward Euler by Newton against exact answers: the closed-form recurrence of one
+//! particle on a spring, monotone decrease of `g`, the static equilibrium reached by a
+//! heavily damped run (checked by forces and second-order perturbations, independently of
+//! the stepper), agreement of the direct and PCG solves, and stability of W5.
+
+use sinew_math::DVec3;
+use sinew_spring_sim::*;
+
+fn settings(solver: LinearSolverChoice, tolerance: f64) -> NewtonSettings {
+    NewtonSettings {
+        linear_solver: solver,
+        tolerance,
+        ..Default::default()
+    }
+}
+
+/// One free particle hanging below a fixed one on a spring, moving along the spring's
+/// axis (gravity and the initial velocity along it). Along the axis the spring force is
+/// linear in the length (for any `l > 0`), so backward Euler is the linear recurrence
+/// `(m/h^2 + k + c/h) s' = m/h^2 (s + h v) + k L + m g + c/h s`, `v' = (s' - s)/h`
+/// for the length `s`, which Newton must reproduce to round-off.
+#[test]
+fn single_spring_matches_the_closed_form_recurrence() {
+    let (m, k, rest, c, g, h) = (2.0, 50.0, 1.0, 0.7, 0.3, 0.05);
+    for solver in [LinearSolverChoice::Direct, LinearSolverChoice::Pcg] {
+        let particles = [
+            Particle {
+                position: DVec3::ZERO,
+                velocity: DVec3::ZERO,
+                mass: 1.0,
+                fixed: true,
+            },
+            Particle {
+                position: DVec3::new(0.0, -1.4, 0.0),
+                velocity: DVec3::new(0.0, 0.8, 0.0),
+                mass: m,
+                fixed: false,
+            },
+        ];
+        let material = Material {
+            stiffness: k,
+            damping: c,
+            gravity: DVec3::new(0.0, -g, 0.0),
+        };
+        let spring = SpringSpec {
+            particles: [0, 1],
+            rest_length: Some(rest),
+            stiffness: None,
+        };
+        let system = SpringSystem::new(&particles, &[spring], material).unwrap();
+        let mut sim =
+            Simulation::new(system, Integrator::BackwardEuler(settings(solver, 1e-13))).unwrap();
+        let (mut s, mut v) = (1.4, -0.8);
+        let mut min_len = f64::INFINITY;
+        for _ in 0..200 {
+            let report = sim.step(h).unwrap();
+            assert_eq!(report.stop, StopReason::Converged);
+            let s_new = (m / (h * h) * (s + h * v) + k * rest + m * g + c / h * s)
+                / (m / (h * h) + k + c / h);
+            v = (s_new - s) / h;
+            s = s_new;
+            min_len = min_len.min(s);
+            let x = sim.system().positions()[1];
+            let vel = sim.system().velocities()[1];
+            assert!((x.y + s).abs() <= 1e-12, "{} vs {}", x.y, -s);
+            assert_eq!((x.x, x.z), (0.0, 0.0));
+            assert!((vel.y + v).abs() <= 1e-10);
+        }
+        // The run goes through compression too, where the PSD clamp is active.
+        assert!(min_len < rest, "min length {min_len}");
+    }
+}
+
+/// A crumpled lab cloth (every particle pushed at random, so springs are compressed and
+/// stretched) at a large step: `g` never increases over the Newton iterations, and the
+/// line search really had to backtrack somewhere.
+#[test]
+fn objective_never_increases() {
+    let mut system = SpringSystem::cloth(&ClothGrid::lab_sized(6, 0.2, 0.5)).unwrap();
+    let mut seed = 12345u64;
+    let mut rnd = || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    let positions: Vec<DVec3> = system
+        .positions()
+        .iter()
+        .zip(system.fixed())
+        .map(|(x, f)| {
+            if *f {
+                *x
+            } else {
+                *x + 0.3 * DVec3::new(rnd(), rnd(), rnd())
+            }
+        })
+        .collect();
+    let velocities = vec![DVec3::ZERO; positions.len()];
+    system.set_state(&positions, &velocities).unwrap();
+    let mut total_backtracks = 0;
+    for solver in [LinearSolverChoice::Direct, LinearSolverChoice::Pcg] {
+        let mut s = settings(solver, 1e-10);
+        s.record_objective = true;
+        let mut sim = Simulation::new(system.clone(), Integrator::BackwardEuler(s)).unwrap();
+        for _ in 0..10 {
+            let report = sim.step(0.5).unwrap();
+            assert_eq!(report.stop, StopReason::Converged);
+            total_backtracks += report.backtracks;
+            let trace = sim.backward_euler().unwrap().objective_trace();
+            assert_eq!(trace.len(), report.iterations + 1);
+            for w in trace.windows(2) {
+                assert!(
+                    w[1] <= w[0] + 1e-13 * w[0].abs(),
+                    "g rose: {} -> {}",
+                    w[0],
+                    w[1]
+                );
+            }
+        }
+    }
+    assert!(
+        total_backtracks > 0,
+        "the test should exercise the line search"
+    );
+}
+
+/// Net force (springs + gravity) on each free particle.
+fn net_forces(system: &SpringSystem) -> Vec<DVec3> {
+    let x = system.positions();
+    let mut f: Vec<DVec3> = system
+        .masses()
+        .iter()
+        .map(|m| *m * system.material().gravity)
+        .collect();
+    for s in system.springs() {
+        let g = spring::gradient(x[s.a], x[s.b], s.rest_length, s.stiffness);
+        f[s.a] -= g;
+        f[s.b] += g;
+    }
+    for (fi, fixed) in f.iter_mut().zip(system.fixed()) {
+        if *fixed {
+            *fi = DVec3::ZERO;
+        }
+    }
+    f
+}
+
+fn potential(system: &SpringSystem, x: &[DVec3]) -> f64 {
+    let springs: f64 = system
+        .springs()
+        .iter()
+        .map(|s| spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness))
+        .sum();
+    let gravity: f64 = system
+        .masses()
+        .iter()
+        .zip(x)
+        .map(|(m, x)| -m * system.material().gravity.dot(*x))
+        .sum();
+    springs + gravity
+}
+
+/// Heavy damping and a large step settle a small cloth to rest. The final state is
+/// checked without the stepper: the net force on every free particle vanishes, and the
+/// potential energy rises under every random small perturbation (a minimum, not a
+/// saddle).
+#[test]
+fn heavily_damped_large_steps_settle_to_the_static_equilibrium() {
+    let mut grid = ClothGrid::lab_sized(5, 0.2, 20.0);
+    grid.material.gravity = DVec3::new(0.0, -9.81, 0.0);
+    let system = SpringSystem::cloth(&grid).unwrap();
+    let mut sim = Simulation::new(
+        system,
+        Integrator::BackwardEuler(settings(LinearSolverChoice::Auto, 1e-12)),
+    )
+    .unwrap();
+    for _ in 0..400 {
+        sim.step(0.25).unwrap();
+    }
+    let system = sim.system();
+    let force = net_forces(system)
+        .iter()
+        .fold(0.0f64, |m, f| m.max(f.abs().max_element()));
+    assert!(force <= 1e-8, "net force {force}");
+    let speed = system
+        .velocities()
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.length()));
+    assert!(speed <= 1e-8, "speed {speed}");
+    let x0 = system.positions().to_vec();
+    let e0 = potential(system, &x0);
+    let mut seed = 99u64;
+    for _ in 0..50 {
+        let x: Vec<DVec3> = x0
+            .iter()
+            .zip(system.fixed())
+            .map(|(x, f)| {
+                let mut r = || {
+                    seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1);
+                    (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+                };
+                if *f {
+                    *x
+                } else {
+                    *x + 1e-4 * DVec3::new(r(), r(), r())
+                }
+            })
+            .collect();
+        assert!(potential(system, &x) > e0, "not a minimum");
+    }
+    // The cloth hangs below its fixed corners.
+    assert!(x0.iter().all(|x| x.y <= 1.5 + 1e-12));
+}
+
+/// Direct and PCG Newton give the same trajectory to within the solve tolerance.
+#[test]
+fn direct_and_pcg_agree() {
+    let system = SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap();
+    let run = |solver| {
+        let mut sim = Simulation::new(
+            system.clone(),
+            Integrator::BackwardEuler(settings(solver, 1e-11)),
+        )
+        .unwrap();
+        let mut used = Vec::new();
+        for _ in 0..60 {
+            used.push(sim.step(1.0 / 60.0).unwrap().linear_solver);
+        }
+        (sim.into_system(), used)
+    };
+    let (direct, used_d) = run(LinearSolverChoice::Direct);
+    let (pcg, used_p) = run(LinearSolverChoice::Pcg);
+    assert!(used_d.iter().all(|u| *u == Some(LinearSolverKind::Direct)));
+    assert!(used_p.iter().all(|u| *u == Some(LinearSolverKind::Pcg)));
+    let gap = direct
+        .positions()
+        .iter()
+        .zip(pcg.positions())
+        .fold(0.0f64, |m, (a, b)| m.max(a.distance(*b)));
+    assert!(gap <= 1e-9, "direct and PCG differ by {gap}");
+    assert!(gap > 0.0 || direct.positions() == pcg.positions());
+}
+
+/// W5: stiff lab cloth at h = 1/30 stays finite and bounded, every step converges, and
+/// the report says so.
+#[test]
+fn stiff_cloth_is_stable_at_large_steps() {
+    for stiffness in [1e4, 1e6] {
+        let mut grid = ClothGrid::lab(0.0);
+        grid.material.stiffness = stiffness;
+        let system = SpringSystem::cloth(&grid).unwrap();
+        let mut sim = Simulation::new(system, Integrator::default()).unwrap();
+        for _ in 0..30 {
+            let report = sim.step(1.0 / 30.0).unwrap();
+            assert_eq!(report.stop, StopReason::Converged);
+            assert!(report.residual <= report.tolerance);
+            assert!(report.energy_after.total().is_finite());
+        }
+        assert!(
+            sim.system()
+                .positions()
+                .iter()
+                .all(|x| x.is_finite() && x.length() < 100.0)
+        );
+    }
+}
+
+/// With damping on, backward Euler's total energy never rises from one step to the
+/// next by more than 1e-9 relative (W4 and W5 k = 1e4 with the lab's damping 0.2).
+#[test]
+fn damped_energy_never_rises() {
+    for (stiffness, h) in [(100.0, 1.0 / 60.0), (1e4, 1.0 / 30.0)] {
+        let mut grid = ClothGrid::lab(0.2);
+        grid.material.stiffness = stiffness;
+        let system = SpringSystem::cloth(&grid).unwrap();
+        let mut sim = Simulation::new(system, Integrator::default()).unwrap();
+        for _ in 0..60 {
+            let r = sim.step(h).unwrap();
+            let (e0, e1) = (r.energy_before.total(), r.energy_after.total());
+            assert!(e1 <= e0 + 1e-9 * e0.abs(), "energy rose: {e0} -> {e1}");
+        }
+    }
+}
+
+/// A system at rest costs no Newton iteration.
+#[test]
+fn system_at_rest_is_already_solved() {
+    let particles = [
+        Particle {
+            position: DVec3::ZERO,
+            velocity: DVec3::ZERO,
+            mass: 1.0,
+            fixed: true,
+        },
+        Particle::at_rest(DVec3::new(0.0, -1.0 - 0.3 / 100.0, 0.0), 1.0),
+    ];
+    let system = SpringSystem::new(
+        &particles,
+        &[SpringSpec {
+            particles: [0, 1],
+            rest_length: Some(1.0),
+            stiffness: None,
+        }],
+        Material {
+            damping: 0.0,
+            ..Material::default()
+        },
+    )
+    .unwrap();
+    let mut sim = Simulation::new(system, Integrator::default()).unwrap();
+    for _ in 0..3 {
+        assert_eq!(sim.step(1.0 / 60.0).unwrap().iterations, 0);
+    }
+}
+
+/// Symplectic Euler above its stability limit is an error with the system unchanged, not
+/// NaN; the flawed reference runs and is labelled as such.
+#[test]
+fn explicit_blowup_is_reported_and_undone() {
+    let mut grid = ClothGrid::lab(0.0);
+    grid.material.stiffness = 1e6;
+    let system = SpringSystem::cloth(&grid).unwrap();
+    let mut sim =
+        Simulation::new(system.clone(), Integrator::SymplecticEuler { substeps: 1 }).unwrap();
+    let mut failed = None;
+    for step in 0..200 {
+        let before = sim.system().clone();
+        match sim.step(1.0 / 30.0) {
+            Ok(_) => {}
+            Err(e) => {
+                assert!(matches!(e, StepError::NonFinite { .. }));
+                assert_eq!(sim.system(), &before);
+                failed = Some(step);
+                break;
+            }
+        }
+    }
+    assert!(
+        failed.is_some(),
+        "one substep at k = 1e6, h = 1/30 must blow up"
+    );
+    let mut flawed = Simulation::new(system, Integrator::FlawedReportMethod).unwrap();
+    let report = flawed.step(1.0 / 30.0).unwrap();
+    assert_eq!(report.integrator, IntegratorKind::FlawedReportMethod);
+    assert_eq!(report.iterations, 32);
+}
+
+/// The run metrics count what happened: steps, iterations, energies, divergence.
+#[test]
+fn run_metrics_report_the_run() {
+    let system = SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap();
+    let mut sim = Simulation::new(system.clone(), Integrator::default()).unwrap();
+    let m = run(&mut sim, 1.0 / 60.0, 20).unwrap();
+    assert_eq!(m.steps, 20);
+    assert_eq!(m.integrator, "backward_euler");
+    assert!(m.newton_iterations_total >= m.newton_iterations_max);
+    assert!(m.newton_iterations_max >= 1 && m.newton_iterations_max <= 50);
+    assert!(!m.diverged && m.stopped_by.is_none());
+    assert_eq!(m.energy_start, system.energies().total());
+    assert_eq!(m.energy_end, sim.system().energies().total());
+    assert!(m.energy_increase_max <= 1e-9);
+    assert!(m.residual_max <= 1e-9 * 3600.0);
+    let mut grid = ClothGrid::lab(0.0);
+    grid.material.stiffness = 1e6;
+    let stiff = SpringSystem::cloth(&grid).unwrap();
+    let mut explicit = Simulation::new(stiff, Integrator::SymplecticEuler { substeps: 1 }).unwrap();
+    let m = run(&mut explicit, 1.0 / 30.0, 300).unwrap();
+    assert!(m.diverged && m.steps < 300 && m.stopped_by.is_some());
+    assert!(run(&mut sim, -1.0, 1).is_err());
+}
