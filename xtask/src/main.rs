@@ -5,6 +5,7 @@
 //! summary table and writes `metrics.json` to `target/scenes/<scene>/` (or `--out DIR`).
 //! See `docs/scenes.md` for the schema and every metric key.
 
+mod render;
 mod report;
 mod scene;
 mod spec;
@@ -47,6 +48,9 @@ struct RunSceneArgs {
     /// Print nothing but errors.
     #[arg(long)]
     quiet: bool,
+    /// Write no pictures (GIF, PNG, SVG); metrics and CSV files are unchanged.
+    #[arg(long)]
+    no_render: bool,
 }
 
 /// The workspace root, from this crate's manifest directory.
@@ -108,6 +112,7 @@ fn run_scene_command(args: &RunSceneArgs) -> ExitCode {
         let options = report::Options {
             json: args.json,
             quiet: args.quiet,
+            render: !args.no_render,
         };
         let code = match scene::load(file) {
             Err(e) => {

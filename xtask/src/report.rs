@@ -14,6 +14,8 @@ pub struct Options {
     pub json: bool,
     /// Print nothing but errors.
     pub quiet: bool,
+    /// Draw the pictures tasks offer.
+    pub render: bool,
 }
 
 struct Row {
@@ -33,6 +35,7 @@ pub fn run_and_report(loaded: &LoadedScene, out_dir: &Path, options: &Options) -
     }
     let ctx = RunContext {
         out_dir: out_dir.to_path_buf(),
+        render: options.render,
     };
     let mut rows = Vec::new();
     let mut task_metrics = Vec::new();

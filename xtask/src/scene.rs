@@ -30,6 +30,8 @@ pub enum Task {
     Ik(tasks::ik::IkTask),
     /// Points on a curve, uniform in parameter or evenly spaced by arc length.
     Curve(tasks::curve::CurveTask),
+    /// A mass-spring system stepped by an integrator.
+    Cloth(tasks::cloth::ClothTask),
 }
 
 impl Task {
@@ -39,6 +41,7 @@ impl Task {
             Task::Fk(t) => t,
             Task::Ik(t) => t,
             Task::Curve(t) => t,
+            Task::Cloth(t) => t,
         }
     }
 }

@@ -44,7 +44,7 @@ pub mod spring;
 pub use explicit::SymplecticEuler;
 pub use integrator::{Integrator, Simulation};
 pub use linear::{FactorStructure, LinearSolverChoice, LinearSolverKind};
-pub use metrics::{RunMetrics, run};
+pub use metrics::{RunMetrics, run, run_observed};
 pub use model::{
     ClothGrid, Energies, Material, ModelError, Particle, Rope, Spring, SpringSpec, SpringSystem,
 };

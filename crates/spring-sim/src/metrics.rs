@@ -44,6 +44,18 @@ pub struct RunMetrics {
 /// Runs `steps` steps of length `dt` and measures them. Invalid input (a bad `dt`) is an
 /// error; a divergence ends the run and is reported in the metrics.
 pub fn run(sim: &mut Simulation, dt: f64, steps: usize) -> Result<RunMetrics, StepError> {
+    run_observed(sim, dt, steps, |_, _, _| {})
+}
+
+/// [`run`], calling `observe(step_index, report, system)` after every step that
+/// succeeded (for pictures and per-step plots). The observer runs outside the timed
+/// part, so it cannot change `time_per_step_ms_median`, and it only reads.
+pub fn run_observed(
+    sim: &mut Simulation,
+    dt: f64,
+    steps: usize,
+    mut observe: impl FnMut(usize, &StepReport, &crate::model::SpringSystem),
+) -> Result<RunMetrics, StepError> {
     crate::model::check_time_step(dt)?;
     let energy_start = sim.system().energies().total();
     let scale = energy_start.abs().max(f64::MIN_POSITIVE);
@@ -82,6 +94,7 @@ pub fn run(sim: &mut Simulation, dt: f64, steps: usize) -> Result<RunMetrics, St
         let rise = (report.energy_after.total() - report.energy_before.total()) / scale;
         metrics.energy_increase_max = metrics.energy_increase_max.max(rise);
         metrics.energy_end = report.energy_after.total();
+        observe(metrics.steps - 1, &report, sim.system());
         if sim
             .system()
             .positions()

@@ -3,10 +3,11 @@
 //! Sub-Task 4.1, done right).
 
 use super::{Metrics, RunContext, TaskOutput, TaskSpec, median_time_ns};
+use crate::render;
 use crate::spec::build_sampled;
 use serde::Deserialize;
 use serde_json::json;
-use sinew_curves::{CurveSpec, Sampling};
+use sinew_curves::{Curve, CurveSpec, Sampling};
 
 /// Scene fields of a `Curve` task.
 #[derive(Debug, Deserialize)]
@@ -81,6 +82,10 @@ impl TaskSpec for CurveTask {
         let csv_path = ctx.out_dir.join(format!("{}.points.csv", self.name));
         std::fs::write(&csv_path, csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
 
+        if ctx.render && samples.points.len() <= MAX_DRAWN_POINTS {
+            draw_comparison(ctx, &self.name, &curve, samples.points.len())?;
+        }
+
         let mut failures = Vec::new();
         if let (Some(limit), Some(dev)) = (self.expect_spacing_rel_dev_max, arc)
             && dev > limit
@@ -120,4 +125,41 @@ fn sampling_name(s: &Sampling) -> &'static str {
         Sampling::ArcLength { .. } => "arc_length",
         Sampling::ArcSpacing { .. } => "arc_spacing",
     }
+}
+
+/// Pictures show at most this many points (more would be a solid line).
+const MAX_DRAWN_POINTS: usize = 2_000;
+
+/// The Sub-Task 4.1 picture: `n` points at uniform parameter steps next to `n` points
+/// evenly spaced by arc length, on the curve's line.
+fn draw_comparison(ctx: &RunContext, name: &str, curve: &Curve, n: usize) -> Result<(), String> {
+    let line = curve
+        .sample(&Sampling::ArcLength {
+            n: 2_000,
+            tolerance: MEASURE_TOLERANCE,
+        })
+        .map_err(|e| e.to_string())?
+        .points;
+    let uniform = curve
+        .sample(&Sampling::Uniform { n })
+        .map_err(|e| e.to_string())?
+        .points;
+    let even = curve
+        .sample(&Sampling::ArcLength {
+            n,
+            tolerance: MEASURE_TOLERANCE,
+        })
+        .map_err(|e| e.to_string())?
+        .points;
+    let path = ctx.out_dir.join(format!("{name}.png"));
+    // Looking straight down (elevation pi/2) shows a curve in the plane y = 0, such as
+    // the lab flower, flat.
+    render::samples_png(
+        &path,
+        &line,
+        ("uniform parameter t", &uniform),
+        ("even arc length", &even),
+        0.0,
+        std::f64::consts::FRAC_PI_2,
+    )
 }

@@ -4,6 +4,7 @@
 //! of reach), Q2 (a low iteration cap) and Q3 (a per-frame rotation limit).
 
 use super::{Metrics, RunContext, TaskOutput, TaskSpec, median};
+use crate::render;
 use crate::spec::{SkeletonSpec, build_sampled};
 use serde::Deserialize;
 use serde_json::json;
@@ -185,7 +186,11 @@ impl TaskSpec for IkTask {
             .forward_kinematics(&pose, &mut global)
             .map_err(|e| e.to_string())?;
         let mut frame_ns = Vec::with_capacity(targets.len());
-        for &target in &targets {
+        // Pictures animate at most MAX_FRAMES frames (the last always among them); the
+        // positions are copied outside the timed part.
+        let frame_every = targets.len().div_ceil(MAX_FRAMES).max(1);
+        let mut shown: Vec<(Vec<DVec3>, DVec3)> = Vec::new();
+        for (k, &target) in targets.iter().enumerate() {
             let start = Instant::now();
             tracker
                 .step(
@@ -198,6 +203,14 @@ impl TaskSpec for IkTask {
                 )
                 .map_err(|e| e.to_string())?;
             frame_ns.push(start.elapsed().as_secs_f64() * 1e9);
+            if ctx.render && (k % frame_every == 0 || k + 1 == targets.len()) {
+                let joints = chain
+                    .joints()
+                    .iter()
+                    .map(|&j| global.positions[j])
+                    .collect();
+                shown.push((joints, target));
+            }
         }
         let summary = tracker.summary();
         let records = tracker.records();
@@ -220,6 +233,10 @@ impl TaskSpec for IkTask {
         }
         let csv_path = ctx.out_dir.join(format!("{}.frames.csv", self.name));
         std::fs::write(&csv_path, csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+
+        if ctx.render {
+            self.draw(ctx, &shown, &targets, records)?;
+        }
 
         let out_of_reach = records
             .iter()
@@ -300,6 +317,77 @@ impl TaskSpec for IkTask {
             headline,
             failures,
         })
+    }
+}
+
+/// The most frames an IK animation shows.
+const MAX_FRAMES: usize = 120;
+
+impl IkTask {
+    /// The animation, the last frame with the whole target path, and plots of error and
+    /// iterations per frame.
+    fn draw(
+        &self,
+        ctx: &RunContext,
+        shown: &[(Vec<DVec3>, DVec3)],
+        targets: &[DVec3],
+        records: &[sinew_skeleton::track::FrameRecord],
+    ) -> Result<(), String> {
+        let out = |suffix: &str| ctx.out_dir.join(format!("{}.{suffix}", self.name));
+        let points = shown
+            .iter()
+            .flat_map(|(joints, _)| joints.iter().copied())
+            .chain(targets.iter().copied());
+        let view = render::View::fit(points, 0.6, 0.45, 480, 480);
+        let frames: Vec<render::IkFrame> = shown
+            .iter()
+            .map(|(joints, target)| render::IkFrame {
+                joints,
+                target: *target,
+            })
+            .collect();
+        if frames.len() > 1 {
+            render::ik_gif(&out("gif"), &view, &frames, targets, 20)?;
+        }
+        if let Some(last) = frames.last() {
+            render::ik_png(&out("png"), &view, last, targets)?;
+        }
+        if records.len() > 1 {
+            let error: Vec<(f64, f64)> = records
+                .iter()
+                .enumerate()
+                .map(|(k, r)| (k as f64, r.error))
+                .collect();
+            let iterations: Vec<(f64, f64)> = records
+                .iter()
+                .enumerate()
+                .map(|(k, r)| (k as f64, r.iterations as f64))
+                .collect();
+            let label = solver_label(&self.solver);
+            render::line_chart_svg(
+                &out("error.svg"),
+                &format!("{}: final error per frame", self.name),
+                "frame",
+                "effector to target distance",
+                &[render::Series {
+                    name: label,
+                    points: &error,
+                }],
+                true,
+            )?;
+            render::line_chart_svg(
+                &out("iterations.svg"),
+                &format!("{}: iterations per frame", self.name),
+                "frame",
+                "iterations",
+                &[render::Series {
+                    name: label,
+                    points: &iterations,
+                }],
+                false,
+            )?;
+        }
+        Ok(())
     }
 }
 

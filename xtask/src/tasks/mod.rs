@@ -3,6 +3,7 @@
 //! `docs/scenes.md`), a one-line headline for the summary table, and the checks it
 //! failed (expectations written in the scene).
 
+pub mod cloth;
 pub mod curve;
 pub mod fk;
 pub mod ik;
@@ -17,6 +18,9 @@ pub type Metrics = serde_json::Map<String, serde_json::Value>;
 pub struct RunContext {
     /// The scene's output folder (exists when the task runs).
     pub out_dir: PathBuf,
+    /// Whether to draw pictures (`--no-render` turns them off; they never change
+    /// the metrics).
+    pub render: bool,
 }
 
 /// What a task produced.

@@ -1,0 +1,197 @@
+//! Pictures of a mass-spring cloth: springs drawn as lines coloured by strain and fixed
+//! particles marked, as an animated GIF and a PNG still.
+//!
+//! Strain is `l / L - 1` (current over rest length, minus one). Colours run from blue
+//! (compressed by `strain_scale` or more) through grey (at rest) to red (stretched by
+//! `strain_scale` or more). The scale is fixed for a whole animation so that colours
+//! compare across frames.
+
+use super::animation::{GifWriter, frames_to_draw, strain_colour};
+use super::canvas::{Canvas, Px};
+use super::{Mark, View, axis_gizmo, draw_pin, format_strain, legend};
+use sinew_math::DVec3;
+use std::path::Path;
+
+/// One frame of a cloth run: every particle's world position.
+#[derive(Clone, Copy, Debug)]
+pub struct ClothFrame<'a> {
+    /// Particle positions, indexed as in the springs and the fixed list.
+    pub positions: &'a [DVec3],
+}
+
+/// Writes an animated GIF of the cloth: each spring `(i, j, rest_length)` as a line
+/// coloured by its strain on the symmetric scale `±strain_scale`, fixed particles as
+/// pins, captioned with the frame number and the strain range of the frame.
+///
+/// Springs are drawn far to near so that nearer ones stay on top. A spring with an index
+/// out of range, a non-positive or non-finite rest length or a non-finite end is
+/// skipped. If `strain_scale` is not a positive finite number, the largest strain
+/// magnitude over all frames is used instead. Plays at `fps` (clamped to 1..=50), holds
+/// the last frame for 1.5 s and loops; runs longer than 300 frames are thinned evenly.
+///
+/// # Errors
+/// When `frames` is empty, or the file cannot be written.
+pub fn cloth_gif(
+    path: &Path,
+    view: &View,
+    frames: &[ClothFrame],
+    springs: &[(usize, usize, f64)],
+    fixed: &[usize],
+    strain_scale: f64,
+    fps: u16,
+) -> Result<(), String> {
+    if frames.is_empty() {
+        return Err(format!(
+            "cloth animation {}: no frames to draw",
+            path.display()
+        ));
+    }
+    let picked = frames_to_draw(frames.len());
+    let scale = resolve_scale(strain_scale, picked.iter().map(|&k| &frames[k]), springs);
+    let mut gif = GifWriter::create(path, view.width(), view.height(), fps)?;
+    for index in picked {
+        let label = format!("frame {}/{}", index + 1, frames.len());
+        let canvas = draw(view, &frames[index], springs, fixed, scale, &label)?;
+        gif.add(&canvas)?;
+    }
+    gif.finish()
+}
+
+/// Writes a PNG still of one cloth frame, drawn as by [`cloth_gif`].
+///
+/// # Errors
+/// When the file cannot be written.
+pub fn cloth_png(
+    path: &Path,
+    view: &View,
+    frame: &ClothFrame,
+    springs: &[(usize, usize, f64)],
+    fixed: &[usize],
+    strain_scale: f64,
+) -> Result<(), String> {
+    let scale = resolve_scale(strain_scale, [frame], springs);
+    draw(view, frame, springs, fixed, scale, "")?.save_png(path)
+}
+
+/// Strain `l / L - 1` of a spring in a frame, or `None` if it cannot be computed.
+#[must_use]
+fn strain(positions: &[DVec3], spring: (usize, usize, f64)) -> Option<f64> {
+    let (i, j, rest) = spring;
+    let (a, b) = (positions.get(i)?, positions.get(j)?);
+    if !(rest.is_finite() && rest > 0.0) {
+        return None;
+    }
+    let s = a.distance(*b) / rest - 1.0;
+    s.is_finite().then_some(s)
+}
+
+/// `requested` if it is a usable colour scale, otherwise the largest strain magnitude in
+/// `frames` (or 1% if every spring is at rest).
+#[must_use]
+fn resolve_scale<'f, 'a: 'f>(
+    requested: f64,
+    frames: impl IntoIterator<Item = &'f ClothFrame<'a>>,
+    springs: &[(usize, usize, f64)],
+) -> f64 {
+    if requested.is_finite() && requested > 0.0 {
+        return requested;
+    }
+    let largest = frames
+        .into_iter()
+        .flat_map(|f| springs.iter().filter_map(|&s| strain(f.positions, s)))
+        .fold(0.0_f64, |m, s| m.max(s.abs()));
+    if largest > 0.0 { largest } else { 0.01 }
+}
+
+/// Draws one frame; `label` (may be empty) is the caption's first line.
+fn draw(
+    view: &View,
+    frame: &ClothFrame,
+    springs: &[(usize, usize, f64)],
+    fixed: &[usize],
+    scale: f64,
+    label: &str,
+) -> Result<Canvas, String> {
+    let mut canvas = Canvas::new(view.width(), view.height())?;
+    let positions = frame.positions;
+    // (depth, strain, ends) of every drawable spring.
+    let mut lines: Vec<(f64, f64, Px, Px)> = springs
+        .iter()
+        .filter_map(|&spring| {
+            let s = strain(positions, spring)?;
+            let (a, b) = (positions[spring.0], positions[spring.1]);
+            let depth = view.depth(0.5 * (a + b));
+            depth
+                .is_finite()
+                .then(|| (depth, s, view.project(a), view.project(b)))
+        })
+        .collect();
+    // Far to near; the sort is stable, so equal depths keep the springs' order.
+    lines.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let width = if lines.len() <= 2000 { 2.0 } else { 1.0 };
+    for &(_, s, a, b) in &lines {
+        canvas.segment(a, b, width, strain_colour(s / scale));
+    }
+    for &index in fixed {
+        if let Some(&p) = positions.get(index) {
+            draw_pin(&mut canvas, view.project(p));
+        }
+    }
+
+    let range = lines
+        .iter()
+        .map(|l| l.1)
+        .fold(None, |acc: Option<(f64, f64)>, s| {
+            Some(acc.map_or((s, s), |(lo, hi)| (lo.min(s), hi.max(s))))
+        });
+    let strain_text = match range {
+        Some((lo, hi)) => format!("strain {} .. {}", format_strain(lo), format_strain(hi)),
+        None => "no springs".to_string(),
+    };
+    let lines: Vec<&str> = [label, strain_text.as_str()]
+        .into_iter()
+        .filter(|l| !l.is_empty())
+        .collect();
+    let max_caption = canvas.width() as f32 - 80.0;
+    canvas.caption(8.0, 8.0, &lines, max_caption);
+    axis_gizmo(&mut canvas, view);
+    legend(
+        &mut canvas,
+        &[(Mark::StrainBar(scale), "strain"), (Mark::Pin, "fixed")],
+    );
+    Ok(canvas)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn strain_is_length_over_rest_minus_one() {
+        let p = [
+            DVec3::ZERO,
+            DVec3::new(0.0, 0.3, 0.4),
+            DVec3::splat(f64::NAN),
+        ];
+        assert_eq!(strain(&p, (0, 1, 0.5)), Some(0.0));
+        assert!((strain(&p, (0, 1, 0.4)).unwrap() - 0.25).abs() < 1e-15);
+        assert!((strain(&p, (1, 0, 1.0)).unwrap() + 0.5).abs() < 1e-15);
+        assert_eq!(strain(&p, (0, 2, 1.0)), None, "NaN end");
+        assert_eq!(strain(&p, (0, 3, 1.0)), None, "index out of range");
+        assert_eq!(strain(&p, (0, 1, 0.0)), None, "zero rest length");
+        assert_eq!(strain(&p, (0, 1, -1.0)), None, "negative rest length");
+    }
+
+    #[test]
+    fn unusable_scale_falls_back_to_the_largest_strain() {
+        let p = [DVec3::ZERO, DVec3::X, DVec3::new(3.0, 0.0, 0.0)];
+        let frame = ClothFrame { positions: &p };
+        let springs = [(0, 1, 0.8), (1, 2, 2.5)];
+        assert_eq!(resolve_scale(0.1, [&frame], &springs), 0.1);
+        // Strains are 0.25 and -0.2.
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!((resolve_scale(bad, [&frame], &springs) - 0.25).abs() < 1e-15);
+        }
+        assert_eq!(resolve_scale(f64::NAN, [&frame], &[]), 0.01);
+    }
+}

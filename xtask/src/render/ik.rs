@@ -1,0 +1,125 @@
+//! Pictures of an IK chain following its target: an animated GIF of the run and a PNG
+//! still with the whole target path.
+
+use super::animation::{GifWriter, frames_to_draw};
+use super::canvas::{Canvas, ink};
+use super::{Mark, View, axis_gizmo, draw_target, format_length, legend, path_shown};
+use sinew_math::DVec3;
+use std::path::Path;
+
+/// One frame of an IK run: the chain's joint positions (root first, end effector last)
+/// and the target the chain was solving for.
+#[derive(Clone, Copy, Debug)]
+pub struct IkFrame<'a> {
+    /// World positions of the joints, root first; the last one is the end effector.
+    pub joints: &'a [DVec3],
+    /// The target of this frame.
+    pub target: DVec3,
+}
+
+impl IkFrame<'_> {
+    /// Distance from the end effector to the target (NaN with no joints).
+    #[must_use]
+    fn error(&self) -> f64 {
+        self.joints
+            .last()
+            .map_or(f64::NAN, |effector| effector.distance(self.target))
+    }
+}
+
+/// Writes an animated GIF of the chain following its target: bones as thick lines,
+/// joints as dots, the end effector in orange, the target as a red ring with a cross and
+/// the target path so far as a thin blue line, with the frame number and the
+/// effector-target distance as caption.
+///
+/// Frame `k` of `frames.len()` shows the first `ceil((k + 1) * n / frames.len())` of
+/// the `n` points of `targets_path` (all points up to frame `k` when there is one per
+/// frame). Plays at `fps` frames per second (clamped to 1..=50), holds the last frame
+/// for 1.5 s and loops; runs longer than 300 frames are thinned evenly. Size is the
+/// view's. Non-finite points are skipped.
+///
+/// # Errors
+/// When `frames` is empty, or the file cannot be written.
+pub fn ik_gif(
+    path: &Path,
+    view: &View,
+    frames: &[IkFrame],
+    targets_path: &[DVec3],
+    fps: u16,
+) -> Result<(), String> {
+    if frames.is_empty() {
+        return Err(format!(
+            "IK animation {}: no frames to draw",
+            path.display()
+        ));
+    }
+    let mut gif = GifWriter::create(path, view.width(), view.height(), fps)?;
+    for index in frames_to_draw(frames.len()) {
+        let shown = path_shown(index, frames.len(), targets_path.len());
+        let frame = &frames[index];
+        let caption = [
+            format!("frame {}/{}", index + 1, frames.len()),
+            format!("error {}", format_length(frame.error())),
+        ];
+        let canvas = draw(view, frame, &targets_path[..shown], &caption)?;
+        gif.add(&canvas)?;
+    }
+    gif.finish()
+}
+
+/// Writes a PNG still of one IK frame over the whole target path, captioned with the
+/// effector-target distance. Size is the view's; non-finite points are skipped.
+///
+/// # Errors
+/// When the file cannot be written.
+pub fn ik_png(
+    path: &Path,
+    view: &View,
+    frame: &IkFrame,
+    targets_path: &[DVec3],
+) -> Result<(), String> {
+    let caption = [format!("error {}", format_length(frame.error()))];
+    draw(view, frame, targets_path, &caption)?.save_png(path)
+}
+
+/// Draws one frame with the given part of the target path and caption lines.
+fn draw(
+    view: &View,
+    frame: &IkFrame,
+    path: &[DVec3],
+    caption: &[String],
+) -> Result<Canvas, String> {
+    let mut canvas = Canvas::new(view.width(), view.height())?;
+    canvas.polyline(path.iter().map(|&p| view.project(p)), 1.5, ink::PATH);
+
+    // The target goes under the chain, so that a reached target shows the effector
+    // inside its ring.
+    draw_target(&mut canvas, view.project(frame.target), 1.0);
+    let joints: Vec<_> = frame.joints.iter().map(|&p| view.project(p)).collect();
+    if let Some(&root) = joints.first() {
+        canvas.dot(root, 7.0, ink::ROOT);
+    }
+    canvas.polyline(joints.iter().copied(), 5.0, ink::BONE);
+    if let Some((&effector, inner)) = joints.split_last() {
+        for &joint in inner {
+            canvas.dot(joint, 4.0, ink::JOINT);
+        }
+        canvas.dot(effector, 6.5, ink::JOINT);
+        canvas.dot(effector, 5.0, ink::EFFECTOR);
+    }
+
+    let max_caption = canvas.width() as f32 - 80.0;
+    let lines: Vec<&str> = caption.iter().map(String::as_str).collect();
+    canvas.caption(8.0, 8.0, &lines, max_caption);
+    axis_gizmo(&mut canvas, view);
+    legend(
+        &mut canvas,
+        &[
+            (Mark::Line(ink::BONE, 5.0), "chain"),
+            (Mark::Dot(ink::EFFECTOR, 5.0), "effector"),
+            (Mark::Target, "target"),
+            (Mark::Line(ink::PATH, 1.5), "target path"),
+        ],
+    );
+    Ok(canvas)
+}

@@ -1,0 +1,249 @@
+//! The `Cloth` task: a mass-spring system (the lab cloth or explicit particles and
+//! springs) stepped by an integrator of sinew-spring-sim, with the run's energies,
+//! iterations and timing.
+
+use super::{Metrics, RunContext, TaskOutput, TaskSpec};
+use crate::render;
+use serde::Deserialize;
+use serde_json::json;
+use sinew_math::DVec3;
+use sinew_spring_sim::{
+    ClothGrid, Integrator, Material, Particle, Simulation, SpringSpec, SpringSystem, run_observed,
+};
+
+/// Scene fields of a `Cloth` task.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClothTask {
+    /// Unique name in the scene.
+    pub name: String,
+    /// The system.
+    pub system: SystemSpec,
+    /// The integrator (default: backward Euler by Newton, tolerance 1e-9).
+    #[serde(default)]
+    pub integrator: Integrator,
+    /// Time step in seconds.
+    pub dt: f64,
+    /// Number of steps.
+    pub steps: usize,
+    /// Fail the task if the total energy rises by more than this (relative) in a step.
+    #[serde(default)]
+    pub expect_energy_increase_max: Option<f64>,
+}
+
+/// A mass-spring system in a scene.
+#[derive(Debug, Deserialize)]
+pub enum SystemSpec {
+    /// A square cloth grid (fields default to the lab cloth, W4).
+    Grid(#[serde(default)] ClothGrid),
+    /// Explicit particles and springs.
+    Explicit {
+        /// The particles.
+        particles: Vec<Particle>,
+        /// The springs (rest length defaults to the initial distance, stiffness to the
+        /// material's).
+        springs: Vec<SpringSpec>,
+        /// Stiffness, damping, gravity.
+        #[serde(default)]
+        material: Material,
+    },
+}
+
+/// The most steps a scene may ask for.
+const MAX_STEPS: usize = 10_000_000;
+/// The most frames a picture animates.
+const MAX_FRAMES: usize = 100;
+
+impl ClothTask {
+    fn build(&self) -> Result<Simulation, String> {
+        let system = match &self.system {
+            SystemSpec::Grid(grid) => SpringSystem::cloth(grid),
+            SystemSpec::Explicit {
+                particles,
+                springs,
+                material,
+            } => SpringSystem::new(particles, springs, *material),
+        }
+        .map_err(|e| format!("system: {e}"))?;
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            return Err(format!("dt = {}, must be finite and > 0", self.dt));
+        }
+        if self.steps > MAX_STEPS {
+            return Err(format!(
+                "steps = {}, at most {MAX_STEPS} allowed",
+                self.steps
+            ));
+        }
+        Simulation::new(system, self.integrator).map_err(|e| format!("integrator: {e}"))
+    }
+}
+
+impl TaskSpec for ClothTask {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn kind(&self) -> &'static str {
+        "Cloth"
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        self.build()?;
+        if let Some(x) = self.expect_energy_increase_max
+            && !(x.is_finite() && x >= 0.0)
+        {
+            return Err(format!(
+                "expect_energy_increase_max = {x}, must be finite and >= 0"
+            ));
+        }
+        Ok(())
+    }
+
+    fn run(&self, ctx: &RunContext) -> Result<TaskOutput, String> {
+        let mut sim = self.build()?;
+        let springs: Vec<(usize, usize, f64)> = sim
+            .system()
+            .springs()
+            .iter()
+            .map(|s| (s.a, s.b, s.rest_length))
+            .collect();
+        let fixed: Vec<usize> = (0..sim.system().len())
+            .filter(|&i| sim.system().fixed()[i])
+            .collect();
+        let frame_every = self.steps.div_ceil(MAX_FRAMES).max(1);
+        let mut frames: Vec<Vec<DVec3>> = Vec::new();
+        if ctx.render {
+            frames.push(sim.system().positions().to_vec());
+        }
+        let mut csv = String::from(
+            "step,time,kinetic,spring,gravity,total,iterations,residual,linear_solver\n",
+        );
+        let mut energy = vec![(0.0, sim.system().energies().total())];
+        let mut iterations = Vec::with_capacity(self.steps);
+        let dt = self.dt;
+        let metrics = run_observed(&mut sim, dt, self.steps, |step, report, system| {
+            let time = (step + 1) as f64 * dt;
+            let e = report.energy_after;
+            csv.push_str(&format!(
+                "{},{time},{},{},{},{},{},{},{:?}\n",
+                step + 1,
+                e.kinetic,
+                e.spring,
+                e.gravity,
+                e.total(),
+                report.iterations,
+                report.residual,
+                report.linear_solver
+            ));
+            energy.push((time, e.total()));
+            iterations.push((time, report.iterations as f64));
+            if ctx.render && ((step + 1) % frame_every == 0 || step + 1 == self.steps) {
+                frames.push(system.positions().to_vec());
+            }
+        })
+        .map_err(|e| e.to_string())?;
+        let csv_path = ctx.out_dir.join(format!("{}.steps.csv", self.name));
+        std::fs::write(&csv_path, csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+
+        if ctx.render {
+            let out = |suffix: &str| ctx.out_dir.join(format!("{}.{suffix}", self.name));
+            let view = render::View::fit(frames.iter().flatten().copied(), 0.7, 0.35, 480, 480);
+            let cloth_frames: Vec<render::ClothFrame> = frames
+                .iter()
+                .map(|p| render::ClothFrame { positions: p })
+                .collect();
+            let fps = 15;
+            render::cloth_gif(
+                &out("gif"),
+                &view,
+                &cloth_frames,
+                &springs,
+                &fixed,
+                0.05,
+                fps,
+            )?;
+            if let Some(last) = cloth_frames.last() {
+                render::cloth_png(&out("png"), &view, last, &springs, &fixed, 0.05)?;
+            }
+            render::line_chart_svg(
+                &out("energy.svg"),
+                &format!("{}: total energy", self.name),
+                "time (s)",
+                "energy",
+                &[render::Series {
+                    name: "kinetic + spring + gravity",
+                    points: &energy,
+                }],
+                false,
+            )?;
+            if !iterations.is_empty() {
+                render::line_chart_svg(
+                    &out("iterations.svg"),
+                    &format!("{}: iterations per step", self.name),
+                    "time (s)",
+                    "iterations",
+                    &[render::Series {
+                        name: &metrics.integrator,
+                        points: &iterations,
+                    }],
+                    false,
+                )?;
+            }
+        }
+
+        let mut failures = Vec::new();
+        if metrics.diverged {
+            failures.push(format!(
+                "diverged: {}",
+                metrics.stopped_by.as_deref().unwrap_or("non-finite state")
+            ));
+        }
+        if let Some(limit) = self.expect_energy_increase_max
+            && metrics.energy_increase_max > limit
+        {
+            failures.push(format!(
+                "energy rose by {:.3e} (relative) in a step > expected at most {limit:.1e}",
+                metrics.energy_increase_max
+            ));
+        }
+        let mut out = Metrics::new();
+        out.insert("steps".into(), json!(metrics.steps));
+        out.insert("integrator".into(), json!(metrics.integrator));
+        out.insert(
+            "newton_iterations_total".into(),
+            json!(metrics.newton_iterations_total),
+        );
+        out.insert(
+            "newton_iterations_max".into(),
+            json!(metrics.newton_iterations_max),
+        );
+        out.insert("residual_max".into(), json!(metrics.residual_max));
+        out.insert("energy_start".into(), json!(metrics.energy_start));
+        out.insert("energy_end".into(), json!(metrics.energy_end));
+        out.insert(
+            "energy_increase_max".into(),
+            json!(metrics.energy_increase_max),
+        );
+        out.insert(
+            "time_per_step_ms_median".into(),
+            json!(metrics.time_per_step_ms_median),
+        );
+        out.insert("diverged".into(), json!(metrics.diverged));
+        let headline = format!(
+            "{} {} steps: {} Newton iterations (max {}), energy {:.4} -> {:.4}, {:.3} ms/step{}",
+            metrics.integrator,
+            metrics.steps,
+            metrics.newton_iterations_total,
+            metrics.newton_iterations_max,
+            metrics.energy_start,
+            metrics.energy_end,
+            metrics.time_per_step_ms_median,
+            if metrics.diverged { ", DIVERGED" } else { "" }
+        );
+        Ok(TaskOutput {
+            metrics: out,
+            headline,
+            failures,
+        })
+    }
+}
