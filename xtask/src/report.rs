@@ -4,6 +4,7 @@
 use crate::scene::LoadedScene;
 use crate::tasks::RunContext;
 use serde_json::json;
+use std::io::IsTerminal;
 use std::path::Path;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -36,6 +37,7 @@ pub fn run_and_report(loaded: &LoadedScene, out_dir: &Path, options: &Options) -
     let ctx = RunContext {
         out_dir: out_dir.to_path_buf(),
         render: options.render,
+        progress: !options.quiet && !options.json && std::io::stdout().is_terminal(),
     };
     let mut rows = Vec::new();
     let mut task_metrics = Vec::new();

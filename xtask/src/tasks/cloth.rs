@@ -121,7 +121,9 @@ impl TaskSpec for ClothTask {
         let mut energy = vec![(0.0, sim.system().energies().total())];
         let mut iterations = Vec::with_capacity(self.steps);
         let dt = self.dt;
+        let mut progress = ctx.progress(&self.name, self.steps);
         let metrics = run_observed(&mut sim, dt, self.steps, |step, report, system| {
+            progress.inc();
             let time = (step + 1) as f64 * dt;
             let e = report.energy_after;
             csv.push_str(&format!(
@@ -146,6 +148,7 @@ impl TaskSpec for ClothTask {
         std::fs::write(&csv_path, csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
 
         if ctx.render {
+            progress.phase("rendering");
             let out = |suffix: &str| ctx.out_dir.join(format!("{}.{suffix}", self.name));
             let view = render::View::fit(frames.iter().flatten().copied(), 0.7, 0.35, 480, 480);
             let cloth_frames: Vec<render::ClothFrame> = frames
@@ -191,6 +194,7 @@ impl TaskSpec for ClothTask {
             }
         }
 
+        drop(progress);
         let mut failures = Vec::new();
         if metrics.diverged {
             failures.push(format!(

@@ -190,6 +190,7 @@ impl TaskSpec for IkTask {
         // positions are copied outside the timed part.
         let frame_every = targets.len().div_ceil(MAX_FRAMES).max(1);
         let mut shown: Vec<(Vec<DVec3>, DVec3)> = Vec::new();
+        let mut progress = ctx.progress(&self.name, targets.len());
         for (k, &target) in targets.iter().enumerate() {
             let start = Instant::now();
             tracker
@@ -211,6 +212,7 @@ impl TaskSpec for IkTask {
                     .collect();
                 shown.push((joints, target));
             }
+            progress.inc();
         }
         let summary = tracker.summary();
         let records = tracker.records();
@@ -235,8 +237,10 @@ impl TaskSpec for IkTask {
         std::fs::write(&csv_path, csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
 
         if ctx.render {
+            progress.phase("rendering");
             self.draw(ctx, &shown, &targets, records)?;
         }
+        drop(progress);
 
         let out_of_reach = records
             .iter()

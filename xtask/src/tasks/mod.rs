@@ -21,6 +21,82 @@ pub struct RunContext {
     /// Whether to draw pictures (`--no-render` turns them off; they never change
     /// the metrics).
     pub render: bool,
+    /// Whether progress bars may be shown (stdout is a terminal, not `--quiet` or
+    /// `--json`).
+    pub progress: bool,
+}
+
+impl RunContext {
+    /// A progress counter for `total` units of work (frames, steps); it shows a bar
+    /// only once the task has run for about a second, and only when allowed.
+    pub fn progress(&self, task: &str, total: usize) -> Progress {
+        Progress {
+            enabled: self.progress,
+            label: task.to_string(),
+            total: total as u64,
+            done: 0,
+            start: Instant::now(),
+            bar: None,
+        }
+    }
+}
+
+/// See [`RunContext::progress`].
+pub struct Progress {
+    enabled: bool,
+    label: String,
+    total: u64,
+    done: u64,
+    start: Instant,
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Progress {
+    /// One more unit done.
+    pub fn inc(&mut self) {
+        self.done += 1;
+        self.update();
+    }
+
+    /// A new phase of the task (for example "rendering"), shown next to its name.
+    pub fn phase(&mut self, phase: &str) {
+        self.label = format!("{} ({phase})", self.label.split(" (").next().unwrap_or(""));
+        if let Some(bar) = &self.bar {
+            bar.set_message(self.label.clone());
+        }
+        self.update();
+    }
+
+    fn update(&mut self) {
+        if !self.enabled {
+            return;
+        }
+        match &self.bar {
+            Some(bar) => bar.set_position(self.done),
+            None if self.start.elapsed().as_secs_f64() > 1.0 => {
+                let bar = indicatif::ProgressBar::new(self.total);
+                bar.set_style(
+                    indicatif::ProgressStyle::with_template(
+                        "  {msg:<28} [{bar:30}] {pos}/{len} {eta}",
+                    )
+                    .expect("a valid template")
+                    .progress_chars("=> "),
+                );
+                bar.set_message(self.label.clone());
+                bar.set_position(self.done);
+                self.bar = Some(bar);
+            }
+            None => {}
+        }
+    }
+}
+
+impl Drop for Progress {
+    fn drop(&mut self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+    }
 }
 
 /// What a task produced.
