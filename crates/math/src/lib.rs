@@ -100,7 +100,14 @@ pub fn rotation_between(from: DVec3, to: DVec3) -> DQuat {
     // Obtuse angle: rotate a half turn about an axis n perpendicular to both a and b
     // (taking a to -a), then the acute rotation from -a to b, which is about the same
     // axis n. Two rotations about one axis compose to the minimal rotation.
-    let n = try_unit(a.cross(b)).unwrap_or_else(|| a.any_orthonormal_vector());
+    //
+    // Near antiparallel, a x b is tiny and its rounding error is not: its direction can
+    // lean out of the plane perpendicular to a by ~eps / |a x b|, and a half turn about
+    // such an axis misses -a by as much. Projecting n back onto that plane makes the half
+    // turn exact; what is left of the rounding only tilts the axis within the plane.
+    let n = try_unit(a.cross(b))
+        .and_then(|n| try_unit(n - a * a.dot(n)))
+        .unwrap_or_else(|| a.any_orthonormal_vector());
     let half_turn = DQuat::from_xyzw(n.x, n.y, n.z, 0.0);
     (half_angle_rotation(-a, b) * half_turn).normalize()
 }
@@ -200,6 +207,27 @@ mod tests {
             check_rotation(DVec3::X, b);
             let c = DVec3::new(-eps.cos(), eps.sin(), 0.0);
             check_rotation(DVec3::X, c);
+        }
+    }
+
+    #[test]
+    fn rotation_between_nearly_antiparallel_found_by_labcheck() {
+        // The property suite's minimal failing case: before the axis was projected
+        // perpendicular to `a`, |q a - b| was 4.4e-8.
+        let a = DVec3::new(-0.3792979770333347, 0.9067545476240882, 0.18419890059784472);
+        let b = DVec3::new(
+            0.37929797742080984,
+            -0.9067545476240882,
+            -0.18419890059784472,
+        );
+        check_rotation(a, b);
+        // And a sweep of angles within 1e-6 .. 1e-16 of pi about awkward axes.
+        for k in 1..=10 {
+            let eps = 10f64.powi(-(k + 6));
+            let a = DVec3::new(0.3, -0.8, 0.52).normalize();
+            let perp = a.any_orthonormal_vector();
+            let b = -a * eps.cos() + perp * eps.sin();
+            check_rotation(a, b);
         }
     }
 

@@ -357,6 +357,11 @@ pub fn straighten_towards(
         let (j, k) = (joints[c], joints[c + 1]);
         let bone = global.rotations[j] * skeleton.offset(k);
         if bone == DVec3::ZERO {
+            // Nothing to aim, but the next joint's global rotation must still follow
+            // this joint's (possibly turned) one, or a later bone is aimed from a stale
+            // frame.
+            global.rotations[k] = (global.rotations[j] * pose.rotations[k]).normalize();
+            global.positions[k] = global.positions[j];
             continue;
         }
         let turned = (rotation_between(bone, direction) * global.rotations[j]).normalize();
@@ -484,6 +489,37 @@ mod tests {
         let mut fresh = GlobalPose::new();
         skel.forward_kinematics(&pose, &mut fresh).unwrap();
         assert_eq!(fresh, global);
+    }
+
+    #[test]
+    fn straight_chain_through_consecutive_zero_length_bones() {
+        // The property suite's minimal failing case: before the fix, the bone after two
+        // zero-length bones kept its stale direction and the effector ended at (-1, 1, 0).
+        let skel =
+            Skeleton::chain(DVec3::ZERO, &[DVec3::X, DVec3::ZERO, DVec3::ZERO, DVec3::X]).unwrap();
+        let chain = Chain::whole(&skel).unwrap();
+        let mut pose = skel.rest_pose();
+        let mut global = GlobalPose::new();
+        let target = DVec3::new(0.0, 10.0, 0.0);
+        let start = begin_solve(
+            &skel,
+            &chain,
+            &mut pose,
+            &mut global,
+            target,
+            &SolveSettings::default(),
+        )
+        .unwrap();
+        let SolveStart::Done(report) = start else {
+            panic!("expected closed form")
+        };
+        assert_eq!(report.stop, StopReason::OutOfReach);
+        assert!(
+            (global.positions[4] - DVec3::new(0.0, 2.0, 0.0)).length() < 1e-15,
+            "{}",
+            global.positions[4]
+        );
+        assert!((report.error - 8.0).abs() < 1e-14);
     }
 
     #[test]
