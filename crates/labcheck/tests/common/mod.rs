@@ -1,0 +1,154 @@
+//! Helpers shared by the IK property files: forward kinematics into a fresh buffer, the
+//! solvers under test by name, and the full check of one solve against the
+//! `IkSolver` contract.
+
+#![allow(dead_code)]
+
+use proptest::prelude::*;
+use proptest::test_runner::TestCaseError;
+use sinew_ik_ccd::CcdSolver;
+use sinew_ik_fabrik::FabrikSolver;
+use sinew_labcheck::bounds::chain_position_allowance;
+use sinew_labcheck::reference::kinematics::{scale, skeleton_bone_violation};
+use sinew_labcheck::strategies::log_uniform;
+use sinew_math::DVec3;
+use sinew_skeleton::ik::{Chain, IkSolver, SolveReport, SolveSettings, StopReason};
+use sinew_skeleton::{GlobalPose, Pose, Skeleton};
+
+/// Forward kinematics of `pose` into a new buffer.
+pub fn fk(skeleton: &Skeleton, pose: &Pose) -> GlobalPose {
+    let mut global = GlobalPose::new();
+    skeleton
+        .forward_kinematics(pose, &mut global)
+        .expect("valid pose");
+    global
+}
+
+/// The solvers under test.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SolverKind {
+    /// `CcdSolver::new()`: sweep extrapolation on.
+    Ccd,
+    /// `CcdSolver::plain()`.
+    CcdPlain,
+    /// `FabrikSolver::new()`: the hybrid.
+    Fabrik,
+    /// `FabrikSolver::plain()`.
+    FabrikPlain,
+}
+
+/// Every solver.
+pub fn solver_kind() -> impl Strategy<Value = SolverKind> + Clone {
+    prop::sample::select(vec![
+        SolverKind::Ccd,
+        SolverKind::CcdPlain,
+        SolverKind::Fabrik,
+        SolverKind::FabrikPlain,
+    ])
+}
+
+/// A solver of the given kind.
+pub fn make_solver(kind: SolverKind) -> Box<dyn IkSolver> {
+    match kind {
+        SolverKind::Ccd => Box::new(CcdSolver::new()),
+        SolverKind::CcdPlain => Box::new(CcdSolver::plain()),
+        SolverKind::Fabrik => Box::new(FabrikSolver::new()),
+        SolverKind::FabrikPlain => Box::new(FabrikSolver::plain()),
+    }
+}
+
+/// Solve settings over the whole range: every cap from 0 to 100, tolerance 0 or
+/// log-uniform in `[1e-12, 1]`.
+pub fn settings() -> impl Strategy<Value = SolveSettings> + Clone {
+    (
+        0usize..=100,
+        prop_oneof![1 => Just(0.0), 4 => log_uniform(-12.0, 0.0)],
+    )
+        .prop_map(|(max_iterations, tolerance)| SolveSettings {
+            max_iterations,
+            tolerance,
+        })
+}
+
+/// What one checked solve returns.
+pub struct Solved {
+    /// The report.
+    pub report: SolveReport,
+    /// The pose after the solve.
+    pub pose: Pose,
+    /// Its forward kinematics, as the solver left it.
+    pub global: GlobalPose,
+}
+
+/// Solves and checks every part of the `IkSolver` contract that holds for any input:
+/// `Ok`; finite pose and global pose; `global` is forward kinematics of the pose; every
+/// bone of the skeleton keeps its length (`bounds::bone_length_allowance`); the report's
+/// errors are the true distances; the final error is not above the initial one; the cap
+/// is respected; a `Converged` stop is within the tolerance; joints outside the chain
+/// keep their local rotations; a start within the tolerance costs 0 iterations.
+pub fn solve_checked(
+    solver: &mut dyn IkSolver,
+    skeleton: &Skeleton,
+    chain: &Chain,
+    start: &Pose,
+    target: DVec3,
+    settings: &SolveSettings,
+) -> Result<Solved, TestCaseError> {
+    let before = fk(skeleton, start);
+    let initial = before.positions[chain.effector()].distance(target);
+    let mut pose = start.clone();
+    let mut global = GlobalPose::new();
+    let report = solver
+        .solve(skeleton, chain, &mut pose, &mut global, target, settings)
+        .map_err(|e| TestCaseError::fail(format!("solve refused valid input: {e}")))?;
+    prop_assert!(
+        pose.rotations.iter().all(|q| q.is_finite()),
+        "non-finite rotation"
+    );
+    prop_assert!(
+        global.positions.iter().all(|p| p.is_finite()),
+        "non-finite position"
+    );
+    prop_assert!(!report.error.is_nan() && !report.initial_error.is_nan());
+    let fresh = fk(skeleton, &pose);
+    let s = scale(fresh.positions.iter().copied());
+    for (j, (a, b)) in fresh.positions.iter().zip(&global.positions).enumerate() {
+        prop_assert!(
+            a.distance(*b) <= chain_position_allowance(0, s),
+            "global is not FK of the pose at joint {j}: {a} vs {b}"
+        );
+    }
+    if let Some(v) = skeleton_bone_violation(skeleton, &global.positions) {
+        return Err(TestCaseError::fail(format!("bone length not kept: {v:?}")));
+    }
+    prop_assert_eq!(report.initial_error, initial);
+    let reached = global.positions[chain.effector()].distance(target);
+    prop_assert_eq!(report.error, reached);
+    prop_assert!(
+        report.error <= report.initial_error,
+        "final error {:e} above initial {:e} ({:?})",
+        report.error,
+        report.initial_error,
+        report.stop
+    );
+    prop_assert!(report.iterations <= settings.max_iterations);
+    if report.stop == StopReason::Converged {
+        prop_assert!(report.error <= settings.tolerance);
+    }
+    let movable = &chain.joints()[..chain.bone_count()];
+    for j in 0..skeleton.len() {
+        if !movable.contains(&j) {
+            prop_assert_eq!(pose.rotations[j], start.rotations[j], "joint {} changed", j);
+        }
+    }
+    if initial <= settings.tolerance {
+        prop_assert_eq!(report.iterations, 0);
+        prop_assert_eq!(report.stop, StopReason::Converged);
+        prop_assert_eq!(&pose, start);
+    }
+    Ok(Solved {
+        report,
+        pose,
+        global,
+    })
+}
