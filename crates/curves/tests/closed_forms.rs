@@ -306,3 +306,83 @@ fn fn_curve_finite_difference_is_limited_as_documented() {
     let table = ArcLengthTable::new(&c, 1e-12).unwrap();
     assert!((table.length() - 4.8).abs() < 1e-11);
 }
+
+/// The exact arc length of a rose at the half periods `t_j = j pi / 2k`: each half period
+/// of `sin^2(k theta)` contributes `a E(1 - 1/k^2)` (docs/curves.md, Rose).
+fn rose_half_periods(c: &Rose) -> Vec<(f64, f64)> {
+    let k = f64::from(c.k());
+    let half = c.a() * complete_elliptic_e(1.0 - 1.0 / (k * k));
+    let count = if c.k() % 2 == 1 { 2 * c.k() } else { 4 * c.k() };
+    (0..=count)
+        .map(|j| (f64::from(j) * PI / (2.0 * k), f64::from(j) * half))
+        .collect()
+}
+
+/// Builds the table at `relative * length` (it must not refuse) and checks it against the
+/// exact arc length at `exact` points: within the tolerance, plus the closed form's own
+/// rounding (a few operations on numbers of the size of the length).
+fn check_relative<C: ParamCurveDeriv + std::fmt::Debug>(
+    c: &C,
+    length: f64,
+    relative: f64,
+    exact: &[(f64, f64)],
+) -> usize {
+    let tol = relative * length;
+    let table = match ArcLengthTable::new(c, tol) {
+        Ok(t) => t,
+        Err(e) => panic!("{c:?} refused {relative:e} of its length {length}: {e}"),
+    };
+    assert!(table.error_bound() <= tol);
+    let reference = 8.0 * f64::EPSILON * length;
+    let err = (table.length() - length).abs();
+    assert!(
+        err <= tol + reference,
+        "{c:?} length error {err:e} > {tol:e}"
+    );
+    for &(t, s) in exact {
+        let err = (table.arc_length_at(t) - s).abs();
+        assert!(
+            err <= tol + reference,
+            "{c:?} t {t}: error {err:e} > {tol:e}"
+        );
+    }
+    table.panel_count()
+}
+
+/// Regression (labcheck `tables_reach_1e_12_of_the_length`): the rose k = 11, a = 1 was
+/// refused at 1.04e-12 of its length, reaching 2.3284e-11 for a tolerance of 2.3278e-11.
+/// Refinement stopped once truncation + rounding was within the tolerance, and the final
+/// check then added the `2 eps L` of summing the panel lengths. Both now use one sum.
+#[test]
+fn rose_k11_at_1e_12_of_its_length_is_built_and_within() {
+    let c = Rose::new(11, 1.0, Plane::default()).unwrap();
+    let exact = rose_half_periods(&c);
+    check_relative(&c, c.exact_length(), 1.043877434697189e-12, &exact);
+}
+
+/// Every epicycloid and rose with k = 1..16, at sizes 1e-3..1e3, is built (not refused) at
+/// 1e-12 and 1e-13 of its length and is within that tolerance of the closed forms
+/// (docs/curves.md: the rounding floor is below 2e-14 of the length for these curves).
+#[test]
+fn flowers_reach_1e_13_of_their_length() {
+    let sizes = [1e-3, 0.037, 1.0, 27.0, 1e3];
+    for k in 1..=16u32 {
+        let size = sizes[k as usize % sizes.len()];
+        let plane = if k % 3 == 0 {
+            tilted_plane()
+        } else {
+            Plane::lab()
+        };
+        let rose = Rose::new(k, size, plane).unwrap();
+        let epi = Epicycloid::new(k, size, plane).unwrap();
+        let rose_exact = rose_half_periods(&rose);
+        let epi_exact: Vec<(f64, f64)> = grid(0.0, TAU, 97)
+            .into_iter()
+            .map(|t| (t, epi.exact_arc_length(t)))
+            .collect();
+        for relative in [1e-12, 1e-13] {
+            check_relative(&rose, rose.exact_length(), relative, &rose_exact);
+            check_relative(&epi, epi.exact_length(), relative, &epi_exact);
+        }
+    }
+}
