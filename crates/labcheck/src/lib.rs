@@ -9,7 +9,7 @@
 //!   [`strategies::targets`] (every kind of IK target, degenerate ones included),
 //!   [`strategies::curves`] (epicycloids, roses, polylines, placements) and
 //!   [`strategies::springs`] (grids and random graphs of springs with their states).
-//! - [`reference`]: independent computations the properties compare against (bone-length
+//! - [`mod@reference`]: independent computations the properties compare against (bone-length
 //!   errors, an independent rose quadrature, the epicycloid's closed form, the backward
 //!   Euler incremental potential), written from the formulas in `docs/labcheck.md`, not
 //!   by calling the code under test.
