@@ -1,7 +1,9 @@
 //! Accuracy next to time: each configuration runs a whole workload and is compared with
 //! the same workload solved to `|grad g|_inf <= 1e-12 m/h^2` (WORKLOADS.md, "solver
 //! error"). Prints a markdown table (time per step is the median over the run's steps,
-//! wall clock). Run with `cargo bench -p sinew-spring-sim --bench accuracy`.
+//! wall clock). Run with `cargo bench -p sinew-spring-sim --bench accuracy`; with
+//! `-- --integrators`, only the integrator comparison of issue 9 (distance from the true
+//! motion after 1 s, against a velocity Verlet reference far below its stability limit).
 
 use sinew_spring_sim::*;
 use std::time::Instant;
@@ -173,6 +175,10 @@ fn main() {
         big_cloth();
         return;
     }
+    if std::env::args().any(|a| a == "--integrators") {
+        integrators_table();
+        return;
+    }
     let mut grid5 = ClothGrid::lab(0.0);
     let cases: Vec<(&str, SpringSystem, f64, usize)> = vec![
         (
@@ -285,4 +291,143 @@ fn main() {
         }
     }
     true_motion_table(&cases);
+}
+
+/// What `auto` chose over a run: integrator names with step counts, and the substeps of
+/// its explicit steps.
+fn auto_choices(system: &SpringSystem, settings: AutoSettings, h: f64, steps: usize) -> String {
+    let mut sim = Simulation::new(system.clone(), Integrator::Auto(settings)).unwrap();
+    let mut counts: Vec<(String, usize)> = Vec::new();
+    for _ in 0..steps {
+        let Ok(r) = sim.step(h) else {
+            return "diverged".into();
+        };
+        let name = if r.integrator == IntegratorKind::VelocityVerlet {
+            format!("verlet x{}", r.substeps)
+        } else {
+            r.integrator.name().to_string()
+        };
+        match counts.iter_mut().find(|(n, _)| *n == name) {
+            Some((_, c)) => *c += 1,
+            None => counts.push((name, 1)),
+        }
+    }
+    counts
+        .iter()
+        .map(|(n, c)| format!("{n}: {c}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Issue 9: every integrator on W4 and W5 k = 1e6 (and W5 at h = 1/10), time per step and
+/// distance from the true motion after 1 s. The reference is velocity Verlet at 64 times
+/// the substep count of its stability bound, checked against 32 times (second order: the
+/// check is about 4 times the reference's own error).
+fn integrators_table() {
+    let cases: Vec<(&str, SpringSystem, f64)> = vec![
+        (
+            "W4 damping 0",
+            SpringSystem::cloth(&ClothGrid::lab(0.0)).unwrap(),
+            1.0 / 60.0,
+        ),
+        (
+            "W4 damping 0.2",
+            SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap(),
+            1.0 / 60.0,
+        ),
+        ("W5 k=1e6, h=1/30", w5(1e6), 1.0 / 30.0),
+        ("W5 k=1e6, h=1/10", w5(1e6), 0.1),
+    ];
+    println!();
+    println!(
+        "| workload | configuration | ms/step (median) | distance from the true motion after 1 s | notes |"
+    );
+    println!("|---|---|---|---|---|");
+    for (name, system, h) in &cases {
+        let steps = (1.0 / h).round() as usize;
+        let needed = StabilityBound::of(system).substeps(*h);
+        let reference = run(
+            system,
+            Integrator::VelocityVerlet {
+                substeps: Some(64 * needed),
+            },
+            *h,
+            steps,
+        );
+        let check = run(
+            system,
+            Integrator::VelocityVerlet {
+                substeps: Some(32 * needed),
+            },
+            *h,
+            steps,
+        );
+        println!(
+            "| {name} | reference check: Verlet {} vs {} substeps | {:.4} | {:.2e} | bound: {needed} substeps |",
+            32 * needed,
+            64 * needed,
+            reference.median_ms,
+            distance(&reference.positions, &check.positions)
+        );
+        let tol6 = NewtonSettings {
+            tolerance: 1e-6,
+            ..Default::default()
+        };
+        let configs: Vec<(String, Integrator)> = vec![
+            ("auto".into(), Integrator::Auto(AutoSettings::default())),
+            (
+                "velocity Verlet, bound's substeps".into(),
+                Integrator::VelocityVerlet { substeps: None },
+            ),
+            (
+                "symplectic Euler, bound's substeps".into(),
+                Integrator::SymplecticEulerBounded { substeps: None },
+            ),
+            (
+                "backward Euler, tol 1e-9".into(),
+                Integrator::BackwardEuler(NewtonSettings::default()),
+            ),
+            (
+                "BDF2, tol 1e-9".into(),
+                Integrator::Bdf2(NewtonSettings::default()),
+            ),
+            (
+                "implicit midpoint, tol 1e-9".into(),
+                Integrator::ImplicitMidpoint(NewtonSettings::default()),
+            ),
+            (
+                "backward Euler, tol 1e-6".into(),
+                Integrator::BackwardEuler(tol6),
+            ),
+            ("BDF2, tol 1e-6".into(), Integrator::Bdf2(tol6)),
+            (
+                "implicit midpoint, tol 1e-6".into(),
+                Integrator::ImplicitMidpoint(tol6),
+            ),
+        ];
+        for (cname, integrator) in configs {
+            let r = run(system, integrator, *h, steps);
+            let d = if r.diverged {
+                "diverged".to_string()
+            } else {
+                format!("{:.2e}", distance(&r.positions, &reference.positions))
+            };
+            let notes = match integrator {
+                Integrator::Auto(settings) => auto_choices(system, settings, *h, steps),
+                Integrator::BackwardEuler(_)
+                | Integrator::Bdf2(_)
+                | Integrator::ImplicitMidpoint(_) => {
+                    format!("Newton its {} / max {}", r.newton_total, r.newton_max)
+                }
+                _ => String::new(),
+            };
+            println!("| {name} | {cname} | {:.4} | {d} | {notes} |", r.median_ms);
+        }
+    }
+}
+
+fn w5(stiffness: f64) -> SpringSystem {
+    let mut grid = ClothGrid::lab(0.0);
+    grid.material.stiffness = stiffness;
+    SpringSystem::cloth(&grid).unwrap()
 }

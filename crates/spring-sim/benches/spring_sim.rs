@@ -163,5 +163,51 @@ fn kernels(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, kernels, steps);
+/// Issue 9: per-step time of the new integrators and `auto` (groups `integrators_*`).
+fn integrators(c: &mut Criterion) {
+    let newton = NewtonSettings::default();
+    let configs = [
+        ("auto", Integrator::Auto(AutoSettings::default())),
+        (
+            "verlet_bound",
+            Integrator::VelocityVerlet { substeps: None },
+        ),
+        ("bdf2", Integrator::Bdf2(newton)),
+        ("midpoint", Integrator::ImplicitMidpoint(newton)),
+        ("backward_euler", Integrator::BackwardEuler(newton)),
+    ];
+    for (name, integrator) in configs {
+        per_step(
+            c,
+            "integrators_w4_damping0",
+            name,
+            &w4(0.0),
+            integrator,
+            1.0 / 60.0,
+            60,
+        );
+        per_step(
+            c,
+            "integrators_w5_k1e6_h30",
+            name,
+            &w5(1e6),
+            integrator,
+            1.0 / 30.0,
+            30,
+        );
+        if name != "auto" && name != "verlet_bound" {
+            per_step(
+                c,
+                "integrators_w5_k1e6_h10",
+                name,
+                &w5(1e6),
+                integrator,
+                0.1,
+                10,
+            );
+        }
+    }
+}
+
+criterion_group!(benches, kernels, steps, integrators);
 criterion_main!(benches);

@@ -1,15 +1,20 @@
 //! The stepping front: one [`Integrator`] choice, one [`Simulation`] that owns the system
 //! and the chosen integrator's workspace, one [`StepReport`] per step.
 //!
-//! New integrators (BDF2, implicit midpoint, velocity Verlet, an automatic choice) are new
-//! variants of [`Integrator`] and [`crate::IntegratorKind`]; the implicit ones reuse the Newton
-//! minimization of [`crate::newton`] with another effective step and prediction.
+//! The implicit integrators (backward Euler, BDF2, implicit midpoint) share the Newton
+//! minimization of [`crate::newton`] with their own effective step and prediction; the
+//! explicit ones (symplectic Euler, velocity Verlet) take a substep count, checked against
+//! or chosen from the stability bound of [`crate::stability`]; `auto` picks among them per
+//! step and says why in the [`StepReport`]. The rules are in docs/integrators.md.
 
-use crate::explicit::SymplecticEuler;
+use crate::explicit::{SymplecticEuler, VelocityVerlet};
+use crate::implicit::{Bdf2, ImplicitMidpoint};
 use crate::model::{ModelError, SpringSystem};
 use crate::newton::{BackwardEuler, NewtonSettings};
 use crate::reference::flawed_report_method::FlawedReportMethod;
-use crate::report::{StepError, StepReport};
+use crate::report::{AutoReason, IntegratorKind, StepError, StepReport};
+use crate::stability::{StabilityBound, StabilityMonitor};
+use std::time::Instant;
 
 /// Which integrator advances the system, with its settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -26,6 +31,90 @@ pub enum Integrator {
     /// The lab report's flawed method, for comparison only
     /// ([`crate::reference::flawed_report_method`]).
     FlawedReportMethod,
+    /// BDF2 solved by Newton (second order, little numerical damping, L-stable).
+    Bdf2(NewtonSettings),
+    /// Implicit midpoint solved by Newton (second order, no numerical damping).
+    #[cfg_attr(feature = "serde", serde(alias = "midpoint"))]
+    ImplicitMidpoint(NewtonSettings),
+    /// Explicit velocity Verlet; `substeps: None` chooses the count from the stability
+    /// bound every step (with its safety factor), `Some(n)` is refused (an error, the step
+    /// not taken) when `n` is below the predicted stability limit.
+    #[cfg_attr(feature = "serde", serde(alias = "verlet"))]
+    VelocityVerlet {
+        /// Substeps per step, or `None` for the stability bound's count.
+        #[cfg_attr(feature = "serde", serde(default))]
+        substeps: Option<usize>,
+    },
+    /// Explicit symplectic Euler with the substep count checked against (or, with
+    /// `None`, chosen from) the stability bound, like [`Integrator::VelocityVerlet`].
+    /// ([`Integrator::SymplecticEuler`] takes its count unchecked, for comparisons.)
+    SymplecticEulerBounded {
+        /// Substeps per step, or `None` for the stability bound's count.
+        #[cfg_attr(feature = "serde", serde(default))]
+        substeps: Option<usize>,
+    },
+    /// The cheapest integrator stable at the step (velocity Verlet at the bound's
+    /// substep count, or BDF2), or backward Euler when asked to settle; see
+    /// [`AutoSettings`].
+    Auto(AutoSettings),
+}
+
+/// Settings of [`Integrator::Auto`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default))]
+pub struct AutoSettings {
+    /// Numerical damping wanted (settling to rest): always backward Euler (default false).
+    pub settle: bool,
+    /// Newton settings of the implicit integrators `auto` may use.
+    pub newton: NewtonSettings,
+    /// Largest substep count `auto` accepts for velocity Verlet (default 100 000); above
+    /// it BDF2 is used whatever the costs.
+    pub max_substeps: usize,
+    /// The cost of one implicit step in explicit substeps, assumed until an implicit step
+    /// has been timed (default 300; measured, docs/bench/spring-sim.md: a backward Euler or
+    /// BDF2 step costs about 20 Verlet substeps on W4 and 300 to 1000 on W5 k = 1e6).
+    pub implicit_cost_model: f64,
+    /// Hysteresis: the other integrator must be this much cheaper to switch (default 1.25).
+    pub switch_ratio: f64,
+}
+
+impl Default for AutoSettings {
+    fn default() -> Self {
+        Self {
+            settle: false,
+            newton: NewtonSettings::default(),
+            max_substeps: 100_000,
+            implicit_cost_model: 300.0,
+            switch_ratio: 1.25,
+        }
+    }
+}
+
+impl AutoSettings {
+    /// Checks the settings, naming the bad field.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        self.newton.validate()?;
+        if self.max_substeps == 0 {
+            return Err(ModelError::BadParameter {
+                name: "max_substeps",
+                reason: "must be at least 1",
+            });
+        }
+        if !(self.implicit_cost_model.is_finite() && self.implicit_cost_model > 0.0) {
+            return Err(ModelError::BadParameter {
+                name: "implicit_cost_model",
+                reason: "must be positive and finite",
+            });
+        }
+        if !(self.switch_ratio.is_finite() && self.switch_ratio >= 1.0) {
+            return Err(ModelError::BadParameter {
+                name: "switch_ratio",
+                reason: "must be finite and at least 1",
+            });
+        }
+        Ok(())
+    }
 }
 
 impl Default for Integrator {
@@ -39,6 +128,252 @@ enum Stepper {
     BackwardEuler(Box<BackwardEuler>),
     SymplecticEuler(SymplecticEuler),
     Flawed(FlawedReportMethod),
+    Bdf2(Box<Bdf2>),
+    Midpoint(Box<ImplicitMidpoint>),
+    Bounded(Box<BoundedExplicit>),
+    Auto(Box<AutoStepper>),
+}
+
+/// An explicit integrator behind the stability bound.
+#[derive(Debug)]
+enum ExplicitMethod {
+    SymplecticEuler(SymplecticEuler),
+    Verlet(VelocityVerlet),
+}
+
+impl ExplicitMethod {
+    fn kind(&self) -> IntegratorKind {
+        match self {
+            Self::SymplecticEuler(_) => IntegratorKind::SymplecticEuler,
+            Self::Verlet(_) => IntegratorKind::VelocityVerlet,
+        }
+    }
+
+    fn step(
+        &mut self,
+        system: &mut SpringSystem,
+        h: f64,
+        substeps: usize,
+    ) -> Result<StepReport, StepError> {
+        match self {
+            Self::SymplecticEuler(se) => {
+                se.set_substeps(substeps);
+                se.step(system, h)
+            }
+            Self::Verlet(vv) => {
+                vv.set_substeps(substeps);
+                vv.step(system, h)
+            }
+        }
+    }
+}
+
+/// An explicit integrator whose substep count is checked against, or chosen from, the
+/// stability bound before every step.
+#[derive(Debug)]
+struct BoundedExplicit {
+    requested: Option<usize>,
+    monitor: StabilityMonitor,
+    method: ExplicitMethod,
+}
+
+impl BoundedExplicit {
+    fn new(
+        system: &SpringSystem,
+        requested: Option<usize>,
+        verlet: bool,
+    ) -> Result<Self, ModelError> {
+        let n = requested.unwrap_or(1);
+        let method = if verlet {
+            ExplicitMethod::Verlet(VelocityVerlet::new(system, n)?)
+        } else {
+            ExplicitMethod::SymplecticEuler(SymplecticEuler::new(system, n)?)
+        };
+        Ok(Self {
+            requested,
+            monitor: StabilityMonitor::new(),
+            method,
+        })
+    }
+
+    fn step(&mut self, system: &mut SpringSystem, h: f64) -> Result<StepReport, StepError> {
+        crate::model::check_time_step(h)?;
+        let bound = self.monitor.update(system, h);
+        let recommended = bound.substeps(h);
+        let needed = bound.critical_substeps(h);
+        let substeps = match self.requested {
+            None => recommended,
+            Some(n) if n >= needed => n,
+            Some(n) => {
+                return Err(StepError::BelowStabilityBound {
+                    integrator: self.method.kind(),
+                    substeps: n,
+                    needed,
+                    recommended,
+                    omega_max: bound.omega_max(),
+                    dt: h,
+                });
+            }
+        };
+        let mut report = self.method.step(system, h, substeps)?;
+        report.omega_max = bound.omega_max();
+        report.stable_substeps = recommended;
+        Ok(report)
+    }
+}
+
+/// The last few measured times of one choice; the estimate is their minimum (noise on a
+/// shared machine only adds time).
+#[derive(Clone, Copy, Debug)]
+struct Timing {
+    recent: [f64; 8],
+    next: usize,
+    samples: usize,
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Self {
+            recent: [f64::INFINITY; 8],
+            next: 0,
+            samples: 0,
+        }
+    }
+}
+
+impl Timing {
+    fn record(&mut self, seconds: f64) {
+        self.recent[self.next] = seconds;
+        self.next = (self.next + 1) % self.recent.len();
+        self.samples += 1;
+    }
+
+    fn estimate(&self) -> Option<f64> {
+        let m = self.recent.iter().copied().fold(f64::INFINITY, f64::min);
+        m.is_finite().then_some(m)
+    }
+}
+
+/// Explicit steps `auto` times before trusting the explicit cost against a measured
+/// implicit one.
+const PROBES: usize = 3;
+
+/// The `auto` integrator: velocity Verlet at the bound's substep count or BDF2, whichever
+/// costs less per step (measured, or modelled before measured), or backward Euler when
+/// asked to settle.
+#[derive(Debug)]
+struct AutoStepper {
+    settings: AutoSettings,
+    monitor: StabilityMonitor,
+    verlet: VelocityVerlet,
+    bdf2: Option<Box<Bdf2>>,
+    settle: Option<Box<BackwardEuler>>,
+    current: Option<IntegratorKind>,
+    /// Seconds per explicit substep.
+    substep_time: Timing,
+    /// Seconds per implicit step.
+    implicit_time: Timing,
+}
+
+impl AutoStepper {
+    fn new(system: &SpringSystem, settings: AutoSettings) -> Result<Self, ModelError> {
+        settings.validate()?;
+        let settle = if settings.settle {
+            Some(Box::new(BackwardEuler::new(system, settings.newton)?))
+        } else {
+            None
+        };
+        Ok(Self {
+            settings,
+            monitor: StabilityMonitor::new(),
+            verlet: VelocityVerlet::new(system, 1)?,
+            bdf2: None,
+            settle,
+            current: None,
+            substep_time: Timing::default(),
+            implicit_time: Timing::default(),
+        })
+    }
+
+    fn reset_history(&mut self) {
+        if let Some(b) = &mut self.bdf2 {
+            b.reset_history();
+        }
+        if let Some(b) = &mut self.settle {
+            b.reset_history();
+        }
+    }
+
+    /// The choice for a step of `h` with `needed` substeps for Verlet.
+    fn choose(&self, needed: usize) -> AutoReason {
+        if needed > self.settings.max_substeps {
+            return AutoReason::SubstepCap;
+        }
+        // Costs in seconds when measured; before, in units of one explicit substep.
+        let (explicit, implicit) =
+            match (self.substep_time.estimate(), self.implicit_time.estimate()) {
+                // Fewer than PROBES explicit timings: time another explicit step (safe,
+                // at the bound's count), so one preempted step cannot decide for good.
+                (Some(_), Some(_)) if self.substep_time.samples < PROBES => {
+                    return AutoReason::ExplicitCheapest;
+                }
+                (Some(t), Some(ti)) => (needed as f64 * t, ti),
+                (Some(t), None) => (needed as f64 * t, self.settings.implicit_cost_model * t),
+                // An implicit step was timed but no explicit one: time one explicit step
+                // (stable at the bound's count, so the probe is safe).
+                (None, Some(_)) => return AutoReason::ExplicitCheapest,
+                (None, None) => (needed as f64, self.settings.implicit_cost_model),
+            };
+        let ratio = self.settings.switch_ratio;
+        let explicit_wins = match self.current {
+            Some(IntegratorKind::Bdf2) => explicit * ratio < implicit,
+            Some(IntegratorKind::VelocityVerlet) => explicit < implicit * ratio,
+            _ => explicit <= implicit,
+        };
+        if explicit_wins {
+            AutoReason::ExplicitCheapest
+        } else {
+            AutoReason::ImplicitCheaper
+        }
+    }
+
+    fn step(&mut self, system: &mut SpringSystem, h: f64) -> Result<StepReport, StepError> {
+        crate::model::check_time_step(h)?;
+        if let Some(be) = &mut self.settle {
+            let mut report = be.step(system, h)?;
+            report.auto_reason = Some(AutoReason::Settle);
+            return Ok(report);
+        }
+        let bound = self.monitor.update(system, h);
+        let needed = bound.substeps(h);
+        let reason = self.choose(needed);
+        let started = Instant::now();
+        let mut report = if reason == AutoReason::ExplicitCheapest {
+            self.verlet.set_substeps(needed);
+            let report = self.verlet.step(system, h)?;
+            self.substep_time
+                .record(started.elapsed().as_secs_f64() / needed as f64);
+            self.current = Some(IntegratorKind::VelocityVerlet);
+            report
+        } else {
+            if self.bdf2.is_none() {
+                self.bdf2 = Some(Box::new(Bdf2::new(system, self.settings.newton)?));
+            }
+            let bdf2 = self.bdf2.as_mut().expect("built above");
+            if self.current != Some(IntegratorKind::Bdf2) {
+                // Coming from Verlet: the BDF2 history is stale.
+                bdf2.reset_history();
+            }
+            let report = bdf2.step(system, h)?;
+            self.implicit_time.record(started.elapsed().as_secs_f64());
+            self.current = Some(IntegratorKind::Bdf2);
+            report
+        };
+        report.auto_reason = Some(reason);
+        report.omega_max = bound.omega_max();
+        report.stable_substeps = needed;
+        Ok(report)
+    }
 }
 
 /// A system and the integrator that advances it.
@@ -59,6 +394,19 @@ impl Simulation {
                 Stepper::SymplecticEuler(SymplecticEuler::new(&system, substeps)?)
             }
             Integrator::FlawedReportMethod => Stepper::Flawed(FlawedReportMethod::new(&system)),
+            Integrator::Bdf2(settings) => Stepper::Bdf2(Box::new(Bdf2::new(&system, settings)?)),
+            Integrator::ImplicitMidpoint(settings) => {
+                Stepper::Midpoint(Box::new(ImplicitMidpoint::new(&system, settings)?))
+            }
+            Integrator::VelocityVerlet { substeps } => {
+                Stepper::Bounded(Box::new(BoundedExplicit::new(&system, substeps, true)?))
+            }
+            Integrator::SymplecticEulerBounded { substeps } => {
+                Stepper::Bounded(Box::new(BoundedExplicit::new(&system, substeps, false)?))
+            }
+            Integrator::Auto(settings) => {
+                Stepper::Auto(Box::new(AutoStepper::new(&system, settings)?))
+            }
         };
         Ok(Self { system, stepper })
     }
@@ -69,7 +417,18 @@ impl Simulation {
             Stepper::BackwardEuler(be) => be.step(&mut self.system, dt),
             Stepper::SymplecticEuler(se) => se.step(&mut self.system, dt),
             Stepper::Flawed(fl) => fl.step(&mut self.system, dt),
+            Stepper::Bdf2(b) => b.step(&mut self.system, dt),
+            Stepper::Midpoint(m) => m.step(&mut self.system, dt),
+            Stepper::Bounded(b) => b.step(&mut self.system, dt),
+            Stepper::Auto(a) => a.step(&mut self.system, dt),
         }
+    }
+
+    /// The stability bound of the explicit integrators at the current state (computed
+    /// afresh; `O(springs)` Gershgorin plus a Lanczos estimate).
+    #[must_use]
+    pub fn stability_bound(&self) -> StabilityBound {
+        StabilityBound::of(&self.system)
     }
 
     /// The system.
@@ -80,8 +439,12 @@ impl Simulation {
 
     /// The system, for state or material changes that keep the topology.
     pub fn system_mut(&mut self) -> &mut SpringSystem {
-        if let Stepper::BackwardEuler(be) = &mut self.stepper {
-            be.reset_history();
+        match &mut self.stepper {
+            Stepper::BackwardEuler(be) => be.reset_history(),
+            Stepper::Bdf2(b) => b.reset_history(),
+            Stepper::Midpoint(m) => m.reset_history(),
+            Stepper::Auto(a) => a.reset_history(),
+            _ => {}
         }
         &mut self.system
     }

@@ -12,7 +12,11 @@
 //!   solvers behind one choice, [`LinearSolverChoice`].
 //! - [`integrator`]: [`Simulation`] and [`Integrator`], the one stepping call for every
 //!   integrator; [`report`]: [`StepReport`].
-//! - [`explicit`], [`mod@reference`]: comparison integrators.
+//! - [`implicit`]: [`Bdf2`] and [`ImplicitMidpoint`] on the same Newton minimization.
+//! - [`explicit`]: symplectic Euler and [`VelocityVerlet`] with substeps;
+//!   [`stability`]: their stability bound ([`StabilityBound`]), from which
+//!   [`Integrator::VelocityVerlet`] and `auto` ([`Integrator::Auto`]) choose the substep
+//!   count and which refuses a count below it. [`mod@reference`]: comparison only.
 //! - [`metrics`]: [`metrics::run`], a whole run with the metrics scene runners print.
 //!
 //! Linear solver choice (`Auto`): the first step uses PCG, the second the direct solve;
@@ -31,6 +35,7 @@
 //! Derivations: docs/spring-sim.md. Measurements: docs/bench/spring-sim.md.
 
 pub mod explicit;
+pub mod implicit;
 pub mod integrator;
 pub mod linear;
 pub mod metrics;
@@ -40,9 +45,11 @@ mod pattern;
 pub mod reference;
 pub mod report;
 pub mod spring;
+pub mod stability;
 
-pub use explicit::SymplecticEuler;
-pub use integrator::{Integrator, Simulation};
+pub use explicit::{SymplecticEuler, VelocityVerlet};
+pub use implicit::{Bdf2, ImplicitMidpoint};
+pub use integrator::{AutoSettings, Integrator, Simulation};
 pub use linear::{FactorStructure, LinearSolverChoice, LinearSolverKind};
 pub use metrics::{RunMetrics, run, run_observed};
 pub use model::{
@@ -50,4 +57,5 @@ pub use model::{
 };
 pub use newton::{BackwardEuler, InitialGuess, NewtonSettings};
 pub use pattern::HessianPattern;
-pub use report::{IntegratorKind, StepError, StepReport, StopReason};
+pub use report::{AutoReason, IntegratorKind, StepError, StepReport, StopReason};
+pub use stability::{StabilityBound, StabilityMonitor};

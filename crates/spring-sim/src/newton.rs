@@ -158,6 +158,22 @@ impl SolverTiming {
     }
 }
 
+/// Which one-step (or two-step) implicit scheme a minimization implements.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Scheme<'a> {
+    /// `h_eff = h`, `y = x_n + h v_n`.
+    BackwardEuler,
+    /// The midpoint `z`: `h_eff = h/2`, `y = x_n + h/2 v_n`; `x' = 2z - x_n`.
+    Midpoint,
+    /// `h_eff = 2h/3`, `y = (4 x_n - x_{n-1})/3 + h_eff (4 v_n - v_{n-1})/3`.
+    Bdf2 {
+        /// `x_{n-1}`.
+        prev_x: &'a [DVec3],
+        /// `v_{n-1}`.
+        prev_v: &'a [DVec3],
+    },
+}
+
 /// The objective's pieces that stay fixed during one minimization.
 struct Problem<'a> {
     h: f64,
@@ -305,8 +321,30 @@ impl BackwardEuler {
 
     /// Advances `system` by one backward Euler step of length `h`.
     pub fn step(&mut self, system: &mut SpringSystem, h: f64) -> Result<StepReport, StepError> {
+        self.step_scheme(system, h, Scheme::BackwardEuler)
+    }
+
+    /// Advances `system` by one step of length `h` of `scheme`, each one the same
+    /// minimization with its own effective step, prediction and velocity update
+    /// (docs/integrators.md).
+    pub(crate) fn step_scheme(
+        &mut self,
+        system: &mut SpringSystem,
+        h: f64,
+        scheme: Scheme<'_>,
+    ) -> Result<StepReport, StepError> {
         check_time_step(h)?;
         self.check_topology(system)?;
+        if let Scheme::Bdf2 { prev_x, prev_v } = scheme
+            && (prev_x.len() != system.len() || prev_v.len() != system.len())
+        {
+            return Err(ModelError::TopologyMismatch.into());
+        }
+        let (kind, h_eff) = match scheme {
+            Scheme::BackwardEuler => (IntegratorKind::BackwardEuler, h),
+            Scheme::Midpoint => (IntegratorKind::ImplicitMidpoint, 0.5 * h),
+            Scheme::Bdf2 { .. } => (IntegratorKind::Bdf2, 2.0 * h / 3.0),
+        };
         let energy_before = system.energies();
         let fixed = system.fixed();
         for (i, (&x, &v)) in system
@@ -315,25 +353,39 @@ impl BackwardEuler {
             .zip(system.velocities())
             .enumerate()
         {
-            self.x_ref[i] = x;
-            self.y[i] = if fixed[i] { x } else { x + h * v };
+            if fixed[i] {
+                self.x_ref[i] = x;
+                self.y[i] = x;
+                self.x[i] = x;
+                continue;
+            }
+            // x_ref: the point the new velocity is measured from, v' = (x' - x_ref)/h_eff
+            // (also the damping's reference); y: the inertial prediction.
+            let (x_ref, v_ref) = match scheme {
+                Scheme::BackwardEuler | Scheme::Midpoint => (x, v),
+                Scheme::Bdf2 { prev_x, prev_v } => {
+                    ((4.0 * x - prev_x[i]) / 3.0, (4.0 * v - prev_v[i]) / 3.0)
+                }
+            };
+            self.x_ref[i] = x_ref;
+            self.y[i] = x_ref + h_eff * v_ref;
             self.x[i] = self.y[i];
-            if self.settings.initial_guess == InitialGuess::Extrapolated
-                && self.have_prev_velocity
-                && !fixed[i]
+            if self.settings.initial_guess == InitialGuess::Extrapolated && self.have_prev_velocity
             {
-                self.x[i] += h * (v - self.prev_velocity[i]);
+                self.x[i] += h_eff * (v - self.prev_velocity[i]);
             }
         }
+        // Damping directions frozen at the start of the step.
         for (dir, s) in self.directions.iter_mut().zip(system.springs()) {
-            *dir = spring::damping_direction(self.x_ref[s.a], self.x_ref[s.b]);
+            *dir = spring::damping_direction(system.positions()[s.a], system.positions()[s.b]);
         }
-        let mut report = self.minimize(system, h)?;
+        let mut report = self.minimize(system, h_eff)?;
+        report.integrator = kind;
         if let Some(particle) = self.x.iter().position(|x| !x.is_finite()) {
             // Not reached with finite input (every iterate passed the line search); kept
             // so a NaN can never leave this call.
             return Err(StepError::NonFinite {
-                integrator: IntegratorKind::BackwardEuler,
+                integrator: kind,
                 particle,
             });
         }
@@ -341,8 +393,15 @@ impl BackwardEuler {
         for i in 0..positions.len() {
             self.prev_velocity[i] = velocities[i];
             if !fixed_at(&self.pattern, i) {
-                velocities[i] = (self.x[i] - self.x_ref[i]) / h;
-                positions[i] = self.x[i];
+                let v_mean = (self.x[i] - self.x_ref[i]) / h_eff;
+                if matches!(scheme, Scheme::Midpoint) {
+                    // self.x is the midpoint z: x' = 2 z - x_n, v' = 2 v_mean - v_n.
+                    velocities[i] = 2.0 * v_mean - velocities[i];
+                    positions[i] = 2.0 * self.x[i] - self.x_ref[i];
+                } else {
+                    velocities[i] = v_mean;
+                    positions[i] = self.x[i];
+                }
             }
         }
         self.have_prev_velocity = true;

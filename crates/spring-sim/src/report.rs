@@ -17,6 +17,44 @@ pub enum IntegratorKind {
     SymplecticEuler,
     /// The lab report's flawed Newton variant, for comparison only.
     FlawedReportMethod,
+    /// BDF2 by Newton (second order, damps far less than backward Euler).
+    Bdf2,
+    /// Implicit midpoint by Newton (second order, conserves the energy of linear springs).
+    ImplicitMidpoint,
+    /// Explicit velocity Verlet with substeps.
+    VelocityVerlet,
+}
+
+/// Why `auto` chose the integrator of a step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum AutoReason {
+    /// The settings ask to settle (numerical damping wanted): backward Euler.
+    Settle,
+    /// Velocity Verlet at the substep count from the stability bound costs no more than
+    /// an implicit step (measured, or modelled before any was measured).
+    ExplicitCheapest,
+    /// The substeps the stability bound asks for cost more than an implicit step: BDF2.
+    ImplicitCheaper,
+    /// The bound asks for more substeps than `AutoSettings::max_substeps`: BDF2.
+    SubstepCap,
+}
+
+impl AutoReason {
+    /// A short explanation for reports.
+    #[must_use]
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::Settle => "settling asked for: backward Euler damps to rest",
+            Self::ExplicitCheapest => {
+                "velocity Verlet at the stability-bound substep count is the cheapest stable choice"
+            }
+            Self::ImplicitCheaper => {
+                "the substeps the stability bound needs cost more than an implicit step: BDF2"
+            }
+            Self::SubstepCap => "the stability bound needs more substeps than allowed: BDF2",
+        }
+    }
 }
 
 impl IntegratorKind {
@@ -27,6 +65,9 @@ impl IntegratorKind {
             Self::BackwardEuler => "backward_euler",
             Self::SymplecticEuler => "symplectic_euler",
             Self::FlawedReportMethod => "flawed_report_method",
+            Self::Bdf2 => "bdf2",
+            Self::ImplicitMidpoint => "implicit_midpoint",
+            Self::VelocityVerlet => "velocity_verlet",
         }
     }
 }
@@ -85,6 +126,14 @@ pub struct StepReport {
     pub energy_before: Energies,
     /// Energies at the end of the step.
     pub energy_after: Energies,
+    /// With `auto`: why this step's integrator was chosen (`None` otherwise).
+    pub auto_reason: Option<AutoReason>,
+    /// The estimated largest effective frequency `omega_eff` (rad/s) of the stability
+    /// bound, when it was computed for this step (explicit bounded integrators and `auto`;
+    /// 0 otherwise).
+    pub omega_max: f64,
+    /// The substep count the stability bound asks for at this step (0 when not computed).
+    pub stable_substeps: usize,
 }
 
 impl StepReport {
@@ -107,6 +156,9 @@ impl StepReport {
             substeps: 1,
             energy_before: Energies::default(),
             energy_after: Energies::default(),
+            auto_reason: None,
+            omega_max: 0.0,
+            stable_substeps: 0,
         }
     }
 
@@ -131,6 +183,23 @@ pub enum StepError {
         /// The first particle with a non-finite position or velocity.
         particle: usize,
     },
+    /// An explicit integrator was given fewer substeps than its stability bound asks for
+    /// at this step; the step was refused (not taken).
+    BelowStabilityBound {
+        /// The integrator.
+        integrator: IntegratorKind,
+        /// The substeps given.
+        substeps: usize,
+        /// The substeps needed: the predicted stability limit `ceil(h omega_max / 2)`.
+        needed: usize,
+        /// The count the bound recommends (with its safety factor), what `substeps: None`
+        /// uses.
+        recommended: usize,
+        /// The estimated largest effective frequency `omega_eff`, rad/s.
+        omega_max: f64,
+        /// The step.
+        dt: f64,
+    },
 }
 
 impl std::fmt::Display for StepError {
@@ -143,6 +212,18 @@ impl std::fmt::Display for StepError {
             } => write!(
                 f,
                 "{}: particle {particle} became non-finite; the step was undone",
+                integrator.name()
+            ),
+            Self::BelowStabilityBound {
+                integrator,
+                substeps,
+                needed,
+                recommended,
+                omega_max,
+                dt,
+            } => write!(
+                f,
+                "{}: {substeps} substeps per step of {dt} is above the stability bound (omega_max = {omega_max:.4e} rad/s); at least {needed} substeps are needed ({recommended} recommended), or use an implicit integrator; the step was refused",
                 integrator.name()
             ),
         }

@@ -1,0 +1,339 @@
+//! The stability bound of the explicit integrators: the largest frequency of the system,
+//! and from it the number of substeps at which symplectic Euler and velocity Verlet are
+//! stable at a given step.
+//!
+//! For the linearization `M x'' = -K x - C x'` (free particles only, `K` the assembled
+//! PSD-projected spring blocks, `C` the axial damping blocks), both integrators are stable
+//! on a mode of frequency `omega` and damping rate `gamma` when
+//! `dt^2 omega^2 + 2 dt gamma <= 4`, i.e. `dt omega_eff <= 2` with
+//! `omega_eff = (gamma + sqrt(gamma^2 + 4 omega^2)) / 2` (`= omega` without damping).
+//! `omega_max^2 = lambda_max(M^-1 K)` is bounded above by Gershgorin's row sums (cheap,
+//! rigorous, often loose) and estimated by Lanczos on `M^-1/2 K M^-1/2` (accurate, from
+//! below). The substep count is `min(ceil(h omega_eff / (2 SAFETY)), ceil(h omega_G / 2))`
+//! with the Lanczos `omega_eff` and the Gershgorin `omega_G`: the safety factor covers the
+//! estimate's error and the drift of the state between two estimates, and the Gershgorin
+//! count, which needs no safety factor, caps it. Derivation: docs/integrators.md.
+
+use crate::model::SpringSystem;
+use crate::spring;
+use sinew_math::DVec3;
+
+/// The fraction of the stability limit the chosen substep count stays under:
+/// `dt omega_eff <= 2 SAFETY`.
+pub const SAFETY: f64 = 0.9;
+
+/// Lanczos iterations for the estimate (fewer when the system has fewer unknowns).
+pub const LANCZOS_ITERATIONS: usize = 60;
+
+/// The stability data of a system at one state.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct StabilityBound {
+    /// Gershgorin upper bound on `lambda_max(M^-1 K)` (rigorous).
+    pub gershgorin: f64,
+    /// Lanczos estimate of `lambda_max(M^-1 K)` (converges from below; `<= gershgorin`).
+    pub estimate: f64,
+    /// Gershgorin upper bound on `lambda_max(M^-1 C)`, the fastest damping rate.
+    pub damping_rate: f64,
+}
+
+/// `(gamma + sqrt(gamma^2 + 4 omega^2)) / 2` for `omega^2 = lambda`: the frequency whose
+/// limit `dt omega_eff <= 2` is the damped condition `dt^2 omega^2 + 2 dt gamma <= 4`.
+#[must_use]
+fn effective_omega(lambda: f64, gamma: f64) -> f64 {
+    0.5 * (gamma + (gamma * gamma + 4.0 * lambda.max(0.0)).sqrt())
+}
+
+impl StabilityBound {
+    /// Computes the bound of `system` at its current state.
+    #[must_use]
+    pub fn of(system: &SpringSystem) -> Self {
+        let (gershgorin, damping_rate) = gershgorin(system);
+        let estimate = if gershgorin > 0.0 {
+            lanczos_max(system, LANCZOS_ITERATIONS).min(gershgorin)
+        } else {
+            0.0
+        };
+        Self {
+            gershgorin,
+            estimate,
+            damping_rate,
+        }
+    }
+
+    /// The estimated largest effective frequency `omega_eff` (damping included), rad/s.
+    #[must_use]
+    pub fn omega_max(&self) -> f64 {
+        effective_omega(self.estimate, self.damping_rate)
+    }
+
+    /// The rigorous (Gershgorin) upper bound on `omega_eff`.
+    #[must_use]
+    pub fn omega_upper(&self) -> f64 {
+        effective_omega(self.gershgorin, self.damping_rate)
+    }
+
+    /// The predicted stability limit at step `h`: the smallest substep count with
+    /// `h / n omega_eff <= 2`, from the estimate, without safety factor.
+    #[must_use]
+    pub fn critical_substeps(&self, h: f64) -> usize {
+        substeps_for(h * self.omega_max() / 2.0)
+    }
+
+    /// The substep count used at step `h`: `ceil(h omega_eff / (2 SAFETY))`, capped by the
+    /// Gershgorin count `ceil(h omega_G / 2)` (stable without safety factor).
+    #[must_use]
+    pub fn substeps(&self, h: f64) -> usize {
+        let safe = substeps_for(h * self.omega_max() / (2.0 * SAFETY));
+        let rigorous = substeps_for(h * self.omega_upper() / 2.0);
+        safe.min(rigorous)
+    }
+}
+
+/// `max(1, ceil(ratio))`, saturating for huge or non-finite ratios.
+fn substeps_for(ratio: f64) -> usize {
+    if !ratio.is_finite() || ratio >= usize::MAX as f64 {
+        return usize::MAX;
+    }
+    (ratio.ceil() as usize).max(1)
+}
+
+/// Gershgorin bounds `(lambda_max(M^-1 K), lambda_max(M^-1 C))` over the free unknowns:
+/// the largest absolute row sum of each matrix. `O(springs)`.
+#[must_use]
+pub fn gershgorin(system: &SpringSystem) -> (f64, f64) {
+    let mut rows = Vec::new();
+    gershgorin_with(system, &mut rows)
+}
+
+/// [`gershgorin`] with a reusable buffer for the row sums.
+fn gershgorin_with(system: &SpringSystem, rows: &mut Vec<[DVec3; 2]>) -> (f64, f64) {
+    let n = system.len();
+    let fixed = system.fixed();
+    let x = system.positions();
+    let damping = system.material().damping;
+    // Row sums, three per particle, stiffness [0] and damping [1].
+    rows.clear();
+    rows.resize(n, [DVec3::ZERO; 2]);
+    for s in system.springs() {
+        let d = x[s.a] - x[s.b];
+        let (alpha, beta, u) = spring::hessian_coefficients(d, s.rest_length, s.stiffness, true);
+        // Row c of alpha I + beta u u^T: |alpha + beta u_c^2| + sum_{c' != c} |beta u_c u_c'|
+        // = alpha + beta |u_c| |u|_1 (alpha, beta >= 0).
+        let u1 = u.abs().element_sum();
+        let block_k = DVec3::splat(alpha) + beta * u1 * u.abs();
+        let block_c = if damping > 0.0 {
+            let w = spring::damping_direction(x[s.a], x[s.b]);
+            damping * w.abs().element_sum() * w.abs()
+        } else {
+            DVec3::ZERO
+        };
+        // The block appears on the diagonal and, when the other end is free, again as
+        // the coupling block of the same row.
+        let (fa, fb) = (fixed[s.a], fixed[s.b]);
+        let both = if fa || fb { 1.0 } else { 2.0 };
+        if !fa {
+            rows[s.a][0] += both * block_k;
+            rows[s.a][1] += both * block_c;
+        }
+        if !fb {
+            rows[s.b][0] += both * block_k;
+            rows[s.b][1] += both * block_c;
+        }
+    }
+    let masses = system.masses();
+    let mut lk = 0.0f64;
+    let mut lc = 0.0f64;
+    for i in 0..n {
+        if !fixed[i] {
+            lk = lk.max(rows[i][0].max_element() / masses[i]);
+            lc = lc.max(rows[i][1].max_element() / masses[i]);
+        }
+    }
+    (lk, lc)
+}
+
+/// `y = M^-1/2 K M^-1/2 x` over all particles (fixed ones are zero in and out).
+fn apply(system: &SpringSystem, inv_sqrt_m: &[f64], x: &[DVec3], y: &mut [DVec3]) {
+    y.fill(DVec3::ZERO);
+    let p = system.positions();
+    for s in system.springs() {
+        let (alpha, beta, u) =
+            spring::hessian_coefficients(p[s.a] - p[s.b], s.rest_length, s.stiffness, true);
+        let z = inv_sqrt_m[s.a] * x[s.a] - inv_sqrt_m[s.b] * x[s.b];
+        let t = alpha * z + beta * u.dot(z) * u;
+        y[s.a] += inv_sqrt_m[s.a] * t;
+        y[s.b] -= inv_sqrt_m[s.b] * t;
+    }
+}
+
+/// The largest eigenvalue of `M^-1 K` (free unknowns, PSD-projected spring blocks at the
+/// current state) estimated by `iterations` Lanczos steps from a fixed pseudo-random start
+/// (no reorthogonalization: lost orthogonality only duplicates converged Ritz values, it
+/// does not move the largest one). A lower bound up to round-off.
+#[must_use]
+pub fn lanczos_max(system: &SpringSystem, iterations: usize) -> f64 {
+    let n = system.len();
+    let fixed = system.fixed();
+    let inv_sqrt_m: Vec<f64> = system
+        .masses()
+        .iter()
+        .zip(fixed)
+        .map(|(m, f)| if *f { 0.0 } else { 1.0 / m.sqrt() })
+        .collect();
+    let dim = 3 * fixed.iter().filter(|f| !**f).count();
+    let steps = iterations.min(dim);
+    if steps == 0 {
+        return 0.0;
+    }
+    // A fixed pseudo-random start (splitmix64), so the estimate is reproducible.
+    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+    let mut next = || {
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+        (z >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    let mut q: Vec<DVec3> = (0..n)
+        .map(|i| {
+            let v = DVec3::new(next(), next(), next());
+            if fixed[i] { DVec3::ZERO } else { v }
+        })
+        .collect();
+    let norm = |v: &[DVec3]| v.iter().map(|a| a.length_squared()).sum::<f64>().sqrt();
+    let q_norm = norm(&q);
+    q.iter_mut().for_each(|a| *a /= q_norm);
+    let mut q_prev = vec![DVec3::ZERO; n];
+    let mut w = vec![DVec3::ZERO; n];
+    let mut alphas = Vec::with_capacity(steps);
+    let mut betas: Vec<f64> = Vec::with_capacity(steps);
+    let mut beta_prev = 0.0;
+    for _ in 0..steps {
+        apply(system, &inv_sqrt_m, &q, &mut w);
+        for (wi, qp) in w.iter_mut().zip(&q_prev) {
+            *wi -= beta_prev * *qp;
+        }
+        let alpha: f64 = w.iter().zip(&q).map(|(a, b)| a.dot(*b)).sum();
+        for (wi, qi) in w.iter_mut().zip(&q) {
+            *wi -= alpha * *qi;
+        }
+        alphas.push(alpha);
+        let beta = norm(&w);
+        let scale = alphas.iter().fold(0.0f64, |m, a| m.max(a.abs()));
+        if beta <= 1e-12 * scale || beta.is_nan() {
+            break;
+        }
+        betas.push(beta);
+        for i in 0..n {
+            q_prev[i] = q[i];
+            q[i] = w[i] / beta;
+        }
+        beta_prev = beta;
+    }
+    betas.truncate(alphas.len().saturating_sub(1));
+    tridiagonal_max(&alphas, &betas)
+}
+
+/// The largest eigenvalue of the symmetric tridiagonal matrix with diagonal `a` and
+/// off-diagonal `b`, by bisection on the Sturm count (to a relative 1e-14).
+fn tridiagonal_max(a: &[f64], b: &[f64]) -> f64 {
+    let m = a.len();
+    if m == 0 {
+        return 0.0;
+    }
+    // Gershgorin interval of the tridiagonal matrix.
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for i in 0..m {
+        let r = if i > 0 { b[i - 1].abs() } else { 0.0 } + if i + 1 < m { b[i].abs() } else { 0.0 };
+        lo = lo.min(a[i] - r);
+        hi = hi.max(a[i] + r);
+    }
+    // Number of eigenvalues below `x` (signs of the LDL^T pivots of T - x I).
+    let below = |x: f64| -> usize {
+        let mut count = 0;
+        let mut d = 1.0;
+        for i in 0..m {
+            let off = if i > 0 { b[i - 1] * b[i - 1] / d } else { 0.0 };
+            d = a[i] - x - off;
+            if d == 0.0 {
+                d = -f64::EPSILON * (x.abs() + 1.0);
+            }
+            if d < 0.0 {
+                count += 1;
+            }
+        }
+        count
+    };
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if hi - lo <= 1e-14 * hi.abs().max(lo.abs()) || mid == lo || mid == hi {
+            break;
+        }
+        if below(mid) == m {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    hi
+}
+
+/// Keeps a [`StabilityBound`] up to date along a run, at one `O(springs)` pass per step.
+///
+/// The Gershgorin bound is recomputed every step. Between two Lanczos estimates (about
+/// 60 passes each) the estimate is scaled by the growth of the Gershgorin bound since
+/// the last one, `lambda ~ lambda_0 g / g_0` when `g > g_0` (kept when it falls), and a
+/// new Lanczos estimate is computed when `g / g_0` leaves `[1 - REFRESH, 1 + REFRESH]`.
+/// The scaling is a heuristic, not a bound: on W5 k = 1e6 the Gershgorin bound grows by
+/// 10% in the first second (the springs' transverse stiffness `k (1 - L/l)` appears in
+/// every row sum) while the true `lambda_max` falls by 0.03%, so it errs on the safe side
+/// there; the safety factor covers a further 23% in `lambda`. When Gershgorin alone
+/// allows one substep nothing more is computed.
+#[derive(Clone, Debug, Default)]
+pub struct StabilityMonitor {
+    bound: Option<StabilityBound>,
+    /// The last Lanczos estimate and the Gershgorin bound of its state.
+    estimated: f64,
+    estimated_at: f64,
+    rows: Vec<[DVec3; 2]>,
+}
+
+/// Relative change of the Gershgorin bound since the last Lanczos estimate that
+/// triggers a new one.
+pub const REFRESH: f64 = 0.25;
+
+impl StabilityMonitor {
+    /// A monitor with no bound yet.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The bound for `system`'s current state at step `h`.
+    pub fn update(&mut self, system: &SpringSystem, h: f64) -> StabilityBound {
+        let (g, c) = gershgorin_with(system, &mut self.rows);
+        if let Some(b) = &mut self.bound {
+            b.gershgorin = g;
+            b.damping_rate = c;
+            let ratio = g / self.estimated_at;
+            b.estimate = (self.estimated * ratio.max(1.0)).min(g);
+            let one = substeps_for(h * b.omega_upper() / 2.0) <= 1;
+            if one || (ratio - 1.0).abs() <= REFRESH {
+                return *b;
+            }
+        }
+        let b = StabilityBound::of(system);
+        self.estimated = b.estimate;
+        self.estimated_at = b.gershgorin;
+        self.bound = Some(b);
+        b
+    }
+
+    /// The last bound computed, if any.
+    #[must_use]
+    pub fn last(&self) -> Option<StabilityBound> {
+        self.bound
+    }
+}
