@@ -7,8 +7,11 @@ use crate::render;
 use serde::Deserialize;
 use serde_json::json;
 use sinew_math::DVec3;
+use sinew_spring_sim::integrator::AutoSettings;
+use sinew_spring_sim::stability::StabilityBound;
 use sinew_spring_sim::{
-    ClothGrid, Integrator, Material, Particle, Simulation, SpringSpec, SpringSystem, run_observed,
+    ClothGrid, Integrator, Material, Particle, Simulation, SpringSpec, SpringSystem, run,
+    run_observed,
 };
 
 /// Scene fields of a `Cloth` task.
@@ -19,8 +22,8 @@ pub struct ClothTask {
     pub name: String,
     /// The system.
     pub system: SystemSpec,
-    /// The integrator (default: backward Euler by Newton, tolerance 1e-9).
-    #[serde(default)]
+    /// The integrator (default: `auto`, the cheapest integrator stable at `dt`).
+    #[serde(default = "auto")]
     pub integrator: Integrator,
     /// Time step in seconds.
     pub dt: f64,
@@ -29,6 +32,49 @@ pub struct ClothTask {
     /// Fail the task if the total energy rises by more than this (relative) in a step.
     #[serde(default)]
     pub expect_energy_increase_max: Option<f64>,
+    /// Also measure the distance from the true motion after 1 s (`true_motion_error_1s`)
+    /// against a velocity Verlet run far below its stability limit.
+    #[serde(default)]
+    pub true_motion_reference: bool,
+}
+
+fn auto() -> Integrator {
+    Integrator::Auto(AutoSettings::default())
+}
+
+/// The reference run takes this many times the stability bound's substeps; the check
+/// run half as many (WORKLOADS.md: halving the substep must change far less than the
+/// error measured).
+const REFERENCE_SUBSTEP_FACTOR: usize = 64;
+
+/// Positions after `steps` steps of velocity Verlet at `factor` times the stability
+/// bound's substep count at the start.
+fn reference_positions(
+    system: &SpringSystem,
+    dt: f64,
+    steps: usize,
+    factor: usize,
+) -> Result<Vec<DVec3>, String> {
+    let substeps = StabilityBound::of(system).substeps(dt).max(1) * factor;
+    let mut sim = Simulation::new(
+        system.clone(),
+        Integrator::VelocityVerlet {
+            substeps: Some(substeps),
+        },
+    )
+    .map_err(|e| format!("reference run: {e}"))?;
+    let metrics = run(&mut sim, dt, steps).map_err(|e| format!("reference run: {e}"))?;
+    if metrics.diverged {
+        return Err("reference run diverged".into());
+    }
+    Ok(sim.system().positions().to_vec())
+}
+
+fn max_distance(a: &[DVec3], b: &[DVec3]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| x.distance(*y))
+        .fold(0.0, f64::max)
 }
 
 /// A mass-spring system in a scene.
@@ -78,6 +124,13 @@ impl ClothTask {
     }
 }
 
+impl ClothTask {
+    /// The step after which the simulated time is closest to 1 s.
+    fn steps_to_one_second(&self) -> usize {
+        ((1.0 / self.dt).round() as usize).max(1)
+    }
+}
+
 impl TaskSpec for ClothTask {
     fn name(&self) -> &str {
         &self.name
@@ -101,6 +154,11 @@ impl TaskSpec for ClothTask {
 
     fn run(&self, ctx: &RunContext) -> Result<TaskOutput, String> {
         let mut sim = self.build()?;
+        let start = sim.system().clone();
+        let one_second = self.steps_to_one_second();
+        let mut at_one_second: Option<Vec<DVec3>> = None;
+        let mut last_reason: Option<&'static str> = None;
+        let mut last_substeps = 0;
         let springs: Vec<(usize, usize, f64)> = sim
             .system()
             .springs()
@@ -124,6 +182,11 @@ impl TaskSpec for ClothTask {
         let mut progress = ctx.progress(&self.name, self.steps);
         let metrics = run_observed(&mut sim, dt, self.steps, |step, report, system| {
             progress.inc();
+            if step + 1 == one_second {
+                at_one_second = Some(system.positions().to_vec());
+            }
+            last_reason = report.auto_reason.map(|r| r.describe());
+            last_substeps = report.substeps;
             let time = (step + 1) as f64 * dt;
             let e = report.energy_after;
             csv.push_str(&format!(
@@ -196,6 +259,21 @@ impl TaskSpec for ClothTask {
 
         drop(progress);
         let mut failures = Vec::new();
+        let mut true_motion = None;
+        if self.true_motion_reference
+            && let Some(positions) = &at_one_second
+        {
+            let reference = reference_positions(&start, dt, one_second, REFERENCE_SUBSTEP_FACTOR)?;
+            let half = reference_positions(&start, dt, one_second, REFERENCE_SUBSTEP_FACTOR / 2)?;
+            let error = max_distance(positions, &reference);
+            let check = max_distance(&reference, &half);
+            if check >= 0.1 * error && check > 0.0 {
+                failures.push(format!(
+                    "the reference is not converged enough to measure this error: halving its substep changes it by {check:.2e}, the error is {error:.2e}"
+                ));
+            }
+            true_motion = Some((error, check));
+        }
         if metrics.diverged {
             failures.push(format!(
                 "diverged: {}",
@@ -233,16 +311,38 @@ impl TaskSpec for ClothTask {
             json!(metrics.time_per_step_ms_median),
         );
         out.insert("diverged".into(), json!(metrics.diverged));
+        out.insert("auto_reason".into(), json!(last_reason));
+        out.insert("substeps".into(), json!(last_substeps));
+        out.insert(
+            "true_motion_error_1s".into(),
+            json!(true_motion.map(|t| t.0)),
+        );
+        out.insert(
+            "true_motion_reference_check".into(),
+            json!(true_motion.map(|t| t.1)),
+        );
+        // Explicit integrators report substeps where implicit ones report Newton
+        // iterations (the metric keys keep one name for both; docs/scenes.md says so).
+        let work =
+            if metrics.integrator.contains("verlet") || metrics.integrator.contains("symplectic") {
+                format!("{last_substeps} substeps per step")
+            } else {
+                format!(
+                    "{} Newton iterations (max {})",
+                    metrics.newton_iterations_total, metrics.newton_iterations_max
+                )
+            };
         let headline = format!(
-            "{} {} steps: {} Newton iterations (max {}), energy {:.4} -> {:.4}, {:.3} ms/step{}",
+            "{} {} steps: {work}, energy {:.4} -> {:.4}, {:.3} ms/step{}{}",
             metrics.integrator,
             metrics.steps,
-            metrics.newton_iterations_total,
-            metrics.newton_iterations_max,
             metrics.energy_start,
             metrics.energy_end,
             metrics.time_per_step_ms_median,
-            if metrics.diverged { ", DIVERGED" } else { "" }
+            if metrics.diverged { ", DIVERGED" } else { "" },
+            true_motion.map_or(String::new(), |(e, _)| format!(
+                ", {e:.1e} from the true motion at 1 s"
+            ))
         );
         Ok(TaskOutput {
             metrics: out,
