@@ -145,6 +145,23 @@ fn turn_between(current: DVec3, wanted: DVec3, length: f64) -> DQuat {
     rotation_between(current, wanted)
 }
 
+/// `v` rescaled to length `length` (a bone vector given back its rest length). Used where
+/// bone vectors are not built at their length directly: the differences of positions
+/// that start the refinement, whose error is round-off of the positions' own size, and
+/// the refined bones summed back into positions. A zero-length bone comes out zero; a
+/// vector with no direction at all (only possible for a bone shorter than the round-off
+/// of its endpoints) is left as it is.
+#[inline]
+fn with_length(v: DVec3, length: f64) -> DVec3 {
+    let squared = v.length_squared();
+    // Same fast path as the FABRIK step: one square root and one division well inside
+    // the floating-point range, `try_unit`'s rescaling anywhere else.
+    if (1e-200..=1e200).contains(&squared) {
+        return v * (length / squared.sqrt());
+    }
+    sinew_math::try_unit(v).map_or(v, |d| d * length)
+}
+
 /// The most unfolding kicks per solve (see [`unfold`]).
 const MAX_UNFOLDS: usize = 2;
 
@@ -368,19 +385,36 @@ impl IkSolver for FabrikSolver {
 
         let joints = chain.joints();
         let n = chain.bone_count();
+        let lengths = chain.bone_lengths();
         let mut stop = stop.unwrap_or(StopReason::Stalled);
         if stop_is_refine {
-            // Refine on bone vectors (differences of the solved positions), then rebuild
-            // the positions from the base: the rotations are still recovered once, below.
+            // Refine on bone vectors, then rebuild the positions from the base: the
+            // rotations are still recovered once, below.
+            //
+            // Both conversions restore every bone's rest length. A bone vector taken as
+            // the difference of two positions carries their round-off, `u |P|` whatever
+            // the bone's length: a 1.7e-3 bone that a pass left 240 units out comes back
+            // 6.6e-15 (4e-12 of it) short, and the refinement, which only rotates bones,
+            // would carry that error home to wherever the bone ends up (near the origin,
+            // where its endpoints round to 3e-17). The refinement's rotations and the
+            // unfolding kick also keep lengths only to a few `u` per step, so the sum
+            // renormalizes again: the rebuilt positions are then exact to the round-off
+            // of the running sum, `u |P|` at each joint's own position.
             self.bones.clear();
-            self.bones
-                .extend(self.positions.windows(2).map(|w| w[1] - w[0]));
+            self.bones.extend(
+                self.positions
+                    .windows(2)
+                    .zip(lengths)
+                    .map(|(w, &length)| with_length(w[1] - w[0], length)),
+            );
             let base = self.positions[0];
             // The error is measured again on forward kinematics of the result below.
             stop = self.refine(base, target, error, passes, settings).1;
             let mut p = base;
-            for (position, bone) in self.positions[1..].iter_mut().zip(&self.bones) {
-                p += *bone;
+            for ((position, bone), &length) in
+                self.positions[1..].iter_mut().zip(&self.bones).zip(lengths)
+            {
+                p += with_length(*bone, length);
                 *position = p;
             }
         }
@@ -391,7 +425,6 @@ impl IkSolver for FabrikSolver {
         // L[j] = G_new[parent]^-1 G_new[j] with the parent's new global rotation (the
         // base's parent is outside the chain and keeps its rotation).
         self.saved.clear();
-        let lengths = chain.bone_lengths();
         let mut parent_global = skeleton.parent(joints[0]).map(|p| global.rotations[p]);
         for c in 0..n {
             let (j, k) = (joints[c], joints[c + 1]);

@@ -635,3 +635,71 @@ fn the_flower_helper_is_the_lab_flower() {
     assert!(flower(0.0, 0.1).distance(DVec3::new(0.5, 0.0, 0.0)) < 1e-15);
     assert!(flower(std::f64::consts::TAU, 0.1).distance(flower(0.0, 0.1)) < 1e-14);
 }
+
+/// `docs/labcheck.md`'s bone-length bound: `| |b - a| - rest | <= 1e-12 rest + 4 EPS
+/// max(|a|, |b|)`, the 1e-12 relative plus the round-off of the bone's own two
+/// endpoints (their absolute coordinates cannot represent it any better).
+fn assert_bone_bound(positions: &[DVec3], lengths: &[f64], what: &str) {
+    for (c, &rest) in lengths.iter().enumerate() {
+        let (a, b) = (positions[c], positions[c + 1]);
+        let length = a.distance(b);
+        let allowed = 1e-12 * rest + 4.0 * f64::EPSILON * a.length().max(b.length());
+        assert!(
+            (length - rest).abs() <= allowed,
+            "{what}: bone {c} has length {length:e}, rest {rest:e}, off by {:e} > {allowed:e}",
+            (length - rest).abs()
+        );
+    }
+}
+
+#[test]
+fn a_short_bone_keeps_its_length_after_the_refinement_folds_the_chain_home() {
+    // labcheck's `fabrik_rotations_reproduce_its_positions` regression: a straight chain
+    // with bones of 795, 966, 413 and 0.0017 aimed at a target on its base. The first
+    // pass leaves the last bone hundreds of units from the origin; the refinement then
+    // brings it within 0.15 of it, where round-off is ~3e-17. The last bone used to come
+    // back 6.6e-15 short (4e-12 of it): its vector was the difference of two positions
+    // of size ~400, which the refinement kept rotating without restoring its length.
+    let offsets = [
+        DVec3::new(689.686594913305, 0.0, -396.1166613515587),
+        DVec3::new(837.8231326654785, 0.0, -481.197843429552),
+        DVec3::new(358.46048124451255, 0.0, -205.87926473313294),
+        DVec3::new(0.0014447552238814154, 0.0, -0.0008297850356596653),
+    ];
+    let skel = Skeleton::chain(DVec3::ZERO, &offsets).unwrap();
+    let chain = whole(&skel);
+    let settings = SolveSettings {
+        max_iterations: 16,
+        tolerance: 0.0,
+    };
+    for mut solver in both() {
+        let what = format!("{:?}", mode(&solver));
+        let mut pose = skel.rest_pose();
+        let mut global = GlobalPose::new();
+        let report = solver
+            .solve(
+                &skel,
+                &chain,
+                &mut pose,
+                &mut global,
+                DVec3::ZERO,
+                &settings,
+            )
+            .unwrap();
+        assert!(report.error <= report.initial_error, "{what}: {report:?}");
+        assert_bone_bound(
+            solver.solved_positions(),
+            chain.bone_lengths(),
+            &format!("{what}: solved positions"),
+        );
+        let mut fresh = GlobalPose::new();
+        skel.forward_kinematics(&pose, &mut fresh).unwrap();
+        assert_eq!(fresh, global, "{what}: global is not FK of the pose");
+        let fk: Vec<DVec3> = chain.joints().iter().map(|&j| fresh.positions[j]).collect();
+        assert_bone_bound(
+            &fk,
+            chain.bone_lengths(),
+            &format!("{what}: FK of the pose"),
+        );
+    }
+}
