@@ -111,19 +111,30 @@ proptest! {
                 (last - at_end.value).abs() <= at_end.allowance() + scale.allowance(),
                 "step {n}: trace ends at {last}, g(x_n+1) = {}", at_end.value
             );
+            // Every step starts no higher than g(x_n): the solver falls back to x_n when
+            // its guess is worse (so g(x_n+1) <= g(x_n), the energy inequality's premise).
+            let at_start = incremental_potential(&before, before.positions(), case.h);
+            let tol = at_prediction.allowance() + at_start.allowance() + scale.allowance();
+            prop_assert!(
+                trace[0] <= at_start.value + tol,
+                "step {n}: trace starts at {}, above g(x_n) = {}", trace[0], at_start.value
+            );
             if n == 0 {
-                // The first step starts from the prediction y (no velocity history).
+                // The first step (no velocity history) starts from the prediction y, or
+                // from x_n when g(y) > g(x_n).
+                let expected = at_prediction.value.min(at_start.value);
                 prop_assert!(
-                    (trace[0] - at_prediction.value).abs() <= at_prediction.allowance() + scale.allowance(),
-                    "trace starts at {}, g(y) = {}", trace[0], at_prediction.value
+                    (trace[0] - expected).abs() <= tol,
+                    "trace starts at {}, g(y) = {}, g(x_n) = {}", trace[0], at_prediction.value, at_start.value
                 );
             }
         }
     }
 
-    /// For a converged step, `E_spring(x_{n+1}) + E_gravity(x_{n+1}) + 1/2 |v_{n+1} -
-    /// v_n|_M^2 <= E_total(x_n, v_n)` in the convex regime (every spring at or beyond its
-    /// rest length at `x_{n+1}`), up to the residual's first-order term and rounding.
+    /// For every converged backward Euler step, `E_spring(x_{n+1}) + E_gravity(x_{n+1}) +
+    /// 1/2 |v_{n+1} - v_n|_M^2 <= E_total(x_n, v_n)`, up to the residual's first-order term
+    /// and rounding: it follows from `g(x_{n+1}) <= g(x_n)`, which holds because the solver
+    /// starts from `x_n` whenever its predicted guess has a larger `g` (docs/labcheck.md).
     #[test]
     fn converged_steps_satisfy_the_energy_inequality(
         case in spring_case_with(
@@ -143,7 +154,7 @@ proptest! {
         for n in 0..steps {
             let before = system.clone();
             let report = step(&mut solver, &mut system, case.h)?;
-            if report.stop != StopReason::Converged || !all_stretched(&system, system.positions()) {
+            if report.stop != StopReason::Converged {
                 continue;
             }
             checked += 1;
@@ -160,9 +171,8 @@ proptest! {
                 lhs.value, rhs.value, lhs.value - rhs.value
             );
         }
-        // Cases where no step ends converged and stretched check nothing; with stretched
-        // starts weighted up, about half the cases check at least one step (measured:
-        // 158 of 300 cases, 431 steps; docs/labcheck.md).
+        // Every case with a converged step checks it; a case whose steps all hit the
+        // iteration cap checks nothing (rare: stiff, compressed starts at large steps).
         let _ = checked;
     }
 
