@@ -2,7 +2,7 @@
 //! springs) stepped by an integrator of sinew-spring-sim, with the run's energies,
 //! iterations and timing.
 
-use super::{Metrics, RunContext, TaskOutput, TaskSpec};
+use super::{Metrics, RunContext, TaskOutput, TaskSpec, max_distance};
 use crate::render;
 use serde::Deserialize;
 use serde_json::json;
@@ -68,13 +68,6 @@ fn reference_positions(
         return Err("reference run diverged".into());
     }
     Ok(sim.system().positions().to_vec())
-}
-
-fn max_distance(a: &[DVec3], b: &[DVec3]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| x.distance(*y))
-        .fold(0.0, f64::max)
 }
 
 /// A mass-spring system in a scene.
@@ -207,8 +200,7 @@ impl TaskSpec for ClothTask {
             }
         })
         .map_err(|e| e.to_string())?;
-        let csv_path = ctx.out_dir.join(format!("{}.steps.csv", self.name));
-        std::fs::write(&csv_path, csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+        ctx.write_output(&self.name, "steps.csv", &csv)?;
 
         if ctx.render {
             progress.phase("rendering");

@@ -79,8 +79,7 @@ impl TaskSpec for CurveTask {
         for (i, (p, t)) in samples.points.iter().zip(&samples.params).enumerate() {
             csv.push_str(&format!("{i},{t},{},{},{}\n", p.x, p.y, p.z));
         }
-        let csv_path = ctx.out_dir.join(format!("{}.points.csv", self.name));
-        std::fs::write(&csv_path, csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+        ctx.write_output(&self.name, "points.csv", &csv)?;
 
         if ctx.render {
             // Beyond about 100 points the dots merge into a line and the bunching no

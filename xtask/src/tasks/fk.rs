@@ -1,7 +1,7 @@
 //! The `Fk` task: forward kinematics of a skeleton in a pose, with optional expected
 //! joint positions (so a scene doubles as a data-driven test).
 
-use super::{Metrics, RunContext, TaskOutput, TaskSpec, median_time_ns};
+use super::{Metrics, RunContext, TaskOutput, TaskSpec, max_distance, median_time_ns};
 use crate::spec::{JointRotation, SkeletonSpec, build_pose};
 use serde::Deserialize;
 use serde_json::json;
@@ -132,8 +132,7 @@ impl TaskSpec for FkTask {
         for (i, p) in global.positions.iter().enumerate() {
             csv.push_str(&format!("{i},{},{},{}\n", p.x, p.y, p.z));
         }
-        let csv_path = ctx.out_dir.join(format!("{}.positions.csv", self.name));
-        std::fs::write(&csv_path, csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+        ctx.write_output(&self.name, "positions.csv", &csv)?;
 
         let effector = global.positions[skeleton.len() - 1];
         let mut metrics = Metrics::new();
@@ -176,12 +175,5 @@ pub fn bone_length_error_max(skeleton: &Skeleton, global: &GlobalPose) -> f64 {
                 now
             }
         })
-        .fold(0.0, f64::max)
-}
-
-fn max_distance(a: &[DVec3], b: &[DVec3]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| x.distance(*y))
         .fold(0.0, f64::max)
 }

@@ -233,8 +233,7 @@ impl TaskSpec for IkTask {
                 r.clamped
             ));
         }
-        let csv_path = ctx.out_dir.join(format!("{}.frames.csv", self.name));
-        std::fs::write(&csv_path, csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+        ctx.write_output(&self.name, "frames.csv", &csv)?;
 
         if ctx.render {
             progress.phase("rendering");

@@ -27,6 +27,12 @@ pub struct RunContext {
 }
 
 impl RunContext {
+    /// Writes `<task>.<suffix>` in the output folder; the error names the file.
+    pub fn write_output(&self, task: &str, suffix: &str, contents: &str) -> Result<(), String> {
+        let path = self.out_dir.join(format!("{task}.{suffix}"));
+        std::fs::write(&path, contents).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
     /// A progress counter for `total` units of work (frames, steps); it shows a bar
     /// only once the task has run for about a second, and only when allowed.
     pub fn progress(&self, task: &str, total: usize) -> Progress {
@@ -135,6 +141,14 @@ pub fn median_time_ns(budget_ms: f64, mut f: impl FnMut()) -> f64 {
         times.push(t.elapsed().as_secs_f64() * 1e9);
     }
     median(&mut times)
+}
+
+/// The largest distance between corresponding points of two equally long lists.
+pub fn max_distance(a: &[sinew_math::DVec3], b: &[sinew_math::DVec3]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| x.distance(*y))
+        .fold(0.0, f64::max)
 }
 
 /// The median of `values` (sorted in place); NaN for an empty slice.
