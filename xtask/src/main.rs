@@ -1,10 +1,16 @@
-//! `cargo xtask`: sinew's scene runner (and, as they land, benchmarks and the stress grid).
+//! `cargo xtask`: sinew's scene runner and its time-against-error benchmarks.
 //!
 //! `cargo xtask run-scene [FILE]` reads a RON scene (default `scenes/lab4.ron`), checks
 //! every task before running any, runs the tasks it names and nothing else, prints a
 //! summary table and writes `metrics.json` to `target/scenes/<scene>/` (or `--out DIR`).
 //! See `docs/scenes.md` for the schema and every metric key.
+//!
+//! `cargo xtask bench` runs every method across its knobs on the shared workloads and
+//! writes `docs/bench/README.md`, `docs/bench/results.json` and SVG plots of time against
+//! error. It re-runs itself in release, except with `--quick` (a smoke run).
 
+mod bench;
+mod machine;
 mod render;
 mod report;
 mod scene;
@@ -27,6 +33,9 @@ struct Cli {
 enum Command {
     /// Run a RON scene file (default: scenes/lab4.ron, the whole course lab).
     RunScene(RunSceneArgs),
+    /// Time against error for every method and knob on the shared workloads
+    /// (writes docs/bench/README.md, results.json and plots).
+    Bench(bench::BenchArgs),
 }
 
 #[derive(clap::Args)]
@@ -65,6 +74,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::RunScene(args) => run_scene_command(&args),
+        Command::Bench(args) => bench::run(&args),
     }
 }
 

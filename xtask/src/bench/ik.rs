@@ -1,0 +1,263 @@
+//! IK: CCD and FABRIK (each as shipped and in its plain form) on W1 (flower tracking,
+//! warm-started) and W2 (cold solves), over iteration caps and tolerances.
+//!
+//! Error is the final effector distance to the target, measured untimed by forward
+//! kinematics of the returned pose (not taken from the solver's report; the two are
+//! compared and the largest disagreement is a metric). Time is per frame (W1) or per
+//! solve (W2) and covers the solves only.
+
+use super::workloads::{w1_skeleton, w1_targets, w2_skeleton, w2_targets};
+use super::{Plan, Record, Section, measure, sci};
+use serde_json::json;
+use sinew_ik_ccd::CcdSolver;
+use sinew_ik_fabrik::FabrikSolver;
+use sinew_math::{DQuat, DVec3};
+use sinew_skeleton::ik::{Chain, IkSolver, SolveSettings};
+use sinew_skeleton::{GlobalPose, Skeleton};
+
+/// The solvers compared: the crates' defaults and their plain forms.
+fn solvers() -> Vec<(&'static str, Box<dyn IkSolver>)> {
+    vec![
+        ("ccd", Box::new(CcdSolver::new())),
+        ("ccd-plain", Box::new(CcdSolver::plain())),
+        ("fabrik", Box::new(FabrikSolver::new())),
+        ("fabrik-plain", Box::new(FabrikSolver::plain())),
+    ]
+}
+
+/// The knob settings run for each solver and workload: caps at the lab tolerance, then
+/// tolerances at the lab cap.
+fn settings(plan: &Plan) -> Vec<SolveSettings> {
+    let (caps, tolerances): (&[usize], &[f64]) = if plan.quick {
+        (&[2, 100], &[1e-9])
+    } else {
+        (&[1, 2, 4, 8, 16, 32, 100], &[1e-3, 1e-9, 1e-12])
+    };
+    let mut out: Vec<SolveSettings> = caps
+        .iter()
+        .map(|&max_iterations| SolveSettings {
+            max_iterations,
+            tolerance: 1e-6,
+        })
+        .collect();
+    out.extend(tolerances.iter().map(|&tolerance| SolveSettings {
+        max_iterations: 100,
+        tolerance,
+    }));
+    out
+}
+
+/// Per-target outcome of a sequence of solves.
+struct Outcome {
+    /// Effector distance to the target after each solve.
+    errors: Vec<f64>,
+    iterations: usize,
+    /// Largest relative bone-length error after any solve (checked runs only).
+    bone_length_error_max: f64,
+    /// Largest |reported error - error by forward kinematics| (checked runs only).
+    report_disagreement_max: f64,
+}
+
+/// Solves every target in order. `warm`: each solve starts from the previous pose (W1);
+/// otherwise from the rest pose (W2). `check`: recompute forward kinematics after each
+/// solve and measure the error and bone lengths from it (untimed runs only).
+fn solve_all(
+    solver: &mut dyn IkSolver,
+    skeleton: &Skeleton,
+    chain: &Chain,
+    targets: &[DVec3],
+    settings: &SolveSettings,
+    warm: bool,
+    check: bool,
+) -> Result<Outcome, String> {
+    let mut pose = skeleton.rest_pose();
+    let mut global = GlobalPose::new();
+    let mut fk = GlobalPose::new();
+    let mut out = Outcome {
+        errors: Vec::with_capacity(targets.len()),
+        iterations: 0,
+        bone_length_error_max: 0.0,
+        report_disagreement_max: 0.0,
+    };
+    let effector = chain.effector();
+    for &target in targets {
+        if !warm {
+            pose.rotations.fill(DQuat::IDENTITY);
+        }
+        let report = solver
+            .solve(skeleton, chain, &mut pose, &mut global, target, settings)
+            .map_err(|e| format!("{}: {e}", solver.name()))?;
+        out.iterations += report.iterations;
+        if check {
+            skeleton
+                .forward_kinematics(&pose, &mut fk)
+                .map_err(|e| e.to_string())?;
+            let error = fk.positions[effector].distance(target);
+            out.report_disagreement_max = out
+                .report_disagreement_max
+                .max((error - report.error).abs());
+            for (bone, &length) in chain.bone_lengths().iter().enumerate() {
+                let (a, b) = (chain.joints()[bone], chain.joints()[bone + 1]);
+                let measured = fk.positions[a].distance(fk.positions[b]);
+                let relative = (measured - length).abs() / length.max(f64::MIN_POSITIVE);
+                out.bone_length_error_max = out.bone_length_error_max.max(relative);
+            }
+            out.errors.push(error);
+        } else {
+            out.errors.push(report.error);
+        }
+    }
+    Ok(out)
+}
+
+fn knobs(s: &SolveSettings) -> String {
+    format!("cap {}, tol {}", s.max_iterations, sci(s.tolerance))
+}
+
+/// Runs the IK section.
+pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
+    let mut records = Vec::new();
+    let w1 = w1_skeleton()?;
+    let w1_chain = Chain::whole(&w1).map_err(|e| e.to_string())?;
+    let w1_targets = w1_targets(500);
+    let w2 = w2_skeleton()?;
+    let w2_chain = Chain::whole(&w2).map_err(|e| e.to_string())?;
+    let w2_targets = w2_targets(if plan.quick { 500 } else { 10_000 });
+    for (name, mut solver) in solvers() {
+        for s in settings(plan) {
+            records.push(w1_record(
+                plan,
+                name,
+                solver.as_mut(),
+                &w1,
+                &w1_chain,
+                &w1_targets,
+                &s,
+            )?);
+            records.push(w2_record(
+                plan,
+                name,
+                solver.as_mut(),
+                &w2,
+                &w2_chain,
+                &w2_targets,
+                &s,
+            )?);
+        }
+        eprintln!("  {name} done");
+    }
+    Ok(records)
+}
+
+fn w1_record(
+    plan: &Plan,
+    name: &str,
+    solver: &mut dyn IkSolver,
+    skeleton: &Skeleton,
+    chain: &Chain,
+    targets: &[DVec3],
+    s: &SolveSettings,
+) -> Result<Record, String> {
+    let checked = solve_all(solver, skeleton, chain, targets, s, true, true)?;
+    let (time, timed) = measure(plan, plan.repeats, targets.len(), || {
+        solve_all(solver, skeleton, chain, targets, s, true, false)
+    });
+    let timed = timed?;
+    let errors = &checked.errors;
+    let error_max = errors.iter().copied().fold(0.0, f64::max);
+    let within = errors.iter().filter(|&&e| e <= 1e-6).count();
+    let mut metrics = serde_json::Map::new();
+    metrics.insert("frames".into(), json!(targets.len()));
+    metrics.insert("error_mean".into(), json!(mean(errors)));
+    metrics.insert("error_max".into(), json!(error_max));
+    metrics.insert("frames_within_1e-6".into(), json!(within));
+    metrics.insert("iterations_total".into(), json!(timed.iterations));
+    metrics.insert(
+        "bone_length_error_max".into(),
+        json!(checked.bone_length_error_max),
+    );
+    metrics.insert(
+        "report_disagreement_max".into(),
+        json!(checked.report_disagreement_max),
+    );
+    Ok(Record {
+        section: Section::Ik,
+        workload: "W1".into(),
+        method: name.into(),
+        knobs: knobs(s),
+        unit: "frame",
+        time,
+        error: error_max,
+        error_name: "largest final distance over the 500 frames",
+        metrics,
+        note: String::new(),
+    })
+}
+
+fn w2_record(
+    plan: &Plan,
+    name: &str,
+    solver: &mut dyn IkSolver,
+    skeleton: &Skeleton,
+    chain: &Chain,
+    targets: &[DVec3],
+    s: &SolveSettings,
+) -> Result<Record, String> {
+    let checked = solve_all(solver, skeleton, chain, targets, s, false, true)?;
+    let (time, _) = measure(plan, plan.repeats, targets.len(), || {
+        solve_all(solver, skeleton, chain, targets, s, false, false)
+    });
+    let reach = chain.reach();
+    let root = DVec3::ZERO;
+    let (mut reachable, mut unreachable_excess_max) = (Vec::new(), 0.0_f64);
+    for (target, &error) in targets.iter().zip(&checked.errors) {
+        let distance = target.distance(root);
+        if distance <= reach {
+            reachable.push(error);
+        } else {
+            // Out of reach the best possible error is distance - reach.
+            unreachable_excess_max = unreachable_excess_max.max(error - (distance - reach));
+        }
+    }
+    let within = reachable.iter().filter(|&&e| e <= 1e-6).count();
+    let reachable_max = reachable.iter().copied().fold(0.0, f64::max);
+    let mut metrics = serde_json::Map::new();
+    metrics.insert("solves".into(), json!(targets.len()));
+    metrics.insert("reachable".into(), json!(reachable.len()));
+    metrics.insert("reachable_within_1e-6".into(), json!(within));
+    metrics.insert("reachable_error_mean".into(), json!(mean(&reachable)));
+    metrics.insert("reachable_error_max".into(), json!(reachable_max));
+    metrics.insert(
+        "unreachable_excess_max".into(),
+        json!(unreachable_excess_max),
+    );
+    metrics.insert(
+        "bone_length_error_max".into(),
+        json!(checked.bone_length_error_max),
+    );
+    metrics.insert("iterations_total".into(), json!(checked.iterations));
+    metrics.insert(
+        "report_disagreement_max".into(),
+        json!(checked.report_disagreement_max),
+    );
+    Ok(Record {
+        section: Section::Ik,
+        workload: "W2".into(),
+        method: name.into(),
+        knobs: knobs(s),
+        unit: "solve",
+        time,
+        error: reachable_max,
+        error_name: "largest final distance over the reachable targets",
+        metrics,
+        note: String::new(),
+    })
+}
+
+fn mean(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        0.0
+    } else {
+        v.iter().sum::<f64>() / v.len() as f64
+    }
+}

@@ -1,0 +1,500 @@
+//! Writes a benchmark run: `results.json` (every record, the machine, the plan),
+//! `README.md` (the headline table against the issues' targets, then one table and one
+//! plot per workload) and `plots/*.svg`.
+
+use super::plot::{Point, pareto_front, time_error_svg};
+use super::{Record, Results, Section, Timing};
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// Seconds as text with a unit that keeps 3 significant digits readable.
+pub fn fmt_time(s: f64) -> String {
+    if !s.is_finite() {
+        return "-".into();
+    }
+    let (v, unit) = if s >= 1.0 {
+        (s, "s")
+    } else if s >= 1e-3 {
+        (s * 1e3, "ms")
+    } else if s >= 1e-6 {
+        (s * 1e6, "us")
+    } else {
+        (s * 1e9, "ns")
+    };
+    if v >= 100.0 {
+        format!("{v:.0} {unit}")
+    } else if v >= 10.0 {
+        format!("{v:.1} {unit}")
+    } else {
+        format!("{v:.2} {unit}")
+    }
+}
+
+fn fmt_timing(t: &Timing) -> String {
+    format!(
+        "{} [{} .. {}]",
+        fmt_time(t.median),
+        fmt_time(t.min),
+        fmt_time(t.max)
+    )
+}
+
+/// An error or other small number in short scientific notation.
+pub fn fmt_err(x: f64) -> String {
+    if x.is_nan() {
+        "-".into()
+    } else if x.is_infinite() {
+        "diverged".into()
+    } else if x == 0.0 {
+        "0".into()
+    } else {
+        format!("{x:.1e}")
+    }
+}
+
+fn metric(r: &Record, key: &str) -> Option<f64> {
+    r.metrics.get(key).and_then(serde_json::Value::as_f64)
+}
+
+fn metric_text(r: &Record, key: &str) -> String {
+    metric(r, key).map_or("-".into(), fmt_err)
+}
+
+fn metric_count(r: &Record, key: &str) -> String {
+    r.metrics
+        .get(key)
+        .and_then(serde_json::Value::as_u64)
+        .map_or("-".into(), |v| v.to_string())
+}
+
+/// A target from the IK, curves, spring-sim and integrators issues.
+struct Target {
+    issue: u32,
+    what: &'static str,
+    workload: &'static str,
+    method: &'static str,
+    knobs: &'static str,
+    /// Time per unit at most this many seconds.
+    time: f64,
+    /// The error check: metric key and largest allowed value.
+    error: Option<(&'static str, f64)>,
+}
+
+const TARGETS: [Target; 9] = [
+    Target {
+        issue: 3,
+        what: "W1 FABRIK <= 1.5 us/frame, all frames within 1e-6",
+        workload: "W1",
+        method: "fabrik",
+        knobs: "cap 100, tol 1e-6",
+        time: 1.5e-6,
+        error: Some(("error_max", 1e-6)),
+    },
+    Target {
+        issue: 3,
+        what: "W1 CCD <= 10 us/frame, all frames within 1e-6",
+        workload: "W1",
+        method: "ccd",
+        knobs: "cap 100, tol 1e-6",
+        time: 10e-6,
+        error: Some(("error_max", 1e-6)),
+    },
+    Target {
+        issue: 3,
+        what: "W2 FABRIK <= 8 us/solve, every reachable target within 1e-6",
+        workload: "W2",
+        method: "fabrik",
+        knobs: "cap 100, tol 1e-6",
+        time: 8e-6,
+        error: Some(("reachable_error_max", 1e-6)),
+    },
+    Target {
+        issue: 3,
+        what: "W2 CCD <= 40 us/solve (share within 1e-6 reported)",
+        workload: "W2",
+        method: "ccd",
+        knobs: "cap 100, tol 1e-6",
+        time: 40e-6,
+        error: None,
+    },
+    Target {
+        issue: 5,
+        what: "W4 backward Euler to 1e-9 <= 0.15 ms/step",
+        workload: "W4 d=0.2",
+        method: "backward_euler",
+        knobs: "tol 1e-9, linear auto",
+        time: 0.15e-3,
+        error: None,
+    },
+    Target {
+        issue: 5,
+        what: "W5 k=1e6 backward Euler to 1e-9 <= 1 ms/step",
+        workload: "W5 k=1e6",
+        method: "backward_euler",
+        knobs: "tol 1e-9, linear auto",
+        time: 1e-3,
+        error: None,
+    },
+    Target {
+        issue: 5,
+        what: "W6 backward Euler to 1e-9 <= 16.7 ms/step",
+        workload: "W6",
+        method: "backward_euler",
+        knobs: "tol 1e-9, linear auto",
+        time: 16.7e-3,
+        error: None,
+    },
+    Target {
+        issue: 9,
+        what: "W4 auto <= 20 us/step, within 1e-4 of the true motion at 1 s",
+        workload: "W4 d=0.2",
+        method: "auto",
+        knobs: "default",
+        time: 20e-6,
+        error: Some(("true_motion_error_1s", 1e-4)),
+    },
+    Target {
+        issue: 9,
+        what: "W5 k=1e6 auto <= 200 us/step, within 1e-4 of the true motion at 1 s",
+        workload: "W5 k=1e6",
+        method: "auto",
+        knobs: "default",
+        time: 200e-6,
+        error: Some(("true_motion_error_1s", 1e-4)),
+    },
+];
+
+fn find<'a>(
+    records: &'a [Record],
+    workload: &str,
+    method: &str,
+    knobs: &str,
+) -> Option<&'a Record> {
+    records
+        .iter()
+        .find(|r| r.workload == workload && r.method == method && r.knobs == knobs)
+}
+
+/// The headline table (also printed on stdout).
+fn headline(records: &[Record]) -> String {
+    let mut s = String::from(
+        "| issue | target | measured (median [min .. max]) | error | time ratio |\n|---|---|---|---|---|\n",
+    );
+    for t in &TARGETS {
+        let Some(r) = find(records, t.workload, t.method, t.knobs) else {
+            continue;
+        };
+        let error = match t.error {
+            Some((key, limit)) => {
+                let v = metric(r, key).unwrap_or(f64::NAN);
+                let verdict = if v <= limit { "met" } else { "NOT met" };
+                format!("{key} {} ({verdict})", fmt_err(v))
+            }
+            None => headline_error(r),
+        };
+        let _ = writeln!(
+            s,
+            "| #{} | {} | {} per {} | {} | {:.2} |",
+            t.issue,
+            t.what,
+            fmt_timing(&r.time),
+            r.unit,
+            error,
+            r.time.median / t.time
+        );
+    }
+    // Issue 4: arc-length resampling against 50 000 uniform samples.
+    let arclen = find(records, "flower", "arc length", "N 500, tol 1e-9");
+    let uniform = find(records, "flower", "uniform parameter", "N 50000");
+    if let (Some(a), Some(u)) = (arclen, uniform) {
+        let _ = writeln!(
+            s,
+            "| #4 | flower, 500 points at spacing deviation <= 1e-9, faster than 50 000 uniform samples ({} per call, deviation {}) | {} per call | deviation {} ({}) | {:.3} |",
+            fmt_time(u.time.median),
+            fmt_err(u.error),
+            fmt_timing(&a.time),
+            fmt_err(a.error),
+            if a.error <= 1e-9 { "met" } else { "NOT met" },
+            a.time.median / u.time.median
+        );
+    }
+    s
+}
+
+fn headline_error(r: &Record) -> String {
+    match r.section {
+        Section::Ik => format!(
+            "{} of {} reachable within 1e-6",
+            metric_count(r, "reachable_within_1e-6"),
+            metric_count(r, "reachable")
+        ),
+        Section::Cloth => match metric(r, "solver_error_1s") {
+            Some(e) => format!("from backward Euler at 1e-12: {} at 1 s", fmt_err(e)),
+            None => format!(
+                "from backward Euler at 1e-12: {} at the end",
+                metric_text(r, "solver_error_end")
+            ),
+        },
+        Section::Curves => fmt_err(r.error),
+    }
+}
+
+fn table(section: Section, records: &[&Record], front: &[usize]) -> String {
+    let mut s = String::new();
+    let on_front = |i: usize| if front.contains(&i) { " *" } else { "" };
+    match section {
+        Section::Ik => {
+            let w2 = records.first().is_some_and(|r| r.workload == "W2");
+            if w2 {
+                s.push_str("| method | knobs | time per solve | reachable within 1e-6 | reachable error mean | reachable error max | unreachable excess max | iterations | bone length error |\n|---|---|---|---|---|---|---|---|---|\n");
+            } else {
+                s.push_str("| method | knobs | time per frame | frames within 1e-6 | error mean | error max | iterations | bone length error |\n|---|---|---|---|---|---|---|---|\n");
+            }
+            for (i, r) in records.iter().enumerate() {
+                if w2 {
+                    let _ = writeln!(
+                        s,
+                        "| {}{} | {} | {} | {} / {} | {} | {} | {} | {} | {} |",
+                        r.method,
+                        on_front(i),
+                        r.knobs,
+                        fmt_timing(&r.time),
+                        metric_count(r, "reachable_within_1e-6"),
+                        metric_count(r, "reachable"),
+                        metric_text(r, "reachable_error_mean"),
+                        metric_text(r, "reachable_error_max"),
+                        metric_text(r, "unreachable_excess_max"),
+                        metric_count(r, "iterations_total"),
+                        metric_text(r, "bone_length_error_max"),
+                    );
+                } else {
+                    let _ = writeln!(
+                        s,
+                        "| {}{} | {} | {} | {} / {} | {} | {} | {} | {} |",
+                        r.method,
+                        on_front(i),
+                        r.knobs,
+                        fmt_timing(&r.time),
+                        metric_count(r, "frames_within_1e-6"),
+                        metric_count(r, "frames"),
+                        metric_text(r, "error_mean"),
+                        metric_text(r, "error_max"),
+                        metric_count(r, "iterations_total"),
+                        metric_text(r, "bone_length_error_max"),
+                    );
+                }
+            }
+        }
+        Section::Curves => {
+            s.push_str("| method | knobs | time per call | time per point | spacing deviation | length error |\n|---|---|---|---|---|---|\n");
+            for (i, r) in records.iter().enumerate() {
+                let _ = writeln!(
+                    s,
+                    "| {}{} | {} | {} | {} | {} | {} |",
+                    r.method,
+                    on_front(i),
+                    r.knobs,
+                    fmt_timing(&r.time),
+                    fmt_time(metric(r, "time_per_point_s").unwrap_or(f64::NAN)),
+                    metric_text(r, "spacing_deviation"),
+                    metric_text(r, "length_error"),
+                );
+            }
+        }
+        Section::Cloth => {
+            s.push_str("| method | knobs | time per step | per simulated s | from true motion, 1 s | from true motion, end | from BE 1e-12, 1 s | from BE 1e-12, end | iterations (max) | energy rise max | note |\n|---|---|---|---|---|---|---|---|---|---|---|\n");
+            for (i, r) in records.iter().enumerate() {
+                let _ = writeln!(
+                    s,
+                    "| {}{} | {} | {} | {} | {} | {} | {} | {} | {} ({}) | {} | {} |",
+                    r.method,
+                    on_front(i),
+                    r.knobs,
+                    fmt_timing(&r.time),
+                    fmt_time(metric(r, "time_per_simulated_second_s").unwrap_or(f64::NAN)),
+                    metric_text(r, "true_motion_error_1s"),
+                    metric_text(r, "true_motion_error_end"),
+                    metric_text(r, "solver_error_1s"),
+                    metric_text(r, "solver_error_end"),
+                    metric_count(r, "iterations_total"),
+                    metric_count(r, "iterations_max"),
+                    metric_text(r, "energy_increase_max"),
+                    r.note,
+                );
+            }
+        }
+    }
+    s
+}
+
+fn slug(s: &str) -> String {
+    s.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_lowercase()
+            } else {
+                '-'
+            }
+        })
+        .collect::<String>()
+        .split('-')
+        .filter(|p| !p.is_empty())
+        .collect::<Vec<_>>()
+        .join("-")
+}
+
+const PREAMBLE: &str = "\
+Every figure is the median of the timed repeats, with the fastest and the slowest repeat in
+brackets. Errors are measured once per configuration, untimed, against exact answers (IK:
+the effector's distance by forward kinematics of the returned pose; curves: the flower's
+closed-form arc length) or converged references (cloth: velocity Verlet at 64x the
+stability bound's substeps, checked against 32x, for the true motion; backward Euler to
+1e-12 m/h^2 for the implicit solver's error). A `*` after a method marks a configuration on
+the Pareto front of its workload (no other configuration is both faster and more accurate
+by the plotted error). How the figures are taken, and why: [docs/bench.md](../bench.md).
+";
+
+/// Writes every output into `out` and returns the headline table for stdout.
+pub fn write(results: &Results, sections: &[Section], out: &Path) -> Result<String, String> {
+    std::fs::create_dir_all(out.join("plots")).map_err(|e| format!("{}: {e}", out.display()))?;
+    let json = serde_json::to_string_pretty(results).map_err(|e| e.to_string())?;
+    let json_path = out.join("results.json");
+    std::fs::write(&json_path, json + "\n").map_err(|e| format!("{}: {e}", json_path.display()))?;
+
+    let head = headline(&results.records);
+    let mut md = String::new();
+    let _ = writeln!(md, "# Benchmarks: run time against error\n");
+    let _ = writeln!(
+        md,
+        "Written by `cargo xtask bench{}` on {} in {:.0} s of wall time; raw numbers in \
+         [results.json](results.json). Re-run with `cargo xtask bench` (about 10 minutes \
+         here; `--only ik|curves|cloth` for one section).\n",
+        if results.plan.quick { " --quick" } else { "" },
+        results.machine.describe(),
+        results.wall_seconds
+    );
+    if results.plan.quick {
+        md.push_str("**A `--quick` smoke run: reduced workloads, one repeat, dev profile. Not for quoting.**\n\n");
+    }
+    md.push_str(PREAMBLE);
+    let _ = writeln!(
+        md,
+        "\n## Headline: the lab workloads against the issues' targets\n\nRatio = measured median time / target time (below 1 is better than the target).\n\n{head}"
+    );
+    md.push_str(
+        "\n## Criterion kernels\n\nMicro-benchmarks of the kernels stay in the crates (`cargo bench -p <crate>`); \
+         their tables: [IK overview](ik.md), [CCD](ik-ccd.md) (one sweep, W1, W2, 10 000 bones), \
+         [FABRIK](ik-fabrik.md) (one pass, W1 frame, W2 solve, long chain), \
+         [curves](curves.md) (table build, per-point inverse against kurbo), \
+         [spring-sim](spring-sim.md) (Hessian assembly, numeric factorization, one Newton \
+         iteration, PCG, integrators). FK is timed inside every IK figure above and in \
+         `cargo bench -p sinew-skeleton`.\n",
+    );
+
+    let mut groups: BTreeMap<(u8, String), Vec<&Record>> = BTreeMap::new();
+    for r in &results.records {
+        groups
+            .entry((r.section as u8, r.workload.clone()))
+            .or_default()
+            .push(r);
+    }
+    for section in sections {
+        let title = match section {
+            Section::Ik => "IK: CCD and FABRIK on W1 and W2",
+            Section::Curves => "Curves: evenly spaced points on the lab flower",
+            Section::Cloth => "Cloth: every integrator on W4, W5 and W6",
+        };
+        let _ = writeln!(md, "\n## {title}\n");
+        for ((s, workload), records) in groups.iter().filter(|((s, _), _)| *s == *section as u8) {
+            let _ = s;
+            let points: Vec<Point> = records.iter().map(|r| (r.time.median, r.error)).collect();
+            let front = pareto_front(&points);
+            let mut series: Vec<(String, Vec<Point>)> = Vec::new();
+            for r in records {
+                match series.iter_mut().find(|(m, _)| *m == r.method) {
+                    Some((_, p)) => p.push((r.time.median, r.error)),
+                    None => series.push((r.method.clone(), vec![(r.time.median, r.error)])),
+                }
+            }
+            let file = format!("plots/{}.svg", slug(workload));
+            let error_name = records.first().map_or("error", |r| r.error_name);
+            let unit = records.first().map_or("unit", |r| r.unit);
+            time_error_svg(
+                &out.join(&file),
+                &format!("{workload}: time against error"),
+                &format!("time per {unit} (s, median)"),
+                error_name,
+                &series,
+            )?;
+            let context = match (section, records.first()) {
+                (Section::Cloth, Some(r)) => format!(
+                    " Time step {} s, {} steps; the stability bound asks for {} substeps per step at the start. True-motion reference check (64x against 32x the bound's substeps): {} after 1 s, {} at the end.",
+                    metric(r, "dt").map_or("-".into(), |dt| format!("{dt:.5}")),
+                    metric_count(r, "steps"),
+                    metric_count(r, "stability_bound_substeps"),
+                    metric_text(r, "true_motion_check_1s"),
+                    metric_text(r, "true_motion_check_end"),
+                ),
+                _ => String::new(),
+            };
+            let _ = writeln!(
+                md,
+                "### {workload}\n\nPlotted error: {error_name}.{context}\n\n![{workload}: time against error]({file})\n\n{}",
+                table(*section, records, &front)
+            );
+        }
+        md.push_str(section_notes(*section));
+    }
+    let md_path = out.join("README.md");
+    std::fs::write(&md_path, md).map_err(|e| format!("{}: {e}", md_path.display()))?;
+    Ok(head)
+}
+
+fn section_notes(section: Section) -> &'static str {
+    match section {
+        Section::Ik => {
+            "\
+Knobs: iteration caps at the lab tolerance 1e-6, then tolerances at the lab cap 100. `ccd` and
+`fabrik` are the crates' defaults (CCD with sweep extrapolation; FABRIK with the damped
+least-squares finish), `-plain` their textbook forms. W2's unreachable targets are solved in
+closed form by every solver (excess over `distance - reach` is listed); its plotted error is
+over the reachable targets only. Bone length error is relative, the largest over all solves.
+"
+        }
+        Section::Curves => {
+            "\
+`uniform parameter`: the lab report's sampling at even parameter steps; `dense polyline`: M
+uniform samples joined into a polyline and resampled evenly along it (its points lie on the
+polyline, not the curve); `arc length`: sinew-curves' table (build included unless reused)
+and Newton-bisection inverse. The length error is that of the length each method works with
+(the polyline's, or the table's).
+"
+        }
+        Section::Cloth => {
+            "\
+Explicit substep counts are multiples of the stability bound's count at the start (the
+`bound` in results.json); `velocity_verlet` with substeps from the bound recomputes it as the
+cloth moves. The distance from backward Euler at 1e-12 measures the implicit solver's error;
+for the other integrators it mostly measures how far backward Euler's damping is from them.
+The flawed report method is a reference, not a method to use. `energy rise max` is the
+largest rise of the total energy over one step relative to the starting energy.
+"
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn times_and_errors_format_compactly() {
+        assert_eq!(fmt_time(1.4e-6), "1.40 us");
+        assert_eq!(fmt_time(0.0152), "15.2 ms");
+        assert_eq!(fmt_time(234e-3), "234 ms");
+        assert_eq!(fmt_err(f64::INFINITY), "diverged");
+        assert_eq!(fmt_err(1.17e-5), "1.2e-5");
+        assert_eq!(slug("W5 k=1e6"), "w5-k-1e6");
+    }
+}

@@ -1,0 +1,98 @@
+//! The IK workloads of ../shared/WORKLOADS.md (W1 flower tracking, W2 random cold
+//! solves), built in one place so every figure of `cargo xtask bench` (and anything else
+//! in xtask that needs them) uses the same chains and the same targets.
+//!
+//! The W2 targets come from splitmix64 with the seed of sinew-ik-fabrik's tests and
+//! benchmarks (`W2_SEED`), which gives 8 554 reachable targets of 10 000.
+
+use sinew_math::DVec3;
+use sinew_skeleton::Skeleton;
+use std::f64::consts::TAU;
+
+/// W1: 8 joints, root offset (0, 0.5, 0), joints 1..7 offset (0.15, 0, 0). Reach 1.05.
+pub fn w1_skeleton() -> Result<Skeleton, String> {
+    Skeleton::chain(DVec3::new(0.0, 0.5, 0.0), &[DVec3::new(0.15, 0.0, 0.0); 7])
+        .map_err(|e| format!("W1 chain: {e}"))
+}
+
+/// W1 targets: `count` points of the lab flower `a(6 cos t - cos 6t), 0,
+/// a(6 sin t - sin 6t)`, a = 0.1, at `t = 2 pi i / count`.
+pub fn w1_targets(count: usize) -> Vec<DVec3> {
+    let a = 0.1;
+    (0..count)
+        .map(|i| {
+            let t = TAU * i as f64 / count as f64;
+            DVec3::new(
+                a * (6.0 * t.cos() - (6.0 * t).cos()),
+                0.0,
+                a * (6.0 * t.sin() - (6.0 * t).sin()),
+            )
+        })
+        .collect()
+}
+
+/// W2 (and W3): 10 joints, root at the origin, joints 1..9 offset (0.1, 0, 0). Reach 0.9.
+pub fn w2_skeleton() -> Result<Skeleton, String> {
+    Skeleton::chain(DVec3::ZERO, &[DVec3::new(0.1, 0.0, 0.0); 9])
+        .map_err(|e| format!("W2 chain: {e}"))
+}
+
+/// The seed of the W2 targets (the same as sinew-ik-fabrik's workloads).
+pub const W2_SEED: u64 = 0x5EED_0000_0000_0002;
+
+/// splitmix64 (Steele, Lea and Flood 2014): small, well mixed, reproducible.
+pub struct SplitMix64(pub u64);
+
+impl SplitMix64 {
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [-1, 1).
+    pub fn symmetric(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+    }
+}
+
+/// W2 targets: the first `count` points uniform in the ball of radius 0.95 about the
+/// origin (rejection from the cube), from [`W2_SEED`].
+pub fn w2_targets(count: usize) -> Vec<DVec3> {
+    let mut rng = SplitMix64(W2_SEED);
+    let mut out = Vec::with_capacity(count);
+    while out.len() < count {
+        let p = DVec3::new(rng.symmetric(), rng.symmetric(), rng.symmetric());
+        if p.length_squared() <= 1.0 {
+            out.push(p * 0.95);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn w2_has_the_documented_reachable_count_and_is_in_the_ball() {
+        let targets = w2_targets(10_000);
+        assert!(targets.iter().all(|p| p.length() <= 0.95 + 1e-15));
+        let reachable = targets.iter().filter(|p| p.length() <= 0.9).count();
+        assert_eq!(reachable, 8_554);
+        // Uniform in the ball: the share within 0.9 is (0.9/0.95)^3 = 0.8503.
+        assert!((reachable as f64 / 1e4 - 0.8503).abs() < 0.01);
+    }
+
+    #[test]
+    fn w1_targets_lie_on_the_flower() {
+        let t = w1_targets(500);
+        assert_eq!(t.len(), 500);
+        // t = 0: a(6 - 1, 0, 0) = (0.5, 0, 0).
+        assert!((t[0] - DVec3::new(0.5, 0.0, 0.0)).length() < 1e-15);
+        assert_eq!(w1_skeleton().unwrap().len(), 8);
+    }
+}
