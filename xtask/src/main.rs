@@ -1,4 +1,5 @@
-//! `cargo xtask`: sinew's scene runner and its time-against-error benchmarks.
+//! `cargo xtask`: sinew's scene runner, its time-against-error benchmarks and its
+//! numerical stress grid.
 //!
 //! `cargo xtask run-scene [FILE]` reads a RON scene (default `scenes/lab4.ron`), checks
 //! every task before running any, runs the tasks it names and nothing else, prints a
@@ -7,7 +8,9 @@
 //!
 //! `cargo xtask bench` runs every method across its knobs on the shared workloads and
 //! writes `docs/bench/README.md`, `docs/bench/results.json` and SVG plots of time against
-//! error. It re-runs itself in release, except with `--quick` (a smoke run).
+//! error. `cargo xtask stress` runs the cloth stability grid and the IK degenerate set,
+//! writes `docs/bench/stress.md` and exits non-zero on NaN, divergence or a broken
+//! invariant. Both re-run themselves in release, except with `--quick` (a smoke run).
 
 mod bench;
 mod machine;
@@ -15,6 +18,7 @@ mod render;
 mod report;
 mod scene;
 mod spec;
+mod stress;
 mod tasks;
 
 use clap::{Parser, Subcommand};
@@ -36,6 +40,9 @@ enum Command {
     /// Time against error for every method and knob on the shared workloads
     /// (writes docs/bench/README.md, results.json and plots).
     Bench(bench::BenchArgs),
+    /// The numerical stress grid (cloth) and the degenerate IK set (writes
+    /// docs/bench/stress.md; exits 1 on NaN, divergence or a broken invariant).
+    Stress(stress::StressArgs),
 }
 
 #[derive(clap::Args)]
@@ -75,6 +82,7 @@ fn main() -> ExitCode {
     match cli.command {
         Command::RunScene(args) => run_scene_command(&args),
         Command::Bench(args) => bench::run(&args),
+        Command::Stress(args) => stress::run(&args),
     }
 }
 

@@ -117,6 +117,10 @@ impl NewtonSettings {
     }
 }
 
+/// The most doublings of an accepted full Newton step in one line search (a step up to
+/// 2^10 times the Newton step).
+const MAX_EXPANSIONS: usize = 10;
+
 /// Per-solver timing for the automatic choice (index 0: PCG, 1: direct).
 ///
 /// The estimate is the smallest of the last [`TIMING_WINDOW`] measured step times: on a
@@ -155,6 +159,33 @@ impl SolverTiming {
         self.recent[self.next] = seconds;
         self.next = (self.next + 1) % TIMING_WINDOW;
         self.steps_since_used = 0;
+    }
+}
+
+/// Records a step's time for the automatic solver choice. A step that converged with no
+/// Newton iteration never ran the linear solver, so its time (the gradient alone) says
+/// nothing about the solver's cost and is not recorded: recording it made the solver
+/// probed on such a step look almost free, and `auto` then kept a solver 10x slower for
+/// a dozen steps (W6 at tolerance 1e-6, found by `cargo xtask bench`).
+fn record_step_time(
+    timing: &mut [SolverTiming; 2],
+    kind: LinearSolverKind,
+    seconds: f64,
+    iterations: usize,
+) {
+    if iterations == 0 {
+        return;
+    }
+    let index = match kind {
+        LinearSolverKind::Pcg => 0,
+        LinearSolverKind::Direct => 1,
+    };
+    for (k, t) in timing.iter_mut().enumerate() {
+        if k == index {
+            t.record(seconds);
+        } else {
+            t.steps_since_used += 1;
+        }
     }
 }
 
@@ -596,19 +627,37 @@ impl BackwardEuler {
                 report.descent_fallbacks += 1;
             }
             let mut alpha = 1.0;
-            let mut accepted = false;
+            let mut accepted = None;
             for _ in 0..=self.settings.max_backtracks {
                 let change = self.objective_change(system, &problem, alpha);
                 if change <= self.settings.armijo * alpha * slope {
-                    accepted = true;
+                    accepted = Some(change);
                     break;
                 }
                 report.backtracks += 1;
                 alpha *= 0.5;
             }
-            if !accepted {
+            let Some(mut best) = accepted else {
                 report.stop = StopReason::LineSearchStalled;
                 break;
+            };
+            if alpha == 1.0 {
+                // The full step was accepted: where compressed springs make g non-convex,
+                // the projected Hessian overstates the curvature and its step is too
+                // short, so Newton crawls (hundreds of iterations on a sheet compressed
+                // to half size, docs/stress.md). Double the step while g keeps falling
+                // and Armijo holds. Near a minimum of a quadratic model the doubled step
+                // gives no decrease at all, so this costs one evaluation of the change of
+                // g there and never changes a step that was already right.
+                for _ in 0..MAX_EXPANSIONS {
+                    let trial = self.objective_change(system, &problem, 2.0 * alpha);
+                    if trial < best && trial <= self.settings.armijo * 2.0 * alpha * slope {
+                        alpha *= 2.0;
+                        best = trial;
+                    } else {
+                        break;
+                    }
+                }
             }
             for (f, &p) in self.pattern.free_particles.iter().enumerate() {
                 self.x[p] +=
@@ -618,18 +667,12 @@ impl BackwardEuler {
         self.y = y;
         self.x_ref = x_ref;
         self.directions = directions;
-        let seconds = started.elapsed().as_secs_f64();
-        let index = match kind {
-            LinearSolverKind::Pcg => 0,
-            LinearSolverKind::Direct => 1,
-        };
-        for (k, t) in self.timing.iter_mut().enumerate() {
-            if k == index {
-                t.record(seconds);
-            } else {
-                t.steps_since_used += 1;
-            }
-        }
+        record_step_time(
+            &mut self.timing,
+            kind,
+            started.elapsed().as_secs_f64(),
+            report.iterations,
+        );
         Ok(report)
     }
 
@@ -832,4 +875,28 @@ pub fn newton_matrix_triplets(system: &SpringSystem, h: f64) -> Vec<(usize, usiz
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_step_without_newton_iterations_does_not_time_the_solver() {
+        let mut timing = [SolverTiming::default(); 2];
+        record_step_time(&mut timing, LinearSolverKind::Pcg, 0.010, 2);
+        // The direct probe lands on a step that converged at once: 1 us of gradient work.
+        record_step_time(&mut timing, LinearSolverKind::Direct, 1e-6, 0);
+        assert_eq!(timing[0].seconds_per_step(), Some(0.010));
+        assert_eq!(
+            timing[1].seconds_per_step(),
+            None,
+            "direct is still unmeasured"
+        );
+        // Its first step with a solve is what counts.
+        record_step_time(&mut timing, LinearSolverKind::Direct, 0.190, 1);
+        assert_eq!(timing[1].seconds_per_step(), Some(0.190));
+        assert_eq!(timing[0].steps_since_used, 1);
+        assert_eq!(timing[1].steps_since_used, 0);
+    }
 }

@@ -369,3 +369,36 @@ fn run_metrics_report_the_run() {
     assert!(m.diverged && m.steps < 300 && m.stopped_by.is_some());
     assert!(run(&mut sim, -1.0, 1).is_err());
 }
+
+/// Regression from the stress grid (docs/stress.md): the lab cloth with every particle
+/// scaled by 2 about the sheet's centre, stiffness 1e7, no damping, one step of 1/60.
+/// The full projected-Newton step is accepted every iteration but is far too short while
+/// the sheet snaps back through the non-convex (compressed) region, so Newton crawled to
+/// the cap of 50 at a residual of 1.8e2 (tolerance 3.6e-6). The line search now doubles an
+/// accepted full step while `g` keeps falling; the step converges within the default cap
+/// and `g` still never rises.
+#[test]
+fn stretched_stiff_sheet_converges_within_the_default_cap() {
+    let mut grid = ClothGrid::lab(0.0);
+    grid.material.stiffness = 1e7;
+    let mut system = SpringSystem::cloth(&grid).unwrap();
+    let n = system.len() as f64;
+    let centre = system.positions().iter().copied().sum::<DVec3>() / n;
+    let x: Vec<DVec3> = system
+        .positions()
+        .iter()
+        .map(|&p| centre + 2.0 * (p - centre))
+        .collect();
+    let v = vec![DVec3::ZERO; x.len()];
+    system.set_state(&x, &v).unwrap();
+    let settings = NewtonSettings {
+        record_objective: true,
+        ..NewtonSettings::default()
+    };
+    let mut be = BackwardEuler::new(&system, settings).unwrap();
+    let report = be.step(&mut system, 1.0 / 60.0).unwrap();
+    assert_eq!(report.stop, StopReason::Converged, "{report:?}");
+    assert!(report.residual <= report.tolerance);
+    let trace = be.objective_trace();
+    assert!(trace.windows(2).all(|w| w[1] <= w[0]), "g rose: {trace:?}");
+}

@@ -1,0 +1,795 @@
+//! The cloth stability grid: the lab cloth (WORKLOADS.md W4's spring pattern, two pinned
+//! corners, a sheet 2 units wide) at every stiffness decade, time step, grid size and
+//! initial state, stepped by the library's default backward Euler; per case the
+//! divergence, the energy and the Newton solve's work, and the invariants whose breach
+//! fails the run (docs/stress.md says which and why).
+
+use serde::Serialize;
+use sinew_math::DVec3;
+use sinew_spring_sim::{
+    ClothGrid, Integrator, NewtonSettings, Simulation, SpringSystem, StepError, StepReport,
+    StopReason, metrics::DIVERGENCE_RADIUS,
+};
+use std::time::Instant;
+
+/// Machine epsilon of f64.
+const EPS: f64 = f64::EPSILON;
+
+/// Width of the sheet in scene units, whatever the grid size (W4: 11 particles 0.2
+/// apart; W6: 101 particles 0.02 apart).
+pub const SHEET_WIDTH: f64 = 2.0;
+
+/// How far "randomly perturbed" moves each free particle, in grid spacings (at most).
+pub const PERTURBATION: f64 = 0.3;
+
+/// How far "one particle displaced far" lifts the free corner, in scene units (well
+/// inside [`DIVERGENCE_RADIUS`], so a divergence is the solver's doing).
+pub const FAR_DISPLACEMENT: f64 = 10.0;
+
+/// Seed of the perturbed state (any fixed value; the state must be reproducible).
+pub const PERTURB_SEED: u64 = 0x5EED_C10F;
+
+/// A residual above this many times the larger of the tolerance and the round-off floor
+/// is "far from converged" (docs/stress.md).
+pub const FAR_FACTOR: f64 = 1.0;
+
+/// The starting state of a case, applied to the built lab cloth (rest lengths are always
+/// the lab's, from the flat sheet; velocities start at zero).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InitialState {
+    /// The flat sheet as built: every spring at its rest length.
+    Rest,
+    /// Every particle (pinned ones too) scaled by 2 about the sheet's centre: every
+    /// spring starts at twice its rest length.
+    Stretched,
+    /// Every particle scaled by 0.5 about the sheet's centre: every spring at half.
+    Compressed,
+    /// Each free particle moved by a seeded random vector of length up to
+    /// [`PERTURBATION`] spacings.
+    Perturbed,
+    /// The free corner `(n-1, n-1)` lifted by [`FAR_DISPLACEMENT`] along +y.
+    Far,
+}
+
+impl InitialState {
+    /// Every state, in table order.
+    pub const ALL: [Self; 5] = [
+        Self::Rest,
+        Self::Stretched,
+        Self::Compressed,
+        Self::Perturbed,
+        Self::Far,
+    ];
+
+    /// A short name for tables and the command line.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Rest => "rest",
+            Self::Stretched => "stretched",
+            Self::Compressed => "compressed",
+            Self::Perturbed => "perturbed",
+            Self::Far => "far",
+        }
+    }
+
+    /// The state named `name`.
+    pub fn parse(name: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|s| s.name() == name)
+            .ok_or_else(|| {
+                format!(
+                    "unknown state {name:?}: expected rest, stretched, compressed, perturbed or far"
+                )
+            })
+    }
+}
+
+/// One cloth case.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ClothCase {
+    /// Particles per side.
+    pub grid: usize,
+    /// Stiffness of every spring.
+    pub stiffness: f64,
+    /// Time step.
+    pub dt: f64,
+    /// The starting state.
+    pub state: InitialState,
+    /// Steps taken.
+    pub steps: usize,
+}
+
+impl ClothCase {
+    /// A label for messages: `51x51 k=1e4 dt=1/60 stretched`.
+    #[must_use]
+    pub fn label(&self) -> String {
+        format!(
+            "{0}x{0} k={1:.0e} dt={2} {3}",
+            self.grid,
+            self.stiffness,
+            dt_label(self.dt),
+            self.state.name()
+        )
+    }
+}
+
+/// `1/60` for a step whose inverse is a whole number, else the decimal.
+#[must_use]
+pub fn dt_label(dt: f64) -> String {
+    let inv = 1.0 / dt;
+    if (inv - inv.round()).abs() < 1e-9 * inv {
+        format!("1/{}", inv.round())
+    } else {
+        format!("{dt}")
+    }
+}
+
+/// Parses `1/60` or `0.25`.
+pub fn parse_dt(text: &str) -> Result<f64, String> {
+    let value = match text.split_once('/') {
+        Some((a, b)) => {
+            let a: f64 = a.trim().parse().map_err(|e| format!("{text}: {e}"))?;
+            let b: f64 = b.trim().parse().map_err(|e| format!("{text}: {e}"))?;
+            a / b
+        }
+        None => text.trim().parse().map_err(|e| format!("{text}: {e}"))?,
+    };
+    if value.is_finite() && value > 0.0 {
+        Ok(value)
+    } else {
+        Err(format!("{text}: the time step must be positive and finite"))
+    }
+}
+
+/// The grid's axes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClothGridSpec {
+    /// Grid sizes (particles per side).
+    pub grids: Vec<usize>,
+    /// Stiffnesses.
+    pub stiffnesses: Vec<f64>,
+    /// Time steps.
+    pub dts: Vec<f64>,
+    /// Initial states.
+    pub states: Vec<InitialState>,
+}
+
+impl ClothGridSpec {
+    /// The issue's grid: 3 sizes x 7 stiffness decades x 5 steps x 5 states = 525 cases.
+    #[must_use]
+    pub fn full() -> Self {
+        Self {
+            grids: vec![11, 51, 101],
+            stiffnesses: (1..=7).map(|e| 10f64.powi(e)).collect(),
+            dts: vec![1.0 / 960.0, 1.0 / 240.0, 1.0 / 60.0, 1.0 / 15.0, 1.0 / 4.0],
+            states: InitialState::ALL.to_vec(),
+        }
+    }
+
+    /// The CI grid: 11 x 11 only, stiffness 1e1, 1e4, 1e7, steps 1/960, 1/60, 1/4,
+    /// every state (45 cases).
+    #[must_use]
+    pub fn quick() -> Self {
+        Self {
+            grids: vec![11],
+            stiffnesses: vec![1e1, 1e4, 1e7],
+            dts: vec![1.0 / 960.0, 1.0 / 60.0, 1.0 / 4.0],
+            states: InitialState::ALL.to_vec(),
+        }
+    }
+
+    /// Every case, grid-major (the order of the tables).
+    #[must_use]
+    pub fn cases(&self) -> Vec<ClothCase> {
+        let mut out = Vec::new();
+        for &grid in &self.grids {
+            for &stiffness in &self.stiffnesses {
+                for &dt in &self.dts {
+                    for &state in &self.states {
+                        out.push(ClothCase {
+                            grid,
+                            stiffness,
+                            dt,
+                            state,
+                            steps: steps_for(grid),
+                        });
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Steps per case: 20 on 11 x 11, 3 on 51 x 51, 1 on 101 x 101. A Newton iteration on
+/// 51 x 51 costs about 20 times one on 11 x 11 and on 101 x 101 about 80 times, and the
+/// hardest cases (stiff, large steps) spend the whole cap of 50 iterations on each of
+/// their first steps, so the larger grids take fewer steps to keep the full grid near
+/// 15 minutes on the shared 2-core machine (docs/stress.md). The first step is where the
+/// initial states are hardest (the sheet snapping back from 2x, buckling from 0.5x, the
+/// far corner's spring), so it is always taken.
+#[must_use]
+pub fn steps_for(grid: usize) -> usize {
+    match grid {
+        0..=11 => 20,
+        12..=51 => 3,
+        _ => 1,
+    }
+}
+
+/// splitmix64 (Steele, Lea and Flood, "Fast splittable pseudorandom number generators",
+/// OOPSLA 2014): a tiny seeded generator, good enough to perturb a sheet reproducibly.
+#[derive(Clone, Debug)]
+pub struct SplitMix64(u64);
+
+impl SplitMix64 {
+    /// A generator from `seed`.
+    #[must_use]
+    pub fn new(seed: u64) -> Self {
+        Self(seed)
+    }
+
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in `[0, 1)` (the top 53 bits).
+    pub fn next_f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    /// Uniform in the ball of radius `r` (rejection from the cube).
+    pub fn in_ball(&mut self, r: f64) -> DVec3 {
+        loop {
+            let v = DVec3::new(
+                2.0 * self.next_f64() - 1.0,
+                2.0 * self.next_f64() - 1.0,
+                2.0 * self.next_f64() - 1.0,
+            );
+            if v.length_squared() <= 1.0 {
+                return r * v;
+            }
+        }
+    }
+}
+
+/// The lab cloth of a case before its state is applied: `grid` particles per side,
+/// spacing `2 / (grid - 1)`, mass 1, stiffness `stiffness`, no damping (the hardest
+/// setting for stability: nothing but the integrator removes energy), the lab's gravity,
+/// corners (0, 0) and (0, n-1) pinned.
+pub fn lab_cloth(grid: usize, stiffness: f64) -> Result<SpringSystem, String> {
+    if grid < 2 {
+        return Err(format!("grid {grid}: at least 2 particles per side"));
+    }
+    let mut spec = ClothGrid::lab_sized(grid, SHEET_WIDTH / (grid - 1) as f64, 0.0);
+    spec.material.stiffness = stiffness;
+    SpringSystem::cloth(&spec).map_err(|e| e.to_string())
+}
+
+/// The positions of `state` for `system` (a lab cloth of `grid` particles per side).
+#[must_use]
+pub fn initial_positions(system: &SpringSystem, grid: usize, state: InitialState) -> Vec<DVec3> {
+    let rest = system.positions();
+    let n = rest.len() as f64;
+    let centre = rest.iter().copied().sum::<DVec3>() / n;
+    let spacing = SHEET_WIDTH / (grid - 1) as f64;
+    match state {
+        InitialState::Rest => rest.to_vec(),
+        InitialState::Stretched => rest.iter().map(|&x| centre + 2.0 * (x - centre)).collect(),
+        InitialState::Compressed => rest.iter().map(|&x| centre + 0.5 * (x - centre)).collect(),
+        InitialState::Perturbed => {
+            let mut rng = SplitMix64::new(PERTURB_SEED);
+            rest.iter()
+                .zip(system.fixed())
+                .map(|(&x, &fixed)| {
+                    // Draw for every particle, so the draws do not depend on the fixed set.
+                    let d = rng.in_ball(PERTURBATION * spacing);
+                    if fixed { x } else { x + d }
+                })
+                .collect()
+        }
+        InitialState::Far => {
+            let mut x = rest.to_vec();
+            let corner = grid * grid - 1;
+            x[corner].y += FAR_DISPLACEMENT;
+            x
+        }
+    }
+}
+
+/// The system of a case, in its initial state.
+pub fn build(case: &ClothCase) -> Result<SpringSystem, String> {
+    let mut system = lab_cloth(case.grid, case.stiffness)?;
+    let x = initial_positions(&system, case.grid, case.state);
+    let v = vec![DVec3::ZERO; x.len()];
+    system.set_state(&x, &v).map_err(|e| e.to_string())?;
+    Ok(system)
+}
+
+/// A floating-point sum with the magnitude its rounding acts on, as in
+/// crates/labcheck/src/reference.rs (whose allowance this reproduces: the grid checks
+/// the same quantity with the same round-off allowance as the property suite).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Measured {
+    /// The value.
+    pub value: f64,
+    /// The magnitude its rounding acts on.
+    pub scale: f64,
+    /// Terms summed.
+    pub terms: usize,
+}
+
+impl Measured {
+    fn add(&mut self, value: f64, scale: f64) {
+        self.value += value;
+        self.scale += scale;
+        self.terms += 1;
+    }
+
+    fn plus(self, other: Self) -> Self {
+        Self {
+            value: self.value + other.value,
+            scale: self.scale + other.scale,
+            terms: self.terms + other.terms,
+        }
+    }
+
+    /// `(terms + 16) EPS scale`: recursive summation errs by at most `(n - 1) u sum |x_i|`
+    /// and each term is a handful of rounded operations (docs/labcheck.md).
+    #[must_use]
+    pub fn allowance(&self) -> f64 {
+        (self.terms as f64 + 16.0) * EPS * self.scale
+    }
+}
+
+/// Spring energy with its rounding scale `k/2 (l-L)^2 + k |l-L| (|x_a| + |x_b| + l + L)`.
+fn spring_energy(system: &SpringSystem, x: &[DVec3]) -> Measured {
+    let mut sum = Measured::default();
+    for s in system.springs() {
+        let (xa, xb) = (x[s.a], x[s.b]);
+        let l = (xa - xb).length();
+        let e = 0.5 * s.stiffness * (l - s.rest_length) * (l - s.rest_length);
+        let scale = e + s.stiffness
+            * (l - s.rest_length).abs()
+            * (xa.length() + xb.length() + l + s.rest_length);
+        sum.add(e, scale);
+    }
+    sum
+}
+
+/// Gravity energy `-sum m g . x` over every particle.
+fn gravity_energy(system: &SpringSystem, x: &[DVec3]) -> Measured {
+    let g = system.material().gravity;
+    let mut sum = Measured::default();
+    for (&m, p) in system.masses().iter().zip(x) {
+        sum.add(-m * g.dot(*p), m * g.length() * p.length());
+    }
+    sum
+}
+
+/// `E_total = kinetic + spring + gravity`.
+fn total_energy(system: &SpringSystem) -> Measured {
+    let mut kinetic = Measured::default();
+    for (&m, v) in system.masses().iter().zip(system.velocities()) {
+        let e = 0.5 * m * v.length_squared();
+        kinetic.add(e, e);
+    }
+    let x = system.positions();
+    kinetic
+        .plus(spring_energy(system, x))
+        .plus(gravity_energy(system, x))
+}
+
+/// `1/2 |v_after - v_before|_M^2`, with the rounding of the velocities counted.
+fn velocity_change_energy(before: &SpringSystem, after: &SpringSystem, h: f64) -> Measured {
+    let mut sum = Measured::default();
+    for p in 0..before.len() {
+        let m = before.masses()[p];
+        let (v0, v1) = (before.velocities()[p], after.velocities()[p]);
+        let (x0, x1) = (before.positions()[p], after.positions()[p]);
+        let dv = v1 - v0;
+        let e = 0.5 * m * dv.length_squared();
+        let scale =
+            e + m * dv.length() * ((x0.length() + x1.length()) / h + v0.length() + v1.length());
+        sum.add(e, scale);
+    }
+    sum
+}
+
+/// `sum_free |x_after - x_before|_1`.
+fn displacement_l1(before: &SpringSystem, after: &SpringSystem) -> f64 {
+    before
+        .positions()
+        .iter()
+        .zip(after.positions())
+        .zip(before.fixed())
+        .filter(|(_, fixed)| !**fixed)
+        .map(|((a, b), _)| {
+            let d = *b - *a;
+            d.x.abs() + d.y.abs() + d.z.abs()
+        })
+        .sum()
+}
+
+/// The energy inequality of backward Euler (docs/labcheck.md): `E_spring(x_{n+1}) +
+/// E_gravity(x_{n+1}) + 1/2 |v_{n+1} - v_n|_M^2 <= E_total(x_n, v_n)`, up to the
+/// residual's first-order term and rounding, exactly as the property
+/// `converged_steps_satisfy_the_energy_inequality` checks it. Returns the excess over the
+/// allowed slack (positive: broken) and the slack.
+#[must_use]
+pub fn energy_inequality_excess(
+    before: &SpringSystem,
+    after: &SpringSystem,
+    report: &StepReport,
+    h: f64,
+) -> (f64, f64) {
+    let rhs = total_energy(before);
+    let x = after.positions();
+    let lhs = spring_energy(after, x)
+        .plus(gravity_energy(after, x))
+        .plus(velocity_change_energy(before, after, h));
+    let slack =
+        report.residual * displacement_l1(before, after) + rhs.allowance() + lhs.allowance();
+    (lhs.value - rhs.value - slack, slack)
+}
+
+/// The residual no iterate can be expected to beat: `16 EPS |x|_max (m/h^2 + sum_s k_s)`
+/// with the largest row over free particles. Moving any coordinate by one unit in the
+/// last place of `|x|_max` changes `grad g` by up to the Hessian's row sum times that
+/// ulp, and the gradient's own terms (`k (l - L)` from absolute positions) carry errors
+/// of the same order; the factor 16 is the one the property suite uses for a handful of
+/// rounded operations. A stall at or below this level is round-off, not a failure.
+#[must_use]
+pub fn residual_floor(system: &SpringSystem, h: f64) -> f64 {
+    let mut rows: Vec<f64> = system.masses().iter().map(|m| m / (h * h)).collect();
+    for s in system.springs() {
+        rows[s.a] += s.stiffness;
+        rows[s.b] += s.stiffness;
+    }
+    let row = rows
+        .iter()
+        .zip(system.fixed())
+        .filter(|(_, f)| !**f)
+        .map(|(r, _)| *r)
+        .fold(0.0, f64::max);
+    let xmax = system
+        .positions()
+        .iter()
+        .map(|x| x.abs().max_element())
+        .fold(0.0, f64::max);
+    16.0 * EPS * xmax * row
+}
+
+/// What one case did.
+#[derive(Clone, Debug, Serialize)]
+pub struct ClothOutcome {
+    /// The case.
+    pub case: ClothCase,
+    /// Steps completed.
+    pub steps_run: usize,
+    /// Why the run diverged (a step error, a non-finite value, a particle beyond
+    /// [`DIVERGENCE_RADIUS`]), if it did.
+    pub diverged: Option<String>,
+    /// Largest rise of the total energy over one step, relative to the run's starting
+    /// energy scale `kinetic + spring + |gravity|` (0 when it never rose).
+    pub energy_increase_max: f64,
+    /// Largest Newton iteration count of a step.
+    pub iterations_max: usize,
+    /// Mean Newton iterations per step.
+    pub iterations_mean: f64,
+    /// Line-search step halvings, summed over the run.
+    pub backtracks: usize,
+    /// Largest final `residual / tolerance` of a step.
+    pub residual_ratio_max: f64,
+    /// Steps that stopped at the iteration cap.
+    pub cap_steps: usize,
+    /// Steps whose line search stalled.
+    pub stalled_steps: usize,
+    /// Non-converged steps that ended at or below the round-off floor (fine).
+    pub roundoff_stops: usize,
+    /// Non-converged steps that ended above it (failures).
+    pub far_stops: usize,
+    /// Worst `residual / max(tolerance, floor)` over the non-converged steps.
+    pub unconverged_ratio_max: f64,
+    /// Steps that broke the energy inequality.
+    pub inequality_breaks: usize,
+    /// Largest excess over the inequality's slack (negative: held with margin).
+    pub inequality_excess_max: f64,
+    /// Wall-clock seconds of the case (build and steps).
+    pub seconds: f64,
+    /// The invariants this case broke, one sentence each.
+    pub failures: Vec<String>,
+}
+
+impl ClothOutcome {
+    fn new(case: ClothCase) -> Self {
+        Self {
+            case,
+            steps_run: 0,
+            diverged: None,
+            energy_increase_max: 0.0,
+            iterations_max: 0,
+            iterations_mean: 0.0,
+            backtracks: 0,
+            residual_ratio_max: 0.0,
+            cap_steps: 0,
+            stalled_steps: 0,
+            roundoff_stops: 0,
+            far_stops: 0,
+            unconverged_ratio_max: 0.0,
+            inequality_breaks: 0,
+            inequality_excess_max: f64::NEG_INFINITY,
+            seconds: 0.0,
+            failures: Vec::new(),
+        }
+    }
+}
+
+/// Whether a report has a NaN or infinity anywhere it reports a number.
+fn report_is_finite(r: &StepReport) -> bool {
+    r.residual.is_finite()
+        && r.tolerance.is_finite()
+        && r.energy_before.total().is_finite()
+        && r.energy_after.total().is_finite()
+}
+
+/// Runs one case and checks its invariants.
+#[must_use]
+pub fn run_case(case: &ClothCase) -> ClothOutcome {
+    let started = Instant::now();
+    let mut out = ClothOutcome::new(*case);
+    let system = match build(case) {
+        Ok(s) => s,
+        Err(e) => {
+            out.failures.push(format!("could not build the case: {e}"));
+            return out;
+        }
+    };
+    let start = system.energies();
+    let energy_scale = (start.kinetic + start.spring + start.gravity.abs()).max(f64::MIN_POSITIVE);
+    let mut sim =
+        match Simulation::new(system, Integrator::BackwardEuler(NewtonSettings::default())) {
+            Ok(s) => s,
+            Err(e) => {
+                out.failures
+                    .push(format!("could not build the integrator: {e}"));
+                return out;
+            }
+        };
+    let mut iterations_total = 0;
+    for n in 0..case.steps {
+        let before = sim.system().clone();
+        let report = match sim.step(case.dt) {
+            Ok(r) => r,
+            Err(e @ StepError::NonFinite { .. }) => {
+                out.diverged = Some(format!("step {n}: {e}"));
+                break;
+            }
+            Err(e) => {
+                out.diverged = Some(format!("step {n}: refused: {e}"));
+                break;
+            }
+        };
+        out.steps_run += 1;
+        let after = sim.system();
+        if !report_is_finite(&report)
+            || !after.positions().iter().all(|x| x.is_finite())
+            || !after.velocities().iter().all(|v| v.is_finite())
+        {
+            out.diverged = Some(format!(
+                "step {n}: a NaN or infinity in the state or report"
+            ));
+            break;
+        }
+        iterations_total += report.iterations;
+        out.iterations_max = out.iterations_max.max(report.iterations);
+        out.backtracks += report.backtracks;
+        let ratio = report.residual / report.tolerance;
+        out.residual_ratio_max = out.residual_ratio_max.max(ratio);
+        let rise = (report.energy_after.total() - report.energy_before.total()) / energy_scale;
+        out.energy_increase_max = out.energy_increase_max.max(rise);
+        match report.stop {
+            StopReason::Converged => {}
+            StopReason::IterationCap | StopReason::LineSearchStalled => {
+                if report.stop == StopReason::IterationCap {
+                    out.cap_steps += 1;
+                } else {
+                    out.stalled_steps += 1;
+                }
+                let floor = residual_floor(after, case.dt);
+                let r = report.residual / report.tolerance.max(floor);
+                out.unconverged_ratio_max = out.unconverged_ratio_max.max(r);
+                if r <= FAR_FACTOR {
+                    out.roundoff_stops += 1;
+                } else {
+                    out.far_stops += 1;
+                    if out.far_stops == 1 {
+                        out.failures.push(format!(
+                            "step {n}: stopped ({:?}) far from converged: residual {:.3e} = {:.3e} x max(tolerance {:.3e}, round-off floor {:.3e})",
+                            report.stop, report.residual, r, report.tolerance, floor
+                        ));
+                    }
+                }
+            }
+            other => {
+                out.failures
+                    .push(format!("step {n}: unexpected stop {other:?}"));
+            }
+        }
+        // The energy inequality holds for every backward Euler step, converged or not
+        // (Newton starts from x_n whenever its guess has a larger g, and the line search
+        // never increases g), so it is checked on every step.
+        let (excess, slack) = energy_inequality_excess(&before, after, &report, case.dt);
+        out.inequality_excess_max = out
+            .inequality_excess_max
+            .max(excess / slack.max(f64::MIN_POSITIVE));
+        if excess > 0.0 {
+            out.inequality_breaks += 1;
+            if out.inequality_breaks == 1 {
+                out.failures.push(format!(
+                    "step {n}: energy inequality broken by {excess:.3e} beyond its slack {slack:.3e} (stop {:?})",
+                    report.stop
+                ));
+            }
+        }
+        if let Some(p) = after
+            .positions()
+            .iter()
+            .position(|x| x.length() > DIVERGENCE_RADIUS)
+        {
+            out.diverged = Some(format!(
+                "step {n}: particle {p} left the ball of radius {DIVERGENCE_RADIUS}"
+            ));
+            break;
+        }
+    }
+    if let Some(d) = &out.diverged {
+        out.failures.insert(0, format!("diverged: {d}"));
+    }
+    if out.steps_run > 0 {
+        out.iterations_mean = iterations_total as f64 / out.steps_run as f64;
+    }
+    out.seconds = started.elapsed().as_secs_f64();
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spring_lengths(system: &SpringSystem, x: &[DVec3]) -> Vec<f64> {
+        system
+            .springs()
+            .iter()
+            .map(|s| (x[s.a] - x[s.b]).length() / s.rest_length)
+            .collect()
+    }
+
+    #[test]
+    fn scaled_states_scale_every_spring() {
+        let system = lab_cloth(11, 100.0).unwrap();
+        for (state, factor) in [
+            (InitialState::Rest, 1.0),
+            (InitialState::Stretched, 2.0),
+            (InitialState::Compressed, 0.5),
+        ] {
+            let x = initial_positions(&system, 11, state);
+            for r in spring_lengths(&system, &x) {
+                assert!((r - factor).abs() < 1e-13, "{state:?}: {r}");
+            }
+        }
+    }
+
+    #[test]
+    fn perturbed_moves_free_particles_only_and_within_the_bound() {
+        let system = lab_cloth(11, 100.0).unwrap();
+        let x = initial_positions(&system, 11, InitialState::Perturbed);
+        let spacing = 0.2;
+        let mut largest: f64 = 0.0;
+        for ((a, b), fixed) in system.positions().iter().zip(&x).zip(system.fixed()) {
+            let d = (*b - *a).length();
+            if *fixed {
+                assert_eq!(d, 0.0);
+            } else {
+                assert!(d <= PERTURBATION * spacing * (1.0 + 1e-15));
+                largest = largest.max(d);
+            }
+        }
+        // Seeded: the same state twice, and not a trivial one.
+        assert_eq!(x, initial_positions(&system, 11, InitialState::Perturbed));
+        assert!(largest > 0.5 * PERTURBATION * spacing);
+    }
+
+    #[test]
+    fn far_moves_the_free_corner_only() {
+        let system = lab_cloth(11, 100.0).unwrap();
+        let x = initial_positions(&system, 11, InitialState::Far);
+        let moved: Vec<usize> = (0..x.len())
+            .filter(|&i| x[i] != system.positions()[i])
+            .collect();
+        assert_eq!(moved, vec![120]);
+        assert!(!system.fixed()[120]);
+        assert_eq!(
+            x[120] - system.positions()[120],
+            DVec3::Y * FAR_DISPLACEMENT
+        );
+        assert!(x[120].length() < DIVERGENCE_RADIUS / 5.0);
+    }
+
+    #[test]
+    fn sheet_is_two_wide_at_every_size() {
+        for n in [11, 51, 101] {
+            let s = lab_cloth(n, 10.0).unwrap();
+            let first = s.positions()[0];
+            let last = s.positions()[n * n - 1];
+            assert!(((last - first).x - SHEET_WIDTH).abs() < 1e-12);
+            assert!(((last - first).z - SHEET_WIDTH).abs() < 1e-12);
+            assert!(s.fixed()[0] && s.fixed()[n - 1]);
+        }
+    }
+
+    #[test]
+    fn dt_labels_round_trip() {
+        for dt in ClothGridSpec::full().dts {
+            assert_eq!(parse_dt(&dt_label(dt)).unwrap(), dt);
+        }
+        assert_eq!(parse_dt("0.25").unwrap(), 0.25);
+        assert!(parse_dt("0").is_err() && parse_dt("1/0").is_err() && parse_dt("x").is_err());
+    }
+
+    #[test]
+    fn energy_inequality_catches_an_energy_gain() {
+        // One real step satisfies the inequality; the same step with every velocity
+        // doubled afterwards (energy from nowhere) must break it.
+        let case = ClothCase {
+            grid: 11,
+            stiffness: 100.0,
+            dt: 1.0 / 60.0,
+            state: InitialState::Perturbed,
+            steps: 1,
+        };
+        let system = build(&case).unwrap();
+        let mut sim = Simulation::new(system.clone(), Integrator::default()).unwrap();
+        let report = sim.step(case.dt).unwrap();
+        let after = sim.system().clone();
+        let (excess, slack) = energy_inequality_excess(&system, &after, &report, case.dt);
+        assert!(excess <= 0.0 && slack > 0.0, "{excess} {slack}");
+        // The same positions with velocities 1000 times larger: `1/2 |v_{n+1} - v_n|^2`
+        // grows a million-fold, energy from nowhere.
+        let v: Vec<DVec3> = after.velocities().iter().map(|v| 1000.0 * *v).collect();
+        let mut forged = after.clone();
+        forged.set_state(after.positions(), &v).unwrap();
+        let (excess, _) = energy_inequality_excess(&system, &forged, &report, case.dt);
+        assert!(excess > 0.0, "{excess}");
+    }
+
+    #[test]
+    fn quick_case_passes_and_reports_work() {
+        let case = ClothCase {
+            grid: 11,
+            stiffness: 1e4,
+            dt: 1.0 / 60.0,
+            state: InitialState::Stretched,
+            steps: 3,
+        };
+        let out = run_case(&case);
+        assert!(out.failures.is_empty(), "{:?}", out.failures);
+        assert_eq!(out.steps_run, 3);
+        assert!(out.iterations_max >= 1 && out.iterations_mean > 0.0);
+        assert!(out.inequality_excess_max <= 0.0);
+    }
+
+    #[test]
+    fn grids_have_the_issue_sizes() {
+        assert_eq!(ClothGridSpec::full().cases().len(), 525);
+        assert_eq!(ClothGridSpec::quick().cases().len(), 45);
+    }
+}

@@ -1,0 +1,676 @@
+//! The IK degenerate set: every solver (CCD and FABRIK, each with and without its
+//! acceleration) on chains of 1, 2 and 10 000 bones, bone lengths spanning 1e-6 to 1e6,
+//! targets at the base, 1e-12 from it, 1e12 away, exactly at the reach, on the chain's
+//! own axis, zero-length bones, a cap of 0, a tolerance of 0, and bad input. Each solve
+//! is checked against invariants that hold for any correct solver (docs/stress.md).
+
+use serde::Serialize;
+use sinew_ik_ccd::CcdSolver;
+use sinew_ik_fabrik::FabrikSolver;
+use sinew_math::{DQuat, DVec3, EulerRot};
+use sinew_skeleton::ik::{Chain, IkSolver, SolveReport, SolveSettings, StopReason};
+use sinew_skeleton::{GlobalPose, Pose, Skeleton};
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::time::Instant;
+
+/// Machine epsilon of f64.
+const EPS: f64 = f64::EPSILON;
+
+/// The relative accuracy every bone length must keep (the 1e-12).
+const BONE_RELATIVE: f64 = 1e-12;
+
+/// The solvers, by the name used in the tables.
+pub const SOLVERS: [&str; 4] = ["ccd", "ccd-plain", "fabrik", "fabrik-plain"];
+
+fn make_solver(name: &str) -> Box<dyn IkSolver> {
+    match name {
+        "ccd" => Box::new(CcdSolver::new()),
+        "ccd-plain" => Box::new(CcdSolver::plain()),
+        "fabrik" => Box::new(FabrikSolver::new()),
+        _ => Box::new(FabrikSolver::plain()),
+    }
+}
+
+/// What a case expects of every solver.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Expect {
+    /// A solve (`Ok`) that keeps every invariant.
+    Solve,
+    /// An `Err` whose message contains this text (it names the bad input).
+    Error(&'static str),
+}
+
+/// One IK case.
+#[derive(Clone, Debug)]
+pub struct IkCase {
+    /// What the case is.
+    pub name: String,
+    /// The root joint's position.
+    pub root: DVec3,
+    /// Offsets of joints 1.. (bones), in their parent's frame.
+    pub offsets: Vec<DVec3>,
+    /// Local rotations of the starting pose (`None`: the rest pose, a straight chain
+    /// along the offsets).
+    pub start: Option<Vec<DQuat>>,
+    /// The target.
+    pub target: DVec3,
+    /// Cap and tolerance.
+    pub settings: SolveSettings,
+    /// What must happen.
+    pub expect: Expect,
+}
+
+fn xs(lengths: &[f64]) -> Vec<DVec3> {
+    lengths.iter().map(|&l| DVec3::X * l).collect()
+}
+
+fn case(name: impl Into<String>, offsets: Vec<DVec3>, target: DVec3) -> IkCase {
+    IkCase {
+        name: name.into(),
+        root: DVec3::ZERO,
+        offsets,
+        start: None,
+        target,
+        settings: SolveSettings::default(),
+        expect: Expect::Solve,
+    }
+}
+
+/// A bent starting pose: joint `i` turned by a fixed, varied set of angles.
+fn bent(joints: usize) -> Vec<DQuat> {
+    (0..joints)
+        .map(|i| {
+            let t = i as f64;
+            DQuat::from_euler(
+                EulerRot::XYZ,
+                0.3 * (t * 1.3).sin(),
+                -0.2,
+                0.25 * (t * 0.7).cos(),
+            )
+        })
+        .collect()
+}
+
+/// The W2 chain: 9 bones of 0.1 from the origin.
+fn w2() -> Vec<DVec3> {
+    xs(&[0.1; 9])
+}
+
+/// Every case of the set (the same with `--quick`: the whole set takes under a second).
+#[must_use]
+pub fn cases() -> Vec<IkCase> {
+    let w2_reach: f64 = [0.1; 9].iter().sum();
+    let spanning: Vec<f64> = (-6..=6).map(|e| 10f64.powi(e)).collect();
+    let spanning_reach: f64 = spanning.iter().sum();
+    let mut reversed = spanning.clone();
+    reversed.reverse();
+    let long = vec![1e-4; 10_000];
+    let mut out = vec![
+        case("1 bone, target on its sphere", xs(&[1.0]), DVec3::Y),
+        case(
+            "1 bone, target inside (unreachable)",
+            xs(&[1.0]),
+            0.5 * DVec3::Y,
+        ),
+        case("1 bone, target beyond", xs(&[1.0]), 3.0 * DVec3::Y),
+        case(
+            "2 bones, reachable",
+            xs(&[1.0, 1.0]),
+            DVec3::new(1.0, 1.0, 0.2),
+        ),
+        case(
+            "2 equal bones, target at the base",
+            xs(&[1.0, 1.0]),
+            DVec3::ZERO,
+        ),
+        case(
+            "2 unequal bones, target at the base (unreachable)",
+            xs(&[1.0, 0.5]),
+            DVec3::ZERO,
+        ),
+        case(
+            "W2 chain, target 1e-12 from the base",
+            w2(),
+            DVec3::new(0.0, 1e-12, 0.0),
+        ),
+        case(
+            "W2 chain, target 1e12 away",
+            w2(),
+            DVec3::new(0.0, 1e12, 0.0),
+        ),
+        case(
+            "W2 chain, target exactly at the reach",
+            w2(),
+            DVec3::new(0.0, w2_reach, 0.0),
+        ),
+        case(
+            "W2 chain, target just inside the reach (1 - 1e-9)",
+            w2(),
+            DVec3::new(0.0, w2_reach * (1.0 - 1e-9), 0.0),
+        ),
+        case(
+            "W2 chain, target on its axis in front",
+            w2(),
+            DVec3::new(0.5, 0.0, 0.0),
+        ),
+        case(
+            "W2 chain, target on its axis behind",
+            w2(),
+            DVec3::new(-0.5, 0.0, 0.0),
+        ),
+        case("W2 chain, target at the base", w2(), DVec3::ZERO),
+        case(
+            "W2 chain, target equal to the effector",
+            w2(),
+            DVec3::new(w2_reach, 0.0, 0.0),
+        ),
+        case(
+            "zero-length bones inside the chain",
+            vec![
+                0.1 * DVec3::X,
+                DVec3::ZERO,
+                0.1 * DVec3::X,
+                DVec3::ZERO,
+                DVec3::ZERO,
+                0.1 * DVec3::X,
+            ],
+            DVec3::new(0.1, 0.2, 0.0),
+        ),
+        case(
+            "all bones of length 0",
+            vec![DVec3::ZERO; 4],
+            DVec3::new(0.5, 0.0, 0.0),
+        ),
+        case(
+            "all bones of length 0, target at the base",
+            vec![DVec3::ZERO; 4],
+            DVec3::ZERO,
+        ),
+        case(
+            "lengths 1e-6 .. 1e6, reachable off axis",
+            xs(&spanning),
+            DVec3::new(6e5, 8e5, 0.0),
+        ),
+        case(
+            "lengths 1e6 .. 1e-6, reachable off axis",
+            xs(&reversed),
+            DVec3::new(6e5, 8e5, 0.0),
+        ),
+        case(
+            "lengths 1e-6 .. 1e6, target at the base (unreachable)",
+            xs(&spanning),
+            DVec3::ZERO,
+        ),
+        case(
+            "lengths 1e-6 .. 1e6, target just inside the reach",
+            xs(&spanning),
+            DVec3::new(0.0, 0.0, spanning_reach * (1.0 - 1e-9)),
+        ),
+        case(
+            "lengths 1e-6 .. 1e6, target 1e12 away",
+            xs(&spanning),
+            DVec3::new(0.0, 1e12, 0.0),
+        ),
+        case(
+            "10 000 bones of 1e-4, reachable",
+            long.iter().map(|&l| DVec3::X * l).collect(),
+            DVec3::new(0.3, 0.5, 0.2),
+        ),
+        case(
+            "10 000 bones of 1e-4, out of reach",
+            long.iter().map(|&l| DVec3::X * l).collect(),
+            DVec3::new(0.0, 2.0, 0.0),
+        ),
+    ];
+    let mut far_root = case(
+        "W2 chain rooted 1e6 from the origin, reachable",
+        w2(),
+        DVec3::new(1e6 + 0.3, 0.4, 0.1),
+    );
+    far_root.root = DVec3::new(1e6, 0.0, 0.0);
+    out.push(far_root);
+    let mut bent_start = case(
+        "W2 chain from a bent pose, reachable",
+        w2(),
+        DVec3::new(-0.2, 0.3, 0.4),
+    );
+    bent_start.start = Some(bent(10));
+    out.push(bent_start);
+    let mut cap0 = case("W2 chain, cap 0", w2(), DVec3::new(0.3, 0.4, 0.0));
+    cap0.settings.max_iterations = 0;
+    out.push(cap0);
+    let mut tol0 = case("W2 chain, tolerance 0", w2(), DVec3::new(0.3, 0.4, 0.1));
+    tol0.settings.tolerance = 0.0;
+    out.push(tol0);
+    for (name, target, expect) in [
+        ("NaN target", DVec3::new(f64::NAN, 0.0, 0.0), "target"),
+        (
+            "infinite target",
+            DVec3::new(0.0, f64::INFINITY, 0.0),
+            "target",
+        ),
+        (
+            "-infinite target",
+            DVec3::new(0.0, 0.0, f64::NEG_INFINITY),
+            "target",
+        ),
+    ] {
+        let mut c = case(name, w2(), target);
+        c.expect = Expect::Error(expect);
+        out.push(c);
+    }
+    for (name, tolerance) in [
+        ("negative tolerance", -1e-6),
+        ("NaN tolerance", f64::NAN),
+        ("infinite tolerance", f64::INFINITY),
+    ] {
+        let mut c = case(name, w2(), DVec3::new(0.3, 0.4, 0.0));
+        c.settings.tolerance = tolerance;
+        c.expect = Expect::Error("tolerance");
+        out.push(c);
+    }
+    out
+}
+
+/// What one solver did on one case.
+#[derive(Clone, Debug, Serialize)]
+pub struct IkOutcome {
+    /// The case's name.
+    pub case: String,
+    /// The solver.
+    pub solver: &'static str,
+    /// Bones in the chain.
+    pub bones: usize,
+    /// `|target - base|`.
+    pub distance: f64,
+    /// The chain's reach.
+    pub reach: f64,
+    /// The least error any pose can have: `max(0, d - reach, r_min - d)` with
+    /// `r_min = max(0, 2 L_max - reach)` the inner radius of the reachable shell.
+    pub error_bound: f64,
+    /// The report (`None` on an error or a panic).
+    pub stop: Option<StopReason>,
+    /// Iterations reported.
+    pub iterations: usize,
+    /// Error reported.
+    pub error: f64,
+    /// The error measured on forward kinematics of the returned pose.
+    pub measured_error: f64,
+    /// Worst bone-length error relative to its allowance (above 1 breaks the invariant).
+    pub bone_error_ratio: f64,
+    /// The error message, for an `Err`.
+    pub message: Option<String>,
+    /// Reachable (`error_bound` 0) and the solver did not reach the tolerance: reported,
+    /// not an invariant break.
+    pub not_converged: bool,
+    /// Wall-clock seconds of the solve.
+    pub seconds: f64,
+    /// Broken invariants, one sentence each.
+    pub failures: Vec<String>,
+}
+
+/// `16 EPS (depth + 1) scale`: how far two computations of one chain position may
+/// differ by rounding (docs/labcheck.md "Round-off allowances").
+fn position_allowance(depth: usize, scale: f64) -> f64 {
+    16.0 * EPS * (depth as f64 + 1.0) * scale
+}
+
+/// `1e-12 rest + 4 EPS max(|a|, |b|)` (docs/labcheck.md).
+fn bone_allowance(rest: f64, a: DVec3, b: DVec3) -> f64 {
+    BONE_RELATIVE * rest + 4.0 * EPS * a.length().max(b.length())
+}
+
+/// Runs one solver on one case and checks the invariants.
+#[must_use]
+pub fn run_case(case: &IkCase, solver_name: &'static str) -> IkOutcome {
+    let mut out = IkOutcome {
+        case: case.name.clone(),
+        solver: solver_name,
+        bones: case.offsets.len(),
+        distance: 0.0,
+        reach: 0.0,
+        error_bound: 0.0,
+        stop: None,
+        iterations: 0,
+        error: f64::NAN,
+        measured_error: f64::NAN,
+        bone_error_ratio: 0.0,
+        message: None,
+        not_converged: false,
+        seconds: 0.0,
+        failures: Vec::new(),
+    };
+    let skeleton = match Skeleton::chain(case.root, &case.offsets) {
+        Ok(s) => s,
+        Err(e) => {
+            out.failures.push(format!("could not build the chain: {e}"));
+            return out;
+        }
+    };
+    let chain = match Chain::whole(&skeleton) {
+        Ok(c) => c,
+        Err(e) => {
+            out.failures.push(format!("could not build the chain: {e}"));
+            return out;
+        }
+    };
+    let mut pose = skeleton.rest_pose();
+    if let Some(start) = &case.start {
+        pose.rotations.copy_from_slice(start);
+    }
+    let start_pose = pose.clone();
+    let mut start_global = GlobalPose::new();
+    if let Err(e) = skeleton.forward_kinematics(&pose, &mut start_global) {
+        out.failures
+            .push(format!("forward kinematics of the start: {e}"));
+        return out;
+    }
+    let base = start_global.positions[chain.base()];
+    out.distance = case.target.distance(base);
+    out.reach = chain.reach();
+    let longest = chain.bone_lengths().iter().copied().fold(0.0, f64::max);
+    let inner = (2.0 * longest - chain.reach()).max(0.0);
+    out.error_bound = if out.distance.is_finite() {
+        (out.distance - out.reach)
+            .max(inner - out.distance)
+            .max(0.0)
+    } else {
+        f64::NAN
+    };
+    let mut global = GlobalPose::new();
+    let mut solver = make_solver(solver_name);
+    let started = Instant::now();
+    let result = catch_unwind(AssertUnwindSafe(|| {
+        solver.solve(
+            &skeleton,
+            &chain,
+            &mut pose,
+            &mut global,
+            case.target,
+            &case.settings,
+        )
+    }));
+    out.seconds = started.elapsed().as_secs_f64();
+    let report = match (result, &case.expect) {
+        (Err(panic), _) => {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| (*s).to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            out.failures.push(format!("panicked: {what}"));
+            return out;
+        }
+        (Ok(Err(e)), Expect::Error(text)) => {
+            let message = e.to_string();
+            if !message.contains(text) {
+                out.failures
+                    .push(format!("the error does not name the {text}: {message}"));
+            }
+            out.message = Some(message);
+            return out;
+        }
+        (Ok(Err(e)), Expect::Solve) => {
+            out.failures.push(format!("refused a valid input: {e}"));
+            out.message = Some(e.to_string());
+            return out;
+        }
+        (Ok(Ok(report)), Expect::Error(text)) => {
+            out.failures.push(format!(
+                "accepted bad input (expected an error naming the {text})"
+            ));
+            report
+        }
+        (Ok(Ok(report)), Expect::Solve) => report,
+    };
+    check_solve(
+        &mut out,
+        case,
+        &skeleton,
+        &chain,
+        &start_pose,
+        &pose,
+        &global,
+        &report,
+    );
+    out
+}
+
+/// The invariants of a returned solve.
+#[allow(clippy::too_many_arguments)]
+fn check_solve(
+    out: &mut IkOutcome,
+    case: &IkCase,
+    skeleton: &Skeleton,
+    chain: &Chain,
+    start_pose: &Pose,
+    pose: &Pose,
+    global: &GlobalPose,
+    report: &SolveReport,
+) {
+    out.stop = Some(report.stop);
+    out.iterations = report.iterations;
+    out.error = report.error;
+    if !pose.rotations.iter().all(|q| q.is_finite()) {
+        out.failures
+            .push("NaN or infinity in the returned pose".into());
+        return;
+    }
+    if !(report.error.is_finite() && report.initial_error.is_finite()) {
+        out.failures.push(format!(
+            "NaN or infinity in the report: error {}, initial error {}",
+            report.error, report.initial_error
+        ));
+        return;
+    }
+    let mut fk = GlobalPose::new();
+    if let Err(e) = skeleton.forward_kinematics(pose, &mut fk) {
+        out.failures
+            .push(format!("the returned pose is invalid: {e}"));
+        return;
+    }
+    let mut start = GlobalPose::new();
+    let _ = skeleton.forward_kinematics(start_pose, &mut start);
+    let joints = chain.joints();
+    let depth = chain.bone_count();
+    let scale = joints
+        .iter()
+        .map(|&j| fk.positions[j].length().max(start.positions[j].length()))
+        .fold(0.0, f64::max)
+        + case.target.length();
+    let allowance = position_allowance(depth, scale);
+    if !fk.positions.iter().all(|p| p.is_finite()) {
+        out.failures
+            .push("NaN or infinity in forward kinematics of the pose".into());
+        return;
+    }
+    // The returned global pose is forward kinematics of the returned pose.
+    let stale = joints
+        .iter()
+        .map(|&j| fk.positions[j].distance(global.positions[j]))
+        .fold(0.0, f64::max);
+    if stale > allowance {
+        out.failures.push(format!(
+            "the returned global pose is not forward kinematics of the pose (off by {stale:.3e}, allowance {allowance:.3e})"
+        ));
+    }
+    // Bone lengths, measured on forward kinematics of the result.
+    for (c, &rest) in chain.bone_lengths().iter().enumerate() {
+        let (a, b) = (fk.positions[joints[c]], fk.positions[joints[c + 1]]);
+        let err = ((b - a).length() - rest).abs();
+        let ratio = err / bone_allowance(rest, a, b);
+        if ratio > out.bone_error_ratio {
+            out.bone_error_ratio = ratio;
+        }
+    }
+    if out.bone_error_ratio > 1.0 {
+        out.failures.push(format!(
+            "a bone length changed by {:.2} times its allowance 1e-12 L + 4 EPS |P|",
+            out.bone_error_ratio
+        ));
+    }
+    let effector = fk.positions[chain.effector()];
+    out.measured_error = effector.distance(case.target);
+    // The report tells the truth about the error and the start.
+    if (report.error - out.measured_error).abs() > allowance {
+        out.failures.push(format!(
+            "reported error {:.6e} but forward kinematics gives {:.6e}",
+            report.error, out.measured_error
+        ));
+    }
+    let initial = start.positions[chain.effector()].distance(case.target);
+    if (report.initial_error - initial).abs() > allowance {
+        out.failures.push(format!(
+            "reported initial error {:.6e} but the start pose gives {:.6e}",
+            report.initial_error, initial
+        ));
+    }
+    // Never worse than the start (both solvers restore or undo a worsening step).
+    if out.measured_error > initial + allowance {
+        out.failures.push(format!(
+            "the solve made the error worse: {:.6e} from {:.6e}",
+            out.measured_error, initial
+        ));
+    }
+    // No pose beats the geometric bound.
+    if out.measured_error < out.error_bound - allowance {
+        out.failures.push(format!(
+            "error {:.6e} below the least possible {:.6e}: the measurement or the chain is wrong",
+            out.measured_error, out.error_bound
+        ));
+    }
+    if report.stop == StopReason::Converged
+        && out.measured_error > case.settings.tolerance + allowance
+    {
+        out.failures.push(format!(
+            "claims convergence at error {:.3e} above the tolerance {:.3e}",
+            out.measured_error, case.settings.tolerance
+        ));
+    }
+    if out.distance >= out.reach {
+        // Out of reach: the chain straightens at the target, the error is d - reach.
+        let gap = (out.measured_error - (out.distance - out.reach)).abs();
+        if gap > allowance {
+            out.failures.push(format!(
+                "target beyond the reach: error {:.9e} differs from d - reach = {:.9e} by {gap:.3e} (allowance {allowance:.3e})",
+                out.measured_error,
+                out.distance - out.reach
+            ));
+        }
+    } else if out.error_bound == 0.0 && out.measured_error > case.settings.tolerance {
+        // Reachable but not reached: reported, not a failure (a false `Converged` claim
+        // was caught above).
+        out.not_converged = true;
+    }
+}
+
+/// Runs every case with every solver.
+#[must_use]
+pub fn run_all(cases: &[IkCase]) -> Vec<IkOutcome> {
+    let mut out = Vec::new();
+    for c in cases {
+        for s in SOLVERS {
+            out.push(run_case(c, s));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_solver_passes_a_plain_reachable_case() {
+        let c = case("2 bones", xs(&[1.0, 1.0]), DVec3::new(1.0, 1.0, 0.2));
+        for s in SOLVERS {
+            let out = run_case(&c, s);
+            assert!(out.failures.is_empty(), "{s}: {:?}", out.failures);
+            assert_eq!(out.stop, Some(StopReason::Converged), "{s}");
+            assert!(!out.not_converged);
+        }
+    }
+
+    #[test]
+    fn a_bad_target_must_be_an_error_naming_it() {
+        let mut c = case("nan", w2(), DVec3::new(f64::NAN, 0.0, 0.0));
+        c.expect = Expect::Error("target");
+        let out = run_case(&c, "ccd");
+        assert!(out.failures.is_empty(), "{:?}", out.failures);
+        assert!(out.message.unwrap().contains("target"));
+        // A valid target where an error was expected is a failure.
+        c.target = DVec3::new(0.3, 0.4, 0.0);
+        let out = run_case(&c, "ccd");
+        assert!(
+            out.failures
+                .iter()
+                .any(|f| f.contains("accepted bad input"))
+        );
+    }
+
+    #[test]
+    fn the_checks_catch_a_lying_report() {
+        // A report that claims convergence for an untouched pose far from the target.
+        let c = case("lie", w2(), DVec3::new(0.3, 0.4, 0.0));
+        let skeleton = Skeleton::chain(c.root, &c.offsets).unwrap();
+        let chain = Chain::whole(&skeleton).unwrap();
+        let pose = skeleton.rest_pose();
+        let mut global = GlobalPose::new();
+        skeleton.forward_kinematics(&pose, &mut global).unwrap();
+        let report = SolveReport {
+            iterations: 1,
+            initial_error: global.positions[9].distance(c.target),
+            error: 0.0,
+            stop: StopReason::Converged,
+        };
+        let mut out = run_case(&c, "ccd");
+        out.failures.clear();
+        check_solve(
+            &mut out, &c, &skeleton, &chain, &pose, &pose, &global, &report,
+        );
+        assert!(out.failures.iter().any(|f| f.contains("reported error")));
+        assert!(
+            out.failures
+                .iter()
+                .any(|f| f.contains("claims convergence"))
+        );
+    }
+
+    #[test]
+    fn the_checks_catch_a_stretched_bone_and_a_short_straight_chain() {
+        // A chain whose second bone is scaled by a rotation that is not unit cannot be
+        // made through the API, so the check is fed a skeleton with a longer bone than
+        // the chain it is measured against.
+        let c = case("beyond", xs(&[1.0, 1.0]), DVec3::new(0.0, 5.0, 0.0));
+        let skeleton = Skeleton::chain(c.root, &c.offsets).unwrap();
+        let chain = Chain::whole(&skeleton).unwrap();
+        let longer = Skeleton::chain(c.root, &xs(&[1.0, 1.0 + 1e-9])).unwrap();
+        let pose = skeleton.rest_pose();
+        let mut global = GlobalPose::new();
+        longer.forward_kinematics(&pose, &mut global).unwrap();
+        let report = SolveReport {
+            iterations: 0,
+            initial_error: global.positions[2].distance(c.target),
+            error: global.positions[2].distance(c.target),
+            stop: StopReason::OutOfReach,
+        };
+        let mut out = run_case(&c, "ccd");
+        out.failures.clear();
+        out.bone_error_ratio = 0.0;
+        check_solve(
+            &mut out, &c, &longer, &chain, &pose, &pose, &global, &report,
+        );
+        assert!(out.bone_error_ratio > 1.0);
+        // The rest pose points along x, not at the target: not straightened at it.
+        assert!(out.failures.iter().any(|f| f.contains("beyond the reach")));
+    }
+
+    #[test]
+    fn error_bound_uses_the_inner_radius() {
+        let c = case("inner", xs(&[1.0, 0.5]), DVec3::ZERO);
+        let out = run_case(&c, "fabrik");
+        assert_eq!(out.error_bound, 0.5);
+        assert!(out.failures.is_empty(), "{:?}", out.failures);
+    }
+}

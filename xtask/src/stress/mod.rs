@@ -1,0 +1,258 @@
+//! `cargo xtask stress`: the numerical stress grid (issue 8, second half).
+//!
+//! - [`cloth`]: the lab cloth at 7 stiffness decades x 5 time steps x 3 grid sizes x 5
+//!   initial states, stepped by the default backward Euler; divergence, energy, Newton
+//!   work, and the invariants (no NaN, no divergence, the energy inequality, no step left
+//!   far from converged).
+//! - [`ik`]: the degenerate IK set for every solver, with the invariants every solve
+//!   must keep (no NaN, bone lengths, a truthful report, the geometric error bound).
+//! - [`table`]: the console tables and `stress.md`.
+//!
+//! Prints the tables, writes `stress.md` (default `docs/bench/`; `--quick` and filtered
+//! runs write to `target/` so a smoke run never overwrites the committed file) and exits
+//! 1 if any case broke an invariant. What is checked and why: docs/stress.md.
+
+pub mod cloth;
+pub mod ik;
+pub mod table;
+
+use clap::ValueEnum;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+/// `cargo xtask stress` flags.
+#[derive(clap::Args)]
+pub struct StressArgs {
+    /// The reduced grid CI runs (11 x 11 only, stiffness 1e1/1e4/1e7, dt 1/960, 1/60,
+    /// 1/4, every state; the whole IK set); runs in the dev build.
+    #[arg(long)]
+    quick: bool,
+    /// Write stress.md here (default: docs/bench/ for the full grid, target/stress-quick/
+    /// with --quick, target/stress-partial/ when a filter is given).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Run one part only.
+    #[arg(long, value_enum)]
+    only: Option<Part>,
+    /// Print every outcome as JSON on stdout instead of the tables.
+    #[arg(long)]
+    json: bool,
+    /// Cloth: only these grid sizes (comma-separated), e.g. `--grid 101`.
+    #[arg(long, value_delimiter = ',')]
+    grid: Vec<usize>,
+    /// Cloth: only these stiffnesses, e.g. `--stiffness 1e7`.
+    #[arg(long, value_delimiter = ',')]
+    stiffness: Vec<f64>,
+    /// Cloth: only these time steps, e.g. `--dt 1/4`.
+    #[arg(long, value_delimiter = ',', value_parser = cloth::parse_dt)]
+    dt: Vec<f64>,
+    /// Cloth: only these initial states (rest, stretched, compressed, perturbed, far).
+    #[arg(long, value_delimiter = ',', value_parser = cloth::InitialState::parse)]
+    state: Vec<cloth::InitialState>,
+    /// Cloth: steps per case instead of the default (20 on 11 x 11, 3 on 51 x 51, 1 on
+    /// 101 x 101).
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Cloth cases run at once (default 2: the grid's figures are counts, not timings, so
+    /// running two cases side by side changes nothing but the wall time).
+    #[arg(long, default_value_t = 2)]
+    jobs: usize,
+}
+
+/// Which part of the stress run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Part {
+    /// The cloth grid.
+    Cloth,
+    /// The IK set.
+    Ik,
+}
+
+impl StressArgs {
+    fn filtered(&self) -> bool {
+        !(self.grid.is_empty()
+            && self.stiffness.is_empty()
+            && self.dt.is_empty()
+            && self.state.is_empty()
+            && self.steps.is_none()
+            && self.only.is_none())
+    }
+
+    fn cloth_cases(&self) -> Vec<cloth::ClothCase> {
+        let mut spec = if self.quick {
+            cloth::ClothGridSpec::quick()
+        } else {
+            cloth::ClothGridSpec::full()
+        };
+        if !self.grid.is_empty() {
+            spec.grids.clone_from(&self.grid);
+        }
+        if !self.stiffness.is_empty() {
+            spec.stiffnesses.clone_from(&self.stiffness);
+        }
+        if !self.dt.is_empty() {
+            spec.dts.clone_from(&self.dt);
+        }
+        if !self.state.is_empty() {
+            spec.states.clone_from(&self.state);
+        }
+        let mut cases = spec.cases();
+        if let Some(steps) = self.steps {
+            for c in &mut cases {
+                c.steps = steps;
+            }
+        }
+        cases
+    }
+}
+
+/// Everything one run produced.
+#[derive(serde::Serialize)]
+pub struct StressResults {
+    /// The machine and build.
+    pub machine: crate::machine::Machine,
+    /// The command line after `cargo xtask stress` (to reproduce).
+    pub command: String,
+    /// Whether this was the reduced grid.
+    pub quick: bool,
+    /// Cloth outcomes, grid-major.
+    pub cloth: Vec<cloth::ClothOutcome>,
+    /// Wall-clock seconds of the cloth part.
+    pub cloth_seconds: f64,
+    /// IK outcomes, case-major.
+    pub ik: Vec<ik::IkOutcome>,
+    /// Wall-clock seconds of the IK part.
+    pub ik_seconds: f64,
+}
+
+impl StressResults {
+    /// Every failure, as `part: case: sentence`.
+    #[must_use]
+    pub fn failures(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for c in &self.cloth {
+            for f in &c.failures {
+                out.push(format!("cloth {}: {f}", c.case.label()));
+            }
+        }
+        for o in &self.ik {
+            for f in &o.failures {
+                out.push(format!("ik {} [{}]: {f}", o.case, o.solver));
+            }
+        }
+        out
+    }
+}
+
+/// Runs the cloth cases on `jobs` threads, each taking the next case in turn; the
+/// outcomes come back in case order.
+fn run_cloth_cases(
+    cases: &[cloth::ClothCase],
+    jobs: usize,
+    bar: &indicatif::ProgressBar,
+) -> Vec<cloth::ClothOutcome> {
+    use std::sync::Mutex;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let next = AtomicUsize::new(0);
+    let done: Mutex<Vec<Option<cloth::ClothOutcome>>> = Mutex::new(vec![None; cases.len()]);
+    std::thread::scope(|scope| {
+        for _ in 0..jobs.max(1) {
+            scope.spawn(|| {
+                loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(case) = cases.get(i) else { break };
+                    bar.set_message(case.label());
+                    let outcome = cloth::run_case(case);
+                    if let Ok(mut d) = done.lock() {
+                        d[i] = Some(outcome);
+                    }
+                    bar.inc(1);
+                }
+            });
+        }
+    });
+    done.into_inner()
+        .unwrap_or_default()
+        .into_iter()
+        .flatten()
+        .collect()
+}
+
+/// Runs the stress grid; exit code 1 when an invariant broke, 2 on an I/O error.
+pub fn run(args: &StressArgs) -> ExitCode {
+    if !args.quick
+        && let Some(code) = crate::machine::rerun_in_release()
+    {
+        return code;
+    }
+    let machine = crate::machine::Machine::read();
+    let command = std::env::args().skip(2).collect::<Vec<_>>().join(" ");
+    let mut results = StressResults {
+        machine,
+        command,
+        quick: args.quick,
+        cloth: Vec::new(),
+        cloth_seconds: 0.0,
+        ik: Vec::new(),
+        ik_seconds: 0.0,
+    };
+    if args.only != Some(Part::Ik) {
+        let cases = args.cloth_cases();
+        let started = Instant::now();
+        let bar = indicatif::ProgressBar::new(cases.len() as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("cloth {bar:40} {pos}/{len} {elapsed} {msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        results.cloth = run_cloth_cases(&cases, args.jobs, &bar);
+        bar.finish_and_clear();
+        results.cloth_seconds = started.elapsed().as_secs_f64();
+    }
+    if args.only != Some(Part::Cloth) {
+        let started = Instant::now();
+        results.ik = ik::run_all(&ik::cases());
+        results.ik_seconds = started.elapsed().as_secs_f64();
+    }
+    let failures = results.failures();
+    if args.json {
+        match serde_json::to_string_pretty(&results) {
+            Ok(s) => println!("{s}"),
+            Err(e) => {
+                eprintln!("error: {e}");
+                return ExitCode::from(2);
+            }
+        }
+    } else {
+        print!("{}", table::console(&results, &failures));
+    }
+    let out_dir = args.out.clone().unwrap_or_else(|| {
+        let root = crate::project_root();
+        if args.quick {
+            root.join("target/stress-quick")
+        } else if args.filtered() {
+            root.join("target/stress-partial")
+        } else {
+            root.join("docs/bench")
+        }
+    });
+    let path = out_dir.join("stress.md");
+    let written = std::fs::create_dir_all(&out_dir)
+        .and_then(|()| std::fs::write(&path, table::markdown(&results, &failures)));
+    if let Err(e) = written {
+        eprintln!("error: could not write {}: {e}", path.display());
+        return ExitCode::from(2);
+    }
+    eprintln!(
+        "wrote {} (cloth {:.1} s, ik {:.1} s; {} failure(s))",
+        path.display(),
+        results.cloth_seconds,
+        results.ik_seconds,
+        failures.len()
+    );
+    if failures.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    }
+}
