@@ -2,19 +2,9 @@
 //! the Pareto front (the configurations no other is both faster and more accurate than)
 //! drawn as a black line through its points.
 
+use crate::render::chart::COLOURS;
 use plotters::prelude::*;
 use std::path::Path;
-
-const COLOURS: [RGBColor; 8] = [
-    RGBColor(31, 119, 180),
-    RGBColor(214, 39, 40),
-    RGBColor(44, 160, 44),
-    RGBColor(255, 127, 14),
-    RGBColor(148, 103, 189),
-    RGBColor(140, 86, 75),
-    RGBColor(227, 119, 194),
-    RGBColor(23, 190, 207),
-];
 
 /// One point: (time in seconds, error).
 pub type Point = (f64, f64);

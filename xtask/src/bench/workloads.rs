@@ -57,20 +57,23 @@ impl SplitMix64 {
     pub fn symmetric(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 / (1u64 << 52) as f64 - 1.0
     }
+
+    /// Uniform in the ball of radius `r` (rejection from the cube).
+    pub fn in_ball(&mut self, r: f64) -> DVec3 {
+        loop {
+            let v = DVec3::new(self.symmetric(), self.symmetric(), self.symmetric());
+            if v.length_squared() <= 1.0 {
+                return r * v;
+            }
+        }
+    }
 }
 
 /// W2 targets: the first `count` points uniform in the ball of radius 0.95 about the
 /// origin (rejection from the cube), from [`W2_SEED`].
 pub fn w2_targets(count: usize) -> Vec<DVec3> {
     let mut rng = SplitMix64(W2_SEED);
-    let mut out = Vec::with_capacity(count);
-    while out.len() < count {
-        let p = DVec3::new(rng.symmetric(), rng.symmetric(), rng.symmetric());
-        if p.length_squared() <= 1.0 {
-            out.push(p * 0.95);
-        }
-    }
-    out
+    (0..count).map(|_| rng.in_ball(0.95)).collect()
 }
 
 #[cfg(test)]

@@ -14,8 +14,9 @@ use std::path::Path;
 /// Chart size in pixels (the SVG scales, this sets the proportions and text size).
 const SIZE: (u32, u32) = (900, 540);
 
-/// Line colours, in the order series are given; more series reuse them.
-const COLOURS: [RGBColor; 8] = [
+/// Line colours, in the order series are given; more series reuse them (also the
+/// benchmark plots' method colours).
+pub const COLOURS: [RGBColor; 8] = [
     RGBColor(31, 119, 180),
     RGBColor(214, 39, 40),
     RGBColor(44, 160, 44),

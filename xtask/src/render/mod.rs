@@ -19,7 +19,7 @@
 
 mod animation;
 mod canvas;
-mod chart;
+pub mod chart;
 mod cloth;
 mod ik;
 mod samples;

@@ -4,6 +4,7 @@
 //! divergence, the energy and the Newton solve's work, and the invariants whose breach
 //! fails the run (docs/stress.md says which and why).
 
+use crate::bench::workloads::SplitMix64;
 use serde::Serialize;
 use sinew_math::DVec3;
 use sinew_spring_sim::{
@@ -220,47 +221,6 @@ pub fn steps_for(grid: usize) -> usize {
     }
 }
 
-/// splitmix64 (Steele, Lea and Flood, "Fast splittable pseudorandom number generators",
-/// OOPSLA 2014): a tiny seeded generator, good enough to perturb a sheet reproducibly.
-#[derive(Clone, Debug)]
-pub struct SplitMix64(u64);
-
-impl SplitMix64 {
-    /// A generator from `seed`.
-    #[must_use]
-    pub fn new(seed: u64) -> Self {
-        Self(seed)
-    }
-
-    /// The next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in `[0, 1)` (the top 53 bits).
-    pub fn next_f64(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
-
-    /// Uniform in the ball of radius `r` (rejection from the cube).
-    pub fn in_ball(&mut self, r: f64) -> DVec3 {
-        loop {
-            let v = DVec3::new(
-                2.0 * self.next_f64() - 1.0,
-                2.0 * self.next_f64() - 1.0,
-                2.0 * self.next_f64() - 1.0,
-            );
-            if v.length_squared() <= 1.0 {
-                return r * v;
-            }
-        }
-    }
-}
-
 /// The lab cloth of a case before its state is applied: `grid` particles per side,
 /// spacing `2 / (grid - 1)`, mass 1, stiffness `stiffness`, no damping (the hardest
 /// setting for stability: nothing but the integrator removes energy), the lab's gravity,
@@ -286,7 +246,7 @@ pub fn initial_positions(system: &SpringSystem, grid: usize, state: InitialState
         InitialState::Stretched => rest.iter().map(|&x| centre + 2.0 * (x - centre)).collect(),
         InitialState::Compressed => rest.iter().map(|&x| centre + 0.5 * (x - centre)).collect(),
         InitialState::Perturbed => {
-            let mut rng = SplitMix64::new(PERTURB_SEED);
+            let mut rng = SplitMix64(PERTURB_SEED);
             rest.iter()
                 .zip(system.fixed())
                 .map(|(&x, &fixed)| {
