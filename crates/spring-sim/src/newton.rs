@@ -9,7 +9,9 @@
 //! `h/2` and `y = x_n + h/2 v_n`; BDF2: `2h/3` and its two-step prediction).
 //!
 //! Each Newton iteration assembles the gradient and the PSD-projected Hessian into the
-//! pattern built once ([`HessianPattern`]), solves with the chosen linear solver, and
+//! pattern built once ([`HessianPattern`]) (once Newton is slow, a softened Hessian that
+//! keeps part of the compressed springs' negative curvature, where it is positive
+//! definite: [`Curvature::Softened`]), solves with the chosen linear solver, and
 //! backtracks (Armijo) so `g` never increases. The objective changes in the line search
 //! are computed from the differences themselves (see [`crate::spring::energy_change`]),
 //! so the sufficient-decrease test stays meaningful when the change is far below `g`.
@@ -23,7 +25,7 @@ use crate::linear::{
 use crate::model::{ModelError, SpringSystem, check_time_step};
 use crate::pattern::{FIXED, HessianPattern};
 use crate::report::{IntegratorKind, StepError, StepReport, StopReason};
-use crate::spring;
+use crate::spring::{self, Curvature};
 use sinew_math::DVec3;
 use std::time::Instant;
 
@@ -120,6 +122,16 @@ impl NewtonSettings {
 /// The most doublings of an accepted full Newton step in one line search (a step up to
 /// 2^10 times the Newton step).
 const MAX_EXPANSIONS: usize = 10;
+
+/// The softened Hessian (see [`Curvature::Softened`]): after a failed attempt `theta`
+/// moves to `1 - SOFTENING_RAISE (1 - theta)` (0, 0.3, 0.51, 0.66, ...).
+const SOFTENING_RAISE: f64 = 0.7;
+/// The largest `theta` tried before the projected Hessian is used (10 attempts from 0).
+const SOFTENING_MAX_THETA: f64 = 0.97;
+/// After a success the next iteration starts from `SOFTENING_LOWER theta` ...
+const SOFTENING_LOWER: f64 = 0.5;
+/// ... or from the exact Hessian once `theta` is below this.
+const SOFTENING_EXACT_BELOW: f64 = 0.05;
 
 /// Per-solver timing for the automatic choice (index 0: PCG, 1: direct).
 ///
@@ -317,7 +329,7 @@ impl BackwardEuler {
             system.positions(),
             &self.directions,
             &mut self.values,
-            true,
+            Curvature::Clamped,
         );
     }
 
@@ -517,6 +529,10 @@ impl BackwardEuler {
         };
         let mut first_residual_l2 = 0.0;
         let mut previous_residual = f64::INFINITY;
+        // Once an iteration is slow, every later one of the step tries the softened
+        // Hessian first, starting from `theta` (see `SOFTENING_*`).
+        let mut softening = false;
+        let mut theta = 0.0f64;
         loop {
             if self.settings.record_objective {
                 self.objective_trace
@@ -546,47 +562,68 @@ impl BackwardEuler {
                 first_residual_l2 = residual_l2;
             }
             let mut solved = false;
-            // The PSD projection drops the negative curvature of compressed springs;
-            // where it is active at the minimizer, Newton on the projected matrix only
-            // converges linearly. When an iteration reduced the residual by less than 4x,
-            // try the exact Hessian: if it factors (it is positive definite there), its
-            // step is the true Newton step; if not, fall back to the projection.
-            let slow = report.iterations > 1 && residual > 0.25 * previous_residual;
+            // The PSD projection drops the negative curvature of compressed springs, so
+            // the projected step ignores the directions along which a compressed sheet
+            // buckles, and Newton crawls (hundreds of iterations from a sheet compressed
+            // to half size, docs/stress.md). Once an iteration reduced the residual by
+            // less than 4x, every later iteration of the step first tries the softened
+            // Hessian `H(theta)`, which keeps the fraction `1 - theta` of that negative
+            // curvature: the exact Hessian at `theta = 0`, the projected one at 1. It is
+            // used when it is positive definite (the direct solver factors it without
+            // shifts; PCG meets no non-positive curvature), `theta` is raised towards 1
+            // while it is not, and lowered again after a success, so the step keeps as
+            // much of the true curvature as the matrix can take (docs/spring-sim.md).
+            softening |= report.iterations > 1 && residual > 0.25 * previous_residual;
             previous_residual = residual;
             // Inexact Newton for PCG: the forcing term tightens as the gradient falls,
             // and never asks for more than what ends the step.
             let forcing = (residual_l2 / first_residual_l2).min(self.settings.pcg_forcing);
             let floor = 0.1 * tol_abs / residual_l2;
             let rtol = forcing.max(floor).max(1e-13);
-            if slow {
-                self.assemble_hessian(system, &problem, false);
-                if kind == LinearSolverKind::Direct {
-                    if let Some(direct) = self.direct.as_mut() {
-                        self.dx.copy_from_slice(&self.rhs);
-                        solved = direct.solve_unshifted(&self.pattern, &self.values, &mut self.dx);
+            if softening {
+                while theta <= SOFTENING_MAX_THETA {
+                    self.assemble_hessian(system, &problem, Curvature::Softened(theta));
+                    if kind == LinearSolverKind::Direct {
+                        if let Some(direct) = self.direct.as_mut() {
+                            self.dx.copy_from_slice(&self.rhs);
+                            solved =
+                                direct.solve_unshifted(&self.pattern, &self.values, &mut self.dx);
+                        }
+                    } else {
+                        // CG meets a direction of non-positive curvature exactly when the
+                        // matrix is not positive definite along the Krylov space it
+                        // explores.
+                        self.dx.fill(0.0);
+                        let outcome = self.pcg.solve(
+                            &self.pattern,
+                            &self.values,
+                            &self.rhs,
+                            &mut self.dx,
+                            rtol,
+                            self.settings.pcg_max_iterations,
+                        );
+                        report.linear_iterations += outcome.iterations;
+                        solved = !outcome.negative_curvature;
                     }
-                } else {
-                    // CG meets a direction of non-positive curvature exactly when the
-                    // matrix is not positive definite along the Krylov space it explores.
-                    self.dx.fill(0.0);
-                    let outcome = self.pcg.solve(
-                        &self.pattern,
-                        &self.values,
-                        &self.rhs,
-                        &mut self.dx,
-                        rtol,
-                        self.settings.pcg_max_iterations,
-                    );
-                    report.linear_iterations += outcome.iterations;
-                    solved = !outcome.negative_curvature;
+                    if solved {
+                        break;
+                    }
+                    theta = 1.0 - SOFTENING_RAISE * (1.0 - theta);
                 }
                 if solved {
                     report.exact_hessian_iterations += 1;
+                    theta = if theta < SOFTENING_EXACT_BELOW {
+                        0.0
+                    } else {
+                        SOFTENING_LOWER * theta
+                    };
                 } else {
-                    self.assemble_hessian(system, &problem, true);
+                    // Start the next iteration's attempts from the largest theta tried.
+                    theta = SOFTENING_MAX_THETA;
+                    self.assemble_hessian(system, &problem, Curvature::Clamped);
                 }
             } else {
-                self.assemble_hessian(system, &problem, true);
+                self.assemble_hessian(system, &problem, Curvature::Clamped);
             }
             if !solved
                 && kind == LinearSolverKind::Direct
@@ -712,7 +749,12 @@ impl BackwardEuler {
         }
     }
 
-    fn assemble_hessian(&mut self, system: &SpringSystem, problem: &Problem<'_>, clamp: bool) {
+    fn assemble_hessian(
+        &mut self,
+        system: &SpringSystem,
+        problem: &Problem<'_>,
+        curvature: Curvature,
+    ) {
         assemble_hessian_values(
             &self.pattern,
             system,
@@ -720,7 +762,7 @@ impl BackwardEuler {
             &self.x,
             problem.directions,
             &mut self.values,
-            clamp,
+            curvature,
         );
     }
 
@@ -778,7 +820,7 @@ pub(crate) fn assemble_hessian_values(
     x: &[DVec3],
     directions: &[DVec3],
     values: &mut [f64],
-    clamp: bool,
+    curvature: Curvature,
 ) {
     values.fill(0.0);
     let inv_h2 = 1.0 / (h * h);
@@ -794,8 +836,12 @@ pub(crate) fn assemble_hessian_values(
     for (s, sp) in system.springs().iter().enumerate() {
         // K = alpha I + beta u u^T + gamma w w^T (w the frozen damping direction): the six
         // distinct entries are written directly, the hot loop of assembly.
-        let (alpha, beta, u) =
-            spring::hessian_coefficients(x[sp.a] - x[sp.b], sp.rest_length, sp.stiffness, clamp);
+        let (alpha, beta, u) = spring::hessian_coefficients(
+            x[sp.a] - x[sp.b],
+            sp.rest_length,
+            sp.stiffness,
+            curvature,
+        );
         let w = directions[s];
         let gamma = damping;
         let entry = |r: usize, c: usize| beta * u[r] * u[c] + gamma * w[r] * w[c];
@@ -864,7 +910,7 @@ pub fn newton_matrix_triplets(system: &SpringSystem, h: f64) -> Vec<(usize, usiz
         system.positions(),
         &directions,
         &mut values,
-        true,
+        Curvature::Clamped,
     );
     let col_ptr = pattern.symbolic.col_ptr();
     let row_idx = pattern.symbolic.row_idx();

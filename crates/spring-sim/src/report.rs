@@ -117,7 +117,8 @@ pub struct StepReport {
     /// Iterations where the solve gave no descent direction and the mass-scaled
     /// gradient was used.
     pub descent_fallbacks: usize,
-    /// Newton iterations that used the exact (unprojected) Hessian because it was
+    /// Newton iterations that used the exact or softened Hessian (part of the compressed
+    /// springs' negative curvature kept; `spring::Curvature::Softened`) because it was
     /// positive definite and the projected one was converging slowly.
     pub exact_hessian_iterations: usize,
     /// Explicit substeps (1 for implicit steps).

@@ -6,7 +6,10 @@
 //! - the Hessian is `[[K, -K], [-K, K]]` with `K = k [u u^T + (1 - L/l)(I - u u^T)]`;
 //! - the projection onto PSD matrices clamps `1 - L/l` at 0 (the block's eigenvalues are
 //!   `k` along `u` and `k (1 - L/l)` twice across it, and the 6x6 Hessian's nonzero
-//!   eigenvalues are twice those of `K`, with the same eigenvectors).
+//!   eigenvalues are twice those of `K`, with the same eigenvectors);
+//! - the softened block keeps the fraction `1 - theta` of a compressed spring's negative
+//!   curvature (the projected Newton step ignores the directions a compressed sheet
+//!   buckles along; see [`Curvature::Softened`]).
 //!
 //! The derivation is in docs/spring-sim.md. The lab report's block
 //! `k [(1 - L/l) I + u u^T]` is wrong (see [`crate::reference`]).
@@ -61,37 +64,55 @@ pub fn gradient(x_a: DVec3, x_b: DVec3, rest_length: f64, stiffness: f64) -> DVe
     }
 }
 
+/// Which form of a spring's Hessian block to use. Only the curvature across a
+/// compressed spring differs between them (the block's eigenvalues are `k` along the
+/// spring and `k (1 - L/l)` twice across it; docs/spring-sim.md).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Curvature {
+    /// The exact Hessian: `k (1 - L/l)` across the spring, negative when compressed.
+    Exact,
+    /// The projection onto positive semidefinite matrices: `k max(0, 1 - L/l)` across.
+    Clamped,
+    /// `k (1 - L/l)` across a stretched spring and `(1 - theta) k (1 - L/l)` across a
+    /// compressed one: the fraction `theta` in `[0, 1]` of the negative curvature is
+    /// removed (`Softened(0)` is [`Curvature::Exact`], `Softened(1)` is
+    /// [`Curvature::Clamped`]). The Newton matrix built from it grows with `theta`, so
+    /// backward Euler raises `theta` until that matrix is positive definite.
+    Softened(f64),
+}
+
 /// The 3x3 block `K` of the spring Hessian (it enters as `+K` on the `(a, a)` and
-/// `(b, b)` blocks and `-K` on `(a, b)` and `(b, a)`).
+/// `(b, b)` blocks and `-K` on `(a, b)` and `(b, a)`), in the form `curvature` asks for.
 ///
-/// With `clamp`, `1 - L/l` is clamped at 0, which is the exact projection of the spring's
-/// Hessian onto positive semidefinite matrices; without it, the exact (possibly
-/// indefinite) Hessian. At zero length there is no direction: a zero-rest-length spring
-/// has the exact Hessian `k I`; otherwise the clamped block is 0 (the projection of every
-/// nearby Hessian is `k u u^T` for some `u`, and no `u` is preferred) and the unclamped
-/// one does not exist, so 0 is returned too.
+/// [`Curvature::Clamped`] clamps `1 - L/l` at 0, the exact projection of the spring's
+/// Hessian onto positive semidefinite matrices; [`Curvature::Exact`] is the exact,
+/// possibly indefinite Hessian. At zero length there is no direction: a zero-rest-length
+/// spring has the exact Hessian `k I`; otherwise the clamped block is 0 (the projection of
+/// every nearby Hessian is `k u u^T` for some `u`, and no `u` is preferred) and the
+/// exact one does not exist, so 0 is returned for every form.
 #[must_use]
 pub fn hessian_block(
     x_a: DVec3,
     x_b: DVec3,
     rest_length: f64,
     stiffness: f64,
-    clamp: bool,
+    curvature: Curvature,
 ) -> DMat3 {
-    let (isotropic, axial, u) = hessian_coefficients(x_a - x_b, rest_length, stiffness, clamp);
+    let (isotropic, axial, u) = hessian_coefficients(x_a - x_b, rest_length, stiffness, curvature);
     DMat3::from_diagonal(DVec3::splat(isotropic)) + outer(u) * axial
 }
 
 /// The block of [`hessian_block`] as `K = isotropic I + axial u u^T` (with
-/// `isotropic = k (1 - L/l)`, clamped or not, and `axial = k - isotropic`), for `d = x_a -
-/// x_b`: the form the assembly uses to write the six distinct entries directly.
+/// `isotropic = k (1 - L/l)` in the form `curvature` asks for, and `axial = k -
+/// isotropic`), for `d = x_a - x_b`: the form the assembly uses to write the six distinct
+/// entries directly.
 #[must_use]
 #[inline]
 pub fn hessian_coefficients(
     d: DVec3,
     rest_length: f64,
     stiffness: f64,
-    clamp: bool,
+    curvature: Curvature,
 ) -> (f64, f64, DVec3) {
     if rest_length == 0.0 {
         return (stiffness, 0.0, DVec3::ZERO);
@@ -107,10 +128,12 @@ pub fn hessian_coefficients(
             None => return (0.0, 0.0, DVec3::ZERO),
         }
     };
-    let mut across = 1.0 - rest_length / l;
-    if clamp {
-        across = across.max(0.0);
-    }
+    let exact = 1.0 - rest_length / l;
+    let across = match curvature {
+        Curvature::Exact => exact,
+        Curvature::Clamped => exact.max(0.0),
+        Curvature::Softened(theta) => exact.max(0.0) + (1.0 - theta) * exact.min(0.0),
+    };
     let isotropic = stiffness * across;
     (isotropic, stiffness - isotropic, u)
 }

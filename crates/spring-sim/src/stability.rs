@@ -117,7 +117,8 @@ fn gershgorin_with(system: &SpringSystem, rows: &mut Vec<[DVec3; 2]>) -> (f64, f
     rows.resize(n, [DVec3::ZERO; 2]);
     for s in system.springs() {
         let d = x[s.a] - x[s.b];
-        let (alpha, beta, u) = spring::hessian_coefficients(d, s.rest_length, s.stiffness, true);
+        let (alpha, beta, u) =
+            spring::hessian_coefficients(d, s.rest_length, s.stiffness, spring::Curvature::Clamped);
         // Row c of alpha I + beta u u^T: |alpha + beta u_c^2| + sum_{c' != c} |beta u_c u_c'|
         // = alpha + beta |u_c| |u|_1 (alpha, beta >= 0).
         let u1 = u.abs().element_sum();
@@ -158,8 +159,12 @@ fn apply(system: &SpringSystem, inv_sqrt_m: &[f64], x: &[DVec3], y: &mut [DVec3]
     y.fill(DVec3::ZERO);
     let p = system.positions();
     for s in system.springs() {
-        let (alpha, beta, u) =
-            spring::hessian_coefficients(p[s.a] - p[s.b], s.rest_length, s.stiffness, true);
+        let (alpha, beta, u) = spring::hessian_coefficients(
+            p[s.a] - p[s.b],
+            s.rest_length,
+            s.stiffness,
+            spring::Curvature::Clamped,
+        );
         let z = inv_sqrt_m[s.a] * x[s.a] - inv_sqrt_m[s.b] * x[s.b];
         let t = alpha * z + beta * u.dot(z) * u;
         y[s.a] += inv_sqrt_m[s.a] * t;

@@ -3,7 +3,7 @@
 
 use sinew_math::{DMat3, DVec3};
 use sinew_spring_sim::reference::flawed_report_method::report_block;
-use sinew_spring_sim::spring::{energy, energy_change, gradient, hessian_block};
+use sinew_spring_sim::spring::{Curvature, energy, energy_change, gradient, hessian_block};
 
 /// A small deterministic generator (xorshift64*), so failures reproduce.
 struct Rng(u64);
@@ -64,7 +64,7 @@ fn check_finite_differences(list: &[(DVec3, DVec3, f64, f64)], eps_rel: f64) {
         }
         let scale = k * (l + rest);
         assert!((fd - g).length() <= 1e-6 * scale, "gradient {g} vs fd {fd}");
-        let hk = hessian_block(xa, xb, rest, k, false);
+        let hk = hessian_block(xa, xb, rest, k, Curvature::Exact);
         let fd_a = DMat3::from_cols(fd_hess_a[0], fd_hess_a[1], fd_hess_a[2]);
         let fd_b = DMat3::from_cols(fd_hess_b[0], fd_hess_b[1], fd_hess_b[2]);
         let hscale = k * (1.0 + rest / l);
@@ -102,8 +102,8 @@ fn gradient_and_hessian_match_finite_differences_near_zero_length() {
 #[test]
 fn clamped_block_equals_exact_when_stretched() {
     for (xa, xb, rest, k) in springs(4, (1.0, 3.0)) {
-        let clamped = hessian_block(xa, xb, rest, k, true);
-        let exact = hessian_block(xa, xb, rest, k, false);
+        let clamped = hessian_block(xa, xb, rest, k, Curvature::Clamped);
+        let exact = hessian_block(xa, xb, rest, k, Curvature::Exact);
         assert_eq!(clamped, exact);
     }
 }
@@ -115,8 +115,8 @@ fn clamped_block_equals_exact_when_stretched() {
 fn clamped_block_is_the_psd_projection_when_compressed() {
     let mut rng = Rng(5);
     for (xa, xb, rest, k) in springs(6, (1e-3, 0.99)) {
-        let clamped = hessian_block(xa, xb, rest, k, true);
-        let exact = hessian_block(xa, xb, rest, k, false);
+        let clamped = hessian_block(xa, xb, rest, k, Curvature::Clamped);
+        let exact = hessian_block(xa, xb, rest, k, Curvature::Exact);
         let u = (xa - xb).normalize();
         let w = u.any_orthonormal_vector();
         let w2 = u.cross(w);
@@ -131,6 +131,49 @@ fn clamped_block_is_the_psd_projection_when_compressed() {
             assert!(v.dot(clamped * v) >= -1e-12 * k);
         }
         assert!(w.dot(exact * w) < 0.0, "the exact block is indefinite here");
+    }
+}
+
+/// The softened block keeps the eigenpair `(k, u)`, has `(1 - theta) k (1 - L/l)` across
+/// a compressed spring (so it is the exact block at `theta = 0`, the clamped one at 1, and
+/// moves linearly between them, growing in the PSD order), and is the exact block when
+/// the spring is stretched, whatever `theta`.
+#[test]
+fn softened_block_interpolates_the_compressed_curvature() {
+    let mut rng = Rng(11);
+    for (xa, xb, rest, k) in springs(12, (1e-3, 0.99)) {
+        let exact = hessian_block(xa, xb, rest, k, Curvature::Exact);
+        let clamped = hessian_block(xa, xb, rest, k, Curvature::Clamped);
+        assert_eq!(
+            hessian_block(xa, xb, rest, k, Curvature::Softened(0.0)),
+            exact
+        );
+        assert_eq!(
+            hessian_block(xa, xb, rest, k, Curvature::Softened(1.0)),
+            clamped
+        );
+        let u = (xa - xb).normalize();
+        let w = u.any_orthonormal_vector();
+        let across = k * (1.0 - rest / (xa - xb).length());
+        let mut previous = exact;
+        for theta in [0.25, 0.5, 0.9] {
+            let soft = hessian_block(xa, xb, rest, k, Curvature::Softened(theta));
+            let scale = k + across.abs();
+            assert!((soft * u - k * u).length() <= 1e-12 * scale);
+            assert!((soft * w - (1.0 - theta) * across * w).length() <= 1e-12 * scale);
+            // Larger theta: a larger quadratic form in every direction.
+            for _ in 0..10 {
+                let v = rng.unit();
+                assert!(v.dot(soft * v) >= v.dot(previous * v) - 1e-12 * scale);
+            }
+            previous = soft;
+        }
+    }
+    for (xa, xb, rest, k) in springs(13, (1.0, 3.0)) {
+        assert_eq!(
+            hessian_block(xa, xb, rest, k, Curvature::Softened(0.5)),
+            hessian_block(xa, xb, rest, k, Curvature::Exact)
+        );
     }
 }
 
@@ -155,14 +198,17 @@ fn energy_change_matches_the_difference_of_energies() {
 fn zero_length_spring_has_defined_values() {
     let x = DVec3::new(0.3, 0.2, 0.1);
     assert_eq!(gradient(x, x, 1.0, 5.0), DVec3::ZERO);
-    assert_eq!(hessian_block(x, x, 1.0, 5.0, true), DMat3::ZERO);
+    assert_eq!(
+        hessian_block(x, x, 1.0, 5.0, Curvature::Clamped),
+        DMat3::ZERO
+    );
     // A zero-rest-length spring is linear: its Hessian is k I everywhere.
     assert_eq!(
-        hessian_block(x, x, 0.0, 5.0, true),
+        hessian_block(x, x, 0.0, 5.0, Curvature::Clamped),
         DMat3::from_diagonal(DVec3::splat(5.0))
     );
     assert_eq!(
-        hessian_block(x + DVec3::X, x, 0.0, 5.0, false),
+        hessian_block(x + DVec3::X, x, 0.0, 5.0, Curvature::Exact),
         DMat3::from_diagonal(DVec3::splat(5.0))
     );
 }

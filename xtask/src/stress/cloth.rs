@@ -455,7 +455,7 @@ pub struct ClothOutcome {
     pub stalled_steps: usize,
     /// Non-converged steps that ended at or below the round-off floor (fine).
     pub roundoff_stops: usize,
-    /// Non-converged steps that ended above it (failures).
+    /// Non-converged steps that ended above it (reported; failures with `--strict`).
     pub far_stops: usize,
     /// Worst `residual / max(tolerance, floor)` over the non-converged steps.
     pub unconverged_ratio_max: f64,
@@ -467,6 +467,9 @@ pub struct ClothOutcome {
     pub seconds: f64,
     /// The invariants this case broke, one sentence each.
     pub failures: Vec<String>,
+    /// The first step left at the cap (or a stalled line search) far from converged, if
+    /// any: reported, and a failure only with `--strict` (docs/stress.md says why).
+    pub unconverged: Option<String>,
 }
 
 impl ClothOutcome {
@@ -489,6 +492,7 @@ impl ClothOutcome {
             inequality_excess_max: f64::NEG_INFINITY,
             seconds: 0.0,
             failures: Vec::new(),
+            unconverged: None,
         }
     }
 }
@@ -572,7 +576,7 @@ pub fn run_case(case: &ClothCase) -> ClothOutcome {
                 } else {
                     out.far_stops += 1;
                     if out.far_stops == 1 {
-                        out.failures.push(format!(
+                        out.unconverged = Some(format!(
                             "step {n}: stopped ({:?}) far from converged: residual {:.3e} = {:.3e} x max(tolerance {:.3e}, round-off floor {:.3e})",
                             report.stop, report.residual, r, report.tolerance, floor
                         ));
