@@ -6,6 +6,9 @@
 
 use crate::bench::workloads::SplitMix64;
 use serde::Serialize;
+use sinew_labcheck::reference::springs::{
+    combine, displacement_l1, gravity_energy, spring_energy, total_energy, velocity_change_energy,
+};
 use sinew_math::DVec3;
 use sinew_spring_sim::{
     ClothGrid, Integrator, NewtonSettings, Simulation, SpringSystem, StepError, StepReport,
@@ -274,115 +277,11 @@ pub fn build(case: &ClothCase) -> Result<SpringSystem, String> {
     Ok(system)
 }
 
-/// A floating-point sum with the magnitude its rounding acts on, as in
-/// crates/labcheck/src/reference.rs (whose allowance this reproduces: the grid checks
-/// the same quantity with the same round-off allowance as the property suite).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Measured {
-    /// The value.
-    pub value: f64,
-    /// The magnitude its rounding acts on.
-    pub scale: f64,
-    /// Terms summed.
-    pub terms: usize,
-}
-
-impl Measured {
-    fn add(&mut self, value: f64, scale: f64) {
-        self.value += value;
-        self.scale += scale;
-        self.terms += 1;
-    }
-
-    fn plus(self, other: Self) -> Self {
-        Self {
-            value: self.value + other.value,
-            scale: self.scale + other.scale,
-            terms: self.terms + other.terms,
-        }
-    }
-
-    /// `(terms + 16) EPS scale`: recursive summation errs by at most `(n - 1) u sum |x_i|`
-    /// and each term is a handful of rounded operations (docs/labcheck.md).
-    #[must_use]
-    pub fn allowance(&self) -> f64 {
-        (self.terms as f64 + 16.0) * EPS * self.scale
-    }
-}
-
-/// Spring energy with its rounding scale `k/2 (l-L)^2 + k |l-L| (|x_a| + |x_b| + l + L)`.
-fn spring_energy(system: &SpringSystem, x: &[DVec3]) -> Measured {
-    let mut sum = Measured::default();
-    for s in system.springs() {
-        let (xa, xb) = (x[s.a], x[s.b]);
-        let l = (xa - xb).length();
-        let e = 0.5 * s.stiffness * (l - s.rest_length) * (l - s.rest_length);
-        let scale = e + s.stiffness
-            * (l - s.rest_length).abs()
-            * (xa.length() + xb.length() + l + s.rest_length);
-        sum.add(e, scale);
-    }
-    sum
-}
-
-/// Gravity energy `-sum m g . x` over every particle.
-fn gravity_energy(system: &SpringSystem, x: &[DVec3]) -> Measured {
-    let g = system.material().gravity;
-    let mut sum = Measured::default();
-    for (&m, p) in system.masses().iter().zip(x) {
-        sum.add(-m * g.dot(*p), m * g.length() * p.length());
-    }
-    sum
-}
-
-/// `E_total = kinetic + spring + gravity`.
-fn total_energy(system: &SpringSystem) -> Measured {
-    let mut kinetic = Measured::default();
-    for (&m, v) in system.masses().iter().zip(system.velocities()) {
-        let e = 0.5 * m * v.length_squared();
-        kinetic.add(e, e);
-    }
-    let x = system.positions();
-    kinetic
-        .plus(spring_energy(system, x))
-        .plus(gravity_energy(system, x))
-}
-
-/// `1/2 |v_after - v_before|_M^2`, with the rounding of the velocities counted.
-fn velocity_change_energy(before: &SpringSystem, after: &SpringSystem, h: f64) -> Measured {
-    let mut sum = Measured::default();
-    for p in 0..before.len() {
-        let m = before.masses()[p];
-        let (v0, v1) = (before.velocities()[p], after.velocities()[p]);
-        let (x0, x1) = (before.positions()[p], after.positions()[p]);
-        let dv = v1 - v0;
-        let e = 0.5 * m * dv.length_squared();
-        let scale =
-            e + m * dv.length() * ((x0.length() + x1.length()) / h + v0.length() + v1.length());
-        sum.add(e, scale);
-    }
-    sum
-}
-
-/// `sum_free |x_after - x_before|_1`.
-fn displacement_l1(before: &SpringSystem, after: &SpringSystem) -> f64 {
-    before
-        .positions()
-        .iter()
-        .zip(after.positions())
-        .zip(before.fixed())
-        .filter(|(_, fixed)| !**fixed)
-        .map(|((a, b), _)| {
-            let d = *b - *a;
-            d.x.abs() + d.y.abs() + d.z.abs()
-        })
-        .sum()
-}
-
 /// The energy inequality of backward Euler (docs/labcheck.md): `E_spring(x_{n+1}) +
 /// E_gravity(x_{n+1}) + 1/2 |v_{n+1} - v_n|_M^2 <= E_total(x_n, v_n)`, up to the
 /// residual's first-order term and rounding, exactly as the property
-/// `converged_steps_satisfy_the_energy_inequality` checks it. Returns the excess over the
+/// `converged_steps_satisfy_the_energy_inequality` checks it, with the property suite's own
+/// reference sums (`sinew_labcheck::reference::springs`). Returns the excess over the
 /// allowed slack (positive: broken) and the slack.
 #[must_use]
 pub fn energy_inequality_excess(
@@ -393,9 +292,11 @@ pub fn energy_inequality_excess(
 ) -> (f64, f64) {
     let rhs = total_energy(before);
     let x = after.positions();
-    let lhs = spring_energy(after, x)
-        .plus(gravity_energy(after, x))
-        .plus(velocity_change_energy(before, after, h));
+    let lhs = combine(&[
+        spring_energy(after, x),
+        gravity_energy(after, x, false),
+        velocity_change_energy(before, after, h),
+    ]);
     let slack =
         report.residual * displacement_l1(before, after) + rhs.allowance() + lhs.allowance();
     (lhs.value - rhs.value - slack, slack)
