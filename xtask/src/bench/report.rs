@@ -258,90 +258,104 @@ fn headline_error(r: &Record) -> String {
     }
 }
 
-fn table(section: Section, records: &[&Record], front: &[usize]) -> String {
-    let mut s = String::new();
-    let on_front = |i: usize| if front.contains(&i) { " *" } else { "" };
-    match section {
-        Section::Ik => {
-            let w2 = records.first().is_some_and(|r| r.workload == "W2");
-            if w2 {
-                s.push_str("| method | knobs | time per solve | reachable within 1e-6 | reachable error mean | reachable error max | unreachable excess max | iterations | bone length error |\n|---|---|---|---|---|---|---|---|---|\n");
-            } else {
-                s.push_str("| method | knobs | time per frame | frames within 1e-6 | error mean | error max | iterations | bone length error |\n|---|---|---|---|---|---|---|---|\n");
-            }
-            for (i, r) in records.iter().enumerate() {
-                if w2 {
-                    let _ = writeln!(
-                        s,
-                        "| {}{} | {} | {} | {} / {} | {} | {} | {} | {} | {} |",
-                        r.method,
-                        on_front(i),
-                        r.knobs,
-                        fmt_timing(&r.time),
-                        metric_count(r, "reachable_within_1e-6"),
-                        metric_count(r, "reachable"),
-                        metric_text(r, "reachable_error_mean"),
-                        metric_text(r, "reachable_error_max"),
-                        metric_text(r, "unreachable_excess_max"),
-                        metric_count(r, "iterations_total"),
-                        metric_text(r, "bone_length_error_max"),
-                    );
-                } else {
-                    let _ = writeln!(
-                        s,
-                        "| {}{} | {} | {} | {} / {} | {} | {} | {} | {} |",
-                        r.method,
-                        on_front(i),
-                        r.knobs,
-                        fmt_timing(&r.time),
-                        metric_count(r, "frames_within_1e-6"),
-                        metric_count(r, "frames"),
-                        metric_text(r, "error_mean"),
-                        metric_text(r, "error_max"),
-                        metric_count(r, "iterations_total"),
-                        metric_text(r, "bone_length_error_max"),
-                    );
-                }
-            }
-        }
-        Section::Curves => {
-            s.push_str("| method | knobs | time per call | time per point | spacing deviation | length error |\n|---|---|---|---|---|---|\n");
-            for (i, r) in records.iter().enumerate() {
-                let _ = writeln!(
-                    s,
-                    "| {}{} | {} | {} | {} | {} | {} |",
-                    r.method,
-                    on_front(i),
-                    r.knobs,
-                    fmt_timing(&r.time),
-                    fmt_time(metric(r, "time_per_point_s").unwrap_or(f64::NAN)),
-                    metric_text(r, "spacing_deviation"),
-                    metric_text(r, "length_error"),
-                );
-            }
-        }
-        Section::Cloth => {
-            s.push_str("| method | knobs | time per step | per simulated s | from true motion, 1 s | from true motion, end | from BE 1e-12, 1 s | from BE 1e-12, end | iterations (max) | energy rise max | note |\n|---|---|---|---|---|---|---|---|---|---|---|\n");
-            for (i, r) in records.iter().enumerate() {
-                let _ = writeln!(
-                    s,
-                    "| {}{} | {} | {} | {} | {} | {} | {} | {} | {} ({}) | {} | {} |",
-                    r.method,
-                    on_front(i),
-                    r.knobs,
-                    fmt_timing(&r.time),
-                    fmt_time(metric(r, "time_per_simulated_second_s").unwrap_or(f64::NAN)),
-                    metric_text(r, "true_motion_error_1s"),
-                    metric_text(r, "true_motion_error_end"),
-                    metric_text(r, "solver_error_1s"),
-                    metric_text(r, "solver_error_end"),
+/// A table column: its header and how a record fills it.
+type Column = (&'static str, fn(&Record) -> String);
+
+/// The columns after `method` and `knobs`, per section (W2 reports its reachable and
+/// unreachable targets apart).
+fn columns(section: Section, w2: bool) -> Vec<Column> {
+    let time: fn(&Record) -> String = |r| fmt_timing(&r.time);
+    match (section, w2) {
+        (Section::Ik, true) => vec![
+            ("time per solve", time),
+            ("reachable within 1e-6", |r| {
+                format!(
+                    "{} / {}",
+                    metric_count(r, "reachable_within_1e-6"),
+                    metric_count(r, "reachable")
+                )
+            }),
+            ("reachable error mean", |r| {
+                metric_text(r, "reachable_error_mean")
+            }),
+            ("reachable error max", |r| {
+                metric_text(r, "reachable_error_max")
+            }),
+            ("unreachable excess max", |r| {
+                metric_text(r, "unreachable_excess_max")
+            }),
+            ("iterations", |r| metric_count(r, "iterations_total")),
+            ("bone length error", |r| {
+                metric_text(r, "bone_length_error_max")
+            }),
+        ],
+        (Section::Ik, false) => vec![
+            ("time per frame", time),
+            ("frames within 1e-6", |r| {
+                format!(
+                    "{} / {}",
+                    metric_count(r, "frames_within_1e-6"),
+                    metric_count(r, "frames")
+                )
+            }),
+            ("error mean", |r| metric_text(r, "error_mean")),
+            ("error max", |r| metric_text(r, "error_max")),
+            ("iterations", |r| metric_count(r, "iterations_total")),
+            ("bone length error", |r| {
+                metric_text(r, "bone_length_error_max")
+            }),
+        ],
+        (Section::Curves, _) => vec![
+            ("time per call", time),
+            ("time per point", |r| {
+                fmt_time(metric(r, "time_per_point_s").unwrap_or(f64::NAN))
+            }),
+            ("spacing deviation", |r| metric_text(r, "spacing_deviation")),
+            ("length error", |r| metric_text(r, "length_error")),
+        ],
+        (Section::Cloth, _) => vec![
+            ("time per step", time),
+            ("per simulated s", |r| {
+                fmt_time(metric(r, "time_per_simulated_second_s").unwrap_or(f64::NAN))
+            }),
+            ("from true motion, 1 s", |r| {
+                metric_text(r, "true_motion_error_1s")
+            }),
+            ("from true motion, end", |r| {
+                metric_text(r, "true_motion_error_end")
+            }),
+            ("from BE 1e-12, 1 s", |r| metric_text(r, "solver_error_1s")),
+            ("from BE 1e-12, end", |r| metric_text(r, "solver_error_end")),
+            ("iterations (max)", |r| {
+                format!(
+                    "{} ({})",
                     metric_count(r, "iterations_total"),
-                    metric_count(r, "iterations_max"),
-                    metric_text(r, "energy_increase_max"),
-                    r.note,
-                );
-            }
+                    metric_count(r, "iterations_max")
+                )
+            }),
+            ("energy rise max", |r| metric_text(r, "energy_increase_max")),
+            ("note", |r| r.note.clone()),
+        ],
+    }
+}
+
+fn table(section: Section, records: &[&Record], front: &[usize]) -> String {
+    let w2 = records.first().is_some_and(|r| r.workload == "W2");
+    let columns = columns(section, w2);
+    let mut s = String::from("| method | knobs |");
+    for (header, _) in &columns {
+        let _ = write!(s, " {header} |");
+    }
+    s.push_str("\n|---|---|");
+    s.push_str(&"---|".repeat(columns.len()));
+    s.push('\n');
+    for (i, r) in records.iter().enumerate() {
+        let star = if front.contains(&i) { " *" } else { "" };
+        let _ = write!(s, "| {}{star} | {} |", r.method, r.knobs);
+        for (_, cell) in &columns {
+            let _ = write!(s, " {} |", cell(r));
         }
+        s.push('\n');
     }
     s
 }
@@ -505,6 +519,45 @@ largest rise of the total energy over one step relative to the starting energy.
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_table_row_has_a_cell_per_header() {
+        let record = |section, workload: &str| Record {
+            section,
+            workload: workload.into(),
+            method: "m".into(),
+            knobs: "k".into(),
+            unit: "step",
+            time: Timing {
+                median: 1e-6,
+                min: 1e-6,
+                max: 2e-6,
+                repeats: 3,
+            },
+            error: 1e-9,
+            error_name: "e",
+            metrics: serde_json::Map::new(),
+            note: String::new(),
+        };
+        for (section, workload) in [
+            (Section::Ik, "W1"),
+            (Section::Ik, "W2"),
+            (Section::Curves, "flower"),
+            (Section::Cloth, "W4 d=0"),
+        ] {
+            let (a, b) = (record(section, workload), record(section, workload));
+            let text = table(section, &[&a, &b], &[1]);
+            let cells: Vec<usize> = text.lines().map(|l| l.matches('|').count()).collect();
+            assert_eq!(cells.len(), 4, "{text}");
+            assert!(cells.iter().all(|&c| c == cells[0]), "{text}");
+            // Only the second row is on the front; missing metrics print as "-".
+            assert!(
+                text.lines().nth(3).unwrap().starts_with("| m * |"),
+                "{text}"
+            );
+            assert!(text.lines().nth(2).unwrap().contains("| - |"), "{text}");
+        }
+    }
 
     #[test]
     fn times_and_errors_format_compactly() {
