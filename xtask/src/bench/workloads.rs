@@ -40,31 +40,16 @@ pub fn w2_skeleton() -> Result<Skeleton, String> {
 /// The seed of the W2 targets (the same as sinew-ik-fabrik's workloads).
 pub const W2_SEED: u64 = 0x5EED_0000_0000_0002;
 
-/// splitmix64 (Steele, Lea and Flood 2014): small, well mixed, reproducible.
-pub struct SplitMix64(pub u64);
+/// The seeded generator of the workloads: labcheck's splitmix64, one implementation for
+/// the property suite, the benchmarks and the stress grid.
+pub use sinew_labcheck::strategies::SplitMix64;
 
-impl SplitMix64 {
-    /// The next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [-1, 1).
-    pub fn symmetric(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-    }
-
-    /// Uniform in the ball of radius `r` (rejection from the cube).
-    pub fn in_ball(&mut self, r: f64) -> DVec3 {
-        loop {
-            let v = DVec3::new(self.symmetric(), self.symmetric(), self.symmetric());
-            if v.length_squared() <= 1.0 {
-                return r * v;
-            }
+/// Uniform in the ball of radius `r` about the origin (rejection from the cube).
+pub fn in_ball(rng: &mut SplitMix64, r: f64) -> DVec3 {
+    loop {
+        let v = rng.vector();
+        if v.length_squared() <= 1.0 {
+            return r * v;
         }
     }
 }
@@ -73,7 +58,7 @@ impl SplitMix64 {
 /// origin (rejection from the cube), from [`W2_SEED`].
 pub fn w2_targets(count: usize) -> Vec<DVec3> {
     let mut rng = SplitMix64(W2_SEED);
-    (0..count).map(|_| rng.in_ball(0.95)).collect()
+    (0..count).map(|_| in_ball(&mut rng, 0.95)).collect()
 }
 
 #[cfg(test)]

@@ -4,7 +4,7 @@
 //! divergence, the energy and the Newton solve's work, and the invariants whose breach
 //! fails the run (docs/stress.md says which and why).
 
-use crate::bench::workloads::SplitMix64;
+use crate::bench::workloads::{SplitMix64, in_ball};
 use serde::Serialize;
 use sinew_labcheck::reference::springs::{
     combine, displacement_l1, gravity_energy, spring_energy, total_energy, velocity_change_energy,
@@ -254,7 +254,7 @@ pub fn initial_positions(system: &SpringSystem, grid: usize, state: InitialState
                 .zip(system.fixed())
                 .map(|(&x, &fixed)| {
                     // Draw for every particle, so the draws do not depend on the fixed set.
-                    let d = rng.in_ball(PERTURBATION * spacing);
+                    let d = in_ball(&mut rng, PERTURBATION * spacing);
                     if fixed { x } else { x + d }
                 })
                 .collect()
