@@ -348,9 +348,38 @@ fn diagonal_swings_go_to_the_nearest_point_of_the_ellipse() {
                 (ga - ba).hypot(gb - bb) < 1e-4,
                 "({pa}, {pb}): ({ga}, {gb}) vs ({ba}, {bb})"
             );
-            // The violation (radial excess) bounds that distance from above.
-            assert!(limit.violation(q) >= ours - 1e-13);
+            // The violation (radial excess) brackets that distance: at least it, at most it
+            // times the ratio of the semi-axes.
+            let ratio = st.swing_a.max(st.swing_b) / st.swing_a.min(st.swing_b);
+            let v = limit.violation(q);
+            assert!(
+                v >= ours - 1e-13 && v <= ratio * ours + 1e-13,
+                "{v} vs {ours}"
+            );
         }
+    }
+}
+
+#[test]
+fn cone_projection_is_geodesically_nearest() {
+    // A cone of half-angle c with free twist: the projection moves q by exactly
+    // max(0, phi - c), phi its swing angle, and no allowed rotation is nearer.
+    let c = 0.6;
+    let limit = JointLimit::cone(DVec3::new(0.2, 1.0, -0.4), c).unwrap();
+    let axis = swing_twist_of(&limit).twist_axis;
+    let mut rng = Rng(19);
+    let allowed: Vec<DQuat> = (0..20_000).map(|_| limit.sample(rng.unit3())).collect();
+    for _ in 0..200 {
+        let q = rng.rotation();
+        let p = limit.project(q);
+        let phi = swing_vector(q, axis).length();
+        let d = rotation_distance(q, p);
+        assert!((d - (phi - c).max(0.0)).abs() < 1e-13, "{d} vs {phi} - {c}");
+        let best = allowed
+            .iter()
+            .map(|&s| rotation_distance(q, s))
+            .fold(f64::INFINITY, f64::min);
+        assert!(d <= best + 1e-13, "{d} vs sampled {best}");
     }
 }
 
