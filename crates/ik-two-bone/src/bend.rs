@@ -4,7 +4,7 @@
 //! Derivations: `docs/ik-two-bone.md`, sections 2 to 4.
 
 use sinew_math::DVec3;
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::TAU;
 
 /// How far (radians) a computed hinge angle may fall outside the hinge range and still
 /// count as inside it (it is then clamped onto the bound). Without it, a bend that needs
@@ -31,16 +31,34 @@ pub(crate) struct Limb {
     squared_mean: f64,
     a: f64,
     b: f64,
+    /// `sqrt(a^2 + b^2)`, how much the squared distance varies with the angle.
+    amplitude: f64,
 }
 
-/// The hinge angle a solve settled on.
+/// The hinge angle a solve settled on, with its cosine and sine.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Bend {
     /// The hinge angle, in `[min, max]`.
     pub angle: f64,
+    /// `cos(angle)`.
+    pub cos: f64,
+    /// `sin(angle)`.
+    pub sin: f64,
     /// Whether the root-to-tip distance at `angle` is the requested one (up to rounding),
     /// as opposed to the nearest the hinge range and the bone lengths allow.
     pub exact: bool,
+}
+
+impl Bend {
+    fn at(angle: f64, exact: bool) -> Self {
+        let (sin, cos) = angle.sin_cos();
+        Self {
+            angle,
+            cos,
+            sin,
+            exact,
+        }
+    }
 }
 
 impl Limb {
@@ -51,6 +69,11 @@ impl Limb {
         let lower_along = axis * axis.dot(lower_rest);
         let lower_across = lower_rest - lower_along;
         let lower_turned = axis.cross(lower_rest);
+        let a = 2.0 * upper.dot(lower_across);
+        let b = 2.0 * upper.dot(lower_turned);
+        let fast = (a * a + b * b).sqrt();
+        // `hypot` is slower but does not overflow for huge limbs.
+        let amplitude = if fast.is_finite() { fast } else { a.hypot(b) };
         Self {
             upper,
             lower_along,
@@ -59,16 +82,16 @@ impl Limb {
             squared_mean: upper.length_squared()
                 + lower_rest.length_squared()
                 + 2.0 * upper.dot(lower_along),
-            a: 2.0 * upper.dot(lower_across),
-            b: 2.0 * upper.dot(lower_turned),
+            a,
+            b,
+            amplitude,
         }
     }
 
-    /// The tip relative to the root at hinge angle `angle`.
+    /// The tip relative to the root at the hinge angle whose cosine and sine are given.
     #[inline]
     #[must_use]
-    pub(crate) fn tip(&self, angle: f64) -> DVec3 {
-        let (sin, cos) = angle.sin_cos();
+    pub(crate) fn tip(&self, cos: f64, sin: f64) -> DVec3 {
         self.upper + self.lower_along + self.lower_across * cos + self.lower_turned * sin
     }
 
@@ -82,18 +105,12 @@ impl Limb {
             .sqrt()
     }
 
-    /// The amplitude `sqrt(a^2 + b^2)` of the distance's variation with the angle.
-    #[inline]
-    fn amplitude(&self) -> f64 {
-        self.a.hypot(self.b)
-    }
-
     /// The largest root-to-tip distance over all hinge angles (the reach; `l1 + l2` when
     /// the hinge axis is perpendicular to both bones).
     #[inline]
     #[must_use]
     pub(crate) fn max_distance(&self) -> f64 {
-        (self.squared_mean + self.amplitude()).max(0.0).sqrt()
+        (self.squared_mean + self.amplitude).max(0.0).sqrt()
     }
 
     /// The hinge angle in `[min, max]` whose root-to-tip distance is `goal`, or when there
@@ -105,39 +122,55 @@ impl Limb {
     /// choice does not flip between calls. Without an exact angle in the range, the
     /// nearest distance is reached at a bound of the range, or at `phi` (most extended) or
     /// `phi + pi` (most folded) when those lie inside it.
+    ///
+    /// The cosine and sine of the answer come from those of `phi` and of the opening
+    /// angle by the angle-sum formulas, not from the angle, so the distance at the answer
+    /// is `goal` to rounding whatever the conditioning of the angle itself; one `atan2`
+    /// gives the angle for the range test and the report.
     #[must_use]
     pub(crate) fn choose(&self, goal: f64, min: f64, max: f64) -> Bend {
-        let amplitude = self.amplitude();
+        let amplitude = self.amplitude;
         if amplitude == 0.0 || !amplitude.is_finite() {
-            // The hinge does not change the distance (a zero-length bone, or the axis
-            // along a bone): the rest angle, clamped into the range, is as good as any.
+            // The hinge does not change the distance (a zero-length bone, or a bone along
+            // the axis): the rest angle, clamped into the range, is as good as any.
             let angle = 0.0f64.clamp(min, max);
             let distance = self.distance(angle);
             let exact = (distance - goal).abs() <= 8.0 * f64::EPSILON * distance.max(goal);
-            return Bend { angle, exact };
+            return Bend::at(angle, exact);
         }
-        let phi = self.b.atan2(self.a);
+        let inverse = 1.0 / amplitude;
+        let (cos_phi, sin_phi) = (self.a * inverse, self.b * inverse);
         let squared_goal = goal * goal;
-        let cosine = (squared_goal - self.squared_mean) / amplitude;
+        let cosine = (squared_goal - self.squared_mean) * inverse;
         // The rounding of `cosine`: a goal at exactly the reach (or the fold) can come out
         // a few ulps beyond +-1, and is still reached exactly.
-        let slack = 8.0 * f64::EPSILON * (squared_goal + self.squared_mean.abs()) / amplitude;
-        if cosine.abs() <= 1.0 + slack {
-            let opening = cosine.clamp(-1.0, 1.0).acos();
-            for candidate in [phi + opening, phi - opening] {
-                if let Some(angle) = place_in_range(candidate, min, max) {
-                    return Bend { angle, exact: true };
+        let within = |cosine: f64| {
+            cosine.abs() <= 1.0
+                || cosine.is_finite()
+                    && cosine.abs()
+                        <= 1.0
+                            + 8.0
+                                * f64::EPSILON
+                                * (squared_goal + self.squared_mean.abs())
+                                * inverse
+        };
+        if within(cosine) {
+            let c = cosine.clamp(-1.0, 1.0);
+            // sin of the opening angle; (1 - c)(1 + c) keeps its digits near c = +-1.
+            let s = ((1.0 - c) * (1.0 + c)).sqrt();
+            for s in [s, -s] {
+                let cos = cos_phi * c - sin_phi * s;
+                let sin = sin_phi * c + cos_phi * s;
+                if let Some(bend) = place_in_range(cos, sin, min, max, true) {
+                    return bend;
                 }
             }
         } else {
             // Out of the distances the bones can make at all: most extended or most
             // folded, if the range allows it.
-            let extreme = if cosine > 1.0 { phi } else { phi + PI };
-            if let Some(angle) = place_in_range(extreme, min, max) {
-                return Bend {
-                    angle,
-                    exact: false,
-                };
+            let sign = if cosine > 1.0 { 1.0 } else { -1.0 };
+            if let Some(bend) = place_in_range(sign * cos_phi, sign * sin_phi, min, max, false) {
+                return bend;
             }
         }
         // No exact or extreme angle inside the range: the distance minus the goal keeps
@@ -145,21 +178,48 @@ impl Limb {
         // the nearest distance is at a bound.
         let miss = |angle: f64| (self.distance(angle) - goal).abs();
         let angle = if miss(max) < miss(min) { max } else { min };
-        Bend {
-            angle,
-            exact: false,
-        }
+        Bend::at(angle, false)
     }
 }
 
-/// The angle equal to `angle` modulo a full turn that lies in `[min, max]`, if any
-/// (allowing [`RANGE_SLACK`] outside and clamping it in).
+/// The bend at the angle with cosine `cos` and sine `sin`, taken modulo a full turn into
+/// `[min, max]`, if it lies there (allowing [`RANGE_SLACK`] outside and clamping it in).
 #[inline]
-fn place_in_range(angle: f64, min: f64, max: f64) -> Option<f64> {
-    // The representative in [min - slack, min - slack + 2 pi).
+fn place_in_range(cos: f64, sin: f64, min: f64, max: f64, exact: bool) -> Option<Bend> {
+    let angle = sin.atan2(cos);
+    // The representative at or above min - slack, less than a full turn above it.
     let start = min - RANGE_SLACK;
-    let placed = start + (angle - start).rem_euclid(TAU);
-    (placed <= max + RANGE_SLACK).then(|| placed.clamp(min, max))
+    let placed = angle + ((start - angle) * (1.0 / TAU)).ceil() * TAU;
+    if placed > max + RANGE_SLACK {
+        return None;
+    }
+    Some(if (min..=max).contains(&placed) {
+        Bend {
+            angle: placed,
+            cos,
+            sin,
+            exact,
+        }
+    } else {
+        Bend::at(placed.clamp(min, max), exact)
+    })
+}
+
+/// `(cos(angle / 2), sin(angle / 2))` for the angle in `(-pi, pi]` with the given unit
+/// cosine and sine, without trigonometric calls: the square root formula for the larger
+/// of the two, the double-angle formula `sin = 2 sin(a/2) cos(a/2)` for the other, so
+/// neither loses digits.
+#[inline]
+#[must_use]
+pub(crate) fn half_angle(cos: f64, sin: f64) -> (f64, f64) {
+    if cos >= 0.0 {
+        let c = ((1.0 + cos) * 0.5).sqrt();
+        (c, sin / (2.0 * c))
+    } else {
+        // sin(a/2) has the sign of a, which is the sign of sin(a) on (-pi, pi].
+        let s = ((1.0 - cos) * 0.5).sqrt().copysign(sin);
+        (sin / (2.0 * s), s)
+    }
 }
 
 /// The root-to-tip distance the limb aims for when the target is `distance` away, given
@@ -184,7 +244,7 @@ pub(crate) fn softened(distance: f64, reach: f64, soften: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::f64::consts::FRAC_PI_2;
+    use std::f64::consts::{FRAC_PI_2, PI};
 
     /// Unit bones along x, hinge about z: the textbook planar limb.
     fn planar() -> Limb {
@@ -200,7 +260,8 @@ mod tests {
             // Interior angle pi - theta: d^2 = 1 + 1 - 2 cos(pi - theta).
             let expected = (2.0 + 2.0 * theta.cos()).sqrt();
             assert!((limb.distance(theta) - expected).abs() < 1e-15);
-            assert!((limb.tip(theta).length() - expected).abs() < 1e-15);
+            let (sin, cos) = theta.sin_cos();
+            assert!((limb.tip(cos, sin).length() - expected).abs() < 1e-15);
         }
     }
 
@@ -227,13 +288,7 @@ mod tests {
         assert_eq!(bend.angle, max);
         // A range entirely on the straight side of the goal, below it in angle.
         let bend = limb.choose(limb.distance(0.5), 1.0, 2.0);
-        assert_eq!(
-            bend,
-            Bend {
-                angle: 1.0,
-                exact: false
-            }
-        );
+        assert_eq!(bend, Bend::at(1.0, false));
     }
 
     #[test]
@@ -249,11 +304,37 @@ mod tests {
 
     #[test]
     fn range_placement_wraps_and_clamps() {
-        assert_eq!(place_in_range(-FRAC_PI_2, 0.0, 5.0), Some(1.5 * PI));
-        assert_eq!(place_in_range(-FRAC_PI_2, 0.0, 4.0), None);
-        assert_eq!(place_in_range(1.0 + 1e-13, 0.0, 1.0), Some(1.0));
-        assert_eq!(place_in_range(-1e-13, 0.0, 1.0), Some(0.0));
-        assert_eq!(place_in_range(0.3, 0.3, 0.3), Some(0.3));
+        let place = |angle: f64, min: f64, max: f64| {
+            let (sin, cos) = angle.sin_cos();
+            place_in_range(cos, sin, min, max, true).map(|b| b.angle)
+        };
+        assert!((place(-FRAC_PI_2, 0.0, 5.0).unwrap() - 1.5 * PI).abs() < 1e-15);
+        assert_eq!(place(-FRAC_PI_2, 0.0, 4.0), None);
+        assert_eq!(place(1.0 + 1e-13, 0.0, 1.0), Some(1.0));
+        assert_eq!(place(-1e-13, 0.0, 1.0), Some(0.0));
+        assert_eq!(place(0.3, 0.3, 0.3), Some(0.3));
+        assert!((place(0.5, 6.0, 7.0).unwrap() - (0.5 + TAU)).abs() < 1e-15);
+        assert!((place(0.5, -7.0, -5.0).unwrap() - (0.5 - TAU)).abs() < 1e-15);
+        // A clamped placement carries the cosine and sine of the bound.
+        let (sin, cos) = (1.0 + 1e-13f64).sin_cos();
+        let bend = place_in_range(cos, sin, 0.0, 1.0, true).unwrap();
+        assert_eq!((bend.cos, bend.sin), (1f64.cos(), 1f64.sin()));
+    }
+
+    #[test]
+    fn half_angles_match_the_trigonometric_ones() {
+        for k in -64..=64 {
+            let angle = PI * k as f64 / 64.0;
+            let (sin, cos) = angle.sin_cos();
+            let (c, s) = half_angle(cos, sin);
+            // The same rotation: (c, s) or (-c, -s) for the angle's half.
+            let (s2, c2) = (angle / 2.0).sin_cos();
+            let gap = ((c - c2).abs() + (s - s2).abs()).min((c + c2).abs() + (s + s2).abs());
+            assert!(gap < 4e-16, "{angle}: {gap:e}");
+        }
+        // Tiny angles keep their digits.
+        let (c, s) = half_angle(1.0, 1e-20);
+        assert_eq!((c, s), (1.0, 5e-21));
     }
 
     #[test]
@@ -290,7 +371,7 @@ mod tests {
             let bend = limb.choose(goal, -PI, PI);
             assert!(bend.exact);
             assert!((limb.distance(bend.angle) - goal).abs() < 1e-14);
-            assert!((limb.tip(bend.angle).length() - goal).abs() < 1e-14);
+            assert!((limb.tip(bend.cos, bend.sin).length() - goal).abs() < 1e-14);
         }
     }
 }

@@ -49,7 +49,7 @@
 
 mod bend;
 
-use bend::{Limb, softened};
+use bend::{Limb, half_angle, softened};
 use sinew_math::{DQuat, DVec3, rotation_between, try_unit};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
 use std::f64::consts::PI;
@@ -248,8 +248,55 @@ impl From<SkeletonError> for TwoBoneError {
     }
 }
 
+/// The unit vector along `v`, or `None` when it has no direction: one square root and one
+/// division in the usual range of lengths, `try_unit` (which rescales first, so it
+/// neither underflows nor overflows) outside it.
+#[inline]
+fn unit(v: DVec3) -> Option<DVec3> {
+    let squared = v.length_squared();
+    if squared > 1e-200 && squared < 1e200 {
+        Some(v * (1.0 / squared.sqrt()))
+    } else {
+        try_unit(v)
+    }
+}
+
+/// The length of `v`, without overflow or underflow in the squares where the length
+/// itself is representable.
+#[inline]
+fn length(v: DVec3) -> f64 {
+    let fast = v.length();
+    if fast.is_finite() && fast > 1e-150 {
+        return fast;
+    }
+    let scale = v.abs().max_element();
+    if scale == 0.0 || !scale.is_finite() {
+        fast
+    } else {
+        (v / scale).length() * scale
+    }
+}
+
+/// The minimal rotation taking the direction of `from` onto the unit vector `to`.
+///
+/// For a unit `a` it is the normalized `(a x to, 1 + a . to)`; scaled by `|from|` that
+/// needs no normalization of `from`. The `w` term cancels as the angle nears a half turn,
+/// so beyond 120 degrees `rotation_between` (exact there, and slower) takes over.
+#[inline]
+fn turn_onto(from: DVec3, to: DVec3) -> DQuat {
+    let size = from.length();
+    let dot = from.dot(to);
+    if size > 1e-100 && size < 1e100 && dot > -0.5 * size {
+        let axis = from.cross(to);
+        DQuat::from_xyzw(axis.x, axis.y, axis.z, size + dot).normalize()
+    } else {
+        rotation_between(from, to)
+    }
+}
+
 /// A pose entry counts as unusable when it is zero or not finite, as forward kinematics
 /// counts it.
+#[inline]
 fn usable_rotation(q: DQuat) -> bool {
     q.is_finite() && q.length_squared() != 0.0
 }
@@ -398,34 +445,60 @@ impl TwoBoneIk {
         let mid_parent_rotation = global.rotations[mid_parent];
         // The hinge axis and the lower bone as they would be with the mid joint at rest,
         // in world axes (the mid joint's rest frame is its parent's frame).
-        let axis = try_unit(self.hinge.axis).unwrap_or(DVec3::Z);
+        let axis = unit(self.hinge.axis).unwrap_or(DVec3::Z);
         let world_axis = mid_parent_rotation * axis;
         let lower_in_mid = global.rotations[mid].inverse() * (global.positions[tip] - mid_position);
         let lower_rest = mid_parent_rotation * lower_in_mid;
         let upper = mid_position - root_position;
-        let limb = Limb::new(upper, lower_rest, world_axis);
-
         let to_target = self.target - root_position;
-        let distance = to_target.length();
+        let distance = length(to_target);
+        let aim = if distance > 1e-100 && distance < 1e100 {
+            Some(to_target * (1.0 / distance))
+        } else {
+            unit(to_target)
+        };
+        // The bend works with squared lengths, which overflow for limbs beyond about
+        // 1e150 and lose digits below about 1e-150. Such limbs are solved scaled to unit
+        // size, which changes no angle and no direction.
+        let size = upper
+            .abs()
+            .max_element()
+            .max(lower_rest.abs().max_element());
+        let (upper, lower_rest, distance) = if size > 0.0 && !(1e-100..=1e100).contains(&size) {
+            (upper / size, lower_rest / size, distance / size)
+        } else {
+            (upper, lower_rest, distance)
+        };
+        let limb = Limb::new(upper, lower_rest, world_axis);
         let goal = softened(distance, limb.max_distance(), self.soften);
         let bend = limb.choose(goal, self.hinge.min, self.hinge.max);
-        let tip_offset = limb.tip(bend.angle);
-        // A folded limb's tip offset below this is rounding, not a direction.
-        let negligible = 1e-12 * (upper.length() + lower_rest.length());
+        let tip_offset = limb.tip(bend.cos, bend.sin);
+        // With the target on the root, a folded limb's tip offset below this is rounding,
+        // not a direction.
+        let negligible = if distance == 0.0 {
+            1e-12 * (upper.length() + lower_rest.length())
+        } else {
+            0.0
+        };
 
         let turn = self.root_turn(
-            to_target,
+            aim,
             tip_offset,
             negligible,
             upper,
             self.pole - root_position,
         );
         let root_rotation = (turn * global.rotations[root]).normalize();
+        // A product of unit quaternions, so unit to rounding (forward kinematics
+        // normalizes global rotations in any case).
         let solved_root = match root_parent {
-            Some(p) => (global.rotations[p].inverse() * root_rotation).normalize(),
+            Some(p) => global.rotations[p].inverse() * root_rotation,
             None => root_rotation,
         };
-        let solved_mid = DQuat::from_axis_angle(axis, bend.angle);
+        // R(axis, angle) from the angle's cosine and sine, without trigonometric calls;
+        // unit to rounding like its inputs.
+        let (c, s) = half_angle(bend.cos, bend.sin);
+        let solved_mid = DQuat::from_xyzw(axis.x * s, axis.y * s, axis.z * s, c);
 
         let incoming = (pose.rotations[root], pose.rotations[mid]);
         if self.weight > 0.0 {
@@ -444,7 +517,7 @@ impl TwoBoneIk {
         }
         Ok(TwoBoneReport {
             reached: bend.exact && goal == distance && self.weight == 1.0,
-            error: (global.positions[tip] - self.target).length(),
+            error: length(global.positions[tip] - self.target),
             bend_angle: bend.angle,
         })
     }
@@ -452,11 +525,12 @@ impl TwoBoneIk {
     /// The world rotation of the root that takes the solved limb (tip at `tip_offset`,
     /// mid joint at `upper`, both relative to the root with the root's current rotation)
     /// onto the target line, turns the mid joint towards the pole and applies the twist.
-    /// `to_target` and `to_pole` are relative to the root; a tip offset no longer than
-    /// `negligible` counts as the tip on the root.
+    /// `aim` is the unit vector from the root to the target (`None` for a target on the
+    /// root), `to_pole` is relative to the root; a tip offset no longer than `negligible`
+    /// counts as the tip on the root.
     fn root_turn(
         &self,
-        to_target: DVec3,
+        aim: Option<DVec3>,
         tip_offset: DVec3,
         negligible: f64,
         upper: DVec3,
@@ -464,9 +538,9 @@ impl TwoBoneIk {
     ) -> DQuat {
         // The line the tip must lie on. A target on the root has no direction; the tip's
         // own direction is then kept (the solve folded the limb as far as it goes).
-        let (aim, minimal) = match try_unit(to_target) {
-            Some(aim) => (aim, rotation_between(tip_offset, aim)),
-            None => match try_unit(tip_offset).filter(|_| tip_offset.length() > negligible) {
+        let (aim, minimal) = match aim {
+            Some(aim) => (aim, turn_onto(tip_offset, aim)),
+            None => match unit(tip_offset).filter(|_| tip_offset.length() > negligible) {
                 Some(aim) => (aim, DQuat::IDENTITY),
                 None => {
                     // The tip is on the root too: there is no line, only the mid
@@ -481,18 +555,43 @@ impl TwoBoneIk {
         let mid = minimal * upper;
         let mid_across = mid - aim * aim.dot(mid);
         let pole_across = to_pole - aim * aim.dot(to_pole);
-        let mut spin = self.twist;
-        if mid_across.length() > 1e-12 * mid.length()
-            && pole_across.length() > 1e-12 * to_pole.length()
-        {
-            spin += aim
-                .dot(mid_across.cross(pole_across))
-                .atan2(mid_across.dot(pole_across));
-        }
-        if spin == 0.0 {
-            minimal
+        let twist = if self.twist == 0.0 {
+            DQuat::IDENTITY
         } else {
-            DQuat::from_axis_angle(aim, spin) * minimal
+            DQuat::from_axis_angle(aim, self.twist)
+        };
+        // The turn between two directions perpendicular to the aim line is about that
+        // line: their cosine and sine give its quaternion directly (no atan2; and a half
+        // turn is about the aim line, where a generic minimal rotation could pick any
+        // perpendicular axis). The squared lengths serve while they are safely inside the
+        // floating-point range, the rescaling `length` and `unit` otherwise.
+        let (mid_squared, pole_squared) =
+            (mid_across.length_squared(), pole_across.length_squared());
+        let safe = |x: f64| x > 1e-150 && x < 1e150;
+        let spin = if safe(mid_squared) && safe(pole_squared) {
+            (mid_squared > 1e-24 * mid.length_squared()
+                && pole_squared > 1e-24 * to_pole.length_squared())
+            .then(|| {
+                let inverse = 1.0 / (mid_squared * pole_squared).sqrt();
+                (
+                    mid_across.dot(pole_across) * inverse,
+                    aim.dot(mid_across.cross(pole_across)) * inverse,
+                )
+            })
+        } else {
+            let off_line = length(mid_across) > 1e-12 * length(mid)
+                && length(pole_across) > 1e-12 * length(to_pole);
+            match (unit(mid_across), unit(pole_across)) {
+                (Some(from), Some(to)) if off_line => Some((from.dot(to), aim.dot(from.cross(to)))),
+                _ => None,
+            }
+        };
+        match spin {
+            Some((cos, sin)) => {
+                let (c, s) = half_angle(cos, sin);
+                twist * DQuat::from_xyzw(aim.x * s, aim.y * s, aim.z * s, c) * minimal
+            }
+            None => twist * minimal,
         }
     }
 }

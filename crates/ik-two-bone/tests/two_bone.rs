@@ -215,6 +215,36 @@ fn zero_length_bones() {
 }
 
 #[test]
+fn tiny_and_huge_limbs_are_solved_like_unit_ones() {
+    // The right-angle case scaled: squared lengths would underflow or overflow, the
+    // answer must not.
+    for scale in [1e-300, 1e-200, 1e-120, 1e120, 1e200, 1e300] {
+        let skel = limb(DVec3::X * scale, DVec3::X * scale);
+        let target = DVec3::new(1.0, 1.0, 0.0) * scale;
+        let job = TwoBoneIk::new(0, 1, 2, target, DVec3::new(3.0, -1.0, 0.0) * scale);
+        let (report, pose, g) = solve(&skel, &job);
+        assert!(report.reached, "scale {scale:e}");
+        assert!(
+            report.error <= 1e-15 * scale,
+            "scale {scale:e}: {:e}",
+            report.error
+        );
+        assert!(
+            (report.bend_angle - FRAC_PI_2).abs() < 1e-15,
+            "scale {scale:e}"
+        );
+        assert!(pose.rotations.iter().all(|q| q.is_finite()));
+        assert_close(g.positions[1] / scale, DVec3::X, 1e-15);
+        // Out of reach by far, and a target far beyond a unit limb.
+        let job = TwoBoneIk::new(0, 1, 2, DVec3::new(0.0, 1e308, 0.0), DVec3::Z);
+        let (report, _, g) = solve(&skel, &job);
+        assert!(!report.reached);
+        assert!(report.error.is_finite(), "scale {scale:e}");
+        assert_close(g.positions[2] / scale, DVec3::Y * 2.0, 1e-15);
+    }
+}
+
+#[test]
 fn pole_on_the_target_line_or_on_the_root() {
     let skel = unit_limb();
     let target = DVec3::new(0.0, 1.2, 0.0);
