@@ -277,21 +277,41 @@ fn length(v: DVec3) -> f64 {
     }
 }
 
-/// The minimal rotation taking the direction of `from` onto the unit vector `to`.
+/// The minimal rotation taking the direction of `from` onto the unit vector `to`, as a
+/// quaternion of norm in `[1, 2]` (not normalized: the caller normalizes once, at the
+/// end of a product).
 ///
-/// For a unit `a` it is the normalized `(a x to, 1 + a . to)`; scaled by `|from|` that
-/// needs no normalization of `from`. The `w` term cancels as the angle nears a half turn,
-/// so beyond 120 degrees `rotation_between` (exact there, and slower) takes over.
+/// For a unit `a` it is `(a x to, 1 + a . to)`, of norm `sqrt(2 (1 + a . to))`; with
+/// `a = from / |from|` that needs one division. The `w` term cancels as the angle nears a
+/// half turn, so beyond 120 degrees `rotation_between` (exact there, and slower, and
+/// normalized) takes over.
 #[inline]
 fn turn_onto(from: DVec3, to: DVec3) -> DQuat {
     let size = from.length();
     let dot = from.dot(to);
     if size > 1e-100 && size < 1e100 && dot > -0.5 * size {
-        let axis = from.cross(to);
-        DQuat::from_xyzw(axis.x, axis.y, axis.z, size + dot).normalize()
+        let inverse = 1.0 / size;
+        let axis = from.cross(to) * inverse;
+        DQuat::from_xyzw(axis.x, axis.y, axis.z, 1.0 + dot * inverse)
     } else {
         rotation_between(from, to)
     }
+}
+
+/// The rotation about the unit vector `axis` by the angle whose cosine and sine are
+/// `cos / r` and `sin / r` for some `r > 0` whose square is a normal floating-point
+/// number, as a quaternion of norm in `[1, 2]` (not normalized).
+///
+/// With `C`, `S` the unit cosine and sine, `(1 + C, S)` and `(S, 1 - C)` are both
+/// proportional to `(cos(x/2), sin(x/2))` (by `2 cos(x/2)` and `2 sin(x/2)`); the first
+/// is used for `C >= 0`, the second otherwise, so no term cancels. One square root (for
+/// `r`) and one division.
+#[inline]
+fn turn_about(axis: DVec3, cos: f64, sin: f64) -> DQuat {
+    let inverse = 1.0 / (cos * cos + sin * sin).sqrt();
+    let (c, s) = (cos * inverse, sin * inverse);
+    let (w, along) = if c >= 0.0 { (1.0 + c, s) } else { (s, 1.0 - c) };
+    DQuat::from_xyzw(axis.x * along, axis.y * along, axis.z * along, w)
 }
 
 /// A pose entry counts as unusable when it is zero or not finite, as forward kinematics
@@ -470,7 +490,12 @@ impl TwoBoneIk {
             (upper, lower_rest, distance)
         };
         let limb = Limb::new(upper, lower_rest, world_axis);
-        let goal = softened(distance, limb.max_distance(), self.soften);
+        // soften = 1 never softens, and the reach costs a square root.
+        let goal = if self.soften < 1.0 {
+            softened(distance, limb.max_distance(), self.soften)
+        } else {
+            distance
+        };
         let bend = limb.choose(goal, self.hinge.min, self.hinge.max);
         let tip_offset = limb.tip(bend.cos, bend.sin);
         // With the target on the root, a folded limb's tip offset below this is rounding,
@@ -488,6 +513,8 @@ impl TwoBoneIk {
             upper,
             self.pole - root_position,
         );
+        // `turn` is a product of rotations scaled by factors of order 1 (see `root_turn`):
+        // one normalization here makes the product a unit quaternion.
         let root_rotation = (turn * global.rotations[root]).normalize();
         // A product of unit quaternions, so unit to rounding (forward kinematics
         // normalizes global rotations in any case).
@@ -522,7 +549,8 @@ impl TwoBoneIk {
         })
     }
 
-    /// The world rotation of the root that takes the solved limb (tip at `tip_offset`,
+    /// The world rotation of the root, up to a non-zero factor of order 1 (the caller
+    /// normalizes), that takes the solved limb (tip at `tip_offset`,
     /// mid joint at `upper`, both relative to the root with the root's current rotation)
     /// onto the target line, turns the mid joint towards the pole and applies the twist.
     /// `aim` is the unit vector from the root to the target (`None` for a target on the
@@ -564,7 +592,8 @@ impl TwoBoneIk {
         // line: their cosine and sine give its quaternion directly (no atan2; and a half
         // turn is about the aim line, where a generic minimal rotation could pick any
         // perpendicular axis). The squared lengths serve while they are safely inside the
-        // floating-point range, the rescaling `length` and `unit` otherwise.
+        // floating-point range (so the product of the two lengths squared is too), the
+        // rescaling `length` and `unit` otherwise.
         let (mid_squared, pole_squared) =
             (mid_across.length_squared(), pole_across.length_squared());
         let safe = |x: f64| x > 1e-150 && x < 1e150;
@@ -572,10 +601,9 @@ impl TwoBoneIk {
             (mid_squared > 1e-24 * mid.length_squared()
                 && pole_squared > 1e-24 * to_pole.length_squared())
             .then(|| {
-                let inverse = 1.0 / (mid_squared * pole_squared).sqrt();
                 (
-                    mid_across.dot(pole_across) * inverse,
-                    aim.dot(mid_across.cross(pole_across)) * inverse,
+                    mid_across.dot(pole_across),
+                    aim.dot(mid_across.cross(pole_across)),
                 )
             })
         } else {
@@ -587,10 +615,7 @@ impl TwoBoneIk {
             }
         };
         match spin {
-            Some((cos, sin)) => {
-                let (c, s) = half_angle(cos, sin);
-                twist * DQuat::from_xyzw(aim.x * s, aim.y * s, aim.z * s, c) * minimal
-            }
+            Some((cos, sin)) => twist * turn_about(aim, cos, sin) * minimal,
             None => twist * minimal,
         }
     }
