@@ -125,7 +125,18 @@ fn twist_turns_the_limb_about_the_target_line() {
         DVec3::new(FRAC_1_SQRT_2, -FRAC_1_SQRT_2, 0.0),
         1e-15,
     );
-    // A quarter turn about +x takes -y to -z.
+    // A pole a quarter turn away from that bend plane (towards +z): the limb turns a
+    // quarter about the target line, -y to +z.
+    let quarter_off = TwoBoneIk::new(0, 1, 2, target, DVec3::new(0.5, 0.0, 1.0));
+    let (report, _, g) = solve(&skel, &quarter_off);
+    assert!(report.reached);
+    assert_close(
+        g.positions[1],
+        DVec3::new(FRAC_1_SQRT_2, 0.0, FRAC_1_SQRT_2),
+        1e-15,
+    );
+    assert_close(g.positions[2], target, 1e-15);
+    // And a twist of a quarter turn about +x takes -y to -z.
     job.twist = FRAC_PI_2;
     let (report, _, g) = solve(&skel, &job);
     assert!(report.reached);
@@ -513,6 +524,61 @@ fn invalid_input_names_the_field() {
         rotations: vec![DQuat::IDENTITY; 2],
     };
     assert!(base.validate(&skel, &short).is_err());
+}
+
+#[test]
+fn a_global_pose_that_is_not_fk_of_the_pose_is_refused_without_changes() {
+    let skel = Skeleton::chain(DVec3::ZERO, &[DVec3::X, DVec3::X, DVec3::X]).unwrap();
+    let job = TwoBoneIk::new(0, 1, 2, DVec3::new(1.0, 1.0, 0.0), DVec3::X * 3.0);
+    // A NaN in the global pose of a joint the solve reads.
+    let pose = skel.rest_pose();
+    let mut global = fresh_fk(&skel, &pose);
+    global.positions[2].y = f64::NAN;
+    let mut p = pose.clone();
+    let err = job.run(&skel, &mut p, &mut global).unwrap_err();
+    assert_eq!(
+        err,
+        TwoBoneError::InvalidGlobalPose {
+            joint: "joint 2".into()
+        }
+    );
+    assert_eq!(p, pose);
+    // An unusable rotation below the tip, which forward kinematics of the result meets:
+    // the error is passed on and the two solved rotations are put back.
+    let mut bad = skel.rest_pose();
+    let mut global = fresh_fk(&skel, &bad);
+    bad.rotations[3] = DQuat::from_xyzw(f64::NAN, 0.0, 0.0, 1.0);
+    let before = bad.clone();
+    let err = job.run(&skel, &mut bad, &mut global).unwrap_err();
+    assert!(err.to_string().contains("joint 3"), "{err}");
+    assert_eq!(bad.rotations[..3], before.rotations[..3]);
+}
+
+#[test]
+fn unnormalized_incoming_rotations_and_a_rotated_parent() {
+    // The limb hangs from a turned joint and carries scaled quaternions; the solve must
+    // reach the same target and keep the parent's rotation.
+    let skel = Skeleton::chain(
+        DVec3::new(0.0, 1.0, 0.0),
+        &[DVec3::Y * 0.5, DVec3::X, DVec3::X],
+    )
+    .unwrap();
+    let mut pose = skel.rest_pose();
+    pose.rotations[0] = DQuat::from_rotation_y(0.7) * 2.0;
+    pose.rotations[1] = DQuat::from_rotation_x(0.3) * 0.25;
+    pose.rotations[2] = DQuat::from_rotation_z(-0.4) * 5.0;
+    let mut global = fresh_fk(&skel, &pose);
+    let shoulder = global.positions[1];
+    let target = shoulder + DVec3::new(0.3, -1.2, 0.9);
+    let mut job = TwoBoneIk::new(1, 2, 3, target, shoulder + DVec3::Z);
+    job.hinge = Hinge::new(DVec3::new(0.0, 0.0, 2.0), -0.1, 2.8);
+    let parent = pose.rotations[0];
+    let report = job.run(&skel, &mut pose, &mut global).unwrap();
+    assert!(report.reached);
+    assert!(report.error < 1e-15, "{:e}", report.error);
+    assert_eq!(pose.rotations[0], parent);
+    assert_eq!(global, fresh_fk(&skel, &pose));
+    assert!((global.positions[1] - shoulder).length() < 1e-15);
 }
 
 /// A small fixed-seed generator (splitmix64), so the random tests need no dependency.
