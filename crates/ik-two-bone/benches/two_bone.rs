@@ -5,7 +5,9 @@
 //! reach of 0.55), warm-started from the previous solve's pose:
 //!
 //! - `two_bone/solve`: weight 1, no softening;
-//! - `two_bone/solve_soft_blend`: soften 0.9 and weight 0.7 (two slerps more).
+//! - `two_bone/solve_soft_blend`: soften 0.9 and weight 0.7 (two slerps more);
+//! - `two_bone/fk_only`: forward kinematics of the same three joints alone (what every
+//!   solve includes), as the yardstick for the machine the numbers come from.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use sinew_ik_two_bone::{Hinge, TwoBoneIk};
@@ -70,5 +72,26 @@ fn bench_solve(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench_solve);
+fn bench_fk_only(c: &mut Criterion) {
+    let skeleton = Skeleton::chain(
+        DVec3::ZERO,
+        &[DVec3::new(0.30, 0.0, 0.0), DVec3::new(0.25, 0.0, 0.0)],
+    )
+    .expect("valid limb");
+    let pose = skeleton.rest_pose();
+    let mut global = GlobalPose::new();
+    skeleton
+        .forward_kinematics(&pose, &mut global)
+        .expect("valid pose");
+    c.bench_function("two_bone/fk_only", |b| {
+        b.iter(|| {
+            skeleton
+                .forward_kinematics_from(black_box(&pose), 0, &mut global)
+                .expect("valid pose");
+            black_box(global.positions[2])
+        })
+    });
+}
+
+criterion_group!(benches, bench_solve, bench_fk_only);
 criterion_main!(benches);
