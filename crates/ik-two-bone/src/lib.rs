@@ -13,7 +13,8 @@
 //! - Only the root's and the mid joint's local rotations change. The mid joint turns
 //!   about its hinge axis only ([`Hinge`]: an axis in the mid joint's rest frame and a
 //!   bend-angle range relative to the rest rotation, the identity), so its new local
-//!   rotation is `R(axis, angle)` with `angle` in `[min, max]`.
+//!   rotation is `R(axis, angle)` with `angle` in `[min, max]` (blended with the incoming
+//!   rotation when `weight < 1`).
 //! - The root turns so that the tip lies on the line from the root to the target, the
 //!   mid joint lies in the plane through the root, the target and the pole, on the
 //!   pole's side, and then the whole limb turns by `twist` about the root-target line.
@@ -33,7 +34,7 @@
 //! skeleton.forward_kinematics(&pose, &mut global).unwrap();
 //!
 //! // A target sqrt(2) away needs a right angle at the elbow; the pole below the limb
-//! // puts the elbow at (1, -1, 0)'s side.
+//! // puts the elbow on the -y side.
 //! let mut job = TwoBoneIk::new(0, 1, 2, DVec3::new(2f64.sqrt(), 0.0, 0.0), DVec3::new(0.5, -1.0, 0.0));
 //! job.hinge = Hinge::new(DVec3::Z, 0.0, 150f64.to_radians());
 //! let report = job.run(&skeleton, &mut pose, &mut global).unwrap();
@@ -60,7 +61,8 @@ use std::fmt;
 ///
 /// `axis` is in the mid joint's rest frame, which is the frame of the mid joint's parent
 /// (the rest rotation being the identity); a positive angle turns the lower bone about
-/// `axis` by the right-hand rule. The same meaning as the skeleton's hinge joint limit.
+/// `axis` by the right-hand rule. This is the meaning of a hinge joint limit
+/// `{ axis, min, max }` in sinew-skeleton.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
