@@ -1,0 +1,97 @@
+//! Criterion benchmarks of one two-bone solve on a 3-joint limb (shoulder at the origin,
+//! upper arm 0.30 and forearm 0.25 along +x, elbow hinge 0..150 degrees about z), forward
+//! kinematics of the three joints included. Each iteration is one solve, cycling through
+//! 256 fixed-seed targets in a ball of radius 0.6 around the shoulder (about 20% beyond the
+//! reach of 0.55), warm-started from the previous solve's pose:
+//!
+//! - `two_bone/solve`: weight 1, no softening;
+//! - `two_bone/solve_soft_blend`: soften 0.9 and weight 0.7 (two slerps more);
+//! - `two_bone/fk_only`: forward kinematics of the same three joints alone (what every
+//!   solve includes), as the yardstick for the machine the numbers come from.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use sinew_ik_two_bone::{Hinge, TwoBoneIk};
+use sinew_math::DVec3;
+use sinew_skeleton::{GlobalPose, Skeleton};
+use std::hint::black_box;
+
+fn targets(n: usize) -> Vec<DVec3> {
+    let mut state = 0x2b0e_u64;
+    let mut next = move || {
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    };
+    let mut out = Vec::with_capacity(n);
+    while out.len() < n {
+        let p = DVec3::new(next(), next(), next());
+        if p.length() <= 1.0 {
+            out.push(p * 0.6);
+        }
+    }
+    out
+}
+
+fn bench_solve(c: &mut Criterion) {
+    let skeleton = Skeleton::chain(
+        DVec3::ZERO,
+        &[DVec3::new(0.30, 0.0, 0.0), DVec3::new(0.25, 0.0, 0.0)],
+    )
+    .expect("valid limb");
+    let targets = targets(256);
+    let mut base = TwoBoneIk::new(0, 1, 2, DVec3::ZERO, DVec3::new(0.0, -1.0, -1.0));
+    base.hinge = Hinge::new(DVec3::Z, 0.0, 150f64.to_radians());
+    let soft = TwoBoneIk {
+        soften: 0.9,
+        weight: 0.7,
+        ..base
+    };
+    for (name, job) in [
+        ("two_bone/solve", base),
+        ("two_bone/solve_soft_blend", soft),
+    ] {
+        let mut pose = skeleton.rest_pose();
+        let mut global = GlobalPose::new();
+        skeleton
+            .forward_kinematics(&pose, &mut global)
+            .expect("valid pose");
+        let mut job = job;
+        let mut i = 0;
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                job.target = targets[i];
+                i = (i + 1) % targets.len();
+                let report = job
+                    .run(black_box(&skeleton), &mut pose, &mut global)
+                    .expect("valid job");
+                black_box(report)
+            })
+        });
+    }
+}
+
+fn bench_fk_only(c: &mut Criterion) {
+    let skeleton = Skeleton::chain(
+        DVec3::ZERO,
+        &[DVec3::new(0.30, 0.0, 0.0), DVec3::new(0.25, 0.0, 0.0)],
+    )
+    .expect("valid limb");
+    let pose = skeleton.rest_pose();
+    let mut global = GlobalPose::new();
+    skeleton
+        .forward_kinematics(&pose, &mut global)
+        .expect("valid pose");
+    c.bench_function("two_bone/fk_only", |b| {
+        b.iter(|| {
+            skeleton
+                .forward_kinematics_from(black_box(&pose), 0, &mut global)
+                .expect("valid pose");
+            black_box(global.positions[2])
+        })
+    });
+}
+
+criterion_group!(benches, bench_solve, bench_fk_only);
+criterion_main!(benches);
