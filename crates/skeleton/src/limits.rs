@@ -597,8 +597,11 @@ fn unit_or_x(v: DVec3) -> DVec3 {
     try_unit(v).unwrap_or(DVec3::X)
 }
 
+/// Whether `angle`, in `(-pi, pi]`, is in `[min, max]`. A half turn is `pi` after the
+/// decomposition's sign choice, and it is the same rotation as `-pi`, so it is also inside
+/// a range that starts at `-pi`.
 fn in_range(angle: f64, min: f64, max: f64) -> bool {
-    min <= angle && angle <= max
+    (min <= angle && angle <= max) || (angle == PI && min == -PI)
 }
 
 /// The distance between two angles in `[-pi, pi]` along the circle, in `[0, pi]`.

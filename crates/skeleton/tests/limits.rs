@@ -195,6 +195,15 @@ fn hinge_wraps_around_the_circle() {
     assert_same_rotation(wide.project(-half), p, 1e-15);
     assert!((wide.violation(half) - (PI - 3.0)).abs() < 1e-14);
 
+    // A range that starts at -pi holds the half turn, which the decomposition reads as +pi.
+    let low = JointLimit::hinge(DVec3::Z, -PI, -3.0).unwrap();
+    let exact_half = DQuat::from_xyzw(0.0, 0.0, 1.0, 0.0);
+    assert_eq!(low.violation(exact_half), 0.0);
+    assert_eq!(low.project(exact_half), exact_half);
+    assert_eq!(low.project(-exact_half), -exact_half);
+    assert!(low.violation(half) < 1e-15);
+    assert_same_rotation(low.project(half), half, 1e-15);
+
     // Range [2, 3]: -3 is 2 pi - 6 = 0.283 from 3 and 5 from 2; 0 is 2 from 2.
     let narrow = JointLimit::hinge(DVec3::Z, 2.0, 3.0).unwrap();
     assert_same_rotation(narrow.project(rz(-3.0)), rz(3.0), 1e-15);
