@@ -28,6 +28,8 @@ pub enum Task {
     Fk(tasks::fk::FkTask),
     /// Inverse kinematics: a chain tracking targets with CCD or FABRIK.
     Ik(tasks::ik::IkTask),
+    /// Analytic two-bone IK: a limb's tip following a path, with a pole and a hinge.
+    TwoBone(tasks::two_bone::TwoBoneTask),
     /// Points on a curve, uniform in parameter or evenly spaced by arc length.
     Curve(tasks::curve::CurveTask),
     /// A mass-spring system stepped by an integrator.
@@ -40,6 +42,7 @@ impl Task {
         match self {
             Task::Fk(t) => t,
             Task::Ik(t) => t,
+            Task::TwoBone(t) => t,
             Task::Curve(t) => t,
             Task::Cloth(t) => t,
         }

@@ -7,6 +7,7 @@ pub mod cloth;
 pub mod curve;
 pub mod fk;
 pub mod ik;
+pub mod two_bone;
 
 use std::path::PathBuf;
 use std::time::Instant;
