@@ -18,6 +18,9 @@
 //!   [`Integrator::VelocityVerlet`] and `auto` ([`Integrator::Auto`]) choose the substep
 //!   count and which refuses a count below it. [`mod@reference`]: comparison only.
 //! - [`metrics`]: [`metrics::run`], a whole run with the metrics scene runners print.
+//! - [`contact`]: contact with rigid colliders after IPC (half-space, sphere, capsule,
+//!   static or kinematic): signed distances, the log barrier, the time of impact,
+//!   lagged smoothed friction, and a projection for the explicit integrators.
 //!
 //! Linear solver choice (`Auto`): the first step uses PCG, the second the direct solve;
 //! from then on each step uses the one with the smaller measured time per step (the
@@ -34,6 +37,7 @@
 //!
 //! Derivations: docs/spring-sim.md. Measurements: docs/bench/spring-sim.md.
 
+pub mod contact;
 pub mod explicit;
 pub mod implicit;
 pub mod integrator;
