@@ -14,6 +14,8 @@
 //! - [`toi`]: the time of impact along a line-search direction, the cap that keeps
 //!   every iterate outside every collider.
 //! - [`friction`]: lagged, smoothed Coulomb friction per contact.
+//! - [`potential`]: [`ContactPotential`], the barrier and friction energy of a whole
+//!   system for one implicit step, with a broad phase and the line-search cap.
 //! - [`projection`]: the position and velocity projection for the explicit integrators
 //!   (not guaranteed: see its documentation).
 //!
@@ -25,6 +27,7 @@ pub mod barrier;
 pub mod collider;
 pub mod distance;
 pub mod friction;
+pub mod potential;
 pub mod projection;
 pub mod psd;
 pub mod toi;
@@ -33,6 +36,7 @@ pub use barrier::{AdaptiveKappa, KappaSettings, PointBarrier, point_barrier};
 pub use collider::{Collider, Motion, Shape};
 pub use distance::{SignedDistance, signed_distance};
 pub use friction::FrictionContact;
+pub use potential::ContactPotential;
 pub use projection::{ProjectedParticle, project_particle};
 pub use toi::time_of_impact;
 
