@@ -143,7 +143,7 @@ fn max_step_is_the_smallest_time_of_impact() {
         DVec3::new(0.0, -5.0, 0.0),
         DVec3::new(0.0, -1.0, 0.0),
     ];
-    let alpha = p.max_step(&x, &dx, &fixed);
+    let alpha = p.max_step(&x, &dx, &fixed, 1.0);
     let mut expected: f64 = 1.0;
     for (i, (&q, &d)) in x.iter().zip(&dx).enumerate() {
         if fixed[i] {
@@ -156,6 +156,12 @@ fn max_step_is_the_smallest_time_of_impact() {
     }
     assert_eq!(alpha, expected);
     assert!(alpha < 1.0);
+    // A longer horizon finds the same first impact (the closed forms are exact).
+    let longer = p.max_step(&x, &dx, &fixed, 4.0);
+    assert!(
+        (longer - alpha).abs() <= 1e-12 * alpha,
+        "{longer} vs {alpha}"
+    );
     // Every particle stays at least 0.9 of its distance along the capped step.
     for (i, (&q, &d)) in x.iter().zip(&dx).enumerate() {
         if fixed[i] {
@@ -199,14 +205,20 @@ fn far_from_every_collider_nothing_is_computed() {
     assert_eq!(p.energy(&x, &fixed), 0.0);
     assert_eq!(p.min_distance(&x, &fixed), f64::INFINITY);
     let dx = vec![DVec3::new(0.0, -1.0, 0.0); 2];
-    assert_eq!(p.max_step(&x, &dx, &fixed), 1.0);
+    assert_eq!(p.max_step(&x, &dx, &fixed, 1.0), 1.0);
     let mut blocks = 0;
     p.for_each_hessian_block(&x, &fixed, |_, _| blocks += 1);
     assert_eq!(blocks, 0);
     // A step long enough to reach the ground is capped.
     let far = vec![DVec3::new(0.0, -20.0, 0.0); 2];
-    let a = p.max_step(&x, &far, &fixed);
+    let a = p.max_step(&x, &far, &fixed, 1.0);
     assert!((a - 1.1 / 20.0).abs() < 1e-15, "{a}");
+    // Along a unit step nothing is near within 1, but a line search that may lengthen
+    // the step 1024 times meets the ground's limit at 1.1 (d0 = 11, 0.9 d0 = 9.9).
+    let a = p.max_step(&x, &dx, &fixed, 1024.0);
+    assert!((a - 1.1).abs() < 1e-12, "{a}");
+    let up = vec![DVec3::new(0.0, 1.0, 0.0); 2];
+    assert_eq!(p.max_step(&x, &up, &fixed, 1024.0), 1024.0);
 }
 
 #[test]

@@ -330,14 +330,16 @@ impl ContactPotential {
         }
     }
 
-    /// The largest `alpha` in `[0, 1]` such that on `x + [0, alpha] dx` no free particle
-    /// comes closer to a (posed) collider than `(1 - s)` of its distance at `x`
-    /// ([`time_of_impact`] with the colliders held at the step's end). Particles whose
-    /// swept segment stays `dhat` away from a collider are skipped: they stay farther
-    /// than `dhat > 0` from it.
+    /// The largest `alpha` in `[0, horizon]` such that on `x + [0, alpha] dx` no free
+    /// particle comes closer to a (posed) collider than `(1 - s)` of its distance at `x`
+    /// ([`time_of_impact`] along `horizon dx`, with the colliders held at the step's
+    /// end); `horizon` itself when nothing comes that close. `horizon` is the longest
+    /// step the caller may try (1 for a plain Newton step; more for a line search that
+    /// lengthens accepted steps). Particles whose swept segment stays `dhat` away from a
+    /// collider are skipped: they stay farther than `dhat > 0` from it.
     #[must_use]
-    pub fn max_step(&self, x: &[DVec3], dx: &[DVec3], fixed: &[bool]) -> f64 {
-        let bounds = free_box(x, fixed, Some((dx, 1.0)));
+    pub fn max_step(&self, x: &[DVec3], dx: &[DVec3], fixed: &[bool], horizon: f64) -> f64 {
+        let bounds = free_box(x, fixed, Some((dx, horizon)));
         let reach = self.settings.dhat + self.settings.thickness;
         let mut alpha: f64 = 1.0;
         for shape in self.near(&bounds) {
@@ -346,14 +348,14 @@ impl ContactPotential {
                 if fixed[i] {
                     continue;
                 }
-                let segment = Bounds::of_segment(p, dx[i]);
-                if box_distance(shape, &segment) >= reach {
+                let sweep = horizon * dx[i];
+                if box_distance(shape, &Bounds::of_segment(p, sweep)) >= reach {
                     continue;
                 }
                 let a = time_of_impact(
                     &still,
                     p,
-                    dx[i],
+                    sweep,
                     0.0,
                     0.0,
                     self.settings.thickness,
@@ -362,7 +364,7 @@ impl ContactPotential {
                 alpha = alpha.min(a);
             }
         }
-        alpha
+        alpha * horizon
     }
 }
 
