@@ -6,6 +6,9 @@
 //! - [`model`]: particles, springs, material, validation with errors naming the item,
 //!   builders ([`ClothGrid`] for WORKLOADS.md W4-W6, [`Rope`]).
 //! - [`spring`]: per-spring energy, gradient, exact Hessian block and its PSD projection.
+//! - [`potential`]: the incremental potential as a sum of terms (inertia, gravity,
+//!   springs, axial damping), each written once with its energy, change along a
+//!   direction, gradient, PSD-projected Hessian blocks and largest safe step.
 //! - [`newton`]: [`BackwardEuler`], Newton with Armijo backtracking on the incremental
 //!   potential over the free particles, stopping at `|grad g|_inf <= tol m_min / h^2`.
 //! - [`linear`]: the sparse Cholesky (symbolic once per topology) and block-Jacobi PCG
@@ -46,6 +49,7 @@ pub mod metrics;
 pub mod model;
 pub mod newton;
 mod pattern;
+pub mod potential;
 pub mod reference;
 pub mod report;
 pub mod spring;
