@@ -611,3 +611,74 @@ fn friction_derivatives_and_force_limits() {
         FrictionContact::lagged(&colliders[0], starts[0], 0.0, h, kappa, &frictionless).is_none()
     );
 }
+
+#[test]
+fn energy_changes_from_differences_match_direct_ones() {
+    use sinew_spring_sim::contact::distance::distance_pair;
+    let mut rng = Rng(17);
+    for shape in shapes() {
+        for _ in 0..300 {
+            let x = rng.vec(1.5);
+            let delta = rng.vec(0.3);
+            let (d0, d1) = distance_pair(&shape, x, delta, 0.01);
+            assert_eq!(d0, signed_distance(&shape, x, 0.01).distance);
+            let direct = signed_distance(&shape, x + delta, 0.01).distance;
+            assert!(
+                (d1 - direct).abs() <= 1e-14 * direct.abs().max(1.0),
+                "{shape:?}: {d1} vs {direct}"
+            );
+        }
+        // A tiny step: d1 is d0 plus the change, so it is off by at most the rounding of
+        // that sum (an ulp of d0), not of the coordinates (checked against the first
+        // order change n . delta, exact to O(|delta|^2)).
+        let x = match shape {
+            Shape::HalfSpace { point, normal } => point + 0.3 * normal,
+            Shape::Sphere { center, radius } => center + DVec3::new(0.0, radius + 0.3, 0.0),
+            Shape::Capsule { a, b, radius } => {
+                0.5 * (a + b) + (radius + 0.3) * (b - a).any_orthonormal_vector()
+            }
+        };
+        let delta = DVec3::new(1e-13, -2e-13, 3e-13);
+        let (d0, d1) = distance_pair(&shape, x, delta, 0.0);
+        let first_order = signed_distance(&shape, x, 0.0).normal.dot(delta);
+        assert!(
+            ((d1 - d0) - first_order).abs() <= 2.0 * f64::EPSILON * d0.abs(),
+            "{shape:?}: {} vs {first_order}",
+            d1 - d0
+        );
+    }
+    let settings = ContactSettings {
+        dhat: 1e-2,
+        mu: 0.4,
+        eps_v: 1e-2,
+        ..ContactSettings::default()
+    };
+    let contact = FrictionContact::lagged(
+        &Collider::ground(0.0),
+        DVec3::new(0.0, 0.004, 0.0),
+        0.0,
+        0.05,
+        20.0,
+        &settings,
+    )
+    .unwrap();
+    let eps = contact.epsilon;
+    for _ in 0..300 {
+        let x = contact.start + rng.vec(3.0 * eps);
+        let delta = rng.vec(2.0 * eps);
+        let direct = contact.energy(x + delta) - contact.energy(x);
+        let change = contact.energy_change(x, delta);
+        assert!(
+            (direct - change).abs() <= 1e-12 * contact.max_force * eps,
+            "{direct} vs {change}"
+        );
+    }
+    // Sliding far from the start, a tiny move: the change is the force times the move.
+    let x = contact.start + DVec3::new(10.0, 0.0, 0.0);
+    let delta = DVec3::new(1e-14, 0.0, 0.0);
+    let change = contact.energy_change(x, delta);
+    assert!(
+        (change - contact.max_force * 1e-14).abs() <= 1e-9 * contact.max_force * 1e-14,
+        "{change}"
+    );
+}

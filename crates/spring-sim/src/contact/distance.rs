@@ -120,3 +120,52 @@ fn ball(center: DVec3, radius: f64, x: DVec3, thickness: f64, fallback: DVec3) -
         }
     }
 }
+
+/// The signed distances (minus `thickness`) of `x` and of `x + delta` to `shape`, the
+/// second computed as the first plus a change evaluated from `delta` itself wherever the
+/// closest feature is the same at both points (the plane; the ball or the lateral surface
+/// of the same piece of a capsule): `|p + delta| - |p| = delta . (2p + delta) /
+/// (|p + delta| + |p|)`. A line search near convergence compares energy changes many
+/// orders of magnitude below the energies, and the difference of two rounded distances
+/// would bury them.
+#[must_use]
+pub fn distance_pair(shape: &Shape, x: DVec3, delta: DVec3, thickness: f64) -> (f64, f64) {
+    let d0 = signed_distance(shape, x, thickness).distance;
+    let radial = |p: DVec3, dp: DVec3| {
+        let (l0, l1) = (p.length(), (p + dp).length());
+        let sum = l0 + l1;
+        (sum > 0.0).then(|| dp.dot(2.0 * p + dp) / sum)
+    };
+    let change = match *shape {
+        Shape::HalfSpace { normal, .. } => Some(normal.dot(delta)),
+        Shape::Sphere { center, .. } => radial(x - center, delta),
+        Shape::Capsule { a, b, .. } => {
+            let axis = b - a;
+            let len2 = axis.length_squared();
+            let param = |p: DVec3| {
+                if len2 > 0.0 {
+                    axis.dot(p - a) / len2
+                } else {
+                    0.0
+                }
+            };
+            let (t0, t1) = (param(x), param(x + delta));
+            if t0 <= 0.0 && t1 <= 0.0 {
+                radial(x - a, delta)
+            } else if t0 >= 1.0 && t1 >= 1.0 {
+                radial(x - b, delta)
+            } else if t0 > 0.0 && t0 < 1.0 && t1 > 0.0 && t1 < 1.0 {
+                let e = axis / len2.sqrt();
+                let across = |v: DVec3| v - v.dot(e) * e;
+                radial(across(x - a), across(delta))
+            } else {
+                None
+            }
+        }
+    };
+    let d1 = match change {
+        Some(c) => d0 + c,
+        None => signed_distance(shape, x + delta, thickness).distance,
+    };
+    (d0, d1)
+}

@@ -144,6 +144,33 @@ impl FrictionContact {
         self.max_force * f0(u1.hypot(u2), self.epsilon)
     }
 
+    /// `E(x + delta) - E(x)`, computed from `delta` itself (`|u'| - |u| = du . (2u + du)
+    /// / (|u'| + |u|)`, and the mollifier's difference factored by it) so that it keeps
+    /// its relative accuracy when the change is far below the energy, as the line search
+    /// needs near convergence.
+    #[must_use]
+    pub fn energy_change(&self, x: DVec3, delta: DVec3) -> f64 {
+        let [u1, u2] = self.tangential_displacement(x);
+        let du = [self.basis[0].dot(delta), self.basis[1].dot(delta)];
+        let y0 = u1.hypot(u2);
+        let y1 = (u1 + du[0]).hypot(u2 + du[1]);
+        let sum = y0 + y1;
+        if sum == 0.0 {
+            return 0.0;
+        }
+        let dy = (du[0] * (2.0 * u1 + du[0]) + du[1] * (2.0 * u2 + du[1])) / sum;
+        let eps = self.epsilon;
+        let change = if y0 >= eps && y1 >= eps {
+            dy
+        } else if y0 < eps && y1 < eps {
+            // f0(y1) - f0(y0) = (y1^2 - y0^2)/eps - (y1^3 - y0^3)/(3 eps^2).
+            dy * (sum / eps - (y1 * y1 + y1 * y0 + y0 * y0) / (3.0 * eps * eps))
+        } else {
+            f0(y1, eps) - f0(y0, eps)
+        };
+        self.max_force * change
+    }
+
     /// `mu lambda f1(|u|) T u/|u|` (0 at `u = 0`); the friction force is its negative.
     #[must_use]
     pub fn gradient(&self, x: DVec3) -> DVec3 {

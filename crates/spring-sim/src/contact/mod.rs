@@ -16,6 +16,8 @@
 //! - [`friction`]: lagged, smoothed Coulomb friction per contact.
 //! - [`potential`]: [`ContactPotential`], the barrier and friction energy of a whole
 //!   system for one implicit step, with a broad phase and the line-search cap.
+//! - [`term`]: [`ContactTerm`], that potential as a term of the implicit integrators'
+//!   minimization ([`crate::potential::Term`]).
 //! - [`projection`]: the position and velocity projection for the explicit integrators
 //!   (not guaranteed: see its documentation).
 //!
@@ -30,6 +32,7 @@ pub mod friction;
 pub mod potential;
 pub mod projection;
 pub mod psd;
+pub mod term;
 pub mod toi;
 
 pub use barrier::{AdaptiveKappa, KappaSettings, PointBarrier, point_barrier};
@@ -38,6 +41,7 @@ pub use distance::{SignedDistance, signed_distance};
 pub use friction::FrictionContact;
 pub use potential::ContactPotential;
 pub use projection::{ProjectedParticle, project_particle};
+pub use term::{ContactStats, ContactTerm};
 pub use toi::time_of_impact;
 
 use std::fmt;
@@ -57,6 +61,11 @@ pub enum ContactError {
         field: &'static str,
         /// What is wrong with it.
         reason: &'static str,
+    },
+    /// Contact was asked of an integrator (or in a way) that does not support it.
+    Unsupported {
+        /// What is not supported (an integrator's name, or the request).
+        what: &'static str,
     },
     /// A contact setting is invalid.
     BadSetting {
@@ -89,6 +98,10 @@ impl fmt::Display for ContactError {
                 value,
                 reason,
             } => write!(f, "contact setting {name} = {value}: {reason}"),
+            Self::Unsupported { what } => write!(
+                f,
+                "contact is not supported for {what} (backward Euler has the guaranteed barrier; the explicit integrators a projection)"
+            ),
         }
     }
 }

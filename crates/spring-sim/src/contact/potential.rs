@@ -20,7 +20,7 @@ use super::barrier::{
     AdaptiveKappa, KappaSettings, PointBarrier, barrier, minimum_kappa, point_barrier,
 };
 use super::collider::{Collider, Shape, validate_colliders};
-use super::distance::signed_distance;
+use super::distance::{distance_pair, signed_distance};
 use super::friction::FrictionContact;
 use super::toi::time_of_impact;
 use super::{ContactError, ContactSettings};
@@ -33,8 +33,10 @@ pub struct ContactPotential {
     settings: ContactSettings,
     kappa_settings: KappaSettings,
     kappa: Option<AdaptiveKappa>,
-    /// Time at the start of the next step.
+    /// The current step's end time (the start of the next step).
     clock: f64,
+    /// The current step's start time.
+    step_start: f64,
     /// The colliders posed at the current step's end time.
     posed: Vec<Shape>,
     friction: Vec<(usize, FrictionContact)>,
@@ -64,6 +66,7 @@ impl ContactPotential {
             kappa_settings: KappaSettings::default(),
             kappa: None,
             clock: start_time,
+            step_start: start_time,
             posed,
             friction: Vec::new(),
         })
@@ -149,8 +152,28 @@ impl ContactPotential {
                 }
             }
         }
+        self.step_start = start;
         self.clock = start + h;
         self.posed = self.colliders.iter().map(|c| c.at(self.clock)).collect();
+    }
+
+    /// [`carry_with_colliders`] for the current step (from the time of the last
+    /// [`Self::begin_step`] to [`Self::time`]).
+    pub fn prepare_start(
+        &self,
+        x_n: &[DVec3],
+        fixed: &[bool],
+        x: &mut [DVec3],
+    ) -> Result<(), (usize, usize)> {
+        carry_with_colliders(
+            &self.colliders,
+            &self.settings,
+            self.step_start,
+            self.clock,
+            x_n,
+            fixed,
+            x,
+        )
     }
 
     /// The colliders not culled by the broad phase for the box `bounds` (plus the
@@ -255,9 +278,7 @@ impl ContactPotential {
                     if fixed[i] {
                         continue;
                     }
-                    let d0 = signed_distance(shape, p, self.settings.thickness).distance;
-                    let d1 =
-                        signed_distance(shape, p + alpha * dx[i], self.settings.thickness).distance;
+                    let (d0, d1) = distance_pair(shape, p, alpha * dx[i], self.settings.thickness);
                     if d1 <= 0.0 {
                         return f64::INFINITY;
                     }
@@ -268,7 +289,7 @@ impl ContactPotential {
             }
         }
         for (i, c) in &self.friction {
-            change += c.energy(x[*i] + alpha * dx[*i]) - c.energy(x[*i]);
+            change += c.energy_change(x[*i], alpha * dx[*i]);
         }
         change
     }
@@ -366,6 +387,59 @@ impl ContactPotential {
         }
         alpha * horizon
     }
+}
+
+/// Moves a first iterate `x` so that a kinematic collider does not run over it: with the
+/// colliders moving from their poses at `t0` to those at `t1`, a free particle whose
+/// distance at `x` to a collider posed at `t1` is below half of `min(d_0, dhat)` (`d_0`
+/// its distance at the step's start `x_n` to the collider posed at `t0`) is put at its
+/// start position carried by that collider's rigid motion from `t0` to `t1`, which keeps
+/// exactly its distance `d_0 > 0` to that collider. A collider whose motion leaves its
+/// surface in place (a sphere spinning about its centre) never triggers it, since it
+/// does not change the distance. Returns the first free particle still touching or inside
+/// a collider posed at `t1` after that, with the collider's index (two colliders closing
+/// in on one particle within one step).
+#[allow(clippy::too_many_arguments)]
+pub fn carry_with_colliders(
+    colliders: &[Collider],
+    settings: &ContactSettings,
+    t0: f64,
+    t1: f64,
+    x_n: &[DVec3],
+    fixed: &[bool],
+    x: &mut [DVec3],
+) -> Result<(), (usize, usize)> {
+    let tau = settings.thickness;
+    for collider in colliders.iter().filter(|c| !c.is_static()) {
+        let (start, end) = (collider.at(t0), collider.at(t1));
+        let (r0, r1) = (
+            collider.reference_point_at(t0),
+            collider.reference_point_at(t1),
+        );
+        let turn = collider.rotation_at(t1) * collider.rotation_at(t0).inverse();
+        for i in 0..x.len() {
+            if fixed[i] {
+                continue;
+            }
+            let d_end = signed_distance(&end, x[i], tau).distance;
+            if d_end >= settings.dhat {
+                continue;
+            }
+            let d_start = signed_distance(&start, x_n[i], tau).distance;
+            if d_start > 0.0 && d_end < 0.5 * d_start.min(settings.dhat) {
+                x[i] = r1 + turn * (x_n[i] - r0);
+            }
+        }
+    }
+    for (c, collider) in colliders.iter().enumerate() {
+        let shape = collider.at(t1);
+        for i in 0..x.len() {
+            if !fixed[i] && signed_distance(&shape, x[i], tau).distance <= 0.0 {
+                return Err((i, c));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// An axis-aligned box (empty when `min > max`).

@@ -35,7 +35,7 @@ use crate::linear::{
 };
 use crate::model::{ModelError, SpringSystem, check_time_step};
 use crate::pattern::{FIXED, HessianPattern};
-use crate::potential::{HessianSink, Potential, StepContext};
+use crate::potential::{HessianSink, Potential, StepContext, Term};
 use crate::report::{IntegratorKind, StepError, StepReport};
 use crate::spring::Curvature;
 use sinew_math::DVec3;
@@ -174,6 +174,13 @@ impl BackwardEuler {
         &self.potential
     }
 
+    /// Adds a term to the incremental potential (a contact barrier, friction). A term
+    /// that couples particles no spring joins must not be added: the Hessian pattern is
+    /// built from the springs (particle-collider contact adds diagonal blocks only).
+    pub fn add_term(&mut self, term: Box<dyn Term>) {
+        self.potential.push(term);
+    }
+
     /// Numerically factors the last assembled Newton matrix (building the symbolic
     /// factorization first if needed); false if it is not positive definite (a kernel for
     /// benchmarks).
@@ -275,9 +282,20 @@ impl BackwardEuler {
                 g_guess.partial_cmp(&g_start),
                 Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
             );
-            if !guess_is_no_worse {
+            // A term with a barrier (contact) also asks that the straight path from x_n
+            // to the guess stays admissible: a guess beyond a thin collider is outside it
+            // but was reached through it. Without such a term the cap is infinite.
+            for ((d, x), r) in self.dx_particles.iter_mut().zip(&self.x).zip(&self.x_ref) {
+                *d = *x - *r;
+            }
+            let path_is_admissible =
+                self.potential
+                    .max_step(&step, &self.x_ref, &self.dx_particles)
+                    >= 1.0;
+            if !(guess_is_no_worse && path_is_admissible) {
                 self.x.copy_from_slice(&self.x_ref);
             }
+            self.potential.prepare_start(&step, &mut self.x);
         }
         let mut report = self.minimize(system, h_eff)?;
         report.integrator = kind;

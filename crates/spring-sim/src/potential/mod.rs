@@ -84,6 +84,13 @@ pub trait Term: std::fmt::Debug + Send + Sync {
         let _ = step;
     }
 
+    /// Called once per step after the first iterate is chosen, to move it where the term
+    /// admits it (a contact term carries particles that a moving collider would run
+    /// over along with the collider's rigid motion). Most terms leave it alone.
+    fn prepare_start(&self, step: &StepContext<'_>, x: &mut [DVec3]) {
+        let _ = (step, x);
+    }
+
     /// Called at the start of every Newton iteration with the current iterate: the
     /// place to collect an active set (contacts within the barrier's reach).
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
@@ -159,6 +166,13 @@ impl Potential {
     pub fn begin_step(&mut self, step: &StepContext<'_>) {
         for t in &mut self.terms {
             t.begin_step(step);
+        }
+    }
+
+    /// [`Term::prepare_start`] on every term.
+    pub fn prepare_start(&self, step: &StepContext<'_>, x: &mut [DVec3]) {
+        for t in &self.terms {
+            t.prepare_start(step, x);
         }
     }
 
