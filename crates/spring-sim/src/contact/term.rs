@@ -96,11 +96,14 @@ impl Term for ContactTerm {
     }
 
     fn prepare_start(&self, step: &StepContext<'_>, x: &mut [DVec3]) {
-        // A particle left inside is reported by the caller's admissibility check
-        // (`Simulation::step` refuses such a step before it starts).
-        let _ = self
-            .potential
-            .prepare_start(step.system.positions(), step.system.fixed(), x);
+        let (x_n, fixed) = (step.system.positions(), step.system.fixed());
+        if self.potential.prepare_start(x_n, fixed, x).is_err() {
+            // The guess, partly carried, is not admissible: start from x_n carried
+            // instead, the state `Simulation::step` checked before the step (it refuses
+            // the step when even that is inside a collider).
+            x.copy_from_slice(x_n);
+            let _ = self.potential.prepare_start(x_n, fixed, x);
+        }
     }
 
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
