@@ -307,3 +307,61 @@ fn refusals_name_what_is_wrong() {
     );
     assert_eq!(sim.system(), &before, "a refused step changes nothing");
 }
+
+#[test]
+fn a_rising_platform_carries_a_resting_particle() {
+    // Ground rising at 0.5 m/s under a particle resting on it: the particle rides along,
+    // never inside, at the platform's speed once settled.
+    let particle = Particle::at_rest(DVec3::new(0.0, 5e-4, 0.0), 5e-4);
+    let system = SpringSystem::new(&[particle], &[], material()).unwrap();
+    let mut sim = Simulation::new(system, backward_euler()).unwrap();
+    let platform = Collider::ground(0.0).moving(DVec3::new(0.0, 0.5, 0.0), DVec3::ZERO);
+    sim.set_contact(vec![platform], ContactSettings::default())
+        .unwrap();
+    for step in 0..120 {
+        sim.step(H).unwrap();
+        let gap = sim.system().positions()[0].y - 0.5 * sim.time();
+        assert!(gap > 0.0, "step {step}: particle {gap} below the platform");
+    }
+    let v = sim.system().velocities()[0];
+    assert!((v.y - 0.5).abs() < 1e-4, "rides at {v}");
+    let gap = sim.system().positions()[0].y - 0.5 * sim.time();
+    assert!(gap < ContactSettings::default().dhat, "gap {gap}");
+}
+
+#[test]
+fn friction_carries_a_particle_on_a_turntable() {
+    // A half-space spinning about its normal at 1 rad/s under a particle 0.1 from the
+    // axis, mu = 0.5 (mu g = 4.9 far above the centripetal 0.1 m/s^2 needed): friction
+    // brings the particle to the surface's speed omega r = 0.1 m/s. Measured slip after
+    // 3 s: 1.7e-3 m/s, of the order of the smoothing eps_v = 1e-3 m/s plus the lag's error
+    // (the surface's displacement over a step is taken along its velocity at the step's
+    // start, a chord error of h^2 omega^2 r / 2 = 1.4e-5 m per step, 8e-4 m/s).
+    let particle = Particle::at_rest(DVec3::new(0.1, 5e-4, 0.0), 5e-4);
+    let system = SpringSystem::new(&[particle], &[], material()).unwrap();
+    let mut sim = Simulation::new(system, backward_euler()).unwrap();
+    let turntable = Collider::ground(0.0).moving(DVec3::ZERO, DVec3::new(0.0, 1.0, 0.0));
+    let settings = ContactSettings {
+        mu: 0.5,
+        ..ContactSettings::default()
+    };
+    sim.set_contact(vec![turntable], settings).unwrap();
+    for _ in 0..180 {
+        sim.step(H).unwrap();
+    }
+    let x = sim.system().positions()[0];
+    let v = sim.system().velocities()[0];
+    let surface = DVec3::new(0.0, 1.0, 0.0).cross(x);
+    let slip = (v - surface).length();
+    println!(
+        "turntable: speed {}, surface {}, slip {slip}",
+        v.length(),
+        surface.length()
+    );
+    assert!(slip < 2.0 * settings.eps_v, "slip {slip} at {x}, v {v}");
+    assert!(
+        (x.length() - 0.1).abs() < 5e-3,
+        "drifted to radius {}",
+        x.length()
+    );
+}
