@@ -582,26 +582,32 @@ impl Simulation {
             && contact.stats.is_none()
         {
             // Explicit integrators: project after the step (not guaranteed).
-            let parts = self.system.parts_mut();
-            let (positions, velocities, fixed) = (parts.positions, parts.velocities, parts.fixed);
-            for collider in &contact.colliders {
-                for i in 0..positions.len() {
-                    if fixed[i] {
-                        continue;
-                    }
+            for i in 0..self.system.len() {
+                if self.system.fixed()[i] {
+                    continue;
+                }
+                let mut x = self.system.positions()[i];
+                let mut v = self.system.velocities()[i];
+                let mut moved = false;
+                for collider in &contact.colliders {
                     let p = project_particle(
                         collider,
                         self.time,
-                        positions[i],
-                        velocities[i],
+                        x,
+                        v,
                         contact.settings.thickness,
                         contact.settings.mu,
                     );
                     if p.contact {
-                        positions[i] = p.position;
-                        velocities[i] = p.velocity;
+                        (x, v) = (p.position, p.velocity);
+                        moved = true;
                         contact.projections += 1;
                     }
+                }
+                if moved {
+                    let (positions, velocities) = self.system.state_mut();
+                    positions[i] = x;
+                    velocities[i] = v;
                 }
             }
         }

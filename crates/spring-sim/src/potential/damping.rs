@@ -47,6 +47,35 @@ impl AxialDamping {
     }
 }
 
+impl AxialDamping {
+    /// Adds the damping force's negative, `c u (u . (v_a - v_b))` on `a` (minus on `b`),
+    /// along each spring's current direction `u` at `x`, to `gradient`: the gradient of
+    /// this term at `x = x_ref + h v` with the directions frozen at `x`, which is what an
+    /// explicit integrator applies (it needs no frozen state, so it is not a method of
+    /// [`Term`]). A zero-length spring exerts nothing.
+    pub fn add_rate_gradient(
+        system: &SpringSystem,
+        x: &[DVec3],
+        v: &[DVec3],
+        gradient: &mut [DVec3],
+    ) {
+        let c = system.material().damping;
+        if c <= 0.0 {
+            return;
+        }
+        for s in system.springs() {
+            let d = x[s.a] - x[s.b];
+            let l2 = d.length_squared();
+            if l2 > 0.0 {
+                // c (u . dv) u = c (d . dv) / |d|^2 d, with no square root.
+                let g = (c * d.dot(v[s.a] - v[s.b]) / l2) * d;
+                gradient[s.a] += g;
+                gradient[s.b] -= g;
+            }
+        }
+    }
+}
+
 impl Term for AxialDamping {
     fn name(&self) -> &'static str {
         "axial damping"
