@@ -9,6 +9,7 @@ use sinew_labcheck::reference::springs::{
     Measured, all_stretched, combine, displacement_l1, gravity_energy, incremental_potential,
     spring_energy, total_energy, velocity_change_energy,
 };
+use sinew_labcheck::strategies::SplitMix64;
 use sinew_labcheck::strategies::springs::{
     FixedSet, InitialState, SpringCase, fixed_set, initial_state, spring_case, spring_case_with,
 };
@@ -267,4 +268,38 @@ fn grid_strategy_builds_the_lab_pattern() {
     // Structural: 2*4 + 3*3 = 17; bending: 1*4 + 3*2 = 10; shear: 2 * (2*3) = 12.
     assert_eq!(system.springs().len(), 39);
     assert!(all_stretched(&system, system.positions()));
+}
+
+proptest! {
+    #![proptest_config(config::standard())]
+
+    /// The total of spring-sim's terms (what every implicit integrator minimizes) equals
+    /// the suite's independent formula of `g` at random points near the step's start, on
+    /// random sheets and graphs: so the other properties, which use the formula, speak
+    /// about the code the integrators run.
+    #[test]
+    fn the_terms_total_is_the_reference_potential(
+        case in spring_case(),
+        seed in any::<u64>(),
+        amplitude in 0.0f64..0.5,
+    ) {
+        let system = case.build();
+        let mut rng = SplitMix64(seed);
+        let spacing = case.spacing;
+        let x: Vec<_> = system
+            .positions()
+            .iter()
+            .zip(system.fixed())
+            .map(|(&p, &fixed)| if fixed { p } else { p + amplitude * spacing * rng.vector() })
+            .collect();
+        let expected = incremental_potential(&system, &x, case.h);
+        let got = sinew_spring_sim::potential::incremental_potential(&system, case.h, &x);
+        prop_assert!(got.is_finite());
+        prop_assert!(
+            (got - expected.value).abs() <= 2.0 * expected.allowance(),
+            "terms {got}, reference {} (allowance {:e})",
+            expected.value,
+            expected.allowance()
+        );
+    }
 }

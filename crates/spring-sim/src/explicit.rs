@@ -8,12 +8,14 @@
 //! it, before every step.
 //!
 //! Each substep of length `h / substeps` updates velocities from the forces at the
-//! current positions (springs, gravity, axial damping along the current spring
-//! direction), then positions from the new velocities. Fixed particles do not move. It
+//! current positions (minus the gradient of the potential's [`Gravity`] and [`Springs`]
+//! terms, and the axial damping along the current spring direction,
+//! [`AxialDamping::add_rate_gradient`]), then positions from the new velocities. Fixed particles do not move. It
 //! is only conditionally stable: above its limit it explodes, and then the step is undone
 //! and reported as an error rather than returning NaN.
 
 use crate::model::{SpringSystem, check_time_step};
+use crate::potential::{AxialDamping, Gravity, Springs, StepContext, Term};
 use crate::report::{IntegratorKind, StepError, StepReport};
 use sinew_math::DVec3;
 
@@ -22,8 +24,8 @@ use sinew_math::DVec3;
 pub struct SymplecticEuler {
     substeps: usize,
     forces: Vec<DVec3>,
-    backup_x: Vec<DVec3>,
-    backup_v: Vec<DVec3>,
+    work_x: Vec<DVec3>,
+    work_v: Vec<DVec3>,
 }
 
 impl SymplecticEuler {
@@ -38,8 +40,8 @@ impl SymplecticEuler {
         Ok(Self {
             substeps,
             forces: vec![DVec3::ZERO; system.len()],
-            backup_x: system.positions().to_vec(),
-            backup_v: system.velocities().to_vec(),
+            work_x: system.positions().to_vec(),
+            work_v: system.velocities().to_vec(),
         })
     }
 
@@ -63,16 +65,15 @@ impl SymplecticEuler {
         let mut report = StepReport::new(IntegratorKind::SymplecticEuler);
         report.substeps = self.substeps;
         report.energy_before = system.energies();
-        self.backup_x.copy_from_slice(system.positions());
-        self.backup_v.copy_from_slice(system.velocities());
+        // The state is advanced in the work buffers (the system stays readable for the
+        // terms) and written back only when it stayed finite.
+        self.work_x.copy_from_slice(system.positions());
+        self.work_v.copy_from_slice(system.velocities());
         let dt = h / self.substeps as f64;
-        let parts = system.parts_mut();
-        let (x, v) = (parts.positions, parts.velocities);
-        let (masses, fixed, springs) = (parts.masses, parts.fixed, parts.springs);
-        let gravity = parts.material.gravity;
-        let damping = parts.material.damping;
+        let (x, v) = (&mut self.work_x, &mut self.work_v);
+        let (masses, fixed) = (system.masses(), system.fixed());
         for _ in 0..self.substeps {
-            forces(x, v, masses, springs, gravity, damping, &mut self.forces);
+            forces(system, x, v, &mut self.forces);
             for i in 0..x.len() {
                 if !fixed[i] {
                     v[i] += dt / masses[i] * self.forces[i];
@@ -81,13 +82,14 @@ impl SymplecticEuler {
             }
         }
         if let Some(particle) = (0..x.len()).find(|&i| !(x[i].is_finite() && v[i].is_finite())) {
-            x.copy_from_slice(&self.backup_x);
-            v.copy_from_slice(&self.backup_v);
             return Err(StepError::NonFinite {
                 integrator: IntegratorKind::SymplecticEuler,
                 particle,
             });
         }
+        let (positions, velocities) = system.state_mut();
+        positions.copy_from_slice(x);
+        velocities.copy_from_slice(v);
         report.iterations = self.substeps;
         report.energy_after = system.energies();
         Ok(report)
@@ -104,39 +106,21 @@ fn inverse_masses(system: &SpringSystem) -> Vec<f64> {
         .collect()
 }
 
-/// Total force on every particle: gravity, springs, and axial damping along the current
-/// spring direction (`out` is overwritten). The hot loop of the
-/// explicit integrators: one square root and one division per spring.
+/// Total force on every particle at positions `x` and velocities `v` (`out` is
+/// overwritten): minus the gradient of the potential's conservative terms ([`Gravity`],
+/// [`Springs`]) and of the axial damping along the current spring directions. The hot
+/// loop of the explicit integrators: one square root and one division per spring, and a
+/// division per damped spring.
 #[inline]
-pub(crate) fn forces(
-    x: &[DVec3],
-    v: &[DVec3],
-    masses: &[f64],
-    springs: &[crate::model::Spring],
-    gravity: DVec3,
-    damping: f64,
-    out: &mut [DVec3],
-) {
-    for (f, m) in out.iter_mut().zip(masses) {
-        *f = *m * gravity;
-    }
-    for s in springs {
-        let d = x[s.a] - x[s.b];
-        let l = d.length();
-        // -k (l - L) u - c (u . (v_a - v_b)) u with u = d / l; a zero-length spring has no
-        // direction and exerts nothing.
-        let force = if l > 0.0 {
-            let inv_l = 1.0 / l;
-            let mut scale = -s.stiffness * (1.0 - s.rest_length * inv_l);
-            if damping > 0.0 {
-                scale -= damping * inv_l * inv_l * d.dot(v[s.a] - v[s.b]);
-            }
-            scale * d
-        } else {
-            DVec3::ZERO
-        };
-        out[s.a] += force;
-        out[s.b] -= force;
+pub(crate) fn forces(system: &SpringSystem, x: &[DVec3], v: &[DVec3], out: &mut [DVec3]) {
+    out.fill(DVec3::ZERO);
+    // The conservative terms read only `x`; the step's references are not used.
+    let step = StepContext::new(system, 1.0, x, x);
+    Gravity.add_gradient(&step, x, out);
+    Springs.add_gradient(&step, x, out);
+    AxialDamping::add_rate_gradient(system, x, v, out);
+    for f in out.iter_mut() {
+        *f = -*f;
     }
 }
 
@@ -151,8 +135,8 @@ pub(crate) fn forces(
 pub struct VelocityVerlet {
     substeps: usize,
     forces: Vec<DVec3>,
-    backup_x: Vec<DVec3>,
-    backup_v: Vec<DVec3>,
+    work_x: Vec<DVec3>,
+    work_v: Vec<DVec3>,
     /// The state after the last step and the energy there, to reuse the forces and
     /// energies when nobody changed it.
     end_x: Vec<DVec3>,
@@ -174,8 +158,8 @@ impl VelocityVerlet {
         Ok(Self {
             substeps,
             forces: vec![DVec3::ZERO; system.len()],
-            backup_x: system.positions().to_vec(),
-            backup_v: system.velocities().to_vec(),
+            work_x: system.positions().to_vec(),
+            work_v: system.velocities().to_vec(),
             end_x: Vec::new(),
             end_v: Vec::new(),
             end_energy: None,
@@ -209,16 +193,14 @@ impl VelocityVerlet {
             (true, Some(e)) => e,
             _ => system.energies(),
         };
-        self.backup_x.copy_from_slice(system.positions());
-        self.backup_v.copy_from_slice(system.velocities());
+        // Advanced in the work buffers, written back only when finite (as in
+        // [`SymplecticEuler::step`]).
+        self.work_x.copy_from_slice(system.positions());
+        self.work_v.copy_from_slice(system.velocities());
         let dt = h / self.substeps as f64;
-        let parts = system.parts_mut();
-        let (x, v) = (parts.positions, parts.velocities);
-        let (masses, springs) = (parts.masses, parts.springs);
-        let gravity = parts.material.gravity;
-        let damping = parts.material.damping;
+        let (x, v) = (&mut self.work_x, &mut self.work_v);
         if !unchanged {
-            forces(x, v, masses, springs, gravity, damping, &mut self.forces);
+            forces(system, x, v, &mut self.forces);
         }
         let half = 0.5 * dt;
         let inv_mass = &self.inv_mass;
@@ -232,20 +214,21 @@ impl VelocityVerlet {
                 *vi += (half * w) * *f;
                 *xi += dt * *vi;
             }
-            forces(x, v, masses, springs, gravity, damping, &mut self.forces);
+            forces(system, x, v, &mut self.forces);
             for ((vi, f), w) in v.iter_mut().zip(&self.forces).zip(inv_mass) {
                 *vi += (half * w) * *f;
             }
         }
         if let Some(particle) = (0..x.len()).find(|&i| !(x[i].is_finite() && v[i].is_finite())) {
-            x.copy_from_slice(&self.backup_x);
-            v.copy_from_slice(&self.backup_v);
             self.end_energy = None;
             return Err(StepError::NonFinite {
                 integrator: IntegratorKind::VelocityVerlet,
                 particle,
             });
         }
+        let (positions, velocities) = system.state_mut();
+        positions.copy_from_slice(x);
+        velocities.copy_from_slice(v);
         report.iterations = self.substeps;
         report.energy_after = system.energies();
         self.end_x.clear();

@@ -7,6 +7,10 @@
 //! or chosen from the stability bound of [`crate::stability`]; `auto` picks among them per
 //! step and says why in the [`StepReport`]. The rules are in docs/integrators.md.
 
+use crate::contact::{
+    Collider, ContactError, ContactPotential, ContactSettings, ContactStats, ContactTerm,
+    project_particle, signed_distance,
+};
 use crate::explicit::{SymplecticEuler, VelocityVerlet};
 use crate::implicit::{Bdf2, ImplicitMidpoint};
 use crate::model::{ModelError, SpringSystem};
@@ -14,6 +18,8 @@ use crate::newton::{BackwardEuler, NewtonSettings};
 use crate::reference::flawed_report_method::FlawedReportMethod;
 use crate::report::{AutoReason, IntegratorKind, StepError, StepReport};
 use crate::stability::{StabilityBound, StabilityMonitor};
+use sinew_math::DVec3;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Which integrator advances the system, with its settings.
@@ -381,6 +387,24 @@ impl AutoStepper {
 pub struct Simulation {
     system: SpringSystem,
     stepper: Stepper,
+    /// Time since the start (the sum of the steps taken), the time kinematic colliders
+    /// are posed at.
+    time: f64,
+    contact: Option<Contact>,
+}
+
+/// The colliders of a simulation and how they act (see [`Simulation::set_contact`]).
+#[derive(Debug)]
+struct Contact {
+    colliders: Vec<Collider>,
+    settings: ContactSettings,
+    /// The barrier term's statistics (backward Euler), or `None` for the explicit
+    /// projection.
+    stats: Option<Arc<ContactStats>>,
+    /// Particle-collider projections applied by the explicit integrators so far.
+    projections: usize,
+    /// Positions for the admissibility check before a step.
+    scratch: Vec<DVec3>,
 }
 
 impl Simulation {
@@ -408,11 +432,189 @@ impl Simulation {
                 Stepper::Auto(Box::new(AutoStepper::new(&system, settings)?))
             }
         };
-        Ok(Self { system, stepper })
+        Ok(Self {
+            system,
+            stepper,
+            time: 0.0,
+            contact: None,
+        })
+    }
+
+    /// Adds contact with `colliders` (validated; the error names the collider or the
+    /// setting). With backward Euler, contact is IPC's barrier and lagged friction in the
+    /// minimization, with the line search capped by the time of impact, so no accepted
+    /// state has a particle inside a collider (docs/contact.md). With the explicit
+    /// integrators ([`Integrator::SymplecticEuler`], [`Integrator::VelocityVerlet`],
+    /// [`Integrator::SymplecticEulerBounded`]) every particle is projected out of every
+    /// collider after each step ([`crate::contact::projection`]): **not guaranteed**.
+    /// BDF2, implicit midpoint, `auto` and the flawed reference method have no contact
+    /// yet: an error. Contact can be set once.
+    pub fn set_contact(
+        &mut self,
+        colliders: Vec<Collider>,
+        settings: ContactSettings,
+    ) -> Result<(), ContactError> {
+        if self.contact.is_some() {
+            return Err(ContactError::Unsupported {
+                what: "setting contact twice",
+            });
+        }
+        crate::contact::collider::validate_colliders(&colliders)?;
+        settings.validate()?;
+        let stats = match &mut self.stepper {
+            Stepper::BackwardEuler(be) => {
+                let term = ContactTerm::new(ContactPotential::new(
+                    colliders.clone(),
+                    settings,
+                    self.time,
+                )?);
+                let stats = term.stats();
+                be.add_term(Box::new(term));
+                Some(stats)
+            }
+            Stepper::SymplecticEuler(_) | Stepper::Bounded(_) => None,
+            Stepper::Bdf2(_) => return Err(ContactError::Unsupported { what: "BDF2" }),
+            Stepper::Midpoint(_) => {
+                return Err(ContactError::Unsupported {
+                    what: "implicit midpoint",
+                });
+            }
+            Stepper::Auto(_) => return Err(ContactError::Unsupported { what: "auto" }),
+            Stepper::Flawed(_) => {
+                return Err(ContactError::Unsupported {
+                    what: "the flawed reference method",
+                });
+            }
+        };
+        self.contact = Some(Contact {
+            colliders,
+            settings,
+            stats,
+            projections: 0,
+            scratch: Vec::new(),
+        });
+        Ok(())
+    }
+
+    /// The colliders, if contact is set.
+    #[must_use]
+    pub fn colliders(&self) -> &[Collider] {
+        self.contact.as_ref().map_or(&[], |c| &c.colliders)
+    }
+
+    /// The contact settings, if contact is set.
+    #[must_use]
+    pub fn contact_settings(&self) -> Option<&ContactSettings> {
+        self.contact.as_ref().map(|c| &c.settings)
+    }
+
+    /// The barrier stiffness `kappa` of backward Euler's contact term (`None` without
+    /// one; 0 before the first step).
+    #[must_use]
+    pub fn contact_kappa(&self) -> Option<f64> {
+        self.contact
+            .as_ref()
+            .and_then(|c| c.stats.as_ref())
+            .map(|s| s.kappa())
+    }
+
+    /// Particle-collider projections the explicit integrators applied so far.
+    #[must_use]
+    pub fn contact_projections(&self) -> usize {
+        self.contact.as_ref().map_or(0, |c| c.projections)
+    }
+
+    /// The smallest signed distance (minus the thickness) from a free particle to a
+    /// collider posed at the current time, and the number of particle-collider pairs
+    /// closer than `dhat`; `None` without contact. Computed afresh (`O(particles x
+    /// colliders)`), independently of the integrator.
+    #[must_use]
+    pub fn contact_distances(&self) -> Option<(f64, usize)> {
+        let contact = self.contact.as_ref()?;
+        let mut min = f64::INFINITY;
+        let mut pairs = 0;
+        for c in &contact.colliders {
+            let shape = c.at(self.time);
+            for (x, fixed) in self.system.positions().iter().zip(self.system.fixed()) {
+                if *fixed {
+                    continue;
+                }
+                let d = signed_distance(&shape, *x, contact.settings.thickness).distance;
+                min = min.min(d);
+                if d < contact.settings.dhat {
+                    pairs += 1;
+                }
+            }
+        }
+        Some((min, pairs))
+    }
+
+    /// Time since the start: the sum of the steps taken.
+    #[must_use]
+    pub fn time(&self) -> f64 {
+        self.time
     }
 
     /// Advances by `dt`. On error the system is unchanged.
     pub fn step(&mut self, dt: f64) -> Result<StepReport, StepError> {
+        crate::model::check_time_step(dt)?;
+        if let (Some(contact), Stepper::BackwardEuler(_)) = (&mut self.contact, &self.stepper) {
+            // The minimization starts from an admissible state: the step's start, with
+            // particles a kinematic collider would run over carried along with it
+            // (the contact term does the same to Newton's first iterate). Two colliders
+            // closing in on one particle within one step make that impossible.
+            contact.scratch.clear();
+            contact.scratch.extend_from_slice(self.system.positions());
+            crate::contact::potential::carry_with_colliders(
+                &contact.colliders,
+                &contact.settings,
+                self.time,
+                self.time + dt,
+                self.system.positions(),
+                self.system.fixed(),
+                &mut contact.scratch,
+            )
+            .map_err(|(particle, collider)| StepError::Contact { particle, collider })?;
+        }
+        let report = self.step_integrator(dt)?;
+        self.time += dt;
+        if let Some(contact) = &mut self.contact
+            && contact.stats.is_none()
+        {
+            // Explicit integrators: project after the step (not guaranteed).
+            for i in 0..self.system.len() {
+                if self.system.fixed()[i] {
+                    continue;
+                }
+                let mut x = self.system.positions()[i];
+                let mut v = self.system.velocities()[i];
+                let mut moved = false;
+                for collider in &contact.colliders {
+                    let p = project_particle(
+                        collider,
+                        self.time,
+                        x,
+                        v,
+                        contact.settings.thickness,
+                        contact.settings.mu,
+                    );
+                    if p.contact {
+                        (x, v) = (p.position, p.velocity);
+                        moved = true;
+                        contact.projections += 1;
+                    }
+                }
+                if moved {
+                    let (positions, velocities) = self.system.state_mut();
+                    positions[i] = x;
+                    velocities[i] = v;
+                }
+            }
+        }
+        Ok(report)
+    }
+
+    fn step_integrator(&mut self, dt: f64) -> Result<StepReport, StepError> {
         match &mut self.stepper {
             Stepper::BackwardEuler(be) => be.step(&mut self.system, dt),
             Stepper::SymplecticEuler(se) => se.step(&mut self.system, dt),

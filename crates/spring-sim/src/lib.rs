@@ -6,6 +6,9 @@
 //! - [`model`]: particles, springs, material, validation with errors naming the item,
 //!   builders ([`ClothGrid`] for WORKLOADS.md W4-W6, [`Rope`]).
 //! - [`spring`]: per-spring energy, gradient, exact Hessian block and its PSD projection.
+//! - [`potential`]: the incremental potential as a sum of terms (inertia, gravity,
+//!   springs, axial damping), each written once with its energy, change along a
+//!   direction, gradient, PSD-projected Hessian blocks and largest safe step.
 //! - [`newton`]: [`BackwardEuler`], Newton with Armijo backtracking on the incremental
 //!   potential over the free particles, stopping at `|grad g|_inf <= tol m_min / h^2`.
 //! - [`linear`]: the sparse Cholesky (symbolic once per topology) and block-Jacobi PCG
@@ -18,6 +21,9 @@
 //!   [`Integrator::VelocityVerlet`] and `auto` ([`Integrator::Auto`]) choose the substep
 //!   count and which refuses a count below it. [`mod@reference`]: comparison only.
 //! - [`metrics`]: [`metrics::run`], a whole run with the metrics scene runners print.
+//! - [`contact`]: contact with rigid colliders after IPC (half-space, sphere, capsule,
+//!   static or kinematic): signed distances, the log barrier, the time of impact,
+//!   lagged smoothed friction, and a projection for the explicit integrators.
 //!
 //! Linear solver choice (`Auto`): the first step uses PCG, the second the direct solve;
 //! from then on each step uses the one with the smaller measured time per step (the
@@ -34,6 +40,7 @@
 //!
 //! Derivations: docs/spring-sim.md. Measurements: docs/bench/spring-sim.md.
 
+pub mod contact;
 pub mod explicit;
 pub mod implicit;
 pub mod integrator;
@@ -42,6 +49,7 @@ pub mod metrics;
 pub mod model;
 pub mod newton;
 mod pattern;
+pub mod potential;
 pub mod reference;
 pub mod report;
 pub mod spring;

@@ -482,18 +482,6 @@ impl SpringSystem {
         (&mut self.positions, &mut self.velocities)
     }
 
-    /// The mutable state next to the read-only model, for explicit integrators.
-    pub(crate) fn parts_mut(&mut self) -> StateAndModel<'_> {
-        StateAndModel {
-            positions: &mut self.positions,
-            velocities: &mut self.velocities,
-            masses: &self.masses,
-            fixed: &self.fixed,
-            springs: &self.springs,
-            material: &self.material,
-        }
-    }
-
     /// Smallest mass over free particles (the scale of the stopping rule); 1 if none.
     #[must_use]
     pub fn min_free_mass(&self) -> f64 {
@@ -553,16 +541,6 @@ impl SpringSystem {
                 .zip(&other.springs)
                 .all(|(s, t)| s.a == t.a && s.b == t.b)
     }
-}
-
-/// Split borrows of a system: mutable state, read-only model.
-pub(crate) struct StateAndModel<'a> {
-    pub(crate) positions: &'a mut [DVec3],
-    pub(crate) velocities: &'a mut [DVec3],
-    pub(crate) masses: &'a [f64],
-    pub(crate) fixed: &'a [bool],
-    pub(crate) springs: &'a [Spring],
-    pub(crate) material: &'a Material,
 }
 
 /// Mechanical energies of a state.

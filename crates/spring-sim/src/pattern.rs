@@ -130,6 +130,43 @@ impl HessianPattern {
         SparseColMatRef::new(self.symbolic.as_ref(), values)
     }
 
+    /// The value slots of the block below the diagonal coupling free particles `fi` and
+    /// `fj` (`fi != fj`; entry `(r, c)` at `3 c + r`, row particle `max(fi, fj)`), or
+    /// `None` when the pattern holds no such pair. A binary search in the column.
+    #[must_use]
+    pub(crate) fn off_block_slots(&self, fi: usize, fj: usize) -> Option<[usize; 9]> {
+        let (col, row) = (fi.min(fj), fi.max(fj));
+        if col == row || row >= self.free_particles.len() {
+            return None;
+        }
+        let col_ptr = self.symbolic.col_ptr();
+        let row_idx = self.symbolic.row_idx();
+        // Column 3 col: three diagonal-block entries, then three rows per neighbour.
+        let start = col_ptr[3 * col] + 3;
+        let neighbours = (col_ptr[3 * col + 1] - start) / 3;
+        // The neighbours are sorted: binary search without allocating.
+        let (mut lo, mut hi) = (0, neighbours);
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if row_idx[start + 3 * mid] < 3 * row {
+                lo = mid + 1;
+            } else {
+                hi = mid;
+            }
+        }
+        if lo == neighbours || row_idx[start + 3 * lo] != 3 * row {
+            return None;
+        }
+        let k = lo;
+        let mut slots = [0usize; 9];
+        for c in 0..3 {
+            for r in 0..3 {
+                slots[3 * c + r] = col_ptr[3 * col + c] + (3 - c) + 3 * k + r;
+            }
+        }
+        Some(slots)
+    }
+
     /// The diagonal block of free particle `f` read back from `values`.
     #[must_use]
     pub(crate) fn diag_block(&self, values: &[f64], f: usize) -> DMat3 {

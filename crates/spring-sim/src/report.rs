@@ -201,6 +201,16 @@ pub enum StepError {
         /// The step.
         dt: f64,
     },
+    /// A particle cannot start a step outside every collider posed at the step's end
+    /// time: kinematic colliders closed in on it from two sides within one step (a
+    /// particle one collider runs over is carried along with it, and then found inside
+    /// another). The step was refused.
+    Contact {
+        /// The particle.
+        particle: usize,
+        /// The collider's index.
+        collider: usize,
+    },
 }
 
 impl std::fmt::Display for StepError {
@@ -214,6 +224,10 @@ impl std::fmt::Display for StepError {
                 f,
                 "{}: particle {particle} became non-finite; the step was undone",
                 integrator.name()
+            ),
+            Self::Contact { particle, collider } => write!(
+                f,
+                "particle {particle} is inside collider {collider} at the step's end time even when carried along by the moving colliders (they close in on it within one step); the step was refused"
             ),
             Self::BelowStabilityBound {
                 integrator,

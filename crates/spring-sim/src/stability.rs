@@ -13,9 +13,15 @@
 //! with the Lanczos `omega_eff` and the Gershgorin `omega_G`: the safety factor covers the
 //! estimate's error and the drift of the state between two estimates, and the Gershgorin
 //! count, which needs no safety factor, caps it. Derivation: docs/integrators.md.
+//!
+//! `K` and `C` are not written here: they are the Hessians of the potential's
+//! [`Springs`] term (PSD-projected) and [`AxialDamping`] term (evaluated with `h = 1`, so
+//! its `c/h u u^T` is `C`), read through a row-sum sink for Gershgorin and a product sink
+//! for Lanczos.
 
 use crate::model::SpringSystem;
-use crate::spring;
+use crate::potential::{AxialDamping, HessianSink, Springs, StepContext, Term};
+use crate::spring::Curvature;
 use sinew_math::DVec3;
 
 /// The fraction of the stability limit the chosen substep count stays under:
@@ -102,73 +108,80 @@ fn substeps_for(ratio: f64) -> usize {
 /// the largest absolute row sum of each matrix. `O(springs)`.
 #[must_use]
 pub fn gershgorin(system: &SpringSystem) -> (f64, f64) {
-    let mut rows = Vec::new();
-    gershgorin_with(system, &mut rows)
+    gershgorin_with(system, &mut RowSums::default())
 }
 
-/// [`gershgorin`] with a reusable buffer for the row sums.
-fn gershgorin_with(system: &SpringSystem, rows: &mut Vec<[DVec3; 2]>) -> (f64, f64) {
+/// The buffers of [`gershgorin`]: the row sums of `K` and `C`, and the damping term
+/// (whose directions are the springs' current ones).
+#[derive(Clone, Debug, Default)]
+struct RowSums {
+    stiffness: Vec<DVec3>,
+    damping: Vec<DVec3>,
+    damping_term: AxialDamping,
+}
+
+/// The context the stability terms are evaluated in: the current state, with `h = 1`,
+/// so the axial damping term's Hessian `c/h u u^T` is the damping matrix `C` itself.
+fn rate_context(system: &SpringSystem) -> StepContext<'_> {
+    let x = system.positions();
+    StepContext::new(system, 1.0, x, x)
+}
+
+/// [`gershgorin`] with reusable buffers.
+fn gershgorin_with(system: &SpringSystem, sums: &mut RowSums) -> (f64, f64) {
     let n = system.len();
     let fixed = system.fixed();
     let x = system.positions();
-    let damping = system.material().damping;
-    // Row sums, three per particle, stiffness [0] and damping [1].
-    rows.clear();
-    rows.resize(n, [DVec3::ZERO; 2]);
-    for s in system.springs() {
-        let d = x[s.a] - x[s.b];
-        let (alpha, beta, u) =
-            spring::hessian_coefficients(d, s.rest_length, s.stiffness, spring::Curvature::Clamped);
-        // Row c of alpha I + beta u u^T: |alpha + beta u_c^2| + sum_{c' != c} |beta u_c u_c'|
-        // = alpha + beta |u_c| |u|_1 (alpha, beta >= 0).
-        let u1 = u.abs().element_sum();
-        let block_k = DVec3::splat(alpha) + beta * u1 * u.abs();
-        let block_c = if damping > 0.0 {
-            let w = spring::damping_direction(x[s.a], x[s.b]);
-            damping * w.abs().element_sum() * w.abs()
-        } else {
-            DVec3::ZERO
-        };
-        // The block appears on the diagonal and, when the other end is free, again as
-        // the coupling block of the same row.
-        let (fa, fb) = (fixed[s.a], fixed[s.b]);
-        let both = if fa || fb { 1.0 } else { 2.0 };
-        if !fa {
-            rows[s.a][0] += both * block_k;
-            rows[s.a][1] += both * block_c;
-        }
-        if !fb {
-            rows[s.b][0] += both * block_k;
-            rows[s.b][1] += both * block_c;
-        }
+    let step = rate_context(system);
+    // K: the springs' PSD-projected Hessian; C: the damping's, along the current
+    // directions. Both from the terms, through the row-sum sink.
+    sums.stiffness.clear();
+    sums.stiffness.resize(n, DVec3::ZERO);
+    sums.damping.clear();
+    sums.damping.resize(n, DVec3::ZERO);
+    Springs.add_hessian(
+        &step,
+        x,
+        Curvature::Clamped,
+        &mut HessianSink::row_sums(fixed, &mut sums.stiffness),
+    );
+    if system.material().damping > 0.0 {
+        sums.damping_term.begin_step(&step);
+        sums.damping_term.add_hessian(
+            &step,
+            x,
+            Curvature::Clamped,
+            &mut HessianSink::row_sums(fixed, &mut sums.damping),
+        );
     }
     let masses = system.masses();
     let mut lk = 0.0f64;
     let mut lc = 0.0f64;
     for i in 0..n {
         if !fixed[i] {
-            lk = lk.max(rows[i][0].max_element() / masses[i]);
-            lc = lc.max(rows[i][1].max_element() / masses[i]);
+            lk = lk.max(sums.stiffness[i].max_element() / masses[i]);
+            lc = lc.max(sums.damping[i].max_element() / masses[i]);
         }
     }
     (lk, lc)
 }
 
-/// `y = M^-1/2 K M^-1/2 x` over all particles (fixed ones are zero in and out).
-fn apply(system: &SpringSystem, inv_sqrt_m: &[f64], x: &[DVec3], y: &mut [DVec3]) {
+/// `y = M^-1/2 K M^-1/2 x` over all particles (fixed ones are zero in and out), with
+/// `K` the springs' PSD-projected Hessian applied through the product sink.
+fn apply(system: &SpringSystem, inv_sqrt_m: &[f64], x: &[DVec3], z: &mut [DVec3], y: &mut [DVec3]) {
+    for ((zi, xi), s) in z.iter_mut().zip(x).zip(inv_sqrt_m) {
+        *zi = *s * *xi;
+    }
     y.fill(DVec3::ZERO);
-    let p = system.positions();
-    for s in system.springs() {
-        let (alpha, beta, u) = spring::hessian_coefficients(
-            p[s.a] - p[s.b],
-            s.rest_length,
-            s.stiffness,
-            spring::Curvature::Clamped,
-        );
-        let z = inv_sqrt_m[s.a] * x[s.a] - inv_sqrt_m[s.b] * x[s.b];
-        let t = alpha * z + beta * u.dot(z) * u;
-        y[s.a] += inv_sqrt_m[s.a] * t;
-        y[s.b] -= inv_sqrt_m[s.b] * t;
+    let step = rate_context(system);
+    Springs.add_hessian(
+        &step,
+        system.positions(),
+        Curvature::Clamped,
+        &mut HessianSink::product(system.fixed(), z, y),
+    );
+    for (yi, s) in y.iter_mut().zip(inv_sqrt_m) {
+        *yi *= *s;
     }
 }
 
@@ -212,11 +225,12 @@ pub fn lanczos_max(system: &SpringSystem, iterations: usize) -> f64 {
     q.iter_mut().for_each(|a| *a /= q_norm);
     let mut q_prev = vec![DVec3::ZERO; n];
     let mut w = vec![DVec3::ZERO; n];
+    let mut z = vec![DVec3::ZERO; n];
     let mut alphas = Vec::with_capacity(steps);
     let mut betas: Vec<f64> = Vec::with_capacity(steps);
     let mut beta_prev = 0.0;
     for _ in 0..steps {
-        apply(system, &inv_sqrt_m, &q, &mut w);
+        apply(system, &inv_sqrt_m, &q, &mut z, &mut w);
         for (wi, qp) in w.iter_mut().zip(&q_prev) {
             *wi -= beta_prev * *qp;
         }
@@ -302,7 +316,7 @@ pub struct StabilityMonitor {
     /// The last Lanczos estimate and the Gershgorin bound of its state.
     estimated: f64,
     estimated_at: f64,
-    rows: Vec<[DVec3; 2]>,
+    rows: RowSums,
 }
 
 /// Relative change of the Gershgorin bound since the last Lanczos estimate that

@@ -7,6 +7,7 @@ use crate::render;
 use serde::Deserialize;
 use serde_json::json;
 use sinew_math::DVec3;
+use sinew_spring_sim::contact::{Collider, ContactSettings, signed_distance};
 use sinew_spring_sim::integrator::AutoSettings;
 use sinew_spring_sim::stability::StabilityBound;
 use sinew_spring_sim::{
@@ -36,6 +37,22 @@ pub struct ClothTask {
     /// against a velocity Verlet run far below its stability limit.
     #[serde(default)]
     pub true_motion_reference: bool,
+    /// Rigid colliders and contact settings (backward Euler: IPC's barrier; explicit
+    /// integrators: a projection, not guaranteed).
+    #[serde(default)]
+    pub contact: Option<ContactSpec>,
+}
+
+/// The colliders of a `Cloth` task and the contact settings.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ContactSpec {
+    /// The colliders.
+    pub colliders: Vec<Collider>,
+    /// `dhat`, thickness, `mu`, `eps_v`, the time-of-impact fraction (defaults:
+    /// sinew-spring-sim's).
+    #[serde(default)]
+    pub settings: ContactSettings,
 }
 
 fn auto() -> Integrator {
@@ -113,7 +130,13 @@ impl ClothTask {
                 self.steps
             ));
         }
-        Simulation::new(system, self.integrator).map_err(|e| format!("integrator: {e}"))
+        let mut sim =
+            Simulation::new(system, self.integrator).map_err(|e| format!("integrator: {e}"))?;
+        if let Some(contact) = &self.contact {
+            sim.set_contact(contact.colliders.clone(), contact.settings)
+                .map_err(|e| format!("contact: {e}"))?;
+        }
+        Ok(sim)
     }
 }
 
@@ -172,6 +195,13 @@ impl TaskSpec for ClothTask {
         let mut energy = vec![(0.0, sim.system().energies().total())];
         let mut iterations = Vec::with_capacity(self.steps);
         let dt = self.dt;
+        // Contact metrics, from distances computed here after every step (independent
+        // of the integrator's own bookkeeping).
+        let colliders: Vec<Collider> = sim.colliders().to_vec();
+        let contact_settings = sim.contact_settings().copied();
+        let mut min_distance = f64::INFINITY;
+        let mut penetrations = 0usize;
+        let mut contact_pairs_max = 0usize;
         let mut progress = ctx.progress(&self.name, self.steps);
         let metrics = run_observed(&mut sim, dt, self.steps, |step, report, system| {
             progress.inc();
@@ -195,6 +225,22 @@ impl TaskSpec for ClothTask {
             ));
             energy.push((time, e.total()));
             iterations.push((time, report.iterations as f64));
+            if let Some(settings) = &contact_settings {
+                let mut pairs = 0;
+                for c in &colliders {
+                    let shape = c.at(time);
+                    for (x, fixed) in system.positions().iter().zip(system.fixed()) {
+                        if *fixed {
+                            continue;
+                        }
+                        let d = signed_distance(&shape, *x, settings.thickness).distance;
+                        min_distance = min_distance.min(d);
+                        penetrations += usize::from(d <= 0.0);
+                        pairs += usize::from(d < settings.dhat);
+                    }
+                }
+                contact_pairs_max = contact_pairs_max.max(pairs);
+            }
             if ctx.render && ((step + 1) % frame_every == 0 || step + 1 == self.steps) {
                 frames.push(system.positions().to_vec());
             }
@@ -266,6 +312,11 @@ impl TaskSpec for ClothTask {
             }
             true_motion = Some((error, check));
         }
+        if penetrations > 0 {
+            failures.push(format!(
+                "{penetrations} particle-collider pairs at distance <= 0 over the run"
+            ));
+        }
         if metrics.diverged {
             failures.push(format!(
                 "diverged: {}",
@@ -313,6 +364,15 @@ impl TaskSpec for ClothTask {
             "true_motion_reference_check".into(),
             json!(true_motion.map(|t| t.1)),
         );
+        if contact_settings.is_some() {
+            out.insert(
+                "min_distance".into(),
+                json!(min_distance.is_finite().then_some(min_distance)),
+            );
+            out.insert("penetrations".into(), json!(penetrations));
+            out.insert("contact_pairs_max".into(), json!(contact_pairs_max));
+            out.insert("kappa".into(), json!(sim.contact_kappa()));
+        }
         // Explicit integrators report substeps where implicit ones report Newton
         // iterations (the metric keys keep one name for both; docs/scenes.md says so).
         let work =

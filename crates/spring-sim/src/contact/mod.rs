@@ -1,0 +1,181 @@
+//! Contact between the particles and rigid colliders, after Incremental Potential
+//! Contact (IPC: Li et al., "Incremental Potential Contact", SIGGRAPH 2020), as separate,
+//! pure and tested pieces.
+//!
+//! - [`collider`]: half-space, sphere and capsule colliders, static or kinematic (a
+//!   constant linear velocity plus a constant angular velocity about the collider's own
+//!   reference point), their validation and their pose at a time.
+//! - [`distance`]: the signed distance from a point to a posed collider, its gradient (the
+//!   unit normal) and its Hessian, with an optional thickness offset.
+//! - [`barrier`]: IPC's log barrier `b(d)`, its derivatives, the per-particle barrier
+//!   energy with its PSD-projected Hessian, and the adaptive barrier stiffness `kappa`.
+//! - [`psd`]: a robust eigen-decomposition of symmetric 3x3 matrices and the projection
+//!   onto positive semidefinite matrices.
+//! - [`toi`]: the time of impact along a line-search direction, the cap that keeps
+//!   every iterate outside every collider.
+//! - [`friction`]: lagged, smoothed Coulomb friction per contact.
+//! - [`potential`]: [`ContactPotential`], the barrier and friction energy of a whole
+//!   system for one implicit step, with a broad phase and the line-search cap.
+//! - [`term`]: [`ContactTerm`], that potential as a term of the implicit integrators'
+//!   minimization ([`crate::potential::Term`]).
+//! - [`projection`]: the position and velocity projection for the explicit integrators
+//!   (not guaranteed: see its documentation).
+//!
+//! The derivations, `kappa`'s rule, the time-of-impact formulas and the argument for the
+//! guarantee (no accepted state has a particle inside a collider) are in
+//! docs/contact.md.
+
+pub mod barrier;
+pub mod collider;
+pub mod distance;
+pub mod friction;
+pub mod potential;
+pub mod projection;
+pub mod psd;
+pub mod term;
+pub mod toi;
+
+pub use barrier::{AdaptiveKappa, KappaSettings, PointBarrier, point_barrier};
+pub use collider::{Collider, Motion, Shape};
+pub use distance::{SignedDistance, signed_distance};
+pub use friction::FrictionContact;
+pub use potential::ContactPotential;
+pub use projection::{ProjectedParticle, project_particle};
+pub use term::{ContactStats, ContactTerm};
+pub use toi::time_of_impact;
+
+use std::fmt;
+
+/// Invalid contact input, naming the offending collider or setting and field.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ContactError {
+    /// A collider field is invalid.
+    BadCollider {
+        /// Index of the collider in its list (`None` when a single collider was checked
+        /// on its own, by [`Collider::validate`]).
+        collider: Option<usize>,
+        /// The collider's shape: "half-space", "sphere" or "capsule".
+        shape: &'static str,
+        /// The field: "point", "normal", "center", "radius", "a", "b",
+        /// "linear_velocity" or "angular_velocity".
+        field: &'static str,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
+    /// Contact was asked of an integrator (or in a way) that does not support it.
+    Unsupported {
+        /// What is not supported (an integrator's name, or the request).
+        what: &'static str,
+    },
+    /// A contact setting is invalid.
+    BadSetting {
+        /// The setting's name ("dhat", "thickness", "mu", "eps_v", ...).
+        name: &'static str,
+        /// The value given.
+        value: f64,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
+}
+
+impl fmt::Display for ContactError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::BadCollider {
+                collider,
+                shape,
+                field,
+                reason,
+            } => {
+                match collider {
+                    Some(i) => write!(f, "collider {i} ({shape})")?,
+                    None => write!(f, "collider ({shape})")?,
+                }
+                write!(f, ": {field} {reason}")
+            }
+            Self::BadSetting {
+                name,
+                value,
+                reason,
+            } => write!(f, "contact setting {name} = {value}: {reason}"),
+            Self::Unsupported { what } => write!(
+                f,
+                "contact is not supported for {what} (backward Euler has the guaranteed barrier; the explicit integrators a projection)"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for ContactError {}
+
+/// The contact settings shared by the barrier, the time of impact and friction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default))]
+pub struct ContactSettings {
+    /// Contact distance `dhat`: the barrier acts where the (thickness-offset) distance
+    /// is below it (default 1e-3, a millimetre in SI scenes).
+    pub dhat: f64,
+    /// Cloth thickness: distances are measured from the collider's surface offset
+    /// outward by this much (default 0).
+    pub thickness: f64,
+    /// Coulomb friction coefficient `mu >= 0` (default 0, frictionless).
+    pub mu: f64,
+    /// Friction's velocity threshold `eps_v` (scene units per second, default 1e-3):
+    /// below this tangential speed friction is smoothed (static friction is
+    /// approximated by a very slow creep), above it it is exactly Coulomb.
+    pub eps_v: f64,
+    /// The time of impact keeps every particle at least `(1 - s)` of its current
+    /// distance from every collider, `s` this fraction (default 0.1, IPC's convention).
+    pub toi_fraction: f64,
+}
+
+impl Default for ContactSettings {
+    fn default() -> Self {
+        Self {
+            dhat: 1e-3,
+            thickness: 0.0,
+            mu: 0.0,
+            eps_v: 1e-3,
+            toi_fraction: 0.1,
+        }
+    }
+}
+
+impl ContactSettings {
+    /// Checks every setting: `dhat > 0`, `thickness >= 0`, `mu >= 0`, `eps_v > 0`,
+    /// `0 < toi_fraction < 1`, all finite. The error names the setting.
+    pub fn validate(&self) -> Result<(), ContactError> {
+        let bad = |name, value, reason| {
+            Err(ContactError::BadSetting {
+                name,
+                value,
+                reason,
+            })
+        };
+        if !(self.dhat.is_finite() && self.dhat > 0.0) {
+            return bad("dhat", self.dhat, "must be positive and finite");
+        }
+        if !(self.thickness.is_finite() && self.thickness >= 0.0) {
+            return bad(
+                "thickness",
+                self.thickness,
+                "must be non-negative and finite",
+            );
+        }
+        if !(self.mu.is_finite() && self.mu >= 0.0) {
+            return bad("mu", self.mu, "must be non-negative and finite");
+        }
+        if !(self.eps_v.is_finite() && self.eps_v > 0.0) {
+            return bad("eps_v", self.eps_v, "must be positive and finite");
+        }
+        if !(self.toi_fraction > 0.0 && self.toi_fraction < 1.0) {
+            return bad(
+                "toi_fraction",
+                self.toi_fraction,
+                "must lie strictly between 0 and 1",
+            );
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,510 @@
+//! The contact energy of a whole system against a list of colliders, for one implicit
+//! step: the barrier over every particle within `dhat` of a collider, the lagged friction
+//! of the step's contacts, their gradient and PSD Hessian blocks, and the largest safe
+//! line-search step (the time-of-impact cap).
+//!
+//! The colliders are posed once per step, at the step's end time, and held there through
+//! the minimization (a kinematic collider is where it will be when the step's positions
+//! are). Every evaluation sums over all particle-collider pairs within `dhat` at the
+//! state it is given (no set is frozen between evaluations), so the energy, its gradient
+//! and its Hessian are those of one function and the line search's decrease test is
+//! exact. A broad phase skips a collider whose distance to the bounding box of the free
+//! particles (for a step: of the segments they sweep) is at least `dhat`: a scene with
+//! no particle near a collider pays one box test per collider per evaluation.
+//!
+//! `kappa` follows IPC's adaptive rule ([`super::barrier`]): it starts at
+//! [`minimum_kappa`] on the first step and doubles (up to 100 times that) when an
+//! iterate's smallest contact distance is below 1% of `dhat` and still falling.
+
+use super::barrier::{
+    AdaptiveKappa, KappaSettings, PointBarrier, barrier, minimum_kappa, point_barrier,
+};
+use super::collider::{Collider, Shape, validate_colliders};
+use super::distance::{distance_pair, signed_distance};
+use super::friction::FrictionContact;
+use super::toi::time_of_impact;
+use super::{ContactError, ContactSettings};
+use sinew_math::{DMat3, DVec3};
+
+/// The contact energy of one system (see the module documentation).
+#[derive(Clone, Debug)]
+pub struct ContactPotential {
+    colliders: Vec<Collider>,
+    settings: ContactSettings,
+    kappa_settings: KappaSettings,
+    kappa: Option<AdaptiveKappa>,
+    /// The current step's end time (the start of the next step).
+    clock: f64,
+    /// The current step's start time.
+    step_start: f64,
+    /// The colliders posed at the current step's end time.
+    posed: Vec<Shape>,
+    friction: Vec<(usize, FrictionContact)>,
+}
+
+impl ContactPotential {
+    /// A contact potential for `colliders` (validated; the error names the collider) with
+    /// `settings` (validated; the error names the setting), starting at time `start_time`.
+    pub fn new(
+        colliders: Vec<Collider>,
+        settings: ContactSettings,
+        start_time: f64,
+    ) -> Result<Self, ContactError> {
+        validate_colliders(&colliders)?;
+        settings.validate()?;
+        if !start_time.is_finite() {
+            return Err(ContactError::BadSetting {
+                name: "start_time",
+                value: start_time,
+                reason: "must be finite",
+            });
+        }
+        let posed = colliders.iter().map(|c| c.at(start_time)).collect();
+        Ok(Self {
+            colliders,
+            settings,
+            kappa_settings: KappaSettings::default(),
+            kappa: None,
+            clock: start_time,
+            step_start: start_time,
+            posed,
+            friction: Vec::new(),
+        })
+    }
+
+    /// The colliders.
+    #[must_use]
+    pub fn colliders(&self) -> &[Collider] {
+        &self.colliders
+    }
+
+    /// The settings.
+    #[must_use]
+    pub fn settings(&self) -> &ContactSettings {
+        &self.settings
+    }
+
+    /// The current barrier stiffness (0 before the first step).
+    #[must_use]
+    pub fn kappa(&self) -> f64 {
+        self.kappa.map_or(0.0, |k| k.kappa)
+    }
+
+    /// The time the colliders are posed at (the current step's end).
+    #[must_use]
+    pub fn time(&self) -> f64 {
+        self.clock
+    }
+
+    /// The colliders posed at [`Self::time`].
+    #[must_use]
+    pub fn posed(&self) -> &[Shape] {
+        &self.posed
+    }
+
+    /// The number of lagged friction contacts of the current step.
+    #[must_use]
+    pub fn friction_contacts(&self) -> usize {
+        self.friction.len()
+    }
+
+    /// Starts a step of length `h` from `positions` (the state at the step's start):
+    /// sets `kappa` on the first step (from the mean free mass, gravity's magnitude, `h`
+    /// and `dhat`), lags the friction contacts at the start state and start time, and
+    /// poses the colliders at the end time.
+    pub fn begin_step(
+        &mut self,
+        positions: &[DVec3],
+        fixed: &[bool],
+        masses: &[f64],
+        gravity: f64,
+        h: f64,
+    ) {
+        let kappa = *self.kappa.get_or_insert_with(|| {
+            let (sum, count) = masses
+                .iter()
+                .zip(fixed)
+                .filter(|(_, f)| !**f)
+                .fold((0.0, 0usize), |(s, c), (m, _)| (s + m, c + 1));
+            let mean = if count > 0 { sum / count as f64 } else { 1.0 };
+            let kmin = minimum_kappa(self.settings.dhat, mean, gravity, h);
+            AdaptiveKappa::new(kmin, None, self.kappa_settings)
+        });
+        let start = self.clock;
+        self.friction.clear();
+        if self.settings.mu > 0.0 {
+            for collider in &self.colliders {
+                let shape = collider.at(start);
+                if box_distance(&shape, &free_box(positions, fixed, None))
+                    >= self.settings.dhat + self.settings.thickness
+                {
+                    continue;
+                }
+                for (i, &x) in positions.iter().enumerate() {
+                    if fixed[i] {
+                        continue;
+                    }
+                    if let Some(contact) =
+                        FrictionContact::lagged(collider, x, start, h, kappa.kappa, &self.settings)
+                    {
+                        self.friction.push((i, contact));
+                    }
+                }
+            }
+        }
+        self.step_start = start;
+        self.clock = start + h;
+        self.posed = self.colliders.iter().map(|c| c.at(self.clock)).collect();
+    }
+
+    /// [`carry_with_colliders`] for the current step (from the time of the last
+    /// [`Self::begin_step`] to [`Self::time`]).
+    pub fn prepare_start(
+        &self,
+        x_n: &[DVec3],
+        fixed: &[bool],
+        x: &mut [DVec3],
+    ) -> Result<(), (usize, usize)> {
+        carry_with_colliders(
+            &self.colliders,
+            &self.settings,
+            self.step_start,
+            self.clock,
+            x_n,
+            fixed,
+            x,
+        )
+    }
+
+    /// The colliders not culled by the broad phase for the box `bounds` (plus the
+    /// thickness and `dhat`).
+    fn near<'a>(&'a self, bounds: &'a Bounds) -> impl Iterator<Item = &'a Shape> + 'a {
+        let reach = self.settings.dhat + self.settings.thickness;
+        self.posed
+            .iter()
+            .filter(move |s| box_distance(s, bounds) < reach)
+    }
+
+    /// The smallest distance (minus the thickness) from a free particle to a collider,
+    /// `+inf` when none is within `dhat` (or there are no colliders).
+    #[must_use]
+    pub fn min_distance(&self, x: &[DVec3], fixed: &[bool]) -> f64 {
+        let bounds = free_box(x, fixed, None);
+        let mut min = f64::INFINITY;
+        for shape in self.near(&bounds) {
+            for (i, &p) in x.iter().enumerate() {
+                if !fixed[i] {
+                    min = min.min(signed_distance(shape, p, self.settings.thickness).distance);
+                }
+            }
+        }
+        if min < self.settings.dhat {
+            min
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// Adapts `kappa` to the iterate `x` (IPC's rule, see [`AdaptiveKappa::update`]);
+    /// returns whether it grew.
+    pub fn update_kappa(&mut self, x: &[DVec3], fixed: &[bool]) -> bool {
+        let d = self.min_distance(x, fixed);
+        let dhat = self.settings.dhat;
+        self.kappa.as_mut().is_some_and(|k| k.update(d, dhat))
+    }
+
+    /// The first free particle at distance `<= 0` from a collider (touching or inside)
+    /// and that collider's index, if any.
+    #[must_use]
+    pub fn first_penetration(&self, x: &[DVec3], fixed: &[bool]) -> Option<(usize, usize)> {
+        let bounds = free_box(x, fixed, None);
+        let reach = self.settings.dhat + self.settings.thickness;
+        for (c, shape) in self.posed.iter().enumerate() {
+            if box_distance(shape, &bounds) >= reach {
+                continue;
+            }
+            for (i, &p) in x.iter().enumerate() {
+                if !fixed[i] && signed_distance(shape, p, self.settings.thickness).distance <= 0.0 {
+                    return Some((i, c));
+                }
+            }
+        }
+        None
+    }
+
+    /// The barrier energy alone at `x` (`+inf` if a free particle touches or is inside a
+    /// collider).
+    #[must_use]
+    pub fn barrier_energy(&self, x: &[DVec3], fixed: &[bool]) -> f64 {
+        let Some(kappa) = self.kappa else {
+            return 0.0;
+        };
+        let bounds = free_box(x, fixed, None);
+        let mut e = 0.0;
+        for shape in self.near(&bounds) {
+            for (i, &p) in x.iter().enumerate() {
+                if !fixed[i] {
+                    let d = signed_distance(shape, p, self.settings.thickness).distance;
+                    e += kappa.kappa * barrier(d, self.settings.dhat);
+                }
+            }
+        }
+        e
+    }
+
+    /// The friction energy alone at `x`.
+    #[must_use]
+    pub fn friction_energy(&self, x: &[DVec3]) -> f64 {
+        self.friction.iter().map(|(i, c)| c.energy(x[*i])).sum()
+    }
+
+    /// Barrier plus friction energy at `x`.
+    #[must_use]
+    pub fn energy(&self, x: &[DVec3], fixed: &[bool]) -> f64 {
+        self.barrier_energy(x, fixed) + self.friction_energy(x)
+    }
+
+    /// `E(x + alpha dx) - E(x)`, summed pair by pair (each pair's barrier difference and
+    /// each contact's friction difference), so it keeps the accuracy of the small changes
+    /// near convergence; `+inf` if the new state touches a collider.
+    #[must_use]
+    pub fn energy_change(&self, x: &[DVec3], dx: &[DVec3], alpha: f64, fixed: &[bool]) -> f64 {
+        let mut change = 0.0;
+        if let Some(kappa) = self.kappa {
+            let bounds = free_box(x, fixed, Some((dx, alpha)));
+            let dhat = self.settings.dhat;
+            for shape in self.near(&bounds) {
+                for (i, &p) in x.iter().enumerate() {
+                    if fixed[i] {
+                        continue;
+                    }
+                    let (d0, d1) = distance_pair(shape, p, alpha * dx[i], self.settings.thickness);
+                    if d1 <= 0.0 {
+                        return f64::INFINITY;
+                    }
+                    if d0 < dhat || d1 < dhat {
+                        change += kappa.kappa * (barrier(d1, dhat) - barrier(d0, dhat));
+                    }
+                }
+            }
+        }
+        for (i, c) in &self.friction {
+            change += c.energy_change(x[*i], alpha * dx[*i]);
+        }
+        change
+    }
+
+    /// Adds the gradient at `x` (one entry per particle; fixed particles get nothing).
+    pub fn add_gradient(&self, x: &[DVec3], fixed: &[bool], gradient: &mut [DVec3]) {
+        if let Some(kappa) = self.kappa {
+            let bounds = free_box(x, fixed, None);
+            for shape in self.near(&bounds) {
+                for (i, &p) in x.iter().enumerate() {
+                    if fixed[i] {
+                        continue;
+                    }
+                    let sd = signed_distance(shape, p, self.settings.thickness);
+                    if let PointBarrier::Active { gradient: g, .. } =
+                        point_barrier(kappa.kappa, self.settings.dhat, &sd)
+                    {
+                        gradient[i] += g;
+                    }
+                }
+            }
+        }
+        for (i, c) in &self.friction {
+            if !fixed[*i] {
+                gradient[*i] += c.gradient(x[*i]);
+            }
+        }
+    }
+
+    /// Gives every PSD-projected diagonal block `(i, H_ii)` of the Hessian at `x` to
+    /// `add` (contact with a rigid collider couples no two particles, so every block is
+    /// diagonal; a particle may get several blocks).
+    pub fn for_each_hessian_block(
+        &self,
+        x: &[DVec3],
+        fixed: &[bool],
+        mut add: impl FnMut(usize, DMat3),
+    ) {
+        if let Some(kappa) = self.kappa {
+            let bounds = free_box(x, fixed, None);
+            for shape in self.near(&bounds) {
+                for (i, &p) in x.iter().enumerate() {
+                    if fixed[i] {
+                        continue;
+                    }
+                    let sd = signed_distance(shape, p, self.settings.thickness);
+                    if let PointBarrier::Active { hessian, .. } =
+                        point_barrier(kappa.kappa, self.settings.dhat, &sd)
+                    {
+                        add(i, hessian);
+                    }
+                }
+            }
+        }
+        for (i, c) in &self.friction {
+            if !fixed[*i] {
+                add(*i, c.hessian(x[*i]));
+            }
+        }
+    }
+
+    /// The largest `alpha` in `[0, horizon]` such that on `x + [0, alpha] dx` no free
+    /// particle comes closer to a (posed) collider than `(1 - s)` of its distance at `x`
+    /// ([`time_of_impact`] along `horizon dx`, with the colliders held at the step's
+    /// end); `horizon` itself when nothing comes that close. `horizon` is the longest
+    /// step the caller may try (1 for a plain Newton step; more for a line search that
+    /// lengthens accepted steps). Particles whose swept segment stays `dhat` away from a
+    /// collider are skipped: they stay farther than `dhat > 0` from it.
+    #[must_use]
+    pub fn max_step(&self, x: &[DVec3], dx: &[DVec3], fixed: &[bool], horizon: f64) -> f64 {
+        let bounds = free_box(x, fixed, Some((dx, horizon)));
+        let reach = self.settings.dhat + self.settings.thickness;
+        let mut alpha: f64 = 1.0;
+        for shape in self.near(&bounds) {
+            let still = Collider::fixed(*shape);
+            for (i, &p) in x.iter().enumerate() {
+                if fixed[i] {
+                    continue;
+                }
+                let sweep = horizon * dx[i];
+                if box_distance(shape, &Bounds::of_segment(p, sweep)) >= reach {
+                    continue;
+                }
+                let a = time_of_impact(
+                    &still,
+                    p,
+                    sweep,
+                    0.0,
+                    0.0,
+                    self.settings.thickness,
+                    self.settings.toi_fraction,
+                );
+                alpha = alpha.min(a);
+            }
+        }
+        alpha * horizon
+    }
+}
+
+/// Moves a first iterate `x` so that a kinematic collider does not run over it: with the
+/// colliders moving from their poses at `t0` to those at `t1`, a free particle whose
+/// distance at `x` to a collider posed at `t1` is below half of `min(d_0, dhat)` (`d_0`
+/// its distance at the step's start `x_n` to the collider posed at `t0`) is put at its
+/// start position carried by that collider's rigid motion from `t0` to `t1`, which keeps
+/// exactly its distance `d_0 > 0` to that collider. A collider whose motion leaves its
+/// surface in place (a sphere spinning about its centre) never triggers it, since it
+/// does not change the distance. Returns the first free particle still touching or inside
+/// a collider posed at `t1` after that, with the collider's index (two colliders closing
+/// in on one particle within one step).
+#[allow(clippy::too_many_arguments)]
+pub fn carry_with_colliders(
+    colliders: &[Collider],
+    settings: &ContactSettings,
+    t0: f64,
+    t1: f64,
+    x_n: &[DVec3],
+    fixed: &[bool],
+    x: &mut [DVec3],
+) -> Result<(), (usize, usize)> {
+    let tau = settings.thickness;
+    for collider in colliders.iter().filter(|c| !c.is_static()) {
+        let (start, end) = (collider.at(t0), collider.at(t1));
+        let (r0, r1) = (
+            collider.reference_point_at(t0),
+            collider.reference_point_at(t1),
+        );
+        let turn = collider.rotation_at(t1) * collider.rotation_at(t0).inverse();
+        for i in 0..x.len() {
+            if fixed[i] {
+                continue;
+            }
+            let d_end = signed_distance(&end, x[i], tau).distance;
+            if d_end >= settings.dhat {
+                continue;
+            }
+            let d_start = signed_distance(&start, x_n[i], tau).distance;
+            if d_start > 0.0 && d_end < 0.5 * d_start.min(settings.dhat) {
+                x[i] = r1 + turn * (x_n[i] - r0);
+            }
+        }
+    }
+    for (c, collider) in colliders.iter().enumerate() {
+        let shape = collider.at(t1);
+        for i in 0..x.len() {
+            if !fixed[i] && signed_distance(&shape, x[i], tau).distance <= 0.0 {
+                return Err((i, c));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// An axis-aligned box (empty when `min > max`).
+#[derive(Clone, Copy, Debug)]
+struct Bounds {
+    min: DVec3,
+    max: DVec3,
+}
+
+impl Bounds {
+    const EMPTY: Self = Self {
+        min: DVec3::INFINITY,
+        max: DVec3::NEG_INFINITY,
+    };
+
+    fn of_segment(p: DVec3, dp: DVec3) -> Self {
+        Self {
+            min: p.min(p + dp),
+            max: p.max(p + dp),
+        }
+    }
+
+    fn is_empty(&self) -> bool {
+        self.min.x > self.max.x
+    }
+}
+
+/// The box around the free particles, or around the segments `x + [0, alpha] dx` they
+/// sweep.
+fn free_box(x: &[DVec3], fixed: &[bool], step: Option<(&[DVec3], f64)>) -> Bounds {
+    let mut b = Bounds::EMPTY;
+    for (i, &p) in x.iter().enumerate() {
+        if fixed[i] {
+            continue;
+        }
+        b.min = b.min.min(p);
+        b.max = b.max.max(p);
+        if let Some((dx, alpha)) = step {
+            let q = p + alpha * dx[i];
+            b.min = b.min.min(q);
+            b.max = b.max.max(q);
+        }
+    }
+    b
+}
+
+/// A lower bound on the signed distance from any point of `bounds` to `shape` (`+inf`
+/// for an empty box).
+fn box_distance(shape: &Shape, bounds: &Bounds) -> f64 {
+    if bounds.is_empty() {
+        return f64::INFINITY;
+    }
+    let gap = |lo: DVec3, hi: DVec3| {
+        // Distance between two boxes (0 when they overlap).
+        let d = (lo - bounds.max).max(bounds.min - hi).max(DVec3::ZERO);
+        d.length()
+    };
+    match *shape {
+        Shape::HalfSpace { point, normal } => {
+            // The minimum of a linear function over a box is at the corner the normal
+            // points away from.
+            let corner = DVec3::select(normal.cmpge(DVec3::ZERO), bounds.min, bounds.max);
+            normal.dot(corner - point)
+        }
+        Shape::Sphere { center, radius } => gap(center, center) - radius,
+        Shape::Capsule { a, b, radius } => gap(a.min(b), a.max(b)) - radius,
+    }
+}

@@ -1,0 +1,82 @@
+//! The line search: Armijo backtracking from the Newton step, then doubling of an
+//! accepted full step while `g` keeps falling, never beyond the terms' largest safe step.
+//!
+//! The changes of `g` are computed by the terms from the differences themselves (see
+//! [`crate::spring::energy_change`]), so the sufficient-decrease test stays meaningful
+//! when the change is far below `g`. A change that is `+inf` or NaN (a state a term does
+//! not admit) fails the test like any increase.
+
+use super::NewtonSettings;
+use crate::potential::{Potential, StepContext};
+use sinew_math::DVec3;
+
+/// The most doublings of an accepted full Newton step in one line search (a step up to
+/// 2^10 times the Newton step).
+pub(super) const MAX_EXPANSIONS: usize = 10;
+
+/// What one line search found.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Outcome {
+    /// The accepted step length, `None` when no tried step decreased `g` enough.
+    pub(super) alpha: Option<f64>,
+    /// Step halvings.
+    pub(super) backtracks: usize,
+}
+
+/// Searches along `dx` from `x` with slope `grad g . dx = slope < 0`.
+pub(super) fn search(
+    potential: &Potential,
+    step: &StepContext<'_>,
+    x: &[DVec3],
+    dx: &[DVec3],
+    slope: f64,
+    settings: &NewtonSettings,
+) -> Outcome {
+    // A term with a barrier caps the step so no tried state leaves its domain.
+    let cap = potential.max_step(step, x, dx);
+    let mut alpha = cap.min(1.0);
+    let mut backtracks = 0;
+    let mut accepted = None;
+    if alpha > 0.0 {
+        for _ in 0..=settings.max_backtracks {
+            let change = potential.energy_change(step, x, dx, alpha);
+            if change <= settings.armijo * alpha * slope {
+                accepted = Some(change);
+                break;
+            }
+            backtracks += 1;
+            alpha *= 0.5;
+        }
+    }
+    let Some(mut best) = accepted else {
+        return Outcome {
+            alpha: None,
+            backtracks,
+        };
+    };
+    if alpha == 1.0 {
+        // The full step was accepted: where compressed springs make g non-convex, the
+        // projected Hessian overstates the curvature and its step is too short, so Newton
+        // crawls (hundreds of iterations on a sheet compressed to half size,
+        // docs/stress.md). Double the step while g keeps falling and Armijo holds. Near a
+        // minimum of a quadratic model the doubled step gives no decrease at all, so this
+        // costs one evaluation of the change of g there and never changes a step that was
+        // already right.
+        for _ in 0..MAX_EXPANSIONS {
+            if 2.0 * alpha > cap {
+                break;
+            }
+            let trial = potential.energy_change(step, x, dx, 2.0 * alpha);
+            if trial < best && trial <= settings.armijo * 2.0 * alpha * slope {
+                alpha *= 2.0;
+                best = trial;
+            } else {
+                break;
+            }
+        }
+    }
+    Outcome {
+        alpha: Some(alpha),
+        backtracks,
+    }
+}

@@ -1,0 +1,228 @@
+//! The minimization of one step: Newton iterations on the terms of the potential, each
+//! assembling the gradient and the (PSD-projected, or once Newton is slow, softened)
+//! Hessian, solving with the chosen linear solver and searching along the step
+//! ([`super::line_search`]).
+
+use super::{BackwardEuler, line_search};
+use crate::linear::{LinearSolverKind, dot};
+use crate::model::{ModelError, SpringSystem};
+use crate::potential::{HessianSink, StepContext};
+use crate::report::{IntegratorKind, StepReport, StopReason};
+use crate::spring::Curvature;
+use sinew_math::DVec3;
+use std::time::Instant;
+
+/// The softened Hessian (see [`Curvature::Softened`]): after a failed attempt `theta`
+/// moves to `1 - SOFTENING_RAISE (1 - theta)` (0, 0.3, 0.51, 0.66, ...).
+const SOFTENING_RAISE: f64 = 0.7;
+/// The largest `theta` tried before the projected Hessian is used (10 attempts from 0).
+const SOFTENING_MAX_THETA: f64 = 0.97;
+/// After a success the next iteration starts from `SOFTENING_LOWER theta` ...
+const SOFTENING_LOWER: f64 = 0.5;
+/// ... or from the exact Hessian once `theta` is below this.
+const SOFTENING_EXACT_BELOW: f64 = 0.05;
+
+impl BackwardEuler {
+    /// Minimizes `g` from `self.x` in place.
+    pub(super) fn minimize(
+        &mut self,
+        system: &SpringSystem,
+        h: f64,
+    ) -> Result<StepReport, ModelError> {
+        let dim = self.pattern.dim();
+        let kind = self.choose_solver(dim)?;
+        let started = Instant::now();
+        let tol_abs = self.settings.tolerance * system.min_free_mass() / (h * h);
+        let mut report = StepReport::new(IntegratorKind::BackwardEuler);
+        report.linear_solver = Some(kind);
+        report.tolerance = tol_abs;
+        self.objective_trace.clear();
+        let y = std::mem::take(&mut self.y);
+        let x_ref = std::mem::take(&mut self.x_ref);
+        let step = StepContext::new(system, h, &y, &x_ref);
+        let mut first_residual_l2 = 0.0;
+        let mut previous_residual = f64::INFINITY;
+        // Once an iteration is slow, every later one of the step tries the softened
+        // Hessian first, starting from `theta` (see `SOFTENING_*`).
+        let mut softening = false;
+        let mut theta = 0.0f64;
+        loop {
+            self.potential.update_active_set(&step, &self.x);
+            if self.settings.record_objective {
+                self.objective_trace
+                    .push(self.potential.energy(&step, &self.x));
+            }
+            self.assemble_gradient(&step);
+            let residual = self.grad.iter().fold(0.0f64, |m, g| m.max(g.abs()));
+            report.residual = residual;
+            if !residual.is_finite() {
+                report.stop = StopReason::NonFinite;
+                break;
+            }
+            if residual <= tol_abs {
+                report.stop = StopReason::Converged;
+                break;
+            }
+            if report.iterations >= self.settings.max_iterations {
+                report.stop = StopReason::IterationCap;
+                break;
+            }
+            report.iterations += 1;
+            for (r, g) in self.rhs.iter_mut().zip(&self.grad) {
+                *r = -g;
+            }
+            let residual_l2 = dot(&self.grad, &self.grad).sqrt();
+            if report.iterations == 1 {
+                first_residual_l2 = residual_l2;
+            }
+            let mut solved = false;
+            // The PSD projection drops the negative curvature of compressed springs, so
+            // the projected step ignores the directions along which a compressed sheet
+            // buckles, and Newton crawls (hundreds of iterations from a sheet compressed
+            // to half size, docs/stress.md). Once an iteration reduced the residual by
+            // less than 4x, every later iteration of the step first tries the softened
+            // Hessian `H(theta)`, which keeps the fraction `1 - theta` of that negative
+            // curvature: the exact Hessian at `theta = 0`, the projected one at 1. It is
+            // used when it is positive definite (the direct solver factors it without
+            // shifts; PCG meets no non-positive curvature), `theta` is raised towards 1
+            // while it is not, and lowered again after a success, so the step keeps as
+            // much of the true curvature as the matrix can take (docs/spring-sim.md).
+            softening |= report.iterations > 1 && residual > 0.25 * previous_residual;
+            previous_residual = residual;
+            // Inexact Newton for PCG: the forcing term tightens as the gradient falls,
+            // and never asks for more than what ends the step.
+            let forcing = (residual_l2 / first_residual_l2).min(self.settings.pcg_forcing);
+            let floor = 0.1 * tol_abs / residual_l2;
+            let rtol = forcing.max(floor).max(1e-13);
+            if softening {
+                while theta <= SOFTENING_MAX_THETA {
+                    self.assemble_hessian(&step, Curvature::Softened(theta));
+                    if kind == LinearSolverKind::Direct {
+                        if let Some(direct) = self.direct.as_mut() {
+                            self.dx.copy_from_slice(&self.rhs);
+                            solved =
+                                direct.solve_unshifted(&self.pattern, &self.values, &mut self.dx);
+                        }
+                    } else {
+                        // CG meets a direction of non-positive curvature exactly when the
+                        // matrix is not positive definite along the Krylov space it
+                        // explores.
+                        self.dx.fill(0.0);
+                        let outcome = self.pcg.solve(
+                            &self.pattern,
+                            &self.values,
+                            &self.rhs,
+                            &mut self.dx,
+                            rtol,
+                            self.settings.pcg_max_iterations,
+                        );
+                        report.linear_iterations += outcome.iterations;
+                        solved = !outcome.negative_curvature;
+                    }
+                    if solved {
+                        break;
+                    }
+                    theta = 1.0 - SOFTENING_RAISE * (1.0 - theta);
+                }
+                if solved {
+                    report.exact_hessian_iterations += 1;
+                    theta = if theta < SOFTENING_EXACT_BELOW {
+                        0.0
+                    } else {
+                        SOFTENING_LOWER * theta
+                    };
+                } else {
+                    // Start the next iteration's attempts from the largest theta tried.
+                    theta = SOFTENING_MAX_THETA;
+                    self.assemble_hessian(&step, Curvature::Clamped);
+                }
+            } else {
+                self.assemble_hessian(&step, Curvature::Clamped);
+            }
+            if !solved
+                && kind == LinearSolverKind::Direct
+                && let Some(direct) = self.direct.as_mut()
+            {
+                self.dx.copy_from_slice(&self.rhs);
+                let outcome = direct.solve(&self.pattern, &self.values, &mut self.dx);
+                report.shifted_factorizations += outcome.shifts;
+                if outcome.failed {
+                    report.direct_failures += 1;
+                } else {
+                    solved = true;
+                }
+            }
+            if !solved {
+                self.dx.fill(0.0);
+                let outcome = self.pcg.solve(
+                    &self.pattern,
+                    &self.values,
+                    &self.rhs,
+                    &mut self.dx,
+                    rtol,
+                    self.settings.pcg_max_iterations,
+                );
+                report.linear_iterations += outcome.iterations;
+            }
+            let mut slope = dot(&self.grad, &self.dx);
+            if slope.is_nan() || slope >= 0.0 {
+                // Not a descent direction (only from a solve gone wrong): fall back to
+                // the steepest descent direction scaled by the mass matrix.
+                for (f, &p) in self.pattern.free_particles.iter().enumerate() {
+                    let scale = h * h / system.masses()[p];
+                    for c in 0..3 {
+                        self.dx[3 * f + c] = -scale * self.grad[3 * f + c];
+                    }
+                }
+                slope = dot(&self.grad, &self.dx);
+                report.descent_fallbacks += 1;
+            }
+            for (f, &p) in self.pattern.free_particles.iter().enumerate() {
+                self.dx_particles[p] =
+                    DVec3::new(self.dx[3 * f], self.dx[3 * f + 1], self.dx[3 * f + 2]);
+            }
+            let outcome = line_search::search(
+                &self.potential,
+                &step,
+                &self.x,
+                &self.dx_particles,
+                slope,
+                &self.settings,
+            );
+            report.backtracks += outcome.backtracks;
+            let Some(alpha) = outcome.alpha else {
+                report.stop = StopReason::LineSearchStalled;
+                break;
+            };
+            for &p in &self.pattern.free_particles {
+                self.x[p] += alpha * self.dx_particles[p];
+            }
+        }
+        self.y = y;
+        self.x_ref = x_ref;
+        self.chooser
+            .record(kind, started.elapsed().as_secs_f64(), report.iterations);
+        Ok(report)
+    }
+
+    /// Writes `grad g` at `self.x` over the free unknowns into `self.grad`.
+    fn assemble_gradient(&mut self, step: &StepContext<'_>) {
+        self.potential
+            .gradient(step, &self.x, &mut self.grad_particles);
+        for (f, &p) in self.pattern.free_particles.iter().enumerate() {
+            let g = self.grad_particles[p];
+            self.grad[3 * f] = g.x;
+            self.grad[3 * f + 1] = g.y;
+            self.grad[3 * f + 2] = g.z;
+        }
+    }
+
+    /// Writes the Newton matrix at `self.x` in the form `curvature` asks for into
+    /// `self.values`.
+    fn assemble_hessian(&mut self, step: &StepContext<'_>, curvature: Curvature) {
+        self.values.fill(0.0);
+        let mut sink = HessianSink::values(&self.pattern, &mut self.values);
+        self.potential
+            .add_hessian(step, &self.x, curvature, &mut sink);
+    }
+}

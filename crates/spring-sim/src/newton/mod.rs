@@ -1,0 +1,375 @@
+//! Backward Euler as a minimization, solved by Newton's method on the sparse Hessian.
+//!
+//! One step minimizes the incremental potential
+//! `g(x) = 1/(2 h^2) |x - y|_M^2 + E_spring(x) + E_gravity(x) + D(x)` over the free
+//! particles, with `y = x_n + h v_n` and `D(x) = c/(2h) sum_s (u_s . (d_s(x) - d_s(x_n)))^2`
+//! the axial damping with each spring's direction `u_s` frozen at the step's start. The
+//! machinery is written for a general "effective step" `h` and prediction `y`, so other
+//! one-step implicit integrators reduce to the same minimization (implicit midpoint:
+//! `h/2` and `y = x_n + h/2 v_n`; BDF2: `2h/3` and its two-step prediction).
+//!
+//! The summands of `g` are the terms of a [`Potential`] built once per integrator
+//! ([`crate::potential`]); nothing here names a term. Each Newton iteration assembles the
+//! terms' gradient and PSD-projected Hessian into the pattern built once
+//! ([`HessianPattern`]) (once Newton is slow, a softened Hessian that
+//! keeps part of the compressed springs' negative curvature, where it is positive
+//! definite: [`Curvature::Softened`]), solves with the chosen linear solver, and
+//! backtracks (Armijo) so `g` never increases. The objective changes in the line search
+//! are computed from the differences themselves (see [`crate::spring::energy_change`]),
+//! so the sufficient-decrease test stays meaningful when the change is far below `g`.
+//! The code is split by concern: [`NewtonSettings`] (settings), the `Auto` solver choice
+//! (solver_choice), the iteration (minimize) and the line search (line_search).
+//! Stops when `|grad g|_inf <= tolerance * m_min / h^2` (`m_min` the smallest free mass),
+//! at the iteration cap, or when the line search cannot decrease `g` any more.
+//! The derivation and the rules are in docs/spring-sim.md.
+
+mod line_search;
+mod minimize;
+mod settings;
+mod solver_choice;
+
+pub use settings::{InitialGuess, NewtonSettings};
+
+use crate::linear::{
+    DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, PcgSolver,
+};
+use crate::model::{ModelError, SpringSystem, check_time_step};
+use crate::pattern::{FIXED, HessianPattern};
+use crate::potential::{HessianSink, Potential, StepContext, Term};
+use crate::report::{IntegratorKind, StepError, StepReport};
+use crate::spring::Curvature;
+use sinew_math::DVec3;
+use solver_choice::SolverChooser;
+
+/// Which one-step (or two-step) implicit scheme a minimization implements.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Scheme<'a> {
+    /// `h_eff = h`, `y = x_n + h v_n`.
+    BackwardEuler,
+    /// The midpoint `z`: `h_eff = h/2`, `y = x_n + h/2 v_n`; `x' = 2z - x_n`.
+    Midpoint,
+    /// `h_eff = 2h/3`, `y = (4 x_n - x_{n-1})/3 + h_eff (4 v_n - v_{n-1})/3`.
+    Bdf2 {
+        /// `x_{n-1}`.
+        prev_x: &'a [DVec3],
+        /// `v_{n-1}`.
+        prev_v: &'a [DVec3],
+    },
+}
+
+/// The backward Euler integrator: Newton on the incremental potential, with its
+/// workspace (pattern, factorization, buffers) built once for a topology.
+#[derive(Debug)]
+pub struct BackwardEuler {
+    settings: NewtonSettings,
+    pattern: HessianPattern,
+    direct: Option<DirectSolver>,
+    pcg: PcgSolver,
+    values: Vec<f64>,
+    grad: Vec<f64>,
+    dx: Vec<f64>,
+    rhs: Vec<f64>,
+    x: Vec<DVec3>,
+    y: Vec<DVec3>,
+    x_ref: Vec<DVec3>,
+    /// The terms of `g`, assembled once.
+    potential: Potential,
+    /// `grad g` per particle (fixed ones included, then dropped).
+    grad_particles: Vec<DVec3>,
+    /// The Newton direction per particle (zero at fixed particles).
+    dx_particles: Vec<DVec3>,
+    prev_velocity: Vec<DVec3>,
+    have_prev_velocity: bool,
+    chooser: SolverChooser,
+    objective_trace: Vec<f64>,
+    particle_count: usize,
+    spring_count: usize,
+}
+
+impl BackwardEuler {
+    /// A workspace for `system`'s topology.
+    pub fn new(system: &SpringSystem, settings: NewtonSettings) -> Result<Self, ModelError> {
+        settings.validate()?;
+        let pattern = HessianPattern::new(system);
+        let n = pattern.dim();
+        let direct = if settings.linear_solver == LinearSolverChoice::Direct {
+            Some(Self::build_direct(&pattern, settings.factor_structure)?)
+        } else {
+            None
+        };
+        Ok(Self {
+            settings,
+            pcg: PcgSolver::new(&pattern),
+            values: vec![0.0; pattern.nnz()],
+            grad: vec![0.0; n],
+            dx: vec![0.0; n],
+            rhs: vec![0.0; n],
+            x: system.positions().to_vec(),
+            y: system.positions().to_vec(),
+            x_ref: system.positions().to_vec(),
+            potential: Potential::mass_spring(system),
+            grad_particles: vec![DVec3::ZERO; system.len()],
+            dx_particles: vec![DVec3::ZERO; system.len()],
+            prev_velocity: vec![DVec3::ZERO; system.len()],
+            have_prev_velocity: false,
+            chooser: SolverChooser::default(),
+            objective_trace: Vec::new(),
+            particle_count: system.len(),
+            spring_count: system.springs().len(),
+            direct,
+            pattern,
+        })
+    }
+
+    fn build_direct(
+        pattern: &HessianPattern,
+        structure: FactorStructure,
+    ) -> Result<DirectSolver, ModelError> {
+        DirectSolver::new(pattern, structure).map_err(|_| ModelError::BadParameter {
+            name: "linear_solver",
+            reason: "the symbolic Cholesky factorization failed",
+        })
+    }
+
+    /// The settings.
+    #[must_use]
+    pub fn settings(&self) -> &NewtonSettings {
+        &self.settings
+    }
+
+    /// The sparsity pattern (for inspection and benchmarks).
+    #[must_use]
+    pub fn pattern(&self) -> &HessianPattern {
+        &self.pattern
+    }
+
+    /// The direct solver, once it exists.
+    #[must_use]
+    pub fn direct_solver(&self) -> Option<&DirectSolver> {
+        self.direct.as_ref()
+    }
+
+    /// `g` at every iterate of the last step, when `record_objective` is set.
+    #[must_use]
+    pub fn objective_trace(&self) -> &[f64] {
+        &self.objective_trace
+    }
+
+    /// Assembles the (PSD-projected) Newton matrix at the system's current positions into
+    /// the workspace, with damping directions frozen there (a kernel for benchmarks).
+    pub fn assemble_newton_matrix(&mut self, system: &SpringSystem, h: f64) {
+        // The Hessian does not depend on the prediction: the positions stand in for it.
+        let x = system.positions();
+        let step = StepContext::new(system, h, x, x);
+        self.potential.begin_step(&step);
+        self.values.fill(0.0);
+        let mut sink = HessianSink::values(&self.pattern, &mut self.values);
+        self.potential
+            .add_hessian(&step, x, Curvature::Clamped, &mut sink);
+    }
+
+    /// The terms of the incremental potential this integrator minimizes.
+    #[must_use]
+    pub fn potential(&self) -> &Potential {
+        &self.potential
+    }
+
+    /// Adds a term to the incremental potential (a contact barrier, friction). A term
+    /// that couples particles no spring joins must not be added: the Hessian pattern is
+    /// built from the springs (particle-collider contact adds diagonal blocks only).
+    pub fn add_term(&mut self, term: Box<dyn Term>) {
+        self.potential.push(term);
+    }
+
+    /// Numerically factors the last assembled Newton matrix (building the symbolic
+    /// factorization first if needed); false if it is not positive definite (a kernel for
+    /// benchmarks).
+    pub fn factor_newton_matrix(&mut self) -> Result<bool, ModelError> {
+        if self.direct.is_none() {
+            self.direct = Some(Self::build_direct(
+                &self.pattern,
+                self.settings.factor_structure,
+            )?);
+        }
+        Ok(self
+            .direct
+            .as_mut()
+            .is_some_and(|d| d.factor_only(&self.pattern, &self.values)))
+    }
+
+    /// Forgets the velocity history used by the extrapolated first guess (call after
+    /// changing the state by hand).
+    pub fn reset_history(&mut self) {
+        self.have_prev_velocity = false;
+    }
+
+    fn check_topology(&self, system: &SpringSystem) -> Result<(), ModelError> {
+        if system.len() != self.particle_count || system.springs().len() != self.spring_count {
+            return Err(ModelError::TopologyMismatch);
+        }
+        Ok(())
+    }
+
+    /// Advances `system` by one backward Euler step of length `h`.
+    pub fn step(&mut self, system: &mut SpringSystem, h: f64) -> Result<StepReport, StepError> {
+        self.step_scheme(system, h, Scheme::BackwardEuler)
+    }
+
+    /// Advances `system` by one step of length `h` of `scheme`, each one the same
+    /// minimization with its own effective step, prediction and velocity update
+    /// (docs/integrators.md).
+    pub(crate) fn step_scheme(
+        &mut self,
+        system: &mut SpringSystem,
+        h: f64,
+        scheme: Scheme<'_>,
+    ) -> Result<StepReport, StepError> {
+        check_time_step(h)?;
+        self.check_topology(system)?;
+        if let Scheme::Bdf2 { prev_x, prev_v } = scheme
+            && (prev_x.len() != system.len() || prev_v.len() != system.len())
+        {
+            return Err(ModelError::TopologyMismatch.into());
+        }
+        let (kind, h_eff) = match scheme {
+            Scheme::BackwardEuler => (IntegratorKind::BackwardEuler, h),
+            Scheme::Midpoint => (IntegratorKind::ImplicitMidpoint, 0.5 * h),
+            Scheme::Bdf2 { .. } => (IntegratorKind::Bdf2, 2.0 * h / 3.0),
+        };
+        let energy_before = system.energies();
+        let fixed = system.fixed();
+        for (i, (&x, &v)) in system
+            .positions()
+            .iter()
+            .zip(system.velocities())
+            .enumerate()
+        {
+            if fixed[i] {
+                self.x_ref[i] = x;
+                self.y[i] = x;
+                self.x[i] = x;
+                continue;
+            }
+            // x_ref: the point the new velocity is measured from, v' = (x' - x_ref)/h_eff
+            // (also the damping's reference); y: the inertial prediction.
+            let (x_ref, v_ref) = match scheme {
+                Scheme::BackwardEuler | Scheme::Midpoint => (x, v),
+                Scheme::Bdf2 { prev_x, prev_v } => {
+                    ((4.0 * x - prev_x[i]) / 3.0, (4.0 * v - prev_v[i]) / 3.0)
+                }
+            };
+            self.x_ref[i] = x_ref;
+            self.y[i] = x_ref + h_eff * v_ref;
+            self.x[i] = self.y[i];
+            if self.settings.initial_guess == InitialGuess::Extrapolated && self.have_prev_velocity
+            {
+                self.x[i] += h_eff * (v - self.prev_velocity[i]);
+            }
+        }
+        // Per-step state of the terms (damping directions frozen at the step's start).
+        self.potential
+            .begin_step(&StepContext::new(system, h_eff, &self.y, &self.x_ref));
+        if matches!(scheme, Scheme::BackwardEuler) {
+            // Start from x_n when the predicted guess is worse: Newton with the line
+            // search never increases g from its starting point, so then every step has
+            // g(x_{n+1}) <= g(x_n), which is what the energy inequality of
+            // docs/labcheck.md rests on. Costs two evaluations of g per step.
+            let step = StepContext::new(system, h_eff, &self.y, &self.x_ref);
+            let g_guess = self.potential.energy(&step, &self.x);
+            let g_start = self.potential.energy(&step, &self.x_ref);
+            // A NaN guess counts as worse, so it is never kept.
+            let guess_is_no_worse = matches!(
+                g_guess.partial_cmp(&g_start),
+                Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
+            );
+            // A term with a barrier (contact) also asks that the straight path from x_n
+            // to the guess stays admissible: a guess beyond a thin collider is outside it
+            // but was reached through it. Without such a term the cap is infinite.
+            for ((d, x), r) in self.dx_particles.iter_mut().zip(&self.x).zip(&self.x_ref) {
+                *d = *x - *r;
+            }
+            let path_is_admissible =
+                self.potential
+                    .max_step(&step, &self.x_ref, &self.dx_particles)
+                    >= 1.0;
+            if !(guess_is_no_worse && path_is_admissible) {
+                self.x.copy_from_slice(&self.x_ref);
+            }
+            self.potential.prepare_start(&step, &mut self.x);
+        }
+        let mut report = self.minimize(system, h_eff)?;
+        report.integrator = kind;
+        if let Some(particle) = self.x.iter().position(|x| !x.is_finite()) {
+            // Not reached with finite input (every iterate passed the line search); kept
+            // so a NaN can never leave this call.
+            return Err(StepError::NonFinite {
+                integrator: kind,
+                particle,
+            });
+        }
+        let (positions, velocities) = system.state_mut();
+        for i in 0..positions.len() {
+            self.prev_velocity[i] = velocities[i];
+            if !fixed_at(&self.pattern, i) {
+                let v_mean = (self.x[i] - self.x_ref[i]) / h_eff;
+                if matches!(scheme, Scheme::Midpoint) {
+                    // self.x is the midpoint z: x' = 2 z - x_n, v' = 2 v_mean - v_n.
+                    velocities[i] = 2.0 * v_mean - velocities[i];
+                    positions[i] = 2.0 * self.x[i] - self.x_ref[i];
+                } else {
+                    velocities[i] = v_mean;
+                    positions[i] = self.x[i];
+                }
+            }
+        }
+        self.have_prev_velocity = true;
+        report.energy_before = energy_before;
+        report.energy_after = system.energies();
+        Ok(report)
+    }
+
+    fn choose_solver(&mut self, dim: usize) -> Result<LinearSolverKind, ModelError> {
+        let kind = self
+            .chooser
+            .choose(self.settings.linear_solver, self.settings.reprobe_interval);
+        if kind == LinearSolverKind::Direct && self.direct.is_none() && dim > 0 {
+            self.direct = Some(Self::build_direct(
+                &self.pattern,
+                self.settings.factor_structure,
+            )?);
+        }
+        Ok(kind)
+    }
+}
+
+fn fixed_at(pattern: &HessianPattern, particle: usize) -> bool {
+    pattern.free_index[particle] == FIXED
+}
+
+/// The assembled Newton matrix of `system` at its current positions for step `h`, as
+/// dense lower-triangle triplets `(row, col, value)` over the reduced unknowns (for
+/// tests and benchmarks of assembly; damping directions frozen at the current state).
+#[must_use]
+pub fn newton_matrix_triplets(system: &SpringSystem, h: f64) -> Vec<(usize, usize, f64)> {
+    let pattern = HessianPattern::new(system);
+    let mut values = vec![0.0; pattern.nnz()];
+    let x = system.positions();
+    let step = StepContext::new(system, h, x, x);
+    let mut potential = Potential::mass_spring(system);
+    potential.begin_step(&step);
+    potential.add_hessian(
+        &step,
+        x,
+        Curvature::Clamped,
+        &mut HessianSink::values(&pattern, &mut values),
+    );
+    let col_ptr = pattern.symbolic.col_ptr();
+    let row_idx = pattern.symbolic.row_idx();
+    let mut out = Vec::with_capacity(values.len());
+    for j in 0..pattern.dim() {
+        for k in col_ptr[j]..col_ptr[j + 1] {
+            out.push((row_idx[k], j, values[k]));
+        }
+    }
+    out
+}

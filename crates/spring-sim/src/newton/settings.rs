@@ -1,0 +1,94 @@
+//! The settings of the Newton solve and of its first guess, with their validation.
+
+use crate::linear::{FactorStructure, LinearSolverChoice};
+use crate::model::ModelError;
+
+/// The Newton iteration's first guess.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum InitialGuess {
+    /// The inertial prediction `y = x_n + h v_n`.
+    Inertial,
+    /// `y + h (v_n - v_{n-1})`: the prediction corrected by the last step's change of
+    /// velocity (falls back to `y` on the first step). A system at rest starts exactly at
+    /// its solution.
+    #[default]
+    Extrapolated,
+}
+
+/// Settings of the Newton solve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default))]
+pub struct NewtonSettings {
+    /// Stop when `|grad g|_inf <= tolerance * m_min / h^2` (default 1e-9). `grad g` is a
+    /// force and `m/h^2` turns a displacement into one, so this bounds roughly the
+    /// position error of the solve in scene units.
+    pub tolerance: f64,
+    /// Newton iteration cap (default 50).
+    pub max_iterations: usize,
+    /// The linear solver (default: chosen per step from measured cost).
+    pub linear_solver: LinearSolverChoice,
+    /// Structure of the direct factorization (default supernodal).
+    pub factor_structure: FactorStructure,
+    /// The first guess (default extrapolated).
+    pub initial_guess: InitialGuess,
+    /// Armijo constant `c1` (default 1e-4).
+    pub armijo: f64,
+    /// Largest number of step halvings in one line search (default 40).
+    pub max_backtracks: usize,
+    /// PCG iteration cap per linear solve (default 2000).
+    pub pcg_max_iterations: usize,
+    /// Largest relative residual asked of PCG in a Newton iteration (default 1e-2; the
+    /// forcing term is `min(this, |grad g| / |grad g_first|)`, measured against 0.1 and
+    /// 1e-3 in docs/bench/spring-sim.md).
+    pub pcg_forcing: f64,
+    /// With `Auto`, how many steps may pass before the solver not chosen is timed again
+    /// (default 64).
+    pub reprobe_interval: usize,
+    /// Record `g` at every iterate (costs one energy pass per iteration; for tests).
+    pub record_objective: bool,
+}
+
+impl Default for NewtonSettings {
+    fn default() -> Self {
+        Self {
+            tolerance: 1e-9,
+            max_iterations: 50,
+            linear_solver: LinearSolverChoice::Auto,
+            factor_structure: FactorStructure::Supernodal,
+            initial_guess: InitialGuess::Extrapolated,
+            armijo: 1e-4,
+            max_backtracks: 40,
+            pcg_max_iterations: 2000,
+            pcg_forcing: 1e-2,
+            reprobe_interval: 64,
+            record_objective: false,
+        }
+    }
+}
+
+impl NewtonSettings {
+    /// Checks the settings, naming the bad field.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
+            return Err(ModelError::BadParameter {
+                name: "tolerance",
+                reason: "must be positive and finite",
+            });
+        }
+        if !(self.pcg_forcing > 0.0 && self.pcg_forcing < 1.0) {
+            return Err(ModelError::BadParameter {
+                name: "pcg_forcing",
+                reason: "must be in (0, 1)",
+            });
+        }
+        if !(self.armijo > 0.0 && self.armijo < 0.5) {
+            return Err(ModelError::BadParameter {
+                name: "armijo",
+                reason: "must be in (0, 0.5)",
+            });
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,155 @@
+//! The axial damping term `D(x) = c/(2h) sum_s (u_s . (d_s(x) - d_s(x_ref)))^2`, with
+//! `d_s = x_a - x_b` and each spring's direction `u_s` frozen at the step's start
+//! ([`Term::begin_step`]), so `D` is a convex quadratic: gradient `c/h e_s u_s` on `a`
+//! (minus on `b`) with `e_s = u_s . (d_s(x) - d_s(x_ref))`, Hessian block `c/h u_s u_s^T`.
+//! Its minimizer condition is the force `-c u (u . (v_a - v_b))` at `v = (x - x_ref)/h`.
+
+use super::{HessianSink, StepContext, SymBlock, Term};
+use crate::model::SpringSystem;
+use crate::spring::{self, Curvature};
+use sinew_math::DVec3;
+
+/// Axial damping along the springs' directions at the step's start.
+#[derive(Clone, Debug, Default)]
+pub struct AxialDamping {
+    /// Per spring, the unit direction at the step's start (zero for a zero-length
+    /// spring, which then has no axial damping in that step).
+    directions: Vec<DVec3>,
+}
+
+impl AxialDamping {
+    /// The term for `system`'s springs (directions set by [`Term::begin_step`]).
+    #[must_use]
+    pub fn new(system: &SpringSystem) -> Self {
+        Self {
+            directions: vec![DVec3::ZERO; system.springs().len()],
+        }
+    }
+
+    /// The frozen directions, one per spring.
+    #[must_use]
+    pub fn directions(&self) -> &[DVec3] {
+        &self.directions
+    }
+
+    /// `c/h`, or `None` when the material has no damping (the term is then zero).
+    fn coefficient(step: &StepContext<'_>) -> Option<f64> {
+        let c = step.system.material().damping;
+        (c > 0.0).then(|| c / step.h)
+    }
+
+    /// `u_s . (d_s(x) - d_s(x_ref))`.
+    #[inline]
+    fn elongation(&self, step: &StepContext<'_>, s: usize, x: &[DVec3]) -> f64 {
+        let sp = &step.system.springs()[s];
+        let stretch = (x[sp.a] - x[sp.b]) - (step.x_ref[sp.a] - step.x_ref[sp.b]);
+        self.directions[s].dot(stretch)
+    }
+}
+
+impl AxialDamping {
+    /// Adds the damping force's negative, `c u (u . (v_a - v_b))` on `a` (minus on `b`),
+    /// along each spring's current direction `u` at `x`, to `gradient`: the gradient of
+    /// this term at `x = x_ref + h v` with the directions frozen at `x`, which is what an
+    /// explicit integrator applies (it needs no frozen state, so it is not a method of
+    /// [`Term`]). A zero-length spring exerts nothing.
+    pub fn add_rate_gradient(
+        system: &SpringSystem,
+        x: &[DVec3],
+        v: &[DVec3],
+        gradient: &mut [DVec3],
+    ) {
+        let c = system.material().damping;
+        if c <= 0.0 {
+            return;
+        }
+        for s in system.springs() {
+            let d = x[s.a] - x[s.b];
+            let l2 = d.length_squared();
+            if l2 > 0.0 {
+                // c (u . dv) u = c (d . dv) / |d|^2 d, with no square root.
+                let g = (c * d.dot(v[s.a] - v[s.b]) / l2) * d;
+                gradient[s.a] += g;
+                gradient[s.b] -= g;
+            }
+        }
+    }
+}
+
+impl Term for AxialDamping {
+    fn name(&self) -> &'static str {
+        "axial damping"
+    }
+
+    fn begin_step(&mut self, step: &StepContext<'_>) {
+        let x = step.system.positions();
+        self.directions.clear();
+        self.directions.extend(
+            step.system
+                .springs()
+                .iter()
+                .map(|s| spring::damping_direction(x[s.a], x[s.b])),
+        );
+    }
+
+    fn energy(&self, step: &StepContext<'_>, x: &[DVec3]) -> f64 {
+        let Some(c) = Self::coefficient(step) else {
+            return 0.0;
+        };
+        let mut e = 0.0;
+        for s in 0..step.system.springs().len() {
+            let el = self.elongation(step, s, x);
+            e += 0.5 * c * el * el;
+        }
+        e
+    }
+
+    fn energy_change(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
+        let Some(c) = Self::coefficient(step) else {
+            return 0.0;
+        };
+        let mut change = 0.0;
+        for (s, sp) in step.system.springs().iter().enumerate() {
+            let delta = alpha * dx[sp.a] - alpha * dx[sp.b];
+            if delta == DVec3::ZERO {
+                continue;
+            }
+            // c/2 ((e + de)^2 - e^2) = c/2 de (2e + de), from the difference.
+            let e = self.elongation(step, s, x);
+            let de = self.directions[s].dot(delta);
+            change += 0.5 * c * de * (2.0 * e + de);
+        }
+        change
+    }
+
+    fn add_gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
+        let Some(c) = Self::coefficient(step) else {
+            return;
+        };
+        for (s, sp) in step.system.springs().iter().enumerate() {
+            let g = c * self.elongation(step, s, x) * self.directions[s];
+            gradient[sp.a] += g;
+            gradient[sp.b] -= g;
+        }
+    }
+
+    fn add_hessian(
+        &self,
+        step: &StepContext<'_>,
+        _x: &[DVec3],
+        _curvature: Curvature,
+        sink: &mut HessianSink<'_>,
+    ) {
+        let Some(c) = Self::coefficient(step) else {
+            return;
+        };
+        for (s, sp) in step.system.springs().iter().enumerate() {
+            sink.add_edge(
+                s,
+                sp.a,
+                sp.b,
+                SymBlock::isotropic_plus_outer(0.0, c, self.directions[s]),
+            );
+        }
+    }
+}

@@ -1,0 +1,254 @@
+//! The incremental potential as a sum of terms, each written once.
+//!
+//! One implicit step minimizes
+//! `g(x) = 1/(2 h^2) |x - y|_M^2 + E_spring(x) + E_gravity(x) + D(x)` (see
+//! [`crate::newton`]). Each summand is a [`Term`] with its energy, its change along a
+//! direction (from differences, where cancellation matters), its gradient, its
+//! PSD-projected Hessian blocks (handed to a [`HessianSink`]) and, where it has one, the
+//! largest safe step along a direction. The terms of this crate:
+//! - [`Inertia`]: `1/(2 h^2) |x - y|_M^2` over the free particles;
+//! - [`Gravity`]: `-sum_i m_i g . x_i` over the free particles (a constant external force);
+//! - [`Springs`]: `sum_s k_s/2 (|x_a - x_b| - L_s)^2`, with the [`Curvature`] asked for;
+//! - [`AxialDamping`]: `c/(2h) sum_s (u_s . (d_s(x) - d_s(x_ref)))^2`, the directions
+//!   `u_s` frozen at the step's start.
+//!
+//! A [`Potential`] is the list of terms, assembled once per integrator. Newton and its line
+//! search, the explicit force loop (`force = -grad` of the conservative terms) and the
+//! stability bound (the Hessian of the springs and of the damping) all evaluate these
+//! terms. The hooks the contact terms need (a per-step [`Term::begin_step`], a
+//! per-iteration [`Term::update_active_set`], the line-search cap [`Term::max_step`], and
+//! energies that are `+inf` where the state is not admissible) are described in
+//! docs/potential.md, with how the pattern is rebuilt when a term couples new pairs.
+
+mod damping;
+mod gravity;
+mod inertia;
+mod sink;
+mod springs;
+
+pub use damping::AxialDamping;
+pub use gravity::Gravity;
+pub use inertia::Inertia;
+pub use sink::{HessianSink, MissingPair, SymBlock};
+pub use springs::Springs;
+
+use crate::model::SpringSystem;
+use crate::spring::Curvature;
+use sinew_math::DVec3;
+
+/// What stays fixed during one minimization: the system (masses, springs, material, fixed
+/// flags, and its positions and velocities at the step's start), the effective step and
+/// the two reference points of the step.
+#[derive(Clone, Copy, Debug)]
+pub struct StepContext<'a> {
+    /// The system at the start of the step.
+    pub system: &'a SpringSystem,
+    /// The effective step `h` of the minimization (`h/2` for implicit midpoint, `2h/3`
+    /// for BDF2).
+    pub h: f64,
+    /// The inertial prediction `y` (one per particle).
+    pub y: &'a [DVec3],
+    /// The point velocities are measured from, `v' = (x' - x_ref)/h`, also the damping's
+    /// reference (one per particle).
+    pub x_ref: &'a [DVec3],
+}
+
+impl<'a> StepContext<'a> {
+    /// A context for `system` at effective step `h`, prediction `y` and reference
+    /// `x_ref`.
+    #[must_use]
+    pub fn new(system: &'a SpringSystem, h: f64, y: &'a [DVec3], x_ref: &'a [DVec3]) -> Self {
+        Self {
+            system,
+            h,
+            y,
+            x_ref,
+        }
+    }
+}
+
+/// One summand of the incremental potential (see the module documentation).
+///
+/// Positions `x`, directions `dx` and gradients are indexed by particle, fixed particles
+/// included: a direction is zero at fixed particles, and a gradient's entries there are
+/// ignored by every caller. Energies and their changes are `+inf` where the state is not
+/// admissible (a barrier inside its collider); the line search then rejects the step.
+pub trait Term: std::fmt::Debug + Send + Sync {
+    /// A short name for reports and test messages.
+    fn name(&self) -> &'static str;
+
+    /// Called once per step, before the minimization, with the state at the step's
+    /// start (`step.system`): the place for per-step state (frozen damping directions,
+    /// and for contact the lagged friction and the adaptive barrier stiffness).
+    fn begin_step(&mut self, step: &StepContext<'_>) {
+        let _ = step;
+    }
+
+    /// Called once per step after the first iterate is chosen, to move it where the term
+    /// admits it (a contact term carries particles that a moving collider would run
+    /// over along with the collider's rigid motion). Most terms leave it alone.
+    fn prepare_start(&self, step: &StepContext<'_>, x: &mut [DVec3]) {
+        let _ = (step, x);
+    }
+
+    /// Called at the start of every Newton iteration with the current iterate: the
+    /// place to collect an active set (contacts within the barrier's reach).
+    fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
+        let _ = (step, x);
+    }
+
+    /// The term's value at `x`.
+    fn energy(&self, step: &StepContext<'_>, x: &[DVec3]) -> f64;
+
+    /// `E(x + alpha dx) - E(x)`, computed from the differences where that keeps the
+    /// relative accuracy of a change far below the energy.
+    fn energy_change(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64;
+
+    /// Adds the gradient at `x` to `gradient` (one entry per particle).
+    fn add_gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]);
+
+    /// Adds the Hessian at `x`, projected to be positive semidefinite block by block (or
+    /// in the form `curvature` asks for, for terms with a choice), to `sink`.
+    fn add_hessian(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        curvature: Curvature,
+        sink: &mut HessianSink<'_>,
+    );
+
+    /// The largest `alpha` for which every state on `x + [0, alpha] dx` is admissible
+    /// (the line search never tries beyond it); unlimited by default.
+    fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
+        let _ = (step, x, dx);
+        f64::INFINITY
+    }
+}
+
+/// The terms of one minimization, evaluated in order and summed.
+#[derive(Debug, Default)]
+pub struct Potential {
+    terms: Vec<Box<dyn Term>>,
+}
+
+impl Potential {
+    /// The incremental potential of a mass-spring system: [`Inertia`], [`Gravity`],
+    /// [`Springs`] and [`AxialDamping`] (which reads the damping coefficient from the
+    /// material at every evaluation, so it costs nothing when that is zero).
+    #[must_use]
+    pub fn mass_spring(system: &SpringSystem) -> Self {
+        Self::from_terms(vec![
+            Box::new(Inertia),
+            Box::new(Gravity),
+            Box::new(Springs),
+            Box::new(AxialDamping::new(system)),
+        ])
+    }
+
+    /// A potential made of `terms`.
+    #[must_use]
+    pub fn from_terms(terms: Vec<Box<dyn Term>>) -> Self {
+        Self { terms }
+    }
+
+    /// Appends a term.
+    pub fn push(&mut self, term: Box<dyn Term>) {
+        self.terms.push(term);
+    }
+
+    /// The terms, in evaluation order.
+    #[must_use]
+    pub fn terms(&self) -> &[Box<dyn Term>] {
+        &self.terms
+    }
+
+    /// [`Term::begin_step`] on every term.
+    pub fn begin_step(&mut self, step: &StepContext<'_>) {
+        for t in &mut self.terms {
+            t.begin_step(step);
+        }
+    }
+
+    /// [`Term::prepare_start`] on every term.
+    pub fn prepare_start(&self, step: &StepContext<'_>, x: &mut [DVec3]) {
+        for t in &self.terms {
+            t.prepare_start(step, x);
+        }
+    }
+
+    /// [`Term::update_active_set`] on every term.
+    pub fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
+        for t in &mut self.terms {
+            t.update_active_set(step, x);
+        }
+    }
+
+    /// `g(x)`, the sum of the terms' energies.
+    #[must_use]
+    pub fn energy(&self, step: &StepContext<'_>, x: &[DVec3]) -> f64 {
+        self.terms.iter().map(|t| t.energy(step, x)).sum()
+    }
+
+    /// `g(x + alpha dx) - g(x)`, the sum of the terms' changes.
+    #[must_use]
+    pub fn energy_change(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        dx: &[DVec3],
+        alpha: f64,
+    ) -> f64 {
+        self.terms
+            .iter()
+            .map(|t| t.energy_change(step, x, dx, alpha))
+            .sum()
+    }
+
+    /// Writes `grad g(x)` into `gradient` (one entry per particle; overwritten).
+    pub fn gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
+        gradient.fill(DVec3::ZERO);
+        for t in &self.terms {
+            t.add_gradient(step, x, gradient);
+        }
+    }
+
+    /// Adds every term's Hessian blocks at `x` to `sink`.
+    pub fn add_hessian(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        curvature: Curvature,
+        sink: &mut HessianSink<'_>,
+    ) {
+        for t in &self.terms {
+            t.add_hessian(step, x, curvature, sink);
+        }
+    }
+
+    /// The smallest of the terms' [`Term::max_step`].
+    #[must_use]
+    pub fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
+        self.terms
+            .iter()
+            .map(|t| t.max_step(step, x, dx))
+            .fold(f64::INFINITY, f64::min)
+    }
+}
+
+/// The backward Euler incremental potential of a step of length `h` from `system`'s
+/// state, evaluated at `x` by the terms of [`Potential::mass_spring`] (`y = x_n + h v_n`,
+/// damping directions and reference at `x_n`). Allocates; for tests and checks.
+#[must_use]
+pub fn incremental_potential(system: &SpringSystem, h: f64, x: &[DVec3]) -> f64 {
+    let x_ref = system.positions();
+    let y: Vec<DVec3> = x_ref
+        .iter()
+        .zip(system.velocities())
+        .zip(system.fixed())
+        .map(|((&p, &v), &fixed)| if fixed { p } else { p + h * v })
+        .collect();
+    let step = StepContext::new(system, h, &y, x_ref);
+    let mut potential = Potential::mass_spring(system);
+    potential.begin_step(&step);
+    potential.energy(&step, x)
+}

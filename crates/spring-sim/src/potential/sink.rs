@@ -1,0 +1,263 @@
+//! Where a term's Hessian blocks go: the value slots of the Newton matrix's pattern, the
+//! absolute row sums of the Gershgorin bound, or a product with a vector.
+//!
+//! A term never sees the storage. It hands over 3x3 blocks by particle: a symmetric
+//! diagonal block for `(i, i)` ([`HessianSink::add_diagonal`]), the 6x6 block
+//! `[[K, -K], [-K, K]]` of a pair the pattern was built from
+//! ([`HessianSink::add_edge`], the springs' fast path), or a general block for a pair
+//! `(i, j)` ([`HessianSink::add_pair`], found in the pattern's structure; a pair that is
+//! not there is reported, not dropped). Fixed particles are not unknowns, so blocks on
+//! their rows and columns are skipped here, once, instead of in every term.
+
+use crate::pattern::{FIXED, HessianPattern};
+use sinew_math::{DMat3, DVec3};
+
+/// A symmetric 3x3 block given by its lower entries in the order
+/// `(0,0), (1,0), (2,0), (1,1), (2,1), (2,2)` (the pattern's storage order).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SymBlock(pub [f64; 6]);
+
+impl SymBlock {
+    /// `s I`.
+    #[must_use]
+    pub fn scaled_identity(s: f64) -> Self {
+        Self([s, 0.0, 0.0, s, 0.0, s])
+    }
+
+    /// `alpha I + beta u u^T`, the form of every spring-like block.
+    #[must_use]
+    #[inline]
+    pub fn isotropic_plus_outer(alpha: f64, beta: f64, u: DVec3) -> Self {
+        Self([
+            alpha + beta * u.x * u.x,
+            beta * u.y * u.x,
+            beta * u.z * u.x,
+            alpha + beta * u.y * u.y,
+            beta * u.z * u.y,
+            alpha + beta * u.z * u.z,
+        ])
+    }
+
+    /// The lower triangle of `m` (`m` is taken as symmetric; its upper half is ignored).
+    #[must_use]
+    pub fn from_lower(m: &DMat3) -> Self {
+        Self([
+            m.x_axis.x, m.x_axis.y, m.x_axis.z, m.y_axis.y, m.y_axis.z, m.z_axis.z,
+        ])
+    }
+
+    /// The full symmetric matrix.
+    #[must_use]
+    pub fn to_mat3(&self) -> DMat3 {
+        let [xx, yx, zx, yy, zy, zz] = self.0;
+        DMat3::from_cols_array(&[xx, yx, zx, yx, yy, zy, zx, zy, zz])
+    }
+
+    /// The absolute row sums (the block's contribution to Gershgorin's discs).
+    #[must_use]
+    #[inline]
+    fn abs_row_sums(&self) -> DVec3 {
+        let [xx, yx, zx, yy, zy, zz] = self.0.map(f64::abs);
+        DVec3::new(xx + yx + zx, yx + yy + zy, zx + zy + zz)
+    }
+
+    /// `B v`.
+    #[must_use]
+    #[inline]
+    fn mul(&self, v: DVec3) -> DVec3 {
+        let [xx, yx, zx, yy, zy, zz] = self.0;
+        DVec3::new(
+            xx * v.x + yx * v.y + zx * v.z,
+            yx * v.x + yy * v.y + zy * v.z,
+            zx * v.x + zy * v.y + zz * v.z,
+        )
+    }
+}
+
+/// What the blocks are accumulated into.
+#[derive(Debug)]
+enum Target<'a> {
+    /// The lower-triangle values of the Newton matrix on its pattern.
+    Values {
+        pattern: &'a HessianPattern,
+        values: &'a mut [f64],
+    },
+    /// Per particle, the absolute row sums of its three rows (free rows and columns only).
+    RowSums {
+        fixed: &'a [bool],
+        rows: &'a mut [DVec3],
+    },
+    /// `out += H z` over the particles (fixed rows and columns are left out).
+    Product {
+        fixed: &'a [bool],
+        z: &'a [DVec3],
+        out: &'a mut [DVec3],
+    },
+}
+
+/// A pair `(i, j)` of free particles whose block the pattern has no slots for (a term
+/// coupling particles no spring couples; the pattern must be rebuilt with the pair).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MissingPair {
+    /// First particle.
+    pub i: usize,
+    /// Second particle.
+    pub j: usize,
+}
+
+/// The receiver of a term's Hessian blocks (see the module documentation).
+#[derive(Debug)]
+pub struct HessianSink<'a> {
+    target: Target<'a>,
+}
+
+impl<'a> HessianSink<'a> {
+    /// Accumulates into `values`, the lower-triangle values on `pattern` (not cleared).
+    #[must_use]
+    pub fn values(pattern: &'a HessianPattern, values: &'a mut [f64]) -> Self {
+        debug_assert_eq!(values.len(), pattern.nnz());
+        Self {
+            target: Target::Values { pattern, values },
+        }
+    }
+
+    /// Accumulates, per particle, the absolute row sums of its rows over the free
+    /// unknowns (not cleared): Gershgorin's bound is the largest, divided by the mass.
+    #[must_use]
+    pub fn row_sums(fixed: &'a [bool], rows: &'a mut [DVec3]) -> Self {
+        Self {
+            target: Target::RowSums { fixed, rows },
+        }
+    }
+
+    /// Accumulates `out += H z` with `H` over the free unknowns (entries of `z` at
+    /// fixed particles are ignored and `out` is not written there).
+    #[must_use]
+    pub fn product(fixed: &'a [bool], z: &'a [DVec3], out: &'a mut [DVec3]) -> Self {
+        Self {
+            target: Target::Product { fixed, z, out },
+        }
+    }
+
+    /// Adds the symmetric block `b` at `(i, i)`.
+    #[inline]
+    pub fn add_diagonal(&mut self, i: usize, b: SymBlock) {
+        match &mut self.target {
+            Target::Values { pattern, values } => {
+                let f = pattern.free_index[i];
+                if f != FIXED {
+                    for (slot, v) in pattern.diag_slots[f].iter().zip(b.0) {
+                        values[*slot] += v;
+                    }
+                }
+            }
+            Target::RowSums { fixed, rows } => {
+                if !fixed[i] {
+                    rows[i] += b.abs_row_sums();
+                }
+            }
+            Target::Product { fixed, z, out } => {
+                if !fixed[i] {
+                    out[i] += b.mul(z[i]);
+                }
+            }
+        }
+    }
+
+    /// Adds `[[K, -K], [-K, K]]` on the particles `(a, b)` of `edge`, a pair the pattern
+    /// was built from (the index of a spring in [`crate::SpringSystem::springs`]); the
+    /// coupling block is written to the slots the pattern keeps for that edge.
+    #[inline]
+    pub fn add_edge(&mut self, edge: usize, a: usize, b: usize, k: SymBlock) {
+        match &mut self.target {
+            Target::Values { pattern, values } => {
+                for f in [pattern.free_index[a], pattern.free_index[b]] {
+                    if f != FIXED {
+                        for (slot, v) in pattern.diag_slots[f].iter().zip(k.0) {
+                            values[*slot] += v;
+                        }
+                    }
+                }
+                if let Some(slots) = &pattern.off_slots[edge] {
+                    // Entry (r, c) at slot 3c + r; the block is symmetric.
+                    let [xx, yx, zx, yy, zy, zz] = k.0;
+                    let full = [xx, yx, zx, yx, yy, zy, zx, zy, zz];
+                    for (slot, v) in slots.iter().zip(full) {
+                        values[*slot] -= v;
+                    }
+                }
+            }
+            Target::RowSums { fixed, rows } => {
+                // The block appears on the diagonal and, when the other end is free,
+                // again as the coupling block of the same row.
+                let (fa, fb) = (fixed[a], fixed[b]);
+                let both = if fa || fb { 1.0 } else { 2.0 };
+                let r = both * k.abs_row_sums();
+                if !fa {
+                    rows[a] += r;
+                }
+                if !fb {
+                    rows[b] += r;
+                }
+            }
+            Target::Product { fixed, z, out } => {
+                let za = if fixed[a] { DVec3::ZERO } else { z[a] };
+                let zb = if fixed[b] { DVec3::ZERO } else { z[b] };
+                let t = k.mul(za - zb);
+                if !fixed[a] {
+                    out[a] += t;
+                }
+                if !fixed[b] {
+                    out[b] -= t;
+                }
+            }
+        }
+    }
+
+    /// Adds the block `b` at `(i, j)` (and `b^T` at `(j, i)`), looking the pair up in the
+    /// pattern's structure. `i == j` adds the symmetric part of `b` on the diagonal.
+    /// Blocks touching a fixed particle are skipped. A pair of free particles the
+    /// pattern has no slots for is an `Err` and nothing is added.
+    pub fn add_pair(&mut self, i: usize, j: usize, b: &DMat3) -> Result<(), MissingPair> {
+        if i == j {
+            let sym = (*b + b.transpose()) * 0.5;
+            self.add_diagonal(i, SymBlock::from_lower(&sym));
+            return Ok(());
+        }
+        match &mut self.target {
+            Target::Values { pattern, values } => {
+                let (fi, fj) = (pattern.free_index[i], pattern.free_index[j]);
+                if fi == FIXED || fj == FIXED {
+                    return Ok(());
+                }
+                let Some(slots) = pattern.off_block_slots(fi, fj) else {
+                    return Err(MissingPair { i, j });
+                };
+                // The stored block sits below the diagonal: row particle max(fi, fj).
+                let stored = if fi > fj { *b } else { b.transpose() };
+                for c in 0..3 {
+                    for r in 0..3 {
+                        values[slots[3 * c + r]] += stored.col(c)[r];
+                    }
+                }
+            }
+            Target::RowSums { fixed, rows } => {
+                if fixed[i] || fixed[j] {
+                    return Ok(());
+                }
+                let abs = b.abs();
+                rows[i] += abs.x_axis + abs.y_axis + abs.z_axis;
+                let t = abs.transpose();
+                rows[j] += t.x_axis + t.y_axis + t.z_axis;
+            }
+            Target::Product { fixed, z, out } => {
+                if fixed[i] || fixed[j] {
+                    return Ok(());
+                }
+                out[i] += *b * z[j];
+                out[j] += b.transpose() * z[i];
+            }
+        }
+        Ok(())
+    }
+}

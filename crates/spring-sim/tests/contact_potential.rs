@@ -1,0 +1,246 @@
+//! The whole-system contact potential: gradient and Hessian blocks against finite
+//! differences, the energy change against the energy difference, the line-search cap
+//! against the per-particle time of impact, and the broad phase's answers where it
+//! skips everything.
+
+use sinew_math::{DMat3, DVec3};
+use sinew_spring_sim::contact::barrier::{barrier_first_derivative, minimum_kappa};
+use sinew_spring_sim::contact::{
+    Collider, ContactPotential, ContactSettings, signed_distance, time_of_impact,
+};
+
+fn setup() -> (ContactPotential, Vec<DVec3>, Vec<bool>, Vec<f64>) {
+    let colliders = vec![
+        Collider::ground(0.0),
+        Collider::sphere(DVec3::new(0.0, 0.5, 0.0), 0.2).moving(DVec3::ZERO, DVec3::Y),
+        Collider::capsule(DVec3::new(5.0, 0.0, 0.0), DVec3::new(6.0, 0.0, 0.0), 0.1),
+    ];
+    let settings = ContactSettings {
+        dhat: 0.01,
+        thickness: 0.001,
+        mu: 0.3,
+        eps_v: 0.01,
+        ..ContactSettings::default()
+    };
+    let mut p = ContactPotential::new(colliders, settings, 0.0).unwrap();
+    // Particles: two near the ground, one near the sphere's top, one far, one fixed in
+    // contact range (ignored).
+    let x = vec![
+        DVec3::new(1.0, 0.004, 0.0),
+        DVec3::new(-1.0, 0.009, 0.5),
+        DVec3::new(0.0, 0.706, 0.001),
+        DVec3::new(2.0, 1.0, 0.0),
+        DVec3::new(3.0, 0.005, 0.0),
+    ];
+    let fixed = vec![false, false, false, false, true];
+    let masses = vec![0.1; 5];
+    p.begin_step(&x, &fixed, &masses, 9.81, 0.01);
+    (p, x, fixed, masses)
+}
+
+#[test]
+fn kappa_and_friction_are_set_at_the_first_step() {
+    let (p, _, _, _) = setup();
+    let expected = minimum_kappa(0.01, 0.1, 9.81, 0.01);
+    assert_eq!(p.kappa(), expected);
+    // Three free particles within dhat at the start: three friction contacts.
+    assert_eq!(p.friction_contacts(), 3);
+    assert!((p.time() - 0.01).abs() < 1e-18);
+}
+
+#[test]
+fn derivatives_match_finite_differences() {
+    let (p, x0, fixed, _) = setup();
+    // Move the particles a little from the lagged start so friction is active.
+    let x: Vec<DVec3> = x0
+        .iter()
+        .enumerate()
+        .map(|(i, &q)| q + DVec3::new(1e-4 * (i as f64 + 1.0), -1e-4, 2e-5 * i as f64))
+        .collect();
+    let mut g = vec![DVec3::ZERO; x.len()];
+    p.add_gradient(&x, &fixed, &mut g);
+    let mut blocks = vec![DMat3::ZERO; x.len()];
+    p.for_each_hessian_block(&x, &fixed, |i, b| blocks[i] += b);
+    let h = 1e-8;
+    for i in 0..x.len() {
+        let mut fd = DVec3::ZERO;
+        let mut fd_h = DMat3::ZERO;
+        for k in 0..3 {
+            let mut e = DVec3::ZERO;
+            e[k] = h;
+            let mut plus = x.clone();
+            let mut minus = x.clone();
+            plus[i] += e;
+            minus[i] -= e;
+            fd[k] = (p.energy(&plus, &fixed) - p.energy(&minus, &fixed)) / (2.0 * h);
+            let mut gp = vec![DVec3::ZERO; x.len()];
+            let mut gm = vec![DVec3::ZERO; x.len()];
+            p.add_gradient(&plus, &fixed, &mut gp);
+            p.add_gradient(&minus, &fixed, &mut gm);
+            let col = (gp[i] - gm[i]) / (2.0 * h);
+            *fd_h.col_mut(k) = col;
+        }
+        if fixed[i] {
+            assert_eq!(g[i], DVec3::ZERO);
+            assert_eq!(blocks[i], DMat3::ZERO);
+            continue;
+        }
+        let scale = g[i].length().max(1e-6);
+        assert!(
+            (fd - g[i]).length() <= 1e-5 * scale,
+            "particle {i}: {} vs {fd}",
+            g[i]
+        );
+        // Along the normal the projected block is exact; compare the ground particles'
+        // blocks in full (plane: H_d = 0, so nothing is projected away).
+        if i < 2 {
+            let err = (fd_h - blocks[i])
+                .to_cols_array()
+                .iter()
+                .fold(0.0f64, |a, v| a.max(v.abs()));
+            let size = blocks[i]
+                .to_cols_array()
+                .iter()
+                .fold(0.0f64, |a, v| a.max(v.abs()));
+            assert!(err <= 1e-4 * size, "particle {i}: {} vs {fd_h}", blocks[i]);
+        }
+    }
+    assert_eq!(g[3], DVec3::ZERO, "a far particle feels nothing");
+    // The ground pushes up.
+    assert!(g[0].y < 0.0);
+    let ground_force = -p.kappa() * barrier_first_derivative(x[0].y - 0.001, 0.01);
+    assert!((g[0].y + ground_force).abs() <= 1e-9 * ground_force);
+}
+
+#[test]
+fn energy_change_matches_the_difference() {
+    let (p, x, fixed, _) = setup();
+    let dx: Vec<DVec3> = (0..x.len())
+        .map(|i| DVec3::new(1e-3, -2e-3 + 1e-3 * i as f64, 5e-4))
+        .collect();
+    for alpha in [1.0, 0.5, 0.25, 1e-3] {
+        let moved: Vec<DVec3> = x.iter().zip(&dx).map(|(a, b)| *a + alpha * *b).collect();
+        let direct = p.energy(&moved, &fixed) - p.energy(&x, &fixed);
+        let change = p.energy_change(&x, &dx, alpha, &fixed);
+        assert!(
+            (direct - change).abs() <= 1e-10 * direct.abs().max(1e-12),
+            "{alpha}: {direct} vs {change}"
+        );
+    }
+    // Into the ground: infinite.
+    let mut down = vec![DVec3::ZERO; x.len()];
+    down[0] = DVec3::new(0.0, -1.0, 0.0);
+    assert_eq!(p.energy_change(&x, &down, 1.0, &fixed), f64::INFINITY);
+}
+
+#[test]
+fn max_step_is_the_smallest_time_of_impact() {
+    let (p, x, fixed, _) = setup();
+    let dx: Vec<DVec3> = vec![
+        DVec3::new(0.0, -0.01, 0.0),
+        DVec3::new(0.0, -0.004, 0.0),
+        DVec3::new(0.0, -0.3, 0.0),
+        DVec3::new(0.0, -5.0, 0.0),
+        DVec3::new(0.0, -1.0, 0.0),
+    ];
+    let alpha = p.max_step(&x, &dx, &fixed, 1.0);
+    let mut expected: f64 = 1.0;
+    for (i, (&q, &d)) in x.iter().zip(&dx).enumerate() {
+        if fixed[i] {
+            continue;
+        }
+        for c in p.posed() {
+            let still = Collider::fixed(*c);
+            expected = expected.min(time_of_impact(&still, q, d, 0.0, 0.0, 0.001, 0.1));
+        }
+    }
+    assert_eq!(alpha, expected);
+    assert!(alpha < 1.0);
+    // A longer horizon finds the same first impact (the closed forms are exact).
+    let longer = p.max_step(&x, &dx, &fixed, 4.0);
+    assert!(
+        (longer - alpha).abs() <= 1e-12 * alpha,
+        "{longer} vs {alpha}"
+    );
+    // Every particle stays at least 0.9 of its distance along the capped step.
+    for (i, (&q, &d)) in x.iter().zip(&dx).enumerate() {
+        if fixed[i] {
+            continue;
+        }
+        for c in p.posed() {
+            let d0 = signed_distance(c, q, 0.001).distance;
+            for k in 0..=100 {
+                let s = alpha * k as f64 / 100.0;
+                assert!(signed_distance(c, q + s * d, 0.001).distance >= 0.9 * d0 - 1e-15);
+            }
+        }
+    }
+    assert!(p.first_penetration(&x, &fixed).is_none());
+    let inside: Vec<DVec3> = x
+        .iter()
+        .map(|q| *q - DVec3::new(0.0, 0.0085, 0.0))
+        .collect();
+    assert_eq!(p.first_penetration(&inside, &fixed), Some((0, 0)));
+}
+
+#[test]
+fn far_from_every_collider_nothing_is_computed() {
+    let colliders = vec![
+        Collider::ground(-10.0),
+        Collider::sphere(DVec3::new(50.0, 0.0, 0.0), 1.0),
+    ];
+    let mut p = ContactPotential::new(
+        colliders,
+        ContactSettings {
+            mu: 0.5,
+            ..ContactSettings::default()
+        },
+        0.0,
+    )
+    .unwrap();
+    let x = vec![DVec3::new(0.0, 1.0, 0.0), DVec3::new(1.0, 1.0, 0.0)];
+    let fixed = vec![false, false];
+    p.begin_step(&x, &fixed, &[1.0, 1.0], 9.81, 0.01);
+    assert_eq!(p.friction_contacts(), 0);
+    assert_eq!(p.energy(&x, &fixed), 0.0);
+    assert_eq!(p.min_distance(&x, &fixed), f64::INFINITY);
+    let dx = vec![DVec3::new(0.0, -1.0, 0.0); 2];
+    assert_eq!(p.max_step(&x, &dx, &fixed, 1.0), 1.0);
+    let mut blocks = 0;
+    p.for_each_hessian_block(&x, &fixed, |_, _| blocks += 1);
+    assert_eq!(blocks, 0);
+    // A step long enough to reach the ground is capped.
+    let far = vec![DVec3::new(0.0, -20.0, 0.0); 2];
+    let a = p.max_step(&x, &far, &fixed, 1.0);
+    assert!((a - 1.1 / 20.0).abs() < 1e-15, "{a}");
+    // Along a unit step nothing is near within 1, but a line search that may lengthen
+    // the step 1024 times meets the ground's limit at 1.1 (d0 = 11, 0.9 d0 = 9.9).
+    let a = p.max_step(&x, &dx, &fixed, 1024.0);
+    assert!((a - 1.1).abs() < 1e-12, "{a}");
+    let up = vec![DVec3::new(0.0, 1.0, 0.0); 2];
+    assert_eq!(p.max_step(&x, &up, &fixed, 1024.0), 1024.0);
+}
+
+#[test]
+fn bad_input_is_named() {
+    let err = ContactPotential::new(
+        vec![Collider::ground(0.0), Collider::sphere(DVec3::ZERO, -1.0)],
+        ContactSettings::default(),
+        0.0,
+    )
+    .unwrap_err();
+    assert!(
+        err.to_string().starts_with("collider 1 (sphere): radius"),
+        "{err}"
+    );
+    let err = ContactPotential::new(
+        vec![],
+        ContactSettings {
+            dhat: -1.0,
+            ..ContactSettings::default()
+        },
+        0.0,
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("dhat"), "{err}");
+}

@@ -1,0 +1,247 @@
+//! Contact input validation (errors name the collider, the shape and the field, or the
+//! setting) and the explicit integrators' projection, against hand-computed states.
+
+use sinew_math::DVec3;
+use sinew_spring_sim::contact::collider::validate_colliders;
+use sinew_spring_sim::contact::{
+    Collider, ContactError, ContactSettings, Motion, Shape, project_particle,
+};
+
+fn message(e: ContactError) -> String {
+    e.to_string()
+}
+
+#[test]
+fn collider_errors_name_the_collider_and_field() {
+    let good = Collider::ground(0.0);
+    assert_eq!(good.validate(), Ok(()));
+    let cases = [
+        (
+            Collider::fixed(Shape::HalfSpace {
+                point: DVec3::new(f64::NAN, 0.0, 0.0),
+                normal: DVec3::Y,
+            }),
+            "point",
+        ),
+        (
+            Collider::fixed(Shape::HalfSpace {
+                point: DVec3::ZERO,
+                normal: DVec3::new(0.0, 1.0 + 1e-8, 0.0),
+            }),
+            "normal",
+        ),
+        (
+            Collider::fixed(Shape::HalfSpace {
+                point: DVec3::ZERO,
+                normal: DVec3::ZERO,
+            }),
+            "normal",
+        ),
+        (Collider::sphere(DVec3::ZERO, 0.0), "radius"),
+        (Collider::sphere(DVec3::ZERO, -1.0), "radius"),
+        (Collider::sphere(DVec3::INFINITY, 1.0), "center"),
+        (Collider::capsule(DVec3::ZERO, DVec3::X, f64::NAN), "radius"),
+        (Collider::capsule(DVec3::NAN, DVec3::X, 1.0), "a"),
+        (
+            Collider::capsule(DVec3::ZERO, DVec3::NEG_INFINITY, 1.0),
+            "b",
+        ),
+        (
+            Collider::sphere(DVec3::ZERO, 1.0).moving(DVec3::new(0.0, f64::NAN, 0.0), DVec3::ZERO),
+            "linear_velocity",
+        ),
+        (
+            Collider::ground(0.0).moving(DVec3::ZERO, DVec3::INFINITY),
+            "angular_velocity",
+        ),
+    ];
+    for (c, field) in cases {
+        let err = c.validate().unwrap_err();
+        let ContactError::BadCollider {
+            field: f, shape, ..
+        } = &err
+        else {
+            panic!("{err:?}");
+        };
+        assert_eq!(*f, field);
+        assert_eq!(*shape, c.shape.kind());
+        assert!(message(err.clone()).contains(field), "{err}");
+        // In a list, the index is named too.
+        let list = [good, good, c];
+        let err = validate_colliders(&list).unwrap_err();
+        let text = message(err);
+        assert!(
+            text.starts_with(&format!("collider 2 ({})", c.shape.kind())),
+            "{text}"
+        );
+        assert!(text.contains(field), "{text}");
+    }
+    // A unit normal to within 1e-9 passes; coincident capsule ends are a sphere, accepted.
+    let nearly = Collider::fixed(Shape::HalfSpace {
+        point: DVec3::ZERO,
+        normal: DVec3::new(0.0, 1.0 + 5e-10, 0.0),
+    });
+    assert_eq!(nearly.validate(), Ok(()));
+    assert_eq!(
+        Collider::capsule(DVec3::ONE, DVec3::ONE, 0.2).validate(),
+        Ok(())
+    );
+    assert_eq!(
+        validate_colliders(&[good, Collider::sphere(DVec3::ZERO, 1.0)]),
+        Ok(())
+    );
+    assert!(Collider::ground(1.0).is_static());
+    assert_eq!(Collider::ground(1.0).motion, Motion::STATIC);
+}
+
+#[test]
+fn settings_errors_name_the_setting() {
+    assert_eq!(ContactSettings::default().validate(), Ok(()));
+    let d = ContactSettings::default();
+    let cases = [
+        (ContactSettings { dhat: 0.0, ..d }, "dhat"),
+        (
+            ContactSettings {
+                dhat: f64::NAN,
+                ..d
+            },
+            "dhat",
+        ),
+        (
+            ContactSettings {
+                thickness: -1e-3,
+                ..d
+            },
+            "thickness",
+        ),
+        (ContactSettings { mu: -0.1, ..d }, "mu"),
+        (
+            ContactSettings {
+                mu: f64::INFINITY,
+                ..d
+            },
+            "mu",
+        ),
+        (ContactSettings { eps_v: 0.0, ..d }, "eps_v"),
+        (
+            ContactSettings {
+                toi_fraction: 1.0,
+                ..d
+            },
+            "toi_fraction",
+        ),
+        (
+            ContactSettings {
+                toi_fraction: 0.0,
+                ..d
+            },
+            "toi_fraction",
+        ),
+        (
+            ContactSettings {
+                toi_fraction: f64::NAN,
+                ..d
+            },
+            "toi_fraction",
+        ),
+    ];
+    for (s, name) in cases {
+        let err = s.validate().unwrap_err();
+        assert!(
+            matches!(err, ContactError::BadSetting { name: n, .. } if n == name),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains(name));
+    }
+}
+
+#[test]
+fn projection_pushes_out_and_applies_coulomb_friction() {
+    let ground = Collider::ground(0.0);
+    // Below the ground by 0.01 with thickness 0.002, falling at 2 and sliding at 3:
+    // out to y = 0.002; normal velocity removed; friction 0.5 * 2 = 1 off the sliding 3.
+    let p = project_particle(
+        &ground,
+        0.0,
+        DVec3::new(1.0, -0.01, 0.0),
+        DVec3::new(3.0, -2.0, 0.0),
+        0.002,
+        0.5,
+    );
+    assert!(p.contact);
+    assert!(
+        (p.position - DVec3::new(1.0, 0.002, 0.0)).length() < 1e-15,
+        "{}",
+        p.position
+    );
+    assert!(
+        (p.velocity - DVec3::new(2.0, 0.0, 0.0)).length() < 1e-15,
+        "{}",
+        p.velocity
+    );
+    // Enough friction to stop it: mu |v_n| >= |v_t|.
+    let p = project_particle(
+        &ground,
+        0.0,
+        DVec3::new(1.0, -0.01, 0.0),
+        DVec3::new(3.0, -2.0, 0.0),
+        0.0,
+        2.0,
+    );
+    assert_eq!(p.velocity, DVec3::ZERO);
+    // Inside but already leaving: moved out, velocity kept.
+    let p = project_particle(
+        &ground,
+        0.0,
+        DVec3::new(0.0, -0.1, 0.0),
+        DVec3::new(1.0, 0.5, 0.0),
+        0.0,
+        0.5,
+    );
+    assert!((p.position - DVec3::ZERO).length() < 1e-15);
+    assert_eq!(p.velocity, DVec3::new(1.0, 0.5, 0.0));
+    // Outside: unchanged.
+    let p = project_particle(
+        &ground,
+        0.0,
+        DVec3::new(0.0, 0.1, 0.0),
+        DVec3::new(0.0, -9.0, 0.0),
+        0.0,
+        0.5,
+    );
+    assert!(!p.contact);
+    assert_eq!(p.velocity, DVec3::new(0.0, -9.0, 0.0));
+    // A rising ground (1 per second, at y = 0.5 at t = 0.5): a particle at rest at 0.4
+    // ends on the surface moving up with it.
+    let rising = ground.moving(DVec3::Y, DVec3::ZERO);
+    let p = project_particle(
+        &rising,
+        0.5,
+        DVec3::new(0.0, 0.4, 0.0),
+        DVec3::ZERO,
+        0.0,
+        0.3,
+    );
+    assert!((p.position - DVec3::new(0.0, 0.5, 0.0)).length() < 1e-15);
+    assert!((p.velocity - DVec3::Y).length() < 1e-15, "{}", p.velocity);
+    // A sphere spinning at 2 rad/s about y: a particle resting on its equator inside the
+    // surface is carried by friction toward the surface velocity omega x r = (0, 0, -2)
+    // (at (1, 0, 0)); the relative normal speed 1 allows mu * 1 = 0.5 of change.
+    let sphere = Collider::sphere(DVec3::ZERO, 1.0).moving(DVec3::ZERO, DVec3::new(0.0, 2.0, 0.0));
+    let p = project_particle(
+        &sphere,
+        0.0,
+        DVec3::new(0.99, 0.0, 0.0),
+        DVec3::new(-1.0, 0.0, 0.0),
+        0.0,
+        0.5,
+    );
+    assert!((p.position - DVec3::new(1.0, 0.0, 0.0)).length() < 1e-15);
+    // Relative tangential velocity (0, 0, 2) reduced by 0.5 to (0, 0, 1.5); plus the
+    // surface's (0, 0, -2): (0, 0, -0.5).
+    assert!(
+        (p.velocity - DVec3::new(0.0, 0.0, -0.5)).length() < 1e-15,
+        "{}",
+        p.velocity
+    );
+}
