@@ -8,15 +8,17 @@
 //! it, before every step.
 //!
 //! Each substep of length `h / substeps` updates velocities from the forces at the
-//! current positions (minus the gradient of the potential's [`Gravity`] and [`Springs`]
-//! terms, and the axial damping along the current spring direction,
-//! [`AxialDamping::add_rate_gradient`]), then positions from the new velocities. Fixed particles do not move. It
+//! current positions (minus the gradient of the potential's [`Gravity`] term and of the
+//! springs' energy, [`crate::spring::gradient`], the kernel of the
+//! [`crate::potential::Springs`] term, and the axial damping along the current spring
+//! direction, [`AxialDamping::rate_gradient`]), then positions from the new velocities. Fixed particles do not move. It
 //! is only conditionally stable: above its limit it explodes, and then the step is undone
 //! and reported as an error rather than returning NaN.
 
 use crate::model::{SpringSystem, check_time_step};
-use crate::potential::{AxialDamping, Gravity, Springs, StepContext, Term};
+use crate::potential::{AxialDamping, Gravity, StepContext, Term};
 use crate::report::{IntegratorKind, StepError, StepReport};
+use crate::spring;
 use sinew_math::DVec3;
 
 /// Symplectic Euler with a fixed substep count, with its force buffer.
@@ -108,7 +110,8 @@ fn inverse_masses(system: &SpringSystem) -> Vec<f64> {
 
 /// Total force on every particle at positions `x` and velocities `v` (`out` is
 /// overwritten): minus the gradient of the potential's conservative terms ([`Gravity`],
-/// [`Springs`]) and of the axial damping along the current spring directions. The hot
+/// and the springs through their kernel [`spring::gradient`]) and of the axial damping
+/// along the current spring directions ([`AxialDamping::rate_gradient`]). The hot
 /// loop of the explicit integrators: one square root and one division per spring, and a
 /// division per damped spring.
 #[inline]
@@ -117,8 +120,17 @@ pub(crate) fn forces(system: &SpringSystem, x: &[DVec3], v: &[DVec3], out: &mut 
     // The conservative terms read only `x`; the step's references are not used.
     let step = StepContext::new(system, 1.0, x, x);
     Gravity.add_gradient(&step, x, out);
-    Springs.add_gradient(&step, x, out);
-    AxialDamping::add_rate_gradient(system, x, v, out);
+    // The spring term's and the damping's per-spring kernels in one pass over the
+    // springs (two passes cost a quarter more per substep on the lab cloth).
+    let c = system.material().damping;
+    for s in system.springs() {
+        let mut g = spring::gradient(x[s.a], x[s.b], s.rest_length, s.stiffness);
+        if c > 0.0 {
+            g += AxialDamping::rate_gradient(c, x[s.a] - x[s.b], v[s.a] - v[s.b]);
+        }
+        out[s.a] += g;
+        out[s.b] -= g;
+    }
     for f in out.iter_mut() {
         *f = -*f;
     }

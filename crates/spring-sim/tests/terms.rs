@@ -404,7 +404,7 @@ fn the_pattern_sink_matches_the_product_sink_and_finds_general_pairs() {
     let mut rng = Rng(5);
     let x = case.point(&mut rng);
     let pattern = HessianPattern::new(&case.system);
-    let potential = {
+    let mut potential = {
         let mut p = Potential::mass_spring(&case.system);
         p.begin_step(&case.step());
         p

@@ -64,14 +64,24 @@ impl AxialDamping {
             return;
         }
         for s in system.springs() {
-            let d = x[s.a] - x[s.b];
-            let l2 = d.length_squared();
-            if l2 > 0.0 {
-                // c (u . dv) u = c (d . dv) / |d|^2 d, with no square root.
-                let g = (c * d.dot(v[s.a] - v[s.b]) / l2) * d;
-                gradient[s.a] += g;
-                gradient[s.b] -= g;
-            }
+            let g = Self::rate_gradient(c, x[s.a] - x[s.b], v[s.a] - v[s.b]);
+            gradient[s.a] += g;
+            gradient[s.b] -= g;
+        }
+    }
+
+    /// One spring's share of [`AxialDamping::add_rate_gradient`] on its first particle:
+    /// `c u (u . dv)` for the spring vector `d` (`u = d/|d|`) and the relative velocity
+    /// `dv = v_a - v_b`; zero for a zero-length spring.
+    #[must_use]
+    #[inline]
+    pub fn rate_gradient(c: f64, d: DVec3, dv: DVec3) -> DVec3 {
+        let l2 = d.length_squared();
+        if l2 > 0.0 {
+            // c (d . dv) / |d|^2 d, with no square root.
+            (c * d.dot(dv) / l2) * d
+        } else {
+            DVec3::ZERO
         }
     }
 }
@@ -150,6 +160,28 @@ impl Term for AxialDamping {
                 sp.b,
                 SymBlock::isotropic_plus_outer(0.0, c, self.directions[s]),
             );
+        }
+    }
+
+    fn has_spring_blocks(&self) -> bool {
+        true
+    }
+
+    fn add_spring_blocks(
+        &self,
+        step: &StepContext<'_>,
+        _x: &[DVec3],
+        _curvature: Curvature,
+        blocks: &mut [SymBlock],
+    ) {
+        let Some(c) = Self::coefficient(step) else {
+            return;
+        };
+        for (b, &w) in blocks.iter_mut().zip(&self.directions) {
+            let k = SymBlock::isotropic_plus_outer(0.0, c, w);
+            for (sum, v) in b.0.iter_mut().zip(k.0) {
+                *sum += v;
+            }
         }
     }
 }

@@ -92,7 +92,10 @@ pub trait Term: std::fmt::Debug + Send + Sync {
     }
 
     /// Called at the start of every Newton iteration with the current iterate: the
-    /// place to collect an active set (contacts within the barrier's reach).
+    /// place to collect an active set (contacts within the barrier's reach). The
+    /// gradient and Hessian may use the set; the energy and its change must not depend
+    /// on it, because the first guess and the line search evaluate states the set was
+    /// not collected at.
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
         let _ = (step, x);
     }
@@ -117,6 +120,27 @@ pub trait Term: std::fmt::Debug + Send + Sync {
         sink: &mut HessianSink<'_>,
     );
 
+    /// Whether the term's Hessian is one block `[[K, -K], [-K, K]]` per spring of the
+    /// system, added by [`Term::add_spring_blocks`] (false by default). [`Potential`] then
+    /// sums the blocks of all such terms per spring and writes each spring's slots once:
+    /// assembly is dominated by those writes, and a pass per term doubled its time.
+    fn has_spring_blocks(&self) -> bool {
+        false
+    }
+
+    /// Adds the block `K` of every spring at `x` to `blocks[s]`, for a term with
+    /// [`Term::has_spring_blocks`]; its [`Term::add_hessian`] must add exactly these
+    /// blocks. Nothing by default.
+    fn add_spring_blocks(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        curvature: Curvature,
+        blocks: &mut [SymBlock],
+    ) {
+        let _ = (step, x, curvature, blocks);
+    }
+
     /// The largest `alpha` for which every state on `x + [0, alpha] dx` is admissible
     /// (the line search never tries beyond it); unlimited by default.
     fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
@@ -129,6 +153,12 @@ pub trait Term: std::fmt::Debug + Send + Sync {
 #[derive(Debug, Default)]
 pub struct Potential {
     terms: Vec<Box<dyn Term>>,
+    /// Indices of the terms with per-spring blocks, assembled in one fused pass.
+    spring_terms: Vec<usize>,
+    /// Indices of the other terms.
+    other_terms: Vec<usize>,
+    /// Per spring, the summed block of the per-spring terms (assembly's buffer).
+    blocks: Vec<SymBlock>,
 }
 
 impl Potential {
@@ -148,11 +178,21 @@ impl Potential {
     /// A potential made of `terms`.
     #[must_use]
     pub fn from_terms(terms: Vec<Box<dyn Term>>) -> Self {
-        Self { terms }
+        let mut potential = Self::default();
+        for t in terms {
+            potential.push(t);
+        }
+        potential
     }
 
     /// Appends a term.
     pub fn push(&mut self, term: Box<dyn Term>) {
+        let index = self.terms.len();
+        if term.has_spring_blocks() {
+            self.spring_terms.push(index);
+        } else {
+            self.other_terms.push(index);
+        }
         self.terms.push(term);
     }
 
@@ -212,16 +252,34 @@ impl Potential {
         }
     }
 
-    /// Adds every term's Hessian blocks at `x` to `sink`.
+    /// Adds every term's Hessian blocks at `x` to `sink`: the terms without per-spring
+    /// blocks first, then one pass over the springs writing the sum of the per-spring
+    /// terms' blocks (the same blocks their [`Term::add_hessian`] would add, summed
+    /// before they are written).
+    ///
+    /// The blocks are summed in a buffer of one block per spring, kept between calls
+    /// (resized only when the spring count changes).
     pub fn add_hessian(
-        &self,
+        &mut self,
         step: &StepContext<'_>,
         x: &[DVec3],
         curvature: Curvature,
         sink: &mut HessianSink<'_>,
     ) {
-        for t in &self.terms {
-            t.add_hessian(step, x, curvature, sink);
+        for &t in &self.other_terms {
+            self.terms[t].add_hessian(step, x, curvature, sink);
+        }
+        if self.spring_terms.is_empty() {
+            return;
+        }
+        let springs = step.system.springs();
+        self.blocks.clear();
+        self.blocks.resize(springs.len(), SymBlock([0.0; 6]));
+        for &t in &self.spring_terms {
+            self.terms[t].add_spring_blocks(step, x, curvature, &mut self.blocks);
+        }
+        for (s, (sp, k)) in springs.iter().zip(&self.blocks).enumerate() {
+            sink.add_edge(s, sp.a, sp.b, *k);
         }
     }
 

@@ -52,15 +52,35 @@ impl Term for Springs {
         sink: &mut HessianSink<'_>,
     ) {
         for (e, s) in step.system.springs().iter().enumerate() {
-            // K = alpha I + beta u u^T: the six distinct entries are written directly,
-            // the hot loop of assembly.
-            let (alpha, beta, u) = spring::hessian_coefficients(
-                x[s.a] - x[s.b],
-                s.rest_length,
-                s.stiffness,
-                curvature,
-            );
-            sink.add_edge(e, s.a, s.b, SymBlock::isotropic_plus_outer(alpha, beta, u));
+            sink.add_edge(e, s.a, s.b, block(s, x, curvature));
         }
     }
+
+    fn has_spring_blocks(&self) -> bool {
+        true
+    }
+
+    fn add_spring_blocks(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        curvature: Curvature,
+        blocks: &mut [SymBlock],
+    ) {
+        for (s, b) in step.system.springs().iter().zip(blocks.iter_mut()) {
+            let k = block(s, x, curvature);
+            for (sum, v) in b.0.iter_mut().zip(k.0) {
+                *sum += v;
+            }
+        }
+    }
+}
+
+/// The block `K = alpha I + beta u u^T` of spring `s` at `x` (its six distinct entries,
+/// written directly: the hot loop of assembly).
+#[inline]
+fn block(s: &crate::model::Spring, x: &[DVec3], curvature: Curvature) -> SymBlock {
+    let (alpha, beta, u) =
+        spring::hessian_coefficients(x[s.a] - x[s.b], s.rest_length, s.stiffness, curvature);
+    SymBlock::isotropic_plus_outer(alpha, beta, u)
 }
