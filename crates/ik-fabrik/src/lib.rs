@@ -28,10 +28,11 @@ pub use pass::fabrik_pass;
 
 use refine::Refiner;
 use sinew_math::{DQuat, DVec3, rotation_between};
+use sinew_skeleton::GlobalPose;
 use sinew_skeleton::ik::{
-    Chain, IkError, IkSolver, SolveReport, SolveSettings, SolveStart, StopReason, begin_solve,
+    Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveSettings, SolveStart,
+    StopReason, begin_solve, measure,
 };
-use sinew_skeleton::{GlobalPose, Pose, Skeleton};
 
 /// Which algorithm a [`FabrikSolver`] runs.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -354,33 +355,46 @@ impl IkSolver for FabrikSolver {
 
     fn solve(
         &mut self,
-        skeleton: &Skeleton,
-        chain: &Chain,
-        pose: &mut Pose,
-        global: &mut GlobalPose,
-        target: DVec3,
-        settings: &SolveSettings,
+        problem: &IkProblem<'_>,
+        state: &mut IkState<'_>,
     ) -> Result<SolveReport, IkError> {
         self.stats = FabrikStats::default();
-        let initial_error = match begin_solve(skeleton, chain, pose, global, target, settings)? {
+        let (skeleton, chain, settings) = (problem.skeleton, problem.chain, &problem.settings);
+        let initial = match begin_solve(problem, state)? {
             SolveStart::Done(report) => {
-                self.copy_chain_positions(chain, global);
+                self.copy_chain_positions(chain, state.global);
                 return Ok(report);
             }
-            SolveStart::Iterate { initial_error } => initial_error,
+            SolveStart::Iterate {
+                initial_error,
+                initial_rotation_error,
+            } => (initial_error, initial_rotation_error),
         };
+        let goal = problem.goal()?;
+        if goal.rotation.is_some() {
+            return Err(IkError::InvalidGoal {
+                goal: 0,
+                field: "rotation",
+                reason: "FABRIK solves position goals only".into(),
+            });
+        }
+        let initial_error = initial.0;
+        let target = goal.position;
+        let (pose, global) = (&mut *state.pose, &mut *state.global);
         self.copy_chain_positions(chain, global);
         let (mut error, stop, passes) = self.run_passes(chain, target, initial_error, settings);
         let stop_is_refine = stop.is_none();
         self.stats.passes = passes;
         if passes == 0 {
             // A cap of 0: nothing was done and the pose is untouched.
-            return Ok(SolveReport {
-                iterations: 0,
-                initial_error,
-                error: initial_error,
-                stop: stop.unwrap_or(StopReason::IterationCap),
-            });
+            return Ok(measure(
+                problem,
+                state,
+                goal,
+                0,
+                initial,
+                stop.unwrap_or(StopReason::IterationCap),
+            ));
         }
 
         let joints = chain.joints();
@@ -460,11 +474,13 @@ impl IkSolver for FabrikSolver {
             // rotations lands a rounding error outside it: no further progress possible.
             stop = StopReason::Stalled;
         }
-        Ok(SolveReport {
-            iterations: self.stats.passes + self.stats.refinement_steps,
-            initial_error,
-            error,
+        Ok(measure(
+            problem,
+            state,
+            goal,
+            self.stats.passes + self.stats.refinement_steps,
+            initial,
             stop,
-        })
+        ))
     }
 }

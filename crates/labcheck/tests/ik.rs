@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{SolverKind, fk, make_solver, settings, solve_checked, solver_kind};
+use common::{every_solver, fk, make_solver, settings, solve_checked, solver_kind};
 use proptest::prelude::*;
 use sinew_ik_ccd::CcdSolver;
 use sinew_ik_fabrik::FabrikSolver;
@@ -176,7 +176,7 @@ proptest! {
         let effector = start.positions[chain.effector()];
         let t = effector + offset_direction * (fraction * tolerance);
         prop_assume!(effector.distance(t) <= tolerance);
-        let settings = SolveSettings { max_iterations, tolerance };
+        let settings = SolveSettings { max_iterations, tolerance, ..Default::default() };
         let mut solver = make_solver(kind);
         let solved = solve_checked(solver.as_mut(), &skeleton, &chain, &pose, t, &settings)?;
         prop_assert_eq!(solved.report.iterations, 0);
@@ -198,7 +198,7 @@ proptest! {
         settings in settings(),
     ) {
         let t = target.place(&case.chain, &fk(&case.skeleton, &case.pose));
-        for kind in [SolverKind::Ccd, SolverKind::CcdPlain, SolverKind::Fabrik, SolverKind::FabrikPlain] {
+        for kind in every_solver() {
             let mut solver = make_solver(kind);
             solve_checked(solver.as_mut(), &case.skeleton, &case.chain, &case.pose, t, &settings)?;
         }
@@ -221,15 +221,10 @@ fn long_chain_strategy_has_1000_joints() {
 /// The solver trait object names, to make sure the four kinds are four solvers.
 #[test]
 fn solver_kinds_are_distinct() {
-    let names: Vec<&str> = [
-        SolverKind::Ccd,
-        SolverKind::CcdPlain,
-        SolverKind::Fabrik,
-        SolverKind::FabrikPlain,
-    ]
-    .into_iter()
-    .map(|k| make_solver(k).name())
-    .collect();
+    let names: Vec<&str> = every_solver()
+        .into_iter()
+        .map(|k| make_solver(k).name())
+        .collect();
     assert_eq!(names, ["ccd", "ccd", "fabrik", "fabrik"]);
     let _: &dyn IkSolver = &CcdSolver::plain();
 }

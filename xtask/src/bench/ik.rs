@@ -9,20 +9,21 @@
 use super::workloads::{w1_skeleton, w1_targets, w2_skeleton, w2_targets};
 use super::{Plan, Record, Section, measure, sci};
 use serde_json::json;
-use sinew_ik_ccd::CcdSolver;
-use sinew_ik_fabrik::FabrikSolver;
+use sinew_ik::SolverOptions;
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{Chain, IkSolver, SolveSettings};
 use sinew_skeleton::{GlobalPose, Skeleton};
 
-/// The solvers compared: the crates' defaults and their plain forms.
-fn solvers() -> Vec<(&'static str, Box<dyn IkSolver>)> {
-    vec![
-        ("ccd", Box::new(CcdSolver::new())),
-        ("ccd-plain", Box::new(CcdSolver::plain())),
-        ("fabrik", Box::new(FabrikSolver::new())),
-        ("fabrik-plain", Box::new(FabrikSolver::plain())),
-    ]
+/// A solver with its label.
+type NamedSolver = (&'static str, Box<dyn IkSolver>);
+
+/// The solvers compared: the crates' defaults and their plain forms, from the library's
+/// registry.
+fn solvers() -> Result<Vec<NamedSolver>, String> {
+    SolverOptions::NAMED
+        .iter()
+        .map(|&(name, options)| Ok((name, options.build().map_err(|e| e.to_string())?)))
+        .collect()
 }
 
 /// The knob settings run for each solver and workload: caps at the lab tolerance, then
@@ -38,11 +39,13 @@ fn settings(plan: &Plan) -> Vec<SolveSettings> {
         .map(|&max_iterations| SolveSettings {
             max_iterations,
             tolerance: 1e-6,
+            ..Default::default()
         })
         .collect();
     out.extend(tolerances.iter().map(|&tolerance| SolveSettings {
         max_iterations: 100,
         tolerance,
+        ..Default::default()
     }));
     out
 }
@@ -85,7 +88,7 @@ fn solve_all(
             pose.rotations.fill(DQuat::IDENTITY);
         }
         let report = solver
-            .solve(skeleton, chain, &mut pose, &mut global, target, settings)
+            .solve_position(skeleton, chain, &mut pose, &mut global, target, settings)
             .map_err(|e| format!("{}: {e}", solver.name()))?;
         out.iterations += report.iterations;
         if check {
@@ -123,7 +126,7 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
     let w2 = w2_skeleton()?;
     let w2_chain = Chain::whole(&w2).map_err(|e| e.to_string())?;
     let w2_targets = w2_targets(if plan.quick { 500 } else { 10_000 });
-    for (name, mut solver) in solvers() {
+    for (name, mut solver) in solvers()? {
         for s in settings(plan) {
             records.push(w1_record(
                 plan,

@@ -9,10 +9,9 @@ use crate::spec::{SkeletonSpec, build_sampled};
 use serde::Deserialize;
 use serde_json::json;
 use sinew_curves::{CurveSpec, Sampling};
-use sinew_ik_ccd::CcdSolver;
-use sinew_ik_fabrik::{FabrikOptions, FabrikSolver};
+use sinew_ik::SolverOptions;
 use sinew_math::{DVec3, angle_between};
-use sinew_skeleton::ik::{Chain, IkSolver, SolveSettings, StopReason};
+use sinew_skeleton::ik::{Chain, EffectorGoal, IkSolver, IkState, SolveSettings, StopReason};
 use sinew_skeleton::track::{TrackSettings, Tracker};
 use sinew_skeleton::{GlobalPose, Skeleton};
 use std::time::Instant;
@@ -28,8 +27,9 @@ pub struct IkTask {
     /// The chain inside it (default: joint 0 to the last joint).
     #[serde(default)]
     pub chain: Option<ChainSpec>,
-    /// The solver.
-    pub solver: SolverSpec,
+    /// The solver and its options, from the library's registry: `Ccd(...)` or
+    /// `Fabrik(...)`.
+    pub solver: SolverOptions,
     /// Iteration cap and tolerance (default 100 and 1e-6).
     #[serde(default)]
     pub settings: SolveSettings,
@@ -52,24 +52,6 @@ pub struct ChainSpec {
     pub base: usize,
     /// The effector joint.
     pub effector: usize,
-}
-
-/// The solver and its options.
-#[derive(Debug, Deserialize)]
-pub enum SolverSpec {
-    /// Cyclic coordinate descent; `extrapolation` (default true) turns on the sweep
-    /// extrapolation, `false` gives plain CCD.
-    Ccd {
-        /// Sweep extrapolation (default true).
-        #[serde(default = "yes")]
-        extrapolation: bool,
-    },
-    /// FABRIK; `mode: hybrid` (default) or `plain`.
-    Fabrik(#[serde(default)] FabrikOptions),
-}
-
-fn yes() -> bool {
-    true
 }
 
 /// The targets, one per frame.
@@ -128,14 +110,7 @@ impl IkTask {
             Some(c) => Chain::new(&skeleton, c.base, c.effector),
         }
         .map_err(|e| format!("chain: {e}"))?;
-        let solver: Box<dyn IkSolver> = match &self.solver {
-            SolverSpec::Ccd { extrapolation } => {
-                Box::new(CcdSolver::new().with_extrapolation(*extrapolation))
-            }
-            SolverSpec::Fabrik(options) => {
-                Box::new(FabrikSolver::with_options(*options).map_err(|e| format!("solver: {e}"))?)
-            }
-        };
+        let solver = self.solver.build().map_err(|e| format!("solver: {e}"))?;
         let tracker = Tracker::new(TrackSettings {
             solve: self.settings,
             max_rotation_change: self.max_rotation_change,
@@ -198,9 +173,8 @@ impl TaskSpec for IkTask {
                     solver.as_mut(),
                     &skeleton,
                     &chain,
-                    &mut pose,
-                    &mut global,
-                    target,
+                    &mut IkState::new(&mut pose, &mut global),
+                    EffectorGoal::at(chain.effector(), target),
                 )
                 .map_err(|e| e.to_string())?;
             frame_ns.push(start.elapsed().as_secs_f64() * 1e9);
@@ -283,7 +257,7 @@ impl TaskSpec for IkTask {
             ));
         }
         let mut metrics = Metrics::new();
-        metrics.insert("solver".into(), json!(solver_label(&self.solver)));
+        metrics.insert("solver".into(), json!(self.solver.label()));
         metrics.insert("frames".into(), json!(summary.frames));
         metrics.insert("error_mean".into(), json!(summary.error_mean));
         metrics.insert("error_max".into(), json!(summary.error_max));
@@ -307,7 +281,7 @@ impl TaskSpec for IkTask {
         metrics.insert("closed_form_gap".into(), json!(closed_form_gap));
         let headline = format!(
             "{} {} frames: error mean {:.1e} max {:.1e}, {}/{} within tol, {} iterations",
-            solver_label(&self.solver),
+            self.solver.label(),
             summary.frames,
             summary.error_mean,
             summary.error_max,
@@ -366,7 +340,7 @@ impl IkTask {
                 .enumerate()
                 .map(|(k, r)| (k as f64, r.iterations as f64))
                 .collect();
-            let label = solver_label(&self.solver);
+            let label = self.solver.label();
             render::line_chart_svg(
                 &out("error.svg"),
                 &format!("{}: final error per frame", self.name),
@@ -391,20 +365,5 @@ impl IkTask {
             )?;
         }
         Ok(())
-    }
-}
-
-fn solver_label(s: &SolverSpec) -> &'static str {
-    match s {
-        SolverSpec::Ccd {
-            extrapolation: true,
-        } => "ccd",
-        SolverSpec::Ccd {
-            extrapolation: false,
-        } => "ccd-plain",
-        SolverSpec::Fabrik(o) => match o.mode {
-            sinew_ik_fabrik::FabrikMode::Hybrid => "fabrik",
-            sinew_ik_fabrik::FabrikMode::Plain => "fabrik-plain",
-        },
     }
 }
