@@ -10,6 +10,8 @@
 //!   [`Skeleton::forward_kinematics_from`] recomputes one joint and its descendants only.
 //! - [`ik`]: chains inside a skeleton, solve settings and reports, the closed-form answer
 //!   for a target out of reach, and the [`ik::IkSolver`] trait the solver crates implement.
+//! - [`limits`]: joint limits (free, fixed, hinge, swing-twist) relative to a joint's
+//!   rest rotation, with the projection, violation measure and sampling every solver uses.
 //! - [`track`]: trajectory tracking with any solver (warm starts, per-frame records,
 //!   continuity measure and the optional per-frame rotation limit, the lab's Q3).
 //!
@@ -21,6 +23,7 @@
 //! Architecture invariant: depends on sinew-math only (serde behind the `serde` feature).
 
 pub mod ik;
+pub mod limits;
 pub mod track;
 
 use sinew_math::{DQuat, DVec3};

@@ -1,0 +1,747 @@
+//! Joint limits, one copy for every inverse-kinematics solver.
+//!
+//! A [`JointLimit`] bounds a joint's local rotation *relative to its rest rotation*: callers
+//! pass `q_rel = rest⁻¹ * q_local`, never the incoming pose. The kinds are
+//!
+//! - [`JointLimit::Free`]: any rotation (the default);
+//! - [`JointLimit::Fixed`]: only the identity;
+//! - [`JointLimit::Hinge`]: a rotation about one axis, its angle in a range;
+//! - [`JointLimit::SwingTwist`]: `q = swing * twist`, the twist about the bone's rest
+//!   direction in a range and the swing's rotation vector inside an ellipse.
+//!
+//! Each limit offers [`JointLimit::project`] (the nearest allowed rotation, exact for a
+//! hinge), [`JointLimit::violation`] (how far outside, in radians, computed independently of
+//! `project`) and [`JointLimit::sample`] (allowed rotations uniform in the limit's
+//! parameters, for feasible workloads). [`swing_twist`] is the decomposition they share.
+//!
+//! All angles are radians, in code and in scene data. Axes must be unit vectors (to 1e-9,
+//! see [`JointLimit::validate`]); the constructors ([`JointLimit::hinge`],
+//! [`JointLimit::cone`], [`JointLimit::swing_twist`]) normalise them for you. The
+//! derivations (which point the projection picks and why, what it guarantees, how the
+//! violation is measured) are in `docs/ik-limits.md`.
+
+use sinew_math::{DQuat, DVec3, try_unit};
+use std::f64::consts::{PI, TAU};
+use std::fmt;
+
+/// How far from 1 an axis's length may be, and how far from 0 the cosine between a
+/// swing-twist limit's two axes may be.
+pub const AXIS_TOLERANCE: f64 = 1e-9;
+
+/// How close to a half turn [`JointLimit::sample`] lets a swing come; see there.
+pub const SAMPLE_SWING_MARGIN: f64 = 1e-3;
+
+/// A limit on a joint's rotation relative to its rest rotation; see the
+/// [module docs](self).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum JointLimit {
+    /// Any rotation is allowed.
+    #[default]
+    Free,
+    /// Only the rest rotation (the identity) is allowed.
+    Fixed,
+    /// A rotation about one axis, its angle in a range.
+    Hinge(Hinge),
+    /// A swing inside an ellipse of rotation vectors followed by a twist in a range.
+    SwingTwist(SwingTwist),
+}
+
+/// A hinge: rotations by `angle` about `axis` with `min <= angle <= max` (radians).
+///
+/// The range lies within `[-pi, pi]`; the full range `[-pi, pi]` leaves the rotation about
+/// the axis free (only the off-axis part is removed).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
+pub struct Hinge {
+    /// The rotation axis, a unit vector in the joint's rest frame.
+    pub axis: DVec3,
+    /// The smallest allowed angle, radians, in `[-pi, pi]`.
+    pub min: f64,
+    /// The largest allowed angle, radians, in `[min, pi]`.
+    pub max: f64,
+}
+
+/// Swing-twist: `q = swing * twist`, twist about `twist_axis` (the rest direction of the
+/// child bone), swing about an axis perpendicular to it.
+///
+/// The swing's rotation vector `s` (perpendicular to `twist_axis`) is bounded by the
+/// ellipse `(s.a_axis / swing_a)^2 + (s.b_axis / swing_b)^2 <= 1`, where
+/// `b_axis = twist_axis x a_axis`; the twist angle lies in `[twist_min, twist_max]`. All
+/// angles are radians. A cone of half-angle `c` with free twist is `swing_a = swing_b = c`
+/// with the twist range `[-pi, pi]`.
+///
+/// Example, a shoulder whose child bone lies along +x: `twist_axis` +x, `a_axis` +z,
+/// `swing_a` 100 degrees (the swing about z, in the x-y plane), `swing_b` 70 degrees (about
+/// y), twist within +-80 degrees.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
+pub struct SwingTwist {
+    /// The twist axis, the unit rest direction of the child bone.
+    pub twist_axis: DVec3,
+    /// The unit axis of the ellipse's `swing_a` semi-axis, perpendicular to `twist_axis`.
+    pub a_axis: DVec3,
+    /// The largest swing about `a_axis`, radians, in `(0, pi]`.
+    pub swing_a: f64,
+    /// The largest swing about `twist_axis x a_axis`, radians, in `(0, pi]`.
+    pub swing_b: f64,
+    /// The smallest twist angle, radians, in `[-pi, pi]`.
+    pub twist_min: f64,
+    /// The largest twist angle, radians, in `[twist_min, pi]`.
+    pub twist_max: f64,
+}
+
+/// Why a limit was refused. Every variant names the offending field and its value.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LimitError {
+    /// An axis has a NaN or infinite component, or its length is not within
+    /// [`AXIS_TOLERANCE`] of 1 (constructors: it is zero or not finite).
+    Axis {
+        /// The field, e.g. `"axis"` or `"twist_axis"`.
+        field: &'static str,
+        /// The value given.
+        value: DVec3,
+    },
+    /// A swing-twist limit's `a_axis` is not perpendicular to its `twist_axis`.
+    NotPerpendicular {
+        /// The `a_axis` given.
+        a_axis: DVec3,
+        /// The `twist_axis` given.
+        twist_axis: DVec3,
+        /// The cosine of the angle between them (after normalisation).
+        cosine: f64,
+    },
+    /// An angle is NaN, infinite or outside the interval allowed for its field.
+    Angle {
+        /// The field, e.g. `"swing_a"` or `"min"`.
+        field: &'static str,
+        /// The value given.
+        value: f64,
+        /// The interval allowed, e.g. `"[-pi, pi]"`.
+        allowed: &'static str,
+    },
+    /// A range's lower bound is above its upper bound.
+    EmptyRange {
+        /// The lower bound's field.
+        min_field: &'static str,
+        /// The lower bound.
+        min: f64,
+        /// The upper bound's field.
+        max_field: &'static str,
+        /// The upper bound.
+        max: f64,
+    },
+}
+
+impl fmt::Display for LimitError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Axis { field, value } => write!(
+                f,
+                "{field} = {value} is not a finite unit vector (its length {} must be within {AXIS_TOLERANCE:e} of 1)",
+                value.length()
+            ),
+            Self::NotPerpendicular {
+                a_axis,
+                twist_axis,
+                cosine,
+            } => write!(
+                f,
+                "a_axis = {a_axis} is not perpendicular to twist_axis = {twist_axis} (cosine {cosine:e}, must be within {AXIS_TOLERANCE:e} of 0)"
+            ),
+            Self::Angle {
+                field,
+                value,
+                allowed,
+            } => write!(f, "{field} = {value} is not in {allowed} (radians)"),
+            Self::EmptyRange {
+                min_field,
+                min,
+                max_field,
+                max,
+            } => write!(
+                f,
+                "{min_field} = {min} is greater than {max_field} = {max}, so the range is empty"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for LimitError {}
+
+impl JointLimit {
+    /// A hinge about `axis` (normalised here) from `min` to `max` radians, validated.
+    pub fn hinge(axis: DVec3, min: f64, max: f64) -> Result<Self, LimitError> {
+        let axis = try_unit(axis).ok_or(LimitError::Axis {
+            field: "axis",
+            value: axis,
+        })?;
+        let limit = Self::Hinge(Hinge { axis, min, max });
+        limit.validate()?;
+        Ok(limit)
+    }
+
+    /// A cone of half-angle `half_angle` radians about `twist_axis` (normalised here), the
+    /// twist free: a swing-twist limit with `swing_a = swing_b = half_angle` and the twist
+    /// range `[-pi, pi]`. Validated.
+    pub fn cone(twist_axis: DVec3, half_angle: f64) -> Result<Self, LimitError> {
+        let unit = try_unit(twist_axis).ok_or(LimitError::Axis {
+            field: "twist_axis",
+            value: twist_axis,
+        })?;
+        Self::swing_twist(
+            unit,
+            unit.any_orthonormal_vector(),
+            half_angle,
+            half_angle,
+            -PI,
+            PI,
+        )
+    }
+
+    /// A swing-twist limit (see [`SwingTwist`]), both axes normalised here, validated
+    /// (which includes that the axes are perpendicular).
+    pub fn swing_twist(
+        twist_axis: DVec3,
+        a_axis: DVec3,
+        swing_a: f64,
+        swing_b: f64,
+        twist_min: f64,
+        twist_max: f64,
+    ) -> Result<Self, LimitError> {
+        let twist_unit = try_unit(twist_axis).ok_or(LimitError::Axis {
+            field: "twist_axis",
+            value: twist_axis,
+        })?;
+        let a_unit = try_unit(a_axis).ok_or(LimitError::Axis {
+            field: "a_axis",
+            value: a_axis,
+        })?;
+        let limit = Self::SwingTwist(SwingTwist {
+            twist_axis: twist_unit,
+            a_axis: a_unit,
+            swing_a,
+            swing_b,
+            twist_min,
+            twist_max,
+        });
+        limit.validate()?;
+        Ok(limit)
+    }
+
+    /// Checks every field: axes finite with length within [`AXIS_TOLERANCE`] of 1 (and, for
+    /// swing-twist, `a_axis` perpendicular to `twist_axis` to the same tolerance after
+    /// normalisation); hinge and twist bounds finite, within `[-pi, pi]` and `min <= max`;
+    /// swing half-angles in `(0, pi]`. [`Free`](Self::Free) and [`Fixed`](Self::Fixed)
+    /// are always valid.
+    ///
+    /// [`project`](Self::project), [`violation`](Self::violation) and
+    /// [`sample`](Self::sample) assume a valid limit: they do not panic on an invalid one,
+    /// but their result is then unspecified. Limits read from scene data should be
+    /// validated before use.
+    pub fn validate(&self) -> Result<(), LimitError> {
+        match self {
+            Self::Free | Self::Fixed => Ok(()),
+            Self::Hinge(h) => {
+                check_axis("axis", h.axis)?;
+                check_range("min", h.min, "max", h.max)
+            }
+            Self::SwingTwist(st) => {
+                check_axis("twist_axis", st.twist_axis)?;
+                check_axis("a_axis", st.a_axis)?;
+                let cosine = st.twist_axis.normalize().dot(st.a_axis.normalize());
+                // Both axes passed the checks above, so the cosine is finite.
+                if cosine.abs() > AXIS_TOLERANCE {
+                    return Err(LimitError::NotPerpendicular {
+                        a_axis: st.a_axis,
+                        twist_axis: st.twist_axis,
+                        cosine,
+                    });
+                }
+                check_half_angle("swing_a", st.swing_a)?;
+                check_half_angle("swing_b", st.swing_b)?;
+                check_range("twist_min", st.twist_min, "twist_max", st.twist_max)
+            }
+        }
+    }
+
+    /// The allowed rotation nearest to `q` (a rotation relative to the rest rotation).
+    ///
+    /// - [`Free`](Self::Free): `q`, normalised. [`Fixed`](Self::Fixed): the identity.
+    /// - [`Hinge`](Self::Hinge): exact, the geodesically nearest allowed rotation: the
+    ///   rotation about the axis by `q`'s twist angle, clamped to the range; outside the
+    ///   range it goes to whichever bound is nearer on the circle (a tie goes to `max`).
+    /// - [`SwingTwist`](Self::SwingTwist): `q` is decomposed by [`swing_twist`], the twist
+    ///   clamped as for a hinge, the swing's rotation vector moved to the nearest point of
+    ///   the ellipse (Euclidean in the plane of rotation vectors), and the two recomposed.
+    ///   This is not the geodesic projection onto the whole allowed set; see
+    ///   `docs/ik-limits.md` for what it guarantees.
+    ///
+    /// A rotation already allowed is returned unchanged (normalised). The result is
+    /// normalised, never NaN, represents the same rotation for `q` and `-q`, and has the
+    /// sign that makes its dot product with `q` non-negative. A zero or non-finite `q` is
+    /// treated as the identity. Idempotent up to rounding.
+    #[must_use]
+    pub fn project(&self, q: DQuat) -> DQuat {
+        let q = unit_quat(q).unwrap_or(DQuat::IDENTITY);
+        let projected = match self {
+            Self::Free => return q,
+            Self::Fixed => DQuat::IDENTITY,
+            Self::Hinge(h) => {
+                let axis = unit_or_x(h.axis);
+                let parts = Parts::of(q, axis);
+                if parts.perp == DVec3::ZERO && in_range(parts.twist_angle, h.min, h.max) {
+                    return q;
+                }
+                let angle = clamp_circular(parts.twist_angle, h.min, h.max);
+                DQuat::from_axis_angle(axis, angle)
+            }
+            Self::SwingTwist(st) => {
+                let frame = Frame::of(st);
+                let parts = Parts::of(q, frame.twist);
+                let (ra, rb) = frame.swing_coordinates(&parts);
+                let swing_inside = st.swing_inside(ra, rb);
+                let twist_inside = in_range(parts.twist_angle, st.twist_min, st.twist_max);
+                if swing_inside && twist_inside {
+                    return q;
+                }
+                let swing = if swing_inside {
+                    parts.swing()
+                } else {
+                    let (xa, xb) = closest_on_ellipse(st.swing_a, st.swing_b, ra, rb);
+                    DQuat::from_scaled_axis(frame.a * xa + frame.b * xb)
+                };
+                let angle = clamp_circular(parts.twist_angle, st.twist_min, st.twist_max);
+                (swing * DQuat::from_axis_angle(frame.twist, angle)).normalize()
+            }
+        };
+        if projected.dot(q) < 0.0 {
+            -projected
+        } else {
+            projected
+        }
+    }
+
+    /// How far `q` is outside the limit, in radians; 0 exactly when `q` is allowed (the
+    /// same test [`project`](Self::project) uses to return `q` unchanged).
+    ///
+    /// Computed from the decomposition directly, not from `project`:
+    ///
+    /// - [`Free`](Self::Free): 0. [`Fixed`](Self::Fixed): the rotation angle of `q`.
+    /// - [`Hinge`](Self::Hinge): the larger of the off-axis swing angle (the angle of the
+    ///   swing in [`swing_twist`]`(q, axis)`) and the twist angle's distance on the circle to
+    ///   the range (0 inside it).
+    /// - [`SwingTwist`](Self::SwingTwist): the larger of the twist's distance to its range
+    ///   (as for a hinge) and the swing's radial excess: how far the swing's rotation vector
+    ///   reaches past the ellipse along its own direction, `|s| - rho(s / |s|)` where
+    ///   `rho(u)` is the ellipse's radius in direction `u` (0 inside). The radial excess is
+    ///   at least the distance from `s` to the ellipse, and at most that distance times
+    ///   `max(swing_a, swing_b) / min(swing_a, swing_b)`.
+    ///
+    /// A zero or non-finite `q` is not a rotation: its violation is infinite.
+    #[must_use]
+    pub fn violation(&self, q: DQuat) -> f64 {
+        let Some(q) = unit_quat(q) else {
+            return f64::INFINITY;
+        };
+        match self {
+            Self::Free => 0.0,
+            Self::Fixed => 2.0 * q.xyz().length().atan2(q.w.abs()),
+            Self::Hinge(h) => {
+                let parts = Parts::of(q, unit_or_x(h.axis));
+                parts
+                    .swing_angle()
+                    .max(outside_range(parts.twist_angle, h.min, h.max))
+            }
+            Self::SwingTwist(st) => {
+                let frame = Frame::of(st);
+                let parts = Parts::of(q, frame.twist);
+                let twist = outside_range(parts.twist_angle, st.twist_min, st.twist_max);
+                let (ra, rb) = frame.swing_coordinates(&parts);
+                let swing = if st.swing_inside(ra, rb) {
+                    0.0
+                } else {
+                    let level = (ra / st.swing_a).hypot(rb / st.swing_b);
+                    ra.hypot(rb) * (1.0 - 1.0 / level)
+                };
+                twist.max(swing)
+            }
+        }
+    }
+
+    /// An allowed rotation from `u` in `[0, 1)^3`, uniform in the limit's parameters:
+    ///
+    /// - [`Free`](Self::Free): uniform over all rotations (Shoemake's subgroup algorithm,
+    ///   "Uniform random rotations", Graphics Gems III). [`Fixed`](Self::Fixed): identity.
+    /// - [`Hinge`](Self::Hinge): the angle `min + u[0] * (max - min)`.
+    /// - [`SwingTwist`](Self::SwingTwist): the swing's rotation vector uniform over the
+    ///   ellipse's area (`rho = sqrt(u[0])`, `psi = 2 pi u[1]`,
+    ///   `s = swing_a rho cos(psi) a_axis + swing_b rho sin(psi) b_axis`) and the twist
+    ///   angle `twist_min + u[2] * (twist_max - twist_min)`. When a half-angle exceeds
+    ///   `pi - SAMPLE_SWING_MARGIN`, the ellipse is shrunk by the factor that brings it to
+    ///   that value, so no sample swings within [`SAMPLE_SWING_MARGIN`] of a half turn: there
+    ///   the decomposition of the composed rotation is ill-conditioned (its twist and swing
+    ///   direction are known only to about `eps / cos(swing / 2)`), and a sample must
+    ///   decompose back inside the limit.
+    ///
+    /// Components of `u` are clamped to `[0, 1]`; NaN counts as 0.
+    #[must_use]
+    pub fn sample(&self, u: [f64; 3]) -> DQuat {
+        let u = u.map(|x| if x >= 0.0 { x.min(1.0) } else { 0.0 });
+        match self {
+            Self::Free => {
+                let (r1, r2) = ((1.0 - u[0]).sqrt(), u[0].sqrt());
+                let (t1, t2) = (TAU * u[1], TAU * u[2]);
+                DQuat::from_xyzw(r1 * t1.sin(), r1 * t1.cos(), r2 * t2.sin(), r2 * t2.cos())
+            }
+            Self::Fixed => DQuat::IDENTITY,
+            Self::Hinge(h) => {
+                DQuat::from_axis_angle(unit_or_x(h.axis), h.min + u[0] * (h.max - h.min))
+            }
+            Self::SwingTwist(st) => {
+                let frame = Frame::of(st);
+                let reach = (PI - SAMPLE_SWING_MARGIN) / st.swing_a.max(st.swing_b);
+                let rho = u[0].sqrt() * reach.min(1.0);
+                let (sin, cos) = (TAU * u[1]).sin_cos();
+                let swing = DQuat::from_scaled_axis(
+                    frame.a * (st.swing_a * rho * cos) + frame.b * (st.swing_b * rho * sin),
+                );
+                let twist = DQuat::from_axis_angle(
+                    frame.twist,
+                    st.twist_min + u[2] * (st.twist_max - st.twist_min),
+                );
+                (swing * twist).normalize()
+            }
+        }
+    }
+}
+
+impl SwingTwist {
+    /// Whether the swing with ellipse coordinates `(ra, rb)` is inside the ellipse. A full
+    /// disc (both half-angles pi) holds every swing, whatever the rounding of `|s| = pi`.
+    fn swing_inside(&self, ra: f64, rb: f64) -> bool {
+        (self.swing_a >= PI && self.swing_b >= PI)
+            || (ra / self.swing_a).powi(2) + (rb / self.swing_b).powi(2) <= 1.0
+    }
+}
+
+/// The decomposition `q = swing * twist`, the twist a rotation about `axis`.
+///
+/// `axis` is normalised here (a zero or non-finite axis counts as +x), and a zero or
+/// non-finite `q` counts as the identity. The twist has a non-negative scalar part, so its
+/// angle is in `[-pi, pi]`; the swing is a rotation about an axis perpendicular to
+/// `axis`, and `swing * twist` equals the normalised `q` as a quaternion (to rounding), not
+/// just as a rotation.
+///
+/// At the singular swing of 180 degrees (`q` a half turn about an axis perpendicular to
+/// `axis`) every twist fits; the answer defined there is the identity twist and
+/// `swing = q`. Near it the decomposition is well-conditioned except for the twist angle,
+/// which is then inherently sensitive to `q`.
+#[must_use]
+pub fn swing_twist(q: DQuat, axis: DVec3) -> (DQuat, DQuat) {
+    let q = unit_quat(q).unwrap_or(DQuat::IDENTITY);
+    let parts = Parts::of(q, unit_or_x(axis));
+    let (tp, tw, sign) = parts.canonical_twist();
+    let twist = DQuat::from_xyzw(parts.axis.x * tp, parts.axis.y * tp, parts.axis.z * tp, tw);
+    (parts.swing() * sign, twist)
+}
+
+/// The pieces of a rotation's swing-twist decomposition about a unit axis, in the
+/// convention where the swing's scalar part is `h = |(q.axis, q.w)| >= 0`.
+struct Parts {
+    /// The unit twist axis.
+    axis: DVec3,
+    /// The component of `q`'s vector part perpendicular to the axis; its length is the
+    /// swing's `sin(angle / 2)`.
+    perp: DVec3,
+    /// The swing's vector part (perpendicular to the axis, of length `|perp|`).
+    swing_vec: DVec3,
+    /// The swing's scalar part, `hypot(q.axis, q.w)`: its `cos(angle / 2)`, >= 0.
+    swing_w: f64,
+    /// `q`'s component along the axis, and its scalar part.
+    along: f64,
+    w: f64,
+    /// The twist angle in `(-pi, pi]`, 0 at the singular swing.
+    twist_angle: f64,
+}
+
+impl Parts {
+    /// Decomposes a unit `q` about a unit `axis`; see `docs/ik-limits.md` for why the
+    /// swing's vector part is `c perp + s axis x perp` with `(c, s) = (w, along) / h`.
+    fn of(q: DQuat, axis: DVec3) -> Self {
+        let v = q.xyz();
+        let along = v.dot(axis);
+        let perp = v - axis * along;
+        let h = along.hypot(q.w);
+        // At h = 0 (the half-turn swing) the twist is undefined; the identity twist makes
+        // the swing q itself, as (c, s) = (1, 0) gives.
+        let (c, s) = if h > 0.0 {
+            (q.w / h, along / h)
+        } else {
+            (1.0, 0.0)
+        };
+        let swing_vec = perp * c + axis.cross(perp) * s;
+        let mut parts = Self {
+            axis,
+            perp,
+            swing_vec,
+            swing_w: h,
+            along,
+            w: q.w,
+            twist_angle: 0.0,
+        };
+        let (tp, tw, _) = parts.canonical_twist();
+        parts.twist_angle = if h > 0.0 { 2.0 * tp.atan2(tw) } else { 0.0 };
+        parts
+    }
+
+    /// The twist's `(axis component, scalar part)` with the sign that puts its angle in
+    /// `(-pi, pi]` (scalar part positive, or zero with a non-negative axis component), and
+    /// that sign. The same rotation gets the same answer from `q` and `-q`.
+    fn canonical_twist(&self) -> (f64, f64, f64) {
+        let h = self.swing_w;
+        if h == 0.0 {
+            return (0.0, 1.0, 1.0);
+        }
+        let (p, w) = (self.along / h, self.w / h);
+        if w > 0.0 || (w == 0.0 && p >= 0.0) {
+            (p, w, 1.0)
+        } else {
+            (-p, -w, -1.0)
+        }
+    }
+
+    /// The swing, with scalar part `h >= 0`.
+    fn swing(&self) -> DQuat {
+        DQuat::from_xyzw(
+            self.swing_vec.x,
+            self.swing_vec.y,
+            self.swing_vec.z,
+            self.swing_w,
+        )
+    }
+
+    /// The swing's angle in `[0, pi]`.
+    fn swing_angle(&self) -> f64 {
+        2.0 * self.swing_vec.length().atan2(self.swing_w)
+    }
+
+    /// The swing's rotation vector (length in `[0, pi]`, perpendicular to the axis).
+    fn swing_rotation_vector(&self) -> DVec3 {
+        let n = self.swing_vec.length();
+        if n > 0.0 {
+            self.swing_vec * (2.0 * n.atan2(self.swing_w) / n)
+        } else {
+            DVec3::ZERO
+        }
+    }
+}
+
+/// A swing-twist limit's orthonormal frame: the twist axis and the ellipse's two axes.
+struct Frame {
+    twist: DVec3,
+    a: DVec3,
+    b: DVec3,
+}
+
+impl Frame {
+    /// The frame of a (valid) limit, made exactly orthonormal: the axes are within 1e-9 of
+    /// unit and perpendicular, and the ellipse coordinates should not inherit that error.
+    fn of(st: &SwingTwist) -> Self {
+        let twist = unit_or_x(st.twist_axis);
+        let a = try_unit(st.a_axis - twist * st.a_axis.dot(twist))
+            .unwrap_or_else(|| twist.any_orthonormal_vector());
+        Self {
+            twist,
+            a,
+            b: twist.cross(a),
+        }
+    }
+
+    /// The swing's rotation vector in ellipse coordinates `(along a, along b)`. At the
+    /// half-turn swing `s` and `-s` are the same rotation; the representative with a
+    /// positive `a` coordinate (or zero and a positive `b` one) is chosen, so that `q` and
+    /// `-q` project to the same rotation.
+    fn swing_coordinates(&self, parts: &Parts) -> (f64, f64) {
+        let r = parts.swing_rotation_vector();
+        let (ra, rb) = (r.dot(self.a), r.dot(self.b));
+        if parts.swing_w == 0.0 && (ra < 0.0 || (ra == 0.0 && rb < 0.0)) {
+            (-ra, -rb)
+        } else {
+            (ra, rb)
+        }
+    }
+}
+
+/// `q / |q|`, or `None` for a zero or non-finite `q`. Scales by the largest component
+/// first so that tiny quaternions do not underflow to zero length.
+fn unit_quat(q: DQuat) -> Option<DQuat> {
+    if !q.is_finite() {
+        return None;
+    }
+    // A quaternion that is unit to rounding is kept bit for bit, so that an allowed
+    // rotation comes back exactly as it went in.
+    if (q.length_squared() - 1.0).abs() <= 4.0 * f64::EPSILON {
+        return Some(q);
+    }
+    let scale = q.to_array().iter().fold(0.0f64, |m, c| m.max(c.abs()));
+    if scale == 0.0 {
+        return None;
+    }
+    Some((q * (1.0 / scale)).normalize())
+}
+
+fn unit_or_x(v: DVec3) -> DVec3 {
+    try_unit(v).unwrap_or(DVec3::X)
+}
+
+fn in_range(angle: f64, min: f64, max: f64) -> bool {
+    min <= angle && angle <= max
+}
+
+/// The distance between two angles in `[-pi, pi]` along the circle, in `[0, pi]`.
+fn circular_distance(x: f64, y: f64) -> f64 {
+    let d = (x - y).abs();
+    if d > PI { TAU - d } else { d }
+}
+
+/// How far `angle` is from `[min, max]` along the circle (0 inside).
+fn outside_range(angle: f64, min: f64, max: f64) -> f64 {
+    if in_range(angle, min, max) {
+        0.0
+    } else {
+        circular_distance(angle, min).min(circular_distance(angle, max))
+    }
+}
+
+/// `angle` clamped to `[min, max]` on the circle: unchanged inside, otherwise the bound
+/// nearer along the circle (a tie goes to `max`).
+fn clamp_circular(angle: f64, min: f64, max: f64) -> f64 {
+    if in_range(angle, min, max) {
+        angle
+    } else if circular_distance(angle, max) <= circular_distance(angle, min) {
+        max
+    } else {
+        min
+    }
+}
+
+/// The point of the ellipse `(x / ea)^2 + (y / eb)^2 = 1` nearest to `(ya, yb)`.
+fn closest_on_ellipse(ea: f64, eb: f64, ya: f64, yb: f64) -> (f64, f64) {
+    // The robust algorithm wants the major semi-axis first.
+    if ea >= eb {
+        closest_on_ellipse_ordered(ea, eb, ya, yb)
+    } else {
+        let (xb, xa) = closest_on_ellipse_ordered(eb, ea, yb, ya);
+        (xa, xb)
+    }
+}
+
+/// The point of the ellipse `(x0 / e0)^2 + (x1 / e1)^2 = 1`, `e0 >= e1 > 0`, nearest to
+/// `(y0, y1)`: Eberly's bisection ("Distance from a Point to an Ellipse, an Ellipsoid, or a
+/// Hyperellipsoid", Geometric Tools, 2013), derived in `docs/ik-limits.md`.
+fn closest_on_ellipse_ordered(e0: f64, e1: f64, y0: f64, y1: f64) -> (f64, f64) {
+    // By symmetry work in the first quadrant and restore the signs at the end.
+    let (z0, z1) = (y0.abs(), y1.abs());
+    let (x0, x1) = if z1 > 0.0 {
+        if z0 > 0.0 {
+            let (n0, n1) = (z0 / e0, z1 / e1);
+            let g = n0 * n0 + n1 * n1 - 1.0;
+            if g == 0.0 {
+                (z0, z1)
+            } else {
+                let r0 = (e0 / e1).powi(2);
+                let t = ellipse_root(r0, n0, n1, g);
+                (r0 * z0 / (t + r0), z1 / (t + 1.0))
+            }
+        } else {
+            (0.0, e1)
+        }
+    } else {
+        // On the major axis: outside or near its end the vertex is nearest; deep inside,
+        // a point off the axis is.
+        let numer = e0 * z0;
+        let denom = e0 * e0 - e1 * e1;
+        if numer < denom {
+            let ratio = numer / denom;
+            (e0 * ratio, e1 * (1.0 - ratio * ratio).max(0.0).sqrt())
+        } else {
+            (e0, 0.0)
+        }
+    };
+    (x0.copysign(y0), x1.copysign(y1))
+}
+
+/// The root `t` of `F(t) = (r0 n0 / (t + r0))^2 + (n1 / (t + 1))^2 - 1` (decreasing for
+/// `t > -1`) by bisection until the midpoint repeats an end point. `g = F(0)`.
+fn ellipse_root(r0: f64, n0: f64, n1: f64, g: f64) -> f64 {
+    let rn0 = r0 * n0;
+    let mut lo = n1 - 1.0;
+    let mut hi = if g < 0.0 { 0.0 } else { rn0.hypot(n1) - 1.0 };
+    let mut t = lo;
+    // The bracket is at most ~r0 wide and the root only matters to rounding relative to
+    // `t + 1 >= 1`, so 200 halvings are ample even for the thinnest ellipse allowed.
+    for _ in 0..200 {
+        t = 0.5 * (lo + hi);
+        if t == lo || t == hi {
+            break;
+        }
+        let f = (rn0 / (t + r0)).powi(2) + (n1 / (t + 1.0)).powi(2) - 1.0;
+        if f > 0.0 {
+            lo = t;
+        } else if f < 0.0 {
+            hi = t;
+        } else {
+            break;
+        }
+    }
+    t
+}
+
+fn check_axis(field: &'static str, value: DVec3) -> Result<(), LimitError> {
+    if value.is_finite() && (value.length() - 1.0).abs() <= AXIS_TOLERANCE {
+        Ok(())
+    } else {
+        Err(LimitError::Axis { field, value })
+    }
+}
+
+fn check_half_angle(field: &'static str, value: f64) -> Result<(), LimitError> {
+    if value > 0.0 && value <= PI {
+        Ok(())
+    } else {
+        Err(LimitError::Angle {
+            field,
+            value,
+            allowed: "(0, pi]",
+        })
+    }
+}
+
+fn check_range(
+    min_field: &'static str,
+    min: f64,
+    max_field: &'static str,
+    max: f64,
+) -> Result<(), LimitError> {
+    for (field, value) in [(min_field, min), (max_field, max)] {
+        if !(-PI..=PI).contains(&value) {
+            return Err(LimitError::Angle {
+                field,
+                value,
+                allowed: "[-pi, pi]",
+            });
+        }
+    }
+    if min > max {
+        return Err(LimitError::EmptyRange {
+            min_field,
+            min,
+            max_field,
+            max,
+        });
+    }
+    Ok(())
+}
