@@ -15,6 +15,13 @@
 //! is rotated about `P[j]` in O(1) and forward kinematics runs once per sweep, from the
 //! base, to measure the true error and to stop rounding drift.
 //!
+//! Joint limits: after its correction, each joint's local rotation is projected onto its
+//! limit ([`sinew_skeleton::limits::JointLimit::project`]), and the effector is carried
+//! by the turn actually applied, so the O(1) update stays exact. A projected step can
+//! raise the error; the sweep that does is undone, and the solve stops at the best pose
+//! it found with [`StopReason::LocalMinimum`] (the best reachable within the limits for
+//! CCD). Targets out of reach are not straightened through the limits: CCD iterates.
+//!
 //! Stop rules, reported in [`StopReason`]: within the tolerance
 //! ([`StopReason::Converged`]), the iteration cap ([`StopReason::IterationCap`]), or a
 //! sweep that did not reduce the error ([`StopReason::Stalled`]; a sweep that made the
@@ -38,8 +45,9 @@
 use sinew_math::{DQuat, DVec3, rotation_between};
 use sinew_skeleton::ik::{
     Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveStart, StopReason, begin_solve,
-    measure,
+    chain_has_limits, measure,
 };
+use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
 
 /// The over-relaxation factor [`CcdSolver::new`] uses: none, since over-relaxation
@@ -253,6 +261,7 @@ impl IkSolver for CcdSolver {
         let (skeleton, chain, settings) = (problem.skeleton, problem.chain, &problem.settings);
         let (pose, global) = (&mut *state.pose, &mut *state.global);
         let target = goal.position;
+        let has_limits = chain_has_limits(skeleton, chain);
         let movable = &chain.joints()[..chain.bone_count()];
         self.saved.clear();
         self.saved.resize(movable.len(), DQuat::IDENTITY);
@@ -282,7 +291,11 @@ impl IkSolver for CcdSolver {
                     }
                     skeleton.forward_kinematics_from(pose, chain.base(), global)?;
                 }
-                break StopReason::Stalled;
+                break if has_limits {
+                    StopReason::LocalMinimum
+                } else {
+                    StopReason::Stalled
+                };
             }
             let ratio = swept / error;
             error = swept;
@@ -341,7 +354,14 @@ impl CcdSolver {
             } else {
                 before
             };
-            pose.rotations[j] = (after + (after - before) * factor).normalize();
+            // Extrapolated rotations are projected onto the limits like any other.
+            let extrapolated = (after + (after - before) * factor).normalize();
+            let limit = skeleton.limit(j);
+            pose.rotations[j] = if matches!(limit, JointLimit::Free) {
+                extrapolated
+            } else {
+                limit.project(extrapolated)
+            };
         }
         skeleton.forward_kinematics_from(pose, chain.base(), global)?;
         let tried = global.positions[chain.effector()].distance(target);
@@ -397,8 +417,27 @@ fn sweep_unchecked(
             }
             None => turn,
         };
-        pose.rotations[j] = (local_turn * pose.rotations[j]).normalize();
-        effector = pivot + turn * to_effector;
+        let turned = (local_turn * pose.rotations[j]).normalize();
+        let limit = skeleton.limit(j);
+        if matches!(limit, JointLimit::Free) {
+            pose.rotations[j] = turned;
+            effector = pivot + turn * to_effector;
+        } else {
+            // The joint's limit may take part of the turn back: project, then carry the
+            // effector by the turn actually applied, G[p] (new old^-1) G[p]^-1.
+            let old = pose.rotations[j].normalize();
+            let new = limit.project(turned);
+            pose.rotations[j] = new;
+            let applied_local = (new * old.conjugate()).normalize();
+            let applied = match skeleton.parent(j) {
+                Some(p) => {
+                    let axis = global.rotations[p] * applied_local.xyz();
+                    DQuat::from_xyzw(axis.x, axis.y, axis.z, applied_local.w)
+                }
+                None => applied_local,
+            };
+            effector = pivot + applied * to_effector;
+        }
     }
     skeleton.forward_kinematics_from(pose, chain.base(), global)?;
     Ok(global.positions[chain.effector()].distance(target))

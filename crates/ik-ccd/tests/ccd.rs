@@ -363,6 +363,7 @@ fn a_chain_inside_a_tree_moves_only_its_subtrees() {
         name: None,
         parent,
         offset,
+        ..JointDef::default()
     };
     let skel = Skeleton::new([
         joint(None, DVec3::ZERO),

@@ -580,6 +580,7 @@ fn a_chain_inside_a_tree_moves_its_side_branches_rigidly() {
         name: None,
         parent,
         offset,
+        ..JointDef::default()
     };
     let skel = Skeleton::new([
         joint(None, DVec3::new(0.0, 1.0, 0.0)),

@@ -25,6 +25,7 @@
 //! position, and angles in radians between the effector's global rotation and its goal
 //! rotation.
 
+use crate::limits::JointLimit;
 use crate::{GlobalPose, Pose, Skeleton, SkeletonError};
 use sinew_math::{DQuat, DVec3, rotation_between, try_unit};
 use std::fmt;
@@ -613,23 +614,47 @@ pub fn measure(
 }
 
 /// The largest joint-limit violation (radians) of `pose` over the chain's movable
-/// joints. The skeleton has no joint limits yet, so every pose is allowed.
+/// joints (every chain joint but the effector, whose rotation the chain solvers do not
+/// change); 0 for a chain without limits.
 #[must_use]
-pub fn chain_limit_violation(_skeleton: &Skeleton, _chain: &Chain, _pose: &Pose) -> f64 {
-    0.0
+pub fn chain_limit_violation(skeleton: &Skeleton, chain: &Chain, pose: &Pose) -> f64 {
+    chain.joints()[..chain.bone_count()]
+        .iter()
+        .map(|&j| skeleton.limit(j).violation(pose.rotations[j]))
+        .fold(0.0, f64::max)
 }
 
-/// Whether any movable joint of the chain has a joint limit. The skeleton has no joint
-/// limits yet.
+/// Whether any movable joint of the chain has a joint limit (anything but free).
 #[must_use]
-pub fn chain_has_limits(_skeleton: &Skeleton, _chain: &Chain) -> bool {
-    false
+pub fn chain_has_limits(skeleton: &Skeleton, chain: &Chain) -> bool {
+    chain.joints()[..chain.bone_count()]
+        .iter()
+        .any(|&j| !matches!(skeleton.limit(j), JointLimit::Free))
+}
+
+/// Projects the local rotation of every movable joint of the chain onto its limit
+/// ([`JointLimit::project`]); returns whether any joint moved. Forward kinematics is
+/// the caller's.
+pub fn project_onto_limits(skeleton: &Skeleton, chain: &Chain, pose: &mut Pose) -> bool {
+    let mut moved = false;
+    for &j in &chain.joints()[..chain.bone_count()] {
+        let limit = skeleton.limit(j);
+        if matches!(limit, JointLimit::Free) {
+            continue;
+        }
+        let projected = limit.project(pose.rotations[j]);
+        moved |= projected != pose.rotations[j];
+        pose.rotations[j] = projected;
+    }
+    moved
 }
 
 /// The checks and early exits every solver makes first, in this order:
 ///
 /// 1. [`IkProblem::validate`], then forward kinematics of the pose into the state's
-///    global pose (which checks the pose).
+///    global pose (which checks the pose). A chain with limits has its starting pose
+///    projected onto them ([`project_onto_limits`]), so every solve returns a pose
+///    inside the limits.
 /// 2. Already within both tolerances: done, 0 iterations, pose untouched.
 /// 3. Goal position at or beyond the reach of a chain without joint limits:
 ///    [`straighten_towards`], 0 iterations (the straight chain is the only pose that
@@ -642,9 +667,16 @@ pub fn begin_solve(
     problem.validate()?;
     let goal = problem.goal()?;
     let (skeleton, chain, settings) = (problem.skeleton, problem.chain, &problem.settings);
+    // The forward kinematics below checks the pose before anything reads it.
     skeleton.forward_kinematics(state.pose, state.global)?;
     let initial = goal.errors(state.global);
-    if initial.0 <= settings.tolerance && initial.1 <= settings.rotation_tolerance {
+    if chain_has_limits(skeleton, chain) && project_onto_limits(skeleton, chain, state.pose) {
+        // A solve returns a pose inside the limits even when it starts outside them;
+        // the initial errors stay those of the pose given.
+        skeleton.forward_kinematics_from(state.pose, chain.base(), state.global)?;
+    }
+    let now = goal.errors(state.global);
+    if now.0 <= settings.tolerance && now.1 <= settings.rotation_tolerance {
         return Ok(SolveStart::Done(measure(
             problem,
             state,
@@ -767,21 +799,25 @@ mod tests {
                 name: None,
                 parent: None,
                 offset: DVec3::ZERO,
+                ..JointDef::default()
             },
             JointDef {
                 name: None,
                 parent: Some(0),
                 offset: DVec3::X,
+                ..JointDef::default()
             },
             JointDef {
                 name: Some("arm".into()),
                 parent: Some(0),
                 offset: DVec3::Y * 2.0,
+                ..JointDef::default()
             },
             JointDef {
                 name: None,
                 parent: Some(2),
                 offset: DVec3::Z * 3.0,
+                ..JointDef::default()
             },
         ])
         .unwrap();

@@ -6,12 +6,14 @@
 //! compared and the largest disagreement is a metric). Time is per frame (W1) or per
 //! solve (W2) and covers the solves only.
 
-use super::workloads::{w1_skeleton, w1_targets, w2_skeleton, w2_targets};
+use super::workloads::{
+    w1_skeleton, w1_targets, w2_skeleton, w2_targets, w7_ball, w7_feasible, w7_skeleton,
+};
 use super::{Plan, Record, Section, measure, sci};
 use serde_json::json;
 use sinew_ik::SolverOptions;
 use sinew_math::{DQuat, DVec3};
-use sinew_skeleton::ik::{Chain, IkSolver, SolveSettings};
+use sinew_skeleton::ik::{Chain, IkSolver, SolveSettings, chain_limit_violation};
 use sinew_skeleton::{GlobalPose, Skeleton};
 
 /// A solver with its label.
@@ -59,6 +61,10 @@ struct Outcome {
     bone_length_error_max: f64,
     /// Largest |reported error - error by forward kinematics| (checked runs only).
     report_disagreement_max: f64,
+    /// Largest joint-limit violation (radians) of a returned pose (checked runs only).
+    limit_violation_max: f64,
+    /// How many solves stopped for each reason.
+    stops: std::collections::BTreeMap<&'static str, usize>,
 }
 
 /// Solves every target in order. `warm`: each solve starts from the previous pose (W1);
@@ -81,6 +87,8 @@ fn solve_all(
         iterations: 0,
         bone_length_error_max: 0.0,
         report_disagreement_max: 0.0,
+        limit_violation_max: 0.0,
+        stops: std::collections::BTreeMap::new(),
     };
     let effector = chain.effector();
     for &target in targets {
@@ -92,6 +100,10 @@ fn solve_all(
             .map_err(|e| format!("{}: {e}", solver.name()))?;
         out.iterations += report.iterations;
         if check {
+            *out.stops.entry(report.stop.as_str()).or_insert(0) += 1;
+            out.limit_violation_max = out
+                .limit_violation_max
+                .max(chain_limit_violation(skeleton, chain, &pose));
             skeleton
                 .forward_kinematics(&pose, &mut fk)
                 .map_err(|e| e.to_string())?;
@@ -149,7 +161,88 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
         }
         eprintln!("  {name} done");
     }
+    // W7, the arm with joint limits: both solvers as shipped, the lab's cap and tolerance.
+    let w7 = w7_skeleton()?;
+    let w7_chain = Chain::whole(&w7).map_err(|e| e.to_string())?;
+    let count = if plan.quick { 200 } else { 10_000 };
+    let feasible: Vec<DVec3> = w7_feasible(&w7, count)?.iter().map(|g| g.0).collect();
+    let ball = w7_ball(count);
+    for (name, mut solver) in solvers()? {
+        if name.ends_with("-plain") {
+            continue;
+        }
+        let s = SolveSettings::default();
+        records.push(w7_record(
+            plan,
+            name,
+            solver.as_mut(),
+            &w7,
+            &w7_chain,
+            &feasible,
+            &ball,
+            &s,
+        )?);
+    }
     Ok(records)
+}
+
+/// W7: cold solves of the feasible targets (timed, the headline error), and the ball's
+/// points, reported separately (stop reasons, errors; untimed).
+#[allow(clippy::too_many_arguments)]
+fn w7_record(
+    plan: &Plan,
+    name: &str,
+    solver: &mut dyn IkSolver,
+    skeleton: &Skeleton,
+    chain: &Chain,
+    feasible: &[DVec3],
+    ball: &[DVec3],
+    s: &SolveSettings,
+) -> Result<Record, String> {
+    let checked = solve_all(solver, skeleton, chain, feasible, s, false, true)?;
+    let (time, _) = measure(plan, plan.repeats, feasible.len(), || {
+        solve_all(solver, skeleton, chain, feasible, s, false, false)
+    });
+    let outside = solve_all(solver, skeleton, chain, ball, s, false, true)?;
+    let within = checked.errors.iter().filter(|&&e| e <= 1e-6).count();
+    let error_max = checked.errors.iter().copied().fold(0.0, f64::max);
+    let mut metrics = serde_json::Map::new();
+    metrics.insert("solves".into(), json!(feasible.len()));
+    metrics.insert("feasible_within_1e-6".into(), json!(within));
+    metrics.insert(
+        "feasible_within_share".into(),
+        json!(within as f64 / feasible.len() as f64),
+    );
+    metrics.insert("feasible_error_mean".into(), json!(mean(&checked.errors)));
+    metrics.insert("feasible_stops".into(), json!(checked.stops));
+    metrics.insert(
+        "limit_violation_max".into(),
+        json!(checked.limit_violation_max.max(outside.limit_violation_max)),
+    );
+    metrics.insert("ball_solves".into(), json!(ball.len()));
+    metrics.insert("ball_error_mean".into(), json!(mean(&outside.errors)));
+    metrics.insert(
+        "ball_within_1e-6".into(),
+        json!(outside.errors.iter().filter(|&&e| e <= 1e-6).count()),
+    );
+    metrics.insert("ball_stops".into(), json!(outside.stops));
+    metrics.insert("iterations_total".into(), json!(checked.iterations));
+    metrics.insert(
+        "report_disagreement_max".into(),
+        json!(checked.report_disagreement_max),
+    );
+    Ok(Record {
+        section: Section::Ik,
+        workload: "W7".into(),
+        method: name.into(),
+        knobs: knobs(s),
+        unit: "solve",
+        time,
+        error: error_max,
+        error_name: "largest final distance over the feasible targets",
+        metrics,
+        note: String::new(),
+    })
 }
 
 fn w1_record(

@@ -10,7 +10,7 @@ use serde::Deserialize;
 use serde_json::json;
 use sinew_curves::{CurveSpec, Sampling};
 use sinew_ik::SolverOptions;
-use sinew_math::{DVec3, angle_between};
+use sinew_math::{DQuat, DVec3, angle_between};
 use sinew_skeleton::ik::{Chain, EffectorGoal, IkSolver, IkState, SolveSettings, StopReason};
 use sinew_skeleton::track::{TrackSettings, Tracker};
 use sinew_skeleton::{GlobalPose, Skeleton};
@@ -54,9 +54,25 @@ pub struct ChainSpec {
     pub effector: usize,
 }
 
+/// One frame's goal beyond a position: what `Goals` lists.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GoalSpec {
+    /// Where the effector should be.
+    pub position: DVec3,
+    /// The effector's goal rotation, a quaternion `(x, y, z, w)` (default: none).
+    #[serde(default)]
+    pub rotation: Option<DQuat>,
+    /// A point the chain's bend plane should turn towards (default: none).
+    #[serde(default)]
+    pub pole: Option<DVec3>,
+}
+
 /// The targets, one per frame.
 #[derive(Debug, Deserialize)]
 pub enum TargetSpec {
+    /// Full goals (position, optional rotation and pole), one per frame.
+    Goals(Vec<GoalSpec>),
     /// One target, one frame.
     Point(DVec3),
     /// A list of targets, one per frame.
@@ -71,8 +87,37 @@ pub enum TargetSpec {
 }
 
 impl TargetSpec {
+    /// The goals of the frames: positions with any rotation and pole.
+    fn goals(&self, effector: usize) -> Result<Vec<EffectorGoal>, String> {
+        if let Self::Goals(goals) = self {
+            if goals.is_empty() {
+                return Err("target: no goals".into());
+            }
+            return goals
+                .iter()
+                .enumerate()
+                .map(|(k, g)| {
+                    let goal = EffectorGoal {
+                        rotation: g.rotation,
+                        pole: g.pole,
+                        ..EffectorGoal::at(effector, g.position)
+                    };
+                    goal.validate(k, &dummy_skeleton(effector))
+                        .map_err(|e| format!("target: {e}"))?;
+                    Ok(goal)
+                })
+                .collect();
+        }
+        Ok(self
+            .points()?
+            .into_iter()
+            .map(|p| EffectorGoal::at(effector, p))
+            .collect())
+    }
+
     fn points(&self) -> Result<Vec<DVec3>, String> {
         let points = match self {
+            Self::Goals(goals) => goals.iter().map(|g| g.position).collect(),
             Self::Point(p) => vec![*p],
             Self::Points(ps) => ps.clone(),
             Self::Curve { curve, sampling } => {
@@ -93,13 +138,19 @@ impl TargetSpec {
     }
 }
 
+/// A skeleton with `effector + 1` joints, only so a goal's fields can be checked before
+/// the task's own skeleton is at hand (the joint index is checked against the chain).
+fn dummy_skeleton(effector: usize) -> Skeleton {
+    Skeleton::chain(DVec3::ZERO, &vec![DVec3::X; effector]).expect("a plain chain")
+}
+
 /// Everything an `Ik` task runs with, built from its fields.
 struct Built {
     skeleton: Skeleton,
     chain: Chain,
     solver: Box<dyn IkSolver>,
     tracker: Tracker,
-    targets: Vec<DVec3>,
+    goals: Vec<EffectorGoal>,
 }
 
 impl IkTask {
@@ -116,13 +167,13 @@ impl IkTask {
             max_rotation_change: self.max_rotation_change,
         })
         .map_err(|e| format!("settings: {e}"))?;
-        let targets = self.target.points()?;
+        let goals = self.target.goals(chain.effector())?;
         Ok(Built {
             skeleton,
             chain,
             solver,
             tracker,
-            targets,
+            goals,
         })
     }
 }
@@ -152,8 +203,9 @@ impl TaskSpec for IkTask {
             chain,
             mut solver,
             mut tracker,
-            targets,
+            goals,
         } = self.build()?;
+        let targets: Vec<DVec3> = goals.iter().map(|g| g.position).collect();
         tracker.reserve(targets.len());
         let mut pose = skeleton.rest_pose();
         let mut global = GlobalPose::new();
@@ -166,7 +218,7 @@ impl TaskSpec for IkTask {
         let frame_every = targets.len().div_ceil(MAX_FRAMES).max(1);
         let mut shown: Vec<(Vec<DVec3>, DVec3)> = Vec::new();
         let mut progress = ctx.progress(&self.name, targets.len());
-        for (k, &target) in targets.iter().enumerate() {
+        for (k, (&target, &goal)) in targets.iter().zip(&goals).enumerate() {
             let start = Instant::now();
             tracker
                 .step(
@@ -174,7 +226,7 @@ impl TaskSpec for IkTask {
                     &skeleton,
                     &chain,
                     &mut IkState::new(&mut pose, &mut global),
-                    EffectorGoal::at(chain.effector(), target),
+                    goal,
                 )
                 .map_err(|e| e.to_string())?;
             frame_ns.push(start.elapsed().as_secs_f64() * 1e9);
@@ -244,6 +296,14 @@ impl TaskSpec for IkTask {
                 summary.error_max
             ));
         }
+        // Joint limits are an invariant of every solver (the projections' round-off is
+        // far below 1e-12 rad).
+        if summary.limit_violation_max > 1e-12 {
+            failures.push(format!(
+                "a frame's pose leaves a joint limit by {:.3e} rad",
+                summary.limit_violation_max
+            ));
+        }
         // Bone lengths are an invariant of every solver: check them always, relative
         // to the chain's reach (positions carry round-off of their own size).
         let scale = chain
@@ -264,6 +324,19 @@ impl TaskSpec for IkTask {
         metrics.insert("iterations_total".into(), json!(summary.iterations_total));
         metrics.insert("converged_frames".into(), json!(summary.converged_frames));
         metrics.insert("out_of_reach_frames".into(), json!(out_of_reach));
+        metrics.insert("within_tol".into(), json!(summary.converged_frames));
+        metrics.insert(
+            "limit_violation_max".into(),
+            json!(summary.limit_violation_max),
+        );
+        metrics.insert(
+            "rotation_error_max".into(),
+            json!(summary.rotation_error_max),
+        );
+        metrics.insert(
+            "local_minimum_frames".into(),
+            json!(summary.local_minimum_frames),
+        );
         metrics.insert("clamped_frames".into(), json!(summary.clamped_frames));
         metrics.insert(
             "bone_length_error_max".into(),

@@ -171,6 +171,7 @@ pub fn tree_with(joints: RangeInclusive<usize>) -> impl Strategy<Value = TreeCas
                 name: None,
                 parent: None,
                 offset: root,
+                ..JointDef::default()
             }];
             let mut rotations = vec![root_rotation];
             for (i, &(parent, length, dir, q)) in joints.iter().enumerate() {
@@ -178,6 +179,7 @@ pub fn tree_with(joints: RangeInclusive<usize>) -> impl Strategy<Value = TreeCas
                     name: None,
                     parent: Some(parent.index(i + 1)),
                     offset: dir * length,
+                    ..JointDef::default()
                 });
                 rotations.push(q);
             }
