@@ -37,7 +37,7 @@ use refine::Refiner;
 use sinew_math::{DQuat, DVec3, rotation_between};
 use sinew_skeleton::ik::{
     Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveSettings, SolveStart,
-    StopReason, begin_solve, chain_has_limits, measure, project_onto_limits,
+    StopReason, begin_solve, chain_has_limits, measure, project_onto_limits, turn_towards_pole,
 };
 use sinew_skeleton::{GlobalPose, Pose, Skeleton};
 
@@ -440,7 +440,8 @@ impl FabrikSolver {
             // Nothing but the goal holds the chain: the finish simply stopped helping.
             stop = StopReason::Stalled;
         }
-        self.copy_chain_positions(chain, global);
+        turn_towards_pole(problem, state)?;
+        self.copy_chain_positions(chain, state.global);
         let mut report = measure(
             problem,
             state,
@@ -597,6 +598,9 @@ impl IkSolver for FabrikSolver {
             // The solved positions met the tolerance but forward kinematics of the
             // rotations lands a rounding error outside it: no further progress possible.
             stop = StopReason::Stalled;
+        }
+        if turn_towards_pole(problem, state)? {
+            self.copy_chain_positions(chain, state.global);
         }
         Ok(measure(
             problem,

@@ -705,6 +705,69 @@ pub fn begin_solve(
     })
 }
 
+/// The pole goal: turns the whole chain rigidly about the line from its base to its
+/// effector so that its bend plane faces the goal's pole; returns whether it turned.
+///
+/// The bend plane is the plane through that line and the chain's bend direction, the sum
+/// of the interior joints' offsets from the line (perpendicular to it). For two bones
+/// it is the plane of the three joints, the usual meaning; for more bones it is the
+/// plane the chain bulges into on average, and the turn makes that bulge point at the
+/// pole (seen along the line). The effector lies on the axis, so it does not move (to
+/// round-off); only the base joint's local rotation changes.
+///
+/// Nothing happens without a pole, with a rotation goal (the turn would move the
+/// effector's frame), for fewer than two bones, for a straight chain or a pole on the
+/// line (no plane, no direction), or when the turned pose would leave a joint limit or
+/// lose the position the solve reached (then the turn is undone). `state.global` must
+/// hold forward kinematics of `state.pose`, and does again on return.
+pub fn turn_towards_pole(
+    problem: &IkProblem<'_>,
+    state: &mut IkState<'_>,
+) -> Result<bool, IkError> {
+    let goal = problem.goal()?;
+    let (skeleton, chain) = (problem.skeleton, problem.chain);
+    let Some(pole) = goal.pole else {
+        return Ok(false);
+    };
+    if goal.rotation.is_some() || chain.bone_count() < 2 {
+        return Ok(false);
+    }
+    let joints = chain.joints();
+    let base = state.global.positions[chain.base()];
+    let Some(axis) = try_unit(state.global.positions[chain.effector()] - base) else {
+        return Ok(false);
+    };
+    let across = |v: DVec3| v - axis * axis.dot(v);
+    let bend: DVec3 = joints[1..joints.len() - 1]
+        .iter()
+        .map(|&j| across(state.global.positions[j] - base))
+        .sum();
+    let (Some(from), Some(to)) = (try_unit(bend), try_unit(across(pole - base))) else {
+        return Ok(false);
+    };
+    let angle = from.cross(to).dot(axis).atan2(from.dot(to));
+    if angle == 0.0 {
+        return Ok(false);
+    }
+    let (error_before, _) = goal.errors(state.global);
+    let b = chain.base();
+    let kept = state.pose.rotations[b];
+    let turned = (DQuat::from_axis_angle(axis, angle) * state.global.rotations[b]).normalize();
+    state.pose.rotations[b] = match skeleton.parent(b) {
+        Some(p) => (state.global.rotations[p].conjugate() * turned).normalize(),
+        None => turned,
+    };
+    skeleton.forward_kinematics_from(state.pose, b, state.global)?;
+    let (error, _) = goal.errors(state.global);
+    let inside = skeleton.limit(b).violation(state.pose.rotations[b]) == 0.0;
+    if inside && (error <= problem.settings.tolerance || error <= error_before) {
+        return Ok(true);
+    }
+    state.pose.rotations[b] = kept;
+    skeleton.forward_kinematics_from(state.pose, b, state.global)?;
+    Ok(false)
+}
+
 /// The closed-form answer for a target out of reach: every bone of the chain aimed
 /// along the direction from the base to `target`, so the effector lands at distance
 /// `|target - base| - reach` from the target, the least possible.
