@@ -3,6 +3,7 @@
 
 use serde::Deserialize;
 use sinew_math::{DQuat, DVec3, try_unit};
+use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::{JointDef, Pose, Skeleton};
 
 /// A skeleton in a scene.
@@ -20,6 +21,11 @@ pub enum SkeletonSpec {
         /// Direction of every bone's rest offset (default +x).
         #[serde(default = "default_direction")]
         direction: DVec3,
+        /// A joint limit given to every joint (default: none), relative to the rest
+        /// pose; radians. E.g. `SwingTwist(twist_axis: (1, 0, 0), a_axis: (0, 0, 1),
+        /// swing_a: 0.785, swing_b: 0.785, twist_min: -3.14159, twist_max: 3.14159)`.
+        #[serde(default)]
+        limit: JointLimit,
     },
     /// Explicit joints in topological order.
     Joints(Vec<JointDef>),
@@ -41,6 +47,7 @@ impl SkeletonSpec {
                 bones,
                 length,
                 direction,
+                limit,
             } => {
                 if *bones >= MAX_JOINTS {
                     return Err(format!(
@@ -58,8 +65,14 @@ impl SkeletonSpec {
                         "skeleton: direction = {direction} has no direction (zero or NaN)"
                     ));
                 };
-                Skeleton::chain(*root, &vec![dir * *length; *bones])
-                    .map_err(|e| format!("skeleton: {e}"))
+                let mut skeleton = Skeleton::chain(*root, &vec![dir * *length; *bones])
+                    .map_err(|e| format!("skeleton: {e}"))?;
+                for j in 0..skeleton.len() {
+                    skeleton
+                        .set_limit(j, *limit)
+                        .map_err(|e| format!("skeleton: {e}"))?;
+                }
+                Ok(skeleton)
             }
             Self::Joints(joints) => {
                 if joints.len() > MAX_JOINTS {

@@ -24,7 +24,7 @@ fn track_all(
     let mut worst: f64 = 0.0;
     for &target in targets {
         let report = solver
-            .solve(skel, chain, &mut pose, global, black_box(target), settings)
+            .solve_position(skel, chain, &mut pose, global, black_box(target), settings)
             .expect("solve");
         worst = worst.max(report.error);
     }
@@ -44,7 +44,7 @@ fn cold_all(
     for &target in targets {
         pose.rotations.fill(DQuat::IDENTITY);
         let report = solver
-            .solve(skel, chain, &mut pose, global, black_box(target), settings)
+            .solve_position(skel, chain, &mut pose, global, black_box(target), settings)
             .expect("solve");
         sum += report.error;
     }
@@ -86,7 +86,7 @@ fn bench_ccd(c: &mut Criterion) {
         b.iter(|| {
             let mut pose = w2.rest_pose();
             solver
-                .solve(
+                .solve_position(
                     &w2,
                     &w2_chain,
                     &mut pose,

@@ -38,6 +38,7 @@ fn run(
     let settings = SolveSettings {
         max_iterations: cap,
         tolerance: TOLERANCE,
+        ..Default::default()
     };
     let base = skeleton.offset(0);
     let mut row = Row {
@@ -56,7 +57,7 @@ fn run(
             }
             let start = Instant::now();
             let report = solver
-                .solve(skeleton, &chain, &mut pose, &mut global, target, &settings)
+                .solve_position(skeleton, &chain, &mut pose, &mut global, target, &settings)
                 .expect("solve");
             row.times.push(start.elapsed().as_nanos() as f64);
             if rep == 0 {
@@ -135,7 +136,7 @@ fn long_chain() {
     for (i, &target) in common::scaled_flower(1.05, 12).iter().enumerate() {
         let start = Instant::now();
         let report = solver
-            .solve(
+            .solve_position(
                 &skeleton,
                 &chain,
                 &mut pose,

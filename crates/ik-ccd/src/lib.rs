@@ -15,6 +15,13 @@
 //! is rotated about `P[j]` in O(1) and forward kinematics runs once per sweep, from the
 //! base, to measure the true error and to stop rounding drift.
 //!
+//! Joint limits: after its correction, each joint's local rotation is projected onto its
+//! limit ([`sinew_skeleton::limits::JointLimit::project`]), and the effector is carried
+//! by the turn actually applied, so the O(1) update stays exact. A projected step can
+//! raise the error; the sweep that does is undone, and the solve stops at the best pose
+//! it found with [`StopReason::LocalMinimum`] (the best reachable within the limits for
+//! CCD). Targets out of reach are not straightened through the limits: CCD iterates.
+//!
 //! Stop rules, reported in [`StopReason`]: within the tolerance
 //! ([`StopReason::Converged`]), the iteration cap ([`StopReason::IterationCap`]), or a
 //! sweep that did not reduce the error ([`StopReason::Stalled`]; a sweep that made the
@@ -37,13 +44,59 @@
 
 use sinew_math::{DQuat, DVec3, rotation_between};
 use sinew_skeleton::ik::{
-    Chain, IkError, IkSolver, SolveReport, SolveSettings, SolveStart, StopReason, begin_solve,
+    Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveStart, StopReason, begin_solve,
+    chain_has_limits, measure, turn_towards_pole,
 };
+use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
 
 /// The over-relaxation factor [`CcdSolver::new`] uses: none, since over-relaxation
 /// measured slower than plain CCD on W1 and W2 (`docs/bench/ik-ccd.md`).
 pub const DEFAULT_RELAXATION: f64 = 1.0;
+
+/// The options of a [`CcdSolver`], beyond the shared settings: what scene files and the
+/// solver registry spell `Ccd(...)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
+pub struct CcdOptions {
+    /// Sweep extrapolation (default true); `false` with relaxation 1 is plain CCD.
+    pub extrapolation: bool,
+    /// The over-relaxation factor `omega`, in `[1, 2)` (default [`DEFAULT_RELAXATION`]).
+    pub relaxation: f64,
+}
+
+impl Default for CcdOptions {
+    fn default() -> Self {
+        Self {
+            extrapolation: true,
+            relaxation: DEFAULT_RELAXATION,
+        }
+    }
+}
+
+impl CcdOptions {
+    /// Plain CCD: no extrapolation, no relaxation.
+    #[must_use]
+    pub fn plain() -> Self {
+        Self {
+            extrapolation: false,
+            relaxation: 1.0,
+        }
+    }
+
+    /// Checks the relaxation is in `[1, 2)`.
+    pub fn validate(&self) -> Result<(), IkError> {
+        if (1.0..2.0).contains(&self.relaxation) {
+            Ok(())
+        } else {
+            Err(IkError::InvalidSettings(format!(
+                "CCD relaxation must be in [1, 2), got {}",
+                self.relaxation
+            )))
+        }
+    }
+}
 
 /// Cyclic coordinate descent IK solver. Holds only a scratch buffer (the chain's local
 /// rotations before the current sweep, so a sweep that increases the error can be
@@ -93,15 +146,30 @@ impl CcdSolver {
     /// `omega` must be in `[1, 2)`: below 1 only slows CCD down, and at 2 a joint step
     /// no longer reduces the error at all. An `Err` naming the value otherwise.
     pub fn with_relaxation(omega: f64) -> Result<Self, IkError> {
-        if !(1.0..2.0).contains(&omega) {
-            return Err(IkError::InvalidSettings(format!(
-                "CCD relaxation must be in [1, 2), got {omega}"
-            )));
-        }
-        Ok(Self {
+        Self::with_options(CcdOptions {
             relaxation: omega,
-            ..Self::plain()
+            ..CcdOptions::plain()
         })
+    }
+
+    /// A solver with the given options, validated.
+    pub fn with_options(options: CcdOptions) -> Result<Self, IkError> {
+        options.validate()?;
+        Ok(Self {
+            relaxation: options.relaxation,
+            extrapolate: options.extrapolation,
+            saved: Vec::new(),
+            swept: Vec::new(),
+        })
+    }
+
+    /// The options this solver runs with.
+    #[must_use]
+    pub fn options(&self) -> CcdOptions {
+        CcdOptions {
+            extrapolation: self.extrapolate,
+            relaxation: self.relaxation,
+        }
     }
 
     /// The same solver with sweep extrapolation on or off (see `docs/ik-ccd.md`).
@@ -172,17 +240,28 @@ impl IkSolver for CcdSolver {
 
     fn solve(
         &mut self,
-        skeleton: &Skeleton,
-        chain: &Chain,
-        pose: &mut Pose,
-        global: &mut GlobalPose,
-        target: DVec3,
-        settings: &SolveSettings,
+        problem: &IkProblem<'_>,
+        state: &mut IkState<'_>,
     ) -> Result<SolveReport, IkError> {
-        let initial_error = match begin_solve(skeleton, chain, pose, global, target, settings)? {
+        let (initial_error, initial_rotation_error) = match begin_solve(problem, state)? {
             SolveStart::Done(report) => return Ok(report),
-            SolveStart::Iterate { initial_error } => initial_error,
+            SolveStart::Iterate {
+                initial_error,
+                initial_rotation_error,
+            } => (initial_error, initial_rotation_error),
         };
+        let goal = problem.goal()?;
+        if goal.rotation.is_some() {
+            return Err(IkError::InvalidGoal {
+                goal: 0,
+                field: "rotation",
+                reason: "CCD solves position goals only".into(),
+            });
+        }
+        let (skeleton, chain, settings) = (problem.skeleton, problem.chain, &problem.settings);
+        let (pose, global) = (&mut *state.pose, &mut *state.global);
+        let target = goal.position;
+        let has_limits = chain_has_limits(skeleton, chain);
         let movable = &chain.joints()[..chain.bone_count()];
         self.saved.clear();
         self.saved.resize(movable.len(), DQuat::IDENTITY);
@@ -212,7 +291,11 @@ impl IkSolver for CcdSolver {
                     }
                     skeleton.forward_kinematics_from(pose, chain.base(), global)?;
                 }
-                break StopReason::Stalled;
+                break if has_limits {
+                    StopReason::LocalMinimum
+                } else {
+                    StopReason::Stalled
+                };
             }
             let ratio = swept / error;
             error = swept;
@@ -223,12 +306,20 @@ impl IkSolver for CcdSolver {
                 }
             }
         };
-        Ok(SolveReport {
+        // A pole turns the solved chain about its base-effector line (the effector stays).
+        turn_towards_pole(problem, state)?;
+        // The report measures the error again, with the rotation and limit figures, on
+        // the same forward kinematics the loop measured.
+        let report = measure(
+            problem,
+            state,
+            goal,
             iterations,
-            initial_error,
-            error,
+            (initial_error, initial_rotation_error),
             stop,
-        })
+        );
+        debug_assert!((report.error - error).abs() <= 1e-9 * (1.0 + error));
+        Ok(report)
     }
 }
 
@@ -265,7 +356,14 @@ impl CcdSolver {
             } else {
                 before
             };
-            pose.rotations[j] = (after + (after - before) * factor).normalize();
+            // Extrapolated rotations are projected onto the limits like any other.
+            let extrapolated = (after + (after - before) * factor).normalize();
+            let limit = skeleton.limit(j);
+            pose.rotations[j] = if matches!(limit, JointLimit::Free) {
+                extrapolated
+            } else {
+                limit.project(extrapolated)
+            };
         }
         skeleton.forward_kinematics_from(pose, chain.base(), global)?;
         let tried = global.positions[chain.effector()].distance(target);
@@ -321,8 +419,27 @@ fn sweep_unchecked(
             }
             None => turn,
         };
-        pose.rotations[j] = (local_turn * pose.rotations[j]).normalize();
-        effector = pivot + turn * to_effector;
+        let turned = (local_turn * pose.rotations[j]).normalize();
+        let limit = skeleton.limit(j);
+        if matches!(limit, JointLimit::Free) {
+            pose.rotations[j] = turned;
+            effector = pivot + turn * to_effector;
+        } else {
+            // The joint's limit may take part of the turn back: project, then carry the
+            // effector by the turn actually applied, G[p] (new old^-1) G[p]^-1.
+            let old = pose.rotations[j].normalize();
+            let new = limit.project(turned);
+            pose.rotations[j] = new;
+            let applied_local = (new * old.conjugate()).normalize();
+            let applied = match skeleton.parent(j) {
+                Some(p) => {
+                    let axis = global.rotations[p] * applied_local.xyz();
+                    DQuat::from_xyzw(axis.x, axis.y, axis.z, applied_local.w)
+                }
+                None => applied_local,
+            };
+            effector = pivot + applied * to_effector;
+        }
     }
     skeleton.forward_kinematics_from(pose, chain.base(), global)?;
     Ok(global.positions[chain.effector()].distance(target))

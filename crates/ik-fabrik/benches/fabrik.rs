@@ -45,7 +45,7 @@ fn bench_targets(
                     pose.rotations.copy_from_slice(&rest.rotations);
                 }
                 let report = solver
-                    .solve(skel, chain, &mut pose, &mut global, targets[i], &settings)
+                    .solve_position(skel, chain, &mut pose, &mut global, targets[i], &settings)
                     .expect("valid workload");
                 i = (i + 1) % targets.len();
                 black_box(report)
@@ -95,7 +95,7 @@ fn bench_long(c: &mut Criterion) {
         group.bench_function(mode, |b| {
             b.iter(|| {
                 let report = solver
-                    .solve(&skel, &chain, &mut pose, &mut global, targets[i], &settings)
+                    .solve_position(&skel, &chain, &mut pose, &mut global, targets[i], &settings)
                     .expect("valid workload");
                 i = (i + 1) % targets.len();
                 black_box(report)

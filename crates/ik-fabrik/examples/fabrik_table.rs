@@ -60,7 +60,7 @@ fn track(
                 pose.rotations.copy_from_slice(&rest.rotations);
             }
             let report = solver
-                .solve(skel, chain, &mut pose, &mut global, t, settings)
+                .solve_position(skel, chain, &mut pose, &mut global, t, settings)
                 .expect("valid workload");
             if lap == 0 {
                 errors.push(report.error);
@@ -122,6 +122,7 @@ fn main() {
                 let settings = SolveSettings {
                     max_iterations: cap,
                     tolerance: TOLERANCE,
+                    ..Default::default()
                 };
                 let options = FabrikOptions {
                     mode,

@@ -15,21 +15,29 @@
 //!   less than [`FabrikOptions::switch_ratio`] (default 0: after the first pass); this is
 //!   what takes every reachable target to the tolerance, including those near the base
 //!   where plain FABRIK crawls. [`FabrikMode::Plain`] is FABRIK alone.
+//! - Chains with joint limits, and goals with a rotation, take another path: one FABRIK
+//!   pass, the rotations recovered and projected onto the limits, then a damped
+//!   least-squares finish on the local rotations over a 3- or 6-row residual, each trial
+//!   projected onto the limits, with an active set, and one restart from a second seed
+//!   after a local minimum (`docs/ik-limits.md`).
 //! - [`fabrik_pass`]: one backward-forward iteration on bare positions.
 //!
 //! [`SolveReport::iterations`] counts FABRIK passes plus refinement steps (each step,
 //! accepted or rejected, costs one O(bones) evaluation). Derivations and costs:
 //! `docs/ik-fabrik.md`.
 
+mod limited;
 mod pass;
 mod refine;
 
 pub use pass::fabrik_pass;
 
+use limited::LimitedRefiner;
 use refine::Refiner;
 use sinew_math::{DQuat, DVec3, rotation_between};
 use sinew_skeleton::ik::{
-    Chain, IkError, IkSolver, SolveReport, SolveSettings, SolveStart, StopReason, begin_solve,
+    Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveSettings, SolveStart,
+    StopReason, begin_solve, chain_has_limits, measure, project_onto_limits, turn_towards_pole,
 };
 use sinew_skeleton::{GlobalPose, Pose, Skeleton};
 
@@ -203,6 +211,9 @@ pub struct FabrikSolver {
     /// Local rotations of the chain joints before the solve wrote them.
     saved: Vec<DQuat>,
     refiner: Refiner,
+    limited: LimitedRefiner,
+    /// Local rotations of the chain joints kept while a second seed is tried.
+    best: Vec<DQuat>,
     stats: FabrikStats,
 }
 
@@ -309,6 +320,140 @@ impl FabrikSolver {
         (error, stop)
     }
 
+    /// Turns the solved positions back into rotations, once, base outwards. Each bone
+    /// turns by the minimal rotation from its current direction (its global rotation in
+    /// the starting pose) to its solved one, which keeps the bone's twist; then
+    /// `L[j] = G_new[parent]^-1 G_new[j]` with the parent's new global rotation (the
+    /// base's parent is outside the chain and keeps its rotation). The chain's previous
+    /// local rotations are kept in `self.saved`; `global` ends as forward kinematics.
+    fn recover_rotations(
+        &mut self,
+        skeleton: &Skeleton,
+        chain: &Chain,
+        pose: &mut Pose,
+        global: &mut GlobalPose,
+    ) -> Result<(), IkError> {
+        let joints = chain.joints();
+        let lengths = chain.bone_lengths();
+        self.saved.clear();
+        let mut parent_global = skeleton.parent(joints[0]).map(|p| global.rotations[p]);
+        for c in 0..chain.bone_count() {
+            let (j, k) = (joints[c], joints[c + 1]);
+            let current = global.rotations[j] * skeleton.offset(k);
+            let wanted = self.positions[c + 1] - self.positions[c];
+            let turn = turn_between(current, wanted, lengths[c]);
+            let new_global = (turn * global.rotations[j]).normalize();
+            self.saved.push(pose.rotations[j]);
+            pose.rotations[j] = match parent_global {
+                Some(parent) => (parent.conjugate() * new_global).normalize(),
+                None => new_global,
+            };
+            parent_global = Some(new_global);
+        }
+        skeleton.forward_kinematics_from(pose, joints[0], global)?;
+        Ok(())
+    }
+
+    /// The solve with joint limits or a rotation goal: one FABRIK pass for the large move
+    /// (unconstrained, on positions), the rotations recovered and projected onto the
+    /// limits (kept only if that lowered the weighted residual), then the limited damped
+    /// least-squares finish (`limited.rs`). When the finish ends in a local minimum of a
+    /// chain with limits, it is run once more from a second seed, every limited joint at
+    /// the centre of its range (hinge: the middle angle; swing-twist: no swing, the middle
+    /// twist; free joints keep their rotation), and the better of the two is returned.
+    fn solve_constrained(
+        &mut self,
+        problem: &IkProblem<'_>,
+        state: &mut IkState<'_>,
+        initial: (f64, f64),
+    ) -> Result<SolveReport, IkError> {
+        let (skeleton, chain, settings) = (problem.skeleton, problem.chain, &problem.settings);
+        let goal = problem.goal()?;
+        let has_limits = chain_has_limits(skeleton, chain);
+        let (pose, global) = (&mut *state.pose, &mut *state.global);
+        let movable = &chain.joints()[..chain.bone_count()];
+        let mut passes = 0;
+        if settings.max_iterations > 0 {
+            let start_cost = limited::cost(goal, global);
+            self.copy_chain_positions(chain, global);
+            let base = self.positions[0];
+            pass::pass_unchecked(
+                &mut self.positions,
+                chain.bone_lengths(),
+                base,
+                goal.position,
+            );
+            passes = 1;
+            self.recover_rotations(skeleton, chain, pose, global)?;
+            if has_limits && project_onto_limits(skeleton, chain, pose) {
+                skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+            }
+            if limited::cost(goal, global) > start_cost {
+                for (&j, &saved) in movable.iter().zip(&self.saved) {
+                    pose.rotations[j] = saved;
+                }
+                skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+                self.stats.restored_start = true;
+            }
+        }
+        self.stats.passes = passes;
+        let tolerances = (settings.tolerance, settings.rotation_tolerance);
+        let cap = settings.max_iterations;
+        let first = self
+            .limited
+            .run(skeleton, chain, goal, pose, global, tolerances, passes, cap)?;
+        self.stats.refinement_steps = first.steps;
+        let mut stop = first.stop;
+        let mut restarted = false;
+        if stop == StopReason::LocalMinimum && has_limits && passes + first.steps < cap {
+            self.best.clear();
+            self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
+            let best_cost = limited::cost(goal, global);
+            for &j in movable {
+                if let Some(seed) = limited::centre(skeleton.limit(j)) {
+                    pose.rotations[j] = seed;
+                }
+            }
+            skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+            let second = self.limited.run(
+                skeleton,
+                chain,
+                goal,
+                pose,
+                global,
+                tolerances,
+                passes + first.steps,
+                cap,
+            )?;
+            self.stats.refinement_steps += second.steps;
+            restarted = true;
+            if limited::cost(goal, global) < best_cost {
+                stop = second.stop;
+            } else {
+                for (&j, &kept) in movable.iter().zip(&self.best) {
+                    pose.rotations[j] = kept;
+                }
+                skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+            }
+        }
+        if stop == StopReason::LocalMinimum && !has_limits {
+            // Nothing but the goal holds the chain: the finish simply stopped helping.
+            stop = StopReason::Stalled;
+        }
+        turn_towards_pole(problem, state)?;
+        self.copy_chain_positions(chain, state.global);
+        let mut report = measure(
+            problem,
+            state,
+            goal,
+            self.stats.passes + self.stats.refinement_steps,
+            initial,
+            stop,
+        );
+        report.restarted = restarted;
+        Ok(report)
+    }
+
     /// FABRIK passes from the current positions. Returns the error, the stop reason (or
     /// `None` when the hybrid should refine) and the passes used.
     fn run_passes(
@@ -354,33 +499,42 @@ impl IkSolver for FabrikSolver {
 
     fn solve(
         &mut self,
-        skeleton: &Skeleton,
-        chain: &Chain,
-        pose: &mut Pose,
-        global: &mut GlobalPose,
-        target: DVec3,
-        settings: &SolveSettings,
+        problem: &IkProblem<'_>,
+        state: &mut IkState<'_>,
     ) -> Result<SolveReport, IkError> {
         self.stats = FabrikStats::default();
-        let initial_error = match begin_solve(skeleton, chain, pose, global, target, settings)? {
+        let (skeleton, chain, settings) = (problem.skeleton, problem.chain, &problem.settings);
+        let initial = match begin_solve(problem, state)? {
             SolveStart::Done(report) => {
-                self.copy_chain_positions(chain, global);
+                self.copy_chain_positions(chain, state.global);
                 return Ok(report);
             }
-            SolveStart::Iterate { initial_error } => initial_error,
+            SolveStart::Iterate {
+                initial_error,
+                initial_rotation_error,
+            } => (initial_error, initial_rotation_error),
         };
+        let goal = problem.goal()?;
+        if goal.rotation.is_some() || chain_has_limits(skeleton, chain) {
+            return self.solve_constrained(problem, state, initial);
+        }
+        let initial_error = initial.0;
+        let target = goal.position;
+        let (pose, global) = (&mut *state.pose, &mut *state.global);
         self.copy_chain_positions(chain, global);
         let (mut error, stop, passes) = self.run_passes(chain, target, initial_error, settings);
         let stop_is_refine = stop.is_none();
         self.stats.passes = passes;
         if passes == 0 {
             // A cap of 0: nothing was done and the pose is untouched.
-            return Ok(SolveReport {
-                iterations: 0,
-                initial_error,
-                error: initial_error,
-                stop: stop.unwrap_or(StopReason::IterationCap),
-            });
+            return Ok(measure(
+                problem,
+                state,
+                goal,
+                0,
+                initial,
+                stop.unwrap_or(StopReason::IterationCap),
+            ));
         }
 
         let joints = chain.joints();
@@ -424,22 +578,7 @@ impl IkSolver for FabrikSolver {
         // to its solved one, which keeps the bone's twist; then
         // L[j] = G_new[parent]^-1 G_new[j] with the parent's new global rotation (the
         // base's parent is outside the chain and keeps its rotation).
-        self.saved.clear();
-        let mut parent_global = skeleton.parent(joints[0]).map(|p| global.rotations[p]);
-        for c in 0..n {
-            let (j, k) = (joints[c], joints[c + 1]);
-            let current = global.rotations[j] * skeleton.offset(k);
-            let wanted = self.positions[c + 1] - self.positions[c];
-            let turn = turn_between(current, wanted, lengths[c]);
-            let new_global = (turn * global.rotations[j]).normalize();
-            self.saved.push(pose.rotations[j]);
-            pose.rotations[j] = match parent_global {
-                Some(parent) => (parent.conjugate() * new_global).normalize(),
-                None => new_global,
-            };
-            parent_global = Some(new_global);
-        }
-        skeleton.forward_kinematics_from(pose, joints[0], global)?;
+        self.recover_rotations(skeleton, chain, pose, global)?;
         error = global.positions[chain.effector()].distance(target);
 
         if error > initial_error {
@@ -460,11 +599,16 @@ impl IkSolver for FabrikSolver {
             // rotations lands a rounding error outside it: no further progress possible.
             stop = StopReason::Stalled;
         }
-        Ok(SolveReport {
-            iterations: self.stats.passes + self.stats.refinement_steps,
-            initial_error,
-            error,
+        if turn_towards_pole(problem, state)? {
+            self.copy_chain_positions(chain, state.global);
+        }
+        Ok(measure(
+            problem,
+            state,
+            goal,
+            self.stats.passes + self.stats.refinement_steps,
+            initial,
             stop,
-        })
+        ))
     }
 }

@@ -494,16 +494,19 @@ fn invalid_input_names_the_field() {
             name: Some("shoulder".into()),
             parent: None,
             offset: DVec3::ZERO,
+            ..JointDef::default()
         },
         JointDef {
             name: Some("elbow".into()),
             parent: Some(0),
             offset: DVec3::X,
+            ..JointDef::default()
         },
         JointDef {
             name: Some("other".into()),
             parent: Some(0),
             offset: DVec3::Y,
+            ..JointDef::default()
         },
     ])
     .unwrap();

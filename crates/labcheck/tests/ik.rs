@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{SolverKind, fk, make_solver, settings, solve_checked, solver_kind};
+use common::{every_solver, fk, make_solver, settings, solve_checked, solver_kind};
 use proptest::prelude::*;
 use sinew_ik_ccd::CcdSolver;
 use sinew_ik_fabrik::FabrikSolver;
@@ -17,7 +17,9 @@ use sinew_labcheck::strategies::chains::{self, ChainCase, TreeCase};
 use sinew_labcheck::strategies::targets::{self, TargetKind};
 use sinew_labcheck::strategies::{direction, log_uniform};
 use sinew_math::try_unit;
-use sinew_skeleton::ik::{Chain, IkSolver, SolveSettings, StopReason};
+use sinew_skeleton::ik::{
+    Chain, IkSolver, SolveSettings, StopReason, chain_has_limits, chain_limit_violation,
+};
 use sinew_skeleton::{Pose, Skeleton};
 
 /// A chain or a tree, as (skeleton, pose, chain).
@@ -55,6 +57,42 @@ proptest! {
         let t = target.place(&chain, &fk(&skeleton, &pose));
         let mut solver = make_solver(kind);
         solve_checked(solver.as_mut(), &skeleton, &chain, &pose, t, &settings)?;
+    }
+
+    /// Chains with a random limit on every joint, every solver, every target kind:
+    /// no returned pose leaves a limit by more than 1e-12 rad (recomputed from the pose),
+    /// the report's error and limit violation are those of forward kinematics of the
+    /// returned pose, and the error never ends above the start's (the start is inside
+    /// the limits; the allowance is the positions' round-off).
+    #[test]
+    fn limits_are_never_left(
+        case in chains::limited_chain(),
+        kind in solver_kind(),
+        target in targets::target(),
+        settings in settings(),
+    ) {
+        let start = fk(&case.skeleton, &case.pose);
+        let t = target.place(&case.chain, &start);
+        let mut solver = make_solver(kind);
+        let mut pose = case.pose.clone();
+        let mut global = sinew_skeleton::GlobalPose::new();
+        let report = solver
+            .solve_position(&case.skeleton, &case.chain, &mut pose, &mut global, t, &settings)
+            .map_err(|e| TestCaseError::fail(format!("solve refused valid input: {e}")))?;
+        let violation = chain_limit_violation(&case.skeleton, &case.chain, &pose);
+        prop_assert!(violation <= 1e-12, "violation {:e} ({:?})", violation, report);
+        prop_assert_eq!(report.limit_violation, violation);
+        let fresh = fk(&case.skeleton, &pose);
+        prop_assert_eq!(&fresh.positions, &global.positions);
+        prop_assert_eq!(report.error, fresh.positions[case.chain.effector()].distance(t));
+        let s = scale(fresh.positions.iter().copied().chain([t]));
+        prop_assert!(
+            report.error <= report.initial_error + chain_position_allowance(case.chain.bone_count(), s),
+            "final error {:e} above initial {:e} ({:?})", report.error, report.initial_error, report.stop
+        );
+        if chain_has_limits(&case.skeleton, &case.chain) {
+            prop_assert_ne!(report.stop, StopReason::OutOfReach);
+        }
     }
 
     /// A CCD sweep never increases the effector-to-target distance (beyond round-off),
@@ -176,7 +214,7 @@ proptest! {
         let effector = start.positions[chain.effector()];
         let t = effector + offset_direction * (fraction * tolerance);
         prop_assume!(effector.distance(t) <= tolerance);
-        let settings = SolveSettings { max_iterations, tolerance };
+        let settings = SolveSettings { max_iterations, tolerance, ..Default::default() };
         let mut solver = make_solver(kind);
         let solved = solve_checked(solver.as_mut(), &skeleton, &chain, &pose, t, &settings)?;
         prop_assert_eq!(solved.report.iterations, 0);
@@ -198,7 +236,7 @@ proptest! {
         settings in settings(),
     ) {
         let t = target.place(&case.chain, &fk(&case.skeleton, &case.pose));
-        for kind in [SolverKind::Ccd, SolverKind::CcdPlain, SolverKind::Fabrik, SolverKind::FabrikPlain] {
+        for kind in every_solver() {
             let mut solver = make_solver(kind);
             solve_checked(solver.as_mut(), &case.skeleton, &case.chain, &case.pose, t, &settings)?;
         }
@@ -221,15 +259,10 @@ fn long_chain_strategy_has_1000_joints() {
 /// The solver trait object names, to make sure the four kinds are four solvers.
 #[test]
 fn solver_kinds_are_distinct() {
-    let names: Vec<&str> = [
-        SolverKind::Ccd,
-        SolverKind::CcdPlain,
-        SolverKind::Fabrik,
-        SolverKind::FabrikPlain,
-    ]
-    .into_iter()
-    .map(|k| make_solver(k).name())
-    .collect();
+    let names: Vec<&str> = every_solver()
+        .into_iter()
+        .map(|k| make_solver(k).name())
+        .collect();
     assert_eq!(names, ["ccd", "ccd", "fabrik", "fabrik"]);
     let _: &dyn IkSolver = &CcdSolver::plain();
 }

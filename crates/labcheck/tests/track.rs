@@ -13,7 +13,7 @@ use sinew_labcheck::strategies::chains::{self, ChainCase, TreeCase};
 use sinew_labcheck::strategies::targets;
 use sinew_labcheck::strategies::{direction, log_uniform};
 use sinew_math::{DQuat, DVec3};
-use sinew_skeleton::ik::Chain;
+use sinew_skeleton::ik::{Chain, EffectorGoal, IkState};
 use sinew_skeleton::track::{TrackSettings, Tracker};
 use sinew_skeleton::{Pose, Skeleton};
 use std::f64::consts::TAU;
@@ -80,7 +80,7 @@ proptest! {
         let mut global = first.clone();
         for (frame, &target) in frame_targets.iter().enumerate() {
             let record = tracker
-                .step(solver.as_mut(), &skeleton, &chain, &mut pose, &mut global, target)
+                .step(solver.as_mut(), &skeleton, &chain, &mut IkState::new(&mut pose, &mut global), EffectorGoal::at(chain.effector(), target))
                 .map_err(|e| TestCaseError::fail(format!("frame {frame}: {e}")))?;
             prop_assert!(pose.rotations.iter().all(|q| q.is_finite()), "frame {}: NaN rotation", frame);
             prop_assert!(global.positions.iter().all(|p| p.is_finite()), "frame {}: NaN position", frame);

@@ -1,18 +1,31 @@
 //! The inverse-kinematics vocabulary both solver crates share, written once here.
 //!
+//! IK is a *job*, in the manner of ozz-animation's jobs: named inputs, a validation, and
+//! named outputs, so a new input is a new field, not a new argument in every signature.
+//!
+//! - [`IkProblem`]: the inputs: the skeleton, the [`Chain`], the goals
+//!   ([`EffectorGoal`]: a position, optionally a rotation, weights and a pole, per
+//!   effector) and the [`SolveSettings`]. [`IkProblem::validate`] names the offending
+//!   goal, field or joint.
+//! - [`IkState`]: what a solve updates, the pose and its forward kinematics.
+//! - [`SolveReport`]: the outputs: iterations used, position and rotation error before
+//!   and after, the largest joint-limit violation of the returned pose, whether a second
+//!   seed pose was tried, and the [`StopReason`].
 //! - [`Chain`]: the path from a base joint to an effector joint inside a skeleton, with
 //!   its bone lengths and reach.
-//! - [`SolveSettings`] (iteration cap, absolute tolerance) and [`SolveReport`]
-//!   (iterations used, error reached, [`StopReason`]).
 //! - [`straighten_towards`]: the closed-form answer for a target out of reach (every
 //!   bone aimed at the target, the lab's Q1).
-//! - [`begin_solve`]: the checks and early exits every solver makes first (bad input,
-//!   already within tolerance, out of reach), so they are made the same way everywhere.
+//! - [`begin_solve`] and [`measure`]: the checks and early exits every solver makes first
+//!   (bad input, already within tolerance, out of reach), and the errors every report
+//!   carries, computed the same way everywhere.
 //! - [`IkSolver`]: the trait the solvers implement, so the scene runner and the
 //!   property suite can run any solver alike.
 //!
-//! Tolerances are absolute distances in scene units between the effector and the target.
+//! Tolerances are absolute: distances in scene units between the effector and its goal
+//! position, and angles in radians between the effector's global rotation and its goal
+//! rotation.
 
+use crate::limits::JointLimit;
 use crate::{GlobalPose, Pose, Skeleton, SkeletonError};
 use sinew_math::{DQuat, DVec3, rotation_between, try_unit};
 use std::fmt;
@@ -128,8 +141,11 @@ impl Chain {
 pub struct SolveSettings {
     /// The most iterations (sweeps or passes) a solve may use. The lab uses 100.
     pub max_iterations: usize,
-    /// Stop once the effector is this close to the target (absolute, scene units).
+    /// Stop once the effector is this close to its goal position (absolute, scene units).
     pub tolerance: f64,
+    /// With a rotation goal, stop only once the effector's global rotation is also
+    /// within this angle (radians) of it. Ignored without a rotation goal.
+    pub rotation_tolerance: f64,
 }
 
 impl Default for SolveSettings {
@@ -137,21 +153,242 @@ impl Default for SolveSettings {
         Self {
             max_iterations: 100,
             tolerance: 1e-6,
+            rotation_tolerance: 1e-6,
         }
     }
 }
 
 impl SolveSettings {
-    /// Checks the tolerance is finite and not negative.
+    /// Checks both tolerances are finite and not negative.
     pub fn validate(&self) -> Result<(), IkError> {
-        if self.tolerance.is_finite() && self.tolerance >= 0.0 {
-            Ok(())
-        } else {
-            Err(IkError::InvalidSettings(format!(
-                "tolerance must be finite and >= 0, got {}",
-                self.tolerance
-            )))
+        for (name, value) in [
+            ("tolerance", self.tolerance),
+            ("rotation_tolerance", self.rotation_tolerance),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(IkError::InvalidSettings(format!(
+                    "{name} must be finite and >= 0, got {value}"
+                )));
+            }
         }
+        Ok(())
+    }
+}
+
+/// What one effector should reach: a position, optionally a rotation and a pole.
+///
+/// A problem holds a slice of goals so that several effectors on one tree fit without
+/// another change of shape; the solvers of this workspace solve one chain, so they take
+/// exactly one goal, on the chain's effector ([`IkProblem::validate`] says so).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
+pub struct EffectorGoal {
+    /// The joint that should reach the goal.
+    pub joint: usize,
+    /// Where the joint should be (world frame).
+    pub position: DVec3,
+    /// The global rotation the joint should have, if any. The effector's own local
+    /// rotation is not part of the chain, so it is reached by turning the chain's joints.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub rotation: Option<DQuat>,
+    /// How much the position counts against the rotation where both cannot be met
+    /// (the residual's position rows are multiplied by it). Finite and > 0; default 1.
+    #[cfg_attr(feature = "serde", serde(default = "one"))]
+    pub position_weight: f64,
+    /// How much the rotation counts, per radian, against the position per scene unit.
+    /// Finite and >= 0; default 1. Ignored without a rotation goal.
+    #[cfg_attr(feature = "serde", serde(default = "one"))]
+    pub rotation_weight: f64,
+    /// A point the chain's bend plane should turn towards, if any (see the solvers'
+    /// documentation for what it means for a chain of more than two bones).
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub pole: Option<DVec3>,
+}
+
+#[cfg(feature = "serde")]
+fn one() -> f64 {
+    1.0
+}
+
+impl EffectorGoal {
+    /// A position goal for `joint`, weight 1, no rotation, no pole.
+    #[must_use]
+    pub fn at(joint: usize, position: DVec3) -> Self {
+        Self {
+            joint,
+            position,
+            rotation: None,
+            position_weight: 1.0,
+            rotation_weight: 1.0,
+            pole: None,
+        }
+    }
+
+    /// The same goal with a rotation goal.
+    #[must_use]
+    pub fn with_rotation(mut self, rotation: DQuat) -> Self {
+        self.rotation = Some(rotation);
+        self
+    }
+
+    /// The same goal with a pole.
+    #[must_use]
+    pub fn with_pole(mut self, pole: DVec3) -> Self {
+        self.pole = Some(pole);
+        self
+    }
+
+    /// The same goal with the given position and rotation weights.
+    #[must_use]
+    pub fn with_weights(mut self, position_weight: f64, rotation_weight: f64) -> Self {
+        self.position_weight = position_weight;
+        self.rotation_weight = rotation_weight;
+        self
+    }
+
+    /// Checks every field on its own (goal `index` of its problem, for messages).
+    pub fn validate(&self, index: usize, skeleton: &Skeleton) -> Result<(), IkError> {
+        let bad = |field: &'static str, reason: String| {
+            Err(IkError::InvalidGoal {
+                goal: index,
+                field,
+                reason,
+            })
+        };
+        if skeleton.check_index(self.joint).is_err() {
+            return bad(
+                "joint",
+                format!(
+                    "joint index {} is out of range (the skeleton has {} joints)",
+                    self.joint,
+                    skeleton.len()
+                ),
+            );
+        }
+        if !self.position.is_finite() {
+            return bad(
+                "position",
+                format!("{} has a NaN or infinite component", self.position),
+            );
+        }
+        if let Some(q) = self.rotation
+            && !(q.is_finite() && q.length_squared() > 0.0)
+        {
+            return bad("rotation", format!("{q} is zero or not finite"));
+        }
+        if !(self.position_weight.is_finite() && self.position_weight > 0.0) {
+            return bad(
+                "position_weight",
+                format!("must be finite and > 0, got {}", self.position_weight),
+            );
+        }
+        if !(self.rotation_weight.is_finite() && self.rotation_weight >= 0.0) {
+            return bad(
+                "rotation_weight",
+                format!("must be finite and >= 0, got {}", self.rotation_weight),
+            );
+        }
+        if let Some(pole) = self.pole
+            && !pole.is_finite()
+        {
+            return bad("pole", format!("{pole} has a NaN or infinite component"));
+        }
+        Ok(())
+    }
+
+    /// The goal's position error and rotation error (radians; 0 without a rotation goal)
+    /// of the global pose `global`.
+    #[must_use]
+    pub fn errors(&self, global: &GlobalPose) -> (f64, f64) {
+        let position = global.positions[self.joint].distance(self.position);
+        let rotation = self
+            .rotation
+            .map_or(0.0, |q| rotation_angle(global.rotations[self.joint], q));
+        (position, rotation)
+    }
+}
+
+/// The inputs of an IK solve: see the [module docs](self).
+#[derive(Clone, Copy, Debug)]
+pub struct IkProblem<'a> {
+    /// The skeleton (with its joint limits).
+    pub skeleton: &'a Skeleton,
+    /// The chain whose joints the solve turns.
+    pub chain: &'a Chain,
+    /// One goal per effector. The chain solvers take exactly one, on the chain's effector.
+    pub goals: &'a [EffectorGoal],
+    /// Iteration cap and tolerances.
+    pub settings: SolveSettings,
+}
+
+impl<'a> IkProblem<'a> {
+    /// A problem from its parts (not validated: see [`IkProblem::validate`]).
+    #[must_use]
+    pub fn new(
+        skeleton: &'a Skeleton,
+        chain: &'a Chain,
+        goals: &'a [EffectorGoal],
+        settings: SolveSettings,
+    ) -> Self {
+        Self {
+            skeleton,
+            chain,
+            goals,
+            settings,
+        }
+    }
+
+    /// Checks the settings, the chain against the skeleton and every goal, naming the
+    /// offending goal and field. The chain solvers solve one effector, so there must be
+    /// exactly one goal and it must be on the chain's effector joint.
+    pub fn validate(&self) -> Result<(), IkError> {
+        self.settings.validate()?;
+        self.chain.check_skeleton(self.skeleton)?;
+        if self.goals.len() != 1 {
+            return Err(IkError::GoalCount {
+                got: self.goals.len(),
+            });
+        }
+        for (i, goal) in self.goals.iter().enumerate() {
+            goal.validate(i, self.skeleton)?;
+            if goal.joint != self.chain.effector() {
+                return Err(IkError::InvalidGoal {
+                    goal: i,
+                    field: "joint",
+                    reason: format!(
+                        "{} is not the chain's effector, {}",
+                        self.skeleton.label(goal.joint),
+                        self.skeleton.label(self.chain.effector())
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The single goal of a chain problem. Call after [`IkProblem::validate`]; an error
+    /// (not a panic) when there is no goal.
+    pub fn goal(&self) -> Result<&'a EffectorGoal, IkError> {
+        self.goals.first().ok_or(IkError::GoalCount { got: 0 })
+    }
+}
+
+/// What a solve updates: the pose (local rotations) and its forward kinematics.
+#[derive(Debug)]
+pub struct IkState<'a> {
+    /// The pose; on entry the starting pose (warm start), on return the solution.
+    pub pose: &'a mut Pose,
+    /// Forward kinematics of `pose`; any content on entry (it is recomputed), forward
+    /// kinematics of the solution on return.
+    pub global: &'a mut GlobalPose,
+}
+
+impl<'a> IkState<'a> {
+    /// A state over a pose and a global pose.
+    #[must_use]
+    pub fn new(pose: &'a mut Pose, global: &'a mut GlobalPose) -> Self {
+        Self { pose, global }
     }
 }
 
@@ -160,15 +397,19 @@ impl SolveSettings {
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(rename_all = "snake_case"))]
 pub enum StopReason {
-    /// The effector is within the tolerance of the target (possibly after 0 iterations).
+    /// The effector is within the tolerance of the goal (possibly after 0 iterations).
     Converged,
     /// The iteration cap was reached first.
     IterationCap,
     /// An iteration no longer reduced the error.
     Stalled,
-    /// The target is at or beyond the chain's reach: solved in closed form by the
-    /// straight chain aimed at it (0 iterations).
+    /// The target is at or beyond the reach of an unconstrained chain: solved in closed
+    /// form by the straight chain aimed at it (0 iterations).
     OutOfReach,
+    /// The joint limits hold the chain: the error stopped decreasing at a pose where
+    /// every step the solver can take leaves a limit, the best reachable within the
+    /// limits that the solver found (a local minimum of the error over the allowed set).
+    LocalMinimum,
 }
 
 impl StopReason {
@@ -180,6 +421,7 @@ impl StopReason {
             Self::IterationCap => "iteration_cap",
             Self::Stalled => "stalled",
             Self::OutOfReach => "out_of_reach",
+            Self::LocalMinimum => "local_minimum",
         }
     }
 }
@@ -197,12 +439,30 @@ pub struct SolveReport {
     /// Iterations used (sweeps for CCD, backward-forward passes for FABRIK, plus any
     /// refinement steps the solver documents).
     pub iterations: usize,
-    /// Effector-to-target distance before the solve.
+    /// Effector-to-goal distance before the solve.
     pub initial_error: f64,
-    /// Effector-to-target distance after the solve.
+    /// Effector-to-goal distance after the solve.
     pub error: f64,
+    /// Angle (radians) between the effector's global rotation and the goal rotation
+    /// before the solve; 0 without a rotation goal.
+    pub initial_rotation_error: f64,
+    /// The same angle after the solve; 0 without a rotation goal.
+    pub rotation_error: f64,
+    /// The largest joint-limit violation (radians) of the returned pose over the
+    /// chain's joints; 0 for a chain without limits.
+    pub limit_violation: f64,
+    /// Whether the solver restarted from a second seed pose after a local minimum.
+    pub restarted: bool,
     /// Why the solve stopped.
     pub stop: StopReason,
+}
+
+impl SolveReport {
+    /// Whether the solve met both tolerances of `settings`.
+    #[must_use]
+    pub fn within(&self, settings: &SolveSettings) -> bool {
+        self.error <= settings.tolerance && self.rotation_error <= settings.rotation_tolerance
+    }
 }
 
 /// Why a solve was refused.
@@ -210,10 +470,24 @@ pub struct SolveReport {
 pub enum IkError {
     /// The skeleton, pose or chain is invalid.
     Skeleton(SkeletonError),
-    /// The target has a NaN or infinite component.
+    /// A raw step's target has a NaN or infinite component.
     NonFiniteTarget {
         /// The target given.
         target: DVec3,
+    },
+    /// A goal is invalid: which goal, which field, and why.
+    InvalidGoal {
+        /// The goal's index in the problem.
+        goal: usize,
+        /// The offending field.
+        field: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// The chain solvers solve exactly one goal.
+    GoalCount {
+        /// The number of goals given.
+        got: usize,
     },
     /// The settings are invalid; the message says which field and why.
     InvalidSettings(String),
@@ -233,6 +507,15 @@ impl fmt::Display for IkError {
             Self::NonFiniteTarget { target } => {
                 write!(f, "target {target} has a NaN or infinite component")
             }
+            Self::InvalidGoal {
+                goal,
+                field,
+                reason,
+            } => write!(f, "goal {goal}: {field}: {reason}"),
+            Self::GoalCount { got } => write!(
+                f,
+                "a chain solve takes exactly one goal, on the chain's effector; got {got}"
+            ),
             Self::InvalidSettings(msg) => write!(f, "invalid solve settings: {msg}"),
             Self::ChainMismatch {
                 chain_joints,
@@ -253,12 +536,13 @@ impl From<SkeletonError> for IkError {
     }
 }
 
-/// An inverse-kinematics solver: moves a chain's effector onto a target by changing the
+/// An inverse-kinematics solver: moves a chain's effector onto its goal by changing the
 /// local rotations of the chain's joints (every joint of the chain but the effector).
 ///
 /// Contract for implementors:
 /// - call [`begin_solve`] first, and return its report when it has one;
-/// - on `Ok`, `pose` holds the solution and `global` holds forward kinematics of it;
+/// - on `Ok`, `state.pose` holds the solution and `state.global` forward kinematics of
+///   it, and the report's errors are those of `state.global` ([`measure`]);
 /// - bone lengths are kept (only rotations change), nothing outside the chain's
 ///   subtrees changes, and no NaN is produced for any finite input;
 /// - no allocation once the solver's buffers have grown to the chain's size.
@@ -266,8 +550,16 @@ pub trait IkSolver {
     /// A short name for reports ("ccd", "fabrik").
     fn name(&self) -> &'static str;
 
-    /// Solves for `target`, starting from `pose` (warm start).
+    /// Solves `problem`, starting from `state.pose` (warm start).
     fn solve(
+        &mut self,
+        problem: &IkProblem<'_>,
+        state: &mut IkState<'_>,
+    ) -> Result<SolveReport, IkError>;
+
+    /// The common case as one call: the job with a single position goal on the chain's
+    /// effector, weight 1, no rotation and no pole.
+    fn solve_position(
         &mut self,
         skeleton: &Skeleton,
         chain: &Chain,
@@ -275,7 +567,11 @@ pub trait IkSolver {
         global: &mut GlobalPose,
         target: DVec3,
         settings: &SolveSettings,
-    ) -> Result<SolveReport, IkError>;
+    ) -> Result<SolveReport, IkError> {
+        let goals = [EffectorGoal::at(chain.effector(), target)];
+        let problem = IkProblem::new(skeleton, chain, &goals, *settings);
+        self.solve(&problem, &mut IkState::new(pose, global))
+    }
 }
 
 /// The outcome of [`begin_solve`].
@@ -284,53 +580,192 @@ pub enum SolveStart {
     /// Nothing left to iterate: the report is final (within tolerance already, or out
     /// of reach and solved in closed form).
     Done(SolveReport),
-    /// The solver should iterate, starting from this effector-to-target distance.
+    /// The solver should iterate, starting from these errors.
     Iterate {
-        /// Effector-to-target distance of the starting pose.
+        /// Effector-to-goal distance of the starting pose.
         initial_error: f64,
+        /// Rotation error (radians) of the starting pose; 0 without a rotation goal.
+        initial_rotation_error: f64,
     },
+}
+
+/// The report of a finished solve, measured on `state.global` (which must hold forward
+/// kinematics of `state.pose`): the goal's errors and the limit violation of the chain.
+#[must_use]
+pub fn measure(
+    problem: &IkProblem<'_>,
+    state: &IkState<'_>,
+    goal: &EffectorGoal,
+    iterations: usize,
+    initial: (f64, f64),
+    stop: StopReason,
+) -> SolveReport {
+    let (error, rotation_error) = goal.errors(state.global);
+    SolveReport {
+        iterations,
+        initial_error: initial.0,
+        error,
+        initial_rotation_error: initial.1,
+        rotation_error,
+        limit_violation: chain_limit_violation(problem.skeleton, problem.chain, state.pose),
+        restarted: false,
+        stop,
+    }
+}
+
+/// The largest joint-limit violation (radians) of `pose` over the chain's movable
+/// joints (every chain joint but the effector, whose rotation the chain solvers do not
+/// change); 0 for a chain without limits.
+#[must_use]
+pub fn chain_limit_violation(skeleton: &Skeleton, chain: &Chain, pose: &Pose) -> f64 {
+    chain.joints()[..chain.bone_count()]
+        .iter()
+        .map(|&j| skeleton.limit(j).violation(pose.rotations[j]))
+        .fold(0.0, f64::max)
+}
+
+/// Whether any movable joint of the chain has a joint limit (anything but free).
+#[must_use]
+pub fn chain_has_limits(skeleton: &Skeleton, chain: &Chain) -> bool {
+    chain.joints()[..chain.bone_count()]
+        .iter()
+        .any(|&j| !matches!(skeleton.limit(j), JointLimit::Free))
+}
+
+/// Projects the local rotation of every movable joint of the chain onto its limit
+/// ([`JointLimit::project`]); returns whether any joint moved. Forward kinematics is
+/// the caller's.
+pub fn project_onto_limits(skeleton: &Skeleton, chain: &Chain, pose: &mut Pose) -> bool {
+    let mut moved = false;
+    for &j in &chain.joints()[..chain.bone_count()] {
+        let limit = skeleton.limit(j);
+        if matches!(limit, JointLimit::Free) {
+            continue;
+        }
+        let projected = limit.project(pose.rotations[j]);
+        moved |= projected != pose.rotations[j];
+        pose.rotations[j] = projected;
+    }
+    moved
 }
 
 /// The checks and early exits every solver makes first, in this order:
 ///
-/// 1. Validate the settings, the target, the chain against the skeleton, and the pose
-///    (forward kinematics of `pose` is computed into `global`).
-/// 2. Already within tolerance: done, 0 iterations, pose untouched.
-/// 3. Target at or beyond the reach: [`straighten_towards`], 0 iterations.
+/// 1. [`IkProblem::validate`], then forward kinematics of the pose into the state's
+///    global pose (which checks the pose). A chain with limits has its starting pose
+///    projected onto them ([`project_onto_limits`]), so every solve returns a pose
+///    inside the limits.
+/// 2. Already within both tolerances: done, 0 iterations, pose untouched.
+/// 3. Goal position at or beyond the reach of a chain without joint limits:
+///    [`straighten_towards`], 0 iterations (the straight chain is the only pose that
+///    minimizes the distance, so a rotation goal cannot change it). A chain with limits
+///    is never straightened through them: it iterates.
 pub fn begin_solve(
-    skeleton: &Skeleton,
-    chain: &Chain,
-    pose: &mut Pose,
-    global: &mut GlobalPose,
-    target: DVec3,
-    settings: &SolveSettings,
+    problem: &IkProblem<'_>,
+    state: &mut IkState<'_>,
 ) -> Result<SolveStart, IkError> {
-    settings.validate()?;
-    if !target.is_finite() {
-        return Err(IkError::NonFiniteTarget { target });
+    problem.validate()?;
+    let goal = problem.goal()?;
+    let (skeleton, chain, settings) = (problem.skeleton, problem.chain, &problem.settings);
+    // The forward kinematics below checks the pose before anything reads it.
+    skeleton.forward_kinematics(state.pose, state.global)?;
+    let initial = goal.errors(state.global);
+    if chain_has_limits(skeleton, chain) && project_onto_limits(skeleton, chain, state.pose) {
+        // A solve returns a pose inside the limits even when it starts outside them;
+        // the initial errors stay those of the pose given.
+        skeleton.forward_kinematics_from(state.pose, chain.base(), state.global)?;
     }
-    chain.check_skeleton(skeleton)?;
-    skeleton.forward_kinematics(pose, global)?;
-    let initial_error = global.positions[chain.effector()].distance(target);
-    if initial_error <= settings.tolerance {
-        return Ok(SolveStart::Done(SolveReport {
-            iterations: 0,
-            initial_error,
-            error: initial_error,
-            stop: StopReason::Converged,
-        }));
+    let now = goal.errors(state.global);
+    if now.0 <= settings.tolerance && now.1 <= settings.rotation_tolerance {
+        return Ok(SolveStart::Done(measure(
+            problem,
+            state,
+            goal,
+            0,
+            initial,
+            StopReason::Converged,
+        )));
     }
-    if global.positions[chain.base()].distance(target) >= chain.reach() {
-        straighten_towards(skeleton, chain, pose, global, target)?;
-        let error = global.positions[chain.effector()].distance(target);
-        return Ok(SolveStart::Done(SolveReport {
-            iterations: 0,
-            initial_error,
-            error,
-            stop: StopReason::OutOfReach,
-        }));
+    if state.global.positions[chain.base()].distance(goal.position) >= chain.reach()
+        && !chain_has_limits(skeleton, chain)
+    {
+        straighten_towards(skeleton, chain, state.pose, state.global, goal.position)?;
+        return Ok(SolveStart::Done(measure(
+            problem,
+            state,
+            goal,
+            0,
+            initial,
+            StopReason::OutOfReach,
+        )));
     }
-    Ok(SolveStart::Iterate { initial_error })
+    Ok(SolveStart::Iterate {
+        initial_error: initial.0,
+        initial_rotation_error: initial.1,
+    })
+}
+
+/// The pole goal: turns the whole chain rigidly about the line from its base to its
+/// effector so that its bend plane faces the goal's pole; returns whether it turned.
+///
+/// The bend plane is the plane through that line and the chain's bend direction, the sum
+/// of the interior joints' offsets from the line (perpendicular to it). For two bones
+/// it is the plane of the three joints, the usual meaning; for more bones it is the
+/// plane the chain bulges into on average, and the turn makes that bulge point at the
+/// pole (seen along the line). The effector lies on the axis, so it does not move (to
+/// round-off); only the base joint's local rotation changes.
+///
+/// Nothing happens without a pole, with a rotation goal (the turn would move the
+/// effector's frame), for fewer than two bones, for a straight chain or a pole on the
+/// line (no plane, no direction), or when the turned pose would leave a joint limit or
+/// lose the position the solve reached (then the turn is undone). `state.global` must
+/// hold forward kinematics of `state.pose`, and does again on return.
+pub fn turn_towards_pole(
+    problem: &IkProblem<'_>,
+    state: &mut IkState<'_>,
+) -> Result<bool, IkError> {
+    let goal = problem.goal()?;
+    let (skeleton, chain) = (problem.skeleton, problem.chain);
+    let Some(pole) = goal.pole else {
+        return Ok(false);
+    };
+    if goal.rotation.is_some() || chain.bone_count() < 2 {
+        return Ok(false);
+    }
+    let joints = chain.joints();
+    let base = state.global.positions[chain.base()];
+    let Some(axis) = try_unit(state.global.positions[chain.effector()] - base) else {
+        return Ok(false);
+    };
+    let across = |v: DVec3| v - axis * axis.dot(v);
+    let bend: DVec3 = joints[1..joints.len() - 1]
+        .iter()
+        .map(|&j| across(state.global.positions[j] - base))
+        .sum();
+    let (Some(from), Some(to)) = (try_unit(bend), try_unit(across(pole - base))) else {
+        return Ok(false);
+    };
+    let angle = from.cross(to).dot(axis).atan2(from.dot(to));
+    if angle == 0.0 {
+        return Ok(false);
+    }
+    let (error_before, _) = goal.errors(state.global);
+    let b = chain.base();
+    let kept = state.pose.rotations[b];
+    let turned = (DQuat::from_axis_angle(axis, angle) * state.global.rotations[b]).normalize();
+    state.pose.rotations[b] = match skeleton.parent(b) {
+        Some(p) => (state.global.rotations[p].conjugate() * turned).normalize(),
+        None => turned,
+    };
+    skeleton.forward_kinematics_from(state.pose, b, state.global)?;
+    let (error, _) = goal.errors(state.global);
+    let inside = skeleton.limit(b).violation(state.pose.rotations[b]) == 0.0;
+    if inside && (error <= problem.settings.tolerance || error <= error_before) {
+        return Ok(true);
+    }
+    state.pose.rotations[b] = kept;
+    skeleton.forward_kinematics_from(state.pose, b, state.global)?;
+    Ok(false)
 }
 
 /// The closed-form answer for a target out of reach: every bone of the chain aimed
@@ -402,6 +837,20 @@ mod tests {
     use crate::JointDef;
     use sinew_math::{EulerRot, angle_between};
 
+    /// The job with one position goal on the chain's effector.
+    fn start(
+        skeleton: &Skeleton,
+        chain: &Chain,
+        pose: &mut Pose,
+        global: &mut GlobalPose,
+        target: DVec3,
+        settings: &SolveSettings,
+    ) -> Result<SolveStart, IkError> {
+        let goals = [EffectorGoal::at(chain.effector(), target)];
+        let problem = IkProblem::new(skeleton, chain, &goals, *settings);
+        begin_solve(&problem, &mut IkState::new(pose, global))
+    }
+
     fn lab_chain() -> Skeleton {
         Skeleton::chain(DVec3::new(0.0, 0.5, 0.0), &[DVec3::new(0.15, 0.0, 0.0); 7]).unwrap()
     }
@@ -413,21 +862,25 @@ mod tests {
                 name: None,
                 parent: None,
                 offset: DVec3::ZERO,
+                ..JointDef::default()
             },
             JointDef {
                 name: None,
                 parent: Some(0),
                 offset: DVec3::X,
+                ..JointDef::default()
             },
             JointDef {
                 name: Some("arm".into()),
                 parent: Some(0),
                 offset: DVec3::Y * 2.0,
+                ..JointDef::default()
             },
             JointDef {
                 name: None,
                 parent: Some(2),
                 offset: DVec3::Z * 3.0,
+                ..JointDef::default()
             },
         ])
         .unwrap();
@@ -457,7 +910,7 @@ mod tests {
         }
         let mut global = GlobalPose::new();
         let target = DVec3::new(3.0, 1.0, -0.5);
-        let start = begin_solve(
+        let start = start(
             &skel,
             &chain,
             &mut pose,
@@ -501,7 +954,7 @@ mod tests {
         let mut pose = skel.rest_pose();
         let mut global = GlobalPose::new();
         let target = DVec3::new(0.0, 10.0, 0.0);
-        let start = begin_solve(
+        let start = start(
             &skel,
             &chain,
             &mut pose,
@@ -530,7 +983,7 @@ mod tests {
         let mut global = GlobalPose::new();
         let target = DVec3::new(1.05 + 1e-7, 0.5, 0.0);
         let before = pose.clone();
-        let start = begin_solve(
+        let start = start(
             &skel,
             &chain,
             &mut pose,
@@ -558,7 +1011,7 @@ mod tests {
         let mut global = GlobalPose::new();
         let nan = DVec3::new(f64::NAN, 0.0, 0.0);
         assert!(matches!(
-            begin_solve(
+            start(
                 &skel,
                 &chain,
                 &mut pose,
@@ -566,17 +1019,21 @@ mod tests {
                 nan,
                 &SolveSettings::default()
             ),
-            Err(IkError::NonFiniteTarget { .. })
+            Err(IkError::InvalidGoal {
+                goal: 0,
+                field: "position",
+                ..
+            })
         ));
         let bad = SolveSettings {
             tolerance: -1.0,
             ..Default::default()
         };
-        let err = begin_solve(&skel, &chain, &mut pose, &mut global, DVec3::X, &bad).unwrap_err();
+        let err = start(&skel, &chain, &mut pose, &mut global, DVec3::X, &bad).unwrap_err();
         assert!(err.to_string().contains("tolerance"));
         let other = Skeleton::chain(DVec3::ZERO, &[DVec3::X]).unwrap();
         assert!(matches!(
-            begin_solve(
+            start(
                 &other,
                 &chain,
                 &mut other.rest_pose(),
@@ -597,5 +1054,94 @@ mod tests {
         assert!((rotation_angle(a, b) - 1e-6).abs() < 1e-15);
         assert!((rotation_angle(a, a * DQuat::from_rotation_x(3.0)) - 3.0).abs() < 1e-14);
         assert!(rotation_angle(a, -a) < 1e-15);
+    }
+
+    #[test]
+    fn validate_names_the_goal_and_the_field() {
+        let skel = lab_chain();
+        let chain = Chain::whole(&skel).unwrap();
+        let settings = SolveSettings::default();
+        let ok = EffectorGoal::at(7, DVec3::new(0.3, 0.2, 0.1));
+        let check = |goals: &[EffectorGoal]| {
+            IkProblem::new(&skel, &chain, goals, settings)
+                .validate()
+                .map_err(|e| e.to_string())
+        };
+        assert_eq!(check(&[ok]), Ok(()));
+        let with_all = ok
+            .with_rotation(DQuat::from_rotation_y(0.5))
+            .with_pole(DVec3::Z)
+            .with_weights(2.0, 0.0);
+        assert_eq!(check(&[with_all]), Ok(()));
+        let cases: [(EffectorGoal, &str); 7] = [
+            (
+                EffectorGoal::at(3, ok.position),
+                "goal 0: joint: joint 3 is not the chain's effector, joint 7",
+            ),
+            (
+                EffectorGoal::at(9, ok.position),
+                "goal 0: joint: joint index 9 is out of range",
+            ),
+            (
+                EffectorGoal::at(7, DVec3::new(0.0, f64::INFINITY, 0.0)),
+                "goal 0: position",
+            ),
+            (
+                ok.with_rotation(DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0)),
+                "goal 0: rotation",
+            ),
+            (ok.with_weights(0.0, 1.0), "goal 0: position_weight"),
+            (ok.with_weights(1.0, f64::NAN), "goal 0: rotation_weight"),
+            (ok.with_pole(DVec3::new(f64::NAN, 0.0, 0.0)), "goal 0: pole"),
+        ];
+        for (goal, expected) in cases {
+            let err = check(&[goal]).unwrap_err();
+            assert!(err.starts_with(expected), "{err} (expected {expected})");
+        }
+        assert!(check(&[]).unwrap_err().contains("exactly one goal"));
+        assert!(check(&[ok, ok]).unwrap_err().contains("got 2"));
+        let bad_rotation_tolerance = SolveSettings {
+            rotation_tolerance: -1.0,
+            ..settings
+        };
+        let err = IkProblem::new(&skel, &chain, &[ok], bad_rotation_tolerance)
+            .validate()
+            .unwrap_err();
+        assert!(err.to_string().contains("rotation_tolerance"), "{err}");
+    }
+
+    #[test]
+    fn a_rotation_goal_keeps_the_solve_going_until_both_are_met() {
+        // A bent chain's effector is on its goal position (inside the reach), but
+        // turned 0.5 rad from the goal rotation: not done; with the rotation met, done
+        // with both errors 0.
+        let skel = lab_chain();
+        let chain = Chain::whole(&skel).unwrap();
+        let mut pose = skel.rest_pose();
+        pose.rotations[3] = DQuat::from_rotation_z(0.4);
+        let mut global = GlobalPose::new();
+        skel.forward_kinematics(&pose, &mut global).unwrap();
+        let (here, facing) = (global.positions[7], global.rotations[7]);
+        let turned =
+            [EffectorGoal::at(7, here).with_rotation(facing * DQuat::from_rotation_x(0.5))];
+        let problem = IkProblem::new(&skel, &chain, &turned, SolveSettings::default());
+        let start = begin_solve(&problem, &mut IkState::new(&mut pose, &mut global)).unwrap();
+        let SolveStart::Iterate {
+            initial_error,
+            initial_rotation_error,
+        } = start
+        else {
+            panic!("expected to iterate: {start:?}")
+        };
+        assert!(initial_error < 1e-15);
+        assert!((initial_rotation_error - 0.5).abs() < 1e-14);
+        let met = [EffectorGoal::at(7, here).with_rotation(facing)];
+        let problem = IkProblem::new(&skel, &chain, &met, SolveSettings::default());
+        let start = begin_solve(&problem, &mut IkState::new(&mut pose, &mut global)).unwrap();
+        let SolveStart::Done(report) = start else {
+            panic!("expected done: {start:?}")
+        };
+        assert_eq!(report.stop, StopReason::Converged);
+        assert!(report.rotation_error < 1e-15 && report.error < 1e-15);
     }
 }

@@ -26,11 +26,12 @@ pub mod ik;
 pub mod limits;
 pub mod track;
 
+use limits::{JointLimit, LimitError};
 use sinew_math::{DQuat, DVec3};
 use std::fmt;
 
 /// One joint as given to [`Skeleton::new`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct JointDef {
     /// A name for messages and scenes; optional.
@@ -41,6 +42,10 @@ pub struct JointDef {
     pub parent: Option<usize>,
     /// The offset from the parent joint in the parent's frame (for a root: its position).
     pub offset: DVec3,
+    /// The limit on the joint's local rotation, relative to its rest rotation (the
+    /// identity: the rest pose is [`Skeleton::rest_pose`]). Default: free.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub limit: JointLimit,
 }
 
 /// Why a skeleton, a pose or a chain was refused. Every variant names the joint.
@@ -86,6 +91,13 @@ pub enum SkeletonError {
         /// The joint, with its name when it has one.
         joint: String,
     },
+    /// A joint's limit is invalid.
+    InvalidLimit {
+        /// The joint, with its name when it has one.
+        joint: String,
+        /// What is wrong with the limit (it names the field).
+        error: LimitError,
+    },
 }
 
 impl fmt::Display for SkeletonError {
@@ -115,6 +127,7 @@ impl fmt::Display for SkeletonError {
                 f,
                 "{joint}: local rotation is zero or has a NaN or infinite component"
             ),
+            Self::InvalidLimit { joint, error } => write!(f, "{joint}: limit: {error}"),
         }
     }
 }
@@ -127,6 +140,7 @@ pub struct Skeleton {
     parents: Vec<Option<usize>>,
     offsets: Vec<DVec3>,
     names: Vec<Option<String>>,
+    limits: Vec<JointLimit>,
     /// One past the largest index among each joint's descendants (at least `i + 1`):
     /// every descendant of `i` lies in `i + 1 .. span_end[i]`.
     span_end: Vec<usize>,
@@ -142,6 +156,7 @@ impl Skeleton {
         let mut parents = Vec::new();
         let mut offsets = Vec::new();
         let mut names = Vec::new();
+        let mut limits = Vec::new();
         for (i, joint) in joints.into_iter().enumerate() {
             let label = || joint_label(i, joint.name.as_deref());
             if let Some(parent) = joint.parent
@@ -155,8 +170,15 @@ impl Skeleton {
             if !joint.offset.is_finite() {
                 return Err(SkeletonError::NonFiniteOffset { joint: label() });
             }
+            if let Err(error) = joint.limit.validate() {
+                return Err(SkeletonError::InvalidLimit {
+                    joint: label(),
+                    error,
+                });
+            }
             parents.push(joint.parent);
             offsets.push(joint.offset);
+            limits.push(joint.limit);
             names.push(joint.name);
         }
         if parents.is_empty() {
@@ -176,6 +198,7 @@ impl Skeleton {
             parents,
             offsets,
             names,
+            limits,
             span_end,
             contiguous,
         })
@@ -185,14 +208,13 @@ impl Skeleton {
     /// `i - 1` with local offset `offsets[i - 1]`. So `offsets.len()` bones.
     pub fn chain(root: DVec3, offsets: &[DVec3]) -> Result<Self, SkeletonError> {
         let root = JointDef {
-            name: None,
-            parent: None,
             offset: root,
+            ..JointDef::default()
         };
         let rest = offsets.iter().enumerate().map(|(i, &offset)| JointDef {
-            name: None,
             parent: Some(i),
             offset,
+            ..JointDef::default()
         });
         Self::new(std::iter::once(root).chain(rest))
     }
@@ -225,6 +247,29 @@ impl Skeleton {
     #[must_use]
     pub fn offset(&self, i: usize) -> DVec3 {
         self.offsets[i]
+    }
+
+    /// The limit of joint `i` (relative to its rest rotation, the identity).
+    ///
+    /// # Panics
+    /// If `i` is out of range.
+    #[must_use]
+    pub fn limit(&self, i: usize) -> &JointLimit {
+        &self.limits[i]
+    }
+
+    /// Sets the limit of joint `i`, validated: an error naming the joint and the field
+    /// otherwise (the skeleton is then unchanged).
+    pub fn set_limit(&mut self, i: usize, limit: JointLimit) -> Result<(), SkeletonError> {
+        self.check_index(i)?;
+        limit
+            .validate()
+            .map_err(|error| SkeletonError::InvalidLimit {
+                joint: self.label(i),
+                error,
+            })?;
+        self.limits[i] = limit;
+        Ok(())
     }
 
     /// The name of joint `i`, if it has one.
@@ -431,9 +476,9 @@ mod tests {
 
     fn joint(parent: Option<usize>, offset: DVec3) -> JointDef {
         JointDef {
-            name: None,
             parent,
             offset,
+            ..JointDef::default()
         }
     }
 
@@ -450,6 +495,7 @@ mod tests {
                 name: Some("elbow".into()),
                 parent: Some(1),
                 offset: DVec3::X,
+                ..JointDef::default()
             },
         ]);
         let err = bad_parent.unwrap_err();

@@ -19,7 +19,8 @@
 //! [`Tracker::reserve`]).
 
 use crate::ik::{
-    Chain, IkError, IkSolver, SolveSettings, StopReason, largest_rotation_change, rotation_angle,
+    Chain, EffectorGoal, IkError, IkProblem, IkSolver, IkState, SolveSettings, StopReason,
+    chain_limit_violation, largest_rotation_change, rotation_angle,
 };
 use crate::{GlobalPose, Pose, Skeleton};
 use sinew_math::{DQuat, DVec3, try_unit};
@@ -53,10 +54,15 @@ impl TrackSettings {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct FrameRecord {
-    /// The target of this frame.
+    /// The goal position of this frame.
     pub target: DVec3,
     /// Effector-to-target distance at the end of the frame (after any clamping).
     pub error: f64,
+    /// Angle (radians) between the effector's rotation and the goal rotation at the end
+    /// of the frame; 0 without a rotation goal.
+    pub rotation_error: f64,
+    /// The largest joint-limit violation (radians) of the frame's pose; 0 without limits.
+    pub limit_violation: f64,
     /// Iterations the solver used.
     pub iterations: usize,
     /// Why the solver stopped (the solver's own answer, before any clamping).
@@ -86,6 +92,13 @@ pub struct TrackSummary {
     pub iterations_total: usize,
     /// Frames that ended within the tolerance.
     pub converged_frames: usize,
+    /// Largest final rotation error (radians); 0 without rotation goals.
+    pub rotation_error_max: f64,
+    /// Largest joint-limit violation (radians) of any frame's pose; 0 without limits.
+    pub limit_violation_max: f64,
+    /// Frames whose solve ended at the best pose within the joint limits it found
+    /// ([`StopReason::LocalMinimum`]).
+    pub local_minimum_frames: usize,
     /// Largest difference (scene units) between a chain bone's length and its rest
     /// length over all frames.
     pub bone_length_error_max: f64,
@@ -169,27 +182,31 @@ impl Tracker {
         self.error_sum = 0.0;
     }
 
-    /// Solves one frame: `pose` must hold the previous frame's answer (or the starting
-    /// pose for the first frame), and holds this frame's answer on return, with `global`
-    /// its forward kinematics. Errors are the solver's (bad target, pose or chain); a
-    /// frame that fails is not recorded.
-    #[allow(clippy::too_many_arguments)]
+    /// Solves one frame: `state.pose` must hold the previous frame's answer (or the
+    /// starting pose for the first frame), and holds this frame's answer on return, with
+    /// `state.global` its forward kinematics. Errors are the solver's (bad goal, pose or
+    /// chain); a frame that fails is not recorded.
     pub fn step(
         &mut self,
         solver: &mut dyn IkSolver,
         skeleton: &Skeleton,
         chain: &Chain,
-        pose: &mut Pose,
-        global: &mut GlobalPose,
-        target: DVec3,
+        state: &mut IkState<'_>,
+        goal: EffectorGoal,
     ) -> Result<FrameRecord, IkError> {
         let first = self.summary.frames == 0;
+        let pose = &mut *state.pose;
         if first || self.previous.rotations.len() != pose.rotations.len() {
             self.previous.rotations.clear();
             self.previous.rotations.extend_from_slice(&pose.rotations);
         }
-        let report = solver.solve(skeleton, chain, pose, global, target, &self.settings.solve)?;
+        let goals = [goal];
+        let problem = IkProblem::new(skeleton, chain, &goals, self.settings.solve);
+        let report = solver.solve(&problem, state)?;
+        let (pose, global) = (&mut *state.pose, &mut *state.global);
         let mut error = report.error;
+        let mut rotation_error = report.rotation_error;
+        let mut limit_violation = report.limit_violation;
         let mut rotation_change = largest_rotation_change(&self.previous, pose, chain.joints());
         let mut clamped = false;
         if let Some(limit) = self.settings.max_rotation_change
@@ -198,14 +215,17 @@ impl Tracker {
         {
             clamp_towards(&self.previous, pose, chain.joints(), limit);
             skeleton.forward_kinematics_from(pose, chain.base(), global)?;
-            error = global.positions[chain.effector()].distance(target);
+            (error, rotation_error) = goal.errors(global);
+            limit_violation = chain_limit_violation(skeleton, chain, pose);
             rotation_change = largest_rotation_change(&self.previous, pose, chain.joints());
             clamped = true;
         }
         let bone_length_error = bone_length_error(chain, global);
         let record = FrameRecord {
-            target,
+            target: goal.position,
             error,
+            rotation_error,
+            limit_violation,
             iterations: report.iterations,
             stop: report.stop,
             rotation_change,
@@ -217,7 +237,13 @@ impl Tracker {
         self.error_sum += error;
         s.error_max = s.error_max.max(error);
         s.iterations_total += report.iterations;
-        s.converged_frames += usize::from(error <= self.settings.solve.tolerance);
+        s.converged_frames += usize::from(
+            error <= self.settings.solve.tolerance
+                && rotation_error <= self.settings.solve.rotation_tolerance,
+        );
+        s.rotation_error_max = s.rotation_error_max.max(rotation_error);
+        s.limit_violation_max = s.limit_violation_max.max(limit_violation);
+        s.local_minimum_frames += usize::from(report.stop == StopReason::LocalMinimum);
         s.bone_length_error_max = s.bone_length_error_max.max(bone_length_error);
         if !first {
             s.rotation_jump_max_rad = s.rotation_jump_max_rad.max(rotation_change);
@@ -233,21 +259,21 @@ impl Tracker {
     }
 }
 
-/// Tracks `targets` in order from the starting `pose` and returns the summary; the
-/// per-frame records stay in `tracker` ([`Tracker::records`]).
-#[allow(clippy::too_many_arguments)]
+/// Tracks `targets` (goal positions of the chain's effector) in order from the starting
+/// `state.pose` and returns the summary; the per-frame records stay in `tracker`
+/// ([`Tracker::records`]).
 pub fn track(
     tracker: &mut Tracker,
     solver: &mut dyn IkSolver,
     skeleton: &Skeleton,
     chain: &Chain,
-    pose: &mut Pose,
-    global: &mut GlobalPose,
+    state: &mut IkState<'_>,
     targets: &[DVec3],
 ) -> Result<TrackSummary, IkError> {
     tracker.reserve(targets.len());
     for &target in targets {
-        tracker.step(solver, skeleton, chain, pose, global, target)?;
+        let goal = EffectorGoal::at(chain.effector(), target);
+        tracker.step(solver, skeleton, chain, state, goal)?;
     }
     Ok(tracker.summary())
 }
@@ -289,7 +315,7 @@ fn bone_length_error(chain: &Chain, global: &GlobalPose) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ik::{SolveReport, SolveStart, begin_solve};
+    use crate::ik::{SolveStart, begin_solve, measure};
     use std::f64::consts::{FRAC_PI_2, PI};
 
     /// A test solver: the closed-form early exits, and otherwise turns the base joint by
@@ -304,35 +330,34 @@ mod tests {
 
         fn solve(
             &mut self,
-            skeleton: &Skeleton,
-            chain: &Chain,
-            pose: &mut Pose,
-            global: &mut GlobalPose,
-            target: DVec3,
-            settings: &SolveSettings,
-        ) -> Result<SolveReport, IkError> {
-            let initial_error = match begin_solve(skeleton, chain, pose, global, target, settings)?
-            {
+            problem: &IkProblem<'_>,
+            state: &mut IkState<'_>,
+        ) -> Result<crate::ik::SolveReport, IkError> {
+            let initial = match begin_solve(problem, state)? {
                 SolveStart::Done(report) => return Ok(report),
-                SolveStart::Iterate { initial_error } => initial_error,
+                SolveStart::Iterate {
+                    initial_error,
+                    initial_rotation_error,
+                } => (initial_error, initial_rotation_error),
             };
+            let (skeleton, chain) = (problem.skeleton, problem.chain);
+            let goal = problem.goal()?;
+            let target = goal.position;
             let base = chain.base();
-            let p = global.positions[base];
-            let turn =
-                sinew_math::rotation_between(global.positions[chain.effector()] - p, target - p);
-            pose.rotations[base] = (turn * pose.rotations[base]).normalize();
-            skeleton.forward_kinematics(pose, global)?;
-            let error = global.positions[chain.effector()].distance(target);
-            Ok(SolveReport {
-                iterations: 1,
-                initial_error,
-                error,
-                stop: if error <= settings.tolerance {
-                    StopReason::Converged
-                } else {
-                    StopReason::IterationCap
-                },
-            })
+            let p = state.global.positions[base];
+            let turn = sinew_math::rotation_between(
+                state.global.positions[chain.effector()] - p,
+                target - p,
+            );
+            state.pose.rotations[base] = (turn * state.pose.rotations[base]).normalize();
+            skeleton.forward_kinematics(state.pose, state.global)?;
+            let error = state.global.positions[chain.effector()].distance(target);
+            let stop = if error <= problem.settings.tolerance {
+                StopReason::Converged
+            } else {
+                StopReason::IterationCap
+            };
+            Ok(measure(problem, state, goal, 1, initial, stop))
         }
     }
 
@@ -364,8 +389,7 @@ mod tests {
             &mut AimBase,
             &skel,
             &chain,
-            &mut pose,
-            &mut global,
+            &mut IkState::new(&mut pose, &mut global),
             &targets,
         )
         .unwrap();
@@ -420,8 +444,7 @@ mod tests {
             &mut AimBase,
             &skel,
             &chain,
-            &mut pose,
-            &mut global,
+            &mut IkState::new(&mut pose, &mut global),
             &targets,
         )
         .unwrap();
@@ -455,7 +478,13 @@ mod tests {
         let mut global = GlobalPose::new();
         for target in [DVec3::X, -DVec3::X] {
             tracker
-                .step(&mut AimBase, &skel, &chain, &mut pose, &mut global, target)
+                .step(
+                    &mut AimBase,
+                    &skel,
+                    &chain,
+                    &mut IkState::new(&mut pose, &mut global),
+                    EffectorGoal::at(1, target),
+                )
                 .unwrap();
         }
         let r = tracker.records()[1];
@@ -481,8 +510,18 @@ mod tests {
         let mut global = GlobalPose::new();
         let nan = DVec3::new(0.0, f64::NAN, 0.0);
         assert!(matches!(
-            tracker.step(&mut AimBase, &skel, &chain, &mut pose, &mut global, nan),
-            Err(IkError::NonFiniteTarget { .. })
+            tracker.step(
+                &mut AimBase,
+                &skel,
+                &chain,
+                &mut IkState::new(&mut pose, &mut global),
+                EffectorGoal::at(1, nan)
+            ),
+            Err(IkError::InvalidGoal {
+                goal: 0,
+                field: "position",
+                ..
+            })
         ));
         assert_eq!(tracker.summary().frames, 0);
         assert!(tracker.records().is_empty());
@@ -501,9 +540,8 @@ mod tests {
                 &mut AimBase,
                 &skel,
                 &chain,
-                &mut pose,
-                &mut global,
-                DVec3::Y,
+                &mut IkState::new(&mut pose, &mut global),
+                EffectorGoal::at(1, DVec3::Y),
             )
             .unwrap();
         assert!(tracker.records().is_empty());

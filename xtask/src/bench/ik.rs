@@ -6,23 +6,26 @@
 //! compared and the largest disagreement is a metric). Time is per frame (W1) or per
 //! solve (W2) and covers the solves only.
 
-use super::workloads::{w1_skeleton, w1_targets, w2_skeleton, w2_targets};
+use super::workloads::{
+    w1_skeleton, w1_targets, w2_skeleton, w2_targets, w7_ball, w7_feasible, w7_skeleton,
+};
 use super::{Plan, Record, Section, measure, sci};
 use serde_json::json;
-use sinew_ik_ccd::CcdSolver;
-use sinew_ik_fabrik::FabrikSolver;
+use sinew_ik::SolverOptions;
 use sinew_math::{DQuat, DVec3};
-use sinew_skeleton::ik::{Chain, IkSolver, SolveSettings};
+use sinew_skeleton::ik::{Chain, IkSolver, SolveSettings, chain_limit_violation};
 use sinew_skeleton::{GlobalPose, Skeleton};
 
-/// The solvers compared: the crates' defaults and their plain forms.
-fn solvers() -> Vec<(&'static str, Box<dyn IkSolver>)> {
-    vec![
-        ("ccd", Box::new(CcdSolver::new())),
-        ("ccd-plain", Box::new(CcdSolver::plain())),
-        ("fabrik", Box::new(FabrikSolver::new())),
-        ("fabrik-plain", Box::new(FabrikSolver::plain())),
-    ]
+/// A solver with its label.
+type NamedSolver = (&'static str, Box<dyn IkSolver>);
+
+/// The solvers compared: the crates' defaults and their plain forms, from the library's
+/// registry.
+fn solvers() -> Result<Vec<NamedSolver>, String> {
+    SolverOptions::NAMED
+        .iter()
+        .map(|&(name, options)| Ok((name, options.build().map_err(|e| e.to_string())?)))
+        .collect()
 }
 
 /// The knob settings run for each solver and workload: caps at the lab tolerance, then
@@ -38,11 +41,13 @@ fn settings(plan: &Plan) -> Vec<SolveSettings> {
         .map(|&max_iterations| SolveSettings {
             max_iterations,
             tolerance: 1e-6,
+            ..Default::default()
         })
         .collect();
     out.extend(tolerances.iter().map(|&tolerance| SolveSettings {
         max_iterations: 100,
         tolerance,
+        ..Default::default()
     }));
     out
 }
@@ -56,6 +61,10 @@ struct Outcome {
     bone_length_error_max: f64,
     /// Largest |reported error - error by forward kinematics| (checked runs only).
     report_disagreement_max: f64,
+    /// Largest joint-limit violation (radians) of a returned pose (checked runs only).
+    limit_violation_max: f64,
+    /// How many solves stopped for each reason.
+    stops: std::collections::BTreeMap<&'static str, usize>,
 }
 
 /// Solves every target in order. `warm`: each solve starts from the previous pose (W1);
@@ -78,6 +87,8 @@ fn solve_all(
         iterations: 0,
         bone_length_error_max: 0.0,
         report_disagreement_max: 0.0,
+        limit_violation_max: 0.0,
+        stops: std::collections::BTreeMap::new(),
     };
     let effector = chain.effector();
     for &target in targets {
@@ -85,10 +96,14 @@ fn solve_all(
             pose.rotations.fill(DQuat::IDENTITY);
         }
         let report = solver
-            .solve(skeleton, chain, &mut pose, &mut global, target, settings)
+            .solve_position(skeleton, chain, &mut pose, &mut global, target, settings)
             .map_err(|e| format!("{}: {e}", solver.name()))?;
         out.iterations += report.iterations;
         if check {
+            *out.stops.entry(report.stop.as_str()).or_insert(0) += 1;
+            out.limit_violation_max = out
+                .limit_violation_max
+                .max(chain_limit_violation(skeleton, chain, &pose));
             skeleton
                 .forward_kinematics(&pose, &mut fk)
                 .map_err(|e| e.to_string())?;
@@ -123,7 +138,7 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
     let w2 = w2_skeleton()?;
     let w2_chain = Chain::whole(&w2).map_err(|e| e.to_string())?;
     let w2_targets = w2_targets(if plan.quick { 500 } else { 10_000 });
-    for (name, mut solver) in solvers() {
+    for (name, mut solver) in solvers()? {
         for s in settings(plan) {
             records.push(w1_record(
                 plan,
@@ -146,7 +161,88 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
         }
         eprintln!("  {name} done");
     }
+    // W7, the arm with joint limits: both solvers as shipped, the lab's cap and tolerance.
+    let w7 = w7_skeleton()?;
+    let w7_chain = Chain::whole(&w7).map_err(|e| e.to_string())?;
+    let count = if plan.quick { 200 } else { 10_000 };
+    let feasible: Vec<DVec3> = w7_feasible(&w7, count)?.iter().map(|g| g.0).collect();
+    let ball = w7_ball(count);
+    for (name, mut solver) in solvers()? {
+        if name.ends_with("-plain") {
+            continue;
+        }
+        let s = SolveSettings::default();
+        records.push(w7_record(
+            plan,
+            name,
+            solver.as_mut(),
+            &w7,
+            &w7_chain,
+            &feasible,
+            &ball,
+            &s,
+        )?);
+    }
     Ok(records)
+}
+
+/// W7: cold solves of the feasible targets (timed, the headline error), and the ball's
+/// points, reported separately (stop reasons, errors; untimed).
+#[allow(clippy::too_many_arguments)]
+fn w7_record(
+    plan: &Plan,
+    name: &str,
+    solver: &mut dyn IkSolver,
+    skeleton: &Skeleton,
+    chain: &Chain,
+    feasible: &[DVec3],
+    ball: &[DVec3],
+    s: &SolveSettings,
+) -> Result<Record, String> {
+    let checked = solve_all(solver, skeleton, chain, feasible, s, false, true)?;
+    let (time, _) = measure(plan, plan.repeats, feasible.len(), || {
+        solve_all(solver, skeleton, chain, feasible, s, false, false)
+    });
+    let outside = solve_all(solver, skeleton, chain, ball, s, false, true)?;
+    let within = checked.errors.iter().filter(|&&e| e <= 1e-6).count();
+    let error_max = checked.errors.iter().copied().fold(0.0, f64::max);
+    let mut metrics = serde_json::Map::new();
+    metrics.insert("solves".into(), json!(feasible.len()));
+    metrics.insert("feasible_within_1e-6".into(), json!(within));
+    metrics.insert(
+        "feasible_within_share".into(),
+        json!(within as f64 / feasible.len() as f64),
+    );
+    metrics.insert("feasible_error_mean".into(), json!(mean(&checked.errors)));
+    metrics.insert("feasible_stops".into(), json!(checked.stops));
+    metrics.insert(
+        "limit_violation_max".into(),
+        json!(checked.limit_violation_max.max(outside.limit_violation_max)),
+    );
+    metrics.insert("ball_solves".into(), json!(ball.len()));
+    metrics.insert("ball_error_mean".into(), json!(mean(&outside.errors)));
+    metrics.insert(
+        "ball_within_1e-6".into(),
+        json!(outside.errors.iter().filter(|&&e| e <= 1e-6).count()),
+    );
+    metrics.insert("ball_stops".into(), json!(outside.stops));
+    metrics.insert("iterations_total".into(), json!(checked.iterations));
+    metrics.insert(
+        "report_disagreement_max".into(),
+        json!(checked.report_disagreement_max),
+    );
+    Ok(Record {
+        section: Section::Ik,
+        workload: "W7".into(),
+        method: name.into(),
+        knobs: knobs(s),
+        unit: "solve",
+        time,
+        error: error_max,
+        error_name: "largest final distance over the feasible targets",
+        metrics,
+        note: String::new(),
+    })
 }
 
 fn w1_record(

@@ -5,8 +5,9 @@
 //! The W2 targets come from splitmix64 with the seed of sinew-ik-fabrik's tests and
 //! benchmarks (`W2_SEED`), which gives 8 554 reachable targets of 10 000.
 
-use sinew_math::DVec3;
-use sinew_skeleton::Skeleton;
+use sinew_math::{DQuat, DVec3};
+use sinew_skeleton::limits::JointLimit;
+use sinew_skeleton::{GlobalPose, JointDef, Pose, Skeleton};
 use std::f64::consts::TAU;
 
 /// W1: 8 joints, root offset (0, 0.5, 0), joints 1..7 offset (0.15, 0, 0). Reach 1.05.
@@ -59,6 +60,91 @@ pub fn in_ball(rng: &mut SplitMix64, r: f64) -> DVec3 {
 pub fn w2_targets(count: usize) -> Vec<DVec3> {
     let mut rng = SplitMix64(W2_SEED);
     (0..count).map(|_| in_ball(&mut rng, 0.95)).collect()
+}
+
+/// W7: a human arm with joint limits. Shoulder at the origin, elbow (0.30, 0, 0), forearm
+/// twist (0.125, 0, 0), wrist (0.125, 0, 0), hand tip (0.08, 0, 0), the effector; T-pose
+/// along +x, Y up, facing +z, identity rest rotations. Limits (degrees, relative to the
+/// rest rotation; swing-twist with the twist about the bone, `a` the swing about local z
+/// and `b` about local y): shoulder a 100, b 70, twist +-80; elbow hinge about (0, -1, 0)
+/// from 0 to 150 (it bends towards +z); forearm hinge about +x, +-80; wrist a 80, b 30,
+/// twist +-10.
+pub fn w7_skeleton() -> Result<Skeleton, String> {
+    let deg = f64::to_radians;
+    let err = |e: sinew_skeleton::limits::LimitError| format!("W7 limits: {e}");
+    let joint = |name: &str, parent: Option<usize>, offset: DVec3, limit: JointLimit| JointDef {
+        name: Some(name.into()),
+        parent,
+        offset,
+        limit,
+    };
+    let shoulder = JointLimit::swing_twist(
+        DVec3::X,
+        DVec3::Z,
+        deg(100.0),
+        deg(70.0),
+        deg(-80.0),
+        deg(80.0),
+    )
+    .map_err(err)?;
+    let elbow = JointLimit::hinge(DVec3::new(0.0, -1.0, 0.0), 0.0, deg(150.0)).map_err(err)?;
+    let forearm = JointLimit::hinge(DVec3::X, deg(-80.0), deg(80.0)).map_err(err)?;
+    let wrist = JointLimit::swing_twist(
+        DVec3::X,
+        DVec3::Z,
+        deg(80.0),
+        deg(30.0),
+        deg(-10.0),
+        deg(10.0),
+    )
+    .map_err(err)?;
+    Skeleton::new([
+        joint("shoulder", None, DVec3::ZERO, shoulder),
+        joint("elbow", Some(0), DVec3::new(0.30, 0.0, 0.0), elbow),
+        joint("forearm", Some(1), DVec3::new(0.125, 0.0, 0.0), forearm),
+        joint("wrist", Some(2), DVec3::new(0.125, 0.0, 0.0), wrist),
+        joint(
+            "hand",
+            Some(3),
+            DVec3::new(0.08, 0.0, 0.0),
+            JointLimit::Free,
+        ),
+    ])
+    .map_err(|e| format!("W7 arm: {e}"))
+}
+
+/// The seed of the W7 poses and ball points.
+pub const W7_SEED: u64 = 0x5EED_0000_0000_0007;
+
+/// W7 feasible set: forward kinematics of the hand tip (position and global rotation) of
+/// `count` poses uniform in every joint's limit parameters, from [`W7_SEED`].
+pub fn w7_feasible(skeleton: &Skeleton, count: usize) -> Result<Vec<(DVec3, DQuat)>, String> {
+    let mut rng = SplitMix64(W7_SEED);
+    let mut global = GlobalPose::new();
+    let effector = skeleton.len() - 1;
+    (0..count)
+        .map(|_| {
+            let pose = Pose {
+                rotations: (0..skeleton.len())
+                    .map(|j| match skeleton.limit(j) {
+                        JointLimit::Free => DQuat::IDENTITY,
+                        limit => limit.sample([rng.unit(), rng.unit(), rng.unit()]),
+                    })
+                    .collect(),
+            };
+            skeleton
+                .forward_kinematics(&pose, &mut global)
+                .map_err(|e| e.to_string())?;
+            Ok((global.positions[effector], global.rotations[effector]))
+        })
+        .collect()
+}
+
+/// W7 ball set: `count` points uniform in the ball of radius 0.63 (the arm's reach)
+/// about the shoulder, from the seed after [`W7_SEED`].
+pub fn w7_ball(count: usize) -> Vec<DVec3> {
+    let mut rng = SplitMix64(W7_SEED + 1);
+    (0..count).map(|_| in_ball(&mut rng, 0.63)).collect()
 }
 
 #[cfg(test)]

@@ -5,8 +5,7 @@
 //! is checked against invariants that hold for any correct solver (docs/stress.md).
 
 use serde::Serialize;
-use sinew_ik_ccd::CcdSolver;
-use sinew_ik_fabrik::FabrikSolver;
+use sinew_ik::SolverOptions;
 use sinew_math::{DQuat, DVec3, EulerRot};
 use sinew_skeleton::ik::{Chain, IkSolver, SolveReport, SolveSettings, StopReason};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton};
@@ -19,16 +18,11 @@ const EPS: f64 = f64::EPSILON;
 /// The relative accuracy every bone length must keep (the 1e-12).
 const BONE_RELATIVE: f64 = 1e-12;
 
-/// The solvers, by the name used in the tables.
-pub const SOLVERS: [&str; 4] = ["ccd", "ccd-plain", "fabrik", "fabrik-plain"];
-
-fn make_solver(name: &str) -> Box<dyn IkSolver> {
-    match name {
-        "ccd" => Box::new(CcdSolver::new()),
-        "ccd-plain" => Box::new(CcdSolver::plain()),
-        "fabrik" => Box::new(FabrikSolver::new()),
-        _ => Box::new(FabrikSolver::plain()),
-    }
+/// The solver the library's registry names `name` (one of `SolverOptions::NAMED`).
+fn make_solver(name: &str) -> Result<Box<dyn IkSolver>, String> {
+    SolverOptions::by_name(name)
+        .and_then(|options| options.build())
+        .map_err(|e| e.to_string())
 }
 
 /// What a case expects of every solver.
@@ -244,16 +238,20 @@ pub fn cases() -> Vec<IkCase> {
     tol0.settings.tolerance = 0.0;
     out.push(tol0);
     for (name, target, expect) in [
-        ("NaN target", DVec3::new(f64::NAN, 0.0, 0.0), "target"),
+        (
+            "NaN target",
+            DVec3::new(f64::NAN, 0.0, 0.0),
+            "goal 0: position",
+        ),
         (
             "infinite target",
             DVec3::new(0.0, f64::INFINITY, 0.0),
-            "target",
+            "goal 0: position",
         ),
         (
             "-infinite target",
             DVec3::new(0.0, 0.0, f64::NEG_INFINITY),
-            "target",
+            "goal 0: position",
         ),
     ] {
         let mut c = case(name, w2(), target);
@@ -379,10 +377,16 @@ pub fn run_case(case: &IkCase, solver_name: &'static str) -> IkOutcome {
         f64::NAN
     };
     let mut global = GlobalPose::new();
-    let mut solver = make_solver(solver_name);
+    let mut solver = match make_solver(solver_name) {
+        Ok(solver) => solver,
+        Err(e) => {
+            out.failures.push(format!("no solver: {e}"));
+            return out;
+        }
+    };
     let started = Instant::now();
     let result = catch_unwind(AssertUnwindSafe(|| {
-        solver.solve(
+        solver.solve_position(
             &skeleton,
             &chain,
             &mut pose,
@@ -570,7 +574,7 @@ fn check_solve(
 pub fn run_all(cases: &[IkCase]) -> Vec<IkOutcome> {
     let mut out = Vec::new();
     for c in cases {
-        for s in SOLVERS {
+        for (s, _) in SolverOptions::NAMED {
             out.push(run_case(c, s));
         }
     }
@@ -584,7 +588,7 @@ mod tests {
     #[test]
     fn every_solver_passes_a_plain_reachable_case() {
         let c = case("2 bones", xs(&[1.0, 1.0]), DVec3::new(1.0, 1.0, 0.2));
-        for s in SOLVERS {
+        for (s, _) in SolverOptions::NAMED {
             let out = run_case(&c, s);
             assert!(out.failures.is_empty(), "{s}: {:?}", out.failures);
             assert_eq!(out.stop, Some(StopReason::Converged), "{s}");
@@ -595,10 +599,10 @@ mod tests {
     #[test]
     fn a_bad_target_must_be_an_error_naming_it() {
         let mut c = case("nan", w2(), DVec3::new(f64::NAN, 0.0, 0.0));
-        c.expect = Expect::Error("target");
+        c.expect = Expect::Error("goal 0: position");
         let out = run_case(&c, "ccd");
         assert!(out.failures.is_empty(), "{:?}", out.failures);
-        assert!(out.message.unwrap().contains("target"));
+        assert!(out.message.unwrap().contains("goal 0: position"));
         // A valid target where an error was expected is a failure.
         c.target = DVec3::new(0.3, 0.4, 0.0);
         let out = run_case(&c, "ccd");
@@ -622,6 +626,10 @@ mod tests {
             iterations: 1,
             initial_error: global.positions[9].distance(c.target),
             error: 0.0,
+            initial_rotation_error: 0.0,
+            rotation_error: 0.0,
+            limit_violation: 0.0,
+            restarted: false,
             stop: StopReason::Converged,
         };
         let mut out = run_case(&c, "ccd");
@@ -653,6 +661,10 @@ mod tests {
             iterations: 0,
             initial_error: global.positions[2].distance(c.target),
             error: global.positions[2].distance(c.target),
+            initial_rotation_error: 0.0,
+            rotation_error: 0.0,
+            limit_violation: 0.0,
+            restarted: false,
             stop: StopReason::OutOfReach,
         };
         let mut out = run_case(&c, "ccd");

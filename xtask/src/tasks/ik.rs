@@ -9,10 +9,9 @@ use crate::spec::{SkeletonSpec, build_sampled};
 use serde::Deserialize;
 use serde_json::json;
 use sinew_curves::{CurveSpec, Sampling};
-use sinew_ik_ccd::CcdSolver;
-use sinew_ik_fabrik::{FabrikOptions, FabrikSolver};
-use sinew_math::{DVec3, angle_between};
-use sinew_skeleton::ik::{Chain, IkSolver, SolveSettings, StopReason};
+use sinew_ik::SolverOptions;
+use sinew_math::{DQuat, DVec3, angle_between};
+use sinew_skeleton::ik::{Chain, EffectorGoal, IkSolver, IkState, SolveSettings, StopReason};
 use sinew_skeleton::track::{TrackSettings, Tracker};
 use sinew_skeleton::{GlobalPose, Skeleton};
 use std::time::Instant;
@@ -28,8 +27,9 @@ pub struct IkTask {
     /// The chain inside it (default: joint 0 to the last joint).
     #[serde(default)]
     pub chain: Option<ChainSpec>,
-    /// The solver.
-    pub solver: SolverSpec,
+    /// The solver and its options, from the library's registry: `Ccd(...)` or
+    /// `Fabrik(...)`.
+    pub solver: SolverOptions,
     /// Iteration cap and tolerance (default 100 and 1e-6).
     #[serde(default)]
     pub settings: SolveSettings,
@@ -54,27 +54,25 @@ pub struct ChainSpec {
     pub effector: usize,
 }
 
-/// The solver and its options.
-#[derive(Debug, Deserialize)]
-pub enum SolverSpec {
-    /// Cyclic coordinate descent; `extrapolation` (default true) turns on the sweep
-    /// extrapolation, `false` gives plain CCD.
-    Ccd {
-        /// Sweep extrapolation (default true).
-        #[serde(default = "yes")]
-        extrapolation: bool,
-    },
-    /// FABRIK; `mode: hybrid` (default) or `plain`.
-    Fabrik(#[serde(default)] FabrikOptions),
-}
-
-fn yes() -> bool {
-    true
+/// One frame's goal beyond a position: what `Goals` lists.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GoalSpec {
+    /// Where the effector should be.
+    pub position: DVec3,
+    /// The effector's goal rotation, a quaternion `(x, y, z, w)` (default: none).
+    #[serde(default)]
+    pub rotation: Option<DQuat>,
+    /// A point the chain's bend plane should turn towards (default: none).
+    #[serde(default)]
+    pub pole: Option<DVec3>,
 }
 
 /// The targets, one per frame.
 #[derive(Debug, Deserialize)]
 pub enum TargetSpec {
+    /// Full goals (position, optional rotation and pole), one per frame.
+    Goals(Vec<GoalSpec>),
     /// One target, one frame.
     Point(DVec3),
     /// A list of targets, one per frame.
@@ -89,8 +87,37 @@ pub enum TargetSpec {
 }
 
 impl TargetSpec {
+    /// The goals of the frames: positions with any rotation and pole.
+    fn goals(&self, effector: usize) -> Result<Vec<EffectorGoal>, String> {
+        if let Self::Goals(goals) = self {
+            if goals.is_empty() {
+                return Err("target: no goals".into());
+            }
+            return goals
+                .iter()
+                .enumerate()
+                .map(|(k, g)| {
+                    let goal = EffectorGoal {
+                        rotation: g.rotation,
+                        pole: g.pole,
+                        ..EffectorGoal::at(effector, g.position)
+                    };
+                    goal.validate(k, &dummy_skeleton(effector))
+                        .map_err(|e| format!("target: {e}"))?;
+                    Ok(goal)
+                })
+                .collect();
+        }
+        Ok(self
+            .points()?
+            .into_iter()
+            .map(|p| EffectorGoal::at(effector, p))
+            .collect())
+    }
+
     fn points(&self) -> Result<Vec<DVec3>, String> {
         let points = match self {
+            Self::Goals(goals) => goals.iter().map(|g| g.position).collect(),
             Self::Point(p) => vec![*p],
             Self::Points(ps) => ps.clone(),
             Self::Curve { curve, sampling } => {
@@ -111,13 +138,19 @@ impl TargetSpec {
     }
 }
 
+/// A skeleton with `effector + 1` joints, only so a goal's fields can be checked before
+/// the task's own skeleton is at hand (the joint index is checked against the chain).
+fn dummy_skeleton(effector: usize) -> Skeleton {
+    Skeleton::chain(DVec3::ZERO, &vec![DVec3::X; effector]).expect("a plain chain")
+}
+
 /// Everything an `Ik` task runs with, built from its fields.
 struct Built {
     skeleton: Skeleton,
     chain: Chain,
     solver: Box<dyn IkSolver>,
     tracker: Tracker,
-    targets: Vec<DVec3>,
+    goals: Vec<EffectorGoal>,
 }
 
 impl IkTask {
@@ -128,26 +161,19 @@ impl IkTask {
             Some(c) => Chain::new(&skeleton, c.base, c.effector),
         }
         .map_err(|e| format!("chain: {e}"))?;
-        let solver: Box<dyn IkSolver> = match &self.solver {
-            SolverSpec::Ccd { extrapolation } => {
-                Box::new(CcdSolver::new().with_extrapolation(*extrapolation))
-            }
-            SolverSpec::Fabrik(options) => {
-                Box::new(FabrikSolver::with_options(*options).map_err(|e| format!("solver: {e}"))?)
-            }
-        };
+        let solver = self.solver.build().map_err(|e| format!("solver: {e}"))?;
         let tracker = Tracker::new(TrackSettings {
             solve: self.settings,
             max_rotation_change: self.max_rotation_change,
         })
         .map_err(|e| format!("settings: {e}"))?;
-        let targets = self.target.points()?;
+        let goals = self.target.goals(chain.effector())?;
         Ok(Built {
             skeleton,
             chain,
             solver,
             tracker,
-            targets,
+            goals,
         })
     }
 }
@@ -177,8 +203,9 @@ impl TaskSpec for IkTask {
             chain,
             mut solver,
             mut tracker,
-            targets,
+            goals,
         } = self.build()?;
+        let targets: Vec<DVec3> = goals.iter().map(|g| g.position).collect();
         tracker.reserve(targets.len());
         let mut pose = skeleton.rest_pose();
         let mut global = GlobalPose::new();
@@ -191,16 +218,15 @@ impl TaskSpec for IkTask {
         let frame_every = targets.len().div_ceil(MAX_FRAMES).max(1);
         let mut shown: Vec<(Vec<DVec3>, DVec3)> = Vec::new();
         let mut progress = ctx.progress(&self.name, targets.len());
-        for (k, &target) in targets.iter().enumerate() {
+        for (k, (&target, &goal)) in targets.iter().zip(&goals).enumerate() {
             let start = Instant::now();
             tracker
                 .step(
                     solver.as_mut(),
                     &skeleton,
                     &chain,
-                    &mut pose,
-                    &mut global,
-                    target,
+                    &mut IkState::new(&mut pose, &mut global),
+                    goal,
                 )
                 .map_err(|e| e.to_string())?;
             frame_ns.push(start.elapsed().as_secs_f64() * 1e9);
@@ -270,6 +296,14 @@ impl TaskSpec for IkTask {
                 summary.error_max
             ));
         }
+        // Joint limits are an invariant of every solver (the projections' round-off is
+        // far below 1e-12 rad).
+        if summary.limit_violation_max > 1e-12 {
+            failures.push(format!(
+                "a frame's pose leaves a joint limit by {:.3e} rad",
+                summary.limit_violation_max
+            ));
+        }
         // Bone lengths are an invariant of every solver: check them always, relative
         // to the chain's reach (positions carry round-off of their own size).
         let scale = chain
@@ -283,13 +317,26 @@ impl TaskSpec for IkTask {
             ));
         }
         let mut metrics = Metrics::new();
-        metrics.insert("solver".into(), json!(solver_label(&self.solver)));
+        metrics.insert("solver".into(), json!(self.solver.label()));
         metrics.insert("frames".into(), json!(summary.frames));
         metrics.insert("error_mean".into(), json!(summary.error_mean));
         metrics.insert("error_max".into(), json!(summary.error_max));
         metrics.insert("iterations_total".into(), json!(summary.iterations_total));
         metrics.insert("converged_frames".into(), json!(summary.converged_frames));
         metrics.insert("out_of_reach_frames".into(), json!(out_of_reach));
+        metrics.insert("within_tol".into(), json!(summary.converged_frames));
+        metrics.insert(
+            "limit_violation_max".into(),
+            json!(summary.limit_violation_max),
+        );
+        metrics.insert(
+            "rotation_error_max".into(),
+            json!(summary.rotation_error_max),
+        );
+        metrics.insert(
+            "local_minimum_frames".into(),
+            json!(summary.local_minimum_frames),
+        );
         metrics.insert("clamped_frames".into(), json!(summary.clamped_frames));
         metrics.insert(
             "bone_length_error_max".into(),
@@ -307,7 +354,7 @@ impl TaskSpec for IkTask {
         metrics.insert("closed_form_gap".into(), json!(closed_form_gap));
         let headline = format!(
             "{} {} frames: error mean {:.1e} max {:.1e}, {}/{} within tol, {} iterations",
-            solver_label(&self.solver),
+            self.solver.label(),
             summary.frames,
             summary.error_mean,
             summary.error_max,
@@ -366,7 +413,7 @@ impl IkTask {
                 .enumerate()
                 .map(|(k, r)| (k as f64, r.iterations as f64))
                 .collect();
-            let label = solver_label(&self.solver);
+            let label = self.solver.label();
             render::line_chart_svg(
                 &out("error.svg"),
                 &format!("{}: final error per frame", self.name),
@@ -391,20 +438,5 @@ impl IkTask {
             )?;
         }
         Ok(())
-    }
-}
-
-fn solver_label(s: &SolverSpec) -> &'static str {
-    match s {
-        SolverSpec::Ccd {
-            extrapolation: true,
-        } => "ccd",
-        SolverSpec::Ccd {
-            extrapolation: false,
-        } => "ccd-plain",
-        SolverSpec::Fabrik(o) => match o.mode {
-            sinew_ik_fabrik::FabrikMode::Hybrid => "fabrik",
-            sinew_ik_fabrik::FabrikMode::Plain => "fabrik-plain",
-        },
     }
 }

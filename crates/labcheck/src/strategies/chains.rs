@@ -18,8 +18,9 @@ use proptest::prelude::*;
 use proptest::sample::Index;
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::Chain;
+use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::{JointDef, Pose, Skeleton};
-use std::f64::consts::{FRAC_PI_2, PI};
+use std::f64::consts::{FRAC_PI_2, PI, TAU};
 use std::ops::RangeInclusive;
 
 /// The shortest non-zero bone generated.
@@ -124,6 +125,45 @@ pub fn chain_with(joints: RangeInclusive<usize>) -> impl Strategy<Value = ChainC
         })
 }
 
+/// A joint limit of any kind, valid: free, fixed, a hinge about a random axis over a
+/// random range within `[-pi, pi]`, or a swing-twist about a random twist axis with
+/// half-angles in `[0.05, pi)` and a random twist range within `[-pi, pi]`.
+pub fn joint_limit() -> impl Strategy<Value = JointLimit> + Clone {
+    prop_oneof![
+        1 => Just(JointLimit::Free),
+        1 => Just(JointLimit::Fixed),
+        3 => (direction(), -PI..PI, 0.0..TAU).prop_map(|(axis, min, width)| {
+            JointLimit::hinge(axis, min, (min + width).min(PI)).expect("a valid hinge")
+        }),
+        3 => (direction(), 0.05..PI, 0.05..PI, -PI..PI, 0.0..TAU).prop_map(
+            |(twist, a, b, twist_min, width)| {
+                JointLimit::swing_twist(
+                    twist,
+                    twist.any_orthonormal_vector(),
+                    a,
+                    b,
+                    twist_min,
+                    (twist_min + width).min(PI),
+                )
+                .expect("a valid swing-twist limit")
+            }
+        ),
+    ]
+}
+
+/// Chains of 2 to 12 joints with a random limit on every joint ([`joint_limit`]), the
+/// pose projected inside the limits (a solve's start, so "never above the start" is a
+/// fair test).
+pub fn limited_chain() -> impl Strategy<Value = ChainCase> {
+    (chain_with(2..=12), prop::collection::vec(joint_limit(), 12)).prop_map(|(mut case, limits)| {
+        for (j, limit) in limits.into_iter().enumerate().take(case.skeleton.len()) {
+            case.skeleton.set_limit(j, limit).expect("a valid limit");
+            case.pose.rotations[j] = limit.project(case.pose.rotations[j]);
+        }
+        case
+    })
+}
+
 /// Chains of 1 to 64 joints.
 pub fn chain() -> impl Strategy<Value = ChainCase> {
     chain_with(1..=64)
@@ -171,6 +211,7 @@ pub fn tree_with(joints: RangeInclusive<usize>) -> impl Strategy<Value = TreeCas
                 name: None,
                 parent: None,
                 offset: root,
+                ..JointDef::default()
             }];
             let mut rotations = vec![root_rotation];
             for (i, &(parent, length, dir, q)) in joints.iter().enumerate() {
@@ -178,6 +219,7 @@ pub fn tree_with(joints: RangeInclusive<usize>) -> impl Strategy<Value = TreeCas
                     name: None,
                     parent: Some(parent.index(i + 1)),
                     offset: dir * length,
+                    ..JointDef::default()
                 });
                 rotations.push(q);
             }

@@ -6,8 +6,7 @@
 
 use proptest::prelude::*;
 use proptest::test_runner::TestCaseError;
-use sinew_ik_ccd::CcdSolver;
-use sinew_ik_fabrik::FabrikSolver;
+use sinew_ik::SolverOptions;
 use sinew_labcheck::bounds::chain_position_allowance;
 use sinew_labcheck::reference::kinematics::{scale, skeleton_bone_violation};
 use sinew_labcheck::strategies::log_uniform;
@@ -24,37 +23,25 @@ pub fn fk(skeleton: &Skeleton, pose: &Pose) -> GlobalPose {
     global
 }
 
-/// The solvers under test.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SolverKind {
-    /// `CcdSolver::new()`: sweep extrapolation on.
-    Ccd,
-    /// `CcdSolver::plain()`.
-    CcdPlain,
-    /// `FabrikSolver::new()`: the hybrid.
-    Fabrik,
-    /// `FabrikSolver::plain()`.
-    FabrikPlain,
+/// The solvers under test: every configuration of the library's registry
+/// (`SolverOptions::NAMED`: CCD with and without extrapolation, the FABRIK hybrid and
+/// plain FABRIK).
+pub type SolverKind = SolverOptions;
+
+/// Every solver of the registry.
+pub fn solver_kind() -> impl Strategy<Value = SolverKind> + Clone {
+    prop::sample::select(every_solver().to_vec())
 }
 
-/// Every solver.
-pub fn solver_kind() -> impl Strategy<Value = SolverKind> + Clone {
-    prop::sample::select(vec![
-        SolverKind::Ccd,
-        SolverKind::CcdPlain,
-        SolverKind::Fabrik,
-        SolverKind::FabrikPlain,
-    ])
+/// Every solver of the registry, in its order.
+pub fn every_solver() -> [SolverOptions; 4] {
+    SolverOptions::NAMED.map(|(_, options)| options)
 }
 
 /// A solver of the given kind.
 pub fn make_solver(kind: SolverKind) -> Box<dyn IkSolver> {
-    match kind {
-        SolverKind::Ccd => Box::new(CcdSolver::new()),
-        SolverKind::CcdPlain => Box::new(CcdSolver::plain()),
-        SolverKind::Fabrik => Box::new(FabrikSolver::new()),
-        SolverKind::FabrikPlain => Box::new(FabrikSolver::plain()),
-    }
+    kind.build()
+        .expect("the registry's configurations are valid")
 }
 
 /// Solve settings over the whole range: every cap from 0 to 100, tolerance 0 or
@@ -67,6 +54,7 @@ pub fn settings() -> impl Strategy<Value = SolveSettings> + Clone {
         .prop_map(|(max_iterations, tolerance)| SolveSettings {
             max_iterations,
             tolerance,
+            ..Default::default()
         })
 }
 
@@ -99,7 +87,7 @@ pub fn solve_checked(
     let mut pose = start.clone();
     let mut global = GlobalPose::new();
     let report = solver
-        .solve(skeleton, chain, &mut pose, &mut global, target, settings)
+        .solve_position(skeleton, chain, &mut pose, &mut global, target, settings)
         .map_err(|e| TestCaseError::fail(format!("solve refused valid input: {e}")))?;
     prop_assert!(
         pose.rotations.iter().all(|q| q.is_finite()),

@@ -1,0 +1,173 @@
+//! sinew-ik: one registry of the inverse-kinematics solvers, so every tool (the scene
+//! runner, the benchmarks, the stress grid, the property suite) builds a solver the same
+//! way instead of keeping its own table of names.
+//!
+//! [`SolverOptions`] names a solver and its options; with the `serde` feature it reads
+//! and writes as the scene files spell it, `Ccd(...)` or `Fabrik(...)`, every option
+//! defaulted (`Ccd()`, `Ccd(extrapolation: false)`, `Fabrik(mode: plain)`).
+//! [`SolverOptions::build`] validates the options and returns a boxed [`IkSolver`].
+//! [`SolverOptions::NAMED`] lists the configurations the reports compare, under the
+//! labels they use.
+//!
+//! Architecture invariant: this crate only depends on the solver crates and the
+//! skeleton; each solver crate stays usable alone, without this one.
+
+pub use sinew_ik_ccd::{CcdOptions, CcdSolver};
+pub use sinew_ik_fabrik::{FabrikMode, FabrikOptions, FabrikSolver};
+use sinew_skeleton::ik::{IkError, IkSolver};
+
+/// Which solver, with its options.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum SolverOptions {
+    /// Cyclic coordinate descent ([`CcdSolver`]).
+    Ccd(#[cfg_attr(feature = "serde", serde(default))] CcdOptions),
+    /// FABRIK, plain or with the damped least-squares finish ([`FabrikSolver`]).
+    Fabrik(#[cfg_attr(feature = "serde", serde(default))] FabrikOptions),
+}
+
+impl Default for SolverOptions {
+    fn default() -> Self {
+        Self::Fabrik(FabrikOptions::default())
+    }
+}
+
+impl SolverOptions {
+    /// The configurations the benchmarks, the stress grid and the property suite
+    /// compare, with their labels (the same as [`SolverOptions::label`]).
+    pub const NAMED: [(&'static str, SolverOptions); 4] = [
+        (
+            "ccd",
+            Self::Ccd(CcdOptions {
+                extrapolation: true,
+                relaxation: 1.0,
+            }),
+        ),
+        (
+            "ccd-plain",
+            Self::Ccd(CcdOptions {
+                extrapolation: false,
+                relaxation: 1.0,
+            }),
+        ),
+        (
+            "fabrik",
+            Self::Fabrik(FabrikOptions {
+                mode: FabrikMode::Hybrid,
+                switch_ratio: 0.0,
+            }),
+        ),
+        (
+            "fabrik-plain",
+            Self::Fabrik(FabrikOptions {
+                mode: FabrikMode::Plain,
+                switch_ratio: 0.0,
+            }),
+        ),
+    ];
+
+    /// The named configuration `name` (one of [`SolverOptions::NAMED`]), or an error
+    /// listing the names.
+    pub fn by_name(name: &str) -> Result<Self, IkError> {
+        Self::NAMED
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|&(_, options)| options)
+            .ok_or_else(|| {
+                let names: Vec<&str> = Self::NAMED.iter().map(|(n, _)| *n).collect();
+                IkError::InvalidSettings(format!(
+                    "unknown solver {name:?}; the solvers are {}",
+                    names.join(", ")
+                ))
+            })
+    }
+
+    /// Checks the options of the chosen solver.
+    pub fn validate(&self) -> Result<(), IkError> {
+        match self {
+            Self::Ccd(options) => options.validate(),
+            Self::Fabrik(options) => options.validate(),
+        }
+    }
+
+    /// The solver, with validated options.
+    pub fn build(&self) -> Result<Box<dyn IkSolver>, IkError> {
+        Ok(match self {
+            Self::Ccd(options) => Box::new(CcdSolver::with_options(*options)?),
+            Self::Fabrik(options) => Box::new(FabrikSolver::with_options(*options)?),
+        })
+    }
+
+    /// A short label for tables: `ccd` (extrapolated), `ccd-plain`, `ccd-relaxed`
+    /// (over-relaxed, whether extrapolated or not), `fabrik` (the hybrid) or
+    /// `fabrik-plain`.
+    #[must_use]
+    pub fn label(&self) -> &'static str {
+        match self {
+            Self::Ccd(o) if o.relaxation != 1.0 => "ccd-relaxed",
+            Self::Ccd(o) if o.extrapolation => "ccd",
+            Self::Ccd(_) => "ccd-plain",
+            Self::Fabrik(o) => match o.mode {
+                FabrikMode::Hybrid => "fabrik",
+                FabrikMode::Plain => "fabrik-plain",
+            },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn named_configurations_build_and_carry_their_labels() {
+        for (name, options) in SolverOptions::NAMED {
+            assert_eq!(options.label(), name);
+            assert_eq!(SolverOptions::by_name(name), Ok(options));
+            let solver = options.build().unwrap();
+            assert_eq!(solver.name(), &name[..name.find('-').unwrap_or(name.len())]);
+        }
+        assert_eq!(
+            SolverOptions::NAMED[0].1,
+            SolverOptions::Ccd(CcdOptions::default())
+        );
+        assert_eq!(
+            SolverOptions::NAMED[1].1,
+            SolverOptions::Ccd(CcdOptions::plain())
+        );
+        assert_eq!(
+            SolverOptions::NAMED[2].1,
+            SolverOptions::Fabrik(FabrikOptions::default())
+        );
+        assert_eq!(
+            SolverOptions::NAMED[3].1,
+            SolverOptions::Fabrik(FabrikOptions::plain())
+        );
+        let err = SolverOptions::by_name("newton").unwrap_err().to_string();
+        assert!(
+            err.contains("newton") && err.contains("fabrik-plain"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn bad_options_are_refused_by_build() {
+        let relaxed = SolverOptions::Ccd(CcdOptions {
+            relaxation: 2.5,
+            ..CcdOptions::default()
+        });
+        let err = relaxed.build().err().expect("refused").to_string();
+        assert!(err.contains("relaxation"), "{err}");
+        let fabrik = SolverOptions::Fabrik(FabrikOptions {
+            switch_ratio: -0.5,
+            ..FabrikOptions::default()
+        });
+        assert!(fabrik.validate().is_err());
+        let ok = SolverOptions::Ccd(CcdOptions {
+            relaxation: 1.5,
+            extrapolation: false,
+        });
+        assert_eq!(ok.label(), "ccd-relaxed");
+        assert!(ok.build().is_ok());
+    }
+}
