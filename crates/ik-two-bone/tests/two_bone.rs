@@ -623,6 +623,7 @@ fn random_skeleton(rng: &mut Rng) -> Skeleton {
         name: None,
         parent,
         offset,
+        ..JointDef::default()
     };
     Skeleton::new([
         j(None, rng.vector(1.0)),    // 0 spine
