@@ -232,7 +232,13 @@ fn main() {
     let cloth: Vec<Vec<DVec3>> = (0..40)
         .map(|k| fake_cloth((k as f64 / 39.0).powf(0.7)))
         .collect();
-    let cloth_frames: Vec<ClothFrame> = cloth.iter().map(|p| ClothFrame { positions: p }).collect();
+    let cloth_frames: Vec<ClothFrame> = cloth
+        .iter()
+        .map(|p| ClothFrame {
+            positions: p,
+            colliders: &[],
+        })
+        .collect();
     let fixed = [0, 10];
     let cloth_view = View::fit(cloth.iter().flatten().copied(), 0.7, 0.35, 480, 480);
     let path = out.join("cloth.gif");
@@ -377,7 +383,10 @@ fn main() {
             render::cloth_png(
                 &out.join("bad/cloth.png"),
                 &cloth_view,
-                &ClothFrame { positions: &broken },
+                &ClothFrame {
+                    positions: &broken,
+                    colliders: &[],
+                },
                 &[
                     (0, 1, 0.1),
                     (0, 2, 0.0),

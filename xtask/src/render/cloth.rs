@@ -1,5 +1,7 @@
 //! Pictures of a mass-spring cloth: springs drawn as lines coloured by strain and fixed
-//! particles marked, as an animated GIF and a PNG still.
+//! particles marked, as an animated GIF and a PNG still, over the colliders it touches
+//! (the ground as a grid of lines under the sheet, a sphere as its outline, a capsule as
+//! its two end outlines joined by its sides).
 //!
 //! Strain is `l / L - 1` (current over rest length, minus one). Colours run from blue
 //! (compressed by `strain_scale` or more) through grey (at rest) to red (stretched by
@@ -7,9 +9,11 @@
 //! compare across frames.
 
 use super::animation::{GifWriter, frames_to_draw, strain_colour};
+use super::canvas::ink;
 use super::canvas::{Canvas, Px};
 use super::{Mark, View, axis_gizmo, draw_pin, format_strain, legend};
 use sinew_math::DVec3;
+use sinew_spring_sim::contact::Shape;
 use std::path::Path;
 
 /// One frame of a cloth run: every particle's world position.
@@ -17,6 +21,8 @@ use std::path::Path;
 pub struct ClothFrame<'a> {
     /// Particle positions, indexed as in the springs and the fixed list.
     pub positions: &'a [DVec3],
+    /// The colliders, posed at the frame's time (empty without contact).
+    pub colliders: &'a [Shape],
 }
 
 /// Writes an animated GIF of the cloth: each spring `(i, j, rest_length)` as a line
@@ -114,6 +120,10 @@ fn draw(
 ) -> Result<Canvas, String> {
     let mut canvas = Canvas::new(view.width(), view.height())?;
     let positions = frame.positions;
+    // Colliders first, so the cloth lying on them is drawn on top.
+    for shape in frame.colliders {
+        draw_collider(&mut canvas, view, shape, positions);
+    }
     // (depth, strain, ends) of every drawable spring.
     let mut lines: Vec<(f64, f64, Px, Px)> = springs
         .iter()
@@ -162,6 +172,73 @@ fn draw(
     Ok(canvas)
 }
 
+/// Draws one collider. The view is orthographic, so a ball's outline is the circle of its
+/// radius (times the view's scale) around its projected centre, and a capsule's is its
+/// end circles joined by the two lines its sides project to.
+fn draw_collider(canvas: &mut Canvas, view: &View, shape: &Shape, positions: &[DVec3]) {
+    match *shape {
+        Shape::HalfSpace { point, normal } => {
+            // A square patch of the plane under the cloth: centred below the particles'
+            // centroid, as wide as the cloth's spread plus a margin, ruled every fifth.
+            let finite: Vec<DVec3> = positions
+                .iter()
+                .copied()
+                .filter(|p| p.is_finite())
+                .collect();
+            if finite.is_empty() {
+                return;
+            }
+            let centroid = finite.iter().copied().sum::<DVec3>() / finite.len() as f64;
+            let centre = centroid - normal.dot(centroid - point) * normal;
+            let t1 = normal.any_orthonormal_vector();
+            let t2 = normal.cross(t1);
+            let spread = finite
+                .iter()
+                .map(|p| (*p - centre).reject_from_normalized(normal).length())
+                .fold(0.0f64, f64::max);
+            let half = 1.2 * spread.max(1e-3);
+            for k in 0..=10 {
+                let s = half * (k as f64 / 5.0 - 1.0);
+                for (u, v) in [(t1, t2), (t2, t1)] {
+                    let a = centre + s * u - half * v;
+                    let b = centre + s * u + half * v;
+                    canvas.segment(view.project(a), view.project(b), 1.0, ink::CURVE);
+                }
+            }
+        }
+        Shape::Sphere { center, radius } => {
+            canvas.ring(
+                view.project(center),
+                (radius * view.scale) as f32,
+                1.5,
+                ink::ROOT,
+            );
+        }
+        Shape::Capsule { a, b, radius } => {
+            let r = (radius * view.scale) as f32;
+            let (pa, pb) = (view.project(a), view.project(b));
+            canvas.ring(pa, r, 1.5, ink::ROOT);
+            canvas.ring(pb, r, 1.5, ink::ROOT);
+            if let (Some(pa), Some(pb)) = (pa, pb) {
+                let (dx, dy) = (pb.0 - pa.0, pb.1 - pa.1);
+                let len = (dx * dx + dy * dy).sqrt();
+                if len > 0.0 {
+                    // The sides are the axis shifted by the radius across it on screen.
+                    let (nx, ny) = (-dy / len * r, dx / len * r);
+                    for sign in [-1.0f32, 1.0] {
+                        canvas.segment(
+                            Some((pa.0 + sign * nx, pa.1 + sign * ny)),
+                            Some((pb.0 + sign * nx, pb.1 + sign * ny)),
+                            1.5,
+                            ink::ROOT,
+                        );
+                    }
+                }
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -185,7 +262,10 @@ mod tests {
     #[test]
     fn unusable_scale_falls_back_to_the_largest_strain() {
         let p = [DVec3::ZERO, DVec3::X, DVec3::new(3.0, 0.0, 0.0)];
-        let frame = ClothFrame { positions: &p };
+        let frame = ClothFrame {
+            positions: &p,
+            colliders: &[],
+        };
         let springs = [(0, 1, 0.8), (1, 2, 2.5)];
         assert_eq!(resolve_scale(0.1, [&frame], &springs), 0.1);
         // Strains are 0.25 and -0.2.
@@ -193,5 +273,54 @@ mod tests {
             assert!((resolve_scale(bad, [&frame], &springs) - 0.25).abs() < 1e-15);
         }
         assert_eq!(resolve_scale(f64::NAN, [&frame], &[]), 0.01);
+    }
+
+    #[test]
+    fn a_sphere_is_drawn_as_its_outline() {
+        // Two particles frame the view; a sphere of radius 0.5 at the origin.
+        let p = [DVec3::new(-1.0, -1.0, 0.0), DVec3::new(1.0, 1.0, 0.0)];
+        let view = View::fit(p.iter().copied(), 0.0, 0.0, 200, 200);
+        let spheres = [Shape::Sphere {
+            center: DVec3::ZERO,
+            radius: 0.5,
+        }];
+        let pixel = |canvas: &Canvas, (x, y): (f32, f32)| {
+            let i = 4 * (y.round() as usize * canvas.width() as usize + x.round() as usize);
+            canvas.rgba()[i..i + 3].to_vec()
+        };
+        let with = draw(
+            &view,
+            &ClothFrame {
+                positions: &p,
+                colliders: &spheres,
+            },
+            &[],
+            &[],
+            0.05,
+            "",
+        )
+        .unwrap();
+        let without = draw(
+            &view,
+            &ClothFrame {
+                positions: &p,
+                colliders: &[],
+            },
+            &[],
+            &[],
+            0.05,
+            "",
+        )
+        .unwrap();
+        let centre = view.project(DVec3::ZERO).unwrap();
+        let on_ring = view.project(DVec3::new(0.5, 0.0, 0.0)).unwrap();
+        let white = vec![255u8, 255, 255];
+        assert_eq!(pixel(&with, centre), white, "the ball is not filled");
+        assert_ne!(pixel(&with, on_ring), white, "the outline is drawn");
+        assert_eq!(
+            pixel(&without, on_ring),
+            white,
+            "nothing there without the sphere"
+        );
     }
 }

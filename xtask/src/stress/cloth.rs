@@ -526,6 +526,292 @@ pub fn run_case(case: &ClothCase) -> ClothOutcome {
     out
 }
 
+/// The collider a contact case drops its sheet onto.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ContactTarget {
+    /// The ground, the half-space `y <= 0`.
+    Ground,
+    /// A sphere of radius [`CONTACT_SPHERE_RADIUS`] with its top at `y = 0`.
+    Sphere,
+}
+
+impl ContactTarget {
+    /// A short name for tables.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Ground => "ground",
+            Self::Sphere => "sphere",
+        }
+    }
+}
+
+/// Radius of the contact cases' sphere, m.
+pub const CONTACT_SPHERE_RADIUS: f64 = 0.2;
+/// Height of the contact cases' sheet above the collider's top at the start, m.
+pub const CONTACT_DROP_HEIGHT: f64 = 0.1;
+/// Spacing of the contact cases' sheet, m (areal density 0.2 kg/m^2, gravity 9.81).
+pub const CONTACT_SPACING: f64 = 0.05;
+
+/// One contact case: a free square sheet thrown down onto a static collider by backward
+/// Euler with IPC contact (`dhat` 1e-3, friction 0.3).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ContactCase {
+    /// Particles per side.
+    pub grid: usize,
+    /// Stiffness of every spring, N/m.
+    pub stiffness: f64,
+    /// Time step, s.
+    pub dt: f64,
+    /// Initial downward speed, m/s.
+    pub speed: f64,
+    /// The collider.
+    pub target: ContactTarget,
+    /// Steps taken.
+    pub steps: usize,
+}
+
+impl ContactCase {
+    /// A label for messages: `8x8 k=1e6 dt=1/4 v=20 sphere`.
+    #[must_use]
+    pub fn label(&self) -> String {
+        format!(
+            "{0}x{0} k={1:.0e} dt={2} v={3} {4}",
+            self.grid,
+            self.stiffness,
+            dt_label(self.dt),
+            self.speed,
+            self.target.name()
+        )
+    }
+}
+
+/// The contact cases: stiffness x time step x drop speed x collider. Quick: 8 x 8,
+/// stiffness 1e2 and 1e6, dt 1/60 and 1/4, speed 0 and 20 m/s, 15 steps (16 cases). Full:
+/// 16 x 16, stiffness 1e1, 1e3, 1e5, 1e7, dt 1/960, 1/60, 1/4, speed 0, 2, 20 m/s, 60 steps.
+#[must_use]
+pub fn contact_cases(quick: bool) -> Vec<ContactCase> {
+    let (grid, stiffnesses, dts, speeds, steps): (usize, &[f64], &[f64], &[f64], usize) = if quick {
+        (8, &[1e2, 1e6], &[1.0 / 60.0, 0.25], &[0.0, 20.0], 15)
+    } else {
+        (
+            16,
+            &[1e1, 1e3, 1e5, 1e7],
+            &[1.0 / 960.0, 1.0 / 60.0, 0.25],
+            &[0.0, 2.0, 20.0],
+            60,
+        )
+    };
+    let mut cases = Vec::new();
+    for target in [ContactTarget::Ground, ContactTarget::Sphere] {
+        for &stiffness in stiffnesses {
+            for &dt in dts {
+                for &speed in speeds {
+                    cases.push(ContactCase {
+                        grid,
+                        stiffness,
+                        dt,
+                        speed,
+                        target,
+                        steps,
+                    });
+                }
+            }
+        }
+    }
+    cases
+}
+
+/// What one contact case did.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ContactOutcome {
+    /// The case.
+    pub case: ContactCase,
+    /// Steps completed.
+    pub steps_run: usize,
+    /// Particle-step pairs found at distance `<= 0` from the collider, measured here
+    /// (not by the integrator); any is a failure.
+    pub penetrations: usize,
+    /// Smallest distance from a particle to the collider over the accepted states.
+    pub min_distance: f64,
+    /// Steps that stopped with a non-finite value, or left one in the state.
+    pub nan_steps: usize,
+    /// Whether a particle went beyond [`DIVERGENCE_RADIUS`].
+    pub diverged: bool,
+    /// Steps that did not converge (iteration cap or stalled line search above the
+    /// tolerance).
+    pub unconverged_steps: usize,
+    /// Largest Newton iteration count of a step.
+    pub iterations_max: usize,
+    /// Wall-clock seconds.
+    pub seconds: f64,
+    /// Broken invariants, as sentences (penetration, NaN, divergence, a refused step).
+    pub failures: Vec<String>,
+}
+
+/// The distance from `x` to the case's collider, written out here (height above the
+/// ground; distance to the sphere's centre minus its radius) so the check does not rely
+/// on the integrator's own distance function.
+fn contact_distance(target: ContactTarget, x: DVec3) -> f64 {
+    match target {
+        ContactTarget::Ground => x.y,
+        ContactTarget::Sphere => {
+            (x - DVec3::new(0.0, -CONTACT_SPHERE_RADIUS, 0.0)).length() - CONTACT_SPHERE_RADIUS
+        }
+    }
+}
+
+/// Runs one contact case.
+#[must_use]
+pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
+    use sinew_spring_sim::contact::{Collider, ContactSettings};
+    let started = Instant::now();
+    let mut out = ContactOutcome {
+        case: *case,
+        steps_run: 0,
+        penetrations: 0,
+        min_distance: f64::INFINITY,
+        nan_steps: 0,
+        diverged: false,
+        unconverged_steps: 0,
+        iterations_max: 0,
+        seconds: 0.0,
+        failures: Vec::new(),
+    };
+    let width = CONTACT_SPACING * (case.grid - 1) as f64;
+    let grid = ClothGrid {
+        size: case.grid,
+        spacing: CONTACT_SPACING,
+        origin: DVec3::new(-0.5 * width, CONTACT_DROP_HEIGHT, -0.5 * width),
+        mass: 0.2 * CONTACT_SPACING * CONTACT_SPACING,
+        material: sinew_spring_sim::Material {
+            stiffness: case.stiffness,
+            damping: 0.1,
+            gravity: DVec3::new(0.0, -9.81, 0.0),
+        },
+        fixed: Vec::new(),
+    };
+    let built = SpringSystem::cloth(&grid).and_then(|mut system| {
+        let positions = system.positions().to_vec();
+        let velocities = vec![DVec3::new(0.0, -case.speed, 0.0); positions.len()];
+        system.set_state(&positions, &velocities)?;
+        Ok(system)
+    });
+    let system = match built {
+        Ok(s) => s,
+        Err(e) => {
+            out.failures.push(format!("could not build the case: {e}"));
+            return out;
+        }
+    };
+    let settings = NewtonSettings {
+        max_iterations: 100,
+        ..NewtonSettings::default()
+    };
+    let mut sim = match Simulation::new(system, Integrator::BackwardEuler(settings)) {
+        Ok(s) => s,
+        Err(e) => {
+            out.failures
+                .push(format!("could not build the integrator: {e}"));
+            return out;
+        }
+    };
+    let collider = match case.target {
+        ContactTarget::Ground => Collider::ground(0.0),
+        ContactTarget::Sphere => Collider::sphere(
+            DVec3::new(0.0, -CONTACT_SPHERE_RADIUS, 0.0),
+            CONTACT_SPHERE_RADIUS,
+        ),
+    };
+    let contact = ContactSettings {
+        dhat: 1e-3,
+        mu: 0.3,
+        ..ContactSettings::default()
+    };
+    if let Err(e) = sim.set_contact(vec![collider], contact) {
+        out.failures.push(format!("could not set contact: {e}"));
+        return out;
+    }
+    for n in 0..case.steps {
+        let report = match sim.step(case.dt) {
+            Ok(r) => r,
+            Err(e) => {
+                if matches!(e, StepError::NonFinite { .. }) {
+                    out.nan_steps += 1;
+                }
+                out.failures.push(format!("step {n} refused: {e}"));
+                break;
+            }
+        };
+        out.steps_run += 1;
+        out.iterations_max = out.iterations_max.max(report.iterations);
+        let positions = sim.system().positions();
+        if report.stop == StopReason::NonFinite
+            || !report.residual.is_finite()
+            || positions.iter().any(|x| !x.is_finite())
+            || sim.system().velocities().iter().any(|v| !v.is_finite())
+        {
+            out.nan_steps += 1;
+            out.failures.push(format!("step {n}: a non-finite value"));
+            break;
+        }
+        if report.residual > report.tolerance {
+            out.unconverged_steps += 1;
+        }
+        let mut inside = 0;
+        for x in positions {
+            let d = contact_distance(case.target, *x);
+            out.min_distance = out.min_distance.min(d);
+            if d <= 0.0 {
+                inside += 1;
+            }
+        }
+        if inside > 0 {
+            out.penetrations += inside;
+            out.failures.push(format!(
+                "step {n}: {inside} particle(s) inside or on the collider"
+            ));
+        }
+        if positions.iter().any(|x| x.length() > DIVERGENCE_RADIUS) {
+            out.diverged = true;
+            out.failures
+                .push(format!("step {n}: a particle beyond {DIVERGENCE_RADIUS}"));
+            break;
+        }
+    }
+    out.seconds = started.elapsed().as_secs_f64();
+    out
+}
+
+/// The contact cases as a table (console and markdown share it).
+#[must_use]
+pub fn contact_table(outcomes: &[ContactOutcome]) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "| case | steps | penetrations | min distance (m) | NaN steps | diverged | unconverged steps | Newton max | seconds |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    for o in outcomes {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {:.2e} | {} | {} | {} | {} | {:.2} |",
+            o.case.label(),
+            o.steps_run,
+            o.penetrations,
+            o.min_distance,
+            o.nan_steps,
+            if o.diverged { "yes" } else { "no" },
+            o.unconverged_steps,
+            o.iterations_max,
+            o.seconds
+        );
+    }
+    s
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -656,5 +942,43 @@ mod tests {
     fn grids_have_the_issue_sizes() {
         assert_eq!(ClothGridSpec::full().cases().len(), 525);
         assert_eq!(ClothGridSpec::quick().cases().len(), 45);
+    }
+
+    #[test]
+    fn contact_case_lands_without_penetration() {
+        // The hardest quick case: a stiff sheet thrown at 20 m/s onto the sphere with
+        // quarter-second steps.
+        let case = ContactCase {
+            grid: 4,
+            stiffness: 1e6,
+            dt: 0.25,
+            speed: 20.0,
+            target: ContactTarget::Sphere,
+            steps: 4,
+        };
+        let out = run_contact_case(&case);
+        assert!(out.failures.is_empty(), "{:?}", out.failures);
+        assert_eq!(out.steps_run, 4);
+        // It reached the collider (the throw covers the 0.1 m gap in the first step).
+        assert!(
+            out.min_distance > 0.0 && out.min_distance < 1e-3,
+            "{}",
+            out.min_distance
+        );
+    }
+
+    #[test]
+    fn contact_distance_is_exact_on_hand_cases() {
+        assert_eq!(
+            contact_distance(ContactTarget::Ground, DVec3::new(3.0, 0.25, -1.0)),
+            0.25
+        );
+        let top = DVec3::new(0.0, 0.5, 0.0);
+        assert!((contact_distance(ContactTarget::Sphere, top) - 0.5).abs() < 1e-15);
+        let centre = DVec3::new(0.0, -CONTACT_SPHERE_RADIUS, 0.0);
+        assert_eq!(
+            contact_distance(ContactTarget::Sphere, centre),
+            -CONTACT_SPHERE_RADIUS
+        );
     }
 }

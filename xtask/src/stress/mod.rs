@@ -4,6 +4,9 @@
 //!   initial states, stepped by the default backward Euler; divergence, energy, Newton
 //!   work, and the invariants (no NaN, no divergence, the energy inequality); steps left
 //!   at Newton's cap far from converged are reported (failures with `--strict`).
+//!   Contact cases: a sheet thrown onto the ground or a sphere at every stiffness, time
+//!   step and drop speed; penetrations (measured independently), NaN, divergence and
+//!   unconverged steps; any penetration fails the run.
 //! - [`ik`]: the degenerate IK set for every solver, with the invariants every solve
 //!   must keep (no NaN, bone lengths, a truthful report, the geometric error bound).
 //! - [`table`]: the console tables and `stress.md`.
@@ -124,6 +127,10 @@ pub struct StressResults {
     pub cloth: Vec<cloth::ClothOutcome>,
     /// Wall-clock seconds of the cloth part.
     pub cloth_seconds: f64,
+    /// Contact outcomes (a sheet thrown onto the ground or a sphere).
+    pub contact: Vec<cloth::ContactOutcome>,
+    /// Wall-clock seconds of the contact cases.
+    pub contact_seconds: f64,
     /// IK outcomes, case-major.
     pub ik: Vec<ik::IkOutcome>,
     /// Wall-clock seconds of the IK part.
@@ -142,6 +149,11 @@ impl StressResults {
             }
             if strict && let Some(u) = &c.unconverged {
                 out.push(format!("cloth {}: {u}", c.case.label()));
+            }
+        }
+        for c in &self.contact {
+            for f in &c.failures {
+                out.push(format!("contact {}: {f}", c.case.label()));
             }
         }
         for o in &self.ik {
@@ -215,6 +227,8 @@ pub fn run(args: &StressArgs) -> ExitCode {
         quick: args.quick,
         cloth: Vec::new(),
         cloth_seconds: 0.0,
+        contact: Vec::new(),
+        contact_seconds: 0.0,
         ik: Vec::new(),
         ik_seconds: 0.0,
     };
@@ -229,6 +243,14 @@ pub fn run(args: &StressArgs) -> ExitCode {
         results.cloth = run_cloth_cases(&cases, args.jobs, &bar);
         bar.finish_and_clear();
         results.cloth_seconds = started.elapsed().as_secs_f64();
+        // The contact cases are not narrowed by the cloth filters (they have their own
+        // grid); a filtered run still runs them unless `--only ik`.
+        let started = Instant::now();
+        results.contact = cloth::contact_cases(args.quick)
+            .iter()
+            .map(cloth::run_contact_case)
+            .collect();
+        results.contact_seconds = started.elapsed().as_secs_f64();
     }
     if args.only != Some(Part::Cloth) {
         let started = Instant::now();
@@ -247,6 +269,11 @@ pub fn run(args: &StressArgs) -> ExitCode {
         }
     } else {
         print!("{}", table::console(&results, &failures, &unconverged));
+        println!(
+            "\ncontact: a sheet thrown onto the ground or a sphere ({:.1} s)\n{}",
+            results.contact_seconds,
+            cloth::contact_table(&results.contact)
+        );
     }
     let out_dir = args.out.clone().unwrap_or_else(|| {
         let root = crate::project_root();
@@ -260,7 +287,15 @@ pub fn run(args: &StressArgs) -> ExitCode {
     });
     let path = out_dir.join("stress.md");
     let written = std::fs::create_dir_all(&out_dir)
-        .and_then(|()| std::fs::write(&path, table::markdown(&results, &failures, &unconverged)));
+        .and_then(|()| {
+        let mut text = table::markdown(&results, &failures, &unconverged);
+        text.push_str(&format!(
+            "\n## Contact\n\nA free sheet (spacing 0.05 m, 0.2 kg/m^2, damping 0.1, gravity 9.81) thrown down from 0.1 m above the ground or a sphere of radius 0.2 (top at y = 0), backward Euler with IPC contact (dhat 1e-3, friction 0.3, Newton cap 100); penetrations measured independently after every step ({:.1} s).\n\n{}",
+            results.contact_seconds,
+            cloth::contact_table(&results.contact)
+        ));
+        std::fs::write(&path, text)
+    });
     if let Err(e) = written {
         eprintln!("error: could not write {}: {e}", path.display());
         return ExitCode::from(2);

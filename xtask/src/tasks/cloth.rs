@@ -7,7 +7,7 @@ use crate::render;
 use serde::Deserialize;
 use serde_json::json;
 use sinew_math::DVec3;
-use sinew_spring_sim::contact::{Collider, ContactSettings, signed_distance};
+use sinew_spring_sim::contact::{Collider, ContactSettings, Shape, signed_distance};
 use sinew_spring_sim::integrator::AutoSettings;
 use sinew_spring_sim::stability::StabilityBound;
 use sinew_spring_sim::{
@@ -186,8 +186,11 @@ impl TaskSpec for ClothTask {
             .collect();
         let frame_every = self.steps.div_ceil(MAX_FRAMES).max(1);
         let mut frames: Vec<Vec<DVec3>> = Vec::new();
+        // The colliders posed at each frame's time, for the pictures.
+        let mut frame_colliders: Vec<Vec<Shape>> = Vec::new();
         if ctx.render {
             frames.push(sim.system().positions().to_vec());
+            frame_colliders.push(sim.colliders().iter().map(|c| c.at(sim.time())).collect());
         }
         let mut csv = String::from(
             "step,time,kinetic,spring,gravity,total,iterations,residual,linear_solver\n",
@@ -243,6 +246,7 @@ impl TaskSpec for ClothTask {
             }
             if ctx.render && ((step + 1) % frame_every == 0 || step + 1 == self.steps) {
                 frames.push(system.positions().to_vec());
+                frame_colliders.push(colliders.iter().map(|c| c.at(time)).collect::<Vec<_>>());
             }
         })
         .map_err(|e| e.to_string())?;
@@ -251,10 +255,34 @@ impl TaskSpec for ClothTask {
         if ctx.render {
             progress.phase("rendering");
             let out = |suffix: &str| ctx.out_dir.join(format!("{}.{suffix}", self.name));
-            let view = render::View::fit(frames.iter().flatten().copied(), 0.7, 0.35, 480, 480);
+            // The view frames the cloth and every ball's extent (a ground is drawn under
+            // the cloth only, so it does not widen the view).
+            let ball_extents = frame_colliders.iter().flatten().flat_map(|shape| {
+                let balls = match *shape {
+                    Shape::Sphere { center, radius } => vec![(center, radius)],
+                    Shape::Capsule { a, b, radius } => vec![(a, radius), (b, radius)],
+                    Shape::HalfSpace { .. } => Vec::new(),
+                };
+                balls.into_iter().flat_map(|(c, r)| {
+                    [DVec3::X, DVec3::Y, DVec3::Z]
+                        .into_iter()
+                        .flat_map(move |axis| [c + r * axis, c - r * axis])
+                })
+            });
+            let view = render::View::fit(
+                frames.iter().flatten().copied().chain(ball_extents),
+                0.7,
+                0.35,
+                480,
+                480,
+            );
             let cloth_frames: Vec<render::ClothFrame> = frames
                 .iter()
-                .map(|p| render::ClothFrame { positions: p })
+                .zip(&frame_colliders)
+                .map(|(p, c)| render::ClothFrame {
+                    positions: p,
+                    colliders: c,
+                })
                 .collect();
             let fps = 15;
             render::cloth_gif(

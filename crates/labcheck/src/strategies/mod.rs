@@ -8,6 +8,7 @@
 //! shrinks to zero carries the size of the effect.
 
 pub mod chains;
+pub mod contact;
 pub mod curves;
 pub mod springs;
 pub mod targets;

@@ -5,7 +5,7 @@
 //! `t0` to its pose at `t1` (pose at `t0 + alpha (t1 - t0)`, its exact prescribed
 //! motion). [`time_of_impact`] returns the largest `alpha` in `[0, 1]` such that the
 //! particle's (thickness-offset) distance stays at least `(1 - s) d0` on all of
-//! `[0, alpha]`, `d0` its distance at `alpha = 0` and `s` the fraction (IPC's 0.1), or a
+//! `[0, alpha]`, `d0` its distance at `alpha = 0` and `s` the fraction (default 0.9: a tenth kept, as in IPC), or a
 //! smaller, safe value where no closed form exists:
 //!
 //! - closed forms when the collider only translates (its surface is then the same set

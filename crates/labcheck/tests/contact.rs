@@ -1,0 +1,175 @@
+//! The contact guarantee of sinew-spring-sim's backward Euler (IPC barrier, line search
+//! capped by the time of impact), checked independently: after every accepted step no
+//! free particle is inside or on any collider, with the distances computed here from the
+//! colliders' fields and prescribed motion (not by the crate's `signed_distance`); the
+//! incremental potential never increases over a step's Newton iterations while the
+//! barrier stiffness is unchanged; no NaN; a refused step is a named error, counted, and
+//! rare. The properties are described in docs/labcheck.md.
+
+use proptest::prelude::*;
+use sinew_labcheck::config;
+use sinew_labcheck::strategies::contact::{AREAL_DENSITY, GRAVITY, contact_case};
+use sinew_math::{DQuat, DVec3};
+use sinew_spring_sim::contact::{Collider, Shape};
+use sinew_spring_sim::{Integrator, NewtonSettings, Simulation, StepError, StopReason};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// Steps taken and steps refused over all cases of the run (the refusal rate is checked
+/// at the end of each case against everything seen so far).
+static STEPS_TAKEN: AtomicUsize = AtomicUsize::new(0);
+static STEPS_REFUSED: AtomicUsize = AtomicUsize::new(0);
+/// Accepted steps that ended with a particle within the contact distance of a collider
+/// (so the barrier acted): the property is not vacuous only if these are common.
+static STEPS_IN_CONTACT: AtomicUsize = AtomicUsize::new(0);
+/// Accepted steps during which the barrier stiffness grew.
+static STEPS_KAPPA_GREW: AtomicUsize = AtomicUsize::new(0);
+
+/// The distance from `x` to the collider `c` at time `t`, from its fields alone: the
+/// pose follows `r(t) = r_0 + v t` and a turn by `omega t` about `r(t)`; the half-space's
+/// distance is the height above its plane, the sphere's the distance to the centre
+/// minus the radius, the capsule's the distance to the nearest point of its axis
+/// segment minus the radius.
+fn independent_distance(c: &Collider, t: f64, x: DVec3) -> f64 {
+    let turn = DQuat::from_axis_angle(
+        c.motion
+            .angular_velocity
+            .try_normalize()
+            .unwrap_or(DVec3::Y),
+        c.motion.angular_velocity.length() * t,
+    );
+    let shift = c.motion.linear_velocity * t;
+    match c.shape {
+        Shape::HalfSpace { point, normal } => {
+            let n = turn * normal;
+            (x - (point + shift)).dot(n) / n.length()
+        }
+        Shape::Sphere { center, radius } => (x - (center + shift)).length() - radius,
+        Shape::Capsule { a, b, radius } => {
+            let mid = 0.5 * (a + b);
+            let a = mid + shift + turn * (a - mid);
+            let b = mid + shift + turn * (b - mid);
+            let ab = b - a;
+            let len2 = ab.length_squared();
+            let s = if len2 > 0.0 {
+                ((x - a).dot(ab) / len2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            (x - (a + s * ab)).length() - radius
+        }
+    }
+}
+
+/// The barrier stiffness backward Euler starts with, written out from docs/contact.md:
+/// the stiffness whose barrier holds `m (|g| + dhat / h^2)` at half the contact distance.
+fn expected_initial_kappa(mass: f64, dhat: f64, h: f64) -> f64 {
+    let force = mass * (GRAVITY + dhat / (h * h));
+    force / ((2f64.ln() + 0.5) * dhat)
+}
+
+proptest! {
+    #![proptest_config(config::with_cases(96))]
+
+    /// No particle inside any collider after any accepted step; `g` never increases over
+    /// the iterates of a step at fixed `kappa`; everything finite; refusals named and
+    /// rare.
+    #[test]
+    fn no_penetration_and_no_increase_of_g(case in contact_case()) {
+        let system = case.build_system();
+        let colliders = case.build_colliders();
+        let settings = NewtonSettings {
+            record_objective: true,
+            max_iterations: 100,
+            ..NewtonSettings::default()
+        };
+        let mut sim = Simulation::new(system, Integrator::BackwardEuler(settings))
+            .map_err(|e| TestCaseError::fail(e.to_string()))?;
+        let contact = case.settings();
+        sim.set_contact(colliders.clone(), contact)
+            .map_err(|e| TestCaseError::fail(e.to_string()))?;
+        let mass = AREAL_DENSITY * case.spacing * case.spacing;
+        let mut kappa = expected_initial_kappa(mass, contact.dhat, case.h);
+        for n in 0..case.steps {
+            let result = sim.step(case.h);
+            STEPS_TAKEN.fetch_add(1, Ordering::Relaxed);
+            let report = match result {
+                Ok(report) => report,
+                Err(StepError::Contact { particle, collider }) => {
+                    // Allowed (two colliders closing in on a particle within a step), but
+                    // it must name real items, and the case ends here.
+                    prop_assert!(particle < sim.system().len() && collider < colliders.len());
+                    STEPS_REFUSED.fetch_add(1, Ordering::Relaxed);
+                    break;
+                }
+                Err(e) => return Err(TestCaseError::fail(format!("step {n} refused: {e}"))),
+            };
+            prop_assert!(report.stop != StopReason::NonFinite, "step {n}: non-finite");
+            prop_assert!(report.residual.is_finite(), "step {n}: residual {}", report.residual);
+            prop_assert!(sim.system().positions().iter().all(|x| x.is_finite()), "step {n}: NaN position");
+            prop_assert!(sim.system().velocities().iter().all(|v| v.is_finite()), "step {n}: NaN velocity");
+
+            // The guarantee, measured independently at the accepted state's time.
+            let t = sim.time();
+            let mut closest = f64::INFINITY;
+            for (ci, c) in colliders.iter().enumerate() {
+                for (i, &x) in sim.system().positions().iter().enumerate() {
+                    let d = independent_distance(c, t, x);
+                    closest = closest.min(d);
+                    prop_assert!(
+                        d > 0.0,
+                        "step {n}: particle {i} at distance {d:e} from collider {ci} ({:?})", c.shape
+                    );
+                }
+            }
+
+            if closest < contact.dhat {
+                STEPS_IN_CONTACT.fetch_add(1, Ordering::Relaxed);
+            }
+
+            // g never increases over the iterates, as long as kappa (which changes the
+            // function) stayed put during the step. kappa only grows (doubling), so an
+            // unchanged value means it never moved within the step.
+            let after = sim.contact_kappa().expect("contact is set");
+            prop_assert!(after.is_finite() && after > 0.0);
+            let trace = sim.backward_euler().expect("backward Euler").objective_trace();
+            prop_assert!(!trace.is_empty() && trace.iter().all(|g| g.is_finite()));
+            if (after - kappa).abs() <= 1e-12 * kappa {
+                let scale = trace.iter().fold(0.0f64, |m, g| m.max(g.abs()));
+                // Each value is a sum over particles, springs and contacts of terms no
+                // larger than the largest value's scale; 1e-12 relative covers its
+                // rounding with a wide margin on these small sheets.
+                let allowance = 1e-12 * scale.max(f64::MIN_POSITIVE);
+                for (k, pair) in trace.windows(2).enumerate() {
+                    prop_assert!(
+                        pair[1] <= pair[0] + allowance,
+                        "step {n}, iteration {k}: g rose from {} to {}", pair[0], pair[1]
+                    );
+                }
+            } else {
+                STEPS_KAPPA_GREW.fetch_add(1, Ordering::Relaxed);
+                prop_assert!(after > kappa, "step {n}: kappa fell from {kappa} to {after}");
+            }
+            kappa = after;
+        }
+        let taken = STEPS_TAKEN.load(Ordering::Relaxed);
+        let refused = STEPS_REFUSED.load(Ordering::Relaxed);
+        let in_contact = STEPS_IN_CONTACT.load(Ordering::Relaxed);
+        if std::env::var_os("SINEW_CONTACT_COUNTS").is_some() {
+            eprintln!(
+                "steps {taken}, refused {refused}, in contact {in_contact}, kappa grew {}",
+                STEPS_KAPPA_GREW.load(Ordering::Relaxed)
+            );
+        }
+        // Not vacuous: at least one accepted step in five ends with the barrier acting.
+        prop_assert!(
+            taken < 50 || 5 * in_contact >= taken - refused,
+            "only {in_contact} of {taken} steps reached the contact distance"
+        );
+        // Refusals must stay the exception: at most one step in ten, once enough steps
+        // were seen for a rate to mean something.
+        prop_assert!(
+            taken < 50 || 10 * refused <= taken,
+            "{refused} of {taken} steps refused"
+        );
+    }
+}
