@@ -7,7 +7,6 @@
 //! per term, which made Newton's assembly markedly slower than a single pass.
 
 use super::damping::{AxialDamping, kernel as damping};
-use super::sink::edge_row_sums;
 use super::springs::{self, Springs};
 use super::{HessianSink, StepContext, Term};
 use crate::model::SpringSystem;
@@ -136,25 +135,40 @@ pub(crate) fn rate_row_sums(
     c_rows.clear();
     c_rows.resize(n, DVec3::ZERO);
     let c = system.material().damping;
-    for s in system.springs() {
-        let (alpha, beta, u) = springs::coefficients(s, x, Curvature::Clamped);
-        edge_row_sums(
-            fixed,
-            k_rows,
-            s.a,
-            s.b,
-            nonnegative_row_sums(alpha, beta, u),
-        );
-        if c > 0.0 {
+    // Each block appears on the diagonal and, when the other end is free, again as the
+    // coupling block of the same row. The damping is tested once, not per spring.
+    let ends = |a: usize, b: usize| {
+        let (fa, fb) = (fixed[a], fixed[b]);
+        (fa, fb, if fa || fb { 1.0 } else { 2.0 })
+    };
+    if c > 0.0 {
+        for s in system.springs() {
+            let (alpha, beta, u) = springs::coefficients(s, x, Curvature::Clamped);
+            let rk = nonnegative_row_sums(alpha, beta, u);
             let w = spring::damping_direction(x[s.a], x[s.b]);
             let (alpha, beta, u) = damping::coefficients(c, w);
-            edge_row_sums(
-                fixed,
-                c_rows,
-                s.a,
-                s.b,
-                nonnegative_row_sums(alpha, beta, u),
-            );
+            let rc = nonnegative_row_sums(alpha, beta, u);
+            let (fa, fb, both) = ends(s.a, s.b);
+            if !fa {
+                k_rows[s.a] += both * rk;
+                c_rows[s.a] += both * rc;
+            }
+            if !fb {
+                k_rows[s.b] += both * rk;
+                c_rows[s.b] += both * rc;
+            }
+        }
+    } else {
+        for s in system.springs() {
+            let (alpha, beta, u) = springs::coefficients(s, x, Curvature::Clamped);
+            let rk = nonnegative_row_sums(alpha, beta, u);
+            let (fa, fb, both) = ends(s.a, s.b);
+            if !fa {
+                k_rows[s.a] += both * rk;
+            }
+            if !fb {
+                k_rows[s.b] += both * rk;
+            }
         }
     }
 }

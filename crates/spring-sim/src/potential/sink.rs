@@ -331,7 +331,7 @@ fn edge_values(
 /// The absolute row sums of `alpha I + beta u u^T`: row `c` is
 /// `|alpha + beta u_c^2| + |beta| |u_c| (|u|_1 - |u_c|)`.
 #[inline]
-pub(super) fn outer_abs_row_sums(alpha: f64, beta: f64, u: DVec3) -> DVec3 {
+fn outer_abs_row_sums(alpha: f64, beta: f64, u: DVec3) -> DVec3 {
     let au = u.abs();
     let diagonal = (DVec3::splat(alpha) + beta * u * u).abs();
     diagonal + beta.abs() * au * (DVec3::splat(au.element_sum()) - au)
@@ -339,7 +339,7 @@ pub(super) fn outer_abs_row_sums(alpha: f64, beta: f64, u: DVec3) -> DVec3 {
 
 /// Adds an edge block's absolute row sums `r` to the rows of its free ends.
 #[inline]
-pub(super) fn edge_row_sums(fixed: &[bool], rows: &mut [DVec3], a: usize, b: usize, r: DVec3) {
+fn edge_row_sums(fixed: &[bool], rows: &mut [DVec3], a: usize, b: usize, r: DVec3) {
     // The block appears on the diagonal and, when the other end is free, again as the
     // coupling block of the same row.
     let (fa, fb) = (fixed[a], fixed[b]);
