@@ -125,9 +125,10 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
     );
 
     /// Whether the term's Hessian is one block `[[K, -K], [-K, K]]` per spring of the
-    /// system, added by [`Term::add_spring_blocks`] (false by default). [`Potential`] then
-    /// sums the blocks of all such terms per spring and writes each spring's slots once:
-    /// assembly is dominated by those writes, and a pass per term doubled its time.
+    /// system, added by [`Term::add_spring_blocks`] (false by default), for a caller that
+    /// sums such terms' blocks per spring before writing them. [`Potential`] sums the
+    /// blocks of its own [`Springs`] and [`AxialDamping`] in its fused loop and evaluates
+    /// any other term through [`Term::add_hessian`].
     fn has_spring_blocks(&self) -> bool {
         false
     }
