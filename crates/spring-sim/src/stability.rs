@@ -16,12 +16,14 @@
 //!
 //! `K` and `C` are not written here: they are the Hessians of the potential's
 //! [`Springs`] term (PSD-projected) and [`AxialDamping`] term (evaluated with `h = 1`, so
-//! its `c/h u u^T` is `C`), read through a row-sum sink for Gershgorin and a product sink
-//! for Lanczos.
+//! its `c/h u u^T` is `C`), computed from those terms' per-spring kernels in one loop over
+//! the springs for Gershgorin's row sums and for Lanczos's products.
+//!
+//! [`Springs`]: crate::potential::Springs
+//! [`AxialDamping`]: crate::potential::AxialDamping
 
 use crate::model::SpringSystem;
-use crate::potential::{AxialDamping, HessianSink, Springs, StepContext, Term};
-use crate::spring::Curvature;
+use crate::potential::{rate_product, rate_row_sums};
 use sinew_math::DVec3;
 
 /// The fraction of the stability limit the chosen substep count stays under:
@@ -111,49 +113,20 @@ pub fn gershgorin(system: &SpringSystem) -> (f64, f64) {
     gershgorin_with(system, &mut RowSums::default())
 }
 
-/// The buffers of [`gershgorin`]: the row sums of `K` and `C`, and the damping term
-/// (whose directions are the springs' current ones).
+/// The buffers of [`gershgorin`]: the row sums of `K` and `C`.
 #[derive(Clone, Debug, Default)]
 struct RowSums {
     stiffness: Vec<DVec3>,
     damping: Vec<DVec3>,
-    damping_term: AxialDamping,
-}
-
-/// The context the stability terms are evaluated in: the current state, with `h = 1`,
-/// so the axial damping term's Hessian `c/h u u^T` is the damping matrix `C` itself.
-fn rate_context(system: &SpringSystem) -> StepContext<'_> {
-    let x = system.positions();
-    StepContext::new(system, 1.0, x, x)
 }
 
 /// [`gershgorin`] with reusable buffers.
 fn gershgorin_with(system: &SpringSystem, sums: &mut RowSums) -> (f64, f64) {
     let n = system.len();
     let fixed = system.fixed();
-    let x = system.positions();
-    let step = rate_context(system);
     // K: the springs' PSD-projected Hessian; C: the damping's, along the current
-    // directions. Both from the terms, through the row-sum sink.
-    sums.stiffness.clear();
-    sums.stiffness.resize(n, DVec3::ZERO);
-    sums.damping.clear();
-    sums.damping.resize(n, DVec3::ZERO);
-    Springs.add_hessian(
-        &step,
-        x,
-        Curvature::Clamped,
-        &mut HessianSink::row_sums(fixed, &mut sums.stiffness),
-    );
-    if system.material().damping > 0.0 {
-        sums.damping_term.begin_step(&step);
-        sums.damping_term.add_hessian(
-            &step,
-            x,
-            Curvature::Clamped,
-            &mut HessianSink::row_sums(fixed, &mut sums.damping),
-        );
-    }
+    // directions. Both from the terms' kernels, in one loop over the springs.
+    rate_row_sums(system, &mut sums.stiffness, &mut sums.damping);
     let masses = system.masses();
     let mut lk = 0.0f64;
     let mut lc = 0.0f64;
@@ -173,13 +146,7 @@ fn apply(system: &SpringSystem, inv_sqrt_m: &[f64], x: &[DVec3], z: &mut [DVec3]
         *zi = *s * *xi;
     }
     y.fill(DVec3::ZERO);
-    let step = rate_context(system);
-    Springs.add_hessian(
-        &step,
-        system.positions(),
-        Curvature::Clamped,
-        &mut HessianSink::product(system.fixed(), z, y),
-    );
+    rate_product(system, z, y);
     for (yi, s) in y.iter_mut().zip(inv_sqrt_m) {
         *yi *= *s;
     }

@@ -38,12 +38,73 @@ impl AxialDamping {
         (c > 0.0).then(|| c / step.h)
     }
 
+    /// `c/h`, or `None` when the material has no damping (the term is then zero): for
+    /// the potential's fused loop over the springs.
+    pub(super) fn active_coefficient(step: &StepContext<'_>) -> Option<f64> {
+        Self::coefficient(step)
+    }
+}
+
+/// The per-spring kernels of the term, written once and used both by its own loops and by
+/// the potential's fused loop over the springs (see [`super::Potential`]). `w` is the
+/// spring's frozen direction, `d = x_a - x_b` at the iterate and `d_ref` the same at the
+/// reference, and `c` is `c/h`.
+pub(super) mod kernel {
+    use super::SymBlock;
+    use sinew_math::DVec3;
+
     /// `u_s . (d_s(x) - d_s(x_ref))`.
     #[inline]
-    fn elongation(&self, step: &StepContext<'_>, s: usize, x: &[DVec3]) -> f64 {
-        let sp = &step.system.springs()[s];
-        let stretch = (x[sp.a] - x[sp.b]) - (step.x_ref[sp.a] - step.x_ref[sp.b]);
-        self.directions[s].dot(stretch)
+    #[must_use]
+    pub(in crate::potential) fn elongation(w: DVec3, d: DVec3, d_ref: DVec3) -> f64 {
+        w.dot(d - d_ref)
+    }
+
+    /// The spring's share of the energy, `c/2 e^2`.
+    #[inline]
+    #[must_use]
+    pub(in crate::potential) fn energy(c: f64, w: DVec3, d: DVec3, d_ref: DVec3) -> f64 {
+        let el = elongation(w, d, d_ref);
+        0.5 * c * el * el
+    }
+
+    /// The change of the spring's share when `d` moves by `delta`.
+    #[inline]
+    #[must_use]
+    pub(in crate::potential) fn energy_change(
+        c: f64,
+        w: DVec3,
+        d: DVec3,
+        d_ref: DVec3,
+        delta: DVec3,
+    ) -> f64 {
+        // c/2 ((e + de)^2 - e^2) = c/2 de (2e + de), from the difference.
+        let e = elongation(w, d, d_ref);
+        let de = w.dot(delta);
+        0.5 * c * de * (2.0 * e + de)
+    }
+
+    /// The gradient on the spring's first particle (minus it on the second).
+    #[inline]
+    #[must_use]
+    pub(in crate::potential) fn gradient(c: f64, w: DVec3, d: DVec3, d_ref: DVec3) -> DVec3 {
+        c * elongation(w, d, d_ref) * w
+    }
+
+    /// The Hessian block `c w w^T` as the coefficients `(alpha, beta, u)` of
+    /// `alpha I + beta u u^T`.
+    #[inline]
+    #[must_use]
+    pub(in crate::potential) fn coefficients(c: f64, w: DVec3) -> (f64, f64, DVec3) {
+        (0.0, c, w)
+    }
+
+    /// The Hessian block `c w w^T`.
+    #[inline]
+    #[must_use]
+    pub(in crate::potential) fn block(c: f64, w: DVec3) -> SymBlock {
+        let (alpha, beta, u) = coefficients(c, w);
+        SymBlock::isotropic_plus_outer(alpha, beta, u)
     }
 }
 
@@ -107,9 +168,10 @@ impl Term for AxialDamping {
             return 0.0;
         };
         let mut e = 0.0;
-        for s in 0..step.system.springs().len() {
-            let el = self.elongation(step, s, x);
-            e += 0.5 * c * el * el;
+        for (sp, &w) in step.system.springs().iter().zip(&self.directions) {
+            let d = x[sp.a] - x[sp.b];
+            let d_ref = step.x_ref[sp.a] - step.x_ref[sp.b];
+            e += kernel::energy(c, w, d, d_ref);
         }
         e
     }
@@ -119,15 +181,14 @@ impl Term for AxialDamping {
             return 0.0;
         };
         let mut change = 0.0;
-        for (s, sp) in step.system.springs().iter().enumerate() {
+        for (sp, &w) in step.system.springs().iter().zip(&self.directions) {
             let delta = alpha * dx[sp.a] - alpha * dx[sp.b];
             if delta == DVec3::ZERO {
                 continue;
             }
-            // c/2 ((e + de)^2 - e^2) = c/2 de (2e + de), from the difference.
-            let e = self.elongation(step, s, x);
-            let de = self.directions[s].dot(delta);
-            change += 0.5 * c * de * (2.0 * e + de);
+            let d = x[sp.a] - x[sp.b];
+            let d_ref = step.x_ref[sp.a] - step.x_ref[sp.b];
+            change += kernel::energy_change(c, w, d, d_ref, delta);
         }
         change
     }
@@ -136,8 +197,10 @@ impl Term for AxialDamping {
         let Some(c) = Self::coefficient(step) else {
             return;
         };
-        for (s, sp) in step.system.springs().iter().enumerate() {
-            let g = c * self.elongation(step, s, x) * self.directions[s];
+        for (sp, &w) in step.system.springs().iter().zip(&self.directions) {
+            let d = x[sp.a] - x[sp.b];
+            let d_ref = step.x_ref[sp.a] - step.x_ref[sp.b];
+            let g = kernel::gradient(c, w, d, d_ref);
             gradient[sp.a] += g;
             gradient[sp.b] -= g;
         }
@@ -153,14 +216,17 @@ impl Term for AxialDamping {
         let Some(c) = Self::coefficient(step) else {
             return;
         };
-        for (s, sp) in step.system.springs().iter().enumerate() {
-            sink.add_edge(
-                s,
-                sp.a,
-                sp.b,
-                SymBlock::isotropic_plus_outer(0.0, c, self.directions[s]),
-            );
-        }
+        sink.add_edges_outer(
+            step.system
+                .springs()
+                .iter()
+                .zip(&self.directions)
+                .enumerate()
+                .map(|(s, (sp, &w))| {
+                    let (alpha, beta, u) = kernel::coefficients(c, w);
+                    (s, sp.a, sp.b, alpha, beta, u)
+                }),
+        );
     }
 
     fn has_spring_blocks(&self) -> bool {
@@ -178,7 +244,7 @@ impl Term for AxialDamping {
             return;
         };
         for (b, &w) in blocks.iter_mut().zip(&self.directions) {
-            let k = SymBlock::isotropic_plus_outer(0.0, c, w);
+            let k = kernel::block(c, w);
             for (sum, v) in b.0.iter_mut().zip(k.0) {
                 *sum += v;
             }

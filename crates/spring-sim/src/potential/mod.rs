@@ -21,6 +21,7 @@
 //! docs/potential.md, with how the pattern is rebuilt when a term couples new pairs.
 
 mod damping;
+mod fused;
 mod gravity;
 mod inertia;
 mod sink;
@@ -34,7 +35,10 @@ pub use springs::Springs;
 
 use crate::model::SpringSystem;
 use crate::spring::Curvature;
+use fused::PerSpring;
+pub(crate) use fused::{rate_product, rate_row_sums};
 use sinew_math::DVec3;
+use std::any::Any;
 
 /// What stays fixed during one minimization: the system (masses, springs, material, fixed
 /// flags, and its positions and velocities at the step's start), the effective step and
@@ -73,7 +77,7 @@ impl<'a> StepContext<'a> {
 /// included: a direction is zero at fixed particles, and a gradient's entries there are
 /// ignored by every caller. Energies and their changes are `+inf` where the state is not
 /// admissible (a barrier inside its collider); the line search then rejects the step.
-pub trait Term: std::fmt::Debug + Send + Sync {
+pub trait Term: Any + std::fmt::Debug + Send + Sync {
     /// A short name for reports and test messages.
     fn name(&self) -> &'static str;
 
@@ -121,9 +125,10 @@ pub trait Term: std::fmt::Debug + Send + Sync {
     );
 
     /// Whether the term's Hessian is one block `[[K, -K], [-K, K]]` per spring of the
-    /// system, added by [`Term::add_spring_blocks`] (false by default). [`Potential`] then
-    /// sums the blocks of all such terms per spring and writes each spring's slots once:
-    /// assembly is dominated by those writes, and a pass per term doubled its time.
+    /// system, added by [`Term::add_spring_blocks`] (false by default), for a caller that
+    /// sums such terms' blocks per spring before writing them. [`Potential`] sums the
+    /// blocks of its own [`Springs`] and [`AxialDamping`] in its fused loop and evaluates
+    /// any other term through [`Term::add_hessian`].
     fn has_spring_blocks(&self) -> bool {
         false
     }
@@ -150,15 +155,21 @@ pub trait Term: std::fmt::Debug + Send + Sync {
 }
 
 /// The terms of one minimization, evaluated in order and summed.
+///
+/// The first [`Springs`] and the first [`AxialDamping`] among the terms are evaluated
+/// together in one loop over the springs (each term's per-spring formulas stay in its own
+/// module; the loop calls both on the same spring), and a damping term is skipped when
+/// the material has no damping. Every other term is evaluated on its own, in order. Only
+/// the order of the floating-point sums differs from evaluating every term separately.
 #[derive(Debug, Default)]
 pub struct Potential {
     terms: Vec<Box<dyn Term>>,
-    /// Indices of the terms with per-spring blocks, assembled in one fused pass.
-    spring_terms: Vec<usize>,
+    /// Index of the spring term evaluated in the fused loop.
+    springs: Option<usize>,
+    /// Index of the damping term evaluated in the fused loop.
+    damping: Option<usize>,
     /// Indices of the other terms.
     other_terms: Vec<usize>,
-    /// Per spring, the summed block of the per-spring terms (assembly's buffer).
-    blocks: Vec<SymBlock>,
 }
 
 impl Potential {
@@ -188,14 +199,30 @@ impl Potential {
     /// Appends a term.
     pub fn push(&mut self, term: Box<dyn Term>) {
         let index = self.terms.len();
-        if term.has_spring_blocks() {
-            self.spring_terms.push(index);
+        let any: &dyn Any = term.as_ref();
+        if any.is::<Springs>() && self.springs.is_none() {
+            self.springs = Some(index);
+        } else if any.is::<AxialDamping>() && self.damping.is_none() {
+            self.damping = Some(index);
         } else {
             self.other_terms.push(index);
         }
         self.terms.push(term);
     }
 
+    /// The per-spring terms for the fused loop at `step` (the damping only when its
+    /// coefficient is nonzero).
+    fn per_spring(&self, step: &StepContext<'_>) -> PerSpring<'_> {
+        let damping = self.damping.and_then(|i| {
+            let any: &dyn Any = self.terms[i].as_ref();
+            let term = any.downcast_ref::<AxialDamping>()?;
+            AxialDamping::active_coefficient(step).map(|c| (term, c))
+        });
+        PerSpring {
+            springs: self.springs.is_some(),
+            damping,
+        }
+    }
     /// The terms, in evaluation order.
     #[must_use]
     pub fn terms(&self) -> &[Box<dyn Term>] {
@@ -226,7 +253,12 @@ impl Potential {
     /// `g(x)`, the sum of the terms' energies.
     #[must_use]
     pub fn energy(&self, step: &StepContext<'_>, x: &[DVec3]) -> f64 {
-        self.terms.iter().map(|t| t.energy(step, x)).sum()
+        let others: f64 = self
+            .other_terms
+            .iter()
+            .map(|&t| self.terms[t].energy(step, x))
+            .sum();
+        others + self.per_spring(step).energy(step, x)
     }
 
     /// `g(x + alpha dx) - g(x)`, the sum of the terms' changes.
@@ -238,27 +270,26 @@ impl Potential {
         dx: &[DVec3],
         alpha: f64,
     ) -> f64 {
-        self.terms
+        let others: f64 = self
+            .other_terms
             .iter()
-            .map(|t| t.energy_change(step, x, dx, alpha))
-            .sum()
+            .map(|&t| self.terms[t].energy_change(step, x, dx, alpha))
+            .sum();
+        others + self.per_spring(step).energy_change(step, x, dx, alpha)
     }
 
     /// Writes `grad g(x)` into `gradient` (one entry per particle; overwritten).
     pub fn gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
         gradient.fill(DVec3::ZERO);
-        for t in &self.terms {
-            t.add_gradient(step, x, gradient);
+        for &t in &self.other_terms {
+            self.terms[t].add_gradient(step, x, gradient);
         }
+        self.per_spring(step).add_gradient(step, x, gradient);
     }
 
-    /// Adds every term's Hessian blocks at `x` to `sink`: the terms without per-spring
-    /// blocks first, then one pass over the springs writing the sum of the per-spring
-    /// terms' blocks (the same blocks their [`Term::add_hessian`] would add, summed
-    /// before they are written).
-    ///
-    /// The blocks are summed in a buffer of one block per spring, kept between calls
-    /// (resized only when the spring count changes).
+    /// Adds every term's Hessian blocks at `x` to `sink`: the other terms first, then the
+    /// spring and damping terms in one pass writing the sum of their blocks once per
+    /// spring (assembly is dominated by those writes).
     pub fn add_hessian(
         &mut self,
         step: &StepContext<'_>,
@@ -269,18 +300,7 @@ impl Potential {
         for &t in &self.other_terms {
             self.terms[t].add_hessian(step, x, curvature, sink);
         }
-        if self.spring_terms.is_empty() {
-            return;
-        }
-        let springs = step.system.springs();
-        self.blocks.clear();
-        self.blocks.resize(springs.len(), SymBlock([0.0; 6]));
-        for &t in &self.spring_terms {
-            self.terms[t].add_spring_blocks(step, x, curvature, &mut self.blocks);
-        }
-        for (s, (sp, k)) in springs.iter().zip(&self.blocks).enumerate() {
-            sink.add_edge(s, sp.a, sp.b, *k);
-        }
+        self.per_spring(step).add_hessian(step, x, curvature, sink);
     }
 
     /// The smallest of the terms' [`Term::max_step`].

@@ -170,45 +170,84 @@ impl<'a> HessianSink<'a> {
     #[inline]
     pub fn add_edge(&mut self, edge: usize, a: usize, b: usize, k: SymBlock) {
         match &mut self.target {
-            Target::Values { pattern, values } => {
-                for f in [pattern.free_index[a], pattern.free_index[b]] {
-                    if f != FIXED {
-                        for (slot, v) in pattern.diag_slots[f].iter().zip(k.0) {
-                            values[*slot] += v;
-                        }
-                    }
-                }
-                if let Some(slots) = &pattern.off_slots[edge] {
-                    // Entry (r, c) at slot 3c + r; the block is symmetric.
-                    let [xx, yx, zx, yy, zy, zz] = k.0;
-                    let full = [xx, yx, zx, yx, yy, zy, zx, zy, zz];
-                    for (slot, v) in slots.iter().zip(full) {
-                        values[*slot] -= v;
-                    }
+            Target::Values { pattern, values } => edge_values(pattern, values, edge, a, b, k),
+            Target::RowSums { fixed, rows } => edge_row_sums(fixed, rows, a, b, k.abs_row_sums()),
+            Target::Product { fixed, z, out } => edge_product(fixed, z, out, a, b, |d| k.mul(d)),
+        }
+    }
+
+    /// [`HessianSink::add_edge`] for the block `K = alpha I + beta u u^T` (the form of
+    /// every spring-like block), which the row-sum and product targets apply from its
+    /// three parameters instead of its nine entries: the stability bound reads the
+    /// springs' blocks only through those targets, once or more per explicit step.
+    #[inline]
+    pub fn add_edge_outer(
+        &mut self,
+        edge: usize,
+        a: usize,
+        b: usize,
+        alpha: f64,
+        beta: f64,
+        u: DVec3,
+    ) {
+        match &mut self.target {
+            Target::Values { .. } => {
+                self.add_edge(edge, a, b, SymBlock::isotropic_plus_outer(alpha, beta, u));
+            }
+            Target::RowSums { fixed, rows } => {
+                edge_row_sums(fixed, rows, a, b, outer_abs_row_sums(alpha, beta, u));
+            }
+            Target::Product { fixed, z, out } => {
+                edge_product(fixed, z, out, a, b, |d| alpha * d + beta * u.dot(d) * u);
+            }
+        }
+    }
+
+    /// [`HessianSink::add_edge_outer`] for every `(edge, a, b, alpha, beta, u)` of
+    /// `edges`, choosing the target once for the whole sequence rather than per edge (the
+    /// springs' loops: the per-edge choice cost more than the row sums themselves).
+    #[inline]
+    pub fn add_edges_outer(
+        &mut self,
+        edges: impl Iterator<Item = (usize, usize, usize, f64, f64, DVec3)>,
+    ) {
+        match &mut self.target {
+            Target::Values { .. } => {
+                for (edge, a, b, alpha, beta, u) in edges {
+                    self.add_edge(edge, a, b, SymBlock::isotropic_plus_outer(alpha, beta, u));
                 }
             }
             Target::RowSums { fixed, rows } => {
-                // The block appears on the diagonal and, when the other end is free,
-                // again as the coupling block of the same row.
-                let (fa, fb) = (fixed[a], fixed[b]);
-                let both = if fa || fb { 1.0 } else { 2.0 };
-                let r = both * k.abs_row_sums();
-                if !fa {
-                    rows[a] += r;
-                }
-                if !fb {
-                    rows[b] += r;
+                for (_, a, b, alpha, beta, u) in edges {
+                    edge_row_sums(fixed, rows, a, b, outer_abs_row_sums(alpha, beta, u));
                 }
             }
             Target::Product { fixed, z, out } => {
-                let za = if fixed[a] { DVec3::ZERO } else { z[a] };
-                let zb = if fixed[b] { DVec3::ZERO } else { z[b] };
-                let t = k.mul(za - zb);
-                if !fixed[a] {
-                    out[a] += t;
+                for (_, a, b, alpha, beta, u) in edges {
+                    edge_product(fixed, z, out, a, b, |d| alpha * d + beta * u.dot(d) * u);
                 }
-                if !fixed[b] {
-                    out[b] -= t;
+            }
+        }
+    }
+
+    /// [`HessianSink::add_edge`] for every `(edge, a, b, k)` of `edges`, choosing the
+    /// target once for the whole sequence.
+    #[inline]
+    pub fn add_edges(&mut self, edges: impl Iterator<Item = (usize, usize, usize, SymBlock)>) {
+        match &mut self.target {
+            Target::Values { pattern, values } => {
+                for (edge, a, b, k) in edges {
+                    edge_values(pattern, values, edge, a, b, k);
+                }
+            }
+            Target::RowSums { fixed, rows } => {
+                for (_, a, b, k) in edges {
+                    edge_row_sums(fixed, rows, a, b, k.abs_row_sums());
+                }
+            }
+            Target::Product { fixed, z, out } => {
+                for (_, a, b, k) in edges {
+                    edge_product(fixed, z, out, a, b, |d| k.mul(d));
                 }
             }
         }
@@ -259,5 +298,79 @@ impl<'a> HessianSink<'a> {
             }
         }
         Ok(())
+    }
+}
+
+/// Adds `[[K, -K], [-K, K]]` on edge `(a, b)` to the pattern's values.
+#[inline]
+fn edge_values(
+    pattern: &HessianPattern,
+    values: &mut [f64],
+    edge: usize,
+    a: usize,
+    b: usize,
+    k: SymBlock,
+) {
+    for f in [pattern.free_index[a], pattern.free_index[b]] {
+        if f != FIXED {
+            for (slot, v) in pattern.diag_slots[f].iter().zip(k.0) {
+                values[*slot] += v;
+            }
+        }
+    }
+    if let Some(slots) = &pattern.off_slots[edge] {
+        // Entry (r, c) at slot 3c + r; the block is symmetric.
+        let [xx, yx, zx, yy, zy, zz] = k.0;
+        let full = [xx, yx, zx, yx, yy, zy, zx, zy, zz];
+        for (slot, v) in slots.iter().zip(full) {
+            values[*slot] -= v;
+        }
+    }
+}
+
+/// The absolute row sums of `alpha I + beta u u^T`: row `c` is
+/// `|alpha + beta u_c^2| + |beta| |u_c| (|u|_1 - |u_c|)`.
+#[inline]
+fn outer_abs_row_sums(alpha: f64, beta: f64, u: DVec3) -> DVec3 {
+    let au = u.abs();
+    let diagonal = (DVec3::splat(alpha) + beta * u * u).abs();
+    diagonal + beta.abs() * au * (DVec3::splat(au.element_sum()) - au)
+}
+
+/// Adds an edge block's absolute row sums `r` to the rows of its free ends.
+#[inline]
+fn edge_row_sums(fixed: &[bool], rows: &mut [DVec3], a: usize, b: usize, r: DVec3) {
+    // The block appears on the diagonal and, when the other end is free, again as the
+    // coupling block of the same row.
+    let (fa, fb) = (fixed[a], fixed[b]);
+    let both = if fa || fb { 1.0 } else { 2.0 };
+    let r = both * r;
+    if !fa {
+        rows[a] += r;
+    }
+    if !fb {
+        rows[b] += r;
+    }
+}
+
+/// `out += [[K, -K], [-K, K]] z` on the free ends of edge `(a, b)`, with `K d` given by
+/// `apply`.
+#[inline]
+fn edge_product(
+    fixed: &[bool],
+    z: &[DVec3],
+    out: &mut [DVec3],
+    a: usize,
+    b: usize,
+    apply: impl Fn(DVec3) -> DVec3,
+) {
+    let za = if fixed[a] { DVec3::ZERO } else { z[a] };
+    let zb = if fixed[b] { DVec3::ZERO } else { z[b] };
+    let t = apply(za - zb);
+    if !fixed[a] {
+        out[a] += t;
+    }
+    if !fixed[b] {
+        out[b] -= t;
     }
 }
