@@ -4,10 +4,10 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use sinew_ik::SolverOptions;
+use sinew_ik::workloads::{allowed_pose, human_arm};
 use sinew_math::{DQuat, DVec3};
+use sinew_skeleton::GlobalPose;
 use sinew_skeleton::ik::{Chain, SolveSettings};
-use sinew_skeleton::limits::JointLimit;
-use sinew_skeleton::{GlobalPose, JointDef, Pose, Skeleton};
 use std::hint::black_box;
 
 /// splitmix64 with the workloads' W7 seed.
@@ -23,71 +23,14 @@ impl SplitMix64 {
     }
 }
 
-fn w7() -> Skeleton {
-    let deg = f64::to_radians;
-    let joint = |parent: Option<usize>, offset: DVec3, limit: JointLimit| JointDef {
-        name: None,
-        parent,
-        offset,
-        limit,
-    };
-    Skeleton::new([
-        joint(
-            None,
-            DVec3::ZERO,
-            JointLimit::swing_twist(
-                DVec3::X,
-                DVec3::Z,
-                deg(100.0),
-                deg(70.0),
-                deg(-80.0),
-                deg(80.0),
-            )
-            .expect("valid"),
-        ),
-        joint(
-            Some(0),
-            DVec3::new(0.30, 0.0, 0.0),
-            JointLimit::hinge(DVec3::new(0.0, -1.0, 0.0), 0.0, deg(150.0)).expect("valid"),
-        ),
-        joint(
-            Some(1),
-            DVec3::new(0.125, 0.0, 0.0),
-            JointLimit::hinge(DVec3::X, deg(-80.0), deg(80.0)).expect("valid"),
-        ),
-        joint(
-            Some(2),
-            DVec3::new(0.125, 0.0, 0.0),
-            JointLimit::swing_twist(
-                DVec3::X,
-                DVec3::Z,
-                deg(80.0),
-                deg(30.0),
-                deg(-10.0),
-                deg(10.0),
-            )
-            .expect("valid"),
-        ),
-        joint(Some(3), DVec3::new(0.08, 0.0, 0.0), JointLimit::Free),
-    ])
-    .expect("the W7 arm")
-}
-
 fn bench_w7(c: &mut Criterion) {
-    let skeleton = w7();
+    let skeleton = human_arm().expect("the W7 arm");
     let chain = Chain::whole(&skeleton).expect("a chain");
     let mut rng = SplitMix64(0x5EED_0000_0000_0007);
     let mut global = GlobalPose::new();
     let targets: Vec<DVec3> = (0..1000)
         .map(|_| {
-            let pose = Pose {
-                rotations: (0..skeleton.len())
-                    .map(|j| match skeleton.limit(j) {
-                        JointLimit::Free => DQuat::IDENTITY,
-                        limit => limit.sample([rng.unit(), rng.unit(), rng.unit()]),
-                    })
-                    .collect(),
-            };
+            let pose = allowed_pose(&skeleton, || rng.unit());
             skeleton
                 .forward_kinematics(&pose, &mut global)
                 .expect("valid");

@@ -9,8 +9,13 @@
 //! [`SolverOptions::NAMED`] lists the configurations the reports compare, under the
 //! labels they use.
 //!
+//! [`workloads`] holds reference skeletons with joint limits (the human arm) and poses drawn
+//! inside the limits, shared by the tests, the benchmarks and the scene runner.
+//!
 //! Architecture invariant: this crate only depends on the solver crates and the
 //! skeleton; each solver crate stays usable alone, without this one.
+
+pub mod workloads;
 
 pub use sinew_ik_ccd::{CcdOptions, CcdSolver};
 pub use sinew_ik_fabrik::{FabrikMode, FabrikOptions, FabrikSolver};

@@ -6,14 +6,14 @@
 //! against forward kinematics of the returned pose.
 
 use sinew_ik::{CcdOptions, FabrikOptions, SolverOptions};
-use sinew_math::{DQuat, DVec3};
+use sinew_math::DVec3;
 use sinew_skeleton::ik::{
     Chain, EffectorGoal, IkProblem, IkSolver, IkState, SolveReport, SolveSettings, StopReason,
     chain_limit_violation,
 };
 use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::track::{TrackSettings, Tracker};
-use sinew_skeleton::{GlobalPose, JointDef, Pose, Skeleton};
+use sinew_skeleton::{GlobalPose, Pose, Skeleton};
 use std::f64::consts::TAU;
 
 /// The largest violation any returned pose may have (radians).
@@ -41,60 +41,14 @@ fn deg(d: f64) -> f64 {
     d.to_radians()
 }
 
-/// W7: shoulder, elbow, forearm twist, wrist, hand tip (the effector), in T-pose along
-/// +x with Y up, facing +z; limits relative to the identity rest rotations.
+/// The human arm with joint limits (W7).
 fn w7() -> Skeleton {
-    let joint = |name: &str, parent: Option<usize>, offset: DVec3, limit: JointLimit| JointDef {
-        name: Some(name.into()),
-        parent,
-        offset,
-        limit,
-    };
-    let shoulder = JointLimit::swing_twist(
-        DVec3::X,
-        DVec3::Z,
-        deg(100.0),
-        deg(70.0),
-        deg(-80.0),
-        deg(80.0),
-    )
-    .unwrap();
-    let elbow = JointLimit::hinge(DVec3::new(0.0, -1.0, 0.0), 0.0, deg(150.0)).unwrap();
-    let forearm = JointLimit::hinge(DVec3::X, deg(-80.0), deg(80.0)).unwrap();
-    let wrist = JointLimit::swing_twist(
-        DVec3::X,
-        DVec3::Z,
-        deg(80.0),
-        deg(30.0),
-        deg(-10.0),
-        deg(10.0),
-    )
-    .unwrap();
-    Skeleton::new([
-        joint("shoulder", None, DVec3::ZERO, shoulder),
-        joint("elbow", Some(0), DVec3::new(0.30, 0.0, 0.0), elbow),
-        joint("forearm", Some(1), DVec3::new(0.125, 0.0, 0.0), forearm),
-        joint("wrist", Some(2), DVec3::new(0.125, 0.0, 0.0), wrist),
-        joint(
-            "hand",
-            Some(3),
-            DVec3::new(0.08, 0.0, 0.0),
-            JointLimit::Free,
-        ),
-    ])
-    .unwrap()
+    sinew_ik::workloads::human_arm().unwrap()
 }
 
 /// A pose uniform in every joint's limit parameters.
 fn allowed_pose(skeleton: &Skeleton, rng: &mut SplitMix64) -> Pose {
-    Pose {
-        rotations: (0..skeleton.len())
-            .map(|j| match skeleton.limit(j) {
-                JointLimit::Free => DQuat::IDENTITY,
-                limit => limit.sample([rng.unit(), rng.unit(), rng.unit()]),
-            })
-            .collect(),
-    }
+    sinew_ik::workloads::allowed_pose(skeleton, || rng.unit())
 }
 
 fn fk(skeleton: &Skeleton, pose: &Pose) -> GlobalPose {

@@ -6,8 +6,7 @@
 //! benchmarks (`W2_SEED`), which gives 8 554 reachable targets of 10 000.
 
 use sinew_math::{DQuat, DVec3};
-use sinew_skeleton::limits::JointLimit;
-use sinew_skeleton::{GlobalPose, JointDef, Pose, Skeleton};
+use sinew_skeleton::{GlobalPose, Skeleton};
 use std::f64::consts::TAU;
 
 /// W1: 8 joints, root offset (0, 0.5, 0), joints 1..7 offset (0.15, 0, 0). Reach 1.05.
@@ -62,55 +61,9 @@ pub fn w2_targets(count: usize) -> Vec<DVec3> {
     (0..count).map(|_| in_ball(&mut rng, 0.95)).collect()
 }
 
-/// W7: a human arm with joint limits. Shoulder at the origin, elbow (0.30, 0, 0), forearm
-/// twist (0.125, 0, 0), wrist (0.125, 0, 0), hand tip (0.08, 0, 0), the effector; T-pose
-/// along +x, Y up, facing +z, identity rest rotations. Limits (degrees, relative to the
-/// rest rotation; swing-twist with the twist about the bone, `a` the swing about local z
-/// and `b` about local y): shoulder a 100, b 70, twist +-80; elbow hinge about (0, -1, 0)
-/// from 0 to 150 (it bends towards +z); forearm hinge about +x, +-80; wrist a 80, b 30,
-/// twist +-10.
+/// W7: the human arm with joint limits ([`sinew_ik::workloads::human_arm`]).
 pub fn w7_skeleton() -> Result<Skeleton, String> {
-    let deg = f64::to_radians;
-    let err = |e: sinew_skeleton::limits::LimitError| format!("W7 limits: {e}");
-    let joint = |name: &str, parent: Option<usize>, offset: DVec3, limit: JointLimit| JointDef {
-        name: Some(name.into()),
-        parent,
-        offset,
-        limit,
-    };
-    let shoulder = JointLimit::swing_twist(
-        DVec3::X,
-        DVec3::Z,
-        deg(100.0),
-        deg(70.0),
-        deg(-80.0),
-        deg(80.0),
-    )
-    .map_err(err)?;
-    let elbow = JointLimit::hinge(DVec3::new(0.0, -1.0, 0.0), 0.0, deg(150.0)).map_err(err)?;
-    let forearm = JointLimit::hinge(DVec3::X, deg(-80.0), deg(80.0)).map_err(err)?;
-    let wrist = JointLimit::swing_twist(
-        DVec3::X,
-        DVec3::Z,
-        deg(80.0),
-        deg(30.0),
-        deg(-10.0),
-        deg(10.0),
-    )
-    .map_err(err)?;
-    Skeleton::new([
-        joint("shoulder", None, DVec3::ZERO, shoulder),
-        joint("elbow", Some(0), DVec3::new(0.30, 0.0, 0.0), elbow),
-        joint("forearm", Some(1), DVec3::new(0.125, 0.0, 0.0), forearm),
-        joint("wrist", Some(2), DVec3::new(0.125, 0.0, 0.0), wrist),
-        joint(
-            "hand",
-            Some(3),
-            DVec3::new(0.08, 0.0, 0.0),
-            JointLimit::Free,
-        ),
-    ])
-    .map_err(|e| format!("W7 arm: {e}"))
+    sinew_ik::workloads::human_arm().map_err(|e| format!("W7 arm: {e}"))
 }
 
 /// The seed of the W7 poses and ball points.
@@ -124,14 +77,7 @@ pub fn w7_feasible(skeleton: &Skeleton, count: usize) -> Result<Vec<(DVec3, DQua
     let effector = skeleton.len() - 1;
     (0..count)
         .map(|_| {
-            let pose = Pose {
-                rotations: (0..skeleton.len())
-                    .map(|j| match skeleton.limit(j) {
-                        JointLimit::Free => DQuat::IDENTITY,
-                        limit => limit.sample([rng.unit(), rng.unit(), rng.unit()]),
-                    })
-                    .collect(),
-            };
+            let pose = sinew_ik::workloads::allowed_pose(skeleton, || rng.unit());
             skeleton
                 .forward_kinematics(&pose, &mut global)
                 .map_err(|e| e.to_string())?;
