@@ -90,6 +90,15 @@ impl Hinge {
     }
 }
 
+/// The skeleton's hinge limit has the same meaning (a rotation about `axis` by an angle
+/// in `[min, max]`, relative to the rest rotation), so a limb whose mid joint carries a
+/// hinge limit can hand it to the solver unchanged.
+impl From<sinew_skeleton::limits::Hinge> for Hinge {
+    fn from(limit: sinew_skeleton::limits::Hinge) -> Self {
+        Self::new(limit.axis, limit.min, limit.max)
+    }
+}
+
 /// A two-bone IK job: every input of a solve, by name. See the [crate docs](crate).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]

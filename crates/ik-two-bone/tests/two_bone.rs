@@ -790,3 +790,17 @@ fn random_targets_never_give_nan_and_report_the_fk_error() {
         }
     }
 }
+
+#[test]
+fn a_skeleton_hinge_limit_converts_to_the_same_hinge() {
+    let limit = sinew_skeleton::limits::Hinge {
+        axis: DVec3::new(0.0, -1.0, 0.0),
+        min: 0.0,
+        max: 2.5,
+    };
+    let hinge = Hinge::from(limit);
+    assert_eq!(
+        (hinge.axis, hinge.min, hinge.max),
+        (limit.axis, limit.min, limit.max)
+    );
+}

@@ -201,6 +201,7 @@ impl TaskSpec for TwoBoneTask {
     fn run(&self, ctx: &RunContext) -> Result<TaskOutput, String> {
         let skeleton: Skeleton = self.skeleton.build()?;
         let points = self.target.points()?;
+        // The check uses the skeleton's limit code, not the solver's own clamp.
         let limit = JointLimit::Hinge(limits::Hinge {
             axis: self.hinge.axis.normalize(),
             min: self.hinge.min,
