@@ -156,8 +156,9 @@ fn w7_feasible_targets_are_reached_inside_the_limits() {
         // The workload's bar for FABRIK is 99.9% of the feasible targets at the cap of
         // 100; the finish measured 96.9% here (1 938 of 2 000: 47 stop at the cap while
         // still converging, 15 in local minima). The bar is not met yet; this guards the
-        // measured figure. CCD measured 87.3%.
-        let floor = if name == "fabrik" { 0.965 } else { 0.87 };
+        // measured figure. CCD measured 95.8% (1 916; 87.3% before it restarted from the
+        // centre of the limits after a local minimum).
+        let floor = if name == "fabrik" { 0.965 } else { 0.955 };
         assert!(
             within as f64 >= floor * goals.len() as f64,
             "{name}: {within} of {}",
