@@ -18,9 +18,12 @@
 //! Joint limits: after its correction, each joint's local rotation is projected onto its
 //! limit ([`sinew_skeleton::limits::JointLimit::project`]), and the effector is carried
 //! by the turn actually applied, so the O(1) update stays exact. A projected step can
-//! raise the error; the sweep that does is undone, and the solve stops at the best pose
-//! it found with [`StopReason::LocalMinimum`] (the best reachable within the limits for
-//! CCD). Targets out of reach are not straightened through the limits: CCD iterates.
+//! raise the error; the sweep that does is undone. The first time that happens the
+//! sweeps start again from a second seed (every limited joint at the centre of its
+//! range), with the iterations left, and the better of the two ends is kept
+//! ([`SolveReport::restarted`]); the solve stops at the best pose it found with
+//! [`StopReason::LocalMinimum`] (the best reachable within the limits for CCD). Targets
+//! out of reach are not straightened through the limits: CCD iterates.
 //!
 //! Stop rules, reported in [`StopReason`]: within the tolerance
 //! ([`StopReason::Converged`]), the iteration cap ([`StopReason::IterationCap`]), or a
@@ -44,8 +47,8 @@
 
 use sinew_math::{DQuat, DVec3, rotation_between};
 use sinew_skeleton::ik::{
-    Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveStart, StopReason, begin_solve,
-    chain_has_limits, measure, turn_towards_pole,
+    Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveSettings, SolveStart,
+    StopReason, begin_solve, chain_has_limits, measure, turn_towards_pole,
 };
 use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
@@ -109,6 +112,8 @@ pub struct CcdSolver {
     saved: Vec<DQuat>,
     /// The chain's local rotations right after the current sweep.
     swept: Vec<DQuat>,
+    /// The chain's local rotations at the end of the first descent, while a restart runs.
+    best: Vec<DQuat>,
 }
 
 impl Default for CcdSolver {
@@ -126,6 +131,7 @@ impl CcdSolver {
             extrapolate: true,
             saved: Vec::new(),
             swept: Vec::new(),
+            best: Vec::new(),
         }
     }
 
@@ -138,6 +144,7 @@ impl CcdSolver {
             extrapolate: false,
             saved: Vec::new(),
             swept: Vec::new(),
+            best: Vec::new(),
         }
     }
 
@@ -160,6 +167,7 @@ impl CcdSolver {
             extrapolate: options.extrapolation,
             saved: Vec::new(),
             swept: Vec::new(),
+            best: Vec::new(),
         })
     }
 
@@ -261,14 +269,86 @@ impl IkSolver for CcdSolver {
         let (skeleton, chain, settings) = (problem.skeleton, problem.chain, &problem.settings);
         let (pose, global) = (&mut *state.pose, &mut *state.global);
         let target = goal.position;
-        let has_limits = chain_has_limits(skeleton, chain);
         let movable = &chain.joints()[..chain.bone_count()];
         self.saved.clear();
         self.saved.resize(movable.len(), DQuat::IDENTITY);
         self.swept.clear();
         self.swept.resize(movable.len(), DQuat::IDENTITY);
-        let mut error = initial_error;
-        let mut iterations = 0;
+        let (mut stop, mut error, mut iterations) = self.descend(
+            skeleton,
+            chain,
+            pose,
+            global,
+            target,
+            settings,
+            initial_error,
+            0,
+        )?;
+        let mut restarted = false;
+        if stop == StopReason::LocalMinimum && iterations < settings.max_iterations {
+            // CCD is local: a limit can hold it away from a target that another branch of
+            // the chain's poses reaches. Run once more from a second seed, every limited
+            // joint at the centre of its range, and keep the better end.
+            self.best.clear();
+            self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
+            for &j in movable {
+                if let Some(seed) = centre(skeleton.limit(j)) {
+                    pose.rotations[j] = seed;
+                }
+            }
+            skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+            let seeded = global.positions[chain.effector()].distance(target);
+            let second = self.descend(
+                skeleton, chain, pose, global, target, settings, seeded, iterations,
+            )?;
+            restarted = true;
+            iterations = second.2;
+            if second.1 < error {
+                (stop, error) = (second.0, second.1);
+            } else {
+                for (&kept, &j) in self.best.iter().zip(movable) {
+                    pose.rotations[j] = kept;
+                }
+                skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+            }
+        }
+        // A pole turns the solved chain about its base-effector line (the effector stays).
+        turn_towards_pole(problem, state)?;
+        // The report measures the error again, with the rotation and limit figures, on
+        // the same forward kinematics the loop measured.
+        let report = measure(
+            problem,
+            state,
+            goal,
+            iterations,
+            (initial_error, initial_rotation_error),
+            stop,
+        );
+        debug_assert!((report.error - error).abs() <= 1e-9 * (1.0 + error));
+        let mut report = report;
+        report.restarted = restarted;
+        Ok(report)
+    }
+}
+
+impl CcdSolver {
+    /// Sweeps from the current pose (`error` its effector distance, `iterations` already
+    /// spent) until the tolerance, the cap, or a sweep that does not lower the error
+    /// (undone). Returns the stop reason, the error and the iterations spent in all.
+    #[allow(clippy::too_many_arguments)]
+    fn descend(
+        &mut self,
+        skeleton: &Skeleton,
+        chain: &Chain,
+        pose: &mut Pose,
+        global: &mut GlobalPose,
+        target: DVec3,
+        settings: &SolveSettings,
+        mut error: f64,
+        mut iterations: usize,
+    ) -> Result<(StopReason, f64, usize), IkError> {
+        let has_limits = chain_has_limits(skeleton, chain);
+        let movable = &chain.joints()[..chain.bone_count()];
         let stop = loop {
             if iterations >= settings.max_iterations {
                 break StopReason::IterationCap;
@@ -306,24 +386,9 @@ impl IkSolver for CcdSolver {
                 }
             }
         };
-        // A pole turns the solved chain about its base-effector line (the effector stays).
-        turn_towards_pole(problem, state)?;
-        // The report measures the error again, with the rotation and limit figures, on
-        // the same forward kinematics the loop measured.
-        let report = measure(
-            problem,
-            state,
-            goal,
-            iterations,
-            (initial_error, initial_rotation_error),
-            stop,
-        );
-        debug_assert!((report.error - error).abs() <= 1e-9 * (1.0 + error));
-        Ok(report)
+        Ok((stop, error, iterations))
     }
-}
 
-impl CcdSolver {
     /// Sweep extrapolation: CCD's tail is linear convergence, each sweep changing the
     /// joint rotations by nearly the same amount as the one before, shrinking by the
     /// ratio `r` of successive errors. Continuing that geometric series to its sum is a
@@ -443,6 +508,18 @@ fn sweep_unchecked(
     }
     skeleton.forward_kinematics_from(pose, chain.base(), global)?;
     Ok(global.positions[chain.effector()].distance(target))
+}
+
+/// The centre of a limit's range, the seed of the restart: a hinge at its middle angle,
+/// a swing-twist joint with no swing and the middle twist, a fixed joint at rest; `None`
+/// for a free joint (it keeps its rotation). The same seed as FABRIK's restart.
+fn centre(limit: &JointLimit) -> Option<DQuat> {
+    match limit {
+        JointLimit::Free => None,
+        JointLimit::Fixed => Some(DQuat::IDENTITY),
+        JointLimit::Hinge(_) => Some(limit.sample([0.5, 0.0, 0.0])),
+        JointLimit::SwingTwist(_) => Some(limit.sample([0.0, 0.0, 0.5])),
+    }
 }
 
 /// The minimal rotation taking the direction of `from` onto that of `to`: the same as

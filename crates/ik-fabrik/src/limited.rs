@@ -20,6 +20,9 @@
 //!   degree of freedom by `J_k . y`.
 //! - Every trial pose is projected onto the limits joint by joint, so every pose the
 //!   finish accepts is inside them. A trial is kept only when it lowers `|e|^2`.
+//! - Hinges: a hinge on a bound whose step points outwards is left out before the trial
+//!   and the step solved again (its constraint is a box on its angle, so this part of the
+//!   active set is exact).
 //! - Active set: a joint the projection clamped (the step pushed it out of its limit) is
 //!   frozen, its columns left out (its groups are not independent: a swing step composed
 //!   on the left also moves the twist, so the whole joint); after a rejected trial that
@@ -33,13 +36,16 @@
 
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{Chain, EffectorGoal, StopReason, rotation_angle};
-use sinew_skeleton::limits::{JointLimit, swing_twist};
+use sinew_skeleton::limits::{Hinge, JointLimit, swing_twist};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
+use std::f64::consts::{PI, TAU};
 
 /// Relative to the trace of `J J^T`: the first damping (nearly Gauss-Newton).
 const INITIAL_DAMPING: f64 = 1e-6;
 /// Consecutive rejections before the finish declares a local minimum.
 const MAX_REJECTIONS: usize = 8;
+/// A hinge angle this close to a bound (radians) counts as on it.
+const AT_BOUND: f64 = 1e-12;
 /// A projection that turns a joint by more than this (radians) counts as a clamp.
 const CLAMPED: f64 = 1e-12;
 
@@ -112,6 +118,19 @@ pub(crate) fn centre(limit: &JointLimit) -> Option<DQuat> {
     }
 }
 
+/// Whether turning the hinge joint at `local` (inside its limit) by `step` radians about
+/// its axis pushes it past a bound it already sits on.
+fn pushes_outwards(hinge: &Hinge, local: DQuat, step: f64) -> bool {
+    let along = local.xyz().dot(hinge.axis);
+    let mut angle = 2.0 * along.atan2(local.w);
+    if angle > PI {
+        angle -= TAU;
+    } else if angle <= -PI {
+        angle += TAU;
+    }
+    (step > 0.0 && angle >= hinge.max - AT_BOUND) || (step < 0.0 && angle <= hinge.min + AT_BOUND)
+}
+
 /// Which groups of `limit` the projection from `turned` to `projected` moved.
 fn clamped_groups(limit: &JointLimit, turned: DQuat, projected: DQuat) -> [bool; 2] {
     match limit {
@@ -182,6 +201,8 @@ impl LimitedRefiner {
         let mut damping = f64::NAN;
         let mut rejections = 0;
         let mut steps = 0;
+        // Whether this pass recomputes the last step with fewer joints (not a new step).
+        let mut resolving = false;
         loop {
             let (position, rotation) = goal.errors(global);
             if position <= tolerances.0 && rotation <= tolerances.1 {
@@ -242,7 +263,10 @@ impl LimitedRefiner {
                 let trace: f64 = (0..rows).map(|a| normal[a][a]).sum();
                 damping = INITIAL_DAMPING * trace / rows as f64;
             }
-            steps += 1;
+            if !resolving {
+                steps += 1;
+            }
+            resolving = false;
             let Some(y) = solve_damped(&normal, rows, damping, &r) else {
                 damping = damping.max(f64::MIN_POSITIVE) * 10.0;
                 rejections += 1;
@@ -252,6 +276,22 @@ impl LimitedRefiner {
             for &(c, _, u) in &self.dofs {
                 let col = column(c, u);
                 self.step.push((0..rows).map(|a| col[a] * y[a]).sum());
+            }
+            // A hinge is a box constraint on its angle, so its active set is exact: a hinge
+            // at a bound whose step points outwards would only be clamped back, while the
+            // other joints moved as if it had turned. Leave it out and solve again (the
+            // same step, not counted twice), so the step is the reduced problem's.
+            for (&(c, _, _), &step) in self.dofs.iter().zip(&self.step) {
+                let j = movable[c];
+                if let JointLimit::Hinge(h) = skeleton.limit(j)
+                    && pushes_outwards(h, pose.rotations[j], step)
+                {
+                    self.frozen[c] = [true; 2];
+                    resolving = true;
+                }
+            }
+            if resolving {
+                continue;
             }
             // Trial: turn each joint by its degrees of freedom (world axes taken into the
             // parent's frame of the linearization), project it onto its limit.
@@ -359,6 +399,40 @@ fn solve_damped(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_hinge_pushes_outwards_only_from_a_bound_it_sits_on() {
+        let hinge = Hinge {
+            axis: DVec3::NEG_Y,
+            min: 0.0,
+            max: 150f64.to_radians(),
+        };
+        let at = |angle: f64| DQuat::from_axis_angle(hinge.axis, angle);
+        // At the lower bound: a negative step leaves the range, a positive one enters it.
+        assert!(pushes_outwards(&hinge, at(0.0), -1e-3));
+        assert!(!pushes_outwards(&hinge, at(0.0), 1e-3));
+        // At the upper bound, the other way round.
+        assert!(pushes_outwards(&hinge, at(hinge.max), 1e-3));
+        assert!(!pushes_outwards(&hinge, at(hinge.max), -1e-3));
+        // Inside the range, no step is blocked (only a bound the joint sits on counts).
+        for angle in [1e-6, 1.0, hinge.max - 1e-6] {
+            assert!(!pushes_outwards(&hinge, at(angle), 1e-3), "{angle}");
+            assert!(!pushes_outwards(&hinge, at(angle), -1e-3), "{angle}");
+        }
+        // The quaternion's sign does not change the angle read.
+        assert!(pushes_outwards(&hinge, -at(hinge.max), 1e-3));
+        // A range reaching past a half turn reads the angle in (-pi, pi].
+        let wide = Hinge {
+            axis: DVec3::X,
+            min: -PI,
+            max: PI,
+        };
+        assert!(!pushes_outwards(
+            &wide,
+            DQuat::from_axis_angle(DVec3::X, 3.0),
+            1e-3
+        ));
+    }
 
     #[test]
     fn the_damped_cholesky_solve_inverts_the_matrix() {
