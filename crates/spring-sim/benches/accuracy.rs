@@ -1,8 +1,8 @@
 //! Accuracy next to time: each configuration runs a whole workload and is compared with
-//! the same workload solved to `|grad g|_inf <= 1e-12 m/h^2` (WORKLOADS.md, "solver
+//! the same workload solved to `|grad g|_inf <= 1e-12 m/h^2` (docs/workloads.md, "solver
 //! error"). Prints a markdown table (time per step is the median over the run's steps,
 //! wall clock). Run with `cargo bench -p sinew-spring-sim --bench accuracy`; with
-//! `-- --integrators`, only the integrator comparison of issue 9 (distance from the true
+//! `-- --integrators`, only the integrator comparison (distance from the true
 //! motion after 1 s, against a velocity Verlet reference far below its stability limit).
 
 use sinew_spring_sim::*;
@@ -66,7 +66,7 @@ fn distance(a: &[sinew_math::DVec3], b: &[sinew_math::DVec3]) -> f64 {
 
 /// Distance from the true motion after 1 s: the reference is symplectic Euler with
 /// 4000 substeps per step (far below its stability limit), checked against 2000
-/// substeps (WORKLOADS.md asks for velocity Verlet; that integrator belongs to issue 9,
+/// substeps (docs/workloads.md asks for velocity Verlet; that integrator is measured in the integrator comparison,
 /// and the halving check bounds the reference's own error either way).
 fn true_motion_table(cases: &[(&str, SpringSystem, f64, usize)]) {
     println!();
@@ -319,7 +319,7 @@ fn auto_choices(system: &SpringSystem, settings: AutoSettings, h: f64, steps: us
         .join(", ")
 }
 
-/// Issue 9: every integrator on W4 and W5 k = 1e6 (and W5 at h = 1/10), time per step and
+/// Every integrator on W4 and W5 k = 1e6 (and W5 at h = 1/10), time per step and
 /// distance from the true motion after 1 s. The reference is velocity Verlet at 64 times
 /// the substep count of its stability bound, checked against 32 times (second order: the
 /// check is about 4 times the reference's own error).

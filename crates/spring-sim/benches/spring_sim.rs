@@ -163,7 +163,7 @@ fn kernels(c: &mut Criterion) {
     g.finish();
 }
 
-/// Issue 9: per-step time of the new integrators and `auto` (groups `integrators_*`).
+/// Per-step time of the new integrators and `auto` (groups `integrators_*`).
 fn integrators(c: &mut Criterion) {
     let newton = NewtonSettings::default();
     let configs = [

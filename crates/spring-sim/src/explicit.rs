@@ -1,6 +1,6 @@
 //! Explicit integrators with substeps: symplectic Euler (the course's starter integrator)
 //! and velocity Verlet (second order, the same cost per substep), both the cheap choice
-//! where they are stable (see [`crate::stability`] for the bound and issue 9).
+//! where they are stable (see [`crate::stability`] for the bound).
 //!
 //! These steppers take the substep count they are given, unchecked (for comparisons and
 //! for finding the stability limit empirically); [`crate::Integrator::VelocityVerlet`]

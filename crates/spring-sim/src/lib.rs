@@ -4,7 +4,7 @@
 //! flawed method.
 //!
 //! - [`model`]: particles, springs, material, validation with errors naming the item,
-//!   builders ([`ClothGrid`] for WORKLOADS.md W4-W6, [`Rope`]).
+//!   builders ([`ClothGrid`] for docs/workloads.md W4-W6, [`Rope`]).
 //! - [`spring`]: per-spring energy, gradient, exact Hessian block and its PSD projection.
 //! - [`potential`]: the incremental potential as a sum of terms (inertia, gravity,
 //!   springs, axial damping), each written once with its energy, change along a

@@ -60,7 +60,7 @@ impl LinearSolverKind {
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub enum FactorStructure {
     /// Supernodal (measured faster here on every lab-cloth size, see
-    /// /work/shared/FAER-NOTES.md and docs/bench/spring-sim.md).
+    /// docs/bench/spring-sim.md).
     #[default]
     Supernodal,
     /// Simplicial.

@@ -7,7 +7,7 @@ use crate::integrator::Simulation;
 use crate::report::{StepError, StepReport};
 use std::time::Instant;
 
-/// Positions farther than this from the origin count as a divergence (WORKLOADS.md W5).
+/// Positions farther than this from the origin count as a divergence (docs/workloads.md W5).
 pub const DIVERGENCE_RADIUS: f64 = 100.0;
 
 /// Metrics of a run of steps.

@@ -1,5 +1,5 @@
 //! The mass-spring model: particles, springs, material, their validation, and the
-//! builders (the lab cloth of WORKLOADS.md W4, a rope, and a user's own particles and
+//! builders (the lab cloth of docs/workloads.md W4, a rope, and a user's own particles and
 //! springs).
 //!
 //! Every constructor validates its input and returns a [`ModelError`] that names the
@@ -376,7 +376,7 @@ impl SpringSystem {
         })
     }
 
-    /// The lab cloth (WORKLOADS.md W4 and its variants): see [`ClothGrid`].
+    /// The lab cloth (docs/workloads.md W4 and its variants): see [`ClothGrid`].
     pub fn cloth(grid: &ClothGrid) -> Result<Self, ModelError> {
         grid.build()
     }
@@ -563,7 +563,7 @@ impl Energies {
     }
 }
 
-/// The lab cloth on an `n x n` grid (WORKLOADS.md W4): particle `(i, j)` at
+/// The lab cloth on an `n x n` grid (docs/workloads.md W4): particle `(i, j)` at
 /// `origin + (spacing i, 0, spacing j)`, index `i n + j`; springs from `(i, j)` to
 /// `(i-1, j)`, `(i-2, j)`, `(i, j-1)`, `(i, j-2)`, `(i-1, j-1)`, `(i-1, j+1)` where they
 /// exist (structural, bending skip-one, shear), rest length = initial distance.

@@ -1,4 +1,4 @@
-//! The integrators of issue 9: the stability bound against the empirical stability limit,
+//! The integrators beyond backward Euler: the stability bound against the empirical stability limit,
 //! refusal below the bound, the order of convergence of backward Euler, BDF2 and
 //! implicit midpoint on the linear oscillator, midpoint's energy conservation, and
 //! `auto`'s choices.

@@ -7,7 +7,7 @@
 //! - from backward Euler solved to `|grad g|_inf <= 1e-12 m/h^2` at the same step (the
 //!   implicit solver's error; only meaningful for backward Euler itself);
 //! - from the true motion: velocity Verlet at 64 times the stability bound's substeps,
-//!   checked against 32 times (WORKLOADS.md). The check is stored beside the error.
+//!   checked against 32 times (docs/workloads.md). The check is stored beside the error.
 //!
 //! Stiff runs are ranked (plotted) by the 1 s figure: after 10 s a stiff cloth's motion is
 //! chaotic. W6 runs 30 steps (0.5 s), so its figures are at 0.5 s.
@@ -33,7 +33,7 @@ struct Workload {
 
 fn workloads(plan: &Plan) -> Result<Vec<Workload>, String> {
     // (name, particles per side, spacing, damping, stiffness, dt, steps): W4, W5 and W6
-    // of WORKLOADS.md (W5 and W6 with the lab's damping 0.2, as in their scenes).
+    // of docs/workloads.md (W5 and W6 with the lab's damping 0.2, as in their scenes).
     let specs: &[(&'static str, usize, f64, f64, f64, f64, usize)] = if plan.quick {
         &[
             ("W4 d=0.2", 11, 0.2, 0.2, 100.0, 1.0 / 60.0, 60),

@@ -1,5 +1,5 @@
 //! `cargo xtask bench`: run time against error for every method and knob on the shared
-//! workloads (../shared/WORKLOADS.md), written as tables (`docs/bench/README.md`), raw
+//! workloads (docs/workloads.md), written as tables (`docs/bench/README.md`), raw
 //! numbers (`docs/bench/results.json`) and SVG plots with the Pareto front marked.
 //!
 //! Every figure is the median of several timed repeats with the spread (smallest and

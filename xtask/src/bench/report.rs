@@ -222,7 +222,7 @@ fn headline(records: &[Record]) -> String {
             r.time.median / t.time
         );
     }
-    // Issue 4: arc-length resampling against 50 000 uniform samples.
+    // Arc-length resampling against 50 000 uniform samples.
     let arclen = find(records, "flower", "arc length", "N 500, tol 1e-9");
     let uniform = find(records, "flower", "uniform parameter", "N 50000");
     if let (Some(a), Some(u)) = (arclen, uniform) {

@@ -1,4 +1,4 @@
-//! The IK workloads of ../shared/WORKLOADS.md (W1 flower tracking, W2 random cold
+//! The IK workloads of docs/workloads.md (W1 flower tracking, W2 random cold
 //! solves), built in one place so every figure of `cargo xtask bench` (and anything else
 //! in xtask that needs them) uses the same chains and the same targets.
 //!

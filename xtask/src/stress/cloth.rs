@@ -1,4 +1,4 @@
-//! The cloth stability grid: the lab cloth (WORKLOADS.md W4's spring pattern, two pinned
+//! The cloth stability grid: the lab cloth (docs/workloads.md W4's spring pattern, two pinned
 //! corners, a sheet 2 units wide) at every stiffness decade, time step, grid size and
 //! initial state, stepped by the library's default backward Euler; per case the
 //! divergence, the energy and the Newton solve's work, and the invariants whose breach

@@ -1,4 +1,4 @@
-//! `cargo xtask stress`: the numerical stress grid (issue 8, second half).
+//! `cargo xtask stress`: the numerical stress grid.
 //!
 //! - [`cloth`]: the lab cloth at 7 stiffness decades x 5 time steps x 3 grid sizes x 5
 //!   initial states, stepped by the default backward Euler; divergence, energy, Newton

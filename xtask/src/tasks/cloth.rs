@@ -60,7 +60,7 @@ fn auto() -> Integrator {
 }
 
 /// The reference run takes this many times the stability bound's substeps; the check
-/// run half as many (WORKLOADS.md: halving the substep must change far less than the
+/// run half as many (docs/workloads.md: halving the substep must change far less than the
 /// error measured).
 const REFERENCE_SUBSTEP_FACTOR: usize = 64;
 

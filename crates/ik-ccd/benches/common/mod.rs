@@ -1,4 +1,4 @@
-//! The shared workloads of `WORKLOADS.md` (W1 flower tracking, W2 random cold solves,
+//! The shared workloads of `docs/workloads.md` (W1 flower tracking, W2 random cold solves,
 //! W3 unreachable target, and a 10 000-bone chain), generated inline so the benchmark,
 //! the time-against-error table and the integration tests use exactly the same data.
 

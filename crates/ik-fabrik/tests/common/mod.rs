@@ -1,4 +1,4 @@
-//! The reference workloads of `WORKLOADS.md` (W1 flower tracking, W2 random cold solves,
+//! The reference workloads of `docs/workloads.md` (W1 flower tracking, W2 random cold solves,
 //! W3 unreachable), shared by the tests, the benchmarks and the table example, so every
 //! number comes from the same chains and targets.
 
