@@ -292,7 +292,7 @@ impl IkSolver for CcdSolver {
             self.best.clear();
             self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
             for &j in movable {
-                if let Some(seed) = centre(skeleton.limit(j)) {
+                if let Some(seed) = skeleton.limit(j).centre() {
                     pose.rotations[j] = seed;
                 }
             }
@@ -508,18 +508,6 @@ fn sweep_unchecked(
     }
     skeleton.forward_kinematics_from(pose, chain.base(), global)?;
     Ok(global.positions[chain.effector()].distance(target))
-}
-
-/// The centre of a limit's range, the seed of the restart: a hinge at its middle angle,
-/// a swing-twist joint with no swing and the middle twist, a fixed joint at rest; `None`
-/// for a free joint (it keeps its rotation). The same seed as FABRIK's restart.
-fn centre(limit: &JointLimit) -> Option<DQuat> {
-    match limit {
-        JointLimit::Free => None,
-        JointLimit::Fixed => Some(DQuat::IDENTITY),
-        JointLimit::Hinge(_) => Some(limit.sample([0.5, 0.0, 0.0])),
-        JointLimit::SwingTwist(_) => Some(limit.sample([0.0, 0.0, 0.5])),
-    }
 }
 
 /// The minimal rotation taking the direction of `from` onto that of `to`: the same as

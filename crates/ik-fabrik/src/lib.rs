@@ -410,7 +410,7 @@ impl FabrikSolver {
             self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
             let best_cost = limited::cost(goal, global);
             for &j in movable {
-                if let Some(seed) = limited::centre(skeleton.limit(j)) {
+                if let Some(seed) = skeleton.limit(j).centre() {
                     pose.rotations[j] = seed;
                 }
             }

@@ -106,18 +106,6 @@ pub(crate) fn cost(goal: &EffectorGoal, global: &GlobalPose) -> f64 {
     residual(goal, global).1
 }
 
-/// The centre of a limit's range, the second seed of a restart: a hinge at its middle
-/// angle, a swing-twist with no swing and the middle twist, a fixed joint at rest; `None`
-/// for a free joint (it keeps its rotation).
-pub(crate) fn centre(limit: &JointLimit) -> Option<DQuat> {
-    match limit {
-        JointLimit::Free => None,
-        JointLimit::Fixed => Some(DQuat::IDENTITY),
-        JointLimit::Hinge(_) => Some(limit.sample([0.5, 0.0, 0.0])),
-        JointLimit::SwingTwist(_) => Some(limit.sample([0.0, 0.0, 0.5])),
-    }
-}
-
 /// Whether turning the hinge joint at `local` (inside its limit) by `step` radians about
 /// its axis pushes it past a bound it already sits on.
 fn pushes_outwards(hinge: &Hinge, local: DQuat, step: f64) -> bool {

@@ -371,6 +371,20 @@ impl JointLimit {
         }
     }
 
+    /// The centre of the limit's range, the seed solvers restart from when a limit holds
+    /// them in a local minimum: a hinge at its middle angle, a swing-twist joint with no
+    /// swing and the middle twist, a fixed joint at rest; `None` for a free joint (it has
+    /// no centre and keeps whatever rotation it has).
+    #[must_use]
+    pub fn centre(&self) -> Option<DQuat> {
+        match self {
+            Self::Free => None,
+            Self::Fixed => Some(DQuat::IDENTITY),
+            Self::Hinge(_) => Some(self.sample([0.5, 0.0, 0.0])),
+            Self::SwingTwist(_) => Some(self.sample([0.0, 0.0, 0.5])),
+        }
+    }
+
     /// An allowed rotation from `u` in `[0, 1)^3`, uniform in the limit's parameters:
     ///
     /// - [`Free`](Self::Free): uniform over all rotations (Shoemake's subgroup algorithm,

@@ -757,3 +757,17 @@ fn constructors_normalise_and_validate() {
         })
     ));
 }
+
+#[test]
+fn centres_are_the_middle_of_each_range() {
+    let hinge = JointLimit::hinge(DVec3::Z, 0.2, 1.0).unwrap();
+    let centre = hinge.centre().unwrap();
+    let expected = DQuat::from_axis_angle(DVec3::Z, 0.6);
+    assert!(centre.dot(expected).abs() > 1.0 - 1e-15, "{centre:?}");
+    let st = JointLimit::swing_twist(DVec3::X, DVec3::Z, 1.0, 0.5, -0.2, 0.6).unwrap();
+    let centre = st.centre().unwrap();
+    let expected = DQuat::from_axis_angle(DVec3::X, 0.2);
+    assert!(centre.dot(expected).abs() > 1.0 - 1e-15, "{centre:?}");
+    assert_eq!(JointLimit::Fixed.centre(), Some(DQuat::IDENTITY));
+    assert_eq!(JointLimit::Free.centre(), None);
+}
