@@ -593,6 +593,40 @@ impl Default for ClothGrid {
 }
 
 impl ClothGrid {
+    /// The lab's spring pattern on an `n x n` grid whose particle `(i, j)` has index
+    /// `i * n + j`: each particle joined to `(i-1, j)`, `(i-2, j)`, `(i, j-1)`, `(i, j-2)`,
+    /// `(i-1, j-1)` and `(i-1, j+1)` where they exist (structural, skip-one bend, shear),
+    /// for systems built on other grids than [`ClothGrid::build`]'s (a tilted sheet).
+    #[must_use]
+    pub fn spring_pattern(n: usize) -> Vec<SpringSpec> {
+        let idx = |i: usize, j: usize| i * n + j;
+        let mut springs = Vec::with_capacity(6 * n * n);
+        for i in 0..n {
+            for j in 0..n {
+                let here = idx(i, j);
+                if i >= 1 {
+                    springs.push(SpringSpec::between(here, idx(i - 1, j)));
+                }
+                if i >= 2 {
+                    springs.push(SpringSpec::between(here, idx(i - 2, j)));
+                }
+                if j >= 1 {
+                    springs.push(SpringSpec::between(here, idx(i, j - 1)));
+                }
+                if j >= 2 {
+                    springs.push(SpringSpec::between(here, idx(i, j - 2)));
+                }
+                if i >= 1 && j >= 1 {
+                    springs.push(SpringSpec::between(here, idx(i - 1, j - 1)));
+                }
+                if i >= 1 && j + 1 < n {
+                    springs.push(SpringSpec::between(here, idx(i - 1, j + 1)));
+                }
+            }
+        }
+        springs
+    }
+
     /// The lab cloth W4: 11 x 11, spacing 0.2, origin (0, 1.5, -1), mass 1, stiffness
     /// 100, damping `damping`, gravity 0.3 along -y, corners (0, 0) and (0, 10) fixed.
     #[must_use]
@@ -655,31 +689,7 @@ impl ClothGrid {
             }
             particles[i * n + j].fixed = true;
         }
-        let idx = |i: usize, j: usize| i * n + j;
-        let mut springs = Vec::with_capacity(6 * n * n);
-        for i in 0..n {
-            for j in 0..n {
-                let here = idx(i, j);
-                if i >= 1 {
-                    springs.push(SpringSpec::between(here, idx(i - 1, j)));
-                }
-                if i >= 2 {
-                    springs.push(SpringSpec::between(here, idx(i - 2, j)));
-                }
-                if j >= 1 {
-                    springs.push(SpringSpec::between(here, idx(i, j - 1)));
-                }
-                if j >= 2 {
-                    springs.push(SpringSpec::between(here, idx(i, j - 2)));
-                }
-                if i >= 1 && j >= 1 {
-                    springs.push(SpringSpec::between(here, idx(i - 1, j - 1)));
-                }
-                if i >= 1 && j + 1 < n {
-                    springs.push(SpringSpec::between(here, idx(i - 1, j + 1)));
-                }
-            }
-        }
+        let springs = Self::spring_pattern(n);
         SpringSystem::new(&particles, &springs, self.material)
     }
 }

@@ -6,7 +6,7 @@
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::{Collider, ContactSettings};
 use sinew_spring_sim::{
-    Integrator, Material, NewtonSettings, Particle, Simulation, SpringSpec, SpringSystem, StepError,
+    ClothGrid, Integrator, Material, NewtonSettings, Particle, Simulation, SpringSystem, StepError,
 };
 
 const G: f64 = 9.81;
@@ -35,31 +35,7 @@ fn sheet(n: usize, spacing: f64, origin: DVec3, u: DVec3, w: DVec3) -> SpringSys
             particles.push(Particle::at_rest(p, mass));
         }
     }
-    let idx = |i: usize, j: usize| i * n + j;
-    let mut springs = Vec::new();
-    for i in 0..n {
-        for j in 0..n {
-            let here = idx(i, j);
-            if i >= 1 {
-                springs.push(SpringSpec::between(here, idx(i - 1, j)));
-            }
-            if i >= 2 {
-                springs.push(SpringSpec::between(here, idx(i - 2, j)));
-            }
-            if j >= 1 {
-                springs.push(SpringSpec::between(here, idx(i, j - 1)));
-            }
-            if j >= 2 {
-                springs.push(SpringSpec::between(here, idx(i, j - 2)));
-            }
-            if i >= 1 && j >= 1 {
-                springs.push(SpringSpec::between(here, idx(i - 1, j - 1)));
-            }
-            if i >= 1 && j + 1 < n {
-                springs.push(SpringSpec::between(here, idx(i - 1, j + 1)));
-            }
-        }
-    }
+    let springs = ClothGrid::spring_pattern(n);
     SpringSystem::new(&particles, &springs, material()).unwrap()
 }
 
