@@ -4,7 +4,7 @@
 //! ([`super::line_search`]).
 
 use super::{BackwardEuler, line_search};
-use crate::linear::{LinearSolverKind, dot};
+use crate::linear::{LinearSolverKind, PcgOutcome, dot};
 use crate::model::{ModelError, SpringSystem};
 use crate::potential::{HessianSink, StepContext};
 use crate::report::{IntegratorKind, StepReport, StopReason};
@@ -107,15 +107,7 @@ impl BackwardEuler {
                         // CG meets a direction of non-positive curvature exactly when the
                         // matrix is not positive definite along the Krylov space it
                         // explores.
-                        self.dx.fill(0.0);
-                        let outcome = self.pcg.solve(
-                            &self.pattern,
-                            &self.values,
-                            &self.rhs,
-                            &mut self.dx,
-                            rtol,
-                            self.settings.pcg_max_iterations,
-                        );
+                        let outcome = self.pcg_direction(rtol);
                         report.linear_iterations += outcome.iterations;
                         solved = !outcome.negative_curvature;
                     }
@@ -153,15 +145,7 @@ impl BackwardEuler {
                 }
             }
             if !solved {
-                self.dx.fill(0.0);
-                let outcome = self.pcg.solve(
-                    &self.pattern,
-                    &self.values,
-                    &self.rhs,
-                    &mut self.dx,
-                    rtol,
-                    self.settings.pcg_max_iterations,
-                );
+                let outcome = self.pcg_direction(rtol);
                 report.linear_iterations += outcome.iterations;
             }
             let mut slope = dot(&self.grad, &self.dx);
@@ -206,6 +190,20 @@ impl BackwardEuler {
     }
 
     /// Writes `grad g` at `self.x` over the free unknowns into `self.grad`.
+    /// The Newton direction by PCG from zero, solving the assembled matrix against the
+    /// right-hand side to the relative residual `rtol`, into `dx`.
+    fn pcg_direction(&mut self, rtol: f64) -> PcgOutcome {
+        self.dx.fill(0.0);
+        self.pcg.solve(
+            &self.pattern,
+            &self.values,
+            &self.rhs,
+            &mut self.dx,
+            rtol,
+            self.settings.pcg_max_iterations,
+        )
+    }
+
     fn assemble_gradient(&mut self, step: &StepContext<'_>) {
         self.potential
             .gradient(step, &self.x, &mut self.grad_particles);
