@@ -228,26 +228,4 @@ impl Term for AxialDamping {
                 }),
         );
     }
-
-    fn has_spring_blocks(&self) -> bool {
-        true
-    }
-
-    fn add_spring_blocks(
-        &self,
-        step: &StepContext<'_>,
-        _x: &[DVec3],
-        _curvature: Curvature,
-        blocks: &mut [SymBlock],
-    ) {
-        let Some(c) = Self::coefficient(step) else {
-            return;
-        };
-        for (b, &w) in blocks.iter_mut().zip(&self.directions) {
-            let k = kernel::block(c, w);
-            for (sum, v) in b.0.iter_mut().zip(k.0) {
-                *sum += v;
-            }
-        }
-    }
 }

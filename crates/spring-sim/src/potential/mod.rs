@@ -124,28 +124,6 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
         sink: &mut HessianSink<'_>,
     );
 
-    /// Whether the term's Hessian is one block `[[K, -K], [-K, K]]` per spring of the
-    /// system, added by [`Term::add_spring_blocks`] (false by default), for a caller that
-    /// sums such terms' blocks per spring before writing them. [`Potential`] sums the
-    /// blocks of its own [`Springs`] and [`AxialDamping`] in its fused loop and evaluates
-    /// any other term through [`Term::add_hessian`].
-    fn has_spring_blocks(&self) -> bool {
-        false
-    }
-
-    /// Adds the block `K` of every spring at `x` to `blocks[s]`, for a term with
-    /// [`Term::has_spring_blocks`]; its [`Term::add_hessian`] must add exactly these
-    /// blocks. Nothing by default.
-    fn add_spring_blocks(
-        &self,
-        step: &StepContext<'_>,
-        x: &[DVec3],
-        curvature: Curvature,
-        blocks: &mut [SymBlock],
-    ) {
-        let _ = (step, x, curvature, blocks);
-    }
-
     /// The largest `alpha` for which every state on `x + [0, alpha] dx` is admissible
     /// (the line search never tries beyond it); unlimited by default.
     fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {

@@ -53,25 +53,6 @@ impl Term for Springs {
             (e, s.a, s.b, alpha, beta, u)
         }));
     }
-
-    fn has_spring_blocks(&self) -> bool {
-        true
-    }
-
-    fn add_spring_blocks(
-        &self,
-        step: &StepContext<'_>,
-        x: &[DVec3],
-        curvature: Curvature,
-        blocks: &mut [SymBlock],
-    ) {
-        for (s, b) in step.system.springs().iter().zip(blocks.iter_mut()) {
-            let k = block(s, x, curvature);
-            for (sum, v) in b.0.iter_mut().zip(k.0) {
-                *sum += v;
-            }
-        }
-    }
 }
 
 // The per-spring kernels of the term, written once and used both by its own loops and by
