@@ -51,5 +51,8 @@ pub use resample::{
     MAX_POINTS, Samples, SpacingStats, resample_by_spacing, resample_evenly, sample_uniform,
 };
 pub use rose::{Rose, complete_elliptic_e};
+/// The math types curves are evaluated in, re-exported so a user of this crate does not
+/// also have to depend on sinew-math.
+pub use sinew_math::{DVec2, DVec3};
 pub use spec::{Curve, CurveSpec, Sampling};
 pub use traits::{ArcParam, ParamCurve, ParamCurveDeriv};

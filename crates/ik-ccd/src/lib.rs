@@ -45,7 +45,10 @@
 //!   (the distance after turning by `phi` about `q`'s axis is symmetric about the full
 //!   angle). Measured slower than plain CCD on W1 and W2, so off by default.
 
-use sinew_math::{DQuat, DVec3, rotation_between};
+use sinew_math::rotation_between;
+/// The math types targets and poses are given in, re-exported so a user of this crate
+/// does not also have to depend on sinew-math.
+pub use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{
     Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveSettings, SolveStart,
     StopReason, begin_solve, chain_has_limits, measure, turn_towards_pole,

@@ -31,10 +31,13 @@ mod pass;
 mod refine;
 
 pub use pass::fabrik_pass;
+/// The math types targets and poses are given in, re-exported so a user of this crate
+/// does not also have to depend on sinew-math.
+pub use sinew_math::{DQuat, DVec3};
 
 use limited::LimitedRefiner;
 use refine::Refiner;
-use sinew_math::{DQuat, DVec3, rotation_between};
+use sinew_math::rotation_between;
 use sinew_skeleton::ik::{
     Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveSettings, SolveStart,
     StopReason, begin_solve, chain_has_limits, measure, project_onto_limits, turn_towards_pole,

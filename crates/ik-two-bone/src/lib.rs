@@ -51,7 +51,10 @@
 mod bend;
 
 use bend::{Limb, half_angle, softened};
-use sinew_math::{DQuat, DVec3, rotation_between, try_unit};
+/// The math types targets and poses are given in, re-exported so a user of this crate
+/// does not also have to depend on sinew-math.
+pub use sinew_math::{DQuat, DVec3};
+use sinew_math::{rotation_between, try_unit};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
 use std::f64::consts::PI;
 use std::fmt;

@@ -19,6 +19,9 @@ pub mod workloads;
 
 pub use sinew_ik_ccd::{CcdOptions, CcdSolver};
 pub use sinew_ik_fabrik::{FabrikMode, FabrikOptions, FabrikSolver};
+/// The math types targets and poses are given in, re-exported so a user of this crate
+/// does not also have to depend on sinew-math.
+pub use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{IkError, IkSolver};
 
 /// Which solver, with its options.
