@@ -20,14 +20,34 @@
 //! `G[i] = normalize(G[p] * L[i])` and `P[i] = P[p] + G[p] * offset[i]`. So a joint's
 //! rotation moves its children, not itself: the bone from `p` to `i` is turned by `L[p]`.
 //!
+//! ```
+//! use sinew_skeleton::{DQuat, DVec3, GlobalPose, Skeleton};
+//! use std::f64::consts::FRAC_PI_2;
+//!
+//! // Three unit bones along x from the origin: joints at x = 0, 1, 2, 3.
+//! let arm = Skeleton::chain(DVec3::ZERO, &[DVec3::X; 3]).unwrap();
+//! let mut pose = arm.rest_pose();
+//! // Turning joint 1 a quarter about z swings the bones after it (not joint 1 itself).
+//! pose.rotations[1] = DQuat::from_rotation_z(FRAC_PI_2);
+//! let mut global = GlobalPose::new();
+//! arm.forward_kinematics(&pose, &mut global).unwrap();
+//! assert!((global.positions[1] - DVec3::X).length() < 1e-12);
+//! assert!((global.positions[3] - DVec3::new(1.0, 2.0, 0.0)).length() < 1e-12);
+//! ```
+//!
+//! Named joints and limits: see [`JointDef`] and [`Skeleton::new`].
+//!
 //! Architecture invariant: depends on sinew-math only (serde behind the `serde` feature).
 
 pub mod ik;
 pub mod limits;
 pub mod track;
 
+/// The math types a skeleton is built from, re-exported so a user of this crate does
+/// not also have to depend on sinew-math.
+pub use sinew_math::{DQuat, DVec3};
+
 use limits::{JointLimit, LimitError};
-use sinew_math::{DQuat, DVec3};
 use std::fmt;
 
 /// One joint as given to [`Skeleton::new`].
@@ -46,6 +66,43 @@ pub struct JointDef {
     /// identity: the rest pose is [`Skeleton::rest_pose`]). Default: free.
     #[cfg_attr(feature = "serde", serde(default))]
     pub limit: JointLimit,
+}
+
+impl JointDef {
+    /// A root joint at `position` (no parent, no name, free).
+    #[must_use]
+    pub fn root(position: DVec3) -> Self {
+        Self {
+            offset: position,
+            ..Self::default()
+        }
+    }
+
+    /// A joint hanging from joint `parent` (an index smaller than this joint's) at
+    /// `offset` in the parent's frame.
+    #[must_use]
+    pub fn child(parent: usize, offset: DVec3) -> Self {
+        Self {
+            parent: Some(parent),
+            offset,
+            ..Self::default()
+        }
+    }
+
+    /// The same joint with a name, which [`Skeleton::joint_by_name`] finds and every
+    /// error message shows. Names must be unique within a skeleton.
+    #[must_use]
+    pub fn named(mut self, name: impl Into<String>) -> Self {
+        self.name = Some(name.into());
+        self
+    }
+
+    /// The same joint with a limit on its local rotation.
+    #[must_use]
+    pub fn with_limit(mut self, limit: JointLimit) -> Self {
+        self.limit = limit;
+        self
+    }
 }
 
 /// Why a skeleton, a pose or a chain was refused. Every variant names the joint.
@@ -91,6 +148,18 @@ pub enum SkeletonError {
         /// The joint, with its name when it has one.
         joint: String,
     },
+    /// Two joints have the same name.
+    DuplicateName {
+        /// The first joint with the name.
+        first: String,
+        /// The later joint that repeats it.
+        second: String,
+    },
+    /// No joint has the name looked up.
+    UnknownName {
+        /// The name looked up.
+        name: String,
+    },
     /// A joint's limit is invalid.
     InvalidLimit {
         /// The joint, with its name when it has one.
@@ -127,6 +196,13 @@ impl fmt::Display for SkeletonError {
                 f,
                 "{joint}: local rotation is zero or has a NaN or infinite component"
             ),
+            Self::DuplicateName { first, second } => {
+                write!(
+                    f,
+                    "{second} has the same name as {first}; names must be unique"
+                )
+            }
+            Self::UnknownName { name } => write!(f, "no joint is named \"{name}\""),
             Self::InvalidLimit { joint, error } => write!(f, "{joint}: limit: {error}"),
         }
     }
@@ -151,7 +227,42 @@ pub struct Skeleton {
 
 impl Skeleton {
     /// A skeleton from its joints, validated: at least one joint, every parent index
-    /// smaller than its child's, every offset finite.
+    /// smaller than its child's, every offset finite, every limit valid, no name used
+    /// twice. Each error names the joint.
+    ///
+    /// ```
+    /// use sinew_skeleton::{DQuat, DVec3, GlobalPose, JointDef, Skeleton};
+    /// use sinew_skeleton::limits::JointLimit;
+    /// use std::f64::consts::FRAC_PI_2;
+    ///
+    /// // A shoulder at the origin, an elbow 0.3 along x that bends about z only, a wrist.
+    /// let elbow_limit = JointLimit::hinge(DVec3::Z, 0.0, 2.5).unwrap();
+    /// let arm = Skeleton::new([
+    ///     JointDef::root(DVec3::ZERO).named("shoulder"),
+    ///     JointDef::child(0, DVec3::new(0.3, 0.0, 0.0)).named("elbow").with_limit(elbow_limit),
+    ///     JointDef::child(1, DVec3::new(0.25, 0.0, 0.0)).named("wrist"),
+    /// ])
+    /// .unwrap();
+    ///
+    /// // Bend the elbow a quarter turn: the forearm now points along y.
+    /// let elbow = arm.joint_by_name("elbow").unwrap();
+    /// let mut pose = arm.rest_pose();
+    /// pose.rotations[elbow] = DQuat::from_rotation_z(FRAC_PI_2);
+    /// let mut global = GlobalPose::new();
+    /// arm.forward_kinematics(&pose, &mut global).unwrap();
+    /// let wrist = arm.joint_index("wrist").unwrap();
+    /// assert!((global.positions[wrist] - DVec3::new(0.3, 0.25, 0.0)).length() < 1e-12);
+    ///
+    /// // A repeated name is refused, naming both joints.
+    /// let twice = Skeleton::new([
+    ///     JointDef::root(DVec3::ZERO).named("hip"),
+    ///     JointDef::child(0, DVec3::Y).named("hip"),
+    /// ]);
+    /// assert_eq!(
+    ///     twice.unwrap_err().to_string(),
+    ///     "joint 1 \"hip\" has the same name as joint 0 \"hip\"; names must be unique"
+    /// );
+    /// ```
     pub fn new(joints: impl IntoIterator<Item = JointDef>) -> Result<Self, SkeletonError> {
         let mut parents = Vec::new();
         let mut offsets = Vec::new();
@@ -174,6 +285,16 @@ impl Skeleton {
                 return Err(SkeletonError::InvalidLimit {
                     joint: label(),
                     error,
+                });
+            }
+            if let Some(name) = joint.name.as_deref()
+                && let Some(first) = names
+                    .iter()
+                    .position(|n: &Option<String>| n.as_deref() == Some(name))
+            {
+                return Err(SkeletonError::DuplicateName {
+                    first: joint_label(first, Some(name)),
+                    second: label(),
                 });
             }
             parents.push(joint.parent);
@@ -207,16 +328,11 @@ impl Skeleton {
     /// A serial chain: joint 0 is the root at `root`, joint `i >= 1` hangs from joint
     /// `i - 1` with local offset `offsets[i - 1]`. So `offsets.len()` bones.
     pub fn chain(root: DVec3, offsets: &[DVec3]) -> Result<Self, SkeletonError> {
-        let root = JointDef {
-            offset: root,
-            ..JointDef::default()
-        };
-        let rest = offsets.iter().enumerate().map(|(i, &offset)| JointDef {
-            parent: Some(i),
-            offset,
-            ..JointDef::default()
-        });
-        Self::new(std::iter::once(root).chain(rest))
+        let rest = offsets
+            .iter()
+            .enumerate()
+            .map(|(i, &offset)| JointDef::child(i, offset));
+        Self::new(std::iter::once(JointDef::root(root)).chain(rest))
     }
 
     /// The number of joints (at least one).
@@ -279,6 +395,28 @@ impl Skeleton {
     #[must_use]
     pub fn name(&self, i: usize) -> Option<&str> {
         self.names[i].as_deref()
+    }
+
+    /// The index of the joint named `name`, if any. O(joints).
+    #[must_use]
+    pub fn joint_by_name(&self, name: &str) -> Option<usize> {
+        self.names.iter().position(|n| n.as_deref() == Some(name))
+    }
+
+    /// The index of the joint named `name`, or an error naming the missing joint.
+    ///
+    /// ```
+    /// use sinew_skeleton::{DVec3, JointDef, Skeleton};
+    /// let skel = Skeleton::new([JointDef::root(DVec3::ZERO).named("pelvis")]).unwrap();
+    /// assert_eq!(skel.joint_index("pelvis"), Ok(0));
+    /// let err = skel.joint_index("head").unwrap_err();
+    /// assert_eq!(err.to_string(), "no joint is named \"head\"");
+    /// ```
+    pub fn joint_index(&self, name: &str) -> Result<usize, SkeletonError> {
+        self.joint_by_name(name)
+            .ok_or_else(|| SkeletonError::UnknownName {
+                name: name.to_owned(),
+            })
     }
 
     /// The length of the bone from joint `i`'s parent to joint `i` (0 for a root).
@@ -516,6 +654,58 @@ mod tests {
         );
         let inf = Skeleton::chain(DVec3::new(0.0, f64::INFINITY, 0.0), &[]);
         assert!(matches!(inf, Err(SkeletonError::NonFiniteOffset { .. })));
+    }
+
+    #[test]
+    fn builders_fill_the_fields_they_name() {
+        let limit = JointLimit::hinge(DVec3::Z, -1.0, 1.0).unwrap();
+        let knee = JointDef::child(2, DVec3::new(0.0, -0.4, 0.0))
+            .named("knee")
+            .with_limit(limit);
+        assert_eq!(
+            knee,
+            JointDef {
+                name: Some("knee".into()),
+                parent: Some(2),
+                offset: DVec3::new(0.0, -0.4, 0.0),
+                limit,
+            }
+        );
+        assert_eq!(JointDef::root(DVec3::Y).parent, None);
+        assert_eq!(JointDef::root(DVec3::Y).offset, DVec3::Y);
+    }
+
+    #[test]
+    fn joints_are_found_by_name_and_names_are_unique() {
+        let skel = Skeleton::new([
+            JointDef::root(DVec3::ZERO).named("pelvis"),
+            JointDef::child(0, DVec3::Y),
+            JointDef::child(1, DVec3::Y).named("head"),
+        ])
+        .unwrap();
+        assert_eq!(skel.joint_by_name("pelvis"), Some(0));
+        assert_eq!(skel.joint_by_name("head"), Some(2));
+        assert_eq!(skel.joint_by_name(""), None);
+        assert_eq!(
+            skel.joint_index("tail"),
+            Err(SkeletonError::UnknownName {
+                name: "tail".into()
+            })
+        );
+        // Unnamed joints never collide with each other.
+        assert!(Skeleton::chain(DVec3::ZERO, &[DVec3::X; 3]).is_ok());
+        let twice = Skeleton::new([
+            JointDef::root(DVec3::ZERO).named("a"),
+            JointDef::child(0, DVec3::Y).named("b"),
+            JointDef::child(1, DVec3::Y).named("a"),
+        ]);
+        assert_eq!(
+            twice,
+            Err(SkeletonError::DuplicateName {
+                first: "joint 0 \"a\"".into(),
+                second: "joint 2 \"a\"".into(),
+            })
+        );
     }
 
     #[test]
