@@ -41,6 +41,9 @@ pub struct Chain {
     bone_lengths: Vec<f64>,
     reach: f64,
     skeleton_len: usize,
+    /// The skeleton's [`Skeleton::fingerprint`]: a skeleton of the same size but other
+    /// parents or offsets would give other joints or bone lengths, so it is refused too.
+    skeleton_fingerprint: u64,
 }
 
 impl Chain {
@@ -76,6 +79,7 @@ impl Chain {
             bone_lengths,
             reach,
             skeleton_len: skeleton.len(),
+            skeleton_fingerprint: skeleton.fingerprint(),
         })
     }
 
@@ -121,9 +125,24 @@ impl Chain {
         self.reach
     }
 
-    /// Checks that this chain was built for a skeleton of `skeleton`'s size.
+    /// Checks that this chain was built for `skeleton`, or for one with the same parents
+    /// and offsets (limits and names may differ: the chain depends on neither).
+    ///
+    /// ```
+    /// use sinew_skeleton::DVec3;
+    /// use sinew_skeleton::Skeleton;
+    /// use sinew_skeleton::ik::Chain;
+    /// let arm = Skeleton::chain(DVec3::ZERO, &[DVec3::X; 2]).unwrap();
+    /// let leg = Skeleton::chain(DVec3::ZERO, &[DVec3::NEG_Y; 2]).unwrap();
+    /// let chain = Chain::whole(&arm).unwrap();
+    /// assert!(chain.check_skeleton(&arm).is_ok());
+    /// // Same number of joints, other bones: refused.
+    /// assert!(chain.check_skeleton(&leg).is_err());
+    /// ```
     pub fn check_skeleton(&self, skeleton: &Skeleton) -> Result<(), IkError> {
-        if self.skeleton_len == skeleton.len() {
+        if self.skeleton_len == skeleton.len()
+            && self.skeleton_fingerprint == skeleton.fingerprint()
+        {
             Ok(())
         } else {
             Err(IkError::ChainMismatch {
@@ -491,7 +510,8 @@ pub enum IkError {
     },
     /// The settings are invalid; the message says which field and why.
     InvalidSettings(String),
-    /// The chain was built for a skeleton of another size.
+    /// The chain was built for another skeleton: one of another size, or of the same
+    /// size with other parents or offsets.
     ChainMismatch {
         /// Joints of the skeleton the chain was built for.
         chain_joints: usize,
@@ -517,6 +537,13 @@ impl fmt::Display for IkError {
                 "a chain solve takes exactly one goal, on the chain's effector; got {got}"
             ),
             Self::InvalidSettings(msg) => write!(f, "invalid solve settings: {msg}"),
+            Self::ChainMismatch {
+                chain_joints,
+                skeleton_joints,
+            } if chain_joints == skeleton_joints => write!(
+                f,
+                "the chain was built for another skeleton of {chain_joints} joints, with other parents or offsets than this one"
+            ),
             Self::ChainMismatch {
                 chain_joints,
                 skeleton_joints,
@@ -1043,6 +1070,46 @@ mod tests {
             ),
             Err(IkError::ChainMismatch { .. })
         ));
+    }
+
+    #[test]
+    fn a_chain_refuses_another_skeleton_of_the_same_size() {
+        let arm = Skeleton::chain(DVec3::ZERO, &[DVec3::X; 3]).unwrap();
+        let chain = Chain::whole(&arm).unwrap();
+        // Same size, one offset differs: the chain's bone lengths would be wrong.
+        let longer = Skeleton::chain(DVec3::ZERO, &[DVec3::X, DVec3::X, DVec3::X * 2.0]).unwrap();
+        // Same size and offsets, other parents: a tree, not a chain.
+        let tree = Skeleton::new([
+            crate::JointDef::root(DVec3::ZERO),
+            crate::JointDef::child(0, DVec3::X),
+            crate::JointDef::child(0, DVec3::X),
+            crate::JointDef::child(2, DVec3::X),
+        ])
+        .unwrap();
+        for other in [&longer, &tree] {
+            let err = chain.check_skeleton(other).unwrap_err();
+            assert_eq!(
+                err,
+                IkError::ChainMismatch {
+                    chain_joints: 4,
+                    skeleton_joints: 4
+                }
+            );
+            assert!(err.to_string().contains("other parents or offsets"));
+        }
+        // A copy, or the same structure with limits and names added, is accepted.
+        assert!(chain.check_skeleton(&arm.clone()).is_ok());
+        let mut limited = Skeleton::new([
+            crate::JointDef::root(DVec3::ZERO).named("base"),
+            crate::JointDef::child(0, DVec3::X),
+            crate::JointDef::child(1, DVec3::X),
+            crate::JointDef::child(2, DVec3::X).named("tip"),
+        ])
+        .unwrap();
+        limited
+            .set_limit(1, JointLimit::hinge(DVec3::Z, -1.0, 1.0).unwrap())
+            .unwrap();
+        assert!(chain.check_skeleton(&limited).is_ok());
     }
 
     #[test]

@@ -223,6 +223,9 @@ pub struct Skeleton {
     /// Whether each joint's descendants fill its span exactly (depth-first order, as a
     /// chain is), so forward kinematics from a joint needs no membership test.
     contiguous: bool,
+    /// A hash of the parents and offsets, which is what a chain's joints and bone lengths
+    /// depend on; a chain keeps it to refuse a skeleton it was not built for.
+    fingerprint: u64,
 }
 
 impl Skeleton {
@@ -315,6 +318,7 @@ impl Skeleton {
             }
         }
         let contiguous = (0..n).all(|i| span_end[i] - i - 1 == descendants[i]);
+        let fingerprint = structure_fingerprint(&parents, &offsets);
         Ok(Self {
             parents,
             offsets,
@@ -322,6 +326,7 @@ impl Skeleton {
             limits,
             span_end,
             contiguous,
+            fingerprint,
         })
     }
 
@@ -430,6 +435,12 @@ impl Skeleton {
         } else {
             0.0
         }
+    }
+
+    /// What identifies this skeleton's structure (parents and offsets) to a chain built
+    /// on it.
+    pub(crate) fn fingerprint(&self) -> u64 {
+        self.fingerprint
     }
 
     /// "joint 3" or `joint 3 "elbow"`, for messages.
@@ -565,6 +576,27 @@ impl Skeleton {
         }
         Ok(())
     }
+}
+
+/// A 64-bit hash of a skeleton's parents and offsets (each mixed in by the splitmix64
+/// finalizer), deterministic across runs. Limits and names are left out: they can change
+/// without invalidating a chain, and a chain caches neither.
+fn structure_fingerprint(parents: &[Option<usize>], offsets: &[DVec3]) -> u64 {
+    fn mix(h: u64, word: u64) -> u64 {
+        let mut z = (h ^ word).wrapping_add(0x9e37_79b9_7f4a_7c15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    let mut h = mix(0, parents.len() as u64);
+    for (parent, offset) in parents.iter().zip(offsets) {
+        h = mix(h, parent.map_or(u64::MAX, |p| p as u64));
+        for c in offset.to_array() {
+            // +0 and -0 are the same offset.
+            h = mix(h, (c + 0.0).to_bits());
+        }
+    }
+    h
 }
 
 fn joint_label(i: usize, name: Option<&str>) -> String {
