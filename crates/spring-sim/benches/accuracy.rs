@@ -142,7 +142,8 @@ fn peak_rss_mib() -> Option<f64> {
 /// The 317 x 317 cloth (100 489 particles), W6's sheet size and material: time per step
 /// and peak memory.
 fn big_cloth() {
-    let system = SpringSystem::cloth(&ClothGrid::lab_sized(317, 2.0 / 316.0, 0.0)).unwrap();
+    let system =
+        SpringSystem::cloth(&ClothGrid::lab_sized(317, 2.0 / 316.0).with_damping(0.0)).unwrap();
     let before = peak_rss_mib();
     let r = run(
         &system,
@@ -179,17 +180,17 @@ fn main() {
         integrators_table();
         return;
     }
-    let mut grid5 = ClothGrid::lab(0.0);
+    let mut grid5 = ClothGrid::lab().with_damping(0.0);
     let cases: Vec<(&str, SpringSystem, f64, usize)> = vec![
         (
             "W4 damping 0",
-            SpringSystem::cloth(&ClothGrid::lab(0.0)).unwrap(),
+            SpringSystem::cloth(&ClothGrid::lab().with_damping(0.0)).unwrap(),
             1.0 / 60.0,
             600,
         ),
         (
             "W4 damping 0.2",
-            SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap(),
+            SpringSystem::cloth(&ClothGrid::lab()).unwrap(),
             1.0 / 60.0,
             600,
         ),
@@ -213,7 +214,7 @@ fn main() {
         ),
         (
             "W6 (30 steps)",
-            SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02, 0.0)).unwrap(),
+            SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02).with_damping(0.0)).unwrap(),
             1.0 / 60.0,
             30,
         ),
@@ -327,12 +328,12 @@ fn integrators_table() {
     let cases: Vec<(&str, SpringSystem, f64)> = vec![
         (
             "W4 damping 0",
-            SpringSystem::cloth(&ClothGrid::lab(0.0)).unwrap(),
+            SpringSystem::cloth(&ClothGrid::lab().with_damping(0.0)).unwrap(),
             1.0 / 60.0,
         ),
         (
             "W4 damping 0.2",
-            SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap(),
+            SpringSystem::cloth(&ClothGrid::lab()).unwrap(),
             1.0 / 60.0,
         ),
         ("W5 k=1e6, h=1/30", w5(1e6), 1.0 / 30.0),
@@ -427,7 +428,7 @@ fn integrators_table() {
 }
 
 fn w5(stiffness: f64) -> SpringSystem {
-    let mut grid = ClothGrid::lab(0.0);
+    let mut grid = ClothGrid::lab().with_damping(0.0);
     grid.material.stiffness = stiffness;
     SpringSystem::cloth(&grid).unwrap()
 }

@@ -8,17 +8,17 @@ use std::hint::black_box;
 use std::time::{Duration, Instant};
 
 fn w4(damping: f64) -> SpringSystem {
-    SpringSystem::cloth(&ClothGrid::lab(damping)).unwrap()
+    SpringSystem::cloth(&ClothGrid::lab().with_damping(damping)).unwrap()
 }
 
 fn w5(stiffness: f64) -> SpringSystem {
-    let mut grid = ClothGrid::lab(0.0);
+    let mut grid = ClothGrid::lab().with_damping(0.0);
     grid.material.stiffness = stiffness;
     SpringSystem::cloth(&grid).unwrap()
 }
 
 fn w6() -> SpringSystem {
-    SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02, 0.0)).unwrap()
+    SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02).with_damping(0.0)).unwrap()
 }
 
 fn settings(solver: LinearSolverChoice) -> NewtonSettings {

@@ -31,20 +31,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         })
     };
     let (grid, integrator) = match mode {
-        "direct0" => (ClothGrid::lab(0.0), newton(LinearSolverChoice::Direct)),
-        "direct02" => (ClothGrid::lab(0.2), newton(LinearSolverChoice::Direct)),
-        "pcg0" => (ClothGrid::lab(0.0), newton(LinearSolverChoice::Pcg)),
-        "pcg02" => (ClothGrid::lab(0.2), newton(LinearSolverChoice::Pcg)),
+        "direct0" => (
+            ClothGrid::lab().with_damping(0.0),
+            newton(LinearSolverChoice::Direct),
+        ),
+        "direct02" => (ClothGrid::lab(), newton(LinearSolverChoice::Direct)),
+        "pcg0" => (
+            ClothGrid::lab().with_damping(0.0),
+            newton(LinearSolverChoice::Pcg),
+        ),
+        "pcg02" => (ClothGrid::lab(), newton(LinearSolverChoice::Pcg)),
         "verlet0" => (
-            ClothGrid::lab(0.0),
+            ClothGrid::lab().with_damping(0.0),
             Integrator::VelocityVerlet { substeps: None },
         ),
         "verlet02" => (
-            ClothGrid::lab(0.2),
+            ClothGrid::lab(),
             Integrator::VelocityVerlet { substeps: None },
         ),
         "w6pcg" => (
-            ClothGrid::lab_sized(101, 0.02, 0.0),
+            ClothGrid::lab_sized(101, 0.02).with_damping(0.0),
             newton(LinearSolverChoice::Pcg),
         ),
         other => return Err(format!("unknown mode {other:?}").into()),

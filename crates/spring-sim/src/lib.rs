@@ -32,7 +32,7 @@
 //!
 //! ```
 //! use sinew_spring_sim::{ClothGrid, Integrator, Simulation, SpringSystem};
-//! let cloth = SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap();
+//! let cloth = SpringSystem::cloth(&ClothGrid::lab()).unwrap();
 //! let mut sim = Simulation::new(cloth, Integrator::default()).unwrap();
 //! let report = sim.step(1.0 / 60.0).unwrap();
 //! assert!(report.residual <= report.tolerance);

@@ -94,13 +94,74 @@ pub struct Material {
 }
 
 impl Default for Material {
-    /// The lab's material: stiffness 100, damping 0.2, gravity 0.3 along -y.
+    /// The lab's material, [`Material::lab`]. It stays the default because scene files
+    /// were written for the lab: a scene that gives only some fields of a material gets
+    /// the lab's values for the rest. Code should say which it means with a named
+    /// constructor.
     fn default() -> Self {
+        Self::lab()
+    }
+}
+
+impl Material {
+    /// Gravity at the Earth's surface, 9.81 along -y (units of metres and seconds).
+    pub const EARTH_GRAVITY: DVec3 = DVec3::new(0.0, -9.81, 0.0);
+
+    /// The lab's material: stiffness 100, damping 0.2, and the lab's weak gravity 0.3
+    /// along -y (in the lab's units, not metres per second squared).
+    ///
+    /// ```
+    /// use sinew_spring_sim::{DVec3, Material};
+    /// let lab = Material::lab();
+    /// assert_eq!((lab.stiffness, lab.damping), (100.0, 0.2));
+    /// assert_eq!(lab.gravity, DVec3::new(0.0, -0.3, 0.0));
+    /// // The other constructors change one thing each.
+    /// assert_eq!(Material::earth().gravity, Material::EARTH_GRAVITY);
+    /// assert_eq!(Material::lab().undamped().damping, 0.0);
+    /// assert_eq!(Material::lab().with_gravity(DVec3::ZERO).gravity, DVec3::ZERO);
+    /// ```
+    #[must_use]
+    pub const fn lab() -> Self {
         Self {
             stiffness: 100.0,
             damping: 0.2,
             gravity: DVec3::new(0.0, -0.3, 0.0),
         }
+    }
+
+    /// The lab's stiffness and damping under Earth's gravity ([`Material::EARTH_GRAVITY`]).
+    #[must_use]
+    pub const fn earth() -> Self {
+        Self::lab().with_gravity(Self::EARTH_GRAVITY)
+    }
+
+    /// The same material with another gravity acceleration.
+    #[must_use]
+    pub const fn with_gravity(mut self, gravity: DVec3) -> Self {
+        self.gravity = gravity;
+        self
+    }
+
+    /// The same material with another axial damping coefficient (validated when the
+    /// system is built: it must be finite and non-negative).
+    #[must_use]
+    pub const fn with_damping(mut self, damping: f64) -> Self {
+        self.damping = damping;
+        self
+    }
+
+    /// The same material without damping: energy is then conserved by the exact flow,
+    /// which makes the integrators' own dissipation measurable.
+    #[must_use]
+    pub const fn undamped(self) -> Self {
+        self.with_damping(0.0)
+    }
+
+    /// The same material with another default spring stiffness.
+    #[must_use]
+    pub const fn with_stiffness(mut self, stiffness: f64) -> Self {
+        self.stiffness = stiffness;
+        self
     }
 }
 
@@ -586,9 +647,10 @@ pub struct ClothGrid {
 }
 
 impl Default for ClothGrid {
-    /// The lab cloth with the lab's damping 0.2 ([`ClothGrid::lab`]).
+    /// The lab cloth, [`ClothGrid::lab`] (the default of scene files that give only
+    /// some of its fields).
     fn default() -> Self {
-        Self::lab(0.2)
+        Self::lab()
     }
 }
 
@@ -627,28 +689,53 @@ impl ClothGrid {
         springs
     }
 
-    /// The lab cloth W4: 11 x 11, spacing 0.2, origin (0, 1.5, -1), mass 1, stiffness
-    /// 100, damping `damping`, gravity 0.3 along -y, corners (0, 0) and (0, 10) fixed.
+    /// The lab cloth W4: 11 x 11, spacing 0.2, origin (0, 1.5, -1), mass 1, the lab's
+    /// material ([`Material::lab`]: stiffness 100, damping 0.2, gravity 0.3 along -y),
+    /// corners (0, 0) and (0, 10) fixed.
+    ///
+    /// ```
+    /// use sinew_spring_sim::{ClothGrid, Material};
+    /// // The lab cloth without damping, and a finer 21 x 21 sheet of the same size under
+    /// // Earth's gravity.
+    /// let undamped = ClothGrid::lab().with_damping(0.0);
+    /// assert_eq!(undamped.material.damping, 0.0);
+    /// let fine = ClothGrid::lab_sized(21, 0.1).with_material(Material::earth());
+    /// let system = fine.build().unwrap();
+    /// assert_eq!(system.len(), 21 * 21);
+    /// assert_eq!(system.fixed().iter().filter(|&&f| f).count(), 2);
+    /// ```
     #[must_use]
-    pub fn lab(damping: f64) -> Self {
-        Self::lab_sized(11, 0.2, damping)
+    pub fn lab() -> Self {
+        Self::lab_sized(11, 0.2)
     }
 
     /// W4's pattern with `size` particles per side and the given spacing, placed like the
-    /// lab (origin (0, 1.5, -1)), corners (0, 0) and (0, size - 1) fixed.
+    /// lab (origin (0, 1.5, -1)), mass 1 per particle, the lab's material, corners (0, 0)
+    /// and (0, size - 1) fixed.
     #[must_use]
-    pub fn lab_sized(size: usize, spacing: f64, damping: f64) -> Self {
+    pub fn lab_sized(size: usize, spacing: f64) -> Self {
         Self {
             size,
             spacing,
             origin: DVec3::new(0.0, 1.5, -1.0),
             mass: 1.0,
-            material: Material {
-                damping,
-                ..Material::default()
-            },
+            material: Material::lab(),
             fixed: vec![(0, 0), (0, size.saturating_sub(1))],
         }
+    }
+
+    /// The same grid with another damping coefficient (the rest of the material kept).
+    #[must_use]
+    pub fn with_damping(mut self, damping: f64) -> Self {
+        self.material.damping = damping;
+        self
+    }
+
+    /// The same grid with another material.
+    #[must_use]
+    pub fn with_material(mut self, material: Material) -> Self {
+        self.material = material;
+        self
     }
 
     /// Builds the system.

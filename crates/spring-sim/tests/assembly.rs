@@ -8,7 +8,7 @@ use sinew_spring_sim::*;
 
 #[test]
 fn sparse_assembly_equals_the_dense_sum_of_blocks() {
-    let mut grid = ClothGrid::lab_sized(4, 0.2, 0.7);
+    let mut grid = ClothGrid::lab_sized(4, 0.2).with_damping(0.7);
     grid.fixed = vec![(0, 0), (2, 3)];
     let mut system = SpringSystem::cloth(&grid).unwrap();
     // Move particles so springs are stretched and compressed.

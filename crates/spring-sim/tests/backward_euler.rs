@@ -76,7 +76,7 @@ fn single_spring_matches_the_closed_form_recurrence() {
 /// line search really had to backtrack somewhere.
 #[test]
 fn objective_never_increases() {
-    let mut system = SpringSystem::cloth(&ClothGrid::lab_sized(6, 0.2, 0.5)).unwrap();
+    let mut system = SpringSystem::cloth(&ClothGrid::lab_sized(6, 0.2).with_damping(0.5)).unwrap();
     let mut seed = 12345u64;
     let mut rnd = || {
         seed = seed
@@ -167,7 +167,7 @@ fn potential(system: &SpringSystem, x: &[DVec3]) -> f64 {
 /// saddle).
 #[test]
 fn heavily_damped_large_steps_settle_to_the_static_equilibrium() {
-    let mut grid = ClothGrid::lab_sized(5, 0.2, 20.0);
+    let mut grid = ClothGrid::lab_sized(5, 0.2).with_damping(20.0);
     grid.material.gravity = DVec3::new(0.0, -9.81, 0.0);
     let system = SpringSystem::cloth(&grid).unwrap();
     let mut sim = Simulation::new(
@@ -216,7 +216,7 @@ fn heavily_damped_large_steps_settle_to_the_static_equilibrium() {
 /// Direct and PCG Newton give the same trajectory to within the solve tolerance.
 #[test]
 fn direct_and_pcg_agree() {
-    let system = SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap();
+    let system = SpringSystem::cloth(&ClothGrid::lab()).unwrap();
     let run = |solver| {
         let mut sim = Simulation::new(
             system.clone(),
@@ -247,7 +247,7 @@ fn direct_and_pcg_agree() {
 #[test]
 fn stiff_cloth_is_stable_at_large_steps() {
     for stiffness in [1e4, 1e6] {
-        let mut grid = ClothGrid::lab(0.0);
+        let mut grid = ClothGrid::lab().with_damping(0.0);
         grid.material.stiffness = stiffness;
         let system = SpringSystem::cloth(&grid).unwrap();
         let mut sim = Simulation::new(system, Integrator::default()).unwrap();
@@ -271,7 +271,7 @@ fn stiff_cloth_is_stable_at_large_steps() {
 #[test]
 fn damped_energy_never_rises() {
     for (stiffness, h) in [(100.0, 1.0 / 60.0), (1e4, 1.0 / 30.0)] {
-        let mut grid = ClothGrid::lab(0.2);
+        let mut grid = ClothGrid::lab();
         grid.material.stiffness = stiffness;
         let system = SpringSystem::cloth(&grid).unwrap();
         let mut sim = Simulation::new(system, Integrator::default()).unwrap();
@@ -304,7 +304,7 @@ fn system_at_rest_is_already_solved() {
         }],
         Material {
             damping: 0.0,
-            ..Material::default()
+            ..Material::lab()
         },
     )
     .unwrap();
@@ -318,7 +318,7 @@ fn system_at_rest_is_already_solved() {
 /// NaN; the flawed reference runs and is labelled as such.
 #[test]
 fn explicit_blowup_is_reported_and_undone() {
-    let mut grid = ClothGrid::lab(0.0);
+    let mut grid = ClothGrid::lab().with_damping(0.0);
     grid.material.stiffness = 1e6;
     let system = SpringSystem::cloth(&grid).unwrap();
     let mut sim =
@@ -349,7 +349,7 @@ fn explicit_blowup_is_reported_and_undone() {
 /// The run metrics count what happened: steps, iterations, energies, divergence.
 #[test]
 fn run_metrics_report_the_run() {
-    let system = SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap();
+    let system = SpringSystem::cloth(&ClothGrid::lab()).unwrap();
     let mut sim = Simulation::new(system.clone(), Integrator::default()).unwrap();
     let m = run(&mut sim, 1.0 / 60.0, 20).unwrap();
     assert_eq!(m.steps, 20);
@@ -361,7 +361,7 @@ fn run_metrics_report_the_run() {
     assert_eq!(m.energy_end, sim.system().energies().total());
     assert!(m.energy_increase_max <= 1e-9);
     assert!(m.residual_max <= 1e-9 * 3600.0);
-    let mut grid = ClothGrid::lab(0.0);
+    let mut grid = ClothGrid::lab().with_damping(0.0);
     grid.material.stiffness = 1e6;
     let stiff = SpringSystem::cloth(&grid).unwrap();
     let mut explicit = Simulation::new(stiff, Integrator::SymplecticEuler { substeps: 1 }).unwrap();
@@ -379,7 +379,7 @@ fn run_metrics_report_the_run() {
 /// and `g` still never rises.
 #[test]
 fn stretched_stiff_sheet_converges_within_the_default_cap() {
-    let mut grid = ClothGrid::lab(0.0);
+    let mut grid = ClothGrid::lab().with_damping(0.0);
     grid.material.stiffness = 1e7;
     let mut system = SpringSystem::cloth(&grid).unwrap();
     let n = system.len() as f64;
@@ -411,7 +411,7 @@ fn stretched_stiff_sheet_converges_within_the_default_cap() {
 /// the default cap; `g` still never rises and the softened matrix was used.
 #[test]
 fn compressed_sheet_converges_within_the_default_cap() {
-    let mut grid = ClothGrid::lab(0.0);
+    let mut grid = ClothGrid::lab().with_damping(0.0);
     grid.material.stiffness = 1e3;
     let mut system = SpringSystem::cloth(&grid).unwrap();
     let n = system.len() as f64;

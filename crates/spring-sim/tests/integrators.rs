@@ -7,7 +7,7 @@ use sinew_math::DVec3;
 use sinew_spring_sim::*;
 
 fn cloth(stiffness: f64, damping: f64) -> SpringSystem {
-    let mut grid = ClothGrid::lab(damping);
+    let mut grid = ClothGrid::lab().with_damping(damping);
     grid.material.stiffness = stiffness;
     SpringSystem::cloth(&grid).unwrap()
 }
@@ -119,7 +119,7 @@ fn lanczos_estimate_matches_the_dense_eigenvalue() {
                 stiffness: Some(20.0),
             },
         ],
-        Material::default(),
+        Material::lab(),
     )
     .unwrap();
     systems.push(rope);
@@ -299,7 +299,7 @@ fn midpoint_conserves_the_energy_of_linear_springs() {
         .collect();
     let material = Material {
         damping: 0.0,
-        ..Material::default()
+        ..Material::lab()
     };
     let system = SpringSystem::new(&particles, &springs, material).unwrap();
     let e0 = system.energies().total();

@@ -39,7 +39,7 @@ struct Case {
 
 fn case(seed: u64) -> Case {
     let mut rng = Rng(seed);
-    let mut system = SpringSystem::cloth(&ClothGrid::lab_sized(4, 0.2, 0.3)).unwrap();
+    let mut system = SpringSystem::cloth(&ClothGrid::lab_sized(4, 0.2).with_damping(0.3)).unwrap();
     let fixed = system.fixed().to_vec();
     let x: Vec<DVec3> = system
         .positions()
@@ -344,7 +344,7 @@ fn a_tiny_change_keeps_its_relative_accuracy() {
 fn the_sum_of_terms_is_the_incremental_potential_on_the_lab_cloth() {
     // An independent formula of the objective: the inertia and gravity of the free
     // particles, every spring's energy, the damping along the directions at x_n.
-    let mut system = SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap();
+    let mut system = SpringSystem::cloth(&ClothGrid::lab()).unwrap();
     let mut rng = Rng(2024);
     let fixed = system.fixed().to_vec();
     let xn: Vec<DVec3> = system

@@ -19,7 +19,7 @@ fn err(particles: &[Particle], springs: &[SpringSpec], material: Material) -> St
 
 #[test]
 fn validation_errors_name_the_item() {
-    let m = Material::default();
+    let m = Material::lab();
     let ok = [SpringSpec::between(0, 1)];
     assert!(SpringSystem::new(&two(), &ok, m).is_ok());
 
@@ -121,7 +121,7 @@ fn validation_errors_name_the_item() {
 
 #[test]
 fn bad_time_steps_are_rejected_for_every_integrator() {
-    let system = SpringSystem::cloth(&ClothGrid::lab_sized(3, 0.2, 0.2)).unwrap();
+    let system = SpringSystem::cloth(&ClothGrid::lab_sized(3, 0.2)).unwrap();
     for integrator in [
         Integrator::default(),
         Integrator::SymplecticEuler { substeps: 4 },
@@ -140,7 +140,7 @@ fn bad_time_steps_are_rejected_for_every_integrator() {
 
 #[test]
 fn lab_cloth_matches_the_workload() {
-    let s = SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap();
+    let s = SpringSystem::cloth(&ClothGrid::lab()).unwrap();
     assert_eq!(s.len(), 121);
     // Per grid: 2 n (n-1) structural, 2 n (n-2) bending, 2 (n-1)^2 shear.
     assert_eq!(s.springs().len(), 2 * 11 * 10 + 2 * 11 * 9 + 2 * 10 * 10);
@@ -159,14 +159,14 @@ fn lab_cloth_matches_the_workload() {
         start: DVec3::ZERO,
         direction: DVec3::X,
         mass: 1.0,
-        material: Material::default(),
+        material: Material::lab(),
     })
     .unwrap();
     assert_eq!((rope.len(), rope.springs().len()), (5, 4));
     assert!(rope.fixed()[0]);
     let bad = ClothGrid {
         spacing: -1.0,
-        ..ClothGrid::lab(0.0)
+        ..ClothGrid::lab().with_damping(0.0)
     };
     assert!(bad.build().unwrap_err().to_string().contains("spacing"));
 }

@@ -51,7 +51,7 @@ fn workloads(plan: &Plan) -> Result<Vec<Workload>, String> {
     specs
         .iter()
         .map(|&(name, size, spacing, damping, stiffness, dt, steps)| {
-            let mut grid = ClothGrid::lab_sized(size, spacing, damping);
+            let mut grid = ClothGrid::lab_sized(size, spacing).with_damping(damping);
             grid.material.stiffness = stiffness;
             let system = grid.build().map_err(|e| format!("{name}: {e}"))?;
             Ok(Workload {

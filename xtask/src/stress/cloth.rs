@@ -232,7 +232,7 @@ pub fn lab_cloth(grid: usize, stiffness: f64) -> Result<SpringSystem, String> {
     if grid < 2 {
         return Err(format!("grid {grid}: at least 2 particles per side"));
     }
-    let mut spec = ClothGrid::lab_sized(grid, SHEET_WIDTH / (grid - 1) as f64, 0.0);
+    let mut spec = ClothGrid::lab_sized(grid, SHEET_WIDTH / (grid - 1) as f64).with_damping(0.0);
     spec.material.stiffness = stiffness;
     SpringSystem::cloth(&spec).map_err(|e| e.to_string())
 }
