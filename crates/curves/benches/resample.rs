@@ -15,8 +15,8 @@
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use kurbo::{CubicBez, ParamCurveArclen};
 use sinew_curves::{
-    ArcLengthTable, ArcParam, Epicycloid, FnCurve, ParamCurve, Polyline, Samples, resample_evenly,
-    sample_uniform,
+    ArcLengthTable, ArcParam, Ends, Epicycloid, FnCurve, ParamCurve, Polyline, Samples,
+    resample_evenly, sample_uniform,
 };
 use sinew_math::DVec3;
 use std::hint::black_box;
@@ -42,7 +42,7 @@ fn exact_arc_rel_dev(f: &Epicycloid, s: &Samples) -> f64 {
 
 fn dense_polyline(f: &Epicycloid, m: usize, n: usize) -> Samples {
     let dense = sample_uniform(f, m).unwrap();
-    let poly = Polyline::new(dense.points, true).unwrap();
+    let poly = Polyline::new(dense.points, Ends::Closed).unwrap();
     let mut s = resample_evenly(&poly, &poly, n).unwrap();
     // Map back to flower parameters: polyline vertex i is the flower at 2 pi i / m.
     for t in &mut s.params {
@@ -150,7 +150,7 @@ fn inverse(c: &mut Criterion) {
             acc
         })
     });
-    let bez = FnCurve::with_derivative(0.0, 1.0, false, cubic, cubic_derivative).unwrap();
+    let bez = FnCurve::with_derivative(0.0, 1.0, Ends::Open, cubic, cubic_derivative).unwrap();
     let btable = ArcLengthTable::new(&bez, 1e-9).unwrap();
     let blen = btable.length();
     g.bench_function("sinew_cubic_1e-9_x1000", |b| {

@@ -29,7 +29,7 @@ pub struct Epicycloid {
 impl Epicycloid {
     /// An epicycloid with `petals >= 1` cusps and rolling radius `r > 0` (fixed circle
     /// radius `R = petals * r`). Errors name `petals` or `r`.
-    pub fn new(petals: u32, r: f64, plane: Plane) -> Result<Self, CurveError> {
+    pub fn with_petals(petals: u32, r: f64, plane: Plane) -> Result<Self, CurveError> {
         if petals == 0 {
             return Err(CurveError::invalid("petals", "must be at least 1, got 0"));
         }

@@ -17,6 +17,16 @@ use crate::error::{CurveError, finite, positive};
 use crate::traits::{ParamCurve, ParamCurveDeriv};
 use sinew_math::DVec3;
 
+/// Whether a curve's ends meet: a closed curve's resampling spaces the last point one
+/// step before the first (the end is the start), an open curve's includes both ends.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ends {
+    /// The ends are distinct points (a stroke, a path).
+    Open,
+    /// `position(t1)` is `position(t0)` (a loop, a flower).
+    Closed,
+}
+
 /// The derivative type of an [`FnCurve`] made without one (never called).
 pub type NoDerivative = fn(f64) -> DVec3;
 
@@ -73,7 +83,17 @@ impl<P: Fn(f64) -> DVec3> FnCurve<P> {
     /// A curve `position(t)`, `t` in `[t0, t1]`, differentiated numerically (see the
     /// module docs for the accuracy this allows). Errors name `t0`, `t1` or `position`
     /// (not finite at the ends or the middle of the domain).
-    pub fn new(t0: f64, t1: f64, closed: bool, position: P) -> Result<Self, CurveError> {
+    ///
+    /// ```
+    /// use sinew_curves::{ArcLengthTable, ArcParam, DVec3, Ends, FnCurve};
+    /// use std::f64::consts::TAU;
+    /// // A unit circle: length 2 pi, to far better than the default tolerance.
+    /// let circle = FnCurve::new(0.0, TAU, Ends::Closed, |t| DVec3::new(t.cos(), t.sin(), 0.0))
+    ///     .unwrap();
+    /// let table = ArcLengthTable::new(&circle, 1e-9).unwrap();
+    /// assert!((table.length() - TAU).abs() < 1e-9);
+    /// ```
+    pub fn new(t0: f64, t1: f64, ends: Ends, position: P) -> Result<Self, CurveError> {
         check_domain(t0, t1)?;
         check_position(&position, t0, t1)?;
         Ok(Self {
@@ -81,7 +101,7 @@ impl<P: Fn(f64) -> DVec3> FnCurve<P> {
             derivative: None,
             t0,
             t1,
-            closed,
+            closed: ends == Ends::Closed,
             step: (t1 - t0) / 2048.0,
             breaks: Vec::new(),
         })
@@ -93,7 +113,7 @@ impl<P: Fn(f64) -> DVec3, D: Fn(f64) -> DVec3> FnCurve<P, D> {
     pub fn with_derivative(
         t0: f64,
         t1: f64,
-        closed: bool,
+        ends: Ends,
         position: P,
         derivative: D,
     ) -> Result<Self, CurveError> {
@@ -106,7 +126,7 @@ impl<P: Fn(f64) -> DVec3, D: Fn(f64) -> DVec3> FnCurve<P, D> {
             derivative: Some(derivative),
             t0,
             t1,
-            closed,
+            closed: ends == Ends::Closed,
             step: (t1 - t0) / 2048.0,
             breaks: Vec::new(),
         })

@@ -44,7 +44,7 @@ mod traits;
 pub use arclen::{ArcLengthTable, DEGREE, MAX_PANELS};
 pub use epicycloid::Epicycloid;
 pub use error::CurveError;
-pub use fn_curve::{FnCurve, NoDerivative};
+pub use fn_curve::{Ends, FnCurve, NoDerivative};
 pub use plane::{Plane, PlaneAxes};
 pub use polyline::Polyline;
 pub use resample::{

@@ -7,6 +7,7 @@
 //! of segment lengths), so a polyline is its own [`ArcParam`].
 
 use crate::error::CurveError;
+use crate::fn_curve::Ends;
 use crate::traits::{ArcParam, ParamCurve, ParamCurveDeriv};
 use sinew_math::DVec3;
 
@@ -20,10 +21,21 @@ pub struct Polyline {
 }
 
 impl Polyline {
-    /// A polyline through `points` (at least 2, all finite). A closed polyline gets a
-    /// closing segment from the last point to the first. Errors name `points` or
-    /// `points[i]`. Repeated points are allowed (a zero-length segment).
-    pub fn new(points: Vec<DVec3>, closed: bool) -> Result<Self, CurveError> {
+    /// A polyline through `points` (at least 2, all finite). A closed polyline
+    /// ([`Ends::Closed`]) gets a closing segment from the last point to the first. Errors
+    /// name `points` or `points[i]`. Repeated points are allowed (a zero-length segment).
+    ///
+    /// ```
+    /// use sinew_curves::{ArcLengthTable, ArcParam, DVec3, Ends, Polyline};
+    /// let corners = vec![DVec3::ZERO, DVec3::X, DVec3::new(1.0, 1.0, 0.0)];
+    /// let open = Polyline::new(corners.clone(), Ends::Open).unwrap();
+    /// let closed = Polyline::new(corners, Ends::Closed).unwrap();
+    /// let length = |p: &Polyline| ArcLengthTable::new(p, 1e-12).unwrap().length();
+    /// assert!((length(&open) - 2.0).abs() < 1e-12);
+    /// assert!((length(&closed) - (2.0 + 2f64.sqrt())).abs() < 1e-12);
+    /// ```
+    pub fn new(points: Vec<DVec3>, ends: Ends) -> Result<Self, CurveError> {
+        let closed = ends == Ends::Closed;
         if points.len() < 2 {
             return Err(CurveError::invalid(
                 "points",

@@ -27,9 +27,44 @@ pub struct Rose {
 }
 
 impl Rose {
-    /// A rose with integer frequency `k >= 1` and size `a > 0` (the petal length).
-    /// Errors name `k` or `a`.
-    pub fn new(k: u32, a: f64, plane: Plane) -> Result<Self, CurveError> {
+    /// The rose with `petals` petals and size `a > 0` (the petal length): frequency
+    /// `k = petals` for an odd count, `k = petals / 2` for a multiple of four. Other
+    /// counts (2, 6, 10, ...) no rose `r = a cos(k theta)` has; they are an error naming
+    /// `petals`, as is a bad `a` naming `a`. [`Epicycloid::with_petals`] counts the same
+    /// way.
+    ///
+    /// [`Epicycloid::with_petals`]: crate::Epicycloid::with_petals
+    ///
+    /// ```
+    /// use sinew_curves::{Plane, Rose};
+    /// let three = Rose::with_petals(3, 1.0, Plane::default()).unwrap();
+    /// assert_eq!((three.petal_count(), three.k()), (3, 3));
+    /// let four = Rose::with_petals(4, 1.0, Plane::default()).unwrap();
+    /// assert_eq!((four.petal_count(), four.k()), (4, 2));
+    /// let err = Rose::with_petals(6, 1.0, Plane::default()).unwrap_err();
+    /// assert!(err.to_string().contains("petals"));
+    /// ```
+    pub fn with_petals(petals: u32, a: f64, plane: Plane) -> Result<Self, CurveError> {
+        let k = match petals {
+            0 => return Err(CurveError::invalid("petals", "must be at least 1, got 0")),
+            p if p % 2 == 1 => p,
+            p if p % 4 == 0 => p / 2,
+            p => {
+                return Err(CurveError::invalid(
+                    "petals",
+                    format!(
+                        "a rose has an odd number of petals or a multiple of 4 (k or 2k for r = a cos(k theta)), got {p}"
+                    ),
+                ));
+            }
+        };
+        Self::from_frequency(k, a, plane)
+    }
+
+    /// A rose `r = a cos(k theta)` with integer frequency `k >= 1` and size `a > 0` (the
+    /// petal length); it has `k` petals for odd `k` and `2k` for even `k`. Errors name
+    /// `k` or `a`.
+    pub fn from_frequency(k: u32, a: f64, plane: Plane) -> Result<Self, CurveError> {
         if k == 0 {
             return Err(CurveError::invalid("k", "must be at least 1, got 0"));
         }

@@ -8,6 +8,7 @@
 use crate::arclen::ArcLengthTable;
 use crate::epicycloid::Epicycloid;
 use crate::error::CurveError;
+use crate::fn_curve::Ends;
 use crate::plane::{Plane, PlaneAxes};
 use crate::polyline::Polyline;
 use crate::resample::{Samples, resample_by_spacing, resample_evenly, sample_uniform};
@@ -80,16 +81,21 @@ impl CurveSpec {
                 r,
                 center,
                 plane,
-            } => Curve::Epicycloid(Epicycloid::new(*petals, *r, Plane::new(*center, *plane)?)?),
+            } => Curve::Epicycloid(Epicycloid::with_petals(
+                *petals,
+                *r,
+                Plane::new(*center, *plane)?,
+            )?),
             Self::Rose {
                 k,
                 a,
                 center,
                 plane,
-            } => Curve::Rose(Rose::new(*k, *a, Plane::new(*center, *plane)?)?),
-            Self::Polyline { points, closed } => {
-                Curve::Polyline(Polyline::new(points.clone(), *closed)?)
-            }
+            } => Curve::Rose(Rose::from_frequency(*k, *a, Plane::new(*center, *plane)?)?),
+            Self::Polyline { points, closed } => Curve::Polyline(Polyline::new(
+                points.clone(),
+                if *closed { Ends::Closed } else { Ends::Open },
+            )?),
         })
     }
 }

@@ -23,8 +23,8 @@ fn table_or_floor<C: ParamCurveDeriv>(c: &C, tol: f64, length: f64) -> Option<Ar
     }
 }
 use sinew_curves::{
-    ArcLengthTable, ArcParam, Epicycloid, FnCurve, ParamCurve, ParamCurveDeriv, Plane, PlaneAxes,
-    Polyline, Rose, complete_elliptic_e,
+    ArcLengthTable, ArcParam, Ends, Epicycloid, FnCurve, ParamCurve, ParamCurveDeriv, Plane,
+    PlaneAxes, Polyline, Rose, complete_elliptic_e,
 };
 use sinew_math::DVec3;
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
@@ -39,10 +39,10 @@ fn epicycloids() -> Vec<Epicycloid> {
     let mut v = Vec::new();
     for k in [1, 2, 3, 5, 7, 12] {
         for r in [0.1, 0.37, 1.0] {
-            v.push(Epicycloid::new(k, r, Plane::lab()).unwrap());
+            v.push(Epicycloid::with_petals(k, r, Plane::lab()).unwrap());
         }
     }
-    v.push(Epicycloid::new(4, 0.25, tilted_plane()).unwrap());
+    v.push(Epicycloid::with_petals(4, 0.25, tilted_plane()).unwrap());
     v
 }
 
@@ -155,10 +155,10 @@ fn roses() -> Vec<Rose> {
     for k in 1..=8 {
         // Sizes that keep the length of order 1 to 10.
         for a in [0.3, 1.0 / f64::from(k)] {
-            v.push(Rose::new(k, a, Plane::lab()).unwrap());
+            v.push(Rose::from_frequency(k, a, Plane::lab()).unwrap());
         }
     }
-    v.push(Rose::new(3, 0.5, tilted_plane()).unwrap());
+    v.push(Rose::from_frequency(3, 0.5, tilted_plane()).unwrap());
     v
 }
 
@@ -226,7 +226,7 @@ fn polyline_lengths_are_exact() {
             DVec3::new(3.0, 4.0, 0.0),
             DVec3::new(3.0, 4.0, 12.0),
         ],
-        false,
+        Ends::Open,
     )
     .unwrap();
     assert_eq!(p.length(), 17.0);
@@ -235,7 +235,7 @@ fn polyline_lengths_are_exact() {
     assert_eq!(p.param_at(11.0), 1.5);
     assert_eq!(p.param_at(2.5), 0.5);
     assert_eq!(p.breaks(), vec![1.0]);
-    let closed = Polyline::new(p.points().to_vec(), true).unwrap();
+    let closed = Polyline::new(p.points().to_vec(), Ends::Closed).unwrap();
     assert_eq!(closed.length(), 30.0);
     assert_eq!(closed.domain(), (0.0, 3.0));
     // The generic table agrees on a polyline: speed is constant between breaks.
@@ -251,7 +251,7 @@ fn polyline_lengths_are_exact() {
     // A repeated point is a zero-length segment; the inverse skips it.
     let rep = Polyline::new(
         vec![DVec3::ZERO, DVec3::X, DVec3::X, DVec3::new(1.0, 1.0, 0.0)],
-        false,
+        Ends::Open,
     )
     .unwrap();
     assert_eq!(rep.length(), 2.0);
@@ -282,7 +282,7 @@ fn bezier_derivative(t: f64) -> DVec3 {
 
 #[test]
 fn fn_curve_with_derivative_is_within_tolerance() {
-    let c = FnCurve::with_derivative(0.0, 1.0, false, bezier, bezier_derivative).unwrap();
+    let c = FnCurve::with_derivative(0.0, 1.0, Ends::Open, bezier, bezier_derivative).unwrap();
     let reference = simpson(|t| bezier_derivative(t).length(), 0.0, 1.0, 400_000);
     for tol in tolerances() {
         let table = ArcLengthTable::new(&c, tol).unwrap();
@@ -294,7 +294,7 @@ fn fn_curve_with_derivative_is_within_tolerance() {
 #[test]
 fn fn_curve_finite_difference_is_limited_as_documented() {
     let flower = Epicycloid::lab_flower();
-    let c = FnCurve::new(0.0, TAU, true, |t| flower.position(t))
+    let c = FnCurve::new(0.0, TAU, Ends::Closed, |t| flower.position(t))
         .unwrap()
         .with_breaks(flower.breaks())
         .unwrap();
@@ -355,7 +355,7 @@ fn check_relative<C: ParamCurveDeriv + std::fmt::Debug>(
 /// check then added the `2 eps L` of summing the panel lengths. Both now use one sum.
 #[test]
 fn rose_k11_at_1e_12_of_its_length_is_built_and_within() {
-    let c = Rose::new(11, 1.0, Plane::default()).unwrap();
+    let c = Rose::from_frequency(11, 1.0, Plane::default()).unwrap();
     let exact = rose_half_periods(&c);
     check_relative(&c, c.exact_length(), 1.043877434697189e-12, &exact);
 }
@@ -373,8 +373,8 @@ fn flowers_reach_1e_13_of_their_length() {
         } else {
             Plane::lab()
         };
-        let rose = Rose::new(k, size, plane).unwrap();
-        let epi = Epicycloid::new(k, size, plane).unwrap();
+        let rose = Rose::from_frequency(k, size, plane).unwrap();
+        let epi = Epicycloid::with_petals(k, size, plane).unwrap();
         let rose_exact = rose_half_periods(&rose);
         let epi_exact: Vec<(f64, f64)> = grid(0.0, TAU, 97)
             .into_iter()

@@ -1,8 +1,9 @@
 //! Bad input is an `Err` naming the field; scene descriptions build the right curves.
 
 use sinew_curves::{
-    ArcLengthTable, ArcParam, Curve, CurveError, CurveSpec, Epicycloid, FnCurve, ParamCurve, Plane,
-    PlaneAxes, Polyline, Rose, Sampling, resample_by_spacing, resample_evenly, sample_uniform,
+    ArcLengthTable, ArcParam, Curve, CurveError, CurveSpec, Ends, Epicycloid, FnCurve, ParamCurve,
+    Plane, PlaneAxes, Polyline, Rose, Sampling, resample_by_spacing, resample_evenly,
+    sample_uniform,
 };
 use sinew_math::DVec3;
 
@@ -19,17 +20,27 @@ fn field<T: std::fmt::Debug>(r: Result<T, CurveError>) -> String {
 #[test]
 fn bad_curves_name_the_field() {
     let lab = Plane::lab();
-    assert_eq!(field(Epicycloid::new(0, 0.1, lab)), "petals");
-    assert_eq!(field(Epicycloid::new(5, 0.0, lab)), "r");
-    assert_eq!(field(Epicycloid::new(5, -1.0, lab)), "r");
-    assert_eq!(field(Epicycloid::new(5, f64::NAN, lab)), "r");
-    assert_eq!(field(Epicycloid::new(5, f64::INFINITY, lab)), "r");
-    assert_eq!(field(Rose::new(0, 1.0, lab)), "k");
-    assert_eq!(field(Rose::new(3, f64::NAN, lab)), "a");
-    assert_eq!(field(Polyline::new(vec![DVec3::X], false)), "points");
-    assert_eq!(field(Polyline::new(vec![], true)), "points");
+    assert_eq!(field(Epicycloid::with_petals(0, 0.1, lab)), "petals");
+    assert_eq!(field(Epicycloid::with_petals(5, 0.0, lab)), "r");
+    assert_eq!(field(Epicycloid::with_petals(5, -1.0, lab)), "r");
+    assert_eq!(field(Epicycloid::with_petals(5, f64::NAN, lab)), "r");
+    assert_eq!(field(Epicycloid::with_petals(5, f64::INFINITY, lab)), "r");
+    assert_eq!(field(Rose::from_frequency(0, 1.0, lab)), "k");
+    assert_eq!(field(Rose::from_frequency(3, f64::NAN, lab)), "a");
+    // A rose has an odd number of petals or a multiple of four.
+    for petals in [0, 2, 6, 10] {
+        assert_eq!(field(Rose::with_petals(petals, 1.0, lab)), "petals");
+    }
+    for petals in [1, 3, 4, 5, 8, 12] {
+        let rose = Rose::with_petals(petals, 1.0, lab).unwrap();
+        assert_eq!(rose.petal_count(), petals);
+        let epi = Epicycloid::with_petals(petals, 0.1, lab).unwrap();
+        assert_eq!(epi.petals(), petals);
+    }
+    assert_eq!(field(Polyline::new(vec![DVec3::X], Ends::Open)), "points");
+    assert_eq!(field(Polyline::new(vec![], Ends::Closed)), "points");
     assert_eq!(
-        field(Polyline::new(vec![DVec3::X, DVec3::NAN], false)),
+        field(Polyline::new(vec![DVec3::X, DVec3::NAN], Ends::Open)),
         "points[1]"
     );
     assert_eq!(
@@ -46,16 +57,19 @@ fn bad_curves_name_the_field() {
         v: DVec3::Y,
     };
     assert_eq!(field(Plane::new(DVec3::ZERO, long)), "plane.u");
-    assert_eq!(field(FnCurve::new(1.0, 1.0, false, |t| DVec3::X * t)), "t1");
     assert_eq!(
-        field(FnCurve::new(f64::NAN, 1.0, false, |t| DVec3::X * t)),
+        field(FnCurve::new(1.0, 1.0, Ends::Open, |t| DVec3::X * t)),
+        "t1"
+    );
+    assert_eq!(
+        field(FnCurve::new(f64::NAN, 1.0, Ends::Open, |t| DVec3::X * t)),
         "t0"
     );
     assert_eq!(
-        field(FnCurve::new(0.0, 1.0, false, |t| DVec3::X / t)),
+        field(FnCurve::new(0.0, 1.0, Ends::Open, |t| DVec3::X / t)),
         "position"
     );
-    let c = FnCurve::new(0.0, 1.0, false, |t| DVec3::X * t).unwrap();
+    let c = FnCurve::new(0.0, 1.0, Ends::Open, |t| DVec3::X * t).unwrap();
     assert_eq!(field(c.clone().with_breaks(vec![0.5, 0.4])), "breaks[1]");
     assert_eq!(field(c.clone().with_breaks(vec![1.0])), "breaks[0]");
     assert_eq!(field(c.with_step(0.0)), "step");
@@ -77,14 +91,14 @@ fn bad_tolerances_and_counts_name_the_field() {
     let table = ArcLengthTable::new(&f, 1e-9).unwrap();
     assert_eq!(field(resample_evenly(&f, &table, 0)), "n");
     assert_eq!(field(sample_uniform(&f, 0)), "n");
-    let open = Polyline::new(vec![DVec3::ZERO, DVec3::X], false).unwrap();
+    let open = Polyline::new(vec![DVec3::ZERO, DVec3::X], Ends::Open).unwrap();
     assert_eq!(field(resample_evenly(&open, &open, 1)), "n");
     for h in [0.0, -0.1, f64::NAN] {
         assert_eq!(field(resample_by_spacing(&f, &table, h)), "spacing");
     }
     assert_eq!(field(resample_by_spacing(&f, &table, 1e-300)), "spacing");
     // A bad break point reported by a curve.
-    let c = FnCurve::new(0.0, 1.0, false, |t| DVec3::X * t).unwrap();
+    let c = FnCurve::new(0.0, 1.0, Ends::Open, |t| DVec3::X * t).unwrap();
     assert!(ArcLengthTable::new(&c, 1e-9).is_ok());
 }
 
@@ -95,7 +109,7 @@ fn a_kink_inside_a_panel_is_refused_not_silently_wrong() {
     let c = FnCurve::with_derivative(
         0.0,
         1.0,
-        false,
+        Ends::Open,
         |t| DVec3::X * (0.5 * (t - 0.3) * (t - 0.3).abs()),
         |t| DVec3::X * (t - 0.3).abs(),
     )

@@ -5,7 +5,7 @@ mod common;
 
 use common::{grid, tolerances};
 use sinew_curves::{
-    ArcLengthTable, ArcParam, Epicycloid, ParamCurve, Plane, Polyline, resample_by_spacing,
+    ArcLengthTable, ArcParam, Ends, Epicycloid, ParamCurve, Plane, Polyline, resample_by_spacing,
     resample_evenly, sample_uniform,
 };
 use std::f64::consts::TAU;
@@ -142,7 +142,7 @@ fn resampling_an_evenly_resampled_polyline_changes_little() {
     let table = ArcLengthTable::new(&f, 1e-12).unwrap();
     let n = 500;
     let first = resample_evenly(&f, &table, n).unwrap();
-    let poly = Polyline::new(first.points.clone(), true).unwrap();
+    let poly = Polyline::new(first.points.clone(), Ends::Closed).unwrap();
     let second = resample_evenly(&poly, &poly, n).unwrap();
     // Vertex i sits at polyline arc C_i; the new point i at i L'/n. The new point is on
     // the polyline within |C_i - i L'/n| (along it) of vertex i, which bounds the
@@ -197,7 +197,7 @@ fn open_curves_include_both_ends() {
             sinew_math::DVec3::X,
             sinew_math::DVec3::new(1.0, 3.0, 0.0),
         ],
-        false,
+        Ends::Open,
     )
     .unwrap();
     let s = resample_evenly(&p, &p, 5).unwrap();

@@ -4,7 +4,8 @@
 
 use proptest::prelude::*;
 use sinew_curves::{
-    ArcLengthTable, ArcParam, CurveError, Epicycloid, ParamCurve, Polyline, Rose, resample_evenly,
+    ArcLengthTable, ArcParam, CurveError, Ends, Epicycloid, ParamCurve, Polyline, Rose,
+    resample_evenly,
 };
 use sinew_labcheck::bounds::EPS;
 use sinew_labcheck::config;
@@ -230,7 +231,7 @@ proptest! {
         }
         .map_err(|e| TestCaseError::fail(e.to_string()))?;
         let vertices = first.points.clone();
-        let line = Polyline::new(vertices.clone(), true).map_err(|e| TestCaseError::fail(e.to_string()))?;
+        let line = Polyline::new(vertices.clone(), Ends::Closed).map_err(|e| TestCaseError::fail(e.to_string()))?;
         let second = resample_evenly(&line, &line, n).map_err(|e| TestCaseError::fail(e.to_string()))?;
         let poly_length = line.length();
         let scale: f64 = vertices.iter().map(|p| p.length()).fold(0.0, f64::max) + poly_length;
@@ -251,8 +252,11 @@ proptest! {
 /// back onto its vertex, up to the rounding of the cumulative lengths (docs/labcheck.md).
 fn check_fixed_point(points: Vec<DVec3>, closed: bool) -> Result<(), TestCaseError> {
     let n = points.len();
-    let line =
-        Polyline::new(points.clone(), closed).map_err(|e| TestCaseError::fail(e.to_string()))?;
+    let line = Polyline::new(
+        points.clone(),
+        if closed { Ends::Closed } else { Ends::Open },
+    )
+    .map_err(|e| TestCaseError::fail(e.to_string()))?;
     let samples =
         resample_evenly(&line, &line, n).map_err(|e| TestCaseError::fail(e.to_string()))?;
     let scale = points.iter().map(|p| p.length()).fold(0.0, f64::max) + line.length();
@@ -273,7 +277,7 @@ fn check_fixed_point(points: Vec<DVec3>, closed: bool) -> Result<(), TestCaseErr
 #[test]
 fn rose_reference_agrees_with_the_elliptic_closed_form() {
     for k in 1..=12u32 {
-        let rose = Rose::new(k, 0.7, sinew_curves::Plane::default()).expect("valid");
+        let rose = Rose::from_frequency(k, 0.7, sinew_curves::Plane::default()).expect("valid");
         let reference = RoseArcLength::new(k, 0.7);
         let mine = reference.at(rose.domain().1);
         let theirs = rose.exact_length();

@@ -12,7 +12,7 @@
 use super::{Plan, Record, Section, measure, sci};
 use serde_json::json;
 use sinew_curves::{
-    ArcLengthTable, ArcParam, Epicycloid, Polyline, Samples, resample_evenly, sample_uniform,
+    ArcLengthTable, ArcParam, Ends, Epicycloid, Polyline, Samples, resample_evenly, sample_uniform,
 };
 use sinew_math::DVec3;
 use std::f64::consts::TAU;
@@ -48,7 +48,7 @@ fn closed_length(points: &[DVec3]) -> f64 {
 /// `2 pi i / m`, linear in between), so the spacing can be measured exactly.
 fn dense_polyline(flower: &Epicycloid, m: usize, n: usize) -> Result<(Samples, f64), String> {
     let dense = sample_uniform(flower, m).map_err(|e| e.to_string())?;
-    let poly = Polyline::new(dense.points, true).map_err(|e| e.to_string())?;
+    let poly = Polyline::new(dense.points, Ends::Closed).map_err(|e| e.to_string())?;
     let length = closed_length(poly.points());
     let mut s = resample_evenly(&poly, &poly, n).map_err(|e| e.to_string())?;
     for t in &mut s.params {

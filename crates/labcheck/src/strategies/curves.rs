@@ -9,7 +9,7 @@
 
 use super::{direction, log_uniform, point};
 use proptest::prelude::*;
-use sinew_curves::{Epicycloid, Plane, PlaneAxes, Polyline, Rose};
+use sinew_curves::{Ends, Epicycloid, Plane, PlaneAxes, Polyline, Rose};
 use sinew_math::DVec3;
 use std::f64::consts::TAU;
 use std::ops::RangeInclusive;
@@ -34,13 +34,13 @@ pub fn plane() -> impl Strategy<Value = Plane> + Clone {
 /// An epicycloid: 1 to 20 petals, rolling radius log-uniform in `[1e-3, 1e2]`.
 pub fn epicycloid() -> impl Strategy<Value = Epicycloid> + Clone {
     (1u32..=20, log_uniform(-3.0, 2.0), plane())
-        .prop_map(|(petals, r, plane)| Epicycloid::new(petals, r, plane).expect("valid"))
+        .prop_map(|(petals, r, plane)| Epicycloid::with_petals(petals, r, plane).expect("valid"))
 }
 
 /// A rose `r = a cos(k theta)`: `k` from 1 to 12, `a` log-uniform in `[1e-3, 1e2]`.
 pub fn rose() -> impl Strategy<Value = Rose> + Clone {
     (1u32..=12, log_uniform(-3.0, 2.0), plane())
-        .prop_map(|(k, a, plane)| Rose::new(k, a, plane).expect("valid"))
+        .prop_map(|(k, a, plane)| Rose::from_frequency(k, a, plane).expect("valid"))
 }
 
 /// An arc-length tolerance relative to the curve's length: log-uniform in
@@ -66,8 +66,10 @@ pub fn polyline_points(points: RangeInclusive<usize>) -> impl Strategy<Value = V
 
 /// A random polyline of 2 to 64 points, open or closed.
 pub fn polyline() -> impl Strategy<Value = Polyline> {
-    (polyline_points(2..=64), any::<bool>())
-        .prop_map(|(points, closed)| Polyline::new(points, closed).expect("finite points"))
+    (polyline_points(2..=64), any::<bool>()).prop_map(|(points, closed)| {
+        Polyline::new(points, if closed { Ends::Closed } else { Ends::Open })
+            .expect("finite points")
+    })
 }
 
 /// An open polyline whose segments all have the same length `step` (log-uniform in
