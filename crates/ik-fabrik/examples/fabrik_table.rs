@@ -154,7 +154,7 @@ fn main() {
                 let count = targets.len() as f64;
                 println!(
                     "| {name} | {} | {cap} | {mean:.2e} | {max:.2e} | {within}/{} ({:.1}%) | {:.2} ({:.2} + {:.2}) | {:.2} us | {:.2} us |",
-                    mode.as_str(),
+                    mode.name(),
                     considered.len(),
                     100.0 * within as f64 / considered.len() as f64,
                     first.iterations as f64 / count,

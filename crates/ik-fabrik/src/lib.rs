@@ -64,7 +64,7 @@ pub enum FabrikMode {
 impl FabrikMode {
     /// A short lower-case name for tables and metrics.
     #[must_use]
-    pub fn as_str(self) -> &'static str {
+    pub fn name(self) -> &'static str {
         match self {
             Self::Plain => "plain",
             Self::Hybrid => "hybrid",

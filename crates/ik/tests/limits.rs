@@ -146,7 +146,7 @@ fn w7_feasible_targets_are_reached_inside_the_limits() {
             within += usize::from(report.error <= 1e-6);
             restarts += usize::from(report.restarted);
             if report.error > 1e-6 {
-                *missed.entry(report.stop.as_str()).or_insert(0) += 1;
+                *missed.entry(report.stop.name()).or_insert(0) += 1;
             }
         }
         eprintln!(
@@ -195,7 +195,7 @@ fn w7_ball_targets_end_inside_the_limits_and_say_why() {
                 SolveSettings::default(),
                 &what,
             );
-            *stops.entry(report.stop.as_str()).or_insert(0) += 1;
+            *stops.entry(report.stop.name()).or_insert(0) += 1;
             if report.stop == StopReason::Converged {
                 assert!(report.error <= 1e-6, "{what}");
             }

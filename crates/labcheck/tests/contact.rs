@@ -11,7 +11,7 @@ use sinew_labcheck::config;
 use sinew_labcheck::strategies::contact::{AREAL_DENSITY, GRAVITY, contact_case};
 use sinew_math::{DQuat, DVec3};
 use sinew_spring_sim::contact::{Collider, Shape};
-use sinew_spring_sim::{Integrator, NewtonSettings, Simulation, StepError, StopReason};
+use sinew_spring_sim::{Integrator, NewtonSettings, Simulation, StepError, StepStop};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Steps taken and steps refused over all cases of the run (the refusal rate is checked
@@ -103,7 +103,7 @@ proptest! {
                 }
                 Err(e) => return Err(TestCaseError::fail(format!("step {n} refused: {e}"))),
             };
-            prop_assert!(report.stop != StopReason::NonFinite, "step {n}: non-finite");
+            prop_assert!(report.stop != StepStop::NonFinite, "step {n}: non-finite");
             prop_assert!(report.residual.is_finite(), "step {n}: residual {}", report.residual);
             prop_assert!(sim.system().positions().iter().all(|x| x.is_finite()), "step {n}: NaN position");
             prop_assert!(sim.system().velocities().iter().all(|v| v.is_finite()), "step {n}: NaN velocity");

@@ -14,7 +14,7 @@ use sinew_labcheck::strategies::springs::{
     FixedSet, InitialState, SpringCase, fixed_set, initial_state, spring_case, spring_case_with,
 };
 use sinew_spring_sim::{
-    BackwardEuler, LinearSolverChoice, NewtonSettings, SpringSystem, StepReport, StopReason,
+    BackwardEuler, LinearSolverChoice, NewtonSettings, SpringSystem, StepReport, StepStop,
 };
 
 /// The linear solvers: automatic, direct, PCG.
@@ -46,7 +46,7 @@ fn step(
     );
     prop_assert!(report.residual.is_finite(), "residual {}", report.residual);
     prop_assert!(report.energy_after.total().is_finite());
-    prop_assert!(report.stop != StopReason::NonFinite);
+    prop_assert!(report.stop != StepStop::NonFinite);
     Ok(report)
 }
 
@@ -155,7 +155,7 @@ proptest! {
         for n in 0..steps {
             let before = system.clone();
             let report = step(&mut solver, &mut system, case.h)?;
-            if report.stop != StopReason::Converged {
+            if report.stop != StepStop::Converged {
                 continue;
             }
             checked += 1;
@@ -203,7 +203,7 @@ proptest! {
         for n in 0..steps {
             let before = system.clone();
             let report = step(&mut solver, &mut system, case.h)?;
-            let convex = report.stop == StopReason::Converged
+            let convex = report.stop == StepStop::Converged
                 && all_stretched(&system, system.positions());
             if n == 0 {
                 // At least the first step must be in the regime, or the case says nothing.

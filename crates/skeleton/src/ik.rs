@@ -434,7 +434,7 @@ pub enum StopReason {
 impl StopReason {
     /// A short lower-case name for tables and metrics.
     #[must_use]
-    pub fn as_str(self) -> &'static str {
+    pub fn name(self) -> &'static str {
         match self {
             Self::Converged => "converged",
             Self::IterationCap => "iteration_cap",
@@ -447,7 +447,7 @@ impl StopReason {
 
 impl fmt::Display for StopReason {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
+        f.write_str(self.name())
     }
 }
 

@@ -65,7 +65,7 @@ pub use model::{
 };
 pub use newton::{BackwardEuler, InitialGuess, NewtonSettings};
 pub use pattern::HessianPattern;
-pub use report::{AutoReason, IntegratorKind, StepError, StepReport, StopReason};
+pub use report::{AutoReason, IntegratorKind, StepError, StepReport, StepStop};
 /// The vector type positions, velocities and forces are given in, re-exported so a user
 /// of this crate does not also have to depend on sinew-math.
 pub use sinew_math::DVec3;

@@ -41,10 +41,32 @@ pub enum AutoReason {
 }
 
 impl AutoReason {
-    /// A short explanation for reports.
+    /// A short lower-case name for tables and metrics; the reason in a sentence is its
+    /// `Display`.
+    ///
+    /// ```
+    /// use sinew_spring_sim::AutoReason;
+    /// assert_eq!(AutoReason::SubstepCap.name(), "substep_cap");
+    /// assert_eq!(
+    ///     AutoReason::SubstepCap.to_string(),
+    ///     "the stability bound needs more substeps than allowed: BDF2"
+    /// );
+    /// ```
     #[must_use]
-    pub fn describe(self) -> &'static str {
+    pub fn name(self) -> &'static str {
         match self {
+            Self::Settle => "settle",
+            Self::ExplicitCheapest => "explicit_cheapest",
+            Self::ImplicitCheaper => "implicit_cheaper",
+            Self::SubstepCap => "substep_cap",
+        }
+    }
+}
+
+impl std::fmt::Display for AutoReason {
+    /// The reason in a sentence, for reports.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
             Self::Settle => "settling asked for: backward Euler damps to rest",
             Self::ExplicitCheapest => {
                 "velocity Verlet at the stability-bound substep count is the cheapest stable choice"
@@ -53,7 +75,7 @@ impl AutoReason {
                 "the substeps the stability bound needs cost more than an implicit step: BDF2"
             }
             Self::SubstepCap => "the stability bound needs more substeps than allowed: BDF2",
-        }
+        })
     }
 }
 
@@ -72,10 +94,11 @@ impl IntegratorKind {
     }
 }
 
-/// Why a step's solve stopped.
+/// Why a step's solve stopped. (The IK solvers' reason is a different type,
+/// `sinew_skeleton::ik::StopReason`.)
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
-pub enum StopReason {
+pub enum StepStop {
     /// `|grad g|_inf` reached the tolerance.
     Converged,
     /// The iteration cap was reached first.
@@ -105,7 +128,7 @@ pub struct StepReport {
     /// Step halvings in the line searches.
     pub backtracks: usize,
     /// Why the solve stopped.
-    pub stop: StopReason,
+    pub stop: StepStop,
     /// The linear solver used for this step.
     pub linear_solver: Option<LinearSolverKind>,
     /// Total PCG iterations (also counts PCG used as a fallback).
@@ -147,7 +170,7 @@ impl StepReport {
             residual: 0.0,
             tolerance: 0.0,
             backtracks: 0,
-            stop: StopReason::FixedWork,
+            stop: StepStop::FixedWork,
             linear_solver: None,
             linear_iterations: 0,
             shifted_factorizations: 0,

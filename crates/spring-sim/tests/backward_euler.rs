@@ -54,7 +54,7 @@ fn single_spring_matches_the_closed_form_recurrence() {
         let mut min_len = f64::INFINITY;
         for _ in 0..200 {
             let report = sim.step(h).unwrap();
-            assert_eq!(report.stop, StopReason::Converged);
+            assert_eq!(report.stop, StepStop::Converged);
             let s_new = (m / (h * h) * (s + h * v) + k * rest + m * g + c / h * s)
                 / (m / (h * h) + k + c / h);
             v = (s_new - s) / h;
@@ -105,7 +105,7 @@ fn objective_never_increases() {
         let mut sim = Simulation::new(system.clone(), Integrator::BackwardEuler(s)).unwrap();
         for _ in 0..10 {
             let report = sim.step(0.5).unwrap();
-            assert_eq!(report.stop, StopReason::Converged);
+            assert_eq!(report.stop, StepStop::Converged);
             total_backtracks += report.backtracks;
             let trace = sim.backward_euler().unwrap().objective_trace();
             assert_eq!(trace.len(), report.iterations + 1);
@@ -253,7 +253,7 @@ fn stiff_cloth_is_stable_at_large_steps() {
         let mut sim = Simulation::new(system, Integrator::default()).unwrap();
         for _ in 0..30 {
             let report = sim.step(1.0 / 30.0).unwrap();
-            assert_eq!(report.stop, StopReason::Converged);
+            assert_eq!(report.stop, StepStop::Converged);
             assert!(report.residual <= report.tolerance);
             assert!(report.energy_after.total().is_finite());
         }
@@ -397,7 +397,7 @@ fn stretched_stiff_sheet_converges_within_the_default_cap() {
     };
     let mut be = BackwardEuler::new(&system, settings).unwrap();
     let report = be.step(&mut system, 1.0 / 60.0).unwrap();
-    assert_eq!(report.stop, StopReason::Converged, "{report:?}");
+    assert_eq!(report.stop, StepStop::Converged, "{report:?}");
     assert!(report.residual <= report.tolerance);
     let trace = be.objective_trace();
     assert!(trace.windows(2).all(|w| w[1] <= w[0]), "g rose: {trace:?}");
@@ -430,7 +430,7 @@ fn compressed_sheet_converges_within_the_default_cap() {
     };
     let mut be = BackwardEuler::new(&system, settings).unwrap();
     let report = be.step(&mut system, 1.0 / 15.0).unwrap();
-    assert_eq!(report.stop, StopReason::Converged, "{report:?}");
+    assert_eq!(report.stop, StepStop::Converged, "{report:?}");
     assert!(report.residual <= report.tolerance);
     assert!(report.exact_hessian_iterations > 0, "{report:?}");
     // g evaluated directly rounds at about 1e-16 of its terms; the line search decides

@@ -19,7 +19,7 @@ use sinew_spring_sim::metrics::DIVERGENCE_RADIUS;
 use sinew_spring_sim::stability::StabilityBound;
 use sinew_spring_sim::{
     AutoSettings, ClothGrid, Integrator, LinearSolverChoice, NewtonSettings, Simulation,
-    SpringSystem, StopReason,
+    SpringSystem, StepStop,
 };
 use std::time::Instant;
 
@@ -209,7 +209,7 @@ fn simulate(w: &Workload, integrator: Integrator) -> Result<Run, String> {
         run.backtracks += report.backtracks;
         if matches!(
             report.stop,
-            StopReason::IterationCap | StopReason::LineSearchStalled
+            StepStop::IterationCap | StepStop::LineSearchStalled
         ) {
             run.unconverged_steps += 1;
         }

@@ -100,7 +100,7 @@ fn solve_all(
             .map_err(|e| format!("{}: {e}", solver.name()))?;
         out.iterations += report.iterations;
         if check {
-            *out.stops.entry(report.stop.as_str()).or_insert(0) += 1;
+            *out.stops.entry(report.stop.name()).or_insert(0) += 1;
             out.limit_violation_max = out
                 .limit_violation_max
                 .max(chain_limit_violation(skeleton, chain, &pose));

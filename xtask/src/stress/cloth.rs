@@ -12,7 +12,7 @@ use sinew_labcheck::reference::springs::{
 use sinew_math::DVec3;
 use sinew_spring_sim::{
     ClothGrid, Integrator, NewtonSettings, Simulation, SpringSystem, StepError, StepReport,
-    StopReason, metrics::DIVERGENCE_RADIUS,
+    StepStop, metrics::DIVERGENCE_RADIUS,
 };
 use std::time::Instant;
 
@@ -462,9 +462,9 @@ pub fn run_case(case: &ClothCase) -> ClothOutcome {
         let rise = (report.energy_after.total() - report.energy_before.total()) / energy_scale;
         out.energy_increase_max = out.energy_increase_max.max(rise);
         match report.stop {
-            StopReason::Converged => {}
-            StopReason::IterationCap | StopReason::LineSearchStalled => {
-                if report.stop == StopReason::IterationCap {
+            StepStop::Converged => {}
+            StepStop::IterationCap | StepStop::LineSearchStalled => {
+                if report.stop == StepStop::IterationCap {
                     out.cap_steps += 1;
                 } else {
                     out.stalled_steps += 1;
@@ -747,7 +747,7 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
         out.steps_run += 1;
         out.iterations_max = out.iterations_max.max(report.iterations);
         let positions = sim.system().positions();
-        if report.stop == StopReason::NonFinite
+        if report.stop == StepStop::NonFinite
             || !report.residual.is_finite()
             || positions.iter().any(|x| !x.is_finite())
             || sim.system().velocities().iter().any(|v| !v.is_finite())

@@ -76,8 +76,7 @@ fn ik_status(o: &IkOutcome) -> &'static str {
 }
 
 fn ik_stop(o: &IkOutcome) -> String {
-    o.stop
-        .map_or_else(|| "-".into(), |s| s.as_str().to_string())
+    o.stop.map_or_else(|| "-".into(), |s| s.name().to_string())
 }
 
 /// The console report.

@@ -173,7 +173,7 @@ impl TaskSpec for ClothTask {
         let start = sim.system().clone();
         let one_second = self.steps_to_one_second();
         let mut at_one_second: Option<Vec<DVec3>> = None;
-        let mut last_reason: Option<&'static str> = None;
+        let mut last_reason: Option<String> = None;
         let mut last_substeps = 0;
         let springs: Vec<(usize, usize, f64)> = sim
             .system()
@@ -211,7 +211,7 @@ impl TaskSpec for ClothTask {
             if step + 1 == one_second {
                 at_one_second = Some(system.positions().to_vec());
             }
-            last_reason = report.auto_reason.map(|r| r.describe());
+            last_reason = report.auto_reason.map(|r| r.to_string());
             last_substeps = report.substeps;
             let time = (step + 1) as f64 * dt;
             let e = report.energy_after;

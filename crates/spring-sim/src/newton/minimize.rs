@@ -7,7 +7,7 @@ use super::{BackwardEuler, line_search};
 use crate::linear::{LinearSolverKind, PcgOutcome, dot};
 use crate::model::{ModelError, SpringSystem};
 use crate::potential::{HessianSink, StepContext};
-use crate::report::{IntegratorKind, StepReport, StopReason};
+use crate::report::{IntegratorKind, StepReport, StepStop};
 use crate::spring::Curvature;
 use sinew_math::DVec3;
 use std::time::Instant;
@@ -56,15 +56,15 @@ impl BackwardEuler {
             let residual = self.grad.iter().fold(0.0f64, |m, g| m.max(g.abs()));
             report.residual = residual;
             if !residual.is_finite() {
-                report.stop = StopReason::NonFinite;
+                report.stop = StepStop::NonFinite;
                 break;
             }
             if residual <= tol_abs {
-                report.stop = StopReason::Converged;
+                report.stop = StepStop::Converged;
                 break;
             }
             if report.iterations >= self.settings.max_iterations {
-                report.stop = StopReason::IterationCap;
+                report.stop = StepStop::IterationCap;
                 break;
             }
             report.iterations += 1;
@@ -175,7 +175,7 @@ impl BackwardEuler {
             );
             report.backtracks += outcome.backtracks;
             let Some(alpha) = outcome.alpha else {
-                report.stop = StopReason::LineSearchStalled;
+                report.stop = StepStop::LineSearchStalled;
                 break;
             };
             for &p in &self.pattern.free_particles {
