@@ -23,8 +23,7 @@
 //!   or on the root, a straight limb (the hinge axis defines the bend plane).
 //!
 //! ```
-//! use sinew_ik_two_bone::{Hinge, TwoBoneIk};
-//! use sinew_math::DVec3;
+//! use sinew_ik_two_bone::{DVec3, Hinge, TwoBoneIk};
 //! use sinew_skeleton::{GlobalPose, Skeleton};
 //!
 //! // Shoulder at the origin, unit upper arm and forearm along +x.
@@ -103,6 +102,23 @@ impl From<sinew_skeleton::limits::Hinge> for Hinge {
 }
 
 /// A two-bone IK job: every input of a solve, by name. See the [crate docs](crate).
+///
+/// A target beyond the limb's reach straightens it towards the target; the report says
+/// the target was not reached and by how much:
+///
+/// ```
+/// use sinew_ik_two_bone::{DVec3, TwoBoneIk};
+/// use sinew_skeleton::{GlobalPose, Skeleton};
+///
+/// let leg = Skeleton::chain(DVec3::ZERO, &[DVec3::new(0.0, -0.5, 0.0); 2]).unwrap();
+/// let (mut pose, mut global) = (leg.rest_pose(), GlobalPose::new());
+/// leg.forward_kinematics(&pose, &mut global).unwrap();
+/// let job = TwoBoneIk::new(0, 1, 2, DVec3::new(1.5, 0.0, 0.0), DVec3::Z);
+/// let report = job.run(&leg, &mut pose, &mut global).unwrap();
+/// assert!(!report.reached);
+/// assert!((report.error - 0.5).abs() < 1e-12);
+/// assert!((global.positions[2] - DVec3::X).length() < 1e-12);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(deny_unknown_fields))]

@@ -12,6 +12,26 @@
 //! [`workloads`] holds reference skeletons with joint limits (the human arm) and poses drawn
 //! inside the limits, shared by the tests, the benchmarks and the scene runner.
 //!
+//! ```
+//! use sinew_ik::{DVec3, SolverOptions};
+//! use sinew_skeleton::ik::{Chain, EffectorGoal, IkProblem, IkState, SolveSettings};
+//! use sinew_skeleton::{GlobalPose, Skeleton};
+//!
+//! let arm = Skeleton::chain(DVec3::ZERO, &[DVec3::new(0.25, 0.0, 0.0); 4]).unwrap();
+//! let chain = Chain::whole(&arm).unwrap();
+//! let goals = [EffectorGoal::at(chain.effector(), DVec3::new(0.2, 0.6, -0.3))];
+//! let problem = IkProblem::new(&arm, &chain, &goals, SolveSettings::default());
+//! // Every named configuration solves the same problem through the same trait.
+//! for (label, options) in SolverOptions::NAMED {
+//!     let mut solver = options.build().unwrap();
+//!     let (mut pose, mut global) = (arm.rest_pose(), GlobalPose::new());
+//!     let report = solver.solve(&problem, &mut IkState::new(&mut pose, &mut global)).unwrap();
+//!     assert!(report.error < 1e-6, "{label}: {report:?}");
+//!     assert_eq!(options.label(), label);
+//! }
+//! assert!(SolverOptions::by_name("newton").unwrap_err().to_string().contains("ccd"));
+//! ```
+//!
 //! Architecture invariant: this crate only depends on the solver crates and the
 //! skeleton; each solver crate stays usable alone, without this one.
 

@@ -10,6 +10,16 @@
 //!   defined for parallel, antiparallel and zero vectors.
 //! - [`angle_between`]: the angle between two vectors, accurate near 0 and near pi.
 //!
+//! ```
+//! use sinew_math::{DQuat, DVec3, angle_between, rotation_between, try_unit};
+//! // The rotation taking x onto y is a quarter turn about z; it maps x exactly onto y.
+//! let q: DQuat = rotation_between(DVec3::X, DVec3::Y);
+//! assert!((q * DVec3::X - DVec3::Y).length() < 1e-15);
+//! assert!((angle_between(DVec3::X, DVec3::Y) - std::f64::consts::FRAC_PI_2).abs() < 1e-15);
+//! // A zero vector has no direction: None, never NaN.
+//! assert_eq!(try_unit(DVec3::ZERO), None);
+//! ```
+//!
 //! Architecture invariant: this crate depends on glam only.
 
 pub use glam::{DMat3, DMat4, DQuat, DVec2, DVec3, DVec4, EulerRot};

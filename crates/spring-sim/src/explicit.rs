@@ -21,7 +21,28 @@ use crate::report::{IntegratorKind, StepError, StepReport};
 use crate::spring;
 use sinew_math::DVec3;
 
-/// Symplectic Euler with a fixed substep count, with its force buffer.
+/// Symplectic Euler with a fixed substep count, with its force buffer. Below its
+/// stability limit its energy error stays bounded (of order `omega h`) instead of
+/// drifting:
+///
+/// ```
+/// use sinew_spring_sim::{SymplecticEuler, DVec3, Material, Particle, SpringSpec, SpringSystem};
+/// // A unit mass on a spring stretched 0.2 beyond its rest length 1, no gravity:
+/// // omega = 10 rad/s, energy k (0.2)^2 / 2 = 2.
+/// let particles = [
+///     Particle { fixed: true, ..Particle::at_rest(DVec3::ZERO, 1.0) },
+///     Particle::at_rest(DVec3::new(0.0, -1.2, 0.0), 1.0),
+/// ];
+/// let springs = [SpringSpec { rest_length: Some(1.0), ..SpringSpec::between(0, 1) }];
+/// let material = Material::lab().undamped().with_gravity(DVec3::ZERO);
+/// let mut system = SpringSystem::new(&particles, &springs, material).unwrap();
+/// let start = system.energies().total();
+/// let mut stepper = SymplecticEuler::new(&system, 1).unwrap();
+/// for _ in 0..2000 {
+///     stepper.step(&mut system, 0.01).unwrap();
+///     assert!((system.energies().total() - start).abs() < 0.1 * start);
+/// }
+/// ```
 #[derive(Clone, Debug)]
 pub struct SymplecticEuler {
     substeps: usize,
@@ -143,6 +164,29 @@ pub(crate) fn forces(system: &SpringSystem, x: &[DVec3], v: &[DVec3], out: &mut 
 /// so a substep costs one force evaluation (plus one per step when the state was changed
 /// from outside). With damping, the force at the end of a substep uses the half-step
 /// velocity (the damping term is then first order; the springs keep second order).
+///
+/// Second order: at the same step its energy error is far smaller than symplectic
+/// Euler's (of order `(omega h)^2`):
+///
+/// ```
+/// use sinew_spring_sim::{VelocityVerlet, DVec3, Material, Particle, SpringSpec, SpringSystem};
+/// // A unit mass on a spring stretched 0.2 beyond its rest length 1, no gravity:
+/// // omega = 10 rad/s, energy k (0.2)^2 / 2 = 2.
+/// let particles = [
+///     Particle { fixed: true, ..Particle::at_rest(DVec3::ZERO, 1.0) },
+///     Particle::at_rest(DVec3::new(0.0, -1.2, 0.0), 1.0),
+/// ];
+/// let springs = [SpringSpec { rest_length: Some(1.0), ..SpringSpec::between(0, 1) }];
+/// let material = Material::lab().undamped().with_gravity(DVec3::ZERO);
+/// let mut system = SpringSystem::new(&particles, &springs, material).unwrap();
+/// let start = system.energies().total();
+/// let mut stepper = VelocityVerlet::new(&system, 1).unwrap();
+/// for _ in 0..2000 {
+///     let report = stepper.step(&mut system, 0.01).unwrap();
+///     assert_eq!(report.substeps, 1);
+///     assert!((system.energies().total() - start).abs() < 0.01 * start);
+/// }
+/// ```
 #[derive(Clone, Debug)]
 pub struct VelocityVerlet {
     substeps: usize,

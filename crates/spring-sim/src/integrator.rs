@@ -383,6 +383,28 @@ impl AutoStepper {
 }
 
 /// A system and the integrator that advances it.
+///
+/// With [`Integrator::Auto`] each step says which integrator it chose and why:
+///
+/// ```
+/// use sinew_spring_sim::{AutoSettings, ClothGrid, Integrator, IntegratorKind, Simulation};
+/// let cloth = ClothGrid::lab().build().unwrap();
+/// let corners = [cloth.positions()[0], cloth.positions()[10]];
+/// let mut sim = Simulation::new(cloth, Integrator::Auto(AutoSettings::default())).unwrap();
+/// for _ in 0..30 {
+///     let report = sim.step(1.0 / 60.0).unwrap();
+///     assert!(report.auto_reason.is_some());
+///     assert!(matches!(
+///         report.integrator,
+///         IntegratorKind::VelocityVerlet | IntegratorKind::Bdf2 | IntegratorKind::BackwardEuler
+///     ));
+/// }
+/// // The cloth has fallen (gravity), its pinned corners have not moved.
+/// let system = sim.system();
+/// assert!(system.positions()[60].y < 1.5);
+/// assert_eq!([system.positions()[0], system.positions()[10]], corners);
+/// assert!((sim.time() - 0.5).abs() < 1e-12);
+/// ```
 #[derive(Debug)]
 pub struct Simulation {
     system: SpringSystem,
