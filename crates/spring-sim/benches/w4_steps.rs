@@ -2,7 +2,8 @@
 //! `valgrind --tool=callgrind` (timings on a shared machine are too noisy to compare two
 //! builds; instruction counts are not).
 //!
-//! Usage: `w4_steps <mode> [steps]`, where `mode` is one of
+//! Usage: `cargo bench -p sinew-spring-sim --bench w4_steps -- <mode> [steps]` (or the
+//! executable `cargo bench --no-run` names, under valgrind), where `mode` is one of
 //! - `direct0`, `direct02`, `pcg0`, `pcg02`: the 11x11 lab cloth (stiffness 100, h = 1/60)
 //!   with damping 0 or 0.2, backward Euler with the default Newton settings but the
 //!   linear solver fixed to the direct Cholesky or to PCG;
@@ -17,7 +18,11 @@ use sinew_spring_sim::{
 };
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args: Vec<String> = std::env::args().collect();
+    // Cargo passes `--bench` (and libtest-style flags) to a bench target: skip them.
+    let args: Vec<String> = std::env::args()
+        .take(1)
+        .chain(std::env::args().skip(1).filter(|a| !a.starts_with("--")))
+        .collect();
     let mode = args.get(1).map_or("direct0", String::as_str);
     let default_steps = if mode == "w6pcg" { 3 } else { 60 };
     let steps: usize = match args.get(2) {
