@@ -194,10 +194,21 @@ fn find<'a>(
         .find(|r| r.workload == workload && r.method == method && r.knobs == knobs)
 }
 
+/// The area a target belongs to, for the headline table (which names no issue number).
+fn area(issue: u32) -> &'static str {
+    match issue {
+        3 => "IK",
+        4 => "curves",
+        5 => "cloth",
+        9 => "integrators",
+        _ => "other",
+    }
+}
+
 /// The headline table (also printed on stdout).
 fn headline(records: &[Record]) -> String {
     let mut s = String::from(
-        "| issue | target | measured (median [min .. max]) | error | time ratio |\n|---|---|---|---|---|\n",
+        "| area | target | measured (median [min .. max]) | error | time ratio |\n|---|---|---|---|---|\n",
     );
     for t in &TARGETS {
         let Some(r) = find(records, t.workload, t.method, t.knobs) else {
@@ -213,8 +224,8 @@ fn headline(records: &[Record]) -> String {
         };
         let _ = writeln!(
             s,
-            "| #{} | {} | {} per {} | {} | {:.2} |",
-            t.issue,
+            "| {} | {} | {} per {} | {} | {:.2} |",
+            area(t.issue),
             t.what,
             fmt_timing(&r.time),
             r.unit,
@@ -228,7 +239,7 @@ fn headline(records: &[Record]) -> String {
     if let (Some(a), Some(u)) = (arclen, uniform) {
         let _ = writeln!(
             s,
-            "| #4 | flower, 500 points at spacing deviation <= 1e-9, faster than 50 000 uniform samples ({} per call, deviation {}) | {} per call | deviation {} ({}) | {:.3} |",
+            "| curves | flower, 500 points at spacing deviation <= 1e-9, faster than 50 000 uniform samples ({} per call, deviation {}) | {} per call | deviation {} ({}) | {:.3} |",
             fmt_time(u.time.median),
             fmt_err(u.error),
             fmt_timing(&a.time),

@@ -1,0 +1,374 @@
+//! Tidy: checks on the repository's own text that no compiler makes.
+//!
+//! Walks every `.rs`, `.md`, `.ron` and `.toml` file of the repository (skipping build
+//! output and hidden directories) and reports, as `file:line: message`:
+//!
+//! - comments and docs that cite issue numbers ("issue 9", "issues 5 and 9", "#12"):
+//!   an issue tracker is not part of the repository, so the text must say what it means;
+//! - paths outside the repository: a parent-directory path into a sibling checkout
+//!   (`../shared`), an absolute path under the machine's work directory, or a relative
+//!   link that climbs above the repository root;
+//! - docs naming repository files that do not exist: a relative path to a `.rs`, `.md`,
+//!   `.ron` or `.toml` file, in backticks, in a Markdown link, or written plainly under
+//!   `crates/`, `docs/`, `scenes/` or `xtask/`.
+//!
+//! In Rust files only comments are read (code may build any string it likes); in RON and
+//! TOML files only comments; Markdown is read whole, except fenced code blocks for the
+//! issue rule (a shell command may contain `#`).
+
+use std::fmt::Write as _;
+use std::fs;
+use std::path::{Component, Path, PathBuf};
+
+/// Files not checked, each with the reason. Only genuine fixtures belong here.
+const ALLOWED: &[(&str, &str)] = &[(
+    "crates/labcheck/tests/tidy.rs",
+    "this file: its fixtures contain every pattern it looks for",
+)];
+
+/// One problem found, located.
+#[derive(Debug, PartialEq)]
+struct Finding {
+    file: String,
+    line: usize,
+    message: String,
+}
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .ancestors()
+        .nth(2)
+        .expect("crates/labcheck sits two levels below the repository root")
+        .to_path_buf()
+}
+
+/// Every checked file under `dir`, as paths relative to `root`, sorted.
+fn walk(root: &Path, dir: &Path, out: &mut Vec<PathBuf>) {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        if name.starts_with('.') || name == "target" || name == "node_modules" {
+            continue;
+        }
+        if path.is_dir() {
+            walk(root, &path, out);
+        } else if matches!(
+            path.extension().and_then(|e| e.to_str()),
+            Some("rs" | "md" | "ron" | "toml")
+        ) {
+            out.push(path.strip_prefix(root).unwrap_or(&path).to_path_buf());
+        }
+    }
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Kind {
+    Rust,
+    Markdown,
+    /// RON and TOML: only comments are prose. RON comments start with `//`, TOML with `#`.
+    Ron,
+    Toml,
+}
+
+fn kind_of(path: &Path) -> Kind {
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("rs") => Kind::Rust,
+        Some("md") => Kind::Markdown,
+        Some("ron") => Kind::Ron,
+        _ => Kind::Toml,
+    }
+}
+
+/// The prose of one line (what the rules read), or `None` when the line has none.
+fn prose(kind: Kind, line: &str, in_fence: bool) -> Option<&str> {
+    match kind {
+        Kind::Markdown => (!in_fence).then_some(line),
+        Kind::Rust | Kind::Ron => line.find("//").map(|i| &line[i..]),
+        Kind::Toml => {
+            // A `#` inside a quoted string is not a comment; TOML strings here never hold one
+            // together with a comment, so the first `#` outside quotes starts the comment.
+            let mut quoted = false;
+            for (i, c) in line.char_indices() {
+                match c {
+                    '"' => quoted = !quoted,
+                    '#' if !quoted => return Some(&line[i + 1..]),
+                    _ => {}
+                }
+            }
+            None
+        }
+    }
+}
+
+/// "issue 9", "Issues 5 and 9", "issue #12", or a bare "#12" not part of a word, a
+/// colour or a Rust attribute.
+fn cites_issue(text: &str) -> Option<String> {
+    let lower = text.to_ascii_lowercase();
+    let bytes = lower.as_bytes();
+    for (i, _) in lower.match_indices("issue") {
+        let before_ok = i == 0 || !bytes[i - 1].is_ascii_alphanumeric();
+        let mut j = i + "issue".len();
+        if bytes.get(j) == Some(&b's') {
+            j += 1;
+        }
+        while bytes.get(j) == Some(&b' ') {
+            j += 1;
+        }
+        if bytes.get(j) == Some(&b'#') {
+            j += 1;
+        }
+        if before_ok && bytes.get(j).is_some_and(u8::is_ascii_digit) {
+            let end = (j..bytes.len())
+                .find(|&k| !bytes[k].is_ascii_digit())
+                .unwrap_or(bytes.len());
+            return Some(text[i..end].to_string());
+        }
+    }
+    for (i, _) in text.match_indices('#') {
+        let before_ok = i == 0 || matches!(bytes[i - 1], b' ' | b'(' | b'|' | b'[' | b',');
+        let digits = bytes[i + 1..]
+            .iter()
+            .take_while(|b| b.is_ascii_digit())
+            .count();
+        let after = bytes.get(i + 1 + digits);
+        let after_ok = after.is_none_or(|b| !b.is_ascii_alphanumeric() && *b != b'_');
+        if before_ok && digits > 0 && after_ok {
+            return Some(text[i..i + 1 + digits].to_string());
+        }
+    }
+    None
+}
+
+/// Candidate file paths in a line of prose: backticked spans, Markdown link targets, and
+/// plain words under the repository's top directories. Each comes with whether it is a
+/// Markdown link (resolved against the file's directory first).
+fn mentioned_paths(text: &str) -> Vec<(String, bool)> {
+    let mut out = Vec::new();
+    let mut rest = text;
+    while let Some(open) = rest.find('`') {
+        let after = &rest[open + 1..];
+        let Some(close) = after.find('`') else { break };
+        out.push((after[..close].to_string(), false));
+        rest = &after[close + 1..];
+    }
+    let mut rest = text;
+    while let Some(open) = rest.find("](") {
+        let after = &rest[open + 2..];
+        let Some(close) = after.find(')') else { break };
+        let target = after[..close].split('#').next().unwrap_or("");
+        out.push((target.to_string(), true));
+        rest = &after[close + 1..];
+    }
+    for word in text.split(|c: char| c.is_whitespace() || "`()[]<>\"',;:".contains(c)) {
+        let word = word.trim_end_matches(['.', ',']);
+        if ["crates/", "docs/", "scenes/", "xtask/"]
+            .iter()
+            .any(|top| word.starts_with(top))
+        {
+            out.push((word.to_string(), false));
+        }
+    }
+    out
+}
+
+/// Whether `candidate` looks like a relative path to a checked kind of file.
+fn is_file_path(candidate: &str) -> bool {
+    let plain = !candidate.is_empty()
+        && !candidate.contains("://")
+        && !candidate.starts_with('/')
+        && !candidate.starts_with("target/")
+        && !candidate.contains(|c: char| c.is_whitespace() || "*<>{}$|".contains(c));
+    plain
+        && candidate.contains('/')
+        && [".rs", ".md", ".ron", ".toml"]
+            .iter()
+            .any(|e| candidate.ends_with(e))
+}
+
+/// `path` made lexical (`.` and `..` resolved); `None` if it climbs above its start.
+fn normalize(path: &Path) -> Option<PathBuf> {
+    let mut out = PathBuf::new();
+    for part in path.components() {
+        match part {
+            Component::ParentDir => {
+                if !out.pop() {
+                    return None;
+                }
+            }
+            Component::CurDir => {}
+            other => out.push(other),
+        }
+    }
+    Some(out)
+}
+
+/// Checks one file's text; `exists` answers for paths relative to the repository root.
+/// `packages` are the directories of the repository's packages (`crates/x`, `xtask`): a
+/// doc may name a file relative to the package it is about (`tests/terms.rs` in the
+/// spring-sim docs) or to its sources (`potential/fused.rs`), so such a path is found if
+/// it exists in any package or any package's `src`.
+fn check_text(
+    file: &Path,
+    text: &str,
+    exists: &dyn Fn(&Path) -> bool,
+    packages: &[PathBuf],
+) -> Vec<Finding> {
+    let kind = kind_of(file);
+    let name = file.to_string_lossy().replace('\\', "/");
+    let dir = file.parent().unwrap_or(Path::new(""));
+    // The crate a file belongs to, for paths written relative to it (`benches/x.rs`).
+    let crate_dir: Option<PathBuf> = {
+        let parts: Vec<_> = file.components().collect();
+        (parts.len() > 2 && parts[0].as_os_str() == "crates")
+            .then(|| Path::new("crates").join(parts[1].as_os_str()))
+    };
+    let mut findings = Vec::new();
+    let mut in_fence = false;
+    for (index, line) in text.lines().enumerate() {
+        let mut report = |message: String| {
+            findings.push(Finding {
+                file: name.clone(),
+                line: index + 1,
+                message,
+            });
+        };
+        if kind == Kind::Markdown && line.trim_start().starts_with("```") {
+            in_fence = !in_fence;
+            continue;
+        }
+        // Paths outside the repository are wrong anywhere, code blocks included.
+        for outside in ["../shared", "/work/"] {
+            if line.contains(outside) {
+                report(format!("names a path outside the repository ({outside})"));
+            }
+        }
+        let Some(prose) = prose(kind, line, in_fence) else {
+            continue;
+        };
+        if let Some(citation) = cites_issue(prose) {
+            report(format!(
+                "cites an issue number (\"{citation}\"): say what is meant instead"
+            ));
+        }
+        let mut seen = Vec::new();
+        for (candidate, is_link) in mentioned_paths(prose) {
+            if !is_file_path(&candidate) || seen.contains(&candidate) {
+                continue;
+            }
+            seen.push(candidate.clone());
+            let relative = Path::new(&candidate);
+            let mut bases: Vec<PathBuf> = Vec::new();
+            if is_link || kind == Kind::Markdown {
+                bases.push(dir.to_path_buf());
+            }
+            bases.push(PathBuf::new());
+            bases.extend(crate_dir.clone());
+            bases.push(dir.to_path_buf());
+            bases.extend(packages.iter().cloned());
+            bases.extend(packages.iter().map(|p| p.join("src")));
+            let resolved: Vec<Option<PathBuf>> =
+                bases.iter().map(|b| normalize(&b.join(relative))).collect();
+            if is_link && resolved[0].is_none() {
+                report(format!(
+                    "links to {candidate}, which is outside the repository"
+                ));
+                continue;
+            }
+            if !resolved.iter().flatten().any(|p| exists(p)) {
+                report(format!("names {candidate}, which does not exist"));
+            }
+        }
+    }
+    findings
+}
+
+#[test]
+fn the_repository_is_tidy() {
+    let root = repo_root();
+    let mut files = Vec::new();
+    walk(&root, &root, &mut files);
+    files.sort();
+    assert!(
+        files.len() > 50 && files.iter().any(|f| f.ends_with("Cargo.toml")),
+        "the walk found only {} files under {}: is the root right?",
+        files.len(),
+        root.display()
+    );
+    let exists = |p: &Path| root.join(p).exists();
+    let mut packages: Vec<PathBuf> = files
+        .iter()
+        .filter(|f| f.ends_with("Cargo.toml"))
+        .filter_map(|f| f.parent().map(Path::to_path_buf))
+        .filter(|d| !d.as_os_str().is_empty())
+        .collect();
+    packages.dedup();
+    let mut findings = Vec::new();
+    for file in &files {
+        let name = file.to_string_lossy().replace('\\', "/");
+        if ALLOWED.iter().any(|(allowed, _)| *allowed == name) {
+            continue;
+        }
+        let text = fs::read_to_string(root.join(file))
+            .unwrap_or_else(|e| panic!("{name}: cannot read: {e}"));
+        findings.extend(check_text(file, &text, &exists, &packages));
+    }
+    let mut message = String::new();
+    for f in &findings {
+        let _ = writeln!(message, "{}:{}: {}", f.file, f.line, f.message);
+    }
+    assert!(
+        findings.is_empty(),
+        "{} tidy findings:\n{message}",
+        findings.len()
+    );
+}
+
+#[test]
+fn every_rule_finds_what_it_is_for() {
+    let exists = |p: &Path| {
+        [
+            "docs/curves.md",
+            "crates/spring-sim/src/lib.rs",
+            "crates/ik-ccd/benches/common/mod.rs",
+            "crates/labcheck/tests/math.rs",
+        ]
+        .iter()
+        .any(|e| Path::new(e) == p)
+    };
+    let rust = Path::new("crates/ik-ccd/src/lib.rs");
+    let packages = [PathBuf::from("crates/labcheck")];
+    let lines = |file: &Path, text: &str| -> Vec<usize> {
+        check_text(file, text, &exists, &packages)
+            .iter()
+            .map(|f| f.line)
+            .collect()
+    };
+    // Issue numbers, in comments only.
+    let text = "// fixed for issue 9\n/// see Issues 5 and 9\n//! as #12 asked\nlet s = \"issue 3\";\n#[derive(Debug)]\n// colour #1f77b4, {:#?}, tissue 4\n";
+    assert_eq!(lines(rust, text), [1, 2, 3]);
+    // Paths outside the repository, anywhere.
+    let text = "// ../shared/WORKLOADS.md\nlet p = \"/work/main\";\n";
+    assert_eq!(lines(rust, text), [1, 2]);
+    // Files that do not exist: backticked, plain, linked; relative to the crate too.
+    let text = "// `docs/curves.md` and docs/curves.md exist\n// `docs/nope.md`\n// crates/spring-sim/src/gone.rs.\n// `benches/common/mod.rs`\n// `benches/other.rs`\n";
+    assert_eq!(lines(rust, text), [2, 3, 5]);
+    let md = Path::new("docs/bench/ik.md");
+    let text = "[curves](../curves.md) and [gone](../gone.md)\n[out](../../../x.md)\n```\ncargo run # 1\n```\nissue 4\n`tests/math.rs` and `tests/maths.rs`\n";
+    assert_eq!(lines(md, text), [1, 2, 6, 7]);
+    let toml = Path::new("crates/x/Cargo.toml");
+    assert_eq!(lines(toml, "name = \"#1\" # see issue 2\n"), [1]);
+    // A finding says where and what.
+    let found = check_text(rust, "\n// see issue 7\n", &exists, &packages);
+    assert_eq!(
+        found,
+        [Finding {
+            file: "crates/ik-ccd/src/lib.rs".into(),
+            line: 2,
+            message: "cites an issue number (\"issue 7\"): say what is meant instead".into(),
+        }]
+    );
+}
