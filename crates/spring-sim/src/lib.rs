@@ -3,27 +3,30 @@
 //! (faer), and, for comparison, by explicit symplectic Euler and by the lab report's
 //! flawed method.
 //!
-//! - [`model`]: particles, springs, material, validation with errors naming the item,
-//!   builders ([`ClothGrid`] for docs/workloads.md W4-W6, [`Rope`]).
-//! - [`spring`]: per-spring energy, gradient, exact Hessian block and its PSD projection.
-//! - [`potential`]: the incremental potential as a sum of terms (inertia, gravity,
-//!   springs, axial damping), each written once with its energy, change along a
-//!   direction, gradient, PSD-projected Hessian blocks and largest safe step.
-//! - [`newton`]: [`BackwardEuler`], Newton with Armijo backtracking on the incremental
-//!   potential over the free particles, stopping at `|grad g|_inf <= tol m_min / h^2`.
-//! - [`linear`]: the sparse Cholesky (symbolic once per topology) and block-Jacobi PCG
-//!   solvers behind one choice, [`LinearSolverChoice`].
-//! - [`integrator`]: [`Simulation`] and [`Integrator`], the one stepping call for every
-//!   integrator; [`report`]: [`StepReport`].
-//! - [`implicit`]: [`Bdf2`] and [`ImplicitMidpoint`] on the same Newton minimization.
-//! - [`explicit`]: symplectic Euler and [`VelocityVerlet`] with substeps;
-//!   [`stability`]: their stability bound ([`StabilityBound`]), from which
-//!   [`Integrator::VelocityVerlet`] and `auto` ([`Integrator::Auto`]) choose the substep
-//!   count and which refuses a count below it. [`mod@reference`]: comparison only.
-//! - [`metrics`]: [`metrics::run`], a whole run with the metrics scene runners print.
+//! Everything needed to build and step a system is at the crate root, reached by that
+//! one path: the model ([`SpringSystem`], [`ClothGrid`] for docs/workloads.md W4-W6,
+//! [`Rope`], [`Material`], validation with errors naming the item), the steppers
+//! ([`Simulation`] and [`Integrator`], the one stepping call for every integrator;
+//! [`BackwardEuler`], Newton with Armijo backtracking on the incremental potential over
+//! the free particles, stopping at `|grad g|_inf <= tol m_min / h^2`; [`Bdf2`] and
+//! [`ImplicitMidpoint`] on the same minimization; [`SymplecticEuler`] and
+//! [`VelocityVerlet`] with substeps), the linear solver choice ([`LinearSolverChoice`]:
+//! sparse Cholesky, symbolic once per topology, or block-Jacobi PCG), what a step reports
+//! ([`StepReport`]), the explicit integrators' stability bound ([`StabilityBound`], from
+//! which [`Integrator::VelocityVerlet`] and [`Integrator::Auto`] choose the substep count
+//! and which refuses a count below it) and whole runs ([`run`], the metrics scene
+//! runners print). The specialised parts are public modules whose items are reached only
+//! there:
+//!
 //! - [`contact`]: contact with rigid colliders after IPC (half-space, sphere, capsule,
 //!   static or kinematic): signed distances, the log barrier, the time of impact,
-//!   lagged smoothed friction, and a projection for the explicit integrators.
+//!   lagged smoothed friction, and a projection for the explicit integrators;
+//! - [`potential`]: the incremental potential as a sum of terms (inertia, gravity,
+//!   springs, axial damping), each written once with its energy, change along a
+//!   direction, gradient, PSD-projected Hessian blocks and largest safe step, and the
+//!   [`potential::Term`] trait for your own;
+//! - [`spring`]: per-spring energy, gradient, exact Hessian block and its PSD projection;
+//! - [`mod@reference`]: the lab report's flawed method, for comparison only.
 //!
 //! Linear solver choice (`Auto`): the first step uses PCG, the second the direct solve;
 //! from then on each step uses the one with the smaller measured time per step (the
@@ -41,29 +44,29 @@
 //! Derivations: docs/spring-sim.md. Measurements: docs/bench/spring-sim.md.
 
 pub mod contact;
-pub mod explicit;
-pub mod implicit;
-pub mod integrator;
-pub mod linear;
-pub mod metrics;
-pub mod model;
-pub mod newton;
+mod explicit;
+mod implicit;
+mod integrator;
+mod linear;
+mod metrics;
+mod model;
+mod newton;
 mod pattern;
 pub mod potential;
 pub mod reference;
-pub mod report;
+mod report;
 pub mod spring;
-pub mod stability;
+mod stability;
 
 pub use explicit::{SymplecticEuler, VelocityVerlet};
 pub use implicit::{Bdf2, ImplicitMidpoint};
 pub use integrator::{AutoSettings, Integrator, Simulation};
-pub use linear::{FactorStructure, LinearSolverChoice, LinearSolverKind};
-pub use metrics::{RunMetrics, run, run_observed};
+pub use linear::{DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind};
+pub use metrics::{DIVERGENCE_RADIUS, RunMetrics, run, run_observed};
 pub use model::{
     ClothGrid, Energies, Material, ModelError, Particle, Rope, Spring, SpringSpec, SpringSystem,
 };
-pub use newton::{BackwardEuler, InitialGuess, NewtonSettings};
+pub use newton::{BackwardEuler, InitialGuess, NewtonSettings, newton_matrix_triplets};
 pub use pattern::HessianPattern;
 pub use report::{AutoReason, IntegratorKind, StepError, StepReport, StepStop};
 /// The vector type positions, velocities and forces are given in, re-exported so a user

@@ -3,7 +3,7 @@
 //! term and the damping blocks, with fixed particles removed.
 
 use sinew_math::DVec3;
-use sinew_spring_sim::newton::newton_matrix_triplets;
+use sinew_spring_sim::newton_matrix_triplets;
 use sinew_spring_sim::*;
 
 #[test]

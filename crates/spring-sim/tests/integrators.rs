@@ -129,7 +129,7 @@ fn lanczos_estimate_matches_the_dense_eigenvalue() {
         let free: Vec<usize> = (0..system.len()).filter(|&i| !system.fixed()[i]).collect();
         let dim = 3 * free.len();
         let mut k = faer::Mat::<f64>::zeros(dim, dim);
-        for (r, c, v) in newton::newton_matrix_triplets(system, h) {
+        for (r, c, v) in newton_matrix_triplets(system, h) {
             let scale = (system.masses()[free[r / 3]] * system.masses()[free[c / 3]]).sqrt();
             k[(r, c)] = v / scale;
             k[(c, r)] = v / scale;

@@ -420,7 +420,7 @@ fn the_pattern_sink_matches_the_product_sink_and_finds_general_pairs() {
         Curvature::Clamped,
         &mut HessianSink::product(case.system.fixed(), &z, &mut by_product),
     );
-    let triplets = sinew_spring_sim::newton::newton_matrix_triplets(&case.system, case.h);
+    let triplets = sinew_spring_sim::newton_matrix_triplets(&case.system, case.h);
     // newton_matrix_triplets assembles at the system's positions: compare there.
     let mut at_start = vec![DVec3::ZERO; n];
     potential.add_hessian(

@@ -15,8 +15,8 @@
 use super::{Plan, Record, Section, sci, timing_of};
 use serde_json::json;
 use sinew_math::DVec3;
-use sinew_spring_sim::metrics::DIVERGENCE_RADIUS;
-use sinew_spring_sim::stability::StabilityBound;
+use sinew_spring_sim::DIVERGENCE_RADIUS;
+use sinew_spring_sim::StabilityBound;
 use sinew_spring_sim::{
     AutoSettings, ClothGrid, Integrator, LinearSolverChoice, NewtonSettings, Simulation,
     SpringSystem, StepStop,

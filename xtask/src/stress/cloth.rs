@@ -11,8 +11,8 @@ use sinew_labcheck::reference::springs::{
 };
 use sinew_math::DVec3;
 use sinew_spring_sim::{
-    ClothGrid, Integrator, NewtonSettings, Simulation, SpringSystem, StepError, StepReport,
-    StepStop, metrics::DIVERGENCE_RADIUS,
+    ClothGrid, DIVERGENCE_RADIUS, Integrator, NewtonSettings, Simulation, SpringSystem, StepError,
+    StepReport, StepStop,
 };
 use std::time::Instant;
 

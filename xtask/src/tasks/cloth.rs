@@ -7,9 +7,9 @@ use crate::render;
 use serde::Deserialize;
 use serde_json::json;
 use sinew_math::DVec3;
+use sinew_spring_sim::AutoSettings;
+use sinew_spring_sim::StabilityBound;
 use sinew_spring_sim::contact::{Collider, ContactSettings, Shape, signed_distance};
-use sinew_spring_sim::integrator::AutoSettings;
-use sinew_spring_sim::stability::StabilityBound;
 use sinew_spring_sim::{
     ClothGrid, Integrator, Material, Particle, Simulation, SpringSpec, SpringSystem, run,
     run_observed,

@@ -2,7 +2,7 @@
 //!
 //! One implicit step minimizes
 //! `g(x) = 1/(2 h^2) |x - y|_M^2 + E_spring(x) + E_gravity(x) + D(x)` (see
-//! [`crate::newton`]). Each summand is a [`Term`] with its energy, its change along a
+//! [`crate::BackwardEuler`]). Each summand is a [`Term`] with its energy, its change along a
 //! direction (from differences, where cancellation matters), its gradient, its
 //! PSD-projected Hessian blocks (handed to a [`HessianSink`]) and, where it has one, the
 //! largest safe step along a direction. The terms of this crate:
