@@ -28,7 +28,22 @@ pub struct Epicycloid {
 
 impl Epicycloid {
     /// An epicycloid with `petals >= 1` cusps and rolling radius `r > 0` (fixed circle
-    /// radius `R = petals * r`). Errors name `petals` or `r`.
+    /// radius `R = petals * r`). Errors name `petals` or `r`. [`Rose::with_petals`] counts
+    /// the same way.
+    ///
+    /// [`Rose::with_petals`]: crate::Rose::with_petals
+    ///
+    /// ```
+    /// use sinew_curves::{ArcLengthTable, ArcParam, Epicycloid, Plane, resample_by_spacing};
+    /// // Three cusps, rolling radius 0.2: length 8 (R + r) = 8 (0.6 + 0.2) = 6.4.
+    /// let flower = Epicycloid::with_petals(3, 0.2, Plane::default()).unwrap();
+    /// assert!((flower.exact_length() - 6.4).abs() < 1e-12);
+    /// let table = ArcLengthTable::new(&flower, 1e-10).unwrap();
+    /// assert!((table.length() - 6.4).abs() <= 1e-10);
+    /// // Points 0.1 apart along the curve: 64 of them around the closed flower.
+    /// let samples = resample_by_spacing(&flower, &table, 0.1).unwrap();
+    /// assert_eq!(samples.points.len(), 64);
+    /// ```
     pub fn with_petals(petals: u32, r: f64, plane: Plane) -> Result<Self, CurveError> {
         if petals == 0 {
             return Err(CurveError::invalid("petals", "must be at least 1, got 0"));
