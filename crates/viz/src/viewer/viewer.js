@@ -418,7 +418,7 @@
       g.textAlign = 'right';
       for (let k = 0; k <= 2; k++) {
         const y = lo + (k / 2) * (hi - lo);
-        const label = chart.s.log ? '1e' + y.toFixed(1) : formatValue(y);
+        const label = formatValue(chart.s.log ? Math.pow(10, y) : y);
         g.fillText(label, PAD.left - 4, chart.yOf(y) + 4);
       }
       g.textAlign = 'left';
@@ -452,8 +452,8 @@
       g.fillStyle = 'rgb(200, 30, 30)';
       g.beginPath(); g.arc(x, chart.yOf(axisValue(chart, v)), 3, 0, 2 * Math.PI); g.fill();
       const unit = chart.s.unit ? ' ' + chart.s.unit : '';
-      chart.title.textContent = chart.s.name + (chart.s.unit ? ' (' + chart.s.unit + ')' : '') +
-        ': ' + formatValue(v) + unit + ' at frame ' + (k + 1);
+      chart.title.textContent = chart.s.name + ': ' + formatValue(v) + unit + ' at frame ' + (k + 1) +
+        (chart.s.log ? ' (log scale)' : '');
     }
   }
   // The shown frame nearest to original frame k.
