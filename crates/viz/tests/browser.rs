@@ -593,11 +593,39 @@ fn check_viewer_page(
     // Play advances the frames; pause stops.
     let before = tab.eval("Number(document.getElementById('timeline').value)")?;
     tab.eval("document.getElementById('play').click()")?;
-    std::thread::sleep(Duration::from_millis(800));
-    let after = tab.eval("Number(document.getElementById('timeline').value)")?;
+    // Playback runs on animation frames; a loaded machine may give few, so wait up to
+    // five seconds for the first change.
+    let mut after = before.clone();
+    for _ in 0..50 {
+        std::thread::sleep(Duration::from_millis(100));
+        after = tab.eval("Number(document.getElementById('timeline').value)")?;
+        if after != before {
+            break;
+        }
+    }
     tab.eval("document.getElementById('play').click()")?;
     if after == before {
         return Err(format!("{page}: play did not advance from frame {before}"));
+    }
+
+    // The arrow keys step one shown frame; Home goes to the first.
+    let at = as_u64(
+        &tab.eval("Number(document.getElementById('timeline').value)")?,
+        "frame",
+    )?;
+    for (key, code) in [("ArrowLeft", 37), ("Home", 36), ("ArrowRight", 39)] {
+        for kind in ["rawKeyDown", "keyUp"] {
+            tab.command(
+                "Input.dispatchKeyEvent",
+                json!({ "type": kind, "key": key, "code": key, "windowsVirtualKeyCode": code }),
+            )?;
+        }
+    }
+    let stepped = tab.eval("Number(document.getElementById('timeline').value)")?;
+    if stepped != json!(1) || at == 0 {
+        return Err(format!(
+            "{page}: from frame {at}, ArrowLeft, Home, ArrowRight went to {stepped}, expected 1"
+        ));
     }
 
     // Nothing fetched: no resource loaded besides the document itself.

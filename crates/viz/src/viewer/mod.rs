@@ -717,7 +717,7 @@ fn page_html(
          <header><h1>{title}</h1><p class=\"sub\">{subtitle}</p><p id=\"decimation\">{note}</p></header>\n\
          <main>\n<section id=\"stage\">\n<canvas id=\"view\" width=\"800\" height=\"600\"></canvas>\n\
          <div id=\"caption\"></div>\n<div id=\"legend\"></div>\n\
-         <p class=\"hint\">drag: orbit · shift-drag or right-drag: pan · wheel: zoom · double-click: reset view</p>\n\
+         <p class=\"hint\">drag: orbit · shift-drag or right-drag: pan · wheel: zoom · double-click: reset view · arrow keys: step · space: play</p>\n\
          <div id=\"controls\"><button id=\"play\" type=\"button\">Play</button>\n\
          <input id=\"timeline\" type=\"range\" min=\"0\" max=\"{last}\" step=\"1\" value=\"0\" aria-label=\"frame\">\n\
          <label>speed <select id=\"speed\"><option value=\"0.25\">0.25x</option><option value=\"0.5\">0.5x</option>\

@@ -516,6 +516,22 @@
     requestAnimationFrame(tick);
   });
 
+  // Keys: arrows step one shown frame, Home and End jump to the ends, space plays.
+  // The slider handles its own arrows when it has the focus, so those are left to it.
+  document.addEventListener('keydown', (ev) => {
+    if (ev.target === slider || ev.target === speedSelect || ev.altKey || ev.ctrlKey || ev.metaKey) return;
+    // A focused button already answers the space bar itself.
+    if (ev.key === ' ' && ev.target.tagName === 'BUTTON') return;
+    const step = { ArrowLeft: -1, ArrowRight: 1 }[ev.key];
+    if (step) setFrame(current + step);
+    else if (ev.key === 'Home') setFrame(0);
+    else if (ev.key === 'End') setFrame(nShown - 1);
+    else if (ev.key === ' ') playButton.click();
+    else return;
+    if (ev.key !== ' ') stop();
+    ev.preventDefault();
+  });
+
   // ---- Orbit, pan, zoom ----
   let drag = null;
   canvas.addEventListener('contextmenu', (ev) => ev.preventDefault());
