@@ -635,6 +635,11 @@ fn check_viewer_page(
     }
 
     let note = tab.eval("document.getElementById('decimation').textContent")?;
+    // The screenshot shows a frame a third of the way in, where runs are under way.
+    tab.eval(
+        "(() => { const s = document.getElementById('timeline');
+            s.value = Math.round(s.max / 3); s.dispatchEvent(new Event('input')); })()",
+    )?;
     let shot = tab.command("Page.captureScreenshot", json!({ "format": "png" }))?;
     let png = decode_base64(shot["data"].as_str().ok_or("no screenshot data")?);
     if !png.starts_with(b"\x89PNG") {
