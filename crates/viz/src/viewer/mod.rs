@@ -219,6 +219,42 @@ impl Series {
 ///
 /// Build it with [`ViewerPage::new`] and fill the fields that apply. Indices in
 /// `segments`, `triangles`, `fixed` and `effectors` refer to [`Frame::points`].
+///
+/// A cloth of four particles (two triangles) sagging over a sphere, with its energy:
+///
+/// ```
+/// use sinew_math::DVec3;
+/// use sinew_viz::viewer::{Budget, Collider, Frame, PageKind, Series, ViewerPage, render_page};
+///
+/// let mut page = ViewerPage::new("tiny cloth", PageKind::Cloth);
+/// page.segments = vec![(0, 1), (1, 3), (3, 2), (2, 0), (0, 3)];
+/// page.rest_lengths = vec![1.0, 1.0, 1.0, 1.0, 2f64.sqrt()];
+/// page.triangles = vec![[0, 1, 3], [0, 3, 2]];
+/// page.fixed = vec![0, 1];
+/// let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)];
+/// let mut energy = Vec::new();
+/// for k in 0..10 {
+///     let sag = 0.02 * f64::from(k);
+///     let points = corners
+///         .iter()
+///         .map(|&(x, z)| DVec3::new(x, 1.0 - sag * z, z))
+///         .collect();
+///     let sphere = Collider::Sphere { center: DVec3::new(0.5, 0.3, 0.5), radius: 0.3 };
+///     let time = f64::from(k) / 60.0;
+///     page.frames.push(Frame { time, points, goals: vec![], colliders: vec![sphere] });
+///     energy.push(1.0 - sag);
+/// }
+/// page.charts.push(Series::new("energy", "J", energy));
+/// page.metrics.push(("steps".into(), "10".into()));
+/// let rendered = render_page(&page, &Budget::default())?;
+/// assert_eq!(rendered.shown_frames, 10);
+///
+/// // A segment that names a particle the frames do not have is refused, by name.
+/// page.segments.push((3, 4));
+/// let err = page.validate().unwrap_err();
+/// assert!(err.to_string().contains("segment 5 (3, 4): point 4 out of range"));
+/// # Ok::<(), sinew_viz::viewer::ViewerError>(())
+/// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct ViewerPage {
     /// The page's title (the task's name).
@@ -409,6 +445,14 @@ impl ViewerPage {
 ///
 /// A run whose frames do not fit is shown with an even selection of its frames (the
 /// first and last always kept, see [`pick_even`]), and the page says how many it shows.
+///
+/// ```
+/// use sinew_viz::viewer::Budget;
+/// // Pages for a quick look: at most 1 MB and 300 frames each.
+/// let small = Budget { max_bytes: 1_000_000, max_frames: 300 };
+/// assert_eq!(Budget::default().max_bytes, 5_000_000);
+/// # let _ = small;
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Budget {
     /// The most bytes a page may have (the default is 5 000 000, 5 MB).
@@ -521,7 +565,8 @@ impl std::error::Error for ViewerError {}
 /// # Errors
 /// [`ViewerError::InvalidPage`] when [`ViewerPage::validate`] fails;
 /// [`ViewerError::OverBudget`] when even the first and last frame alone exceed
-/// `budget.max_bytes` (or `budget.max_frames` is 0).
+/// `budget.max_bytes`; [`ViewerError::InvalidPage`] naming the budget when
+/// `budget.max_frames` is 0.
 pub fn render_page(page: &ViewerPage, budget: &Budget) -> Result<RenderedPage, ViewerError> {
     page.validate()?;
     let total = page.frames.len();
@@ -532,7 +577,10 @@ pub fn render_page(page: &ViewerPage, budget: &Budget) -> Result<RenderedPage, V
         max_bytes: budget.max_bytes,
     };
     if budget.max_frames == 0 {
-        return Err(over(0));
+        return Err(ViewerError::InvalidPage {
+            page: page.title.clone(),
+            message: "budget: max_frames is 0, and a page shows at least one frame".to_owned(),
+        });
     }
     let triangle_rest = triangle_rest_lengths(page);
     let build = |count: usize| {
@@ -576,14 +624,27 @@ pub fn render_page(page: &ViewerPage, budget: &Budget) -> Result<RenderedPage, V
 /// `dir` if needed.
 ///
 /// # Errors
-/// As [`render_page`], and [`ViewerError::Io`] when the directory or file cannot be
-/// written.
+/// As [`render_page`]; [`ViewerError::InvalidPage`] when `file_name` is not a plain file
+/// name (empty, `.`, `..`, or holding a path separator); [`ViewerError::Io`] when the
+/// directory or file cannot be written.
 pub fn write_page(
     dir: &Path,
     file_name: &str,
     page: &ViewerPage,
     budget: &Budget,
 ) -> Result<PageSummary, ViewerError> {
+    // The name becomes a link in the index: a plain file name keeps the page inside the
+    // scene's directory and the link valid.
+    if file_name.is_empty()
+        || file_name == "."
+        || file_name == ".."
+        || file_name.contains(['/', '\\'])
+    {
+        return Err(ViewerError::InvalidPage {
+            page: page.title.clone(),
+            message: format!("file name {file_name:?} is not a plain file name"),
+        });
+    }
     let rendered = render_page(page, budget)?;
     let path = dir.join(file_name);
     write_file(&path, &rendered.html)?;
@@ -649,7 +710,7 @@ pub fn index_html(scene_name: &str, pages: &[PageSummary]) -> String {
         let _ = writeln!(
             rows,
             "<tr><td><a href=\"{href}\">{title}</a></td><td>{kind}</td><td class=\"num\">{frames}</td><td class=\"num\">{size}</td><td>{headline}</td></tr>",
-            href = html_escape(&p.file_name),
+            href = html_escape(&href_escape(&p.file_name)),
             title = html_escape(&p.title),
             kind = p.kind.label(),
             size = format_bytes(p.bytes),
@@ -874,6 +935,20 @@ fn write_file(path: &Path, text: &str) -> Result<(), ViewerError> {
         std::fs::create_dir_all(parent).map_err(io)?;
     }
     std::fs::write(path, text).map_err(io)
+}
+
+/// `name` as a relative URL: bytes other than letters, digits and `-._~` are
+/// percent-encoded, so a space, `#` or `?` in a file name cannot break the link.
+fn href_escape(name: &str) -> String {
+    let mut out = String::with_capacity(name.len());
+    for b in name.bytes() {
+        if b.is_ascii_alphanumeric() || b"-._~".contains(&b) {
+            out.push(char::from(b));
+        } else {
+            let _ = write!(out, "%{b:02X}");
+        }
+    }
+    out
 }
 
 /// Whether `v` is finite and within `f32` range, so that it survives the page's

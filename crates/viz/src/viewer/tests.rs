@@ -455,3 +455,38 @@ fn an_unwritable_path_is_an_io_error_naming_it() {
     assert!(err.to_string().contains("page.html"), "{err}");
     std::fs::remove_file(&file).unwrap();
 }
+
+#[test]
+fn file_names_must_be_plain_and_links_are_percent_encoded() {
+    let dir = std::env::temp_dir().join(format!("sinew-viz-names-{}", std::process::id()));
+    for bad in [
+        "",
+        ".",
+        "..",
+        "../escape.html",
+        "sub/page.html",
+        "a\\b.html",
+    ] {
+        let err = write_page(&dir, bad, &chain_page(2), &Budget::default()).unwrap_err();
+        assert!(
+            err.to_string().contains(&format!("file name {bad:?}")),
+            "{bad:?}: {err}"
+        );
+    }
+    assert!(!dir.exists(), "nothing written for a bad name");
+    let summary = write_page(&dir, "a b#1.html", &chain_page(2), &Budget::default()).unwrap();
+    assert!(dir.join("a b#1.html").is_file());
+    let html = index_html("s", &[summary]);
+    assert!(html.contains("<a href=\"a%20b%231.html\">"), "{html}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_zero_frame_budget_is_an_error_naming_the_budget() {
+    let budget = Budget {
+        max_bytes: 5_000_000,
+        max_frames: 0,
+    };
+    let err = render_page(&chain_page(3), &budget).unwrap_err();
+    assert!(err.to_string().contains("budget: max_frames is 0"), "{err}");
+}
