@@ -1,6 +1,6 @@
 //! The viewer in a real browser: pages built from realistic synthetic runs (a four-joint
 //! chain following a flower-like target path, a 21 x 21 cloth falling onto a sphere
-//! with a moving capsule and the ground) are opened in headless Chromium, driven from
+//! with a moving capsule and the ground, a stick figure's full-body clip) are opened in headless Chromium, driven from
 //! outside over the Chrome DevTools Protocol, and checked:
 //!
 //! - no console error, no uncaught exception, no log entry of level error, nothing
@@ -893,6 +893,77 @@ fn cloth_page(frames: usize) -> ViewerPage {
     page
 }
 
+/// A full-body clip: a stick figure (pelvis, spine, neck, head, two arms, two legs; 15
+/// joints in a tree) walking on the spot and waving, with a goal on each hand.
+fn clip_page(frames: usize) -> ViewerPage {
+    // Parents in topological order and the rest offset of each joint from its parent.
+    let joints: [(usize, DVec3); 15] = [
+        (0, DVec3::new(0.0, 0.95, 0.0)), // 0 pelvis (its own parent: the root)
+        (0, DVec3::new(0.0, 0.25, 0.0)), // 1 spine
+        (1, DVec3::new(0.0, 0.25, 0.0)), // 2 neck
+        (2, DVec3::new(0.0, 0.15, 0.0)), // 3 head
+        (2, DVec3::new(0.18, -0.02, 0.0)), // 4 right shoulder
+        (4, DVec3::new(0.0, -0.28, 0.0)), // 5 right elbow
+        (5, DVec3::new(0.0, -0.25, 0.0)), // 6 right hand
+        (2, DVec3::new(-0.18, -0.02, 0.0)), // 7 left shoulder
+        (7, DVec3::new(0.0, -0.28, 0.0)), // 8 left elbow
+        (8, DVec3::new(0.0, -0.25, 0.0)), // 9 left hand
+        (0, DVec3::new(0.1, -0.05, 0.0)), // 10 right hip
+        (10, DVec3::new(0.0, -0.45, 0.0)), // 11 right knee
+        (11, DVec3::new(0.0, -0.42, 0.0)), // 12 right foot
+        (0, DVec3::new(-0.1, -0.05, 0.0)), // 13 left hip
+        (13, DVec3::new(0.0, -0.45, 0.0)), // 14 left knee
+    ];
+    let mut page = ViewerPage::new("stick figure: walk and wave", PageKind::Clip);
+    page.subtitle = "15 joints, two hand goals".into();
+    page.segments = (1..joints.len()).map(|j| (joints[j].0, j)).collect();
+    page.effectors = vec![6, 9];
+    let mut reach = Vec::new();
+    for k in 0..frames {
+        let t = k as f64 / 30.0;
+        let swing = 0.6 * (std::f64::consts::TAU * t).sin();
+        let wave = 1.2 + 0.8 * (2.0 * std::f64::consts::TAU * t).sin();
+        // Each joint turns about x (legs and left arm swing) or z (right arm waves).
+        let turn = |j: usize| match j {
+            4 => sinew_math::DQuat::from_rotation_z(wave),
+            7 | 10 => sinew_math::DQuat::from_rotation_x(-swing),
+            13 => sinew_math::DQuat::from_rotation_x(swing),
+            11 | 14 => sinew_math::DQuat::from_rotation_x(0.4 * swing.abs()),
+            _ => sinew_math::DQuat::IDENTITY,
+        };
+        let mut rotation = vec![sinew_math::DQuat::IDENTITY; joints.len()];
+        let mut points = vec![DVec3::ZERO; joints.len()];
+        points[0] =
+            joints[0].1 + DVec3::new(0.0, 0.02 * (2.0 * std::f64::consts::TAU * t).cos(), 0.0);
+        rotation[0] = turn(0);
+        for j in 1..joints.len() {
+            let (parent, offset) = joints[j];
+            rotation[j] = rotation[parent] * turn(j);
+            points[j] = points[parent] + rotation[parent] * offset;
+        }
+        let goals = vec![
+            DVec3::new(0.55, 1.75 + 0.1 * (std::f64::consts::TAU * t).sin(), 0.0),
+            DVec3::new(-0.3, 0.9, 0.25),
+        ];
+        reach.push(points[6].distance(goals[0]));
+        page.frames.push(Frame {
+            time: t,
+            points,
+            goals,
+            colliders: vec![Collider::HalfSpace {
+                point: DVec3::ZERO,
+                normal: DVec3::Y,
+            }],
+        });
+    }
+    page.charts = vec![Series::new("right hand to its goal", "m", reach)];
+    page.metrics = vec![
+        ("joints".into(), joints.len().to_string()),
+        ("frames".into(), frames.to_string()),
+    ];
+    page
+}
+
 /// Writes the pages and the index into a fresh directory under the test's target
 /// directory.
 fn write_pages(dir: &Path) -> Vec<PageSummary> {
@@ -912,7 +983,8 @@ fn write_pages(dir: &Path) -> Vec<PageSummary> {
     let cloth = write_page(dir, "cloth-sphere.html", &cloth_page(300), &budget).unwrap();
     assert!(cloth.shown_frames < cloth.total_frames, "{cloth:?}");
     assert!(cloth.bytes <= 800_000, "{cloth:?}");
-    let pages = vec![ik, cloth];
+    let clip = write_page(dir, "clip-walk.html", &clip_page(90), &Budget::default()).unwrap();
+    let pages = vec![ik, cloth, clip];
     write_scene_index(dir, "synthetic", &pages).unwrap();
     pages
 }
