@@ -124,6 +124,8 @@ impl Browser {
             .process_group(0)
             .spawn()
             .map_err(|e| {
+                // No browser, so no guard yet: clean up here.
+                let _ = std::fs::remove_dir_all(&workdir);
                 format!(
                     "cannot start the browser {program}: {e} (install the Debian package: apt-get install -y chromium)"
                 )
@@ -1073,5 +1075,25 @@ fn a_missing_browser_is_an_error_not_a_skip() {
     assert!(
         err.contains("cannot start the browser /nonexistent/chromium"),
         "{err}"
+    );
+    let workdir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("chromium-missing-{}", std::process::id()));
+    assert!(!workdir.exists(), "{} left behind", workdir.display());
+
+    // A program that starts but exits at once is reported, not waited for until the
+    // time limit.
+    let started = Instant::now();
+    let err = match Browser::start_program("false", "exits") {
+        Ok(_) => panic!("`false` was taken for a browser"),
+        Err(e) => e,
+    };
+    assert!(
+        err.contains("exited") && err.contains("before listening"),
+        "{err}"
+    );
+    assert!(
+        started.elapsed() < START_TIME_LIMIT,
+        "waited {:?}",
+        started.elapsed()
     );
 }

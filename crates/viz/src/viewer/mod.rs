@@ -278,7 +278,7 @@ pub struct ViewerPage {
     pub triangles: Vec<[usize; 3]>,
     /// Points that do not move (pinned particles, a chain's root), drawn as pins.
     pub fixed: Vec<usize>,
-    /// Points that are end effectors, drawn in orange.
+    /// Points that are end effectors, drawn in orange with their recent trail.
     pub effectors: Vec<usize>,
     /// The target path, drawn as a thin polyline (may be empty).
     pub target_path: Vec<DVec3>,

@@ -263,6 +263,19 @@
       ctx.stroke();
     }
 
+    // Each effector's trail over the last 60 shown frames, so tracking can be seen.
+    ctx.strokeStyle = 'rgba(240, 140, 20, 0.7)';
+    ctx.lineWidth = 1.5;
+    for (const e of data.effectors) {
+      ctx.beginPath();
+      for (let g = Math.max(0, f - 60); g <= f; g++) {
+        const o = (g * nPoints + e) * 3;
+        project(points[o], points[o + 1], points[o + 2], tmp);
+        if (g === Math.max(0, f - 60)) ctx.moveTo(tmp[0], tmp[1]); else ctx.lineTo(tmp[0], tmp[1]);
+      }
+      ctx.stroke();
+    }
+
     // Everything with depth, sorted far to near.
     const items = [];
     let strainLo = Infinity, strainHi = -Infinity;
