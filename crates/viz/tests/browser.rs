@@ -466,6 +466,9 @@ struct PageCheck {
     changed_by_orbit: u64,
     /// The page's decimation note.
     note: String,
+    /// How long the last frame took to draw, in milliseconds (reported, not checked:
+    /// timings belong in benchmarks).
+    draw_ms: f64,
 }
 
 /// Opens a viewer page and checks everything the module documentation lists.
@@ -637,6 +640,10 @@ fn check_viewer_page(
     }
 
     let note = tab.eval("document.getElementById('decimation').textContent")?;
+    let draw_ms = tab
+        .eval("window.sinewViewer.lastDrawMs()")?
+        .as_f64()
+        .unwrap_or(f64::NAN);
     // The screenshot shows a frame a third of the way in, where runs are under way.
     tab.eval(
         "(() => { const s = document.getElementById('timeline');
@@ -658,6 +665,7 @@ fn check_viewer_page(
         changed_by_slider,
         changed_by_orbit,
         note: note.as_str().unwrap_or("").to_owned(),
+        draw_ms,
     })
 }
 
@@ -1019,6 +1027,10 @@ fn viewer_pages_work_in_headless_chromium() {
         );
         assert!(check.drawn <= check.pixels);
         assert!(check.changed_by_slider > 0 && check.changed_by_orbit > 0);
+        assert!(
+            check.draw_ms.is_finite() && check.draw_ms >= 0.0,
+            "{check:?}"
+        );
     }
     let links = check_index(&mut browser, &dir.join("index.html"))
         .unwrap_or_else(|e| panic!("index.html: {e}"));

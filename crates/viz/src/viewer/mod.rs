@@ -267,10 +267,11 @@ pub struct ViewerPage {
     /// they do not fit the budget.
     pub frames: Vec<Frame>,
     /// Pairs of points joined by a line: bones of a chain or skeleton, springs of a
-    /// cloth.
+    /// cloth (drawn only when there are no triangles; with triangles the surface shows
+    /// their strain).
     pub segments: Vec<(usize, usize)>,
-    /// Empty, or one rest length per segment (positive): then segments not covered by
-    /// triangles are coloured by strain, and so are triangles.
+    /// Empty, or one rest length per segment (positive): then drawn segments are
+    /// coloured by strain, and triangle edges take their rest lengths from them.
     pub rest_lengths: Vec<f64>,
     /// Triangles of a surface, shaded by the mean strain of their edges and lit by a
     /// light at the camera. An edge's rest length is that of the segment joining the

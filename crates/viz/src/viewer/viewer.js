@@ -106,6 +106,20 @@
     const a = Math.abs(t);
     return [0, 1, 2].map((k) => grey[k] + a * (end[k] - grey[k]));
   }
+  // Strain colours quantized to 129 steps and shading to 33, each string built once:
+  // setting a canvas colour from a string parses it, and most neighbours share one.
+  const palette = new Map();
+  function paletteColour(strain, lit) {
+    const t = Math.round(64 * Math.max(-1, Math.min(1, strain / strainScale)));
+    const l = Math.round(32 * Math.max(0, Math.min(1, lit)));
+    const key = t * 64 + l;
+    let c = palette.get(key);
+    if (c === undefined) {
+      c = rgb(strainRgb((t / 64) * strainScale), 0.55 + 0.45 * (l / 32));
+      palette.set(key, c);
+    }
+    return c;
+  }
   function rgb(c, shade) {
     const f = shade === undefined ? 1 : shade;
     return 'rgb(' + Math.round(c[0] * f) + ',' + Math.round(c[1] * f) + ',' + Math.round(c[2] * f) + ')';
@@ -231,6 +245,13 @@
     }
   }
 
+  // A path corner at (x, y), pushed half a pixel away from (cx, cy).
+  function growTo(x, y, cx, cy) {
+    const dx = x - cx, dy = y - cy;
+    const grow = 0.5 / (Math.sqrt(dx * dx + dy * dy) || 1);
+    ctx.lineTo(x + dx * grow, y + dy * grow);
+  }
+
   // Draws shown frame f. Returns the strain range drawn, for the caption.
   function draw(f) {
     setBasis();
@@ -244,8 +265,13 @@
       project(points[base + 3 * i], points[base + 3 * i + 1], points[base + 3 * i + 2], tmp);
       sx[i] = tmp[0]; sy[i] = tmp[1]; sz[i] = tmp[2];
     }
-    const world = (i, k) => points[base + 3 * i + k];
-    const dist = (i, j) => Math.hypot(world(i, 0) - world(j, 0), world(i, 1) - world(j, 1), world(i, 2) - world(j, 2));
+    // Math.hypot is several times slower than the square root in V8, and these run for
+    // every triangle edge and spring of every frame drawn.
+    function dist(i, j) {
+      const a = base + 3 * i, b = base + 3 * j;
+      const dx = points[a] - points[b], dy = points[a + 1] - points[b + 1], dz = points[a + 2] - points[b + 2];
+      return Math.sqrt(dx * dx + dy * dy + dz * dz);
+    }
     const colliders = data.colliders.length === 1 ? data.colliders[0] : data.colliders[f];
 
     // Half-spaces lie behind everything else.
@@ -276,11 +302,16 @@
       ctx.stroke();
     }
 
-    // Everything with depth, sorted far to near.
-    const items = [];
+    // Everything with depth, sorted far to near. Items live in flat arrays (kind, index,
+    // depth, colour) rather than objects: a 101 x 101 cloth has 20 000 triangles a frame.
+    const nTris = tris.length / 3, nSegs = segs.length / 2;
+    const count = nTris + nSegs + colliders.length;
+    const kind = new Uint8Array(count), index = new Uint32Array(count);
+    const depth = new Float64Array(count), colour = new Array(count);
+    let n = 0;
     let strainLo = Infinity, strainHi = -Infinity;
-    for (let t = 0; t < tris.length; t += 3) {
-      const i = tris[t], j = tris[t + 1], k = tris[t + 2];
+    for (let q = 0; q < nTris; q++) {
+      const t = 3 * q, i = tris[t], j = tris[t + 1], k = tris[t + 2];
       let strain = 0;
       for (let e = 0; e < 3; e++) {
         const a = tris[t + e], b = tris[t + (e + 1) % 3];
@@ -289,55 +320,71 @@
       strain /= 3;
       strainLo = Math.min(strainLo, strain); strainHi = Math.max(strainHi, strain);
       // Two-sided Lambert shading with the light at the camera.
-      const ux = world(j, 0) - world(i, 0), uy = world(j, 1) - world(i, 1), uz = world(j, 2) - world(i, 2);
-      const vx = world(k, 0) - world(i, 0), vy = world(k, 1) - world(i, 1), vz = world(k, 2) - world(i, 2);
+      const pi = base + 3 * i, pj = base + 3 * j, pk = base + 3 * k;
+      const ux = points[pj] - points[pi], uy = points[pj + 1] - points[pi + 1], uz = points[pj + 2] - points[pi + 2];
+      const vx = points[pk] - points[pi], vy = points[pk + 1] - points[pi + 1], vz = points[pk + 2] - points[pi + 2];
       const nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
-      const nl = Math.hypot(nx, ny, nz) || 1;
+      const nl = Math.sqrt(nx * nx + ny * ny + nz * nz) || 1;
       const lit = Math.abs(nx * toward[0] + ny * toward[1] + nz * toward[2]) / nl;
-      items.push({ depth: (sz[i] + sz[j] + sz[k]) / 3, type: 0, t: t, colour: rgb(strainRgb(strain), 0.55 + 0.45 * lit) });
+      kind[n] = 0; index[n] = t; depth[n] = (sz[i] + sz[j] + sz[k]) / 3;
+      colour[n] = paletteColour(strain, lit);
+      n++;
     }
-    for (let s = 0; s < segs.length / 2; s++) {
-      if (segOnSurface[s]) continue;
+    for (let s = 0; s < nSegs; s++) {
       const i = segs[2 * s], j = segs[2 * s + 1];
-      let colour = isCloth ? 'rgb(120,120,120)' : 'rgb(50,50,60)';
+      let c = isCloth ? 'rgb(120,120,120)' : 'rgb(50,50,60)';
       if (rest.length > 0) {
         const strain = dist(i, j) / rest[s] - 1;
         strainLo = Math.min(strainLo, strain); strainHi = Math.max(strainHi, strain);
-        colour = rgb(strainRgb(strain));
+        c = paletteColour(strain, 1);
       }
-      items.push({ depth: 0.5 * (sz[i] + sz[j]), type: 1, i: i, j: j, colour: colour });
+      // With a surface, springs are seen through its colours; drawing them as well
+      // would only hide it (and cost as much again).
+      if (segOnSurface[s] || nTris > 0) continue;
+      kind[n] = 1; index[n] = s; depth[n] = 0.5 * (sz[i] + sz[j]); colour[n] = c;
+      n++;
     }
-    for (const c of colliders) {
-      if (c.k === 'sphere') items.push({ depth: project(c.c[0], c.c[1], c.c[2], tmp)[2], type: 2, c: c });
-      if (c.k === 'capsule') {
-        const za = project(c.a[0], c.a[1], c.a[2], tmp)[2];
-        const zb = project(c.b[0], c.b[1], c.b[2], tmp)[2];
-        items.push({ depth: 0.5 * (za + zb), type: 3, c: c });
+    for (let c = 0; c < colliders.length; c++) {
+      const col = colliders[c];
+      if (col.k === 'sphere') {
+        kind[n] = 2; index[n] = c; depth[n] = project(col.c[0], col.c[1], col.c[2], tmp)[2]; n++;
+      } else if (col.k === 'capsule') {
+        const za = project(col.a[0], col.a[1], col.a[2], tmp)[2];
+        const zb = project(col.b[0], col.b[1], col.b[2], tmp)[2];
+        kind[n] = 3; index[n] = c; depth[n] = 0.5 * (za + zb); n++;
       }
     }
-    items.sort((p, q) => p.depth - q.depth);
+    const order = new Uint32Array(n);
+    for (let m = 0; m < n; m++) order[m] = m;
+    order.sort((p, q) => depth[p] - depth[q]);
     const boneWidth = isCloth ? 1 : 4;
-    for (const it of items) {
-      if (it.type === 0) {
-        const i = tris[it.t], j = tris[it.t + 1], k = tris[it.t + 2];
-        ctx.fillStyle = it.colour;
-        ctx.strokeStyle = it.colour;
-        ctx.lineWidth = 0.6;   // closes the hairline gaps between neighbours
+    let lastFill = '';
+    for (let m = 0; m < n; m++) {
+      const it = order[m];
+      if (kind[it] === 0) {
+        // One fill a triangle, its corners pushed half a pixel away from its centroid:
+        // it closes the hairline seams antialiasing leaves between neighbours at half
+        // the cost of stroking each edge.
+        const t = index[it], i = tris[t], j = tris[t + 1], k = tris[t + 2];
+        const cx = (sx[i] + sx[j] + sx[k]) / 3, cy = (sy[i] + sy[j] + sy[k]) / 3;
+        if (colour[it] !== lastFill) { ctx.fillStyle = colour[it]; lastFill = colour[it]; }
         ctx.beginPath();
-        ctx.moveTo(sx[i], sy[i]); ctx.lineTo(sx[j], sy[j]); ctx.lineTo(sx[k], sy[k]);
-        ctx.closePath();
+        growTo(sx[i], sy[i], cx, cy);
+        growTo(sx[j], sy[j], cx, cy);
+        growTo(sx[k], sy[k], cx, cy);
         ctx.fill();
-        ctx.stroke();
-      } else if (it.type === 1) {
-        ctx.strokeStyle = it.colour;
+      } else if (kind[it] === 1) {
+        const s = index[it];
+        ctx.strokeStyle = colour[it];
         ctx.lineWidth = boneWidth;
         ctx.lineCap = 'round';
-        ctx.beginPath(); ctx.moveTo(sx[it.i], sy[it.i]); ctx.lineTo(sx[it.j], sy[it.j]); ctx.stroke();
+        ctx.beginPath(); ctx.moveTo(sx[segs[2 * s]], sy[segs[2 * s]]); ctx.lineTo(sx[segs[2 * s + 1]], sy[segs[2 * s + 1]]); ctx.stroke();
         ctx.lineCap = 'butt';
-      } else if (it.type === 2) {
-        drawSphere(it.c);
+      } else if (kind[it] === 2) {
+        drawSphere(colliders[index[it]]);
+        lastFill = '';
       } else {
-        drawCapsule(it.c);
+        drawCapsule(colliders[index[it]]);
       }
     }
 
@@ -487,8 +534,11 @@
   }
 
   // ---- Frame changes, playback ----
+  let lastDrawMs = 0;
   function render() {
+    const started = performance.now();
     const range = draw(current);
+    lastDrawMs = performance.now() - started;
     const k = shown[current];
     let text = 'frame ' + (k + 1) + ' of ' + total + '  t = ' + times[current].toFixed(3) + ' s';
     if (hasStrain && isFinite(range[0])) {
@@ -585,5 +635,8 @@
   layoutCharts();
   setFrame(0);
   // Read by tests that drive the page from outside.
-  window.sinewViewer = { ready: true, shownFrames: nShown, totalFrames: total, setFrame: setFrame };
+  window.sinewViewer = {
+    ready: true, shownFrames: nShown, totalFrames: total, setFrame: setFrame,
+    lastDrawMs: () => lastDrawMs,
+  };
 })();
