@@ -1,6 +1,8 @@
 //! Tests of the page's data: validation messages, the embedded encoding read back, and
 //! decimation to the budget.
 
+use super::encode::group_thousands;
+use super::page::{largest_strain, triangle_rest_lengths};
 use super::*;
 use serde_json::Value;
 
