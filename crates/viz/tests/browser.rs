@@ -301,6 +301,20 @@ fn tail(path: &Path) -> String {
     lines[lines.len().saturating_sub(15)..].join("\n")
 }
 
+/// The `file://` URL of an absolute path, percent-encoding every byte but letters,
+/// digits, `-._~` and `/`, so a space or `#` in the path cannot change the URL.
+fn file_url(path: &Path) -> String {
+    let mut url = String::from("file://");
+    for b in path.as_os_str().as_encoded_bytes() {
+        if b.is_ascii_alphanumeric() || b"-._~/".contains(b) {
+            url.push(char::from(*b));
+        } else {
+            url.push_str(&format!("%{b:02X}"));
+        }
+    }
+    url
+}
+
 /// A page opened in its own tab, with helpers that evaluate script in it.
 struct Tab<'a> {
     browser: &'a mut Browser,
@@ -344,7 +358,7 @@ impl Tab<'_> {
         for domain in ["Runtime.enable", "Log.enable", "Page.enable"] {
             tab.command(domain, json!({}))?;
         }
-        let url = format!("file://{}", file.display());
+        let url = file_url(file);
         let navigated = tab.command("Page.navigate", json!({ "url": url }))?;
         if let Some(error) = navigated.get("errorText") {
             return Err(format!("cannot open {url}: {error}"));

@@ -11,8 +11,9 @@
 //! A page fetches nothing: its data, script and style are embedded, so it works when
 //! opened from disk. In the page the 3D view can be orbited (drag), panned (shift-drag
 //! or right-drag) and zoomed (wheel); a timeline slider, play/pause and a speed choice
-//! move through the frames; each chart has a cursor at the current frame, and a click
-//! on a chart jumps to that frame.
+//! move through the frames (arrow keys step, space plays); each chart has a cursor at
+//! the current frame, and a click on a chart jumps to that frame. What the page draws,
+//! and how the browser test in `tests/browser.rs` drives it: docs/viewer.md.
 //!
 //! Encoding: positions, goals, frame times, rest lengths and chart values are written as
 //! little-endian `f32` arrays in base64 (about seven significant digits); other numbers
