@@ -45,6 +45,7 @@ pub mod explicit;
 pub mod implicit;
 pub mod integrator;
 pub mod linear;
+pub mod mesh;
 pub mod metrics;
 pub mod model;
 pub mod newton;
@@ -59,6 +60,7 @@ pub use explicit::{SymplecticEuler, VelocityVerlet};
 pub use implicit::{Bdf2, ImplicitMidpoint};
 pub use integrator::{AutoSettings, Integrator, Simulation};
 pub use linear::{FactorStructure, LinearSolverChoice, LinearSolverKind};
+pub use mesh::{Bending, EdgeHinge, MeshCloth, MeshClothModel, MeshError, TriangleMesh};
 pub use metrics::{RunMetrics, run, run_observed};
 pub use model::{
     ClothGrid, Energies, Material, ModelError, Particle, Rope, Spring, SpringSpec, SpringSystem,
