@@ -5,7 +5,7 @@
 
 use sinew_math::{DMat3, DQuat, DVec3};
 use sinew_spring_sim::potential::{
-    DihedralBending, HessianSink, Hinge, StepContext, Term, dihedral_angle,
+    DihedralBending, HessianSink, Hinge, StepContext, Term, angle_change, dihedral_angle,
     dihedral_angle_gradient, dihedral_angle_hessian,
 };
 use sinew_spring_sim::spring::Curvature;
@@ -352,4 +352,42 @@ fn hinge_weight_and_energy_by_hand() {
     // A degenerate rest triangle has no hinge.
     let flat = [DVec3::ZERO, DVec3::X, DVec3::new(2.0, 0.0, 0.0), -DVec3::Y];
     assert!(Hinge::at_rest(&flat, [0, 1], [2, 3], 1.0).is_none());
+}
+
+#[test]
+fn angle_change_keeps_its_precision_for_tiny_moves() {
+    let mut rng = Rng(0xabcd);
+    for _ in 0..200 {
+        let x = random_hinge(&mut rng);
+        let d = [rng.vec(1.0), rng.vec(1.0), rng.vec(1.0), rng.vec(1.0)];
+        // Moderate moves: equal to the difference of the angles.
+        for t in [0.3, 0.05] {
+            let moved = std::array::from_fn(|k| x[k] + t * d[k]);
+            let delta = d.map(|v| t * v);
+            let diff = dihedral_angle(moved) - dihedral_angle(x);
+            if diff.abs() < 3.0 {
+                assert!((angle_change(x, delta) - diff).abs() < 1e-12, "{diff}");
+            }
+        }
+        // Tiny moves: against the second-order expansion g.d t + d^T H d t^2 / 2, whose
+        // error is O(t^3); the difference of two angles is off by about 1e-16 absolute,
+        // a relative error of 1e-16 / t here.
+        let g = dihedral_angle_gradient(x);
+        let h = dihedral_angle_hessian(x);
+        let first: f64 = (0..4).map(|i| g[i].dot(d[i])).sum();
+        let mut second = 0.0;
+        for i in 0..4 {
+            for j in 0..4 {
+                second += d[i].dot(h[i][j] * d[j]);
+            }
+        }
+        for t in [1e-7, 1e-9, 1e-11] {
+            let expected = first * t + 0.5 * second * t * t;
+            let got = angle_change(x, d.map(|v| t * v));
+            assert!(
+                (got - expected).abs() <= 1e-9 * expected.abs() + 1e-30,
+                "t {t}: {got} vs {expected}"
+            );
+        }
+    }
 }

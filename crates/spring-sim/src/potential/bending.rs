@@ -155,6 +155,42 @@ pub fn dihedral_angle_hessian(x: [DVec3; 4]) -> [[DMat3; 4]; 4] {
     h
 }
 
+/// `dihedral_angle(x + delta) - dihedral_angle(x)` computed from the changes of the
+/// normals and the edge direction, so a tiny `delta` gives a change with full relative
+/// precision (docs/bending.md). Zero when either state is degenerate.
+#[must_use]
+pub fn angle_change(x: [DVec3; 4], delta: [DVec3; 4]) -> f64 {
+    let e = x[1] - x[0];
+    let de = delta[1] - delta[0];
+    let (a, da) = (x[2] - x[0], delta[2] - delta[0]);
+    let (b, db) = (x[3] - x[0], delta[3] - delta[0]);
+    let n1 = e.cross(a);
+    let n2 = b.cross(e);
+    // The changes of the (unnormalized) normals, expanded so no large terms cancel.
+    let dn1 = de.cross(a) + e.cross(da) + de.cross(da);
+    let dn2 = db.cross(e) + b.cross(de) + db.cross(de);
+    let (len, len_new) = (e.length(), (e + de).length());
+    if len == 0.0 || len_new == 0.0 {
+        return 0.0;
+    }
+    let unit = e / len;
+    let unit_new = (e + de) / len_new;
+    // unit_new - unit = (de - unit (|e + de| - |e|)) / |e + de|.
+    let dlen = de.dot(2.0 * e + de) / (len_new + len);
+    let dunit = (de - unit * dlen) / len_new;
+    let m = n1.cross(n2);
+    let dm = dn1.cross(n2) + n1.cross(dn2) + dn1.cross(dn2);
+    let (c, s) = (n1.dot(n2), m.dot(unit));
+    let dc = dn1.dot(n2) + n1.dot(dn2) + dn1.dot(dn2);
+    let ds = dm.dot(unit_new) + m.dot(dunit);
+    let (c_new, s_new) = (c + dc, s + ds);
+    if (c == 0.0 && s == 0.0) || (c_new == 0.0 && s_new == 0.0) {
+        return 0.0;
+    }
+    // arg((c' + i s')(c - i s)), with s' c - c' s = ds c - dc s.
+    (ds * c - dc * s).atan2(c_new * c + s_new * s)
+}
+
 /// The closed-form gradient, generic over the scalar so that dual numbers differentiate
 /// it once more.
 fn angle_gradient<S: Scalar>(x: [V3<S>; 4]) -> [V3<S>; 4] {
@@ -287,15 +323,19 @@ impl Term for DihedralBending {
             if v.iter().all(|&i| dx[i] == DVec3::ZERO) {
                 continue;
             }
-            let before = dihedral_angle(h.gather(x));
-            let after = dihedral_angle(v.map(|i| x[i] + alpha * dx[i]));
-            // (a^2 - b^2) as (a - b)(a + b): the angles carry full precision, the
-            // energies' difference would not.
-            change += 0.5
-                * h.stiffness
-                * h.weight
-                * (after - before)
-                * (after + before - 2.0 * h.rest_angle);
+            let p = h.gather(x);
+            let delta = v.map(|i| alpha * dx[i]);
+            let before = dihedral_angle(p);
+            let after = dihedral_angle(std::array::from_fn(|k| p[k] + delta[k]));
+            // (a^2 - b^2) as (a - b)(a + b), with a - b from the differences of the
+            // normals: near convergence the line search compares changes far below what
+            // the difference of two angles resolves.
+            let mut turn = angle_change(p, delta);
+            if (after - before - turn).abs() > 1.0 {
+                // The angle wrapped through pi: the energies use the wrapped values.
+                turn = after - before;
+            }
+            change += 0.5 * h.stiffness * h.weight * turn * (after + before - 2.0 * h.rest_angle);
         }
         change
     }

@@ -29,7 +29,8 @@ mod sink;
 mod springs;
 
 pub use bending::{
-    DihedralBending, Hinge, dihedral_angle, dihedral_angle_gradient, dihedral_angle_hessian,
+    DihedralBending, Hinge, angle_change, dihedral_angle, dihedral_angle_gradient,
+    dihedral_angle_hessian,
 };
 pub use damping::AxialDamping;
 pub use gravity::Gravity;
