@@ -20,7 +20,7 @@
 //! stack.
 
 use sinew_math::{DQuat, DVec3};
-use sinew_skeleton::{GlobalPose, JointDef, Pose, Skeleton};
+use sinew_skeleton::{GlobalPose, JointDef, Pose, Skeleton, SkeletonError};
 use std::fmt;
 
 /// One channel of a BVH joint.
@@ -92,22 +92,16 @@ pub struct BvhFrame {
 
 impl BvhFrame {
     /// Every joint's position at this frame: forward kinematics of the pose, shifted by
-    /// the root's translation.
-    pub fn joint_positions(&self, skeleton: &Skeleton) -> Vec<DVec3> {
+    /// the root's translation. An error when `skeleton` is not the one the frame was read
+    /// with (a different joint count).
+    pub fn joint_positions(&self, skeleton: &Skeleton) -> Result<Vec<DVec3>, SkeletonError> {
         let mut global = GlobalPose::new();
-        // The pose was built for this skeleton, so forward kinematics cannot fail on it;
-        // a mismatched skeleton gives no positions rather than a panic.
-        if skeleton
-            .forward_kinematics(&self.pose, &mut global)
-            .is_err()
-        {
-            return Vec::new();
-        }
-        global
+        skeleton.forward_kinematics(&self.pose, &mut global)?;
+        Ok(global
             .positions
             .iter()
             .map(|p| *p + self.root_translation)
-            .collect()
+            .collect())
     }
 }
 

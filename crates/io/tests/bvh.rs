@@ -164,7 +164,7 @@ fn positions_by_matrices(text: &str, frame: usize) -> Vec<DVec3> {
 fn forward_kinematics_matches_the_files_matrix_composition() {
     let bvh = parse_bvh(ARM).unwrap();
     for (f, frame) in bvh.frames.iter().enumerate() {
-        let ours = frame.joint_positions(&bvh.skeleton);
+        let ours = frame.joint_positions(&bvh.skeleton).unwrap();
         let theirs = positions_by_matrices(ARM, f);
         for (j, (a, b)) in ours.iter().zip(&theirs).enumerate() {
             assert!(
@@ -189,10 +189,10 @@ fn the_shipped_squat_keeps_its_feet_planted() {
             .unwrap()
     };
     let (hips, left_foot, right_toe) = (index("Hips"), index("LeftFoot"), index("RightToe_End"));
-    let first = bvh.frames[0].joint_positions(&bvh.skeleton);
+    let first = bvh.frames[0].joint_positions(&bvh.skeleton).unwrap();
     let mut lowest_hips = f64::INFINITY;
     for (f, frame) in bvh.frames.iter().enumerate() {
-        let p = frame.joint_positions(&bvh.skeleton);
+        let p = frame.joint_positions(&bvh.skeleton).unwrap();
         // Printed with six decimals in degrees: planted to about 1e-7 m.
         for j in [left_foot, right_toe] {
             assert!((p[j] - first[j]).length() < 1e-6, "frame {f}: {} moved", j);
@@ -285,7 +285,7 @@ fn braces_against_words_and_blank_lines_are_accepted() {
     let text = "HIERARCHY\nROOT A{\n OFFSET 0 0 0\n CHANNELS 1 Zrotation\n End Site{ OFFSET 1 0 0 }}\n\nMOTION\nFrames: 1\nFrame Time: 0.5\n\n90\n\n";
     let bvh = parse_bvh(text).unwrap();
     assert_eq!(bvh.skeleton.len(), 2);
-    let p = bvh.frames[0].joint_positions(&bvh.skeleton);
+    let p = bvh.frames[0].joint_positions(&bvh.skeleton).unwrap();
     assert!(close(p[1], DVec3::Y));
 }
 

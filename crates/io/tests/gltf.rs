@@ -227,3 +227,28 @@ fn errors_name_the_node() {
     // A joint index out of range is caught by the gltf crate's validation.
     assert!(read_gltf_skin(document(&scene(), &[5, 4, 9]).as_bytes(), 0).is_err());
 }
+
+#[test]
+fn binary_glb_reads_the_same_skeleton() {
+    // A GLB container: 12-byte header, then the JSON chunk padded with spaces to a
+    // multiple of four bytes (the buffer stays a data URI, so no BIN chunk is needed).
+    let text = document(&scene(), &SKIN_JOINTS);
+    let mut json = text.into_bytes();
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
+    }
+    let mut glb = Vec::new();
+    glb.extend_from_slice(b"glTF");
+    glb.extend_from_slice(&2u32.to_le_bytes());
+    glb.extend_from_slice(&((12 + 8 + json.len()) as u32).to_le_bytes());
+    glb.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    glb.extend_from_slice(b"JSON");
+    glb.extend_from_slice(&json);
+    let from_glb = read_gltf_skin(&glb, 0).unwrap();
+    let from_json = read_gltf_skin(document(&scene(), &SKIN_JOINTS).as_bytes(), 0).unwrap();
+    assert_eq!(from_glb, from_json);
+    // A truncated container is an error, not a panic.
+    for cut in [4, 12, 20, glb.len() - 3] {
+        assert!(read_gltf_skin(&glb[..cut], 0).is_err(), "cut at {cut}");
+    }
+}

@@ -301,6 +301,7 @@ pub enum Bending {
 
 /// A cloth made from a triangle mesh (see the module documentation).
 #[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct MeshCloth {
     /// Mass per unit area; each vertex gets a third of the area of its triangles times it.
     pub areal_density: f64,

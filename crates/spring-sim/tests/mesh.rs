@@ -391,3 +391,47 @@ fn bent_sheet_without_gravity_unbends() {
     );
     assert!(end < 0.01 * start, "energy {start} -> {end}");
 }
+
+#[test]
+fn coupled_term_pairs_are_checked_and_widen_the_pattern() {
+    let mesh = sheet(3);
+    let model = MeshCloth {
+        areal_density: 1.0,
+        material: Material::default(),
+        bending: Bending::Dihedral { stiffness: 1.0 },
+        fixed: vec![],
+    }
+    .build(&mesh)
+    .unwrap();
+    let term = model.bending.clone().unwrap();
+    let plain =
+        sinew_spring_sim::BackwardEuler::new(&model.system, NewtonSettings::default()).unwrap();
+    let widened = model.backward_euler(NewtonSettings::default()).unwrap();
+    // The pairs across hinges that no edge joins add blocks: the pattern grows.
+    assert!(widened.pattern().nnz() > plain.pattern().nnz());
+    let mut be =
+        sinew_spring_sim::BackwardEuler::new(&model.system, NewtonSettings::default()).unwrap();
+    let before = be.pattern().nnz();
+    let err = be
+        .add_coupled_term(&model.system, Box::new(term.clone()), &[[0, 99]])
+        .unwrap_err();
+    assert!(err.to_string().contains("pairs"), "{err}");
+    assert_eq!(be.pattern().nnz(), before, "nothing changes on error");
+    assert_eq!(
+        be.potential().terms().len(),
+        plain.potential().terms().len()
+    );
+    // A system of another topology is refused.
+    let other = MeshCloth {
+        areal_density: 1.0,
+        material: Material::default(),
+        bending: Bending::None,
+        fixed: vec![],
+    }
+    .build(&sheet(4))
+    .unwrap();
+    assert!(
+        be.add_coupled_term(&other.system, Box::new(term), &[])
+            .is_err()
+    );
+}
