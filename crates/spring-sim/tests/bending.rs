@@ -59,6 +59,16 @@ fn angle_on_hand_computed_hinges() {
             .iter()
             .all(|g| *g == DVec3::ZERO)
     );
+    // Moving out of a degenerate state changes the angle as the energy sees it.
+    let lift = [
+        DVec3::ZERO,
+        DVec3::ZERO,
+        DVec3::new(0.0, 0.5, 0.0),
+        DVec3::ZERO,
+    ];
+    let lifted = std::array::from_fn(|k| collapsed[k] + lift[k]);
+    assert!(dihedral_angle(lifted) != 0.0);
+    assert_eq!(angle_change(collapsed, lift), dihedral_angle(lifted));
 }
 
 /// A random non-degenerate hinge around the unit edge.

@@ -157,7 +157,9 @@ pub fn dihedral_angle_hessian(x: [DVec3; 4]) -> [[DMat3; 4]; 4] {
 
 /// `dihedral_angle(x + delta) - dihedral_angle(x)` computed from the changes of the
 /// normals and the edge direction, so a tiny `delta` gives a change with full relative
-/// precision (docs/bending.md). Zero when either state is degenerate.
+/// precision (docs/bending.md). When either state is degenerate (a zero edge or normal)
+/// it is the plain difference of the two angles, each 0 where degenerate, as the energy
+/// sees them.
 #[must_use]
 pub fn angle_change(x: [DVec3; 4], delta: [DVec3; 4]) -> f64 {
     let e = x[1] - x[0];
@@ -169,9 +171,13 @@ pub fn angle_change(x: [DVec3; 4], delta: [DVec3; 4]) -> f64 {
     // The changes of the (unnormalized) normals, expanded so no large terms cancel.
     let dn1 = de.cross(a) + e.cross(da) + de.cross(da);
     let dn2 = db.cross(e) + b.cross(de) + db.cross(de);
+    let plain = || {
+        let moved = std::array::from_fn(|k| x[k] + delta[k]);
+        dihedral_angle(moved) - dihedral_angle(x)
+    };
     let (len, len_new) = (e.length(), (e + de).length());
     if len == 0.0 || len_new == 0.0 {
-        return 0.0;
+        return plain();
     }
     let unit = e / len;
     let unit_new = (e + de) / len_new;
@@ -185,7 +191,7 @@ pub fn angle_change(x: [DVec3; 4], delta: [DVec3; 4]) -> f64 {
     let ds = dm.dot(unit_new) + m.dot(dunit);
     let (c_new, s_new) = (c + dc, s + ds);
     if (c == 0.0 && s == 0.0) || (c_new == 0.0 && s_new == 0.0) {
-        return 0.0;
+        return plain();
     }
     // arg((c' + i s')(c - i s)), with s' c - c' s = ds c - dc s.
     (ds * c - dc * s).atan2(c_new * c + s_new * s)
