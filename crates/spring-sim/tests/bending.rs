@@ -401,3 +401,58 @@ fn angle_change_keeps_its_precision_for_tiny_moves() {
         }
     }
 }
+
+/// The 12 x 12 matrix of a hinge's 4 x 4 blocks (row `3 i + r`, column `3 j + c`).
+fn dense(blocks: &[[DMat3; 4]; 4]) -> [[f64; 12]; 12] {
+    let mut m = [[0.0; 12]; 12];
+    for (i, row) in blocks.iter().enumerate() {
+        for (j, b) in row.iter().enumerate() {
+            for c in 0..3 {
+                for r in 0..3 {
+                    m[3 * i + r][3 * j + c] = b.col(c)[r];
+                }
+            }
+        }
+    }
+    m
+}
+
+#[test]
+fn clamped_hessian_is_the_positive_part_of_the_exact_one() {
+    // H = P - D with P and D positive semidefinite and P D = 0 characterizes the positive
+    // part P (the Frobenius-nearest PSD matrix) uniquely; P must also keep the exact
+    // Hessian's null space of translations.
+    let mut rng = Rng(21);
+    let rest = hinge_at(0.0);
+    for _ in 0..50 {
+        let x = random_hinge(&mut rng);
+        let h = Hinge::at_rest(&rest, [0, 1], [2, 3], 1.3).unwrap();
+        let exact = dense(&DihedralBending::hinge_hessian(&h, &x, Curvature::Exact));
+        let p = dense(&DihedralBending::hinge_hessian(&h, &x, Curvature::Clamped));
+        let norm: f64 = exact.iter().flatten().map(|v| v * v).sum::<f64>().sqrt();
+        let mut worst: f64 = 0.0;
+        for r in 0..12 {
+            for c in 0..12 {
+                // (P D)[r][c] with D = P - H.
+                let pd: f64 = (0..12).map(|k| p[r][k] * (p[k][c] - exact[k][c])).sum();
+                worst = worst.max(pd.abs());
+            }
+        }
+        assert!(worst < 1e-10 * norm * norm, "|P D| = {worst}, |H| = {norm}");
+        for axis in 0..3 {
+            for row in &p {
+                let pt: f64 = (0..4).map(|v| row[3 * v + axis]).sum();
+                assert!(pt.abs() < 1e-10 * norm, "translation not in the null space");
+            }
+        }
+        // D = P - H is positive semidefinite.
+        for _ in 0..20 {
+            let z: Vec<f64> = (0..12).map(|_| rng.next() - 0.5).collect();
+            let q: f64 = (0..12)
+                .flat_map(|r| (0..12).map(move |c| (r, c)))
+                .map(|(r, c)| z[r] * (p[r][c] - exact[r][c]) * z[c])
+                .sum();
+            assert!(q >= -1e-10 * norm);
+        }
+    }
+}

@@ -389,17 +389,83 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
     DMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
-/// Largest number of Jacobi sweeps for the 12 x 12 eigen-decomposition; convergence is
-/// quadratic and about eight sweeps reach round-off, so the cap only guards against a
-/// non-finite input.
+/// Largest number of Jacobi sweeps for the eigen-decomposition; convergence is quadratic
+/// and about eight sweeps reach round-off, so the cap only guards against a non-finite
+/// input.
 const MAX_SWEEPS: usize = 50;
 
+/// An orthonormal basis of the vectors of R^4 orthogonal to `(1, 1, 1, 1)` (Helmert's),
+/// as rows per vertex: `HELMERT[p][i]` is entry `p` of basis vector `i`. With it, the
+/// hinge's 12 unknowns split into the three translations and nine other directions.
+const HELMERT: [[f64; 3]; 4] = {
+    let (a, b, c) = (
+        std::f64::consts::FRAC_1_SQRT_2,
+        0.408_248_290_463_863,   // 1/sqrt(6)
+        0.288_675_134_594_812_9, // 1/sqrt(12)
+    );
+    [
+        [a, b, c],
+        [-a, b, c],
+        [0.0, -2.0 * b, c],
+        [0.0, 0.0, -3.0 * c],
+    ]
+};
+
 /// `m` with the fraction `removed` of each negative eigenvalue taken away (1: the
-/// Frobenius-nearest positive semidefinite matrix), by cyclic Jacobi rotations.
+/// Frobenius-nearest positive semidefinite matrix).
+///
+/// A hinge's energy does not change when all four vertices move together, so its
+/// Hessian maps the three translations to zero and is determined by the 9 x 9 matrix
+/// `Q^T m Q` on the other directions (`Q` = Helmert's basis, per axis): that smaller
+/// matrix is decomposed (cyclic Jacobi) and each negative eigenvector `u` is mapped back
+/// as `Q u`. Half the work of decomposing the 12 x 12 matrix.
 // Index loops over blocks and matrix entries read like the formulas they implement.
 #[allow(clippy::needless_range_loop)]
 fn remove_negative_curvature(m: [[f64; 12]; 12], removed: f64) -> [[f64; 12]; 12] {
-    const N: usize = 12;
+    // Unknown (vertex p, axis a) is 3p + a; reduced unknown (basis vector i, axis a) is
+    // 3i + a. First w = m Q (12 x 9), then r = Q^T w (9 x 9).
+    let mut w = [[0.0; 9]; 12];
+    for row in 0..12 {
+        for j in 0..3 {
+            for b in 0..3 {
+                w[row][3 * j + b] = (0..4).map(|q| m[row][3 * q + b] * HELMERT[q][j]).sum();
+            }
+        }
+    }
+    let mut r = [[0.0; 9]; 9];
+    for i in 0..3 {
+        for a in 0..3 {
+            for col in 0..9 {
+                r[3 * i + a][col] = (0..4).map(|p| HELMERT[p][i] * w[3 * p + a][col]).sum();
+            }
+        }
+    }
+    let (lambda, v) = symmetric_eigen(r);
+    let mut out = m;
+    for k in 0..9 {
+        if lambda[k] < 0.0 {
+            let cut = -removed * lambda[k];
+            // The eigenvector in the hinge's unknowns: Q u.
+            let mut full = [0.0; 12];
+            for p in 0..4 {
+                for a in 0..3 {
+                    full[3 * p + a] = (0..3).map(|i| HELMERT[p][i] * v[3 * i + a][k]).sum();
+                }
+            }
+            for row in 0..12 {
+                for col in 0..12 {
+                    out[row][col] += cut * full[row] * full[col];
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The eigenvalues and eigenvectors (the columns of the second result, `v[r][k]` is
+/// entry `r` of eigenvector `k`) of the symmetric matrix `m`, by cyclic Jacobi rotations.
+#[allow(clippy::needless_range_loop)]
+fn symmetric_eigen<const N: usize>(m: [[f64; N]; N]) -> ([f64; N], [[f64; N]; N]) {
     let mut a = m;
     let mut v = [[0.0; N]; N];
     for (i, row) in v.iter_mut().enumerate() {
@@ -421,8 +487,11 @@ fn remove_negative_curvature(m: [[f64; 12]; 12], removed: f64) -> [[f64; 12]; 12
                     continue;
                 }
                 let tau = (a[q][q] - a[p][p]) / (2.0 * apq);
-                let t = tau.signum() / (tau.abs() + (1.0 + tau * tau).sqrt());
-                let t = if tau == 0.0 { 1.0 } else { t };
+                let t = if tau == 0.0 {
+                    1.0
+                } else {
+                    tau.signum() / (tau.abs() + (1.0 + tau * tau).sqrt())
+                };
                 let c = 1.0 / (1.0 + t * t).sqrt();
                 let s = t * c;
                 for k in 0..N {
@@ -443,20 +512,7 @@ fn remove_negative_curvature(m: [[f64; 12]; 12], removed: f64) -> [[f64; 12]; 12
             }
         }
     }
-    // m = V diag(lambda) V^T: subtract the removed part of each negative eigenvalue.
-    let mut out = m;
-    for k in 0..N {
-        let lambda = a[k][k];
-        if lambda < 0.0 {
-            let cut = -removed * lambda;
-            for r in 0..N {
-                for c in 0..N {
-                    out[r][c] += cut * v[r][k] * v[c][k];
-                }
-            }
-        }
-    }
-    out
+    (std::array::from_fn(|k| a[k][k]), v)
 }
 
 /// The arithmetic the closed-form gradient needs, for `f64` and for dual numbers.
