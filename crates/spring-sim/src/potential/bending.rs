@@ -10,8 +10,9 @@
 //! Hessian of a hinge, `k w (grad theta grad theta^T + (theta - theta_rest) hess theta)`,
 //! is indefinite in general; [`Curvature::Clamped`] projects the 12 x 12 matrix onto
 //! positive semidefinite matrices by clamping its negative eigenvalues at 0 (cyclic
-//! Jacobi), [`Curvature::Softened`] removes that fraction of them, [`Curvature::Exact`]
-//! keeps them. Derivation and conventions: docs/bending.md.
+//! Jacobi on the 9 x 9 matrix left once the translations, which the Hessian maps to zero,
+//! are removed), [`Curvature::Softened`] removes that fraction of them,
+//! [`Curvature::Exact`] keeps them. Derivation and conventions: docs/bending.md.
 
 use super::{HessianSink, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
