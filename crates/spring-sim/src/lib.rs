@@ -48,6 +48,7 @@ mod explicit;
 mod implicit;
 mod integrator;
 mod linear;
+mod mesh;
 mod metrics;
 mod model;
 mod newton;
@@ -62,6 +63,7 @@ pub use explicit::{SymplecticEuler, VelocityVerlet};
 pub use implicit::{Bdf2, ImplicitMidpoint};
 pub use integrator::{AutoSettings, Integrator, Simulation};
 pub use linear::{DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind};
+pub use mesh::{Bending, EdgeHinge, MeshCloth, MeshClothModel, MeshError, TriangleMesh};
 pub use metrics::{DIVERGENCE_RADIUS, RunMetrics, run, run_observed};
 pub use model::{
     ClothGrid, Energies, Material, ModelError, Particle, Rope, Spring, SpringSpec, SpringSystem,

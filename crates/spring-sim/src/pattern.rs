@@ -40,6 +40,15 @@ impl HessianPattern {
     /// Builds the pattern for `system`'s topology.
     #[must_use]
     pub fn new(system: &SpringSystem) -> Self {
+        Self::with_pairs(system, &[])
+    }
+
+    /// Builds the pattern for `system`'s topology with slots also for the particle pairs
+    /// `pairs` (a term coupling particles no spring joins, such as dihedral bending across
+    /// a hinge). Pairs with a fixed end, repeated pairs and pairs a spring already joins
+    /// add nothing; the caller checks that every index is in range.
+    #[must_use]
+    pub fn with_pairs(system: &SpringSystem, pairs: &[[usize; 2]]) -> Self {
         let mut free_index = vec![FIXED; system.len()];
         let mut free_particles = Vec::new();
         for (p, &fixed) in system.fixed().iter().enumerate() {
@@ -52,9 +61,10 @@ impl HessianPattern {
         // For each free particle, the free neighbours with a larger free index: the
         // block rows below its diagonal block.
         let mut below: Vec<Vec<usize>> = vec![Vec::new(); nfree];
-        for s in system.springs() {
-            let (fa, fb) = (free_index[s.a], free_index[s.b]);
-            if fa != FIXED && fb != FIXED {
+        let spring_pairs = system.springs().iter().map(|s| [s.a, s.b]);
+        for [a, b] in spring_pairs.chain(pairs.iter().copied()) {
+            let (fa, fb) = (free_index[a], free_index[b]);
+            if fa != FIXED && fb != FIXED && fa != fb {
                 below[fa.min(fb)].push(fa.max(fb));
             }
         }

@@ -108,6 +108,8 @@ pub struct BackwardEuler {
     objective_trace: Vec<f64>,
     particle_count: usize,
     spring_count: usize,
+    /// Particle pairs coupled by terms other than the springs, in the pattern too.
+    coupled_pairs: Vec<[usize; 2]>,
 }
 
 impl BackwardEuler {
@@ -140,6 +142,7 @@ impl BackwardEuler {
             objective_trace: Vec::new(),
             particle_count: system.len(),
             spring_count: system.springs().len(),
+            coupled_pairs: Vec::new(),
             direct,
             pattern,
         })
@@ -199,10 +202,44 @@ impl BackwardEuler {
     }
 
     /// Adds a term to the incremental potential (a contact barrier, friction). A term
-    /// that couples particles no spring joins must not be added: the Hessian pattern is
-    /// built from the springs (particle-collider contact adds diagonal blocks only).
+    /// that couples particles no spring joins must not be added here: the Hessian pattern
+    /// is built from the springs (particle-collider contact adds diagonal blocks only);
+    /// use [`BackwardEuler::add_coupled_term`] for it.
     pub fn add_term(&mut self, term: Box<dyn Term>) {
         self.potential.push(term);
+    }
+
+    /// Adds a term that couples the particle pairs `pairs` besides the springs' pairs
+    /// (dihedral bending couples the two vertices opposite a hinge): the Hessian pattern
+    /// is rebuilt with slots for them and the linear solvers are rebuilt on it. Pairs
+    /// added by earlier calls are kept. An index out of range is an `Err` naming it, and
+    /// nothing changes.
+    pub fn add_coupled_term(
+        &mut self,
+        system: &SpringSystem,
+        term: Box<dyn Term>,
+        pairs: &[[usize; 2]],
+    ) -> Result<(), ModelError> {
+        self.check_topology(system)?;
+        if pairs.iter().flatten().any(|&p| p >= system.len()) {
+            return Err(ModelError::BadParameter {
+                name: "pairs",
+                reason: "a coupled particle index is out of range",
+            });
+        }
+        self.coupled_pairs.extend_from_slice(pairs);
+        let pattern = HessianPattern::with_pairs(system, &self.coupled_pairs);
+        if self.direct.is_some() {
+            self.direct = Some(Self::build_direct(
+                &pattern,
+                self.settings.factor_structure,
+            )?);
+        }
+        self.pcg = PcgSolver::new(&pattern);
+        self.values = vec![0.0; pattern.nnz()];
+        self.pattern = pattern;
+        self.potential.push(term);
+        Ok(())
     }
 
     /// Numerically factors the last assembled Newton matrix (building the symbolic

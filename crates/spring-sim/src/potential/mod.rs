@@ -20,6 +20,7 @@
 //! energies that are `+inf` where the state is not admissible) are described in
 //! docs/potential.md, with how the pattern is rebuilt when a term couples new pairs.
 
+mod bending;
 mod damping;
 mod fused;
 mod gravity;
@@ -27,6 +28,10 @@ mod inertia;
 mod sink;
 mod springs;
 
+pub use bending::{
+    DihedralBending, Hinge, angle_change, dihedral_angle, dihedral_angle_gradient,
+    dihedral_angle_hessian,
+};
 pub use damping::AxialDamping;
 pub use gravity::Gravity;
 pub use inertia::Inertia;
