@@ -42,6 +42,8 @@ const MAX_REJECTIONS: usize = 8;
 /// The damping's growth after any rejected trial (a rejection that froze nothing grows
 /// it by 10 more).
 const CLAMP_GROWTH: f64 = 5.0;
+/// How much further than it may end a step may take a pinned effector from its pin.
+const PIN_SLACK: f64 = 1e4;
 /// Accepted steps in a row that each lower the cost by less than `CRAWL_GAIN` (relative)
 /// before the finish declares a local minimum.
 const CRAWL_STEPS: usize = 4;
@@ -88,9 +90,16 @@ pub(crate) struct Dls {
     /// The movable joints' local rotations and the global pose before a trial.
     saved: Vec<DQuat>,
     saved_global: GlobalPose,
-    /// Per target: how far from its pin a pinned effector may be (its distance at the
-    /// start of the finish, or the tolerance if larger).
+    /// Per target: how far from its pin a pinned effector may end (its distance at the
+    /// start of the finish, or the tolerance if larger), and how far an intermediate
+    /// step may take it (`PIN_SLACK` times more).
     pin_allowed: Vec<f64>,
+    pin_slack: Vec<f64>,
+    /// The best pose accepted so far with every pin within `pin_allowed`: the movable
+    /// joints' rotations, the translation, and its cost.
+    best: Vec<DQuat>,
+    best_translation: DVec3,
+    best_cost: f64,
 }
 
 /// What a finish did.
@@ -143,6 +152,65 @@ impl Dls {
                 0.0
             }
         }));
+        self.pin_slack.clear();
+        self.pin_slack
+            .extend(self.pin_allowed.iter().map(|&a| a * PIN_SLACK));
+        self.best.clear();
+        self.best
+            .extend(movable.iter().map(|&j| state.pose.rotations[j]));
+        self.best_translation = state.root_translation;
+        self.best_cost = total_cost(targets, &state.global);
+        let finished = self.iterate(
+            skeleton,
+            topology,
+            targets,
+            state,
+            root_translates,
+            settings,
+            iterations,
+            rows,
+        )?;
+        // A step may move a pin by up to the slack, so that one step can fix the other
+        // goals and the next bring the pin back; an ending that has not brought it back
+        // returns to the best pose that kept every pin.
+        if !pins_hold(
+            targets,
+            &state.global,
+            settings.tolerance,
+            &self.pin_allowed,
+        ) {
+            for (&saved, &j) in self.best.iter().zip(movable) {
+                state.pose.rotations[j] = saved;
+            }
+            state.root_translation = self.best_translation;
+            forward_kinematics(
+                skeleton,
+                &state.pose,
+                state.root_translation,
+                &mut state.global,
+            )?;
+            return Ok(Finished {
+                stop: StopReason::LocalMinimum,
+                steps: finished.steps,
+            });
+        }
+        Ok(finished)
+    }
+
+    /// The steps of [`Dls::run`], with `rows` residual rows.
+    #[allow(clippy::too_many_arguments)]
+    fn iterate(
+        &mut self,
+        skeleton: &Skeleton,
+        topology: &Topology,
+        targets: &[Target],
+        state: &mut BodyState,
+        root_translates: bool,
+        settings: &SolveSettings,
+        iterations: usize,
+        rows: usize,
+    ) -> Result<Finished, SkeletonError> {
+        let movable = &topology.movable;
         self.frozen.clear();
         self.frozen.resize(movable.len(), false);
         self.clamped.clear();
@@ -284,13 +352,22 @@ impl Dls {
             )?;
             let trial_cost = total_cost(targets, &state.global);
             if trial_cost < cost
-                && pins_hold(
-                    targets,
-                    &state.global,
-                    settings.tolerance,
-                    &self.pin_allowed,
-                )
+                && pins_hold(targets, &state.global, settings.tolerance, &self.pin_slack)
             {
+                if trial_cost < self.best_cost
+                    && pins_hold(
+                        targets,
+                        &state.global,
+                        settings.tolerance,
+                        &self.pin_allowed,
+                    )
+                {
+                    self.best.clear();
+                    self.best
+                        .extend(movable.iter().map(|&j| state.pose.rotations[j]));
+                    self.best_translation = state.root_translation;
+                    self.best_cost = trial_cost;
+                }
                 // Crawling along the bounds: accepted steps that each gain almost nothing
                 // are a local minimum in all but name; say so, so that the caller may
                 // restart, rather than spend the iterations.
