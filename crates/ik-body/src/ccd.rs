@@ -14,7 +14,7 @@
 //!
 //! The solve stops when every effector is within tolerance, at the iteration cap, or when a
 //! sweep no longer lowers the cost. With `finish` on, the damped least-squares finish of
-//! the FABRIK solver takes over from there.
+//! the FABRIK solver takes over from there (after at most `max_sweeps` sweeps).
 
 use crate::BodySolver;
 use crate::common::{Begin, Common};
@@ -27,16 +27,37 @@ use sinew_skeleton::ik::{IkError, StopReason};
 use sinew_skeleton::limits::JointLimit;
 
 /// Options of [`TreeCcdSolver`].
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct TreeCcdOptions {
-    /// Whether the damped least-squares finish runs once the sweeps stop (or reach the
-    /// cap, which the finish's steps then share). Default: off, plain CCD.
+    /// Whether the damped least-squares finish runs once the sweeps stop. Default: off,
+    /// plain CCD.
     pub finish: bool,
+    /// The most sweeps before the finish takes over (each counts as one iteration, and
+    /// the finish's steps share the iteration cap). Ignored without the finish.
+    pub max_sweeps: usize,
+}
+
+impl Default for TreeCcdOptions {
+    fn default() -> Self {
+        Self {
+            finish: false,
+            max_sweeps: 10,
+        }
+    }
 }
 
 impl TreeCcdOptions {
+    /// CCD sweeps then the damped least-squares finish.
+    #[must_use]
+    pub fn with_finish() -> Self {
+        Self {
+            finish: true,
+            ..Self::default()
+        }
+    }
+
     /// Checks the options (every combination is valid today).
     pub fn validate(&self) -> Result<(), IkError> {
         Ok(())
@@ -196,7 +217,9 @@ impl BodySolver for TreeCcdSolver {
             if all_within(&self.common.targets, &state.global, settings) {
                 break StopReason::Converged;
             }
-            if iterations >= settings.max_iterations {
+            if iterations >= settings.max_iterations
+                || (self.options.finish && iterations >= self.options.max_sweeps)
+            {
                 break StopReason::IterationCap;
             }
             for m in (0..self.common.topology.movable.len()).rev() {

@@ -114,8 +114,20 @@ impl BodySolverOptions {
                 restarts: 0,
             }),
         ),
-        ("ccd", Self::Ccd(TreeCcdOptions { finish: false })),
-        ("ccd-finish", Self::Ccd(TreeCcdOptions { finish: true })),
+        (
+            "ccd",
+            Self::Ccd(TreeCcdOptions {
+                finish: false,
+                max_sweeps: 10,
+            }),
+        ),
+        (
+            "ccd-finish",
+            Self::Ccd(TreeCcdOptions {
+                finish: true,
+                max_sweeps: 10,
+            }),
+        ),
     ];
 
     /// The named configuration `name`, or an error listing the names.
