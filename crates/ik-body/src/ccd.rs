@@ -250,6 +250,6 @@ impl BodySolver for TreeCcdSolver {
         } else {
             (iterations, stop)
         };
-        Ok(self.common.report(problem, state, iterations, stop, false))
+        self.common.report(problem, state, iterations, stop, false)
     }
 }

@@ -21,8 +21,10 @@ pub(crate) struct Common {
     pub initial: Vec<(f64, f64)>,
     pub initial_cost: f64,
     pub dls: Dls,
-    /// A pose kept while another is tried (the restart).
+    /// A pose kept while one pass is tried, and the best pose kept while a restart is
+    /// tried (two buffers: a restart runs passes).
     kept: Vec<DQuat>,
+    best: Vec<DQuat>,
     /// The starting pose (projected onto the limits) and translation.
     start: Vec<DQuat>,
     start_translation: DVec3,
@@ -101,12 +103,14 @@ impl Common {
                 0,
                 StopReason::Converged,
                 false,
-            )));
+            )?));
         }
         Ok(Begin::Iterate)
     }
 
-    /// The report of the pose in `state` (its global pose exact).
+    /// The report of the pose in `state`, after forward kinematics of it from the root
+    /// (incremental updates of a translated body round differently, and the global pose
+    /// returned must be exactly [`forward_kinematics`] of the pose).
     pub fn report(
         &self,
         problem: &BodyProblem<'_>,
@@ -114,8 +118,14 @@ impl Common {
         iterations: usize,
         stop: StopReason,
         restarted: bool,
-    ) -> BodyReport {
-        finish_report(
+    ) -> Result<BodyReport, IkError> {
+        forward_kinematics(
+            problem.skeleton,
+            &state.pose,
+            state.root_translation,
+            &mut state.global,
+        )?;
+        Ok(finish_report(
             problem,
             &self.targets,
             state,
@@ -124,7 +134,7 @@ impl Common {
             iterations,
             stop,
             restarted,
-        )
+        ))
     }
 
     /// Whether every pinned effector is within the tolerance of its goal at `state`, or
@@ -143,6 +153,31 @@ impl Common {
         self.kept.clear();
         self.kept.extend_from_slice(&state.pose.rotations);
         state.root_translation
+    }
+
+    /// Keeps `state`'s pose aside as the best so far (see [`Common::restore_best`]).
+    pub fn keep_best(&mut self, state: &BodyState) -> DVec3 {
+        self.best.clear();
+        self.best.extend_from_slice(&state.pose.rotations);
+        state.root_translation
+    }
+
+    /// Puts the best pose back and recomputes forward kinematics.
+    pub fn restore_best(
+        &self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+        translation: DVec3,
+    ) -> Result<(), IkError> {
+        state.pose.rotations.copy_from_slice(&self.best);
+        state.root_translation = translation;
+        forward_kinematics(
+            problem.skeleton,
+            &state.pose,
+            translation,
+            &mut state.global,
+        )?;
+        Ok(())
     }
 
     /// Puts the kept pose back and recomputes forward kinematics.

@@ -221,7 +221,7 @@ impl BodySolver for TreeFabrikSolver {
             && iterations < problem.settings.max_iterations
         {
             let best_cost = self.common.cost(state);
-            let best_translation = self.common.keep(state);
+            let best_translation = self.common.keep_best(state);
             // The first restart is the passes then the finish from the starting pose
             // (when the first attempt was the finish alone): the passes lead into
             // other basins than the finish does.
@@ -237,12 +237,11 @@ impl BodySolver for TreeFabrikSolver {
                 stop = next_stop;
                 restarted = true;
             } else {
-                self.common.restore(problem, state, best_translation)?;
+                self.common.restore_best(problem, state, best_translation)?;
             }
         }
-        Ok(self
-            .common
-            .report(problem, state, iterations, stop, restarted))
+        self.common
+            .report(problem, state, iterations, stop, restarted)
     }
 }
 
