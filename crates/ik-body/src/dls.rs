@@ -31,9 +31,9 @@ use crate::problem::{BodyState, Target, all_within, forward_kinematics, pins_hol
 use crate::topology::Topology;
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{SolveSettings, StopReason, rotation_angle};
-use sinew_skeleton::limits::{Hinge, JointLimit, SwingTwist};
+use sinew_skeleton::limits::{JointLimit, SwingTwist};
 use sinew_skeleton::{GlobalPose, Skeleton, SkeletonError};
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::PI;
 
 /// Relative to the mean diagonal of `J J^T`: the first damping (nearly Gauss-Newton).
 const INITIAL_DAMPING: f64 = 1e-6;
@@ -107,18 +107,6 @@ pub(crate) struct Dls {
 pub(crate) struct Finished {
     pub stop: StopReason,
     pub steps: usize,
-}
-
-/// Whether turning the hinge joint at `local` by `step` radians about its axis pushes it
-/// past a bound it already sits on.
-fn pushes_outwards(hinge: &Hinge, local: DQuat, step: f64) -> bool {
-    let mut angle = 2.0 * local.xyz().dot(hinge.axis).atan2(local.w);
-    if angle > PI {
-        angle -= TAU;
-    } else if angle <= -PI {
-        angle += TAU;
-    }
-    (step > 0.0 && angle >= hinge.max - AT_BOUND) || (step < 0.0 && angle <= hinge.min + AT_BOUND)
 }
 
 impl Dls {
@@ -293,7 +281,7 @@ impl Dls {
                 }
                 let j = movable[m];
                 if let JointLimit::Hinge(h) = skeleton.limit(j)
-                    && pushes_outwards(h, state.pose.rotations[j], s)
+                    && h.pushes_outwards(state.pose.rotations[j], s, AT_BOUND)
                 {
                     self.frozen[m] = true;
                     resolving = true;
@@ -688,20 +676,6 @@ impl Dls {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_hinge_pushes_outwards_only_from_a_bound_it_sits_on() {
-        let hinge = Hinge {
-            axis: DVec3::X,
-            min: 0.0,
-            max: 2.0,
-        };
-        let at = |a: f64| DQuat::from_axis_angle(DVec3::X, a);
-        assert!(pushes_outwards(&hinge, at(0.0), -0.1));
-        assert!(!pushes_outwards(&hinge, at(0.0), 0.1));
-        assert!(pushes_outwards(&hinge, at(2.0), 0.1));
-        assert!(!pushes_outwards(&hinge, -at(1.0), 0.1));
-    }
 
     #[test]
     #[allow(clippy::needless_range_loop)]
