@@ -35,13 +35,15 @@ use sinew_skeleton::limits::{JointLimit, SwingTwist};
 use sinew_skeleton::{GlobalPose, Skeleton, SkeletonError};
 use std::f64::consts::PI;
 
-/// Relative to the mean diagonal of `J J^T`: the first damping (nearly Gauss-Newton).
-const INITIAL_DAMPING: f64 = 1e-6;
+/// The first damping is the smaller of this times the mean diagonal of `J J^T` and
+/// `COST_DAMPING` times the weighted cost.
+const INITIAL_DAMPING: f64 = 0.1;
+const COST_DAMPING: f64 = 0.1;
 /// Consecutive rejections before the finish declares a local minimum.
 const MAX_REJECTIONS: usize = 8;
 /// The damping's growth after any rejected trial (a rejection that froze nothing grows
 /// it by 10 more).
-const CLAMP_GROWTH: f64 = 5.0;
+const CLAMP_GROWTH: f64 = 2.0;
 /// How much further than it may end a step may take a pinned effector from its pin.
 const PIN_SLACK: f64 = 1e4;
 /// Accepted steps in a row that each lower the cost by less than `CRAWL_GAIN` (relative)
@@ -253,7 +255,11 @@ impl Dls {
             self.accumulate_normal(rows);
             if damping.is_nan() {
                 let trace: f64 = (0..rows).map(|a| self.normal[a * rows + a]).sum();
-                damping = INITIAL_DAMPING * trace / rows as f64;
+                // Far from the goals (a cold start) a cautious first step, near them (a warm
+                // frame) a nearly Gauss-Newton one: the damping follows the cost, as in
+                // Yamashita and Fukushima's choice `lambda = |r|^2`, capped by the scale
+                // of `J J^T`.
+                damping = (INITIAL_DAMPING * trace / rows as f64).min(COST_DAMPING * cost);
             }
             if !resolving {
                 steps += 1;
