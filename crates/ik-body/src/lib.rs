@@ -27,10 +27,10 @@
 //! Architecture invariant: depends on sinew-skeleton and sinew-math only (serde behind the
 //! `serde` feature).
 
-mod ccd;
+pub mod ccd;
 mod common;
 mod dls;
-mod fabrik;
+pub mod fabrik;
 mod horn;
 pub mod problem;
 mod topology;
