@@ -6,7 +6,8 @@
 //! so feasible) solved cold from the rest pose with every effector within 1e-6 and no limit
 //! violated by more than 1e-12 rad, and the median time per cold solve; the same with
 //! rotation goals on the wrists; the 600-frame squat clip warm-started (median time per
-//! frame, frames within tolerance, worst pinned-foot drift); and 1 000 characters each
+//! frame, frames within tolerance, worst pinned-foot drift, the largest joint rotation
+//! change between frames, frames that restarted); and 1 000 characters each
 //! solving one warm frame through the batch API on one thread (median time per batch).
 
 use sinew_ik_body::workload::{self, CLIP_FRAMES, EFFECTORS};
@@ -14,7 +15,7 @@ use sinew_ik_body::{
     BodyBatch, BodyProblem, BodyReport, BodySolverOptions, BodyState, TreeFabrikOptions,
 };
 use sinew_skeleton::Skeleton;
-use sinew_skeleton::ik::{SolveSettings, StopReason};
+use sinew_skeleton::ik::{SolveSettings, StopReason, largest_rotation_change};
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -93,6 +94,10 @@ fn clip(skeleton: &Skeleton, solver_name: &str) {
     let mut worst: f64 = 0.0;
     let mut drift: f64 = 0.0;
     let mut violation: f64 = 0.0;
+    let mut jump: f64 = 0.0;
+    let mut restarts = 0;
+    let joints: Vec<usize> = (0..skeleton.len()).collect();
+    let mut previous = state.pose.clone();
     for frame in 0..CLIP_FRAMES {
         let effectors = workload::clip_frame(&rest, frame);
         let problem = BodyProblem::new(skeleton, &effectors, settings).with_root_translation(true);
@@ -102,13 +107,18 @@ fn clip(skeleton: &Skeleton, solver_name: &str) {
         within += usize::from(report.within(&settings));
         worst = worst.max(report.max_error);
         violation = violation.max(report.limit_violation);
+        restarts += usize::from(report.restarted);
+        if frame > 0 {
+            jump = jump.max(largest_rotation_change(&previous, &state.pose, &joints));
+        }
+        previous.rotations.copy_from_slice(&state.pose.rotations);
         for k in [2, 3] {
             drift = drift
                 .max(state.global.positions[EFFECTORS[k]].distance(rest.positions[EFFECTORS[k]]));
         }
     }
     println!(
-        "clip {solver_name}: {within}/{CLIP_FRAMES} frames within 1e-6; median {:.2} us, p90 {:.2} us per warm frame; worst effector error {worst:.2e}; worst ankle drift {drift:.2e}; worst limit violation {violation:.1e}",
+        "clip {solver_name}: {within}/{CLIP_FRAMES} frames within 1e-6; median {:.2} us, p90 {:.2} us per warm frame; worst effector error {worst:.2e}; worst ankle drift {drift:.2e}; worst limit violation {violation:.1e}; largest joint rotation change between frames {jump:.3} rad; {restarts} frames restarted",
         median(times.clone()),
         percentile(times, 0.9),
     );
