@@ -56,6 +56,8 @@ const AT_BOUND: f64 = 1e-12;
 const CLAMPED: f64 = 1e-12;
 /// The dof "joint" index of the body's translation.
 const TRANSLATION: usize = usize::MAX;
+/// A movable joint without degrees of freedom (a fixed joint).
+const NO_DOF: usize = usize::MAX;
 
 /// Buffers of the finish, owned by the solver so that a solve does not allocate once
 /// they have grown to the problem's size.
@@ -69,8 +71,15 @@ pub(crate) struct Dls {
     /// dof `k`, rows increasing.
     col_start: Vec<usize>,
     entries: Vec<(usize, f64)>,
-    /// Lower triangle of `J J^T` (rows x rows, row-major), and its damped Cholesky factor.
+    /// Lower triangle of `J J^T` over every degree of freedom at the linearization point
+    /// (rows x rows, row-major); the same without the frozen and blocked ones; and its
+    /// damped Cholesky factor.
+    normal_full: Vec<f64>,
     normal: Vec<f64>,
+    /// Per movable joint: the index of its first degree of freedom (`NO_DOF` for a fixed
+    /// joint), and the world rotation vector of the current step.
+    first_dof: Vec<usize>,
+    turn: Vec<DVec3>,
     factor: Vec<f64>,
     residual: Vec<f64>,
     y: Vec<f64>,
@@ -217,7 +226,10 @@ impl Dls {
         self.outward.resize(movable.len(), [DVec3::ZERO; 2]);
         self.find_outward(skeleton, movable, state);
         self.normal.resize(rows * rows, 0.0);
+        self.normal_full.resize(rows * rows, 0.0);
         self.factor.resize(rows * rows, 0.0);
+        self.turn.clear();
+        self.turn.resize(movable.len(), DVec3::ZERO);
         self.residual.resize(rows, 0.0);
         self.y.resize(rows, 0.0);
         let mut cost = total_cost(targets, &state.global);
@@ -226,6 +238,10 @@ impl Dls {
         let mut crawl = 0;
         let mut steps = 0;
         let mut resolving = false;
+        // Whether the columns and `normal_full` are those of the current pose: a rejected
+        // trial or a change of the active set keeps them, only an accepted step moves
+        // the linearization point.
+        let mut fresh = false;
         loop {
             if all_within(targets, &state.global, settings) {
                 return Ok(Finished {
@@ -245,14 +261,17 @@ impl Dls {
                     steps,
                 });
             }
-            self.linearize(skeleton, topology, targets, state, root_translates);
-            if self.dofs.is_empty() {
+            if !fresh {
+                self.linearize(skeleton, topology, targets, state, root_translates);
+                self.accumulate_normal(rows);
+                fresh = true;
+            }
+            if !self.reduce(skeleton, movable, rows) {
                 return Ok(Finished {
                     stop: StopReason::LocalMinimum,
                     steps,
                 });
             }
-            self.accumulate_normal(rows);
             if damping.is_nan() {
                 let trace: f64 = (0..rows).map(|a| self.normal[a * rows + a]).sum();
                 // Far from the goals (a cold start) a cautious first step, near them (a warm
@@ -270,44 +289,31 @@ impl Dls {
                 rejections += 1;
                 continue;
             }
-            self.step.clear();
-            for k in 0..self.dofs.len() {
-                let s = self.entries[self.col_start[k]..self.col_start[k + 1]]
-                    .iter()
-                    .map(|&(row, v)| v * self.y[row])
-                    .sum();
-                self.step.push(s);
-            }
+            let shift = self.turns(movable);
             // A hinge is a box on its angle, so this part of the active set is exact: a
             // hinge on a bound stepping outwards would be clamped back while the others
             // moved as if it had turned. Leave it out and solve the same step again.
-            for (&(m, _), &s) in self.dofs.iter().zip(&self.step) {
-                if m == TRANSLATION {
-                    continue;
-                }
-                let j = movable[m];
+            for (m, &j) in movable.iter().enumerate() {
                 if let JointLimit::Hinge(h) = skeleton.limit(j)
-                    && h.pushes_outwards(state.pose.rotations[j], s, AT_BOUND)
+                    && !self.frozen[m]
                 {
-                    self.frozen[m] = true;
-                    resolving = true;
+                    let k = self.first_dof[m];
+                    if k != NO_DOF
+                        && h.pushes_outwards(state.pose.rotations[j], self.step[k], AT_BOUND)
+                    {
+                        self.frozen[m] = true;
+                        resolving = true;
+                    }
                 }
             }
             // The same for a swing-twist joint on its bound: the step's component along
             // the bound's outward normal would be projected away; block that direction
             // (the joint keeps sliding along the bound) and solve again.
-            let mut k = 0;
-            while k < self.dofs.len() {
-                let m = self.dofs[k].0;
-                let mut w = DVec3::ZERO;
-                while k < self.dofs.len() && self.dofs[k].0 == m {
-                    w += self.dofs[k].1 * self.step[k];
-                    k += 1;
-                }
-                if m == TRANSLATION || self.outward[m] == [DVec3::ZERO; 2] {
+            for (m, &j) in movable.iter().enumerate() {
+                let w = self.turn[m];
+                if self.outward[m] == [DVec3::ZERO; 2] || w == DVec3::ZERO {
                     continue;
                 }
-                let j = movable[m];
                 let parent = skeleton
                     .parent(j)
                     .map_or(DQuat::IDENTITY, |p| state.global.rotations[p]);
@@ -337,7 +343,7 @@ impl Dls {
             self.saved_global
                 .positions
                 .clone_from(&state.global.positions);
-            self.apply_step(skeleton, movable, state);
+            self.apply_step(skeleton, movable, state, shift);
             forward_kinematics(
                 skeleton,
                 &state.pose,
@@ -379,6 +385,7 @@ impl Dls {
                 }
                 damping /= 3.0;
                 rejections = 0;
+                fresh = false;
                 self.frozen.fill(false);
                 self.blocked_count.fill(0);
                 for (on, &clamped) in self.on_bound.iter_mut().zip(&self.clamped) {
@@ -439,10 +446,8 @@ impl Dls {
         self.dofs.clear();
         self.col_start.clear();
         self.entries.clear();
+        self.first_dof.clear();
         for (m, &j) in topology.movable.iter().enumerate() {
-            if self.frozen[m] {
-                continue;
-            }
             let axes: [DVec3; 3];
             let axes: &[DVec3] = match skeleton.limit(j) {
                 JointLimit::Fixed => &[],
@@ -458,13 +463,11 @@ impl Dls {
                 // swing.
                 JointLimit::Free | JointLimit::SwingTwist(_) => &[DVec3::X, DVec3::Y, DVec3::Z],
             };
-            let blocked_axes: [DVec3; 3];
-            let axes = if self.blocked_count[m] == 0 {
-                axes
+            self.first_dof.push(if axes.is_empty() {
+                NO_DOF
             } else {
-                blocked_axes = self.unblocked_axes(m);
-                &blocked_axes[..3 - self.blocked_count[m]]
-            };
+                self.dofs.len()
+            });
             let at = global.positions[j];
             for &u in axes {
                 self.col_start.push(self.entries.len());
@@ -565,31 +568,94 @@ impl Dls {
         }
     }
 
-    /// An orthonormal basis of the directions movable joint `m` may still turn in, first
-    /// `3 - blocked_count[m]` entries.
-    fn unblocked_axes(&self, m: usize) -> [DVec3; 3] {
-        let b = &self.blocked[m];
-        match self.blocked_count[m] {
-            1 => {
-                let (u, v) = b[0].any_orthonormal_pair();
-                [u, v, DVec3::ZERO]
-            }
-            _ => [b[0].cross(b[1]).normalize(), DVec3::ZERO, DVec3::ZERO],
-        }
-    }
-
     /// `J J^T` (lower triangle) from the sparse columns.
     fn accumulate_normal(&mut self, rows: usize) {
-        self.normal[..rows * rows].fill(0.0);
+        self.normal_full[..rows * rows].fill(0.0);
         for k in 0..self.dofs.len() {
             let col = &self.entries[self.col_start[k]..self.col_start[k + 1]];
             for (i, &(a, va)) in col.iter().enumerate() {
-                let line = &mut self.normal[a * rows..a * rows + a + 1];
+                let line = &mut self.normal_full[a * rows..a * rows + a + 1];
                 for &(b, vb) in &col[..=i] {
                     line[b] += va * vb;
                 }
             }
         }
+    }
+
+    /// `J J^T` over the active degrees of freedom into `normal`: `normal_full` less the
+    /// columns of the frozen joints and, for a joint with blocked directions `b`, less
+    /// `c(b) c(b)^T` (its three world-axis columns `C` span `C C^T`, and the allowed
+    /// directions `P = I - sum b b^T` leave `C P C^T`). False when nothing may move.
+    fn reduce(&mut self, skeleton: &Skeleton, movable: &[usize], rows: usize) -> bool {
+        self.normal[..rows * rows].copy_from_slice(&self.normal_full[..rows * rows]);
+        let mut active = self.dofs.last().is_some_and(|d| d.0 == TRANSLATION);
+        for (m, &j) in movable.iter().enumerate() {
+            let k0 = self.first_dof[m];
+            if k0 == NO_DOF {
+                continue;
+            }
+            let count = match skeleton.limit(j) {
+                JointLimit::Hinge(_) => 1,
+                _ => 3,
+            };
+            if self.frozen[m] {
+                for k in k0..k0 + count {
+                    let (a, b) = (self.col_start[k], self.col_start[k + 1]);
+                    subtract_outer(&mut self.normal, rows, self.entries[a..b].iter().copied());
+                }
+                continue;
+            }
+            active = true;
+            for i in 0..self.blocked_count[m] {
+                let d = self.blocked[m][i];
+                let len = self.col_start[k0 + 1] - self.col_start[k0];
+                let (x, y, z) = (
+                    self.col_start[k0],
+                    self.col_start[k0 + 1],
+                    self.col_start[k0 + 2],
+                );
+                let combined = (0..len).map(|e| {
+                    let row = self.entries[x + e].0;
+                    let v = d.x * self.entries[x + e].1
+                        + d.y * self.entries[y + e].1
+                        + d.z * self.entries[z + e].1;
+                    (row, v)
+                });
+                subtract_outer(&mut self.normal, rows, combined);
+            }
+        }
+        active
+    }
+
+    /// The step of every degree of freedom (`J_k . y`), and from them each movable joint's
+    /// world rotation vector (zero when frozen, its blocked directions projected out);
+    /// returns the translation's step.
+    fn turns(&mut self, movable: &[usize]) -> DVec3 {
+        self.step.clear();
+        for k in 0..self.dofs.len() {
+            let s = self.entries[self.col_start[k]..self.col_start[k + 1]]
+                .iter()
+                .map(|&(row, v)| v * self.y[row])
+                .sum();
+            self.step.push(s);
+        }
+        let mut shift = DVec3::ZERO;
+        self.turn.fill(DVec3::ZERO);
+        for (&(m, u), &s) in self.dofs.iter().zip(&self.step) {
+            if m == TRANSLATION {
+                shift += u * s;
+            } else if !self.frozen[m] {
+                self.turn[m] += u * s;
+            }
+        }
+        for m in 0..movable.len() {
+            for i in 0..self.blocked_count[m] {
+                let b = self.blocked[m][i];
+                let w = self.turn[m];
+                self.turn[m] = w - b * b.dot(w);
+            }
+        }
+        shift
     }
 
     /// Solves `(J J^T + damping I) y = residual` by Cholesky into `self.y`; false when a
@@ -629,26 +695,22 @@ impl Dls {
         self.y[..rows].iter().all(|v| v.is_finite())
     }
 
-    /// Turns each movable joint by its dofs' step (world axes taken into the parent's
-    /// frame), projects it onto its limit, and moves the body by the translation step.
-    fn apply_step(&mut self, skeleton: &Skeleton, movable: &[usize], state: &mut BodyState) {
+    /// Turns each movable joint by its step `turn` (world axes taken into the parent's
+    /// frame), projects it onto its limit, and moves the body by `shift`.
+    fn apply_step(
+        &mut self,
+        skeleton: &Skeleton,
+        movable: &[usize],
+        state: &mut BodyState,
+        shift: DVec3,
+    ) {
         self.clamped.fill(false);
-        let mut k = 0;
-        while k < self.dofs.len() {
-            let m = self.dofs[k].0;
-            let mut w = DVec3::ZERO;
-            while k < self.dofs.len() && self.dofs[k].0 == m {
-                w += self.dofs[k].1 * self.step[k];
-                k += 1;
-            }
-            if m == TRANSLATION {
-                state.root_translation += w;
-                continue;
-            }
+        state.root_translation += shift;
+        for (m, &j) in movable.iter().enumerate() {
+            let w = self.turn[m];
             if w == DVec3::ZERO {
                 continue;
             }
-            let j = movable[m];
             let local = match skeleton.parent(j) {
                 Some(p) => state.global.rotations[p].conjugate() * w,
                 None => w,
@@ -679,6 +741,20 @@ impl Dls {
     }
 }
 
+/// Subtracts the outer product of a sparse column (rows increasing) from the lower
+/// triangle of a rows x rows matrix.
+fn subtract_outer(
+    matrix: &mut [f64],
+    rows: usize,
+    column: impl Iterator<Item = (usize, f64)> + Clone,
+) {
+    for (i, (a, va)) in column.clone().enumerate() {
+        for (b, vb) in column.clone().take(i + 1) {
+            matrix[a * rows + b] -= va * vb;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -699,9 +775,11 @@ mod tests {
             (2, 0.25),
             (3, -1.0),
         ];
+        dls.normal_full.resize(rows * rows, 0.0);
         dls.normal.resize(rows * rows, 0.0);
         dls.factor.resize(rows * rows, 0.0);
         dls.accumulate_normal(rows);
+        dls.normal.copy_from_slice(&dls.normal_full);
         // Dense J, rows x dofs.
         let mut j = [[0.0; 3]; 4];
         for k in 0..3 {
@@ -730,5 +808,54 @@ mod tests {
         // J J^T is singular here (rank 3 of 4): without damping there is no solution,
         // and the solve says so instead of returning NaN.
         assert!(!dls.solve(rows, 0.0) || dls.y.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    #[allow(clippy::field_reassign_with_default)]
+    fn blocking_a_direction_leaves_the_normal_matrix_of_the_other_two() {
+        // One swing-twist joint with world-axis columns over 3 rows; blocking `b` must
+        // leave exactly the normal matrix of two columns along a basis orthogonal to `b`.
+        let limit = JointLimit::cone(DVec3::X, 1.0).unwrap();
+        let skel = Skeleton::new([sinew_skeleton::JointDef {
+            limit,
+            ..Default::default()
+        }])
+        .unwrap();
+        let cols = [[0.3, -1.2, 0.5], [1.1, 0.4, -0.7], [-0.2, 0.9, 1.3]];
+        let rows = 3;
+        let mut dls = Dls::default();
+        dls.dofs = vec![(0, DVec3::X), (0, DVec3::Y), (0, DVec3::Z)];
+        dls.col_start = vec![0, 3, 6, 9];
+        dls.entries = cols
+            .iter()
+            .flat_map(|c| (0..3).map(move |r| (r, c[r])))
+            .collect();
+        dls.first_dof = vec![0];
+        dls.frozen = vec![false];
+        let b = DVec3::new(1.0, 2.0, -2.0) / 3.0;
+        dls.blocked = vec![[b, DVec3::ZERO]];
+        dls.blocked_count = vec![1];
+        dls.normal_full.resize(9, 0.0);
+        dls.normal.resize(9, 0.0);
+        dls.accumulate_normal(rows);
+        assert!(dls.reduce(&skel, &[0], rows));
+        let column = |u: DVec3| -> [f64; 3] {
+            std::array::from_fn(|r| u.x * cols[0][r] + u.y * cols[1][r] + u.z * cols[2][r])
+        };
+        let (u, v) = b.any_orthonormal_pair();
+        let (cu, cv) = (column(u), column(v));
+        for a in 0..rows {
+            for c in 0..=a {
+                let expected = cu[a] * cu[c] + cv[a] * cv[c];
+                assert!(
+                    (dls.normal[a * rows + c] - expected).abs() < 1e-14,
+                    "{a} {c}"
+                );
+            }
+        }
+        // Frozen: nothing of the joint is left.
+        dls.frozen = vec![true];
+        assert!(!dls.reduce(&skel, &[0], rows));
+        assert!(dls.normal.iter().all(|x| x.abs() < 1e-14));
     }
 }
