@@ -36,9 +36,8 @@
 
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{Chain, EffectorGoal, StopReason, rotation_angle};
-use sinew_skeleton::limits::{Hinge, JointLimit, swing_twist};
+use sinew_skeleton::limits::{JointLimit, swing_twist};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
-use std::f64::consts::{PI, TAU};
 
 /// Relative to the trace of `J J^T`: the first damping (nearly Gauss-Newton).
 const INITIAL_DAMPING: f64 = 1e-6;
@@ -104,19 +103,6 @@ fn residual(goal: &EffectorGoal, global: &GlobalPose) -> ([f64; 6], f64) {
 /// decreases.
 pub(crate) fn cost(goal: &EffectorGoal, global: &GlobalPose) -> f64 {
     residual(goal, global).1
-}
-
-/// Whether turning the hinge joint at `local` (inside its limit) by `step` radians about
-/// its axis pushes it past a bound it already sits on.
-fn pushes_outwards(hinge: &Hinge, local: DQuat, step: f64) -> bool {
-    let along = local.xyz().dot(hinge.axis);
-    let mut angle = 2.0 * along.atan2(local.w);
-    if angle > PI {
-        angle -= TAU;
-    } else if angle <= -PI {
-        angle += TAU;
-    }
-    (step > 0.0 && angle >= hinge.max - AT_BOUND) || (step < 0.0 && angle <= hinge.min + AT_BOUND)
 }
 
 /// Which groups of `limit` the projection from `turned` to `projected` moved.
@@ -272,7 +258,7 @@ impl LimitedRefiner {
             for (&(c, _, _), &step) in self.dofs.iter().zip(&self.step) {
                 let j = movable[c];
                 if let JointLimit::Hinge(h) = skeleton.limit(j)
-                    && pushes_outwards(h, pose.rotations[j], step)
+                    && h.pushes_outwards(pose.rotations[j], step, AT_BOUND)
                 {
                     self.frozen[c] = [true; 2];
                     resolving = true;
@@ -387,40 +373,6 @@ fn solve_damped(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_hinge_pushes_outwards_only_from_a_bound_it_sits_on() {
-        let hinge = Hinge {
-            axis: DVec3::NEG_Y,
-            min: 0.0,
-            max: 150f64.to_radians(),
-        };
-        let at = |angle: f64| DQuat::from_axis_angle(hinge.axis, angle);
-        // At the lower bound: a negative step leaves the range, a positive one enters it.
-        assert!(pushes_outwards(&hinge, at(0.0), -1e-3));
-        assert!(!pushes_outwards(&hinge, at(0.0), 1e-3));
-        // At the upper bound, the other way round.
-        assert!(pushes_outwards(&hinge, at(hinge.max), 1e-3));
-        assert!(!pushes_outwards(&hinge, at(hinge.max), -1e-3));
-        // Inside the range, no step is blocked (only a bound the joint sits on counts).
-        for angle in [1e-6, 1.0, hinge.max - 1e-6] {
-            assert!(!pushes_outwards(&hinge, at(angle), 1e-3), "{angle}");
-            assert!(!pushes_outwards(&hinge, at(angle), -1e-3), "{angle}");
-        }
-        // The quaternion's sign does not change the angle read.
-        assert!(pushes_outwards(&hinge, -at(hinge.max), 1e-3));
-        // A range reaching past a half turn reads the angle in (-pi, pi].
-        let wide = Hinge {
-            axis: DVec3::X,
-            min: -PI,
-            max: PI,
-        };
-        assert!(!pushes_outwards(
-            &wide,
-            DQuat::from_axis_angle(DVec3::X, 3.0),
-            1e-3
-        ));
-    }
 
     #[test]
     fn the_damped_cholesky_solve_inverts_the_matrix() {

@@ -432,6 +432,25 @@ impl JointLimit {
     }
 }
 
+impl Hinge {
+    /// Whether turning `local` (a rotation about this hinge's axis, inside its range) by
+    /// `step` radians about the axis pushes it past a bound it already sits on (within
+    /// `at_bound` radians). A hinge's limit is a box on its angle, so this is the exact
+    /// active-set test the damped least-squares finishes (chain and full body) make before
+    /// a step. The angle is read in `(-pi, pi]`, the same for `local` and `-local`.
+    #[must_use]
+    pub fn pushes_outwards(&self, local: DQuat, step: f64, at_bound: f64) -> bool {
+        let along = local.xyz().dot(self.axis);
+        let mut angle = 2.0 * along.atan2(local.w);
+        if angle > PI {
+            angle -= TAU;
+        } else if angle <= -PI {
+            angle += TAU;
+        }
+        (step > 0.0 && angle >= self.max - at_bound) || (step < 0.0 && angle <= self.min + at_bound)
+    }
+}
+
 impl SwingTwist {
     /// Whether the swing with ellipse coordinates `(ra, rb)` is inside the ellipse. A full
     /// disc (both half-angles pi) holds every swing, whatever the rounding of `|s| = pi`.

@@ -771,3 +771,36 @@ fn centres_are_the_middle_of_each_range() {
     assert_eq!(JointLimit::Fixed.centre(), Some(DQuat::IDENTITY));
     assert_eq!(JointLimit::Free.centre(), None);
 }
+
+#[test]
+fn a_hinge_pushes_outwards_only_from_a_bound_it_sits_on() {
+    let hinge = Hinge {
+        axis: DVec3::NEG_Y,
+        min: 0.0,
+        max: 150f64.to_radians(),
+    };
+    let at = |angle: f64| DQuat::from_axis_angle(hinge.axis, angle);
+    let pushes = |q: DQuat, step: f64| hinge.pushes_outwards(q, step, 1e-12);
+    // At the lower bound: a negative step leaves the range, a positive one enters it.
+    assert!(pushes(at(0.0), -1e-3));
+    assert!(!pushes(at(0.0), 1e-3));
+    // At the upper bound, the other way round.
+    assert!(pushes(at(hinge.max), 1e-3));
+    assert!(!pushes(at(hinge.max), -1e-3));
+    // Inside the range, no step is blocked (only a bound the joint sits on counts).
+    for angle in [1e-6, 1.0, hinge.max - 1e-6] {
+        assert!(!pushes(at(angle), 1e-3), "{angle}");
+        assert!(!pushes(at(angle), -1e-3), "{angle}");
+    }
+    // The quaternion's sign does not change the angle read.
+    assert!(pushes(-at(hinge.max), 1e-3));
+    // `at_bound` widens the bound: 1e-6 inside counts as on it with a 1e-5 allowance.
+    assert!(hinge.pushes_outwards(at(hinge.max - 1e-6), 1e-3, 1e-5));
+    // A range reaching past a half turn reads the angle in (-pi, pi].
+    let wide = Hinge {
+        axis: DVec3::X,
+        min: -PI,
+        max: PI,
+    };
+    assert!(!wide.pushes_outwards(DQuat::from_axis_angle(DVec3::X, 3.0), 1e-3, 1e-12));
+}

@@ -1,0 +1,108 @@
+//! Criterion benchmarks of the full-body solvers on the reference humanoid (22 joints,
+//! five effectors, the hips translating): one cold solve from the rest pose per iteration
+//! (cycling through 200 feasible goal sets), one warm frame of the 600-frame squat clip per
+//! iteration (cycling through the clip), and 1 000 characters each solving one warm frame
+//! through the batch API on one thread. `cargo bench -p sinew-ik-body`.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use sinew_ik_body::workload::{self, CLIP_FRAMES};
+use sinew_ik_body::{
+    BodyBatch, BodyEffector, BodyProblem, BodyReport, BodySolverOptions, BodyState,
+    TreeFabrikOptions,
+};
+use sinew_skeleton::ik::{SolveSettings, StopReason};
+use std::hint::black_box;
+
+fn cold(c: &mut Criterion) {
+    let skel = workload::humanoid().expect("valid");
+    let settings = SolveSettings::default();
+    let sets = workload::goal_sets(&skel, 200, 8, false);
+    let rest = BodyState::rest(&skel);
+    for name in ["dls", "fabrik", "ccd"] {
+        let mut solver = BodySolverOptions::by_name(name)
+            .and_then(|o| o.build())
+            .expect("named");
+        let mut state = rest.clone();
+        let mut i = 0;
+        c.bench_function(&format!("w8-cold/{name}"), |b| {
+            b.iter(|| {
+                state.copy_pose_from(&rest.pose, rest.root_translation);
+                let problem = BodyProblem::new(&skel, &sets[i].effectors, settings)
+                    .with_root_translation(true);
+                let report = solver.solve(&problem, &mut state).expect("valid");
+                i = (i + 1) % sets.len();
+                black_box(report)
+            });
+        });
+    }
+}
+
+fn warm(c: &mut Criterion) {
+    let skel = workload::humanoid().expect("valid");
+    let settings = SolveSettings::default();
+    let rest = BodyState::rest(&skel);
+    let frames: Vec<[BodyEffector; 5]> = (0..CLIP_FRAMES)
+        .map(|f| workload::clip_frame(&rest.global, f))
+        .collect();
+    for name in ["dls", "ccd"] {
+        let mut solver = BodySolverOptions::by_name(name)
+            .and_then(|o| o.build())
+            .expect("named");
+        let mut state = rest.clone();
+        let mut f = 0;
+        c.bench_function(&format!("w8-clip/{name}"), |b| {
+            b.iter(|| {
+                let problem =
+                    BodyProblem::new(&skel, &frames[f], settings).with_root_translation(true);
+                let report = solver.solve(&problem, &mut state).expect("valid");
+                f = (f + 1) % CLIP_FRAMES;
+                black_box(report)
+            });
+        });
+    }
+}
+
+fn batch(c: &mut Criterion) {
+    let skel = workload::humanoid().expect("valid");
+    let settings = SolveSettings::default();
+    let rest = BodyState::rest(&skel);
+    let frames: Vec<[BodyEffector; 5]> = (0..CLIP_FRAMES)
+        .map(|f| workload::clip_frame(&rest.global, f))
+        .collect();
+    let characters = 1000;
+    let mut states = vec![rest.clone(); characters];
+    let empty = BodyReport {
+        iterations: 0,
+        stop: StopReason::Stalled,
+        initial_cost: 0.0,
+        cost: 0.0,
+        max_error: 0.0,
+        max_rotation_error: 0.0,
+        limit_violation: 0.0,
+        restarted: false,
+    };
+    let mut reports = vec![empty; characters];
+    let mut batch = BodyBatch::new(TreeFabrikOptions::default()).expect("valid");
+    let mut step = 0;
+    let mut group = c.benchmark_group("w8-batch");
+    group.sample_size(10);
+    group.bench_function("1000-characters/1-thread", |b| {
+        b.iter(|| {
+            let problems: Vec<BodyProblem<'_>> = (0..characters)
+                .map(|c| {
+                    BodyProblem::new(&skel, &frames[(c * 7 + step) % CLIP_FRAMES], settings)
+                        .with_root_translation(true)
+                })
+                .collect();
+            batch
+                .solve(&problems, &mut states, &mut reports, 1)
+                .expect("valid");
+            step += 1;
+            black_box(&reports);
+        });
+    });
+    group.finish();
+}
+
+criterion_group!(benches, cold, warm, batch);
+criterion_main!(benches);

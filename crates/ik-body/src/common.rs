@@ -1,0 +1,239 @@
+//! What every body solver does first and last, written once: validation, the starting
+//! pose projected onto the limits, the resolved targets and topology, the early exit when
+//! every effector is already within tolerance, and the report.
+
+use crate::dls::Dls;
+use crate::problem::{
+    BodyProblem, BodyReport, BodyState, Target, all_within, finish_report, forward_kinematics,
+    pins_hold, resolve_targets, total_cost,
+};
+use crate::topology::Topology;
+use crate::workload::Rng;
+use sinew_math::{DQuat, DVec3};
+use sinew_skeleton::ik::{IkError, StopReason};
+use sinew_skeleton::limits::JointLimit;
+
+/// Buffers and per-solve data every body solver keeps.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Common {
+    pub targets: Vec<Target>,
+    pub topology: Topology,
+    pub initial: Vec<(f64, f64)>,
+    pub initial_cost: f64,
+    pub dls: Dls,
+    /// A pose kept while one pass is tried, and the best pose kept while a restart is
+    /// tried (two buffers: a restart runs passes).
+    kept: Vec<DQuat>,
+    best: Vec<DQuat>,
+    /// The starting pose (projected onto the limits) and translation.
+    start: Vec<DQuat>,
+    start_translation: DVec3,
+    /// Per target: how far from its goal a pinned effector may end (the tolerance, or
+    /// its distance at the start if that is larger).
+    pin_allowed: Vec<f64>,
+}
+
+/// The outcome of [`Common::begin`].
+pub(crate) enum Begin {
+    /// Nothing to iterate: the report is final.
+    Done(BodyReport),
+    /// Iterate from the (projected) starting pose.
+    Iterate,
+}
+
+impl Common {
+    /// Validates the problem and the state, projects the starting pose onto the limits,
+    /// resolves the targets and the topology, and exits early when every effector is
+    /// already within tolerance.
+    pub fn begin(
+        &mut self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+    ) -> Result<Begin, IkError> {
+        problem.validate()?;
+        let skeleton = problem.skeleton;
+        if !state.root_translation.is_finite() {
+            return Err(IkError::InvalidSettings(format!(
+                "state: root_translation {} has a NaN or infinite component",
+                state.root_translation
+            )));
+        }
+        // Checks the pose (its length, every rotation) before anything reads it.
+        forward_kinematics(
+            skeleton,
+            &state.pose,
+            state.root_translation,
+            &mut state.global,
+        )?;
+        let mut moved = false;
+        for j in 0..skeleton.len() {
+            let limit = skeleton.limit(j);
+            if matches!(limit, JointLimit::Free) {
+                continue;
+            }
+            let projected = limit.project(state.pose.rotations[j]);
+            moved |= projected != state.pose.rotations[j];
+            state.pose.rotations[j] = projected;
+        }
+        if moved {
+            forward_kinematics(
+                skeleton,
+                &state.pose,
+                state.root_translation,
+                &mut state.global,
+            )?;
+        }
+        self.start.clear();
+        self.start.extend_from_slice(&state.pose.rotations);
+        self.start_translation = state.root_translation;
+        resolve_targets(problem, &mut self.targets);
+        self.topology.build(skeleton, &self.targets);
+        self.initial.clear();
+        self.initial
+            .extend(self.targets.iter().map(|t| t.errors(&state.global)));
+        self.initial_cost = total_cost(&self.targets, &state.global);
+        let tolerance = problem.settings.tolerance;
+        self.pin_allowed.clear();
+        self.pin_allowed
+            .extend(self.initial.iter().map(|&(p, _)| p.max(tolerance)));
+        if all_within(&self.targets, &state.global, &problem.settings) {
+            return Ok(Begin::Done(self.report(
+                problem,
+                state,
+                0,
+                StopReason::Converged,
+                false,
+            )?));
+        }
+        Ok(Begin::Iterate)
+    }
+
+    /// The report of the pose in `state`, after forward kinematics of it from the root
+    /// (incremental updates of a translated body round differently, and the global pose
+    /// returned must be exactly [`forward_kinematics`] of the pose).
+    pub fn report(
+        &self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+        iterations: usize,
+        stop: StopReason,
+        restarted: bool,
+    ) -> Result<BodyReport, IkError> {
+        forward_kinematics(
+            problem.skeleton,
+            &state.pose,
+            state.root_translation,
+            &mut state.global,
+        )?;
+        Ok(finish_report(
+            problem,
+            &self.targets,
+            state,
+            &self.initial,
+            self.initial_cost,
+            iterations,
+            stop,
+            restarted,
+        ))
+    }
+
+    /// Whether every pinned effector is within the tolerance of its goal at `state`, or
+    /// no further than it started.
+    pub fn pins_hold(&self, problem: &BodyProblem<'_>, state: &BodyState) -> bool {
+        pins_hold(
+            &self.targets,
+            &state.global,
+            problem.settings.tolerance,
+            &self.pin_allowed,
+        )
+    }
+
+    /// Keeps `state`'s pose aside (see [`Common::restore`]).
+    pub fn keep(&mut self, state: &BodyState) -> DVec3 {
+        self.kept.clear();
+        self.kept.extend_from_slice(&state.pose.rotations);
+        state.root_translation
+    }
+
+    /// Keeps `state`'s pose aside as the best so far (see [`Common::restore_best`]).
+    pub fn keep_best(&mut self, state: &BodyState) -> DVec3 {
+        self.best.clear();
+        self.best.extend_from_slice(&state.pose.rotations);
+        state.root_translation
+    }
+
+    /// Puts the best pose back and recomputes forward kinematics.
+    pub fn restore_best(
+        &self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+        translation: DVec3,
+    ) -> Result<(), IkError> {
+        state.pose.rotations.copy_from_slice(&self.best);
+        state.root_translation = translation;
+        forward_kinematics(
+            problem.skeleton,
+            &state.pose,
+            translation,
+            &mut state.global,
+        )?;
+        Ok(())
+    }
+
+    /// Puts the kept pose back and recomputes forward kinematics.
+    pub fn restore(
+        &self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+        translation: DVec3,
+    ) -> Result<(), IkError> {
+        state.pose.rotations.copy_from_slice(&self.kept);
+        state.root_translation = translation;
+        forward_kinematics(
+            problem.skeleton,
+            &state.pose,
+            translation,
+            &mut state.global,
+        )?;
+        Ok(())
+    }
+
+    /// The seed of restart number `k >= 1` after a local minimum, from the starting pose:
+    /// for `k = 1` every movable joint with a limit at the limit's centre, after that at a
+    /// rotation drawn inside its limit (from a fixed sequence, so solves are
+    /// reproducible); free joints keep their starting rotation, the body its starting
+    /// translation. `k = 0` is the starting pose itself.
+    pub fn seed(
+        &self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+        k: usize,
+    ) -> Result<(), IkError> {
+        state.pose.rotations.copy_from_slice(&self.start);
+        state.root_translation = self.start_translation;
+        let mut rng = Rng::new(0x5EED_0000 + k as u64);
+        for &j in &self.topology.movable {
+            let limit = problem.skeleton.limit(j);
+            if k == 0 || matches!(limit, JointLimit::Free) {
+                continue;
+            }
+            state.pose.rotations[j] = if k == 1 {
+                limit.centre().unwrap_or(DQuat::IDENTITY)
+            } else {
+                limit.sample([rng.uniform(), rng.uniform(), rng.uniform()])
+            };
+        }
+        forward_kinematics(
+            problem.skeleton,
+            &state.pose,
+            state.root_translation,
+            &mut state.global,
+        )?;
+        Ok(())
+    }
+
+    /// The weighted cost at `state`.
+    pub fn cost(&self, state: &BodyState) -> f64 {
+        total_cost(&self.targets, &state.global)
+    }
+}

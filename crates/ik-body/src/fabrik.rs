@@ -1,0 +1,405 @@
+//! FABRIK on a tree with several effectors (Aristidou and Lasenby, "FABRIK: A fast,
+//! iterative solver for the Inverse Kinematics problem", Graphical Models 73(5), 2011,
+//! section on multiple end effectors), with joint limits and the damped least-squares
+//! finish over all effectors.
+//!
+//! One pass on the joints that lead to an effector (the active joints):
+//!
+//! - Backward, leaves to root: an effector's joint goes to its goal; a joint where several
+//!   branches meet (a sub-base) goes to the weighted centroid of the positions each branch
+//!   asks for, each branch weighted by the total weight of the effectors below it (an
+//!   effector in the middle of a chain adds its goal to that centroid); each joint then
+//!   asks its parent to sit one bone length away, towards the parent's current position.
+//! - Forward, root to leaves: the root stays where it is (or, when the body may
+//!   translate, goes where the backward pass put it); each joint is placed one bone length
+//!   from its parent towards its backward position.
+//! - The positions become rotations once, root first: each joint takes the smallest
+//!   rotation that aims its one child bone at the child's new position, or, at a sub-base,
+//!   the best rotation for all its child bones (Horn's closed form, [`BestRotation`]),
+//!   and is projected onto its limit; so a pass always ends in a pose inside the limits
+//!   and forward kinematics of it is exact.
+//!
+//! A pass is kept only when it lowers the weighted cost (and leaves every pin in place);
+//! the passes stop when one gains less than `switch_ratio`, and the damped least-squares
+//! finish takes over, which reaches feasible goals to the tolerance instead of
+//! approaching them. A finish that ends in a local minimum short of the goals may restart
+//! once from the centre of the joint limits; the better of the two answers is returned.
+
+use crate::BodySolver;
+use crate::common::{Begin, Common};
+use crate::horn::BestRotation;
+use crate::problem::{BodyProblem, BodyReport, BodyState, forward_kinematics};
+use sinew_math::{DQuat, DVec3, rotation_between, try_unit};
+use sinew_skeleton::ik::{IkError, StopReason};
+use sinew_skeleton::limits::JointLimit;
+
+/// Options of [`TreeFabrikSolver`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
+pub struct TreeFabrikOptions {
+    /// The most FABRIK passes before the finish (each counts as one iteration). With the
+    /// finish on, the first attempt is the finish alone and the passes start the
+    /// restarts. Default 0: on the humanoid with its limits, the projected passes lead
+    /// into worse basins than the finish alone (see `docs/ik-body.md`).
+    pub max_passes: usize,
+    /// A pass that leaves more than this fraction of the cost it started from hands over
+    /// to the finish. In `[0, 1]`; 1 runs all `max_passes`.
+    pub switch_ratio: f64,
+    /// Whether the damped least-squares finish runs after the passes.
+    pub finish: bool,
+    /// How many times a finish that ends in a local minimum short of the goals may
+    /// restart: first the finish alone from the starting pose (skipped without passes),
+    /// then from the centre of the joint limits, then from poses drawn inside them (a
+    /// fixed sequence, so a solve is reproducible). The restarts share the iteration
+    /// cap; the best answer is returned.
+    pub restarts: usize,
+}
+
+impl Default for TreeFabrikOptions {
+    fn default() -> Self {
+        Self {
+            max_passes: 0,
+            switch_ratio: 0.5,
+            finish: true,
+            restarts: 3,
+        }
+    }
+}
+
+impl TreeFabrikOptions {
+    /// Plain tree FABRIK: passes only, up to the iteration cap, no finish, no restart.
+    #[must_use]
+    pub fn plain() -> Self {
+        Self {
+            max_passes: usize::MAX,
+            switch_ratio: 1.0,
+            finish: false,
+            restarts: 0,
+        }
+    }
+
+    /// Checks `switch_ratio` is in `[0, 1]`.
+    pub fn validate(&self) -> Result<(), IkError> {
+        if !(0.0..=1.0).contains(&self.switch_ratio) {
+            return Err(IkError::InvalidSettings(format!(
+                "switch_ratio must be in [0, 1], got {}",
+                self.switch_ratio
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Tree FABRIK with the damped least-squares finish; see the [module docs](self).
+#[derive(Clone, Debug, Default)]
+pub struct TreeFabrikSolver {
+    options: TreeFabrikOptions,
+    common: Common,
+    passes: Passes,
+}
+
+/// Buffers of the FABRIK passes.
+#[derive(Clone, Debug, Default)]
+struct Passes {
+    /// Per joint: on a path to an effector.
+    active: Vec<bool>,
+    /// Per joint: the weighted sum of requested positions, and the weights.
+    sum: Vec<DVec3>,
+    weight: Vec<f64>,
+    /// Per joint: backward and forward positions.
+    backward: Vec<DVec3>,
+    forward: Vec<DVec3>,
+    /// Active children: `children[child_start[j]..child_start[j + 1]]`.
+    child_start: Vec<usize>,
+    children: Vec<usize>,
+    /// Per joint: the target index of an effector on it, if any.
+    effector: Vec<Option<usize>>,
+}
+
+impl TreeFabrikSolver {
+    /// The solver with default options.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The solver with `options`, validated.
+    pub fn with_options(options: TreeFabrikOptions) -> Result<Self, IkError> {
+        options.validate()?;
+        Ok(Self {
+            options,
+            ..Self::default()
+        })
+    }
+
+    /// The options.
+    #[must_use]
+    pub fn options(&self) -> TreeFabrikOptions {
+        self.options
+    }
+
+    /// Passes then the finish, from the pose in `state`; returns the iterations used and
+    /// the stop reason.
+    fn attempt(
+        &mut self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+        mut iterations: usize,
+        max_passes: usize,
+    ) -> Result<(usize, StopReason), IkError> {
+        let settings = &problem.settings;
+        let mut cost = self.common.cost(state);
+        let mut stop = StopReason::Stalled;
+        let mut passes = 0;
+        while passes < max_passes {
+            if iterations >= settings.max_iterations {
+                stop = StopReason::IterationCap;
+                break;
+            }
+            let kept_translation = self.common.keep(state);
+            self.passes.pass(problem, &self.common, state)?;
+            iterations += 1;
+            passes += 1;
+            let new_cost = self.common.cost(state);
+            if !(new_cost < cost && self.common.pins_hold(problem, state)) {
+                self.common.restore(problem, state, kept_translation)?;
+                break;
+            }
+            let ratio = new_cost / cost;
+            cost = new_cost;
+            if crate::problem::all_within(&self.common.targets, &state.global, settings) {
+                return Ok((iterations, StopReason::Converged));
+            }
+            if ratio > self.options.switch_ratio {
+                break;
+            }
+        }
+        if self.options.finish {
+            let finished = self.common.dls.run(
+                problem.skeleton,
+                &self.common.topology,
+                &self.common.targets,
+                state,
+                problem.root_translates,
+                settings,
+                iterations,
+            )?;
+            return Ok((iterations + finished.steps, finished.stop));
+        }
+        if crate::problem::all_within(&self.common.targets, &state.global, settings) {
+            stop = StopReason::Converged;
+        }
+        Ok((iterations, stop))
+    }
+}
+
+impl BodySolver for TreeFabrikSolver {
+    fn name(&self) -> &'static str {
+        "fabrik"
+    }
+
+    fn solve(
+        &mut self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+    ) -> Result<BodyReport, IkError> {
+        if let Begin::Done(report) = self.common.begin(problem, state)? {
+            return Ok(report);
+        }
+        self.passes.prepare(problem, &self.common);
+        let first_passes = if self.options.finish {
+            0
+        } else {
+            self.options.max_passes
+        };
+        let (mut iterations, mut stop) = self.attempt(problem, state, 0, first_passes)?;
+        let mut restarted = false;
+        let mut seed = 0;
+        while seed < self.options.restarts
+            && stop == StopReason::LocalMinimum
+            && iterations < problem.settings.max_iterations
+        {
+            let best_cost = self.common.cost(state);
+            let best_translation = self.common.keep_best(state);
+            // The first restart is the passes then the finish from the starting pose
+            // (when the first attempt was the finish alone): the passes lead into
+            // other basins than the finish does.
+            if seed == 0 && (self.options.max_passes == 0 || !self.options.finish) {
+                seed = 1;
+            }
+            self.common.seed(problem, state, seed)?;
+            let passes = self.options.max_passes;
+            seed += 1;
+            let (used, next_stop) = self.attempt(problem, state, iterations, passes)?;
+            iterations = used;
+            if self.common.cost(state) < best_cost && self.common.pins_hold(problem, state) {
+                stop = next_stop;
+                restarted = true;
+            } else {
+                self.common.restore_best(problem, state, best_translation)?;
+            }
+        }
+        self.common
+            .report(problem, state, iterations, stop, restarted)
+    }
+}
+
+impl Passes {
+    /// The active joints, their active children and the effector on each joint.
+    fn prepare(&mut self, problem: &BodyProblem<'_>, common: &Common) {
+        let skeleton = problem.skeleton;
+        let n = skeleton.len();
+        self.active.clear();
+        self.active.resize(n, false);
+        self.effector.clear();
+        self.effector.resize(n, None);
+        for (e, t) in common.targets.iter().enumerate() {
+            self.effector[t.joint] = Some(e);
+            let mut j = Some(t.joint);
+            while let Some(k) = j {
+                if self.active[k] {
+                    break;
+                }
+                self.active[k] = true;
+                j = skeleton.parent(k);
+            }
+        }
+        // Children lists by counting (the count of j's children goes into slot j + 1).
+        self.child_start.clear();
+        self.child_start.resize(n + 1, 0);
+        for j in 0..n {
+            if self.active[j]
+                && let Some(p) = skeleton.parent(j)
+            {
+                self.child_start[p + 1] += 1;
+            }
+        }
+        for j in 0..n {
+            self.child_start[j + 1] += self.child_start[j];
+        }
+        self.children.clear();
+        self.children.resize(self.child_start[n], 0);
+        // Fill in joint order, so each list is increasing; `weight` is the cursor here.
+        self.weight.clear();
+        self.weight.resize(n, 0.0);
+        for j in 0..n {
+            if self.active[j]
+                && let Some(p) = skeleton.parent(j)
+            {
+                let slot = self.child_start[p] + self.weight[p] as usize;
+                self.children[slot] = j;
+                self.weight[p] += 1.0;
+            }
+        }
+        self.sum.resize(n, DVec3::ZERO);
+        self.backward.resize(n, DVec3::ZERO);
+        self.forward.resize(n, DVec3::ZERO);
+    }
+
+    /// One backward-forward pass and the rotations it implies, projected onto the limits;
+    /// `state.global` is exact forward kinematics of the result.
+    fn pass(
+        &mut self,
+        problem: &BodyProblem<'_>,
+        common: &Common,
+        state: &mut BodyState,
+    ) -> Result<(), IkError> {
+        let skeleton = problem.skeleton;
+        let n = skeleton.len();
+        let positions = &state.global.positions;
+        self.sum.fill(DVec3::ZERO);
+        self.weight.fill(0.0);
+        // Backward: leaves to root.
+        for j in (0..n).rev() {
+            if !self.active[j] {
+                continue;
+            }
+            if let Some(e) = self.effector[j] {
+                let t = &common.targets[e];
+                let w = t.position_weight * t.position_weight;
+                self.sum[j] += t.position * w;
+                self.weight[j] += w;
+            }
+            let here = if self.weight[j] > 0.0 {
+                self.sum[j] / self.weight[j]
+            } else {
+                positions[j]
+            };
+            self.backward[j] = here;
+            if let Some(p) = skeleton.parent(j) {
+                let length = skeleton.offset(j).length();
+                let direction = try_unit(positions[p] - here)
+                    .or_else(|| try_unit(positions[p] - positions[j]))
+                    .unwrap_or(DVec3::ZERO);
+                let asked = here + direction * length;
+                self.sum[p] += asked * self.weight[j];
+                self.weight[p] += self.weight[j];
+            }
+        }
+        // Forward: root to leaves.
+        for j in 0..n {
+            if !self.active[j] {
+                continue;
+            }
+            self.forward[j] = match skeleton.parent(j) {
+                None if problem.root_translates => self.backward[j],
+                None => positions[j],
+                Some(p) => {
+                    let length = skeleton.offset(j).length();
+                    let direction = try_unit(self.backward[j] - self.forward[p])
+                        .or_else(|| try_unit(positions[j] - positions[p]))
+                        .unwrap_or(DVec3::ZERO);
+                    self.forward[p] + direction * length
+                }
+            };
+        }
+        // The body's translation follows the first root.
+        if problem.root_translates && self.active[0] {
+            state.root_translation += self.forward[0] - positions[0];
+        }
+        // Rotations, root first, each joint aiming its active children; the global pose
+        // is updated in place as it goes (parents before children).
+        let global = &mut state.global;
+        for j in 0..n {
+            if !self.active[j] {
+                continue;
+            }
+            let (parent_rotation, position) = match skeleton.parent(j) {
+                Some(p) => (
+                    global.rotations[p],
+                    global.positions[p] + global.rotations[p] * skeleton.offset(j),
+                ),
+                None => (DQuat::IDENTITY, skeleton.offset(j) + state.root_translation),
+            };
+            let current = (parent_rotation * state.pose.rotations[j]).normalize();
+            let children = &self.children[self.child_start[j]..self.child_start[j + 1]];
+            let turn = match children {
+                [] => DQuat::IDENTITY,
+                &[c] => rotation_between(current * skeleton.offset(c), self.forward[c] - position),
+                several => {
+                    let mut best = BestRotation::new();
+                    for &c in several {
+                        best.add(
+                            current * skeleton.offset(c),
+                            self.forward[c] - position,
+                            self.weight[c],
+                        );
+                    }
+                    best.rotation()
+                }
+            };
+            let mut local = (parent_rotation.conjugate() * turn * current).normalize();
+            let limit = skeleton.limit(j);
+            if !matches!(limit, JointLimit::Free) {
+                local = limit.project(local);
+            }
+            state.pose.rotations[j] = local;
+            global.rotations[j] = (parent_rotation * local).normalize();
+            global.positions[j] = position;
+        }
+        // Exact forward kinematics of the result, including the joints off the paths.
+        forward_kinematics(skeleton, &state.pose, state.root_translation, global)?;
+        Ok(())
+    }
+}

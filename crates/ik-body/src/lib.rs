@@ -1,0 +1,257 @@
+//! Full-body inverse kinematics: several effectors on one skeleton tree (hands, feet,
+//! head, any joint, not only leaves), solved together.
+//!
+//! - [`BodyProblem`]: the job's inputs, the skeleton (with its joint limits), the
+//!   [`BodyEffector`]s (an [`EffectorGoal`](sinew_skeleton::ik::EffectorGoal) each, and
+//!   whether it is pinned where it stands, like a planted foot), the solve settings and
+//!   whether the whole body may translate. [`BodyProblem::validate`] names the offending
+//!   effector and field.
+//! - [`BodyState`]: what a solve updates (pose, the body's translation, forward kinematics,
+//!   per-effector errors); [`BodyReport`]: iterations, stop reason, weighted cost before
+//!   and after, worst errors, largest limit violation.
+//! - [`TreeFabrikSolver`]: FABRIK with sub-bases (Aristidou and Lasenby 2011), the joint
+//!   limits, and a damped least-squares finish over all effectors at once, so feasible
+//!   goals are reached to the tolerance.
+//! - [`TreeCcdSolver`]: cyclic coordinate descent where each joint takes the closed-form
+//!   best rotation for all the effectors below it ([`BestRotation`], Horn 1987).
+//! - [`BodySolverOptions`]: the registry, so a caller (or a scene file, with the `serde`
+//!   feature) builds either solver from options; [`BodyBatch`]: many characters, one
+//!   warm frame each, without allocation once warmed up.
+//! - [`workload`]: the reference humanoid of 22 joints with human-like limits and its goal
+//!   sets (W8), shared by the tests, the benchmark and the measurement example.
+//!
+//! Every solver decreases one weighted least-squares cost (see [`problem`]); when the goals
+//! conflict, it ends at a local minimum of that cost, reported per effector. The method and
+//! the derivations are in `docs/ik-body.md`.
+//!
+//! Architecture invariant: depends on sinew-skeleton and sinew-math only (serde behind the
+//! `serde` feature).
+
+pub mod ccd;
+mod common;
+mod dls;
+pub mod fabrik;
+mod horn;
+pub mod problem;
+mod topology;
+pub mod workload;
+
+pub use ccd::{TreeCcdOptions, TreeCcdSolver};
+pub use fabrik::{TreeFabrikOptions, TreeFabrikSolver};
+pub use horn::BestRotation;
+pub use problem::{
+    BodyEffector, BodyProblem, BodyReport, BodyState, EffectorErrors, PIN_WEIGHT,
+    forward_kinematics, limit_violation,
+};
+
+use sinew_skeleton::ik::IkError;
+
+/// A full-body solver: moves the effectors of a [`BodyProblem`] towards their goals by
+/// changing local rotations (and the body's translation when the problem allows it).
+///
+/// Contract: on `Ok`, `state.pose` is inside every joint limit (the starting pose is
+/// projected onto them first), `state.global` is forward kinematics of the pose and
+/// translation, `state.effectors` and the report carry the errors of that pose, the
+/// weighted cost never ends above the starting one, a pinned effector ends within the
+/// tolerance of where it started, no NaN is produced for any valid input, and nothing
+/// allocates once the solver's buffers have grown to the problem's size.
+pub trait BodySolver {
+    /// A short name for reports ("fabrik", "ccd").
+    fn name(&self) -> &'static str;
+
+    /// Solves `problem`, starting from `state` (warm start).
+    fn solve(
+        &mut self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+    ) -> Result<BodyReport, IkError>;
+}
+
+/// Which body solver, with its options; with the `serde` feature it reads as
+/// `Fabrik(...)` or `Ccd(...)`, every option defaulted.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum BodySolverOptions {
+    /// Tree FABRIK ([`TreeFabrikSolver`]).
+    Fabrik(#[cfg_attr(feature = "serde", serde(default))] TreeFabrikOptions),
+    /// Tree CCD ([`TreeCcdSolver`]).
+    Ccd(#[cfg_attr(feature = "serde", serde(default))] TreeCcdOptions),
+}
+
+impl Default for BodySolverOptions {
+    fn default() -> Self {
+        Self::Fabrik(TreeFabrikOptions::default())
+    }
+}
+
+impl BodySolverOptions {
+    /// The configurations the reports compare, with their labels.
+    pub const NAMED: [(&'static str, BodySolverOptions); 5] = [
+        (
+            "dls",
+            Self::Fabrik(TreeFabrikOptions {
+                max_passes: 0,
+                switch_ratio: 0.5,
+                finish: true,
+                restarts: 3,
+            }),
+        ),
+        (
+            "fabrik",
+            Self::Fabrik(TreeFabrikOptions {
+                max_passes: 4,
+                switch_ratio: 0.5,
+                finish: true,
+                restarts: 3,
+            }),
+        ),
+        (
+            "fabrik-plain",
+            Self::Fabrik(TreeFabrikOptions {
+                max_passes: usize::MAX,
+                switch_ratio: 1.0,
+                finish: false,
+                restarts: 0,
+            }),
+        ),
+        (
+            "ccd",
+            Self::Ccd(TreeCcdOptions {
+                finish: false,
+                max_sweeps: 10,
+            }),
+        ),
+        (
+            "ccd-finish",
+            Self::Ccd(TreeCcdOptions {
+                finish: true,
+                max_sweeps: 10,
+            }),
+        ),
+    ];
+
+    /// The named configuration `name`, or an error listing the names.
+    pub fn by_name(name: &str) -> Result<Self, IkError> {
+        Self::NAMED
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|&(_, options)| options)
+            .ok_or_else(|| {
+                let names: Vec<&str> = Self::NAMED.iter().map(|(n, _)| *n).collect();
+                IkError::InvalidSettings(format!(
+                    "unknown body solver {name:?}; the solvers are {}",
+                    names.join(", ")
+                ))
+            })
+    }
+
+    /// Checks the options of the chosen solver.
+    pub fn validate(&self) -> Result<(), IkError> {
+        match self {
+            Self::Fabrik(options) => options.validate(),
+            Self::Ccd(options) => options.validate(),
+        }
+    }
+
+    /// The solver, with validated options.
+    pub fn build(&self) -> Result<Box<dyn BodySolver + Send>, IkError> {
+        Ok(match self {
+            Self::Fabrik(options) => Box::new(TreeFabrikSolver::with_options(*options)?),
+            Self::Ccd(options) => Box::new(TreeCcdSolver::with_options(*options)?),
+        })
+    }
+}
+
+/// Many characters, each solving one frame: one solver (with its buffers) per character,
+/// so that once every character has been solved once nothing allocates on one thread.
+#[derive(Clone, Debug, Default)]
+pub struct BodyBatch {
+    solvers: Vec<TreeFabrikSolver>,
+    options: TreeFabrikOptions,
+}
+
+impl BodyBatch {
+    /// A batch whose solvers use `options`, validated.
+    pub fn new(options: TreeFabrikOptions) -> Result<Self, IkError> {
+        options.validate()?;
+        Ok(Self {
+            solvers: Vec::new(),
+            options,
+        })
+    }
+
+    /// Solves `problems[i]` on `states[i]` for every character, writing `reports[i]`, on
+    /// up to `threads` threads (the characters split into contiguous groups; 1 runs on
+    /// the calling thread and allocates nothing once warm). All three slices must have the
+    /// same length; the first error (in character order) is returned, the other
+    /// characters being solved all the same.
+    pub fn solve(
+        &mut self,
+        problems: &[BodyProblem<'_>],
+        states: &mut [BodyState],
+        reports: &mut [BodyReport],
+        threads: usize,
+    ) -> Result<(), IkError> {
+        if states.len() != problems.len() || reports.len() != problems.len() {
+            return Err(IkError::InvalidSettings(format!(
+                "batch: {} problems, {} states and {} reports; they must match",
+                problems.len(),
+                states.len(),
+                reports.len()
+            )));
+        }
+        if self.solvers.len() < problems.len() {
+            let solver = TreeFabrikSolver::with_options(self.options)?;
+            self.solvers.resize(problems.len(), solver);
+        }
+        let threads = threads.clamp(1, problems.len().max(1));
+        let solvers = &mut self.solvers[..problems.len()];
+        if threads == 1 {
+            return solve_group(solvers, problems, states, reports);
+        }
+        let per = problems.len().div_ceil(threads);
+        std::thread::scope(|scope| {
+            let handles: Vec<_> = solvers
+                .chunks_mut(per)
+                .zip(problems.chunks(per))
+                .zip(states.chunks_mut(per))
+                .zip(reports.chunks_mut(per))
+                .map(|(((s, p), st), r)| scope.spawn(move || solve_group(s, p, st, r)))
+                .collect();
+            let mut first = Ok(());
+            for handle in handles {
+                let result = handle.join().unwrap_or_else(|_| {
+                    Err(IkError::InvalidSettings(
+                        "batch: a solver thread panicked".into(),
+                    ))
+                });
+                if first.is_ok() {
+                    first = result;
+                }
+            }
+            first
+        })
+    }
+}
+
+fn solve_group(
+    solvers: &mut [TreeFabrikSolver],
+    problems: &[BodyProblem<'_>],
+    states: &mut [BodyState],
+    reports: &mut [BodyReport],
+) -> Result<(), IkError> {
+    let mut first = Ok(());
+    for (((solver, problem), state), report) in
+        solvers.iter_mut().zip(problems).zip(states).zip(reports)
+    {
+        match solver.solve(problem, state) {
+            Ok(r) => *report = r,
+            Err(e) => {
+                if first.is_ok() {
+                    first = Err(e);
+                }
+            }
+        }
+    }
+    first
+}

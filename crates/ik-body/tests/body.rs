@@ -1,0 +1,386 @@
+//! The full-body solvers against exact answers and their contract: the weighted
+//! least-squares best of conflicting goals (closed form), goals on the root, two effectors
+//! on one chain, zero-length bones, a 1 000-joint tree, pins, rotation goals, bad input,
+//! the registry and the batch.
+
+use sinew_ik_body::workload::{self, Rng};
+use sinew_ik_body::{
+    BodyBatch, BodyEffector, BodyProblem, BodyReport, BodySolver, BodySolverOptions, BodyState,
+    TreeCcdOptions, TreeCcdSolver, TreeFabrikOptions, TreeFabrikSolver, forward_kinematics,
+};
+use sinew_math::{DQuat, DVec3};
+use sinew_skeleton::ik::{EffectorGoal, IkError, SolveSettings, StopReason};
+use sinew_skeleton::{GlobalPose, JointDef, Pose, Skeleton};
+
+fn joint(parent: Option<usize>, offset: DVec3) -> JointDef {
+    JointDef {
+        parent,
+        offset,
+        ..JointDef::default()
+    }
+}
+
+fn all_solvers() -> Vec<(&'static str, Box<dyn BodySolver + Send>)> {
+    BodySolverOptions::NAMED
+        .iter()
+        .map(|(name, options)| (*name, options.build().expect("named options are valid")))
+        .collect()
+}
+
+/// The whole contract on one solve: report true to forward kinematics, cost not above
+/// the start, no limit violated, nothing non-finite.
+fn check_contract(
+    skeleton: &Skeleton,
+    effectors: &[BodyEffector],
+    state: &BodyState,
+    report: &BodyReport,
+) {
+    let mut fk = GlobalPose::new();
+    forward_kinematics(skeleton, &state.pose, state.root_translation, &mut fk).unwrap();
+    assert_eq!(fk.positions, state.global.positions);
+    for (e, (effector, errors)) in effectors.iter().zip(&state.effectors).enumerate() {
+        let j = effector.goal.joint;
+        let distance = fk.positions[j].distance(effector.goal.position);
+        assert!(
+            (distance - errors.position).abs() <= 1e-12 * (1.0 + distance),
+            "effector {e}: {distance} vs {}",
+            errors.position
+        );
+    }
+    assert!(report.cost <= report.initial_cost, "{report:?}");
+    assert!(report.cost.is_finite() && report.max_error.is_finite());
+    assert!(report.limit_violation <= 1e-12, "{report:?}");
+    assert!(state.pose.rotations.iter().all(|q| q.is_finite()));
+}
+
+/// Root at the origin with two unit arms along +x and -x.
+fn two_arms() -> Skeleton {
+    Skeleton::new([
+        joint(None, DVec3::ZERO),
+        joint(Some(0), DVec3::X),
+        joint(Some(0), -DVec3::X),
+    ])
+    .unwrap()
+}
+
+#[test]
+fn conflicting_goals_end_at_the_weighted_least_squares_best() {
+    // Hands pulled apart further than the arms allow, along x, the body free to translate.
+    // The arms stay straight along x; with translation t, the errors are 2 - t and 2 + t,
+    // and the cost 2^2 (2 - t)^2 + (2 + t)^2 is least at t = 1.2: errors 0.8 and 3.2.
+    let skel = two_arms();
+    let effectors = [
+        BodyEffector::new(EffectorGoal::at(1, DVec3::new(3.0, 0.0, 0.0)).with_weights(2.0, 1.0)),
+        BodyEffector::at(2, DVec3::new(-3.0, 0.0, 0.0)),
+    ];
+    let settings = SolveSettings::default();
+    for (name, mut solver) in all_solvers() {
+        let mut state = BodyState::rest(&skel);
+        let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
+        let report = solver.solve(&problem, &mut state).unwrap();
+        check_contract(&skel, &effectors, &state, &report);
+        let tol = if name.starts_with("fabrik-plain") {
+            1e-3
+        } else {
+            1e-9
+        };
+        assert!(
+            (state.root_translation - DVec3::new(1.2, 0.0, 0.0)).length() < tol,
+            "{name}: {}",
+            state.root_translation
+        );
+        assert!((state.effectors[0].position - 0.8).abs() < tol, "{name}");
+        assert!((state.effectors[1].position - 3.2).abs() < tol, "{name}");
+        assert!((report.max_error - 3.2).abs() < tol, "{name}");
+        assert_ne!(report.stop, StopReason::Converged, "{name}");
+    }
+}
+
+#[test]
+fn a_goal_on_the_root() {
+    let skel = two_arms();
+    let goal = DVec3::new(0.3, -0.2, 0.5);
+    let effectors = [BodyEffector::at(0, goal)];
+    let settings = SolveSettings::default();
+    for (name, mut solver) in all_solvers() {
+        // Free to translate: reached.
+        let mut state = BodyState::rest(&skel);
+        let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
+        let report = solver.solve(&problem, &mut state).unwrap();
+        check_contract(&skel, &effectors, &state, &report);
+        assert!(report.within(&settings), "{name}: {report:?}");
+        // Fixed: nothing can move the root, so the pose stays and the error is the
+        // distance, with a stop that says it was not reached.
+        let mut state = BodyState::rest(&skel);
+        let problem = BodyProblem::new(&skel, &effectors, settings);
+        let report = solver.solve(&problem, &mut state).unwrap();
+        check_contract(&skel, &effectors, &state, &report);
+        assert!((report.max_error - goal.length()).abs() < 1e-15, "{name}");
+        assert_ne!(report.stop, StopReason::Converged, "{name}");
+        assert_eq!(state.pose, skel.rest_pose(), "{name}");
+    }
+}
+
+/// A chain of `n` bones with the given offsets (joint 0 at the origin).
+fn chain(offsets: &[DVec3]) -> Skeleton {
+    Skeleton::chain(DVec3::ZERO, offsets).unwrap()
+}
+
+/// Goals on `joints` from forward kinematics of a random pose (feasible by construction).
+fn feasible_goals(skel: &Skeleton, joints: &[usize], seed: u64) -> Vec<BodyEffector> {
+    let mut rng = Rng::new(seed);
+    let pose = workload::random_pose(skel, &mut rng, 2.0);
+    let mut g = GlobalPose::new();
+    skel.forward_kinematics(&pose, &mut g).unwrap();
+    joints
+        .iter()
+        .map(|&j| BodyEffector::at(j, g.positions[j]))
+        .collect()
+}
+
+#[test]
+fn two_effectors_on_one_chain_and_zero_length_bones() {
+    let settings = SolveSettings::default();
+    let plain = chain(&[DVec3::new(0.3, 0.1, 0.0); 6]);
+    let with_zero = chain(&[
+        DVec3::X * 0.3,
+        DVec3::ZERO,
+        DVec3::Y * 0.25,
+        DVec3::ZERO,
+        DVec3::ZERO,
+        DVec3::new(0.2, 0.0, 0.1),
+    ]);
+    for skel in [plain, with_zero] {
+        for seed in 0..20 {
+            let effectors = feasible_goals(&skel, &[3, 6], seed);
+            let mut solver = TreeFabrikSolver::new();
+            let mut state = BodyState::rest(&skel);
+            let problem = BodyProblem::new(&skel, &effectors, settings);
+            let report = solver.solve(&problem, &mut state).unwrap();
+            check_contract(&skel, &effectors, &state, &report);
+            assert!(report.within(&settings), "seed {seed}: {report:?}");
+            for (i, p) in state.global.positions.iter().enumerate().skip(1) {
+                let bone = p.distance(state.global.positions[i - 1]);
+                assert!((bone - skel.bone_length(i)).abs() < 1e-12, "bone {i}");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_thousand_joint_tree() {
+    let mut rng = Rng::new(1000);
+    let joints: Vec<JointDef> = (0..1000usize)
+        .map(|i| {
+            if i == 0 {
+                joint(None, DVec3::ZERO)
+            } else {
+                // Mostly deep chains with some branching: the parent is one of the last few.
+                let back = 1 + (rng.uniform() * 4.0) as usize;
+                joint(
+                    Some(i.saturating_sub(back)),
+                    rng.in_ball(0.1) + DVec3::Y * 0.05,
+                )
+            }
+        })
+        .collect();
+    let skel = Skeleton::new(joints).unwrap();
+    let effectors = feasible_goals(&skel, &[999, 900, 750, 500, 320], 3);
+    let settings = SolveSettings::default();
+    for (name, mut solver) in all_solvers() {
+        let mut state = BodyState::rest(&skel);
+        let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
+        let report = solver.solve(&problem, &mut state).unwrap();
+        check_contract(&skel, &effectors, &state, &report);
+        if name == "dls" || name == "fabrik" || name == "ccd-finish" {
+            assert!(report.within(&settings), "{name}: {report:?}");
+        } else {
+            assert!(report.cost < report.initial_cost, "{name}: {report:?}");
+        }
+    }
+}
+
+#[test]
+fn pinned_feet_stay_planted_through_the_squat() {
+    let skel = workload::humanoid().unwrap();
+    let settings = SolveSettings::default();
+    let mut solver = TreeFabrikSolver::new();
+    let mut state = BodyState::rest(&skel);
+    let rest = state.global.clone();
+    for frame in (0..workload::CLIP_FRAMES).step_by(10) {
+        let effectors = workload::clip_frame(&rest, frame);
+        let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
+        let report = solver.solve(&problem, &mut state).unwrap();
+        check_contract(&skel, &effectors, &state, &report);
+        for k in [2, 3] {
+            let j = workload::EFFECTORS[k];
+            let drift = state.global.positions[j].distance(rest.positions[j]);
+            assert!(drift <= settings.tolerance, "frame {frame}: drift {drift}");
+        }
+        assert!(report.within(&settings), "frame {frame}: {report:?}");
+    }
+}
+
+#[test]
+fn the_humanoid_reaches_feasible_goal_sets_from_rest() {
+    let skel = workload::humanoid().unwrap();
+    let settings = SolveSettings::default();
+    for rotations in [false, true] {
+        let sets = workload::goal_sets(&skel, 40, 11, rotations);
+        let mut solver = TreeFabrikSolver::new();
+        let mut reached = 0;
+        for set in &sets {
+            let mut state = BodyState::rest(&skel);
+            let problem =
+                BodyProblem::new(&skel, &set.effectors, settings).with_root_translation(true);
+            let report = solver.solve(&problem, &mut state).unwrap();
+            check_contract(&skel, &set.effectors, &state, &report);
+            reached += usize::from(report.within(&settings));
+        }
+        // Measured with these seeds: see docs/ik-body.md for the full workload.
+        let needed = if rotations { 36 } else { 38 };
+        assert!(reached >= needed, "rotations {rotations}: {reached} of 40");
+    }
+}
+
+#[test]
+fn ccd_turns_each_joint_by_its_best_rotation() {
+    // A free tree: CCD alone lowers the cost every sweep; with the finish it converges.
+    let skel = Skeleton::new([
+        joint(None, DVec3::ZERO),
+        joint(Some(0), DVec3::Y * 0.5),
+        joint(Some(1), DVec3::new(0.3, 0.2, 0.0)),
+        joint(Some(2), DVec3::X * 0.4),
+        joint(Some(1), DVec3::new(-0.3, 0.2, 0.0)),
+        joint(Some(4), -DVec3::X * 0.4),
+    ])
+    .unwrap();
+    let settings = SolveSettings::default();
+    for seed in 0..10 {
+        let effectors = feasible_goals(&skel, &[3, 5], seed);
+        let mut plain = TreeCcdSolver::new();
+        let mut state = BodyState::rest(&skel);
+        let problem = BodyProblem::new(&skel, &effectors, settings);
+        let report = plain.solve(&problem, &mut state).unwrap();
+        check_contract(&skel, &effectors, &state, &report);
+        assert!(
+            report.cost < 1e-2 * report.initial_cost,
+            "seed {seed}: {report:?}"
+        );
+        let mut finished = TreeCcdSolver::with_options(TreeCcdOptions::with_finish()).unwrap();
+        let mut state = BodyState::rest(&skel);
+        let report = finished.solve(&problem, &mut state).unwrap();
+        check_contract(&skel, &effectors, &state, &report);
+        assert!(report.within(&settings), "seed {seed}: {report:?}");
+    }
+}
+
+#[test]
+fn bad_input_is_an_error_naming_what_is_wrong() {
+    let skel = two_arms();
+    let settings = SolveSettings::default();
+    let mut solver = TreeFabrikSolver::new();
+    let duplicate = [BodyEffector::at(1, DVec3::X), BodyEffector::at(1, DVec3::Y)];
+    let problem = BodyProblem::new(&skel, &duplicate, settings);
+    let err = solver
+        .solve(&problem, &mut BodyState::rest(&skel))
+        .unwrap_err();
+    assert!(err.to_string().contains("goal 1: joint"), "{err}");
+    let effectors = [BodyEffector::at(1, DVec3::X)];
+    let problem = BodyProblem::new(&skel, &effectors, settings);
+    let mut state = BodyState::rest(&skel);
+    state.pose = Pose {
+        rotations: vec![DQuat::IDENTITY; 2],
+    };
+    assert!(matches!(
+        solver.solve(&problem, &mut state),
+        Err(IkError::Skeleton(_))
+    ));
+    let mut state = BodyState::rest(&skel);
+    state.root_translation = DVec3::new(f64::NAN, 0.0, 0.0);
+    let err = solver.solve(&problem, &mut state).unwrap_err();
+    assert!(err.to_string().contains("root_translation"), "{err}");
+    let mut state = BodyState::rest(&skel);
+    state.pose.rotations[1] = DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0);
+    let err = solver.solve(&problem, &mut state).unwrap_err();
+    assert!(err.to_string().contains("joint 1"), "{err}");
+}
+
+#[test]
+fn the_registry_builds_every_named_solver() {
+    for (name, options) in BodySolverOptions::NAMED {
+        assert_eq!(BodySolverOptions::by_name(name), Ok(options));
+        let solver = options.build().unwrap();
+        assert_eq!(
+            solver.name(),
+            &name[..name.find('-').unwrap_or(name.len())].replace("dls", "fabrik")
+        );
+    }
+    let err = BodySolverOptions::by_name("newton")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("newton") && err.contains("ccd-finish"),
+        "{err}"
+    );
+    let bad = BodySolverOptions::Fabrik(TreeFabrikOptions {
+        switch_ratio: 2.0,
+        ..TreeFabrikOptions::default()
+    });
+    assert!(
+        bad.build()
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("switch_ratio")
+    );
+}
+
+#[test]
+fn the_batch_matches_one_solver_per_character_on_any_thread_count() {
+    let skel = workload::humanoid().unwrap();
+    let settings = SolveSettings::default();
+    let rest = BodyState::rest(&skel);
+    let frames: Vec<[BodyEffector; 5]> = (0..12)
+        .map(|c| workload::clip_frame(&rest.global, 50 * c))
+        .collect();
+    let problems: Vec<BodyProblem<'_>> = frames
+        .iter()
+        .map(|e| BodyProblem::new(&skel, e, settings).with_root_translation(true))
+        .collect();
+    let mut expected = Vec::new();
+    for problem in &problems {
+        let mut state = rest.clone();
+        TreeFabrikSolver::new().solve(problem, &mut state).unwrap();
+        expected.push(state);
+    }
+    for threads in [1, 3] {
+        let mut batch = BodyBatch::new(TreeFabrikOptions::default()).unwrap();
+        let mut states = vec![rest.clone(); problems.len()];
+        let mut reports = vec![
+            BodyReport {
+                iterations: 0,
+                stop: StopReason::Stalled,
+                initial_cost: 0.0,
+                cost: 0.0,
+                max_error: 0.0,
+                max_rotation_error: 0.0,
+                limit_violation: 0.0,
+                restarted: false,
+            };
+            problems.len()
+        ];
+        batch
+            .solve(&problems, &mut states, &mut reports, threads)
+            .unwrap();
+        for (s, e) in states.iter().zip(&expected) {
+            assert_eq!(s.pose, e.pose, "threads {threads}");
+            assert_eq!(s.root_translation, e.root_translation);
+        }
+        assert!(
+            batch
+                .solve(&problems, &mut states[..3], &mut reports, threads)
+                .is_err()
+        );
+    }
+}
