@@ -61,7 +61,7 @@ fn cold(skeleton: &Skeleton, solver_name: &str, count: usize, rotations: bool) {
         errors.push(report.max_error);
         worst_violation = worst_violation.max(report.limit_violation);
         restarted += usize::from(report.restarted);
-        *stops.entry(report.stop.as_str()).or_default() += 1;
+        *stops.entry(report.stop.name()).or_default() += 1;
         if report.within(&settings) && report.limit_violation <= 1e-12 {
             ok += 1;
         }

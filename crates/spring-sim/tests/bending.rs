@@ -155,7 +155,7 @@ fn case(seed: u64) -> Case {
     let mut rng = Rng(seed);
     let grid = ClothGrid {
         fixed: Vec::new(),
-        ..ClothGrid::lab_sized(3, 0.5, 0.0)
+        ..ClothGrid::lab_sized(3, 0.5).with_damping(0.0)
     };
     let system = SpringSystem::cloth(&grid).unwrap();
     let rest = system.positions().to_vec();

@@ -176,7 +176,7 @@ fn masses_edges_and_hinges_by_hand() {
 #[test]
 fn grid_triangles_cover_the_grid_once() {
     for n in [1, 2, 3, 11] {
-        let grid = ClothGrid::lab_sized(n, 0.2, 0.0);
+        let grid = ClothGrid::lab_sized(n, 0.2).with_damping(0.0);
         let tris = grid.triangles();
         assert_eq!(tris.len(), 2 * (n - 1) * (n - 1));
         if n < 2 {
@@ -219,7 +219,7 @@ fn grid_triangles_cover_the_grid_once() {
 /// An `n x n` sheet in the xz plane with side 1, triangulated like the grid cloth.
 fn sheet(n: usize) -> TriangleMesh {
     let spacing = 1.0 / (n - 1) as f64;
-    let grid = ClothGrid::lab_sized(n, spacing, 0.0);
+    let grid = ClothGrid::lab_sized(n, spacing).with_damping(0.0);
     let positions = (0..n * n)
         .map(|k| DVec3::new(spacing * (k / n) as f64, 0.0, spacing * (k % n) as f64))
         .collect();
