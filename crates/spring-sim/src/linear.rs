@@ -8,15 +8,21 @@
 //! - [`PcgSolver`]: conjugate gradients preconditioned by the inverse 3x3 diagonal blocks
 //!   (block Jacobi), to a relative residual, on the same assembled matrix.
 //!
+//! - [`SolverCosts`]: the counts `Auto` chooses between them from (the factor's size and
+//!   work under a fill-reducing ordering, the matrix's nonzeros), no timing; the model
+//!   and its measured crossover are in docs/spring-sim.md.
+//!
 //! Which one a step uses is decided by the integrator (see `LinearSolverChoice`).
 
 use crate::pattern::HessianPattern;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::sparse::SymbolicSparseColMat;
 use faer::sparse::linalg::SupernodalThreshold;
+use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
     CholeskySymbolicParams, SymbolicCholesky, SymbolicCholeskyRaw, SymmetricOrdering,
-    factorize_symbolic_cholesky,
+    factorize_symbolic_cholesky, simplicial,
 };
 use faer::{Conj, MatMut, Par, Side};
 use sinew_math::{DMat3, DVec3};
@@ -29,7 +35,10 @@ pub enum LinearSolverChoice {
     Direct,
     /// Block-Jacobi preconditioned conjugate gradients.
     Pcg,
-    /// Chosen per step from the measured time per step of each (see the crate docs).
+    /// Chosen per step by a cost model from counts (see [`SolverCosts`]): PCG while the
+    /// PCG iterations it needs per Newton iteration stay below the model's crossover,
+    /// the direct solve above it. No timing enters, so two identical runs make the same
+    /// choices and give bitwise the same results.
     #[default]
     Auto,
 }
@@ -67,6 +76,178 @@ pub enum FactorStructure {
     Simplicial,
     /// faer's own flop-ratio rule.
     FaerAuto,
+}
+
+/// The weight of one multiply-add of the numeric factorization against one of PCG's
+/// (the unit of [`SolverCosts`]): the supernodal factorization runs dense kernels on
+/// contiguous blocks, far faster per multiply-add than the indirect loads of PCG's sparse
+/// product. Fitted with [`FACTOR_ENTRY_WEIGHT`] to the factorization's measured time on
+/// cloths of 11 x 11 to 101 x 101 particles (docs/spring-sim.md), within 10%.
+pub const FACTOR_WEIGHT: f64 = 0.045;
+
+/// The weight of one entry of the factor in the numeric factorization (its assembly,
+/// scatter and memory traffic, which dominate on small grids), in the same unit.
+pub const FACTOR_ENTRY_WEIGHT: f64 = 19.0;
+
+/// The weight of one multiply-add of the two triangular solves (memory-bound like PCG's
+/// product, so 1).
+pub const SOLVE_WEIGHT: f64 = 1.0;
+
+/// The counts the automatic linear-solver choice is made from, for one Newton matrix
+/// pattern.
+///
+/// The direct solver's work comes from a symbolic analysis of the particle graph (the
+/// pattern's 3x3 blocks): faer's approximate minimum degree ordering of the free
+/// particles, then the elimination tree's column counts under that ordering, expanded
+/// to the three unknowns per particle. The analysis of the particle graph is nine
+/// times smaller than that of the scalar matrix and never allocates the factor. PCG's
+/// work per iteration comes from the matrix's nonzeros and its dimension. Both are in
+/// multiply-adds, weighted by [`FACTOR_WEIGHT`], [`FACTOR_ENTRY_WEIGHT`] and
+/// [`SOLVE_WEIGHT`]; the crossover
+/// ([`SolverCosts::crossover_iterations`]) is the number of PCG iterations per Newton
+/// iteration at which the two cost the same.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolverCosts {
+    /// Unknowns (three per free particle).
+    pub dim: usize,
+    /// Stored entries of the matrix's lower triangle.
+    pub matrix_nonzeros: usize,
+    /// Entries of the Cholesky factor below its diagonal.
+    pub factor_nonzeros: f64,
+    /// Multiply-adds of the numeric factorization, `sum_j d_j (d_j + 1) / 2` over the
+    /// factor's columns with `d_j` entries below the diagonal.
+    pub factor_multiply_adds: f64,
+}
+
+impl SolverCosts {
+    /// Analyses `pattern` (see the type's documentation). `O(springs)` memory; the time
+    /// of an ordering of the particle graph (milliseconds on 101 x 101).
+    pub fn analyze(pattern: &HessianPattern) -> Result<Self, String> {
+        let particles = pattern.free_particles.len();
+        let dim = pattern.dim();
+        let matrix_nonzeros = pattern.nnz();
+        if particles == 0 {
+            return Ok(Self {
+                dim,
+                matrix_nonzeros,
+                factor_nonzeros: 0.0,
+                factor_multiply_adds: 0.0,
+            });
+        }
+        // The particle graph, lower triangle: column p holds p, then every neighbour
+        // below it, read from the first scalar column of p's block column (its diagonal
+        // block's three entries, then three rows per neighbour).
+        let col_ptr = pattern.symbolic.col_ptr();
+        let row_idx = pattern.symbolic.row_idx();
+        let mut block_col_ptr = Vec::with_capacity(particles + 1);
+        let mut block_rows = Vec::with_capacity(pattern.nnz() / 9 + particles);
+        block_col_ptr.push(0usize);
+        for p in 0..particles {
+            block_rows.push(p);
+            let (start, end) = (col_ptr[3 * p] + 3, col_ptr[3 * p + 1]);
+            block_rows.extend(row_idx[start..end].iter().step_by(3).map(|r| r / 3));
+            block_col_ptr.push(block_rows.len());
+        }
+        let graph = SymbolicSparseColMat::new_checked(
+            particles,
+            particles,
+            block_col_ptr,
+            None,
+            block_rows,
+        );
+        let mut perm = vec![0usize; particles];
+        let mut perm_inv = vec![0usize; particles];
+        let mut work = MemBuffer::new(amd::order_scratch::<usize>(
+            particles,
+            graph.row_idx().len(),
+        ));
+        amd::order(
+            &mut perm,
+            &mut perm_inv,
+            graph.as_ref(),
+            amd::Control::default(),
+            MemStack::new(&mut work),
+        )
+        .map_err(|e| format!("minimum degree ordering of the particle graph failed: {e:?}"))?;
+        // The permuted graph's upper triangle (what the column counts read).
+        let mut columns: Vec<Vec<usize>> = vec![Vec::new(); particles];
+        for p in 0..particles {
+            for &q in &graph.row_idx()[graph.col_ptr()[p]..graph.col_ptr()[p + 1]] {
+                let (a, b) = (perm_inv[p], perm_inv[q]);
+                columns[a.max(b)].push(a.min(b));
+            }
+        }
+        let mut upper_ptr = Vec::with_capacity(particles + 1);
+        let mut upper_rows = Vec::with_capacity(graph.row_idx().len());
+        upper_ptr.push(0usize);
+        for mut column in columns {
+            column.sort_unstable();
+            upper_rows.extend(column);
+            upper_ptr.push(upper_rows.len());
+        }
+        let upper =
+            SymbolicSparseColMat::new_checked(particles, particles, upper_ptr, None, upper_rows);
+        let mut etree = vec![0isize; particles];
+        let mut counts = vec![0usize; particles];
+        let mut work = MemBuffer::new(simplicial::prefactorize_symbolic_cholesky_scratch::<usize>(
+            particles,
+            upper.row_idx().len(),
+        ));
+        simplicial::prefactorize_symbolic_cholesky(
+            &mut etree,
+            &mut counts,
+            upper.as_ref(),
+            MemStack::new(&mut work),
+        );
+        // A block column of the factor with `c` blocks (its diagonal one included) is
+        // three scalar columns with `3 (c - 1) + 2`, `+ 1` and `+ 0` entries below the
+        // diagonal.
+        let mut factor_nonzeros = 0.0;
+        let mut factor_multiply_adds = 0.0;
+        for &c in &counts {
+            for r in 0..3 {
+                let d = (3 * (c - 1) + 2 - r) as f64;
+                factor_nonzeros += d;
+                factor_multiply_adds += 0.5 * d * (d + 1.0);
+            }
+        }
+        Ok(Self {
+            dim,
+            matrix_nonzeros,
+            factor_nonzeros,
+            factor_multiply_adds,
+        })
+    }
+
+    /// Model cost of one PCG iteration, in multiply-adds: the symmetric product reads
+    /// every stored off-diagonal entry twice (`2 nnz`), and the preconditioner (9 per
+    /// particle row, 3 per unknown), three dot products and three updates add 9 per
+    /// unknown.
+    #[must_use]
+    pub fn cg_iteration_cost(&self) -> f64 {
+        2.0 * self.matrix_nonzeros as f64 + 9.0 * self.dim as f64
+    }
+
+    /// Model cost of one direct solve (numeric factorization and the two triangular
+    /// solves), in the units of [`SolverCosts::cg_iteration_cost`].
+    #[must_use]
+    pub fn direct_cost(&self) -> f64 {
+        FACTOR_WEIGHT * self.factor_multiply_adds
+            + FACTOR_ENTRY_WEIGHT * self.factor_nonzeros
+            + SOLVE_WEIGHT * 2.0 * (self.factor_nonzeros + self.dim as f64)
+    }
+
+    /// The PCG iterations per Newton iteration at which PCG costs as much as the direct
+    /// solve: `direct_cost / cg_iteration_cost` (infinite for an empty system).
+    #[must_use]
+    pub fn crossover_iterations(&self) -> f64 {
+        let cg = self.cg_iteration_cost();
+        if cg > 0.0 {
+            self.direct_cost() / cg
+        } else {
+            f64::INFINITY
+        }
+    }
 }
 
 /// What one direct solve did.

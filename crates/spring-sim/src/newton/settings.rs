@@ -27,7 +27,7 @@ pub struct NewtonSettings {
     pub tolerance: f64,
     /// Newton iteration cap (default 50).
     pub max_iterations: usize,
-    /// The linear solver (default: chosen per step from measured cost).
+    /// The linear solver (default: chosen per step by a cost model from counts).
     pub linear_solver: LinearSolverChoice,
     /// Structure of the direct factorization (default supernodal).
     pub factor_structure: FactorStructure,
@@ -43,8 +43,8 @@ pub struct NewtonSettings {
     /// forcing term is `min(this, |grad g| / |grad g_first|)`, measured against 0.1 and
     /// 1e-3 in docs/bench/spring-sim.md).
     pub pcg_forcing: f64,
-    /// With `Auto`, how many steps may pass before the solver not chosen is timed again
-    /// (default 64).
+    /// With `Auto`, how many steps may pass on the direct solve before PCG runs a step
+    /// again to observe its iteration count (default 64).
     pub reprobe_interval: usize,
     /// Record `g` at every iterate (costs one energy pass per iteration; for tests).
     pub record_objective: bool,
