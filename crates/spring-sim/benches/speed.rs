@@ -11,7 +11,7 @@
 //!   iterations. Workloads: `w4`, `w4d` (damping 0.2), `w5k4`, `w5k6`, `w6`, `w6d`,
 //!   `g<N>` (an N x N lab-pattern cloth 2 wide, like W6); integrators: `be-auto`,
 //!   `be-pcg`, `be-direct`, `verlet`, `se1` (symplectic Euler, 1 substep), `se<N>`,
-//!   `auto`.
+//!   `auto`, the backward Euler ones with a `-t<N>` suffix for N threads.
 
 use sinew_spring_sim::linear::SolverCosts;
 use sinew_spring_sim::*;
@@ -42,9 +42,15 @@ fn workload(name: &str) -> (SpringSystem, f64) {
 }
 
 fn integrator(name: &str) -> Integrator {
+    // A `-t<N>` suffix: N threads (default: one per core).
+    let (name, threads) = match name.split_once("-t") {
+        Some((n, t)) => (n, t.parse().unwrap()),
+        None => (name, 0),
+    };
     let be = |solver| {
         Integrator::BackwardEuler(NewtonSettings {
             linear_solver: solver,
+            threads,
             ..Default::default()
         })
     };

@@ -544,3 +544,34 @@ fn solver_costs_count_a_chain_exactly() {
         "{faer_len}"
     );
 }
+
+/// PCG's work on a system above one chunk (W6: 30 597 unknowns) is cut in chunks fixed by
+/// the dimension and its dot products summed in chunk order, so 1 and 2 threads (and the
+/// `parallel` feature off) give bitwise the same steps.
+#[test]
+fn w6_is_bitwise_the_same_on_one_and_two_threads() {
+    let system = SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02, 0.2)).unwrap();
+    let run = |threads: usize| {
+        let settings = NewtonSettings {
+            linear_solver: LinearSolverChoice::Pcg,
+            threads,
+            ..Default::default()
+        };
+        let mut be = BackwardEuler::new(&system, settings).unwrap();
+        let mut s = system.clone();
+        let mut linear = 0;
+        for _ in 0..3 {
+            linear += be.step(&mut s, 1.0 / 60.0).unwrap().linear_iterations;
+        }
+        (s, linear)
+    };
+    let (one, linear_one) = run(1);
+    let (two, linear_two) = run(2);
+    assert!(linear_one > 0);
+    assert_eq!(linear_one, linear_two);
+    assert_eq!(one.positions(), two.positions());
+    assert_eq!(one.velocities(), two.velocities());
+    // And the default (one thread per core) is the same run.
+    let (all, _) = run(0);
+    assert_eq!(one.positions(), all.positions());
+}

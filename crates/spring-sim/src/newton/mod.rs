@@ -100,9 +100,15 @@ impl BackwardEuler {
         } else {
             None
         };
+        let mut pcg = PcgSolver::new(&pattern);
+        pcg.set_threads(settings.threads)
+            .map_err(|_| ModelError::BadParameter {
+                name: "threads",
+                reason: "the thread pool could not be started",
+            })?;
         Ok(Self {
             settings,
-            pcg: PcgSolver::new(&pattern),
+            pcg,
             values: vec![0.0; pattern.nnz()],
             grad: vec![0.0; n],
             dx: vec![0.0; n],

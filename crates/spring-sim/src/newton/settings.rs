@@ -48,6 +48,11 @@ pub struct NewtonSettings {
     pub reprobe_interval: usize,
     /// Record `g` at every iterate (costs one energy pass per iteration; for tests).
     pub record_objective: bool,
+    /// Threads for the PCG work of systems above [`crate::linear::CHUNK`] unknowns
+    /// (default 0: one per core; 1: the calling thread only). The results are bitwise
+    /// the same for every value (fixed chunks, sums in chunk order); without the
+    /// `parallel` feature it is ignored.
+    pub threads: usize,
 }
 
 impl Default for NewtonSettings {
@@ -64,6 +69,7 @@ impl Default for NewtonSettings {
             pcg_forcing: 1e-2,
             reprobe_interval: 64,
             record_objective: false,
+            threads: 0,
         }
     }
 }
