@@ -195,6 +195,45 @@ fn steps(args: &[String]) {
 #[derive(Default, Debug, Clone, Copy)]
 struct DVec3Like([f64; 3]);
 
+/// `explicit <workload> <verlet|se> <substeps> <threads> [steps] [repeats]`: the stepper
+/// types directly, with a thread count.
+fn explicit(args: &[String]) {
+    let (system, h) = workload(&args[0]);
+    let verlet = args[1] == "verlet";
+    let substeps: usize = args[2].parse().unwrap();
+    let threads: usize = args[3].parse().unwrap();
+    let steps: usize = args.get(4).map_or(30, |s| s.parse().unwrap());
+    let repeats: usize = args.get(5).map_or(5, |s| s.parse().unwrap());
+    let mut wall = Vec::new();
+    let mut cpu = 0.0;
+    for _ in 0..repeats {
+        let mut s = system.clone();
+        let mut vv = VelocityVerlet::new(&s, substeps).unwrap();
+        let mut se = SymplecticEuler::new(&s, substeps).unwrap();
+        vv.set_threads(&s, threads).unwrap();
+        se.set_threads(&s, threads).unwrap();
+        for _ in 0..steps {
+            let (t, c) = (Instant::now(), thread_cpu());
+            if verlet {
+                vv.step(&mut s, h).unwrap();
+            } else {
+                se.step(&mut s, h).unwrap();
+            }
+            wall.push(t.elapsed().as_secs_f64());
+            cpu += thread_cpu() - c;
+        }
+    }
+    let n = wall.len() as f64;
+    println!(
+        "{} {} x{substeps} threads {threads}: wall median {:.1} us/step, mean {:.1}; CPU of this thread mean {:.1} us/step",
+        args[0],
+        args[1],
+        median(wall.clone()) * 1e6,
+        wall.iter().sum::<f64>() / n * 1e6,
+        cpu / n * 1e6
+    );
+}
+
 fn main() {
     // `cargo bench` passes `--bench`; drop flags.
     let args: Vec<String> = std::env::args()
@@ -204,6 +243,7 @@ fn main() {
     match args.first().map(String::as_str) {
         Some("costs") => costs(),
         Some("steps") => steps(&args[1..]),
+        Some("explicit") => explicit(&args[1..]),
         _ => {
             eprintln!("usage: speed costs | speed steps <workload> <integrator> [steps] [repeats]")
         }
