@@ -47,6 +47,7 @@ use sinew_math::DVec3;
 pub struct SymplecticEuler {
     substeps: usize,
     forces: Vec<DVec3>,
+    threaded: ThreadedForces,
     work_x: Vec<DVec3>,
     work_v: Vec<DVec3>,
 }
@@ -63,6 +64,7 @@ impl SymplecticEuler {
         Ok(Self {
             substeps,
             forces: vec![DVec3::ZERO; system.len()],
+            threaded: ThreadedForces::new(system, 0)?,
             work_x: system.positions().to_vec(),
             work_v: system.velocities().to_vec(),
         })
@@ -77,6 +79,18 @@ impl SymplecticEuler {
     /// Sets the substep count (at least 1; 0 is taken as 1).
     pub fn set_substeps(&mut self, substeps: usize) {
         self.substeps = substeps.max(1);
+    }
+
+    /// Spreads the force loop of a system of at least [`PARALLEL_MIN_PARTICLES`]
+    /// particles over `threads` threads (0, the default: one per core; 1: the calling
+    /// thread). The result is bitwise the same for every count (see [`ThreadedForces`]).
+    pub fn set_threads(
+        &mut self,
+        system: &SpringSystem,
+        threads: usize,
+    ) -> Result<(), crate::model::ModelError> {
+        self.threaded = ThreadedForces::new(system, threads)?;
+        Ok(())
     }
 
     /// Advances `system` by `h`.
@@ -96,7 +110,7 @@ impl SymplecticEuler {
         let (x, v) = (&mut self.work_x, &mut self.work_v);
         let (masses, fixed) = (system.masses(), system.fixed());
         for _ in 0..self.substeps {
-            forces(system, x, v, &mut self.forces);
+            self.threaded.forces(system, x, v, &mut self.forces);
             for i in 0..x.len() {
                 if !fixed[i] {
                     v[i] += dt / masses[i] * self.forces[i];
@@ -157,6 +171,143 @@ pub(crate) fn forces(system: &SpringSystem, x: &[DVec3], v: &[DVec3], out: &mut 
     }
 }
 
+/// Particles from which the explicit force loop runs on threads (with the `parallel`
+/// feature): below, a parallel pass costs more than it saves.
+pub const PARALLEL_MIN_PARTICLES: usize = 2048;
+
+/// The explicit integrators' force loop, spread over threads for large systems, with bitwise
+/// the same result as the sequential loop.
+///
+/// The sequential loop scatters each spring's force onto its two particles in spring
+/// order, which two threads cannot share. Here each spring's force is computed first
+/// (springs in chunks, any thread), then each particle gathers its springs' forces in
+/// spring order, starting from its gravity, and negates: the same additions in the same
+/// order on every particle as the scatter makes (`f - g` and `f + (-g)` are the same
+/// floating-point operation), so the result does not depend on the thread count.
+#[derive(Clone, Debug, Default)]
+pub struct ThreadedForces {
+    /// Particle `i`'s springs are `entries[ptr[i]..ptr[i + 1]]`: `(spring, whether the
+    /// particle is the spring's first end)`, in spring order.
+    #[cfg(feature = "parallel")]
+    ptr: Vec<usize>,
+    #[cfg(feature = "parallel")]
+    entries: Vec<(usize, bool)>,
+    /// Each spring's force term of the last evaluation.
+    #[cfg(feature = "parallel")]
+    per_spring: Vec<DVec3>,
+    #[cfg(feature = "parallel")]
+    pool: Option<std::sync::Arc<rayon::ThreadPool>>,
+}
+
+impl ThreadedForces {
+    /// Threads for `system` (0: one per core); nothing is built below
+    /// [`PARALLEL_MIN_PARTICLES`] particles, for one thread, or without the `parallel`
+    /// feature.
+    fn new(system: &SpringSystem, threads: usize) -> Result<Self, crate::model::ModelError> {
+        #[cfg(feature = "parallel")]
+        {
+            let count = if threads == 0 {
+                std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+            } else {
+                threads
+            };
+            if count > 1 && system.len() >= PARALLEL_MIN_PARTICLES {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(count)
+                    .build()
+                    .map_err(|_| crate::model::ModelError::BadParameter {
+                        name: "threads",
+                        reason: "the thread pool could not be started",
+                    })?;
+                let mut lists: Vec<Vec<(usize, bool)>> = vec![Vec::new(); system.len()];
+                for (k, s) in system.springs().iter().enumerate() {
+                    lists[s.a].push((k, true));
+                    lists[s.b].push((k, false));
+                }
+                let mut ptr = Vec::with_capacity(system.len() + 1);
+                ptr.push(0);
+                let mut entries = Vec::with_capacity(2 * system.springs().len());
+                for list in lists {
+                    entries.extend(list);
+                    ptr.push(entries.len());
+                }
+                return Ok(Self {
+                    ptr,
+                    entries,
+                    per_spring: vec![DVec3::ZERO; system.springs().len()],
+                    pool: Some(std::sync::Arc::new(pool)),
+                });
+            }
+        }
+        let _ = (system, threads);
+        Ok(Self::default())
+    }
+
+    /// The threads the force loop runs on (1: the calling thread).
+    #[must_use]
+    pub fn threads(&self) -> usize {
+        #[cfg(feature = "parallel")]
+        if let Some(pool) = &self.pool {
+            return pool.current_num_threads();
+        }
+        1
+    }
+
+    /// The forces at `x`, `v` into `out`, on the threads when there are any.
+    fn forces(&mut self, system: &SpringSystem, x: &[DVec3], v: &[DVec3], out: &mut [DVec3]) {
+        #[cfg(feature = "parallel")]
+        if let Some(pool) = &self.pool {
+            use rayon::prelude::*;
+            const SPRINGS_PER_TASK: usize = 4096;
+            const PARTICLES_PER_TASK: usize = 1024;
+            let c = system.material().damping;
+            let gravity = system.material().gravity;
+            let masses = system.masses();
+            let springs = system.springs();
+            let (ptr, entries, per_spring) = (&self.ptr, &self.entries, &mut self.per_spring);
+            pool.install(|| {
+                springs
+                    .par_chunks(SPRINGS_PER_TASK)
+                    .zip(per_spring.par_chunks_mut(SPRINGS_PER_TASK))
+                    .for_each(|(springs, out)| {
+                        for (s, g) in springs.iter().zip(out) {
+                            *g = spring::gradient(x[s.a], x[s.b], s.rest_length, s.stiffness);
+                            if c > 0.0 {
+                                *g += AxialDamping::rate_gradient(
+                                    c,
+                                    x[s.a] - x[s.b],
+                                    v[s.a] - v[s.b],
+                                );
+                            }
+                        }
+                    });
+                let per_spring = &*per_spring;
+                out.par_chunks_mut(PARTICLES_PER_TASK)
+                    .enumerate()
+                    .for_each(|(chunk, out)| {
+                        for (k, f) in out.iter_mut().enumerate() {
+                            let i = chunk * PARTICLES_PER_TASK + k;
+                            // As the sequential loop: zero, minus gravity's gradient,
+                            // then the springs in order, then negated.
+                            let mut sum = DVec3::ZERO;
+                            sum -= masses[i] * gravity;
+                            for &(s, first) in &entries[ptr[i]..ptr[i + 1]] {
+                                if first {
+                                    sum += per_spring[s];
+                                } else {
+                                    sum -= per_spring[s];
+                                }
+                            }
+                            *f = -sum;
+                        }
+                    });
+            });
+            return;
+        }
+        forces(system, x, v, out);
+    }
+}
+
 /// Velocity Verlet (kick-drift-kick) with a fixed substep count, with its buffers.
 ///
 /// Each substep of length `dt`: `v += dt/2 a`, `x += dt v`, `a = M^-1 f(x, v)`,
@@ -191,6 +342,7 @@ pub(crate) fn forces(system: &SpringSystem, x: &[DVec3], v: &[DVec3], out: &mut 
 pub struct VelocityVerlet {
     substeps: usize,
     forces: Vec<DVec3>,
+    threaded: ThreadedForces,
     work_x: Vec<DVec3>,
     work_v: Vec<DVec3>,
     /// The state after the last step and the energy there, to reuse the forces and
@@ -214,6 +366,7 @@ impl VelocityVerlet {
         Ok(Self {
             substeps,
             forces: vec![DVec3::ZERO; system.len()],
+            threaded: ThreadedForces::new(system, 0)?,
             work_x: system.positions().to_vec(),
             work_v: system.velocities().to_vec(),
             end_x: Vec::new(),
@@ -232,6 +385,18 @@ impl VelocityVerlet {
     /// Sets the substep count (at least 1; 0 is taken as 1).
     pub fn set_substeps(&mut self, substeps: usize) {
         self.substeps = substeps.max(1);
+    }
+
+    /// Spreads the force loop of a system of at least [`PARALLEL_MIN_PARTICLES`]
+    /// particles over `threads` threads (0, the default: one per core; 1: the calling
+    /// thread). The result is bitwise the same for every count (see [`ThreadedForces`]).
+    pub fn set_threads(
+        &mut self,
+        system: &SpringSystem,
+        threads: usize,
+    ) -> Result<(), crate::model::ModelError> {
+        self.threaded = ThreadedForces::new(system, threads)?;
+        Ok(())
     }
 
     /// Advances `system` by `h`. A non-finite value undoes the step and is an error.
@@ -256,7 +421,7 @@ impl VelocityVerlet {
         let dt = h / self.substeps as f64;
         let (x, v) = (&mut self.work_x, &mut self.work_v);
         if !unchanged {
-            forces(system, x, v, &mut self.forces);
+            self.threaded.forces(system, x, v, &mut self.forces);
         }
         let half = 0.5 * dt;
         let inv_mass = &self.inv_mass;
@@ -270,7 +435,7 @@ impl VelocityVerlet {
                 *vi += (half * w) * *f;
                 *xi += dt * *vi;
             }
-            forces(system, x, v, &mut self.forces);
+            self.threaded.forces(system, x, v, &mut self.forces);
             for ((vi, f), w) in v.iter_mut().zip(&self.forces).zip(inv_mass) {
                 *vi += (half * w) * *f;
             }

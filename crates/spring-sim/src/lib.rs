@@ -28,10 +28,11 @@
 //! - [`spring`]: per-spring energy, gradient, exact Hessian block and its PSD projection;
 //! - [`mod@reference`]: the lab report's flawed method, for comparison only.
 //!
-//! Linear solver choice (`Auto`): the first step uses PCG, the second the direct solve;
-//! from then on each step uses the one with the smaller measured time per step (the
-//! smallest of its last 8 step times), and the other is timed again after
-//! `reprobe_interval` steps so a change of regime is noticed.
+//! Linear solver choice (`Auto`): PCG while the PCG iterations it needs per Newton
+//! iteration stay below a crossover computed from counts ([`linear::SolverCosts`]: the
+//! factor's size under a fill-reducing ordering, the matrix's nonzeros), the direct solve
+//! above it; PCG is observed again every `reprobe_interval` steps. No timing, so two
+//! identical runs give bitwise the same results.
 //!
 //! ```
 //! use sinew_spring_sim::{ClothGrid, Integrator, Simulation, SpringSystem};

@@ -143,7 +143,114 @@ fn lanczos_estimate_matches_the_dense_eigenvalue() {
             bound.estimate
         );
         assert!(bound.gershgorin >= exact * (1.0 - 1e-12));
+        // The state-independent bound the monitor tries first is above it too.
+        let (uniform, _) = stability::uniform_bound(system);
+        assert!(uniform >= exact * (1.0 - 1e-12), "{uniform} < {exact}");
     }
+}
+
+/// One free particle of mass 1 at the origin held by two springs of stiffness `k` and
+/// rest length 1 to fixed anchors at `(l, 0, 0)` and `(0, l, 0)`. With `s = 1 - 1/l`,
+/// `M^-1 K` is `diag(k (1 + s), k (1 + s), 2 k s)` for `l >= 1` (each spring adds `k`
+/// along itself and `k s` across), so `lambda_max = k (1 + s)` exactly.
+fn cross(k: f64, l: f64) -> SpringSystem {
+    let anchor = |p| Particle {
+        fixed: true,
+        ..Particle::at_rest(p, 1.0)
+    };
+    let spring = |b| SpringSpec {
+        particles: [0, b],
+        rest_length: Some(1.0),
+        stiffness: Some(k),
+    };
+    SpringSystem::new(
+        &[
+            Particle::at_rest(DVec3::ZERO, 1.0),
+            anchor(DVec3::new(l, 0.0, 0.0)),
+            anchor(DVec3::new(0.0, l, 0.0)),
+        ],
+        &[spring(1), spring(2)],
+        Material {
+            damping: 0.0,
+            ..Material::default()
+        },
+    )
+    .unwrap()
+}
+
+/// The monitor's cheap test (the Gershgorin bound against the one of its last Lanczos
+/// estimate) asks for a new estimate when the springs stretch, and the substep count then
+/// follows the closed-form bound; a small change keeps the scaled estimate, never below
+/// the true value.
+#[test]
+fn the_monitor_refreshes_its_estimate_when_the_springs_stretch() {
+    let (k, h) = (100.0, 1.0);
+    let mut monitor = StabilityMonitor::new();
+    // At rest: lambda_max = k. The uniform bound 2k gives ceil(h sqrt(200) / 2) = 8
+    // substeps, so the monitor has to look at the state.
+    let b = monitor.update(&cross(k, 1.0), h);
+    assert_eq!(monitor.lanczos_refreshes(), 1);
+    assert!((b.estimate - k).abs() <= 1e-9 * k, "{b:?}");
+    // Stretched by 5%: lambda = k (1 + s) with s = 1 - 1/1.05; Gershgorin moves by less
+    // than the refresh threshold, so no new estimate: the old one scaled by Gershgorin's
+    // growth, which is above the true value here.
+    let l = 1.05;
+    let exact = k * (2.0 - 1.0 / l);
+    let b = monitor.update(&cross(k, l), h);
+    assert_eq!(monitor.lanczos_refreshes(), 1);
+    assert!(b.estimate >= exact * (1.0 - 1e-12), "{b:?} vs {exact}");
+    // Stretched to twice the rest length: lambda = 1.5 k, Gershgorin grows by half, a
+    // new estimate is computed and equals the closed form.
+    let exact = 1.5 * k;
+    let b = monitor.update(&cross(k, 2.0), h);
+    assert_eq!(monitor.lanczos_refreshes(), 2);
+    assert!((b.estimate - exact).abs() <= 1e-9 * exact, "{b:?}");
+    let limit = (h * exact.sqrt() / 2.0).ceil() as usize;
+    assert_eq!(b.critical_substeps(h), limit);
+    assert!(b.substeps(h) >= limit);
+}
+
+/// When the uniform bound allows one substep the monitor computes nothing more; when the
+/// damping coefficient is raised (the one material change a system allows) the next call
+/// sees it at once and leaves the one-substep case, with the same count as a bound
+/// computed afresh. Stretching a sheet whose uniform bound asks for several substeps
+/// makes the monitor refresh its estimate.
+#[test]
+fn the_monitor_follows_damping_and_stretch_of_the_lab_cloth() {
+    let h = 1.0 / 60.0;
+    let mut system = cloth(100.0, 0.2);
+    let mut monitor = StabilityMonitor::new();
+    let b = monitor.update(&system, h);
+    assert_eq!(b.substeps(h), 1);
+    assert_eq!(
+        monitor.lanczos_refreshes(),
+        0,
+        "one substep needs no estimate"
+    );
+    assert!(b.estimate >= StabilityBound::of(&system).estimate);
+    system.set_damping(50.0).unwrap();
+    let b = monitor.update(&system, h);
+    let fresh = StabilityBound::of(&system);
+    assert!(b.substeps(h) > 1);
+    assert_eq!(b.substeps(h), fresh.substeps(h));
+    assert_eq!(monitor.lanczos_refreshes(), 1);
+    // At h = 1/2 the uniform bound asks for 13 substeps: the state matters.
+    let h = 0.5;
+    let mut system = cloth(100.0, 0.0);
+    let mut monitor = StabilityMonitor::new();
+    let b0 = monitor.update(&system, h);
+    assert_eq!(monitor.lanczos_refreshes(), 1);
+    // Stretched by half: Gershgorin grows by 16.7% and the true lambda_max by 20.5%
+    // (966.76 to 1165.18), so Gershgorin's growth alone would underestimate it by 3.2%.
+    let stretched: Vec<DVec3> = system.positions().iter().map(|p| *p * 1.5).collect();
+    system
+        .set_state(&stretched, &vec![DVec3::ZERO; stretched.len()])
+        .unwrap();
+    let b = monitor.update(&system, h);
+    assert_eq!(monitor.lanczos_refreshes(), 2, "stretch must refresh");
+    let fresh = StabilityBound::of(&system);
+    assert_eq!(b, fresh);
+    assert!(b.substeps(h) > b0.substeps(h));
 }
 
 #[test]
@@ -422,5 +529,41 @@ fn auto_chooses_verlet_on_the_workloads() {
         let r = sim.step(h).unwrap();
         assert_eq!(r.integrator, IntegratorKind::VelocityVerlet);
         assert_eq!(r.substeps, needed);
+    }
+}
+
+/// The explicit force loop of a large system (W6 with damping 0.2, 10 201 particles) on
+/// threads gathers each particle's spring forces in spring order, so 1, 2 and all threads
+/// give bitwise the same steps, for velocity Verlet and symplectic Euler alike.
+#[test]
+fn explicit_steps_of_w6_are_bitwise_the_same_on_one_and_two_threads() {
+    let system = SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02, 0.2)).unwrap();
+    let h = 1.0 / 60.0;
+    let verlet = |threads: usize| {
+        let mut vv = VelocityVerlet::new(&system, 3).unwrap();
+        vv.set_threads(&system, threads).unwrap();
+        let mut s = system.clone();
+        for _ in 0..3 {
+            vv.step(&mut s, h).unwrap();
+        }
+        s
+    };
+    let euler = |threads: usize| {
+        let mut se = SymplecticEuler::new(&system, 3).unwrap();
+        se.set_threads(&system, threads).unwrap();
+        let mut s = system.clone();
+        for _ in 0..3 {
+            se.step(&mut s, h).unwrap();
+        }
+        s
+    };
+    for run in [&verlet as &dyn Fn(usize) -> SpringSystem, &euler] {
+        let one = run(1);
+        assert_ne!(one.positions(), system.positions(), "the sheet moved");
+        for threads in [2, 0] {
+            let other = run(threads);
+            assert_eq!(one.positions(), other.positions(), "{threads} threads");
+            assert_eq!(one.velocities(), other.velocities(), "{threads} threads");
+        }
     }
 }

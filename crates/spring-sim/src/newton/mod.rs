@@ -31,7 +31,8 @@ mod solver_choice;
 pub use settings::{InitialGuess, NewtonSettings};
 
 use crate::linear::{
-    DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, PcgSolver,
+    DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, PcgOutcome, PcgSolver,
+    SolverCosts,
 };
 use crate::model::{ModelError, SpringSystem, check_time_step};
 use crate::pattern::{FIXED, HessianPattern};
@@ -105,6 +106,8 @@ pub struct BackwardEuler {
     prev_velocity: Vec<DVec3>,
     have_prev_velocity: bool,
     chooser: SolverChooser,
+    /// The counts of the automatic solver choice, analysed the first time it needs them.
+    costs: Option<SolverCosts>,
     objective_trace: Vec<f64>,
     particle_count: usize,
     spring_count: usize,
@@ -123,9 +126,15 @@ impl BackwardEuler {
         } else {
             None
         };
+        let mut pcg = PcgSolver::new(&pattern);
+        pcg.set_threads(settings.threads)
+            .map_err(|_| ModelError::BadParameter {
+                name: "threads",
+                reason: "the thread pool could not be started",
+            })?;
         Ok(Self {
             settings,
-            pcg: PcgSolver::new(&pattern),
+            pcg,
             values: vec![0.0; pattern.nnz()],
             grad: vec![0.0; n],
             dx: vec![0.0; n],
@@ -139,6 +148,7 @@ impl BackwardEuler {
             prev_velocity: vec![DVec3::ZERO; system.len()],
             have_prev_velocity: false,
             chooser: SolverChooser::default(),
+            costs: None,
             objective_trace: Vec::new(),
             particle_count: system.len(),
             spring_count: system.springs().len(),
@@ -389,10 +399,48 @@ impl BackwardEuler {
         Ok(report)
     }
 
+    /// The counts the automatic linear-solver choice is made from (analysing the pattern
+    /// now if that has not happened yet).
+    pub fn solver_costs(&mut self) -> Result<SolverCosts, ModelError> {
+        if let Some(c) = self.costs {
+            return Ok(c);
+        }
+        let c = SolverCosts::analyze(&self.pattern).map_err(|_| ModelError::BadParameter {
+            name: "linear_solver",
+            reason: "the ordering of the particle graph for the solver's cost model failed",
+        })?;
+        self.costs = Some(c);
+        Ok(c)
+    }
+
+    /// Runs PCG on the last assembled Newton matrix against the right-hand side of the
+    /// last step, from zero, for exactly `iterations` iterations unless it converges to
+    /// round-off first (a kernel for benchmarks of one PCG iteration).
+    pub fn pcg_iterations_on_newton_matrix(&mut self, iterations: usize) -> PcgOutcome {
+        if self.rhs.iter().all(|r| *r == 0.0) {
+            self.rhs.fill(1.0);
+        }
+        self.dx.fill(0.0);
+        self.pcg.solve(
+            &self.pattern,
+            &self.values,
+            &self.rhs,
+            &mut self.dx,
+            1e-300,
+            iterations,
+        )
+    }
+
     fn choose_solver(&mut self, dim: usize) -> Result<LinearSolverKind, ModelError> {
+        let choice = self.settings.linear_solver;
+        let costs = if self.chooser.needs_costs(choice) {
+            Some(self.solver_costs()?)
+        } else {
+            None
+        };
         let kind = self
             .chooser
-            .choose(self.settings.linear_solver, self.settings.reprobe_interval);
+            .choose(choice, self.settings.reprobe_interval, costs.as_ref());
         if kind == LinearSolverKind::Direct && self.direct.is_none() && dim > 0 {
             self.direct = Some(Self::build_direct(
                 &self.pattern,

@@ -27,7 +27,7 @@ pub struct NewtonSettings {
     pub tolerance: f64,
     /// Newton iteration cap (default 50).
     pub max_iterations: usize,
-    /// The linear solver (default: chosen per step from measured cost).
+    /// The linear solver (default: chosen per step by a cost model from counts).
     pub linear_solver: LinearSolverChoice,
     /// Structure of the direct factorization (default supernodal).
     pub factor_structure: FactorStructure,
@@ -43,11 +43,16 @@ pub struct NewtonSettings {
     /// forcing term is `min(this, |grad g| / |grad g_first|)`, measured against 0.1 and
     /// 1e-3 in docs/bench/spring-sim.md).
     pub pcg_forcing: f64,
-    /// With `Auto`, how many steps may pass before the solver not chosen is timed again
-    /// (default 64).
+    /// With `Auto`, how many steps may pass on the direct solve before PCG runs a step
+    /// again to observe its iteration count (default 64).
     pub reprobe_interval: usize,
     /// Record `g` at every iterate (costs one energy pass per iteration; for tests).
     pub record_objective: bool,
+    /// Threads for the PCG work of systems above [`crate::linear::CHUNK`] unknowns
+    /// (default 0: one per core; 1: the calling thread only). The results are bitwise
+    /// the same for every value (fixed chunks, sums in chunk order); without the
+    /// `parallel` feature it is ignored.
+    pub threads: usize,
 }
 
 impl Default for NewtonSettings {
@@ -64,6 +69,7 @@ impl Default for NewtonSettings {
             pcg_forcing: 1e-2,
             reprobe_interval: 64,
             record_objective: false,
+            threads: 0,
         }
     }
 }

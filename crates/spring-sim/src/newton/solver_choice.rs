@@ -1,119 +1,75 @@
-//! The linear solver choice of `Auto`: the first step uses PCG, the second the direct
-//! solve; from then on each step uses the one with the smaller measured time per step
-//! (the smallest of its last [`TIMING_WINDOW`] step times), and the other is timed again
-//! after `reprobe_interval` steps so a change of regime is noticed.
+//! The linear solver choice of `Auto`, from counts only, so it is deterministic.
+//!
+//! The first step with a Newton iteration uses PCG and records how many PCG iterations
+//! each Newton iteration needed. From then on a step uses PCG while that figure (from the
+//! last PCG step) is at most the cost model's crossover
+//! ([`SolverCosts::crossover_iterations`], from the factor's size under a fill-reducing
+//! ordering and the matrix's nonzeros), and the direct solve when it is above. While on
+//! the direct solve, PCG is used again once every `reprobe_interval` steps to observe its
+//! iteration count afresh, so a system that softens goes back to PCG. Nothing here reads
+//! a clock: two identical runs make the same choices.
 
-use crate::linear::{LinearSolverChoice, LinearSolverKind};
+use crate::linear::{LinearSolverChoice, LinearSolverKind, SolverCosts};
 
-/// Per-solver timing for the automatic choice (index 0: PCG, 1: direct).
-///
-/// The estimate is the smallest of the last [`TIMING_WINDOW`] measured step times: on a
-/// shared machine noise only ever adds time, so the minimum is the robust figure, and a
-/// single preempted step cannot hand the choice to the slower solver.
-#[derive(Clone, Copy, Debug)]
-struct SolverTiming {
-    /// The last step times in seconds (a ring; infinity where not measured).
-    recent: [f64; TIMING_WINDOW],
-    /// Next ring slot.
-    next: usize,
-    /// Steps since this solver was last used.
-    steps_since_used: usize,
-}
-
-/// Step times remembered per solver.
-const TIMING_WINDOW: usize = 8;
-
-impl Default for SolverTiming {
-    fn default() -> Self {
-        Self {
-            recent: [f64::INFINITY; TIMING_WINDOW],
-            next: 0,
-            steps_since_used: 0,
-        }
-    }
-}
-
-impl SolverTiming {
-    fn seconds_per_step(&self) -> Option<f64> {
-        let m = self.recent.iter().copied().fold(f64::INFINITY, f64::min);
-        m.is_finite().then_some(m)
-    }
-
-    fn record(&mut self, seconds: f64) {
-        self.recent[self.next] = seconds;
-        self.next = (self.next + 1) % TIMING_WINDOW;
-        self.steps_since_used = 0;
-    }
-}
-
-/// Records a step's time for the automatic solver choice. A step that converged with no
-/// Newton iteration never ran the linear solver, so its time (the gradient alone) says
-/// nothing about the solver's cost and is not recorded: recording it made the solver
-/// probed on such a step look almost free, and `auto` then kept a solver 10x slower for
-/// a dozen steps (W6 at tolerance 1e-6, found by `cargo xtask bench`).
-fn record_step_time(
-    timing: &mut [SolverTiming; 2],
-    kind: LinearSolverKind,
-    seconds: f64,
-    iterations: usize,
-) {
-    if iterations == 0 {
-        return;
-    }
-    let index = match kind {
-        LinearSolverKind::Pcg => 0,
-        LinearSolverKind::Direct => 1,
-    };
-    for (k, t) in timing.iter_mut().enumerate() {
-        if k == index {
-            t.record(seconds);
-        } else {
-            t.steps_since_used += 1;
-        }
-    }
-}
-
-/// The measured costs of both solvers and the choice made from them.
+/// The observations and counts the automatic choice is made from.
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct SolverChooser {
-    timing: [SolverTiming; 2],
+    /// PCG iterations per Newton iteration on the last PCG step that had a Newton
+    /// iteration (`None` before one).
+    pcg_iterations_per_newton: Option<f64>,
+    /// Steps since PCG last ran a Newton iteration.
+    steps_since_pcg: usize,
 }
 
 impl SolverChooser {
-    /// The solver for the next step under `choice`.
+    /// Whether the choice for the next step under `choice` needs the cost counts (the
+    /// caller analyses the pattern once, the first time this is true).
+    pub(super) fn needs_costs(&self, choice: LinearSolverChoice) -> bool {
+        choice == LinearSolverChoice::Auto && self.pcg_iterations_per_newton.is_some()
+    }
+
+    /// The solver for the next step under `choice`; `costs` must be given when
+    /// [`SolverChooser::needs_costs`] says so.
     pub(super) fn choose(
         &self,
         choice: LinearSolverChoice,
         reprobe_interval: usize,
+        costs: Option<&SolverCosts>,
     ) -> LinearSolverKind {
         match choice {
             LinearSolverChoice::Direct => LinearSolverKind::Direct,
             LinearSolverChoice::Pcg => LinearSolverKind::Pcg,
             LinearSolverChoice::Auto => {
-                let [pcg, direct] = self.timing;
-                match (pcg.seconds_per_step(), direct.seconds_per_step()) {
-                    (None, _) => LinearSolverKind::Pcg,
-                    (_, None) => LinearSolverKind::Direct,
-                    (Some(tp), Some(td)) => {
-                        let (best, other, other_timing) = if tp <= td {
-                            (LinearSolverKind::Pcg, LinearSolverKind::Direct, direct)
-                        } else {
-                            (LinearSolverKind::Direct, LinearSolverKind::Pcg, pcg)
-                        };
-                        if other_timing.steps_since_used >= reprobe_interval {
-                            other
-                        } else {
-                            best
-                        }
-                    }
+                let (Some(observed), Some(costs)) = (self.pcg_iterations_per_newton, costs) else {
+                    return LinearSolverKind::Pcg;
+                };
+                if observed <= costs.crossover_iterations()
+                    || self.steps_since_pcg >= reprobe_interval
+                {
+                    LinearSolverKind::Pcg
+                } else {
+                    LinearSolverKind::Direct
                 }
             }
         }
     }
 
-    /// Records a step's time with `kind` (see [`record_step_time`]).
-    pub(super) fn record(&mut self, kind: LinearSolverKind, seconds: f64, iterations: usize) {
-        record_step_time(&mut self.timing, kind, seconds, iterations);
+    /// Records a step taken with `kind`: `newton_iterations` Newton iterations needing
+    /// `linear_iterations` PCG iterations in all. A step without a Newton iteration
+    /// (converged at its first guess) ran no solver and says nothing about its cost.
+    pub(super) fn record(
+        &mut self,
+        kind: LinearSolverKind,
+        newton_iterations: usize,
+        linear_iterations: usize,
+    ) {
+        if kind == LinearSolverKind::Pcg && newton_iterations > 0 {
+            self.pcg_iterations_per_newton =
+                Some(linear_iterations as f64 / newton_iterations as f64);
+            self.steps_since_pcg = 0;
+        } else {
+            self.steps_since_pcg = self.steps_since_pcg.saturating_add(1);
+        }
     }
 }
 
@@ -121,22 +77,56 @@ impl SolverChooser {
 mod tests {
     use super::*;
 
+    /// Counts with a crossover of exactly 10 PCG iterations per Newton iteration.
+    fn costs() -> SolverCosts {
+        let mut c = SolverCosts {
+            dim: 3,
+            matrix_nonzeros: 6,
+            factor_nonzeros: 0.0,
+            factor_multiply_adds: 0.0,
+        };
+        let cg = c.cg_iteration_cost();
+        c.factor_multiply_adds =
+            (10.0 * cg - 2.0 * 3.0 * crate::linear::SOLVE_WEIGHT) / crate::linear::FACTOR_WEIGHT;
+        assert!((c.crossover_iterations() - 10.0).abs() < 1e-9);
+        c
+    }
+
     #[test]
-    fn a_step_without_newton_iterations_does_not_time_the_solver() {
-        let mut timing = [SolverTiming::default(); 2];
-        record_step_time(&mut timing, LinearSolverKind::Pcg, 0.010, 2);
-        // The direct probe lands on a step that converged at once: 1 us of gradient work.
-        record_step_time(&mut timing, LinearSolverKind::Direct, 1e-6, 0);
-        assert_eq!(timing[0].seconds_per_step(), Some(0.010));
+    fn pcg_until_observed_then_the_cheaper_by_the_model() {
+        let c = costs();
+        let auto = LinearSolverChoice::Auto;
+        let mut chooser = SolverChooser::default();
+        assert!(!chooser.needs_costs(auto));
+        assert_eq!(chooser.choose(auto, 64, None), LinearSolverKind::Pcg);
+        // Converged at the guess: nothing observed.
+        chooser.record(LinearSolverKind::Pcg, 0, 0);
+        assert!(!chooser.needs_costs(auto));
+        // 9 PCG iterations per Newton iteration: below the crossover, PCG stays.
+        chooser.record(LinearSolverKind::Pcg, 2, 18);
+        assert!(chooser.needs_costs(auto));
+        assert_eq!(chooser.choose(auto, 64, Some(&c)), LinearSolverKind::Pcg);
+        // 30 per Newton iteration: the direct solve.
+        chooser.record(LinearSolverKind::Pcg, 2, 60);
+        assert_eq!(chooser.choose(auto, 64, Some(&c)), LinearSolverKind::Direct);
+        // On the direct solve, PCG is observed again after the reprobe interval.
+        for _ in 0..3 {
+            chooser.record(LinearSolverKind::Direct, 2, 0);
+        }
+        assert_eq!(chooser.choose(auto, 4, Some(&c)), LinearSolverKind::Direct);
+        chooser.record(LinearSolverKind::Direct, 2, 0);
+        assert_eq!(chooser.choose(auto, 4, Some(&c)), LinearSolverKind::Pcg);
+        // The system softened: back to PCG for good.
+        chooser.record(LinearSolverKind::Pcg, 1, 4);
+        assert_eq!(chooser.choose(auto, 4, Some(&c)), LinearSolverKind::Pcg);
+        // The fixed choices ignore everything.
         assert_eq!(
-            timing[1].seconds_per_step(),
-            None,
-            "direct is still unmeasured"
+            chooser.choose(LinearSolverChoice::Direct, 4, None),
+            LinearSolverKind::Direct
         );
-        // Its first step with a solve is what counts.
-        record_step_time(&mut timing, LinearSolverKind::Direct, 0.190, 1);
-        assert_eq!(timing[1].seconds_per_step(), Some(0.190));
-        assert_eq!(timing[0].steps_since_used, 1);
-        assert_eq!(timing[1].steps_since_used, 0);
+        assert_eq!(
+            chooser.choose(LinearSolverChoice::Pcg, 4, Some(&c)),
+            LinearSolverKind::Pcg
+        );
     }
 }
