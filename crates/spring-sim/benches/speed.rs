@@ -13,16 +13,15 @@
 //!   `be-pcg`, `be-direct`, `verlet`, `se1` (symplectic Euler, 1 substep), `se<N>`,
 //!   `auto`, the backward Euler ones with a `-t<N>` suffix for N threads.
 
-use sinew_spring_sim::linear::SolverCosts;
 use sinew_spring_sim::*;
 use std::time::Instant;
 
 fn grid(n: usize, stiffness: f64, damping: f64) -> SpringSystem {
     let spacing = 2.0 / (n - 1) as f64;
     let mut g = if n == 11 {
-        ClothGrid::lab(damping)
+        ClothGrid::lab().with_damping(damping)
     } else {
-        ClothGrid::lab_sized(n, spacing, damping)
+        ClothGrid::lab_sized(n, spacing).with_damping(damping)
     };
     g.material.stiffness = stiffness;
     SpringSystem::cloth(&g).unwrap()

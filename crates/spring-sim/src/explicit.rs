@@ -83,7 +83,8 @@ impl SymplecticEuler {
 
     /// Spreads the force loop of a system of at least [`PARALLEL_MIN_PARTICLES`]
     /// particles over `threads` threads (0, the default: one per core; 1: the calling
-    /// thread). The result is bitwise the same for every count (see [`ThreadedForces`]).
+    /// thread). The result is bitwise the same for every count: each spring's force is computed
+    /// first, then each particle adds its springs' forces in spring order.
     pub fn set_threads(
         &mut self,
         system: &SpringSystem,
@@ -91,6 +92,13 @@ impl SymplecticEuler {
     ) -> Result<(), crate::model::ModelError> {
         self.threaded = ThreadedForces::new(system, threads)?;
         Ok(())
+    }
+
+    /// The threads the force loop runs on (1: the calling thread; also 1 for systems
+    /// below [`PARALLEL_MIN_PARTICLES`] particles, which stay on the calling thread).
+    #[must_use]
+    pub fn threads(&self) -> usize {
+        self.threaded.threads()
     }
 
     /// Advances `system` by `h`.
@@ -389,7 +397,8 @@ impl VelocityVerlet {
 
     /// Spreads the force loop of a system of at least [`PARALLEL_MIN_PARTICLES`]
     /// particles over `threads` threads (0, the default: one per core; 1: the calling
-    /// thread). The result is bitwise the same for every count (see [`ThreadedForces`]).
+    /// thread). The result is bitwise the same for every count: each spring's force is computed
+    /// first, then each particle adds its springs' forces in spring order.
     pub fn set_threads(
         &mut self,
         system: &SpringSystem,
@@ -397,6 +406,13 @@ impl VelocityVerlet {
     ) -> Result<(), crate::model::ModelError> {
         self.threaded = ThreadedForces::new(system, threads)?;
         Ok(())
+    }
+
+    /// The threads the force loop runs on (1: the calling thread; also 1 for systems
+    /// below [`PARALLEL_MIN_PARTICLES`] particles, which stay on the calling thread).
+    #[must_use]
+    pub fn threads(&self) -> usize {
+        self.threaded.threads()
     }
 
     /// Advances `system` by `h`. A non-finite value undoes the step and is an error.

@@ -60,10 +60,10 @@ mod report;
 pub mod spring;
 mod stability;
 
-pub use explicit::{SymplecticEuler, VelocityVerlet};
+pub use explicit::{PARALLEL_MIN_PARTICLES, SymplecticEuler, VelocityVerlet};
 pub use implicit::{Bdf2, ImplicitMidpoint};
 pub use integrator::{AutoSettings, Integrator, Simulation};
-pub use linear::{DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind};
+pub use linear::{DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, SolverCosts};
 pub use mesh::{Bending, EdgeHinge, MeshCloth, MeshClothModel, MeshError, TriangleMesh};
 pub use metrics::{DIVERGENCE_RADIUS, RunMetrics, run, run_observed};
 pub use model::{
@@ -75,4 +75,4 @@ pub use report::{AutoReason, IntegratorKind, StepError, StepReport, StepStop};
 /// The vector type positions, velocities and forces are given in, re-exported so a user
 /// of this crate does not also have to depend on sinew-math.
 pub use sinew_math::DVec3;
-pub use stability::{StabilityBound, StabilityMonitor};
+pub use stability::{StabilityBound, StabilityMonitor, uniform_bound};

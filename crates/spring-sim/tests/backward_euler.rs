@@ -459,13 +459,13 @@ fn auto_gives_bitwise_identical_runs() {
             .collect();
         (sim.into_system(), solvers)
     };
-    let lab = SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap();
+    let lab = SpringSystem::cloth(&ClothGrid::lab()).unwrap();
     let (a, _) = run(&lab, Integrator::default(), 0.5, 40);
     let (b, _) = run(&lab, Integrator::default(), 0.5, 40);
     assert_eq!(a.positions(), b.positions());
     assert_eq!(a.velocities(), b.velocities());
 
-    let mut grid = ClothGrid::lab(0.0);
+    let mut grid = ClothGrid::lab().with_damping(0.0);
     grid.material.stiffness = 1e6;
     let stiff = SpringSystem::cloth(&grid).unwrap();
     let auto = Integrator::BackwardEuler(NewtonSettings {
@@ -497,8 +497,8 @@ fn auto_gives_bitwise_identical_runs() {
 #[test]
 fn auto_stays_on_pcg_for_soft_cloths() {
     for system in [
-        SpringSystem::cloth(&ClothGrid::lab(0.2)).unwrap(),
-        SpringSystem::cloth(&ClothGrid::lab_sized(41, 0.05, 0.0)).unwrap(),
+        SpringSystem::cloth(&ClothGrid::lab()).unwrap(),
+        SpringSystem::cloth(&ClothGrid::lab_sized(41, 0.05).with_damping(0.0)).unwrap(),
     ] {
         let mut be = BackwardEuler::new(&system, NewtonSettings::default()).unwrap();
         let mut s = system.clone();
@@ -550,7 +550,7 @@ fn solver_costs_count_a_chain_exactly() {
 /// `parallel` feature off) give bitwise the same steps.
 #[test]
 fn w6_is_bitwise_the_same_on_one_and_two_threads() {
-    let system = SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02, 0.2)).unwrap();
+    let system = SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02).with_damping(0.2)).unwrap();
     let run = |threads: usize| {
         let settings = NewtonSettings {
             linear_solver: LinearSolverChoice::Pcg,

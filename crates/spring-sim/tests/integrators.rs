@@ -144,7 +144,7 @@ fn lanczos_estimate_matches_the_dense_eigenvalue() {
         );
         assert!(bound.gershgorin >= exact * (1.0 - 1e-12));
         // The state-independent bound the monitor tries first is above it too.
-        let (uniform, _) = stability::uniform_bound(system);
+        let (uniform, _) = uniform_bound(system);
         assert!(uniform >= exact * (1.0 - 1e-12), "{uniform} < {exact}");
     }
 }
@@ -537,7 +537,7 @@ fn auto_chooses_verlet_on_the_workloads() {
 /// give bitwise the same steps, for velocity Verlet and symplectic Euler alike.
 #[test]
 fn explicit_steps_of_w6_are_bitwise_the_same_on_one_and_two_threads() {
-    let system = SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02, 0.2)).unwrap();
+    let system = SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02).with_damping(0.2)).unwrap();
     let h = 1.0 / 60.0;
     let verlet = |threads: usize| {
         let mut vv = VelocityVerlet::new(&system, 3).unwrap();

@@ -168,6 +168,13 @@ impl BackwardEuler {
         })
     }
 
+    /// The threads PCG's vector work runs on (1: the calling thread, as for systems too
+    /// small to split).
+    #[must_use]
+    pub fn threads(&self) -> usize {
+        self.pcg.threads()
+    }
+
     /// The settings.
     #[must_use]
     pub fn settings(&self) -> &NewtonSettings {
