@@ -63,7 +63,9 @@ mod stability;
 pub use explicit::{PARALLEL_MIN_PARTICLES, SymplecticEuler, VelocityVerlet};
 pub use implicit::{Bdf2, ImplicitMidpoint};
 pub use integrator::{AutoSettings, Integrator, Simulation};
-pub use linear::{DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, SolverCosts};
+pub use linear::{
+    DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, SolverCosts,
+};
 pub use mesh::{Bending, EdgeHinge, MeshCloth, MeshClothModel, MeshError, TriangleMesh};
 pub use metrics::{DIVERGENCE_RADIUS, RunMetrics, run, run_observed};
 pub use model::{

@@ -815,7 +815,8 @@ mod tests {
     #[test]
     fn the_row_ordered_product_matches_the_column_ordered_one() {
         // 61 x 61, stretched and bent so every block is full: 11 157 unknowns.
-        let mut system = SpringSystem::cloth(&ClothGrid::lab_sized(61, 0.03).with_damping(0.2)).unwrap();
+        let mut system =
+            SpringSystem::cloth(&ClothGrid::lab_sized(61, 0.03).with_damping(0.2)).unwrap();
         let x: Vec<sinew_math::DVec3> = system
             .positions()
             .iter()
