@@ -102,8 +102,8 @@ pub const SOLVE_WEIGHT: f64 = 1.0;
 /// to the three unknowns per particle. The analysis of the particle graph is nine
 /// times smaller than that of the scalar matrix and never allocates the factor. PCG's
 /// work per iteration comes from the matrix's nonzeros and its dimension. Both are in
-/// multiply-adds, weighted by [`FACTOR_WEIGHT`], [`FACTOR_ENTRY_WEIGHT`] and
-/// [`SOLVE_WEIGHT`]; the crossover
+/// multiply-adds, weighted by three constants fitted to measured factorization times
+/// (docs/spring-sim.md); the crossover
 /// ([`SolverCosts::crossover_iterations`]) is the number of PCG iterations per Newton
 /// iteration at which the two cost the same.
 #[derive(Clone, Copy, Debug, PartialEq)]
