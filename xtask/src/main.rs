@@ -14,7 +14,6 @@
 
 mod bench;
 mod machine;
-mod render;
 mod report;
 mod scene;
 mod spec;

@@ -12,7 +12,6 @@
 mod cloth;
 mod curves;
 mod ik;
-mod plot;
 mod report;
 pub mod workloads;
 

@@ -2,8 +2,8 @@
 //! `README.md` (the headline table against the issues' targets, then one table and one
 //! plot per workload) and `plots/*.svg`.
 
-use super::plot::{Point, pareto_front, time_error_svg};
 use super::{Record, Results, Section, Timing};
+use sinew_viz::render::plot::{Point, pareto_front, time_error_svg};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;

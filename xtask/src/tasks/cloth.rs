@@ -3,7 +3,6 @@
 //! iterations and timing.
 
 use super::{Metrics, RunContext, TaskOutput, TaskSpec, max_distance};
-use crate::render;
 use serde::Deserialize;
 use serde_json::json;
 use sinew_math::DVec3;
@@ -14,6 +13,7 @@ use sinew_spring_sim::{
     ClothGrid, Integrator, Material, Particle, Simulation, SpringSpec, SpringSystem, run,
     run_observed,
 };
+use sinew_viz::render;
 
 /// Scene fields of a `Cloth` task.
 #[derive(Debug, Deserialize)]

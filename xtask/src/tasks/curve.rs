@@ -3,11 +3,11 @@
 //! Sub-Task 4.1, done right).
 
 use super::{Metrics, RunContext, TaskOutput, TaskSpec, median_time_ns};
-use crate::render;
 use crate::spec::build_sampled;
 use serde::Deserialize;
 use serde_json::json;
 use sinew_curves::{Curve, CurveSpec, Sampling};
+use sinew_viz::render;
 
 /// Scene fields of a `Curve` task.
 #[derive(Debug, Deserialize)]

@@ -4,7 +4,6 @@
 //! of reach), Q2 (a low iteration cap) and Q3 (a per-frame rotation limit).
 
 use super::{Metrics, RunContext, TaskOutput, TaskSpec, median};
-use crate::render;
 use crate::spec::{SkeletonSpec, build_sampled};
 use serde::Deserialize;
 use serde_json::json;
@@ -14,6 +13,7 @@ use sinew_math::{DQuat, DVec3, angle_between};
 use sinew_skeleton::ik::{Chain, EffectorGoal, IkSolver, IkState, SolveSettings, StopReason};
 use sinew_skeleton::track::{TrackSettings, Tracker};
 use sinew_skeleton::{GlobalPose, Skeleton};
+use sinew_viz::render;
 use std::time::Instant;
 
 /// Scene fields of an `Ik` task.

@@ -22,6 +22,7 @@ mod canvas;
 pub mod chart;
 mod cloth;
 mod ik;
+pub mod plot;
 mod samples;
 
 pub use chart::{Series, line_chart_svg};
