@@ -15,12 +15,10 @@
 mod bench;
 mod machine;
 mod report;
-mod scene;
-mod spec;
 mod stress;
-mod tasks;
 
 use clap::{Parser, Subcommand};
+use sinew_scene::schema as scene;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 

@@ -1,9 +1,9 @@
 //! Running a loaded scene and reporting it: the summary table on stdout (or the metrics
 //! as JSON with `--json`) and `metrics.json` in the output folder.
 
-use crate::scene::LoadedScene;
-use crate::tasks::RunContext;
 use serde_json::json;
+use sinew_scene::schema::LoadedScene;
+use sinew_scene::tasks::RunContext;
 use std::io::IsTerminal;
 use std::path::Path;
 use std::process::ExitCode;

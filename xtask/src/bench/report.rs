@@ -2,7 +2,8 @@
 //! `README.md` (the headline table against the issues' targets, then one table and one
 //! plot per workload) and `plots/*.svg`.
 
-use super::{Record, Results, Section, Timing};
+use super::Results;
+use sinew_scene::bench::{Record, Section, Timing};
 use sinew_viz::render::plot::{Point, pareto_front, time_error_svg};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

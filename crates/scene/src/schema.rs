@@ -63,18 +63,30 @@ pub struct LoadedScene {
 #[derive(Debug)]
 pub enum SceneError {
     /// The file could not be read.
-    Io { path: PathBuf, message: String },
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The operating system's message.
+        message: String,
+    },
     /// The file is not a valid scene (syntax or schema); with its position.
     Parse {
+        /// The file.
         path: PathBuf,
+        /// The line of the offending text, from 1.
         line: usize,
+        /// The column of the offending text, from 1.
         col: usize,
+        /// What was expected (with the nearest known name for a misspelt one).
         message: String,
     },
     /// A value is out of range or inconsistent.
     Invalid {
+        /// The file.
         path: PathBuf,
+        /// The task's name.
         task: String,
+        /// The offending item and what is allowed.
         message: String,
     },
 }
