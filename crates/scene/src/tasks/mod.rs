@@ -1,7 +1,8 @@
 //! Task kinds: each module holds one kind's scene fields ([`TaskSpec::validate`] checks
-//! them) and how to run it. A task returns its metrics (documented per kind in
-//! `docs/scenes.md`), a one-line headline for the summary table, and the checks it
-//! failed (expectations written in the scene).
+//! them) and how to run it. A task returns its typed metrics (documented per kind in
+//! `docs/scenes.md`), a one-line headline for the summary table, the checks it failed
+//! (expectations written in the scene), its per-frame table and, when asked, what its
+//! pictures need. Tasks write no files and draw nothing: that is the caller's choice.
 
 pub mod cloth;
 pub mod curve;
@@ -9,111 +10,64 @@ pub mod fk;
 pub mod ik;
 pub mod two_bone;
 
-use std::path::PathBuf;
+use crate::results::{Csv, Pictures, TaskMetrics};
 use std::time::Instant;
 
-/// Metrics of one task, written under `"metrics"` in `metrics.json`.
-pub type Metrics = serde_json::Map<String, serde_json::Value>;
+/// Told `(task, done, total)` after each unit of work (frame, step) of a task.
+pub type ProgressFn<'a> = &'a dyn Fn(&str, usize, usize);
 
 /// What the runner hands a task.
-pub struct RunContext {
-    /// The scene's output folder (exists when the task runs).
-    pub out_dir: PathBuf,
-    /// Whether to draw pictures (`--no-render` turns them off; they never change
-    /// the metrics).
-    pub render: bool,
-    /// Whether progress bars may be shown (stdout is a terminal, not `--quiet` or
-    /// `--json`).
-    pub progress: bool,
+pub struct RunContext<'a> {
+    /// Whether to keep what the pictures need (animation frames, curves to draw); it
+    /// is gathered outside every timed region, so it never changes a metric.
+    pub keep_frames: bool,
+    /// Told `(task, done, total)` after each unit of work (frame, step), if set.
+    pub progress: Option<ProgressFn<'a>>,
 }
 
-impl RunContext {
-    /// Writes `<task>.<suffix>` in the output folder; the error names the file.
-    pub fn write_output(&self, task: &str, suffix: &str, contents: &str) -> Result<(), String> {
-        let path = self.out_dir.join(format!("{task}.{suffix}"));
-        std::fs::write(&path, contents).map_err(|e| format!("{}: {e}", path.display()))
-    }
-
-    /// A progress counter for `total` units of work (frames, steps); it shows a bar
-    /// only once the task has run for about a second, and only when allowed.
-    pub fn progress(&self, task: &str, total: usize) -> Progress {
+impl RunContext<'_> {
+    /// A progress counter for `total` units of work (frames, steps) of `task`.
+    #[must_use]
+    pub fn progress(&self, task: &str, total: usize) -> Progress<'_> {
         Progress {
-            enabled: self.progress,
-            label: task.to_string(),
-            total: total as u64,
+            sink: self.progress,
+            task: task.to_string(),
+            total,
             done: 0,
-            start: Instant::now(),
-            bar: None,
         }
     }
 }
 
 /// See [`RunContext::progress`].
-pub struct Progress {
-    enabled: bool,
-    label: String,
-    total: u64,
-    done: u64,
-    start: Instant,
-    bar: Option<indicatif::ProgressBar>,
+pub struct Progress<'a> {
+    sink: Option<ProgressFn<'a>>,
+    task: String,
+    total: usize,
+    done: usize,
 }
 
-impl Progress {
+impl Progress<'_> {
     /// One more unit done.
     pub fn inc(&mut self) {
         self.done += 1;
-        self.update();
-    }
-
-    /// A new phase of the task (for example "rendering"), shown next to its name.
-    pub fn phase(&mut self, phase: &str) {
-        self.label = format!("{} ({phase})", self.label.split(" (").next().unwrap_or(""));
-        if let Some(bar) = &self.bar {
-            bar.set_message(self.label.clone());
-        }
-        self.update();
-    }
-
-    fn update(&mut self) {
-        if !self.enabled {
-            return;
-        }
-        match &self.bar {
-            Some(bar) => bar.set_position(self.done),
-            None if self.start.elapsed().as_secs_f64() > 1.0 => {
-                let bar = indicatif::ProgressBar::new(self.total);
-                bar.set_style(
-                    indicatif::ProgressStyle::with_template(
-                        "  {msg:<28} [{bar:30}] {pos}/{len} {eta}",
-                    )
-                    .expect("a valid template")
-                    .progress_chars("=> "),
-                );
-                bar.set_message(self.label.clone());
-                bar.set_position(self.done);
-                self.bar = Some(bar);
-            }
-            None => {}
-        }
-    }
-}
-
-impl Drop for Progress {
-    fn drop(&mut self) {
-        if let Some(bar) = &self.bar {
-            bar.finish_and_clear();
+        if let Some(sink) = self.sink {
+            sink(&self.task, self.done, self.total);
         }
     }
 }
 
 /// What a task produced.
 pub struct TaskOutput {
-    /// Metric keys and values.
-    pub metrics: Metrics,
+    /// The task's metrics, typed by kind.
+    pub metrics: TaskMetrics,
     /// A short human summary for the table.
     pub headline: String,
     /// Expectations written in the scene that did not hold; any makes the run fail.
     pub failures: Vec<String>,
+    /// The per-frame (or per-step, per-joint, per-point) table.
+    pub table: Csv,
+    /// What the pictures need (empty unless the run keeps frames).
+    pub pictures: Pictures,
 }
 
 /// A task kind's behaviour.
