@@ -173,8 +173,8 @@ fn one_second_step(w: &Workload) -> Option<usize> {
 fn simulate(w: &Workload, integrator: Integrator) -> Result<Run, String> {
     let mut sim = Simulation::new(w.system.clone(), integrator).map_err(|e| e.to_string())?;
     let one_second = one_second_step(w);
-    let energy_start = sim.system().energies().total();
-    let scale = energy_start.abs().max(f64::MIN_POSITIVE);
+    // The scene runner's scale (docs/scenes.md, "Energy rise").
+    let scale = sim.system().energies().scale();
     let mut run = Run {
         at_one_second: None,
         end: Vec::new(),

@@ -419,7 +419,8 @@ pub fn run_case(case: &ClothCase) -> ClothOutcome {
         }
     };
     let start = system.energies();
-    let energy_scale = (start.kinetic + start.spring + start.gravity.abs()).max(f64::MIN_POSITIVE);
+    // The scene runner's scale (docs/scenes.md, "Energy rise").
+    let energy_scale = start.scale();
     let mut sim =
         match Simulation::new(system, Integrator::BackwardEuler(NewtonSettings::default())) {
             Ok(s) => s,
