@@ -3,7 +3,7 @@
 //! plot per workload) and `plots/*.svg`.
 
 use super::Results;
-use sinew_scene::bench::{Record, Section, Timing};
+use sinew_scene::bench::{Metric, Record, Section, Timing};
 use sinew_viz::render::plot::{Point, pareto_front, time_error_svg};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -54,17 +54,17 @@ pub fn fmt_err(x: f64) -> String {
     }
 }
 
-fn metric(r: &Record, key: &str) -> Option<f64> {
-    r.metrics.get(key).and_then(serde_json::Value::as_f64)
+fn metric(r: &Record, key: Metric) -> Option<f64> {
+    r.metrics.get(&key).and_then(serde_json::Value::as_f64)
 }
 
-fn metric_text(r: &Record, key: &str) -> String {
+fn metric_text(r: &Record, key: Metric) -> String {
     metric(r, key).map_or("-".into(), fmt_err)
 }
 
-fn metric_count(r: &Record, key: &str) -> String {
+fn metric_count(r: &Record, key: Metric) -> String {
     r.metrics
-        .get(key)
+        .get(&key)
         .and_then(serde_json::Value::as_u64)
         .map_or("-".into(), |v| v.to_string())
 }
@@ -79,7 +79,7 @@ struct Target {
     /// Time per unit at most this many seconds.
     time: f64,
     /// The error check: metric key and largest allowed value.
-    error: Option<(&'static str, f64)>,
+    error: Option<(Metric, f64)>,
 }
 
 const TARGETS: [Target; 11] = [
@@ -90,7 +90,7 @@ const TARGETS: [Target; 11] = [
         method: "fabrik",
         knobs: "cap 100, tol 1e-6",
         time: 1.5e-6,
-        error: Some(("error_max", 1e-6)),
+        error: Some((Metric::ErrorMax, 1e-6)),
     },
     Target {
         issue: 3,
@@ -99,7 +99,7 @@ const TARGETS: [Target; 11] = [
         method: "ccd",
         knobs: "cap 100, tol 1e-6",
         time: 10e-6,
-        error: Some(("error_max", 1e-6)),
+        error: Some((Metric::ErrorMax, 1e-6)),
     },
     Target {
         issue: 3,
@@ -108,7 +108,7 @@ const TARGETS: [Target; 11] = [
         method: "fabrik",
         knobs: "cap 100, tol 1e-6",
         time: 8e-6,
-        error: Some(("reachable_error_max", 1e-6)),
+        error: Some((Metric::ReachableErrorMax, 1e-6)),
     },
     Target {
         issue: 3,
@@ -162,7 +162,7 @@ const TARGETS: [Target; 11] = [
         method: "auto",
         knobs: "default",
         time: 20e-6,
-        error: Some(("true_motion_error_1s", 1e-4)),
+        error: Some((Metric::TrueMotionError1s, 1e-4)),
     },
     Target {
         issue: 9,
@@ -171,7 +171,7 @@ const TARGETS: [Target; 11] = [
         method: "auto",
         knobs: "default",
         time: 20e-6,
-        error: Some(("true_motion_error_1s", 1e-4)),
+        error: Some((Metric::TrueMotionError1s, 1e-4)),
     },
     Target {
         issue: 9,
@@ -180,7 +180,7 @@ const TARGETS: [Target; 11] = [
         method: "auto",
         knobs: "default",
         time: 200e-6,
-        error: Some(("true_motion_error_1s", 1e-4)),
+        error: Some((Metric::TrueMotionError1s, 1e-4)),
     },
 ];
 
@@ -208,7 +208,7 @@ fn headline(records: &[Record]) -> String {
             Some((key, limit)) => {
                 let v = metric(r, key).unwrap_or(f64::NAN);
                 let verdict = if v <= limit { "met" } else { "NOT met" };
-                format!("{key} {} ({verdict})", fmt_err(v))
+                format!("{} {} ({verdict})", key.name(), fmt_err(v))
             }
             None => headline_error(r),
         };
@@ -245,14 +245,14 @@ fn headline_error(r: &Record) -> String {
     match r.section {
         Section::Ik => format!(
             "{} of {} reachable within 1e-6",
-            metric_count(r, "reachable_within_1e-6"),
-            metric_count(r, "reachable")
+            metric_count(r, Metric::ReachableWithin1e6),
+            metric_count(r, Metric::Reachable)
         ),
-        Section::Cloth => match metric(r, "solver_error_1s") {
+        Section::Cloth => match metric(r, Metric::SolverError1s) {
             Some(e) => format!("from backward Euler at 1e-12: {} at 1 s", fmt_err(e)),
             None => format!(
                 "from backward Euler at 1e-12: {} at the end",
-                metric_text(r, "solver_error_end")
+                metric_text(r, Metric::SolverErrorEnd)
             ),
         },
         Section::Curves => fmt_err(r.error),
@@ -272,22 +272,22 @@ fn columns(section: Section, w2: bool) -> Vec<Column> {
             ("reachable within 1e-6", |r| {
                 format!(
                     "{} / {}",
-                    metric_count(r, "reachable_within_1e-6"),
-                    metric_count(r, "reachable")
+                    metric_count(r, Metric::ReachableWithin1e6),
+                    metric_count(r, Metric::Reachable)
                 )
             }),
             ("reachable error mean", |r| {
-                metric_text(r, "reachable_error_mean")
+                metric_text(r, Metric::ReachableErrorMean)
             }),
             ("reachable error max", |r| {
-                metric_text(r, "reachable_error_max")
+                metric_text(r, Metric::ReachableErrorMax)
             }),
             ("unreachable excess max", |r| {
-                metric_text(r, "unreachable_excess_max")
+                metric_text(r, Metric::UnreachableExcessMax)
             }),
-            ("iterations", |r| metric_count(r, "iterations_total")),
+            ("iterations", |r| metric_count(r, Metric::IterationsTotal)),
             ("bone length error", |r| {
-                metric_text(r, "bone_length_error_max")
+                metric_text(r, Metric::BoneLengthErrorMax)
             }),
         ],
         (Section::Ik, false) => vec![
@@ -295,46 +295,54 @@ fn columns(section: Section, w2: bool) -> Vec<Column> {
             ("frames within 1e-6", |r| {
                 format!(
                     "{} / {}",
-                    metric_count(r, "frames_within_1e-6"),
-                    metric_count(r, "frames")
+                    metric_count(r, Metric::FramesWithin1e6),
+                    metric_count(r, Metric::Frames)
                 )
             }),
-            ("error mean", |r| metric_text(r, "error_mean")),
-            ("error max", |r| metric_text(r, "error_max")),
-            ("iterations", |r| metric_count(r, "iterations_total")),
+            ("error mean", |r| metric_text(r, Metric::ErrorMean)),
+            ("error max", |r| metric_text(r, Metric::ErrorMax)),
+            ("iterations", |r| metric_count(r, Metric::IterationsTotal)),
             ("bone length error", |r| {
-                metric_text(r, "bone_length_error_max")
+                metric_text(r, Metric::BoneLengthErrorMax)
             }),
         ],
         (Section::Curves, _) => vec![
             ("time per call", time),
             ("time per point", |r| {
-                fmt_time(metric(r, "time_per_point_s").unwrap_or(f64::NAN))
+                fmt_time(metric(r, Metric::TimePerPointS).unwrap_or(f64::NAN))
             }),
-            ("spacing deviation", |r| metric_text(r, "spacing_deviation")),
-            ("length error", |r| metric_text(r, "length_error")),
+            ("spacing deviation", |r| {
+                metric_text(r, Metric::SpacingDeviation)
+            }),
+            ("length error", |r| metric_text(r, Metric::LengthError)),
         ],
         (Section::Cloth, _) => vec![
             ("time per step", time),
             ("per simulated s", |r| {
-                fmt_time(metric(r, "time_per_simulated_second_s").unwrap_or(f64::NAN))
+                fmt_time(metric(r, Metric::TimePerSimulatedSecondS).unwrap_or(f64::NAN))
             }),
             ("from true motion, 1 s", |r| {
-                metric_text(r, "true_motion_error_1s")
+                metric_text(r, Metric::TrueMotionError1s)
             }),
             ("from true motion, end", |r| {
-                metric_text(r, "true_motion_error_end")
+                metric_text(r, Metric::TrueMotionErrorEnd)
             }),
-            ("from BE 1e-12, 1 s", |r| metric_text(r, "solver_error_1s")),
-            ("from BE 1e-12, end", |r| metric_text(r, "solver_error_end")),
+            ("from BE 1e-12, 1 s", |r| {
+                metric_text(r, Metric::SolverError1s)
+            }),
+            ("from BE 1e-12, end", |r| {
+                metric_text(r, Metric::SolverErrorEnd)
+            }),
             ("iterations (max)", |r| {
                 format!(
                     "{} ({})",
-                    metric_count(r, "iterations_total"),
-                    metric_count(r, "iterations_max")
+                    metric_count(r, Metric::IterationsTotal),
+                    metric_count(r, Metric::IterationsMax)
                 )
             }),
-            ("energy rise max", |r| metric_text(r, "energy_increase_max")),
+            ("energy rise max", |r| {
+                metric_text(r, Metric::EnergyIncreaseMax)
+            }),
             ("note", |r| r.note.clone()),
         ],
     }
@@ -463,11 +471,11 @@ pub fn write(results: &Results, sections: &[Section], out: &Path) -> Result<Stri
             let context = match (section, records.first()) {
                 (Section::Cloth, Some(r)) => format!(
                     " Time step {} s, {} steps; the stability bound asks for {} substeps per step at the start. True-motion reference check (64x against 32x the bound's substeps): {} after 1 s, {} at the end.",
-                    metric(r, "dt").map_or("-".into(), |dt| format!("{dt:.5}")),
-                    metric_count(r, "steps"),
-                    metric_count(r, "stability_bound_substeps"),
-                    metric_text(r, "true_motion_check_1s"),
-                    metric_text(r, "true_motion_check_end"),
+                    metric(r, Metric::Dt).map_or("-".into(), |dt| format!("{dt:.5}")),
+                    metric_count(r, Metric::Steps),
+                    metric_count(r, Metric::StabilityBoundSubsteps),
+                    metric_text(r, Metric::TrueMotionCheck1s),
+                    metric_text(r, Metric::TrueMotionCheckEnd),
                 ),
                 _ => String::new(),
             };
@@ -537,7 +545,7 @@ mod tests {
             },
             error: 1e-9,
             error_name: "e",
-            metrics: serde_json::Map::new(),
+            metrics: Default::default(),
             note: String::new(),
         };
         for (section, workload) in [

@@ -9,7 +9,7 @@
 use super::workloads::{
     w1_skeleton, w1_targets, w2_skeleton, w2_targets, w7_ball, w7_feasible, w7_skeleton,
 };
-use super::{Plan, Record, Section, measure, sci};
+use super::{Metric, Metrics, Plan, Record, Section, measure, sci};
 use serde_json::json;
 use sinew_ik::SolverOptions;
 use sinew_math::{DQuat, DVec3};
@@ -206,29 +206,29 @@ fn w7_record(
     let outside = solve_all(solver, skeleton, chain, ball, s, false, true)?;
     let within = checked.errors.iter().filter(|&&e| e <= 1e-6).count();
     let error_max = checked.errors.iter().copied().fold(0.0, f64::max);
-    let mut metrics = serde_json::Map::new();
-    metrics.insert("solves".into(), json!(feasible.len()));
-    metrics.insert("feasible_within_1e-6".into(), json!(within));
+    let mut metrics = Metrics::new();
+    metrics.insert(Metric::Solves, json!(feasible.len()));
+    metrics.insert(Metric::FeasibleWithin1e6, json!(within));
     metrics.insert(
-        "feasible_within_share".into(),
+        Metric::FeasibleWithinShare,
         json!(within as f64 / feasible.len() as f64),
     );
-    metrics.insert("feasible_error_mean".into(), json!(mean(&checked.errors)));
-    metrics.insert("feasible_stops".into(), json!(checked.stops));
+    metrics.insert(Metric::FeasibleErrorMean, json!(mean(&checked.errors)));
+    metrics.insert(Metric::FeasibleStops, json!(checked.stops));
     metrics.insert(
-        "limit_violation_max".into(),
+        Metric::LimitViolationMax,
         json!(checked.limit_violation_max.max(outside.limit_violation_max)),
     );
-    metrics.insert("ball_solves".into(), json!(ball.len()));
-    metrics.insert("ball_error_mean".into(), json!(mean(&outside.errors)));
+    metrics.insert(Metric::BallSolves, json!(ball.len()));
+    metrics.insert(Metric::BallErrorMean, json!(mean(&outside.errors)));
     metrics.insert(
-        "ball_within_1e-6".into(),
+        Metric::BallWithin1e6,
         json!(outside.errors.iter().filter(|&&e| e <= 1e-6).count()),
     );
-    metrics.insert("ball_stops".into(), json!(outside.stops));
-    metrics.insert("iterations_total".into(), json!(checked.iterations));
+    metrics.insert(Metric::BallStops, json!(outside.stops));
+    metrics.insert(Metric::IterationsTotal, json!(checked.iterations));
     metrics.insert(
-        "report_disagreement_max".into(),
+        Metric::ReportDisagreementMax,
         json!(checked.report_disagreement_max),
     );
     Ok(Record {
@@ -262,18 +262,18 @@ fn w1_record(
     let errors = &checked.errors;
     let error_max = errors.iter().copied().fold(0.0, f64::max);
     let within = errors.iter().filter(|&&e| e <= 1e-6).count();
-    let mut metrics = serde_json::Map::new();
-    metrics.insert("frames".into(), json!(targets.len()));
-    metrics.insert("error_mean".into(), json!(mean(errors)));
-    metrics.insert("error_max".into(), json!(error_max));
-    metrics.insert("frames_within_1e-6".into(), json!(within));
-    metrics.insert("iterations_total".into(), json!(timed.iterations));
+    let mut metrics = Metrics::new();
+    metrics.insert(Metric::Frames, json!(targets.len()));
+    metrics.insert(Metric::ErrorMean, json!(mean(errors)));
+    metrics.insert(Metric::ErrorMax, json!(error_max));
+    metrics.insert(Metric::FramesWithin1e6, json!(within));
+    metrics.insert(Metric::IterationsTotal, json!(timed.iterations));
     metrics.insert(
-        "bone_length_error_max".into(),
+        Metric::BoneLengthErrorMax,
         json!(checked.bone_length_error_max),
     );
     metrics.insert(
-        "report_disagreement_max".into(),
+        Metric::ReportDisagreementMax,
         json!(checked.report_disagreement_max),
     );
     Ok(Record {
@@ -317,23 +317,20 @@ fn w2_record(
     }
     let within = reachable.iter().filter(|&&e| e <= 1e-6).count();
     let reachable_max = reachable.iter().copied().fold(0.0, f64::max);
-    let mut metrics = serde_json::Map::new();
-    metrics.insert("solves".into(), json!(targets.len()));
-    metrics.insert("reachable".into(), json!(reachable.len()));
-    metrics.insert("reachable_within_1e-6".into(), json!(within));
-    metrics.insert("reachable_error_mean".into(), json!(mean(&reachable)));
-    metrics.insert("reachable_error_max".into(), json!(reachable_max));
+    let mut metrics = Metrics::new();
+    metrics.insert(Metric::Solves, json!(targets.len()));
+    metrics.insert(Metric::Reachable, json!(reachable.len()));
+    metrics.insert(Metric::ReachableWithin1e6, json!(within));
+    metrics.insert(Metric::ReachableErrorMean, json!(mean(&reachable)));
+    metrics.insert(Metric::ReachableErrorMax, json!(reachable_max));
+    metrics.insert(Metric::UnreachableExcessMax, json!(unreachable_excess_max));
     metrics.insert(
-        "unreachable_excess_max".into(),
-        json!(unreachable_excess_max),
-    );
-    metrics.insert(
-        "bone_length_error_max".into(),
+        Metric::BoneLengthErrorMax,
         json!(checked.bone_length_error_max),
     );
-    metrics.insert("iterations_total".into(), json!(checked.iterations));
+    metrics.insert(Metric::IterationsTotal, json!(checked.iterations));
     metrics.insert(
-        "report_disagreement_max".into(),
+        Metric::ReportDisagreementMax,
         json!(checked.report_disagreement_max),
     );
     Ok(Record {

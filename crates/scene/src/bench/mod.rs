@@ -51,6 +51,214 @@ impl Section {
     }
 }
 
+/// A metric of a benchmark record: the keys of [`Record::metrics`], spelt in
+/// `results.json` as [`Metric::name`] says. A rename is a compile error wherever the
+/// metric is read (the headline targets, the tables), not a silently missing row.
+///
+/// Variants are in the alphabetical order of their names, so `results.json` lists them
+/// as it always has.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Metric {
+    /// Line-search step halvings over the run.
+    Backtracks,
+    /// Mean final error over the targets drawn in the ball around the chain (W2 with limits).
+    BallErrorMean,
+    /// Solves of targets drawn in the ball around the chain.
+    BallSolves,
+    /// Why the ball solves stopped, counted by reason.
+    BallStops,
+    /// Ball solves that ended within 1e-6.
+    BallWithin1e6,
+    /// Largest bone-length error, in scene units.
+    BoneLengthErrorMax,
+    /// Whether the run diverged or stopped early.
+    Diverged,
+    /// The time step, in seconds.
+    Dt,
+    /// Largest rise of the total energy in one step, relative to the starting energy scale.
+    EnergyIncreaseMax,
+    /// Largest final error.
+    ErrorMax,
+    /// Mean final error.
+    ErrorMean,
+    /// Mean final error over targets drawn inside the joint limits.
+    FeasibleErrorMean,
+    /// Why the feasible solves stopped, counted by reason.
+    FeasibleStops,
+    /// Feasible solves that ended within 1e-6.
+    FeasibleWithin1e6,
+    /// Share of the feasible solves that ended within 1e-6.
+    FeasibleWithinShare,
+    /// Frames tracked.
+    Frames,
+    /// Frames that ended within 1e-6.
+    FramesWithin1e6,
+    /// Most iterations of one step.
+    IterationsMax,
+    /// Iterations over the whole workload.
+    IterationsTotal,
+    /// Distance of the measured length from the exact one.
+    LengthError,
+    /// Largest joint-limit violation, in radians.
+    LimitViolationMax,
+    /// Points taken.
+    Points,
+    /// Targets within reach.
+    Reachable,
+    /// Largest final error over the reachable targets.
+    ReachableErrorMax,
+    /// Mean final error over the reachable targets.
+    ReachableErrorMean,
+    /// Reachable targets solved within 1e-6.
+    ReachableWithin1e6,
+    /// Largest difference between a solver's reported error and forward kinematics'.
+    ReportDisagreementMax,
+    /// Largest final residual over Newton's tolerance.
+    ResidualOverToleranceMax,
+    /// Distance after 1 s from a converged backward Euler reference (the solver error).
+    SolverError1s,
+    /// Distance at the end from a converged backward Euler reference.
+    SolverErrorEnd,
+    /// Solves run.
+    Solves,
+    /// Largest relative deviation of the arc spacing from its mean.
+    SpacingDeviation,
+    /// The stability bound's substeps per step at the start.
+    StabilityBoundSubsteps,
+    /// Steps asked for.
+    Steps,
+    /// Steps completed.
+    StepsDone,
+    /// Substeps of the last step (explicit integrators).
+    SubstepsLastStep,
+    /// Median time per point taken, in seconds.
+    TimePerPointS,
+    /// Median wall time per simulated second, in seconds.
+    TimePerSimulatedSecondS,
+    /// How much halving the reference substep changes it after 1 s.
+    TrueMotionCheck1s,
+    /// How much halving the reference substep changes it at the end.
+    TrueMotionCheckEnd,
+    /// Distance after 1 s from the true motion (a velocity Verlet reference far below its stability limit).
+    TrueMotionError1s,
+    /// Distance at the end from the true motion.
+    TrueMotionErrorEnd,
+    /// Steps left at Newton's cap or with a stalled line search.
+    UnconvergedSteps,
+    /// Largest final error of an unreachable target beyond the least possible (distance - reach).
+    UnreachableExcessMax,
+}
+
+impl Metric {
+    /// Every metric, in the order of their names.
+    pub const ALL: [Metric; 44] = [
+        Metric::Backtracks,
+        Metric::BallErrorMean,
+        Metric::BallSolves,
+        Metric::BallStops,
+        Metric::BallWithin1e6,
+        Metric::BoneLengthErrorMax,
+        Metric::Diverged,
+        Metric::Dt,
+        Metric::EnergyIncreaseMax,
+        Metric::ErrorMax,
+        Metric::ErrorMean,
+        Metric::FeasibleErrorMean,
+        Metric::FeasibleStops,
+        Metric::FeasibleWithin1e6,
+        Metric::FeasibleWithinShare,
+        Metric::Frames,
+        Metric::FramesWithin1e6,
+        Metric::IterationsMax,
+        Metric::IterationsTotal,
+        Metric::LengthError,
+        Metric::LimitViolationMax,
+        Metric::Points,
+        Metric::Reachable,
+        Metric::ReachableErrorMax,
+        Metric::ReachableErrorMean,
+        Metric::ReachableWithin1e6,
+        Metric::ReportDisagreementMax,
+        Metric::ResidualOverToleranceMax,
+        Metric::SolverError1s,
+        Metric::SolverErrorEnd,
+        Metric::Solves,
+        Metric::SpacingDeviation,
+        Metric::StabilityBoundSubsteps,
+        Metric::Steps,
+        Metric::StepsDone,
+        Metric::SubstepsLastStep,
+        Metric::TimePerPointS,
+        Metric::TimePerSimulatedSecondS,
+        Metric::TrueMotionCheck1s,
+        Metric::TrueMotionCheckEnd,
+        Metric::TrueMotionError1s,
+        Metric::TrueMotionErrorEnd,
+        Metric::UnconvergedSteps,
+        Metric::UnreachableExcessMax,
+    ];
+
+    /// The key in `results.json`.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Metric::Backtracks => "backtracks",
+            Metric::BallErrorMean => "ball_error_mean",
+            Metric::BallSolves => "ball_solves",
+            Metric::BallStops => "ball_stops",
+            Metric::BallWithin1e6 => "ball_within_1e-6",
+            Metric::BoneLengthErrorMax => "bone_length_error_max",
+            Metric::Diverged => "diverged",
+            Metric::Dt => "dt",
+            Metric::EnergyIncreaseMax => "energy_increase_max",
+            Metric::ErrorMax => "error_max",
+            Metric::ErrorMean => "error_mean",
+            Metric::FeasibleErrorMean => "feasible_error_mean",
+            Metric::FeasibleStops => "feasible_stops",
+            Metric::FeasibleWithin1e6 => "feasible_within_1e-6",
+            Metric::FeasibleWithinShare => "feasible_within_share",
+            Metric::Frames => "frames",
+            Metric::FramesWithin1e6 => "frames_within_1e-6",
+            Metric::IterationsMax => "iterations_max",
+            Metric::IterationsTotal => "iterations_total",
+            Metric::LengthError => "length_error",
+            Metric::LimitViolationMax => "limit_violation_max",
+            Metric::Points => "points",
+            Metric::Reachable => "reachable",
+            Metric::ReachableErrorMax => "reachable_error_max",
+            Metric::ReachableErrorMean => "reachable_error_mean",
+            Metric::ReachableWithin1e6 => "reachable_within_1e-6",
+            Metric::ReportDisagreementMax => "report_disagreement_max",
+            Metric::ResidualOverToleranceMax => "residual_over_tolerance_max",
+            Metric::SolverError1s => "solver_error_1s",
+            Metric::SolverErrorEnd => "solver_error_end",
+            Metric::Solves => "solves",
+            Metric::SpacingDeviation => "spacing_deviation",
+            Metric::StabilityBoundSubsteps => "stability_bound_substeps",
+            Metric::Steps => "steps",
+            Metric::StepsDone => "steps_done",
+            Metric::SubstepsLastStep => "substeps_last_step",
+            Metric::TimePerPointS => "time_per_point_s",
+            Metric::TimePerSimulatedSecondS => "time_per_simulated_second_s",
+            Metric::TrueMotionCheck1s => "true_motion_check_1s",
+            Metric::TrueMotionCheckEnd => "true_motion_check_end",
+            Metric::TrueMotionError1s => "true_motion_error_1s",
+            Metric::TrueMotionErrorEnd => "true_motion_error_end",
+            Metric::UnconvergedSteps => "unconverged_steps",
+            Metric::UnreachableExcessMax => "unreachable_excess_max",
+        }
+    }
+}
+
+impl Serialize for Metric {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.name())
+    }
+}
+
+/// The metrics of a record, keyed by [`Metric`].
+pub type Metrics = std::collections::BTreeMap<Metric, serde_json::Value>;
+
 /// How long and how often each configuration is timed.
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct Plan {
@@ -99,7 +307,7 @@ pub struct Record {
     /// What [`Record::error`] is.
     pub error_name: &'static str,
     /// Every other metric of the configuration (errors, iterations, counts).
-    pub metrics: serde_json::Map<String, serde_json::Value>,
+    pub metrics: Metrics,
     /// Why a run stopped early or what else a reader must know (empty when nothing).
     pub note: String,
 }
@@ -198,6 +406,17 @@ mod tests {
             assert_eq!(Section::parse(s.name()), Ok(s));
         }
         assert!(Section::parse("cloths").unwrap_err().contains("cloths"));
+    }
+
+    #[test]
+    fn metric_names_are_sorted_and_unique() {
+        // The map's order is the variants' order; it must be the names' order so
+        // results.json keeps its key order.
+        let names: Vec<&str> = Metric::ALL.iter().map(|m| m.name()).collect();
+        assert!(names.windows(2).all(|w| w[0] < w[1]), "{names:?}");
+        let mut sorted = Metric::ALL;
+        sorted.sort();
+        assert_eq!(sorted, Metric::ALL);
     }
 
     #[test]
