@@ -21,7 +21,8 @@
 //! [`schema`] reads and checks a scene, [`spec`] holds the descriptions several task
 //! kinds share, [`tasks`] the task kinds, [`results`] their typed results and [`run`]
 //! the loop that runs them. With the `bench` feature, `bench` holds the
-//! time-against-error sweeps and `stress` the numerical stress grid.
+//! time-against-error sweeps, `stress` the numerical stress grid and `workloads` the
+//! reference workloads they share.
 
 #[cfg(feature = "bench")]
 pub mod bench;
@@ -32,6 +33,8 @@ pub mod spec;
 #[cfg(feature = "bench")]
 pub mod stress;
 pub mod tasks;
+#[cfg(feature = "bench")]
+pub mod workloads;
 
 pub use results::{SceneResults, TaskMetrics, TaskResult};
 pub use run::RunOptions;

@@ -18,50 +18,14 @@ use sinew_math::DVec3;
 use sinew_spring_sim::metrics::DIVERGENCE_RADIUS;
 use sinew_spring_sim::stability::StabilityBound;
 use sinew_spring_sim::{
-    AutoSettings, ClothGrid, Integrator, LinearSolverChoice, NewtonSettings, Simulation,
-    SpringSystem, StopReason,
+    AutoSettings, Integrator, LinearSolverChoice, NewtonSettings, Simulation, StopReason,
 };
 use std::time::Instant;
 
-/// A cloth workload.
-struct Workload {
-    name: &'static str,
-    system: SpringSystem,
-    dt: f64,
-    steps: usize,
-}
+use crate::workloads::ClothWorkload as Workload;
 
 fn workloads(plan: &Plan) -> Result<Vec<Workload>, String> {
-    // (name, particles per side, spacing, damping, stiffness, dt, steps): W4, W5 and W6
-    // of docs/workloads.md (W5 and W6 with the lab's damping 0.2, as in their scenes).
-    let specs: &[(&'static str, usize, f64, f64, f64, f64, usize)] = if plan.quick {
-        &[
-            ("W4 d=0.2", 11, 0.2, 0.2, 100.0, 1.0 / 60.0, 60),
-            ("W5 k=1e6", 11, 0.2, 0.2, 1e6, 1.0 / 30.0, 30),
-        ]
-    } else {
-        &[
-            ("W4 d=0", 11, 0.2, 0.0, 100.0, 1.0 / 60.0, 600),
-            ("W4 d=0.2", 11, 0.2, 0.2, 100.0, 1.0 / 60.0, 600),
-            ("W5 k=1e4", 11, 0.2, 0.2, 1e4, 1.0 / 30.0, 300),
-            ("W5 k=1e6", 11, 0.2, 0.2, 1e6, 1.0 / 30.0, 300),
-            ("W6", 101, 0.02, 0.2, 100.0, 1.0 / 60.0, 30),
-        ]
-    };
-    specs
-        .iter()
-        .map(|&(name, size, spacing, damping, stiffness, dt, steps)| {
-            let mut grid = ClothGrid::lab_sized(size, spacing, damping);
-            grid.material.stiffness = stiffness;
-            let system = grid.build().map_err(|e| format!("{name}: {e}"))?;
-            Ok(Workload {
-                name,
-                system,
-                dt,
-                steps,
-            })
-        })
-        .collect()
+    crate::workloads::cloth(plan.quick)
 }
 
 fn newton(tolerance: f64, linear_solver: LinearSolverChoice) -> NewtonSettings {

@@ -6,10 +6,10 @@
 //! compared and the largest disagreement is a metric). Time is per frame (W1) or per
 //! solve (W2) and covers the solves only.
 
-use super::workloads::{
+use super::{Metric, Metrics, Plan, Record, Section, measure, sci};
+use crate::workloads::{
     w1_skeleton, w1_targets, w2_skeleton, w2_targets, w7_ball, w7_feasible, w7_skeleton,
 };
-use super::{Metric, Metrics, Plan, Record, Section, measure, sci};
 use serde_json::json;
 use sinew_ik::SolverOptions;
 use sinew_math::{DQuat, DVec3};

@@ -10,7 +10,6 @@
 pub mod cloth;
 pub mod curves;
 pub mod ik;
-pub mod workloads;
 
 use serde::Serialize;
 use std::time::Instant;
