@@ -259,93 +259,125 @@ fn headline_error(r: &Record) -> String {
     }
 }
 
-/// A table column: its header and how a record fills it.
-type Column = (&'static str, fn(&Record) -> String);
+/// What a table cell shows of a record.
+#[derive(Clone, Copy)]
+enum Cell {
+    /// The timing: median and spread.
+    Timing,
+    /// A metric as a short number (`-` when missing).
+    Value(Metric),
+    /// A count (`-` when missing).
+    Count(Metric),
+    /// `a / b` of two counts.
+    OutOf(Metric, Metric),
+    /// `total (max)` of two counts.
+    WithMax(Metric, Metric),
+    /// A time in seconds with its unit.
+    Seconds(Metric),
+    /// The record's note.
+    Note,
+}
+
+impl Cell {
+    fn text(self, r: &Record) -> String {
+        match self {
+            Cell::Timing => fmt_timing(&r.time),
+            Cell::Value(m) => metric_text(r, m),
+            Cell::Count(m) => metric_count(r, m),
+            Cell::OutOf(a, b) => format!("{} / {}", metric_count(r, a), metric_count(r, b)),
+            Cell::WithMax(a, b) => format!("{} ({})", metric_count(r, a), metric_count(r, b)),
+            Cell::Seconds(m) => fmt_time(metric(r, m).unwrap_or(f64::NAN)),
+            Cell::Note => r.note.clone(),
+        }
+    }
+}
 
 /// The columns after `method` and `knobs`, per section (W2 reports its reachable and
-/// unreachable targets apart).
-fn columns(section: Section, w2: bool) -> Vec<Column> {
-    let time: fn(&Record) -> String = |r| fmt_timing(&r.time);
-    match (section, w2) {
-        (Section::Ik, true) => vec![
-            ("time per solve", time),
-            ("reachable within 1e-6", |r| {
-                format!(
-                    "{} / {}",
-                    metric_count(r, Metric::ReachableWithin1e6),
-                    metric_count(r, Metric::Reachable)
-                )
-            }),
-            ("reachable error mean", |r| {
-                metric_text(r, Metric::ReachableErrorMean)
-            }),
-            ("reachable error max", |r| {
-                metric_text(r, Metric::ReachableErrorMax)
-            }),
-            ("unreachable excess max", |r| {
-                metric_text(r, Metric::UnreachableExcessMax)
-            }),
-            ("iterations", |r| metric_count(r, Metric::IterationsTotal)),
-            ("bone length error", |r| {
-                metric_text(r, Metric::BoneLengthErrorMax)
-            }),
-        ],
-        (Section::Ik, false) => vec![
-            ("time per frame", time),
-            ("frames within 1e-6", |r| {
-                format!(
-                    "{} / {}",
-                    metric_count(r, Metric::FramesWithin1e6),
-                    metric_count(r, Metric::Frames)
-                )
-            }),
-            ("error mean", |r| metric_text(r, Metric::ErrorMean)),
-            ("error max", |r| metric_text(r, Metric::ErrorMax)),
-            ("iterations", |r| metric_count(r, Metric::IterationsTotal)),
-            ("bone length error", |r| {
-                metric_text(r, Metric::BoneLengthErrorMax)
-            }),
-        ],
+/// unreachable targets apart): header and cell.
+fn columns(section: Section, w2: bool) -> Vec<(&'static str, Cell)> {
+    use Cell::{Count, Note, OutOf, Seconds, Timing, Value, WithMax};
+    // The IK tables end alike.
+    let ik_tail = [
+        ("iterations", Count(Metric::IterationsTotal)),
+        ("bone length error", Value(Metric::BoneLengthErrorMax)),
+    ];
+    // The IK tables: time, share within 1e-6, mean and largest error, then alike.
+    let ik = |unit, within, count, mean, max| {
+        vec![
+            (unit, Timing),
+            (
+                if w2 {
+                    "reachable within 1e-6"
+                } else {
+                    "frames within 1e-6"
+                },
+                OutOf(within, count),
+            ),
+            (
+                if w2 {
+                    "reachable error mean"
+                } else {
+                    "error mean"
+                },
+                Value(mean),
+            ),
+            (
+                if w2 {
+                    "reachable error max"
+                } else {
+                    "error max"
+                },
+                Value(max),
+            ),
+        ]
+    };
+    let mut columns = match (section, w2) {
+        (Section::Ik, true) => {
+            let mut c = ik(
+                "time per solve",
+                Metric::ReachableWithin1e6,
+                Metric::Reachable,
+                Metric::ReachableErrorMean,
+                Metric::ReachableErrorMax,
+            );
+            c.push((
+                "unreachable excess max",
+                Value(Metric::UnreachableExcessMax),
+            ));
+            c
+        }
+        (Section::Ik, false) => ik(
+            "time per frame",
+            Metric::FramesWithin1e6,
+            Metric::Frames,
+            Metric::ErrorMean,
+            Metric::ErrorMax,
+        ),
         (Section::Curves, _) => vec![
-            ("time per call", time),
-            ("time per point", |r| {
-                fmt_time(metric(r, Metric::TimePerPointS).unwrap_or(f64::NAN))
-            }),
-            ("spacing deviation", |r| {
-                metric_text(r, Metric::SpacingDeviation)
-            }),
-            ("length error", |r| metric_text(r, Metric::LengthError)),
+            ("time per call", Timing),
+            ("time per point", Seconds(Metric::TimePerPointS)),
+            ("spacing deviation", Value(Metric::SpacingDeviation)),
+            ("length error", Value(Metric::LengthError)),
         ],
         (Section::Cloth, _) => vec![
-            ("time per step", time),
-            ("per simulated s", |r| {
-                fmt_time(metric(r, Metric::TimePerSimulatedSecondS).unwrap_or(f64::NAN))
-            }),
-            ("from true motion, 1 s", |r| {
-                metric_text(r, Metric::TrueMotionError1s)
-            }),
-            ("from true motion, end", |r| {
-                metric_text(r, Metric::TrueMotionErrorEnd)
-            }),
-            ("from BE 1e-12, 1 s", |r| {
-                metric_text(r, Metric::SolverError1s)
-            }),
-            ("from BE 1e-12, end", |r| {
-                metric_text(r, Metric::SolverErrorEnd)
-            }),
-            ("iterations (max)", |r| {
-                format!(
-                    "{} ({})",
-                    metric_count(r, Metric::IterationsTotal),
-                    metric_count(r, Metric::IterationsMax)
-                )
-            }),
-            ("energy rise max", |r| {
-                metric_text(r, Metric::EnergyIncreaseMax)
-            }),
-            ("note", |r| r.note.clone()),
+            ("time per step", Timing),
+            ("per simulated s", Seconds(Metric::TimePerSimulatedSecondS)),
+            ("from true motion, 1 s", Value(Metric::TrueMotionError1s)),
+            ("from true motion, end", Value(Metric::TrueMotionErrorEnd)),
+            ("from BE 1e-12, 1 s", Value(Metric::SolverError1s)),
+            ("from BE 1e-12, end", Value(Metric::SolverErrorEnd)),
+            (
+                "iterations (max)",
+                WithMax(Metric::IterationsTotal, Metric::IterationsMax),
+            ),
+            ("energy rise max", Value(Metric::EnergyIncreaseMax)),
+            ("note", Note),
         ],
+    };
+    if section == Section::Ik {
+        columns.extend(ik_tail);
     }
+    columns
 }
 
 fn table(section: Section, records: &[&Record], front: &[usize]) -> String {
@@ -362,7 +394,7 @@ fn table(section: Section, records: &[&Record], front: &[usize]) -> String {
         let star = if front.contains(&i) { " *" } else { "" };
         let _ = write!(s, "| {}{star} | {} |", r.method, r.knobs);
         for (_, cell) in &columns {
-            let _ = write!(s, " {} |", cell(r));
+            let _ = write!(s, " {} |", cell.text(r));
         }
         s.push('\n');
     }

@@ -6,7 +6,7 @@
 //! compared and the largest disagreement is a metric). Time is per frame (W1) or per
 //! solve (W2) and covers the solves only.
 
-use super::{Metric, Metrics, Plan, Record, Section, measure, sci};
+use super::{Metric, Metrics, Plan, Record, Section, Timing, measure, sci};
 use crate::workloads::{
     w1_skeleton, w1_targets, w2_skeleton, w2_targets, w7_ball, w7_feasible, w7_skeleton,
 };
@@ -140,24 +140,20 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
     let w2_targets = w2_targets(if plan.quick { 500 } else { 10_000 });
     for (name, mut solver) in solvers()? {
         for s in settings(plan) {
-            records.push(w1_record(
-                plan,
+            let mut w1_subject = Subject {
                 name,
-                solver.as_mut(),
-                &w1,
-                &w1_chain,
-                &w1_targets,
-                &s,
-            )?);
-            records.push(w2_record(
-                plan,
-                name,
-                solver.as_mut(),
-                &w2,
-                &w2_chain,
-                &w2_targets,
-                &s,
-            )?);
+                solver: solver.as_mut(),
+                skeleton: &w1,
+                chain: &w1_chain,
+                settings: &s,
+            };
+            records.push(w1_record(plan, &mut w1_subject, &w1_targets)?);
+            let mut w2_subject = Subject {
+                skeleton: &w2,
+                chain: &w2_chain,
+                ..w1_subject
+            };
+            records.push(w2_record(plan, &mut w2_subject, &w2_targets)?);
         }
         eprintln!("  {name} done");
     }
@@ -172,38 +168,79 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
             continue;
         }
         let s = SolveSettings::default();
-        records.push(w7_record(
-            plan,
+        let mut subject = Subject {
             name,
-            solver.as_mut(),
-            &w7,
-            &w7_chain,
-            &feasible,
-            &ball,
-            &s,
-        )?);
+            solver: solver.as_mut(),
+            skeleton: &w7,
+            chain: &w7_chain,
+            settings: &s,
+        };
+        records.push(w7_record(plan, &mut subject, &feasible, &ball)?);
     }
     Ok(records)
 }
 
+/// A solver configuration on a workload's chain: what every record of this section
+/// measures.
+struct Subject<'a> {
+    name: &'static str,
+    solver: &'a mut dyn IkSolver,
+    skeleton: &'a Skeleton,
+    chain: &'a Chain,
+    settings: &'a SolveSettings,
+}
+
+impl Subject<'_> {
+    /// Solves every target (see [`solve_all`]).
+    fn solve(&mut self, targets: &[DVec3], warm: bool, check: bool) -> Result<Outcome, String> {
+        solve_all(
+            self.solver,
+            self.skeleton,
+            self.chain,
+            targets,
+            self.settings,
+            warm,
+            check,
+        )
+    }
+
+    /// The record of this configuration on `workload`.
+    fn record(
+        &self,
+        workload: &str,
+        unit: &'static str,
+        time: Timing,
+        (error, error_name): (f64, &'static str),
+        metrics: Metrics,
+    ) -> Record {
+        Record {
+            section: Section::Ik,
+            workload: workload.into(),
+            method: self.name.into(),
+            knobs: knobs(self.settings),
+            unit,
+            time,
+            error,
+            error_name,
+            metrics,
+            note: String::new(),
+        }
+    }
+}
+
 /// W7: cold solves of the feasible targets (timed, the headline error), and the ball's
 /// points, reported separately (stop reasons, errors; untimed).
-#[allow(clippy::too_many_arguments)]
 fn w7_record(
     plan: &Plan,
-    name: &str,
-    solver: &mut dyn IkSolver,
-    skeleton: &Skeleton,
-    chain: &Chain,
+    subject: &mut Subject,
     feasible: &[DVec3],
     ball: &[DVec3],
-    s: &SolveSettings,
 ) -> Result<Record, String> {
-    let checked = solve_all(solver, skeleton, chain, feasible, s, false, true)?;
+    let checked = subject.solve(feasible, false, true)?;
     let (time, _) = measure(plan, plan.repeats, feasible.len(), || {
-        solve_all(solver, skeleton, chain, feasible, s, false, false)
+        subject.solve(feasible, false, false)
     });
-    let outside = solve_all(solver, skeleton, chain, ball, s, false, true)?;
+    let outside = subject.solve(ball, false, true)?;
     let within = checked.errors.iter().filter(|&&e| e <= 1e-6).count();
     let error_max = checked.errors.iter().copied().fold(0.0, f64::max);
     let mut metrics = Metrics::new();
@@ -227,36 +264,38 @@ fn w7_record(
     );
     metrics.insert(Metric::BallStops, json!(outside.stops));
     metrics.insert(Metric::IterationsTotal, json!(checked.iterations));
+    checks_into(&mut metrics, &checked, false);
+    Ok(subject.record(
+        "W7",
+        "solve",
+        time,
+        (
+            error_max,
+            "largest final distance over the feasible targets",
+        ),
+        metrics,
+    ))
+}
+
+/// The iteration count and the report's agreement with forward kinematics (and, with
+/// `bones`, the bone-length error) every IK record carries.
+fn checks_into(metrics: &mut Metrics, checked: &Outcome, bones: bool) {
+    if bones {
+        metrics.insert(
+            Metric::BoneLengthErrorMax,
+            json!(checked.bone_length_error_max),
+        );
+    }
     metrics.insert(
         Metric::ReportDisagreementMax,
         json!(checked.report_disagreement_max),
     );
-    Ok(Record {
-        section: Section::Ik,
-        workload: "W7".into(),
-        method: name.into(),
-        knobs: knobs(s),
-        unit: "solve",
-        time,
-        error: error_max,
-        error_name: "largest final distance over the feasible targets",
-        metrics,
-        note: String::new(),
-    })
 }
 
-fn w1_record(
-    plan: &Plan,
-    name: &str,
-    solver: &mut dyn IkSolver,
-    skeleton: &Skeleton,
-    chain: &Chain,
-    targets: &[DVec3],
-    s: &SolveSettings,
-) -> Result<Record, String> {
-    let checked = solve_all(solver, skeleton, chain, targets, s, true, true)?;
+fn w1_record(plan: &Plan, subject: &mut Subject, targets: &[DVec3]) -> Result<Record, String> {
+    let checked = subject.solve(targets, true, true)?;
     let (time, timed) = measure(plan, plan.repeats, targets.len(), || {
-        solve_all(solver, skeleton, chain, targets, s, true, false)
+        subject.solve(targets, true, false)
     });
     let timed = timed?;
     let errors = &checked.errors;
@@ -267,43 +306,24 @@ fn w1_record(
     metrics.insert(Metric::ErrorMean, json!(mean(errors)));
     metrics.insert(Metric::ErrorMax, json!(error_max));
     metrics.insert(Metric::FramesWithin1e6, json!(within));
+    // Warm-started tracking: the timed run's iterations are the ones that count.
     metrics.insert(Metric::IterationsTotal, json!(timed.iterations));
-    metrics.insert(
-        Metric::BoneLengthErrorMax,
-        json!(checked.bone_length_error_max),
-    );
-    metrics.insert(
-        Metric::ReportDisagreementMax,
-        json!(checked.report_disagreement_max),
-    );
-    Ok(Record {
-        section: Section::Ik,
-        workload: "W1".into(),
-        method: name.into(),
-        knobs: knobs(s),
-        unit: "frame",
+    checks_into(&mut metrics, &checked, true);
+    Ok(subject.record(
+        "W1",
+        "frame",
         time,
-        error: error_max,
-        error_name: "largest final distance over the 500 frames",
+        (error_max, "largest final distance over the 500 frames"),
         metrics,
-        note: String::new(),
-    })
+    ))
 }
 
-fn w2_record(
-    plan: &Plan,
-    name: &str,
-    solver: &mut dyn IkSolver,
-    skeleton: &Skeleton,
-    chain: &Chain,
-    targets: &[DVec3],
-    s: &SolveSettings,
-) -> Result<Record, String> {
-    let checked = solve_all(solver, skeleton, chain, targets, s, false, true)?;
+fn w2_record(plan: &Plan, subject: &mut Subject, targets: &[DVec3]) -> Result<Record, String> {
+    let checked = subject.solve(targets, false, true)?;
     let (time, _) = measure(plan, plan.repeats, targets.len(), || {
-        solve_all(solver, skeleton, chain, targets, s, false, false)
+        subject.solve(targets, false, false)
     });
-    let reach = chain.reach();
+    let reach = subject.chain.reach();
     let root = DVec3::ZERO;
     let (mut reachable, mut unreachable_excess_max) = (Vec::new(), 0.0_f64);
     for (target, &error) in targets.iter().zip(&checked.errors) {
@@ -324,27 +344,18 @@ fn w2_record(
     metrics.insert(Metric::ReachableErrorMean, json!(mean(&reachable)));
     metrics.insert(Metric::ReachableErrorMax, json!(reachable_max));
     metrics.insert(Metric::UnreachableExcessMax, json!(unreachable_excess_max));
-    metrics.insert(
-        Metric::BoneLengthErrorMax,
-        json!(checked.bone_length_error_max),
-    );
     metrics.insert(Metric::IterationsTotal, json!(checked.iterations));
-    metrics.insert(
-        Metric::ReportDisagreementMax,
-        json!(checked.report_disagreement_max),
-    );
-    Ok(Record {
-        section: Section::Ik,
-        workload: "W2".into(),
-        method: name.into(),
-        knobs: knobs(s),
-        unit: "solve",
+    checks_into(&mut metrics, &checked, true);
+    Ok(subject.record(
+        "W2",
+        "solve",
         time,
-        error: reachable_max,
-        error_name: "largest final distance over the reachable targets",
+        (
+            reachable_max,
+            "largest final distance over the reachable targets",
+        ),
         metrics,
-        note: String::new(),
-    })
+    ))
 }
 
 fn mean(v: &[f64]) -> f64 {
