@@ -1,9 +1,11 @@
 //! Running a loaded scene and reporting it: progress bars while it runs, each task's
-//! table (CSV) and pictures in the output folder, the summary table on stdout (or the
+//! table (CSV), pictures and interactive viewer page in the output folder with an
+//! `index.html` linking the pages, the summary table on stdout (or the
 //! metrics as JSON with `--json`) and `metrics.json`.
 
 use indicatif::{ProgressBar, ProgressStyle};
 use sinew_scene::{RunOptions, Scene, TaskResult};
+use sinew_viz::{render, viewer};
 use std::cell::RefCell;
 use std::io::IsTerminal;
 use std::path::Path;
@@ -37,10 +39,11 @@ pub fn run_and_report(scene: &Scene, out_dir: &Path, options: &Options) -> ExitC
     };
     let mut results = scene.run(&run_options);
     bar.borrow_mut().clear();
+    let mut pages = Vec::new();
     for task in &mut results.tasks {
-        // Writing a task's table or pictures can fail; that task then failed, as when
-        // it could not run.
-        if let Err(e) = write_outputs(task, out_dir) {
+        // Writing a task's table, pictures or viewer page can fail; that task then
+        // failed, as when it could not run.
+        if let Err(e) = write_outputs(task, out_dir, &mut pages) {
             *task = TaskResult::failed(&task.name, task.kind, task.wall_time_s, e);
         }
         for f in &task.failures {
@@ -53,6 +56,12 @@ pub fn run_and_report(scene: &Scene, out_dir: &Path, options: &Options) -> ExitC
         if let Some(e) = &task.error {
             eprintln!("{}: task \"{}\": {e}", scene.path.display(), task.name);
         }
+    }
+    if options.render
+        && let Err(e) = viewer::write_scene_index(out_dir, &scene.name, &pages)
+    {
+        eprintln!("error: {e}");
+        return ExitCode::from(2);
     }
     // Through a JSON value, so keys come out sorted as they always have.
     let text = serde_json::to_value(&results)
@@ -75,13 +84,25 @@ pub fn run_and_report(scene: &Scene, out_dir: &Path, options: &Options) -> ExitC
     }
 }
 
-/// Writes the task's CSV table and draws its pictures (if the run kept them).
-fn write_outputs(task: &TaskResult, out_dir: &Path) -> Result<(), String> {
+/// Writes the task's CSV table, draws its pictures and writes its viewer page (if the
+/// run kept frames and the task is animated), adding the page to `pages`.
+fn write_outputs(
+    task: &TaskResult,
+    out_dir: &Path,
+    pages: &mut Vec<viewer::PageSummary>,
+) -> Result<(), String> {
     if !task.table.suffix.is_empty() {
         let path = out_dir.join(format!("{}.{}", task.name, task.table.suffix));
         std::fs::write(&path, &task.table.text).map_err(|e| format!("{}: {e}", path.display()))?;
     }
-    sinew_viz::render::draw_task(&task.name, &task.pictures, out_dir)
+    render::draw_task(&task.name, &task.pictures, out_dir)?;
+    if let Some(page) = render::viewer_page(task) {
+        let file = format!("{}.html", task.name);
+        let summary = viewer::write_page(out_dir, &file, &page, &viewer::Budget::default())
+            .map_err(|e| e.to_string())?;
+        pages.push(summary);
+    }
+    Ok(())
 }
 
 /// A progress bar that appears only once a task has run for about a second.

@@ -279,6 +279,11 @@ pub struct IkPictures {
     pub solver: String,
     /// The frames shown (at most a fixed number, the last always among them).
     pub frames: Vec<IkFrame>,
+    /// A finer selection of frames for the interactive viewer (evenly spaced, at most
+    /// a thousand, the first and last among them).
+    pub track: Vec<IkFrame>,
+    /// The frame index of each of `track`.
+    pub track_frames: Vec<usize>,
     /// Every frame's target, the path drawn.
     pub targets: Vec<DVec3>,
     /// Every frame's final error.
@@ -319,6 +324,13 @@ pub struct ClothPictures {
     pub fixed: Vec<usize>,
     /// The frames shown (at most a fixed number, the first and last among them).
     pub frames: Vec<ClothFrame>,
+    /// A finer selection of frames for the interactive viewer (evenly spaced, at most
+    /// a few hundred, the start and the last step among them).
+    pub track: Vec<ClothFrame>,
+    /// The step after which each of `track` was taken (0: the start).
+    pub track_steps: Vec<usize>,
+    /// The time step, in seconds.
+    pub dt: f64,
     /// (time, total energy), from the start.
     pub energy: Vec<(f64, f64)>,
     /// (time, Newton iterations) per step.

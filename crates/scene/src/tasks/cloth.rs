@@ -110,6 +110,9 @@ pub enum SystemSpec {
 const MAX_STEPS: usize = 10_000_000;
 /// The most frames a picture animates.
 const MAX_FRAMES: usize = 100;
+/// The most frames kept for the interactive viewer (a 101 x 101 cloth frame is about
+/// 245 kB in memory).
+const MAX_TRACK_FRAMES: usize = 300;
 
 impl ClothTask {
     fn build(&self) -> Result<Simulation, String> {
@@ -186,12 +189,22 @@ impl TaskSpec for ClothTask {
             .filter(|&i| sim.system().fixed()[i])
             .collect();
         let frame_every = self.steps.div_ceil(MAX_FRAMES).max(1);
+        // The interactive viewer gets a finer selection (it thins it to its own budget):
+        // the start, then after every `track_every`-th step and the last.
+        let track_every = self.steps.div_ceil(MAX_TRACK_FRAMES).max(1);
+        let mut track: Vec<ClothFrame> = Vec::new();
+        let mut track_steps: Vec<usize> = Vec::new();
         let mut frames: Vec<Vec<DVec3>> = Vec::new();
         // The colliders posed at each frame's time, for the pictures.
         let mut frame_colliders: Vec<Vec<Shape>> = Vec::new();
         if ctx.keep_frames {
             frames.push(sim.system().positions().to_vec());
             frame_colliders.push(sim.colliders().iter().map(|c| c.at(sim.time())).collect());
+            track.push(ClothFrame {
+                positions: sim.system().positions().to_vec(),
+                colliders: sim.colliders().iter().map(|c| c.at(sim.time())).collect(),
+            });
+            track_steps.push(0);
         }
         let mut csv = String::from(
             "step,time,kinetic,spring,gravity,total,iterations,residual,linear_solver\n",
@@ -245,9 +258,17 @@ impl TaskSpec for ClothTask {
                 }
                 contact_pairs_max = contact_pairs_max.max(pairs);
             }
-            if ctx.keep_frames && ((step + 1) % frame_every == 0 || step + 1 == self.steps) {
+            let last = step + 1 == self.steps;
+            if ctx.keep_frames && ((step + 1) % frame_every == 0 || last) {
                 frames.push(system.positions().to_vec());
                 frame_colliders.push(colliders.iter().map(|c| c.at(time)).collect::<Vec<_>>());
+            }
+            if ctx.keep_frames && ((step + 1) % track_every == 0 || last) {
+                track.push(ClothFrame {
+                    positions: system.positions().to_vec(),
+                    colliders: colliders.iter().map(|c| c.at(time)).collect(),
+                });
+                track_steps.push(step + 1);
             }
         })
         .map_err(|e| e.to_string())?;
@@ -265,6 +286,9 @@ impl TaskSpec for ClothTask {
                         colliders,
                     })
                     .collect(),
+                track,
+                track_steps,
+                dt,
                 energy,
                 iterations,
             })

@@ -215,6 +215,10 @@ impl TaskSpec for IkTask {
         // Pictures animate at most MAX_FRAMES frames (the last always among them); the
         // positions are copied outside the timed part.
         let frame_every = targets.len().div_ceil(MAX_FRAMES).max(1);
+        // The interactive viewer gets a finer selection (it thins it to its own budget).
+        let track_every = targets.len().div_ceil(MAX_TRACK_FRAMES).max(1);
+        let mut track: Vec<IkFrame> = Vec::new();
+        let mut track_frames: Vec<usize> = Vec::new();
         let mut shown: Vec<IkFrame> = Vec::new();
         let mut progress = ctx.progress(&self.name, targets.len());
         for (k, (&target, &goal)) in targets.iter().zip(&goals).enumerate() {
@@ -229,13 +233,21 @@ impl TaskSpec for IkTask {
                 )
                 .map_err(|e| e.to_string())?;
             frame_ns.push(start.elapsed().as_secs_f64() * 1e9);
-            if ctx.keep_frames && (k % frame_every == 0 || k + 1 == targets.len()) {
-                let joints = chain
+            let last = k + 1 == targets.len();
+            if ctx.keep_frames && (k % track_every == 0 || last) {
+                let joints: Vec<DVec3> = chain
                     .joints()
                     .iter()
                     .map(|&j| global.positions[j])
                     .collect();
-                shown.push(IkFrame { joints, target });
+                if k % frame_every == 0 || last {
+                    shown.push(IkFrame {
+                        joints: joints.clone(),
+                        target,
+                    });
+                }
+                track.push(IkFrame { joints, target });
+                track_frames.push(k);
             }
             progress.inc();
         }
@@ -263,6 +275,8 @@ impl TaskSpec for IkTask {
             Pictures::Ik(IkPictures {
                 solver: self.solver.label().to_string(),
                 frames: shown,
+                track,
+                track_frames,
                 targets: targets.clone(),
                 error: records.iter().map(|r| r.error).collect(),
                 iterations: records.iter().map(|r| r.iterations).collect(),
@@ -364,3 +378,5 @@ impl TaskSpec for IkTask {
 
 /// The most frames an IK animation shows.
 const MAX_FRAMES: usize = 120;
+/// The most frames kept for the interactive viewer.
+const MAX_TRACK_FRAMES: usize = 1000;
