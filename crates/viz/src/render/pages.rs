@@ -11,12 +11,13 @@ use sinew_scene::results::{ClothPictures, IkPictures, Pictures, Shape};
 const IK_FRAMES_PER_SECOND: f64 = 30.0;
 
 /// The viewer page of an animated task's result, or `None` when the task has no
-/// animation (a curve, FK, two-bone IK, or a run that kept no frames).
+/// animation: a curve, FK, two-bone IK, a run that kept no frames, or a single frame
+/// (an IK task with one target; like its GIF, a page needs two frames to animate).
 #[must_use]
 pub fn viewer_page(result: &TaskResult) -> Option<ViewerPage> {
     let mut page = match &result.pictures {
-        Pictures::Ik(p) if !p.track.is_empty() => ik_page(&result.name, p),
-        Pictures::Cloth(p) if !p.track.is_empty() => cloth_page(&result.name, p),
+        Pictures::Ik(p) if p.track.len() > 1 => ik_page(&result.name, p),
+        Pictures::Cloth(p) if p.track.len() > 1 => cloth_page(&result.name, p),
         _ => return None,
     };
     page.metrics = metrics_table(result);
