@@ -14,14 +14,12 @@
 
 mod bench;
 mod machine;
-mod render;
 mod report;
-mod scene;
-mod spec;
 mod stress;
-mod tasks;
 
 use clap::{Parser, Subcommand};
+use sinew_scene::Scene;
+use sinew_scene::schema as scene;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -132,12 +130,12 @@ fn run_scene_command(args: &RunSceneArgs) -> ExitCode {
             quiet: args.quiet,
             render: !args.no_render,
         };
-        let code = match scene::load(file) {
+        let code = match Scene::from_file(file) {
             Err(e) => {
                 eprintln!("error: {e}");
                 ExitCode::from(2)
             }
-            Ok(loaded) => report::run_and_report(&loaded, &out_dir, &options),
+            Ok(scene) => report::run_and_report(&scene, &out_dir, &options),
         };
         if code != ExitCode::SUCCESS {
             worst = code;

@@ -28,8 +28,9 @@ pub struct RunMetrics {
     pub energy_start: f64,
     /// Total energy after the last completed step.
     pub energy_end: f64,
-    /// Largest rise of the total energy over one step, relative to `|energy_start|`
-    /// (0 when it never rose).
+    /// Largest rise of the total energy over one step, relative to the starting
+    /// energies' [`Energies::scale`](crate::model::Energies::scale) (0 when it never
+    /// rose).
     pub energy_increase_max: f64,
     /// Median wall-clock time of a step in milliseconds.
     pub time_per_step_ms_median: f64,
@@ -57,8 +58,9 @@ pub fn run_observed(
     mut observe: impl FnMut(usize, &StepReport, &crate::model::SpringSystem),
 ) -> Result<RunMetrics, StepError> {
     crate::model::check_time_step(dt)?;
-    let energy_start = sim.system().energies().total();
-    let scale = energy_start.abs().max(f64::MIN_POSITIVE);
+    let energies = sim.system().energies();
+    let energy_start = energies.total();
+    let scale = energies.scale();
     let mut metrics = RunMetrics {
         steps: 0,
         integrator: String::new(),

@@ -622,6 +622,23 @@ impl Energies {
     pub fn total(&self) -> f64 {
         self.kinetic + self.spring + self.gravity
     }
+
+    /// The scale a rise of the total energy is measured against: kinetic + spring +
+    /// |gravity|, the sum of the terms' sizes (at least `f64::MIN_POSITIVE`). Unlike
+    /// |total| it does not vanish when gravity's energy (negative below the origin)
+    /// cancels the others, so a relative rise stays meaningful; docs/scenes.md
+    /// ("Energy rise") defines the metric that uses it.
+    ///
+    /// ```
+    /// use sinew_spring_sim::Energies;
+    /// // Gravity's energy cancels the rest: the total is 0, the scale is not.
+    /// let e = Energies { kinetic: 1.0, spring: 2.0, gravity: -3.0 };
+    /// assert_eq!((e.total(), e.scale()), (0.0, 6.0));
+    /// ```
+    #[must_use]
+    pub fn scale(&self) -> f64 {
+        (self.kinetic + self.spring + self.gravity.abs()).max(f64::MIN_POSITIVE)
+    }
 }
 
 /// The lab cloth on an `n x n` grid (docs/workloads.md W4): particle `(i, j)` at

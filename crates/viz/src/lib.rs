@@ -1,4 +1,10 @@
-//! Pictures of sinew's results.
+//! `sinew-viz`: pictures of sinew's scene results.
+//!
+//! [`render::draw_task`] draws a task's pictures from its result
+//! ([`sinew_scene::TaskResult::pictures`]): PNG stills and animated GIFs of IK chains
+//! and cloth, the curve-sampling comparison and SVG line charts of per-frame metrics;
+//! [`render`] also draws the benchmark's time-against-error plots. It only reads the
+//! data it is given, so drawing never changes a result.
 //!
 //! [`viewer`] writes one self-contained interactive HTML page per animated task (an IK
 //! chain following its target, a full-body clip, a cloth) and an `index.html` for a
@@ -30,7 +36,9 @@
 //! What the page shows, how its data is encoded and how the browser test drives it:
 //! docs/viewer.md.
 //!
-//! Architecture invariant: depends on sinew-math only; it reads plain data and never
-//! runs a solver, so pictures cannot change a run's numbers.
+//! Architecture invariant: the viewer uses sinew-math only and reads plain data (the
+//! conversion from scene results is [`render::viewer_page`]); nothing here runs a
+//! solver, so pictures cannot change a run's numbers.
 
+pub mod render;
 pub mod viewer;

@@ -1058,6 +1058,61 @@ fn viewer_pages_work_in_headless_chromium() {
     }
 }
 
+/// The pages `cargo xtask run-scene` writes for the lab scene (scenes/lab4.ron): every
+/// IK track and cloth page, converted from the run's results, passes the same checks,
+/// and the index links exactly them.
+#[test]
+fn lab_scene_pages_work_in_headless_chromium() {
+    let _one_at_a_time = BROWSER_LOCK.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("viewer-lab4");
+    let _ = std::fs::remove_dir_all(&dir);
+    let scene_file = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/lab4.ron");
+    let scene = sinew_scene::Scene::from_file(scene_file).unwrap_or_else(|e| panic!("{e}"));
+    let results = scene.run(&sinew_scene::RunOptions {
+        keep_frames: true,
+        ..sinew_scene::RunOptions::default()
+    });
+    assert!(results.ok(), "lab4 runs and meets its expectations");
+    let mut pages = Vec::new();
+    for task in &results.tasks {
+        if let Some(page) = sinew_viz::render::viewer_page(task) {
+            let file = format!("{}.html", task.name);
+            pages.push(write_page(&dir, &file, &page, &Budget::default()).unwrap());
+        }
+    }
+    // Every IK task that tracks more than one target and every cloth is animated.
+    let animated = results
+        .tasks
+        .iter()
+        .filter(|t| match &t.metrics {
+            sinew_scene::TaskMetrics::Ik(m) => m.frames > 1,
+            sinew_scene::TaskMetrics::Cloth(m) => m.steps > 0,
+            _ => false,
+        })
+        .count();
+    assert!(animated >= 8, "lab4 has its IK tracks and cloths");
+    assert_eq!(
+        pages.len(),
+        animated,
+        "a page per animated IK and cloth task"
+    );
+    write_scene_index(&dir, &results.scene, &pages).unwrap();
+    let mut browser = Browser::start("lab4").unwrap_or_else(|e| panic!("headless Chromium: {e}"));
+    for page in &pages {
+        let file = dir.join(&page.file_name);
+        let shot = dir.join(format!("{}.png", page.file_name.trim_end_matches(".html")));
+        let check = check_viewer_page(&mut browser, &file, &shot)
+            .unwrap_or_else(|e| panic!("{}: {e}", page.file_name));
+        println!("{}: {check:?}", page.file_name);
+        assert_eq!(page.shown_frames, page.total_frames, "{page:?}");
+        assert!(check.changed_by_slider > 0 && check.changed_by_orbit > 0);
+    }
+    let links = check_index(&mut browser, &dir.join("index.html"))
+        .unwrap_or_else(|e| panic!("index.html: {e}"));
+    let expected: Vec<String> = pages.iter().map(|p| p.file_name.clone()).collect();
+    assert_eq!(links, expected);
+}
+
 /// The checks themselves can fail: a page that logs a console error, one that throws,
 /// and one whose canvas stays blank are each rejected with a message saying why.
 #[test]

@@ -2,8 +2,9 @@
 //! `README.md` (the headline table against the issues' targets, then one table and one
 //! plot per workload) and `plots/*.svg`.
 
-use super::plot::{Point, pareto_front, time_error_svg};
-use super::{Record, Results, Section, Timing};
+use super::Results;
+use sinew_scene::bench::{Metric, Record, Section, Timing};
+use sinew_viz::render::plot::{Point, pareto_front, time_error_svg};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -53,17 +54,17 @@ pub fn fmt_err(x: f64) -> String {
     }
 }
 
-fn metric(r: &Record, key: &str) -> Option<f64> {
-    r.metrics.get(key).and_then(serde_json::Value::as_f64)
+fn metric(r: &Record, key: Metric) -> Option<f64> {
+    r.metrics.get(&key).and_then(serde_json::Value::as_f64)
 }
 
-fn metric_text(r: &Record, key: &str) -> String {
+fn metric_text(r: &Record, key: Metric) -> String {
     metric(r, key).map_or("-".into(), fmt_err)
 }
 
-fn metric_count(r: &Record, key: &str) -> String {
+fn metric_count(r: &Record, key: Metric) -> String {
     r.metrics
-        .get(key)
+        .get(&key)
         .and_then(serde_json::Value::as_u64)
         .map_or("-".into(), |v| v.to_string())
 }
@@ -78,7 +79,7 @@ struct Target {
     /// Time per unit at most this many seconds.
     time: f64,
     /// The error check: metric key and largest allowed value.
-    error: Option<(&'static str, f64)>,
+    error: Option<(Metric, f64)>,
 }
 
 const TARGETS: [Target; 11] = [
@@ -89,7 +90,7 @@ const TARGETS: [Target; 11] = [
         method: "fabrik",
         knobs: "cap 100, tol 1e-6",
         time: 1.5e-6,
-        error: Some(("error_max", 1e-6)),
+        error: Some((Metric::ErrorMax, 1e-6)),
     },
     Target {
         issue: 3,
@@ -98,7 +99,7 @@ const TARGETS: [Target; 11] = [
         method: "ccd",
         knobs: "cap 100, tol 1e-6",
         time: 10e-6,
-        error: Some(("error_max", 1e-6)),
+        error: Some((Metric::ErrorMax, 1e-6)),
     },
     Target {
         issue: 3,
@@ -107,7 +108,7 @@ const TARGETS: [Target; 11] = [
         method: "fabrik",
         knobs: "cap 100, tol 1e-6",
         time: 8e-6,
-        error: Some(("reachable_error_max", 1e-6)),
+        error: Some((Metric::ReachableErrorMax, 1e-6)),
     },
     Target {
         issue: 3,
@@ -161,7 +162,7 @@ const TARGETS: [Target; 11] = [
         method: "auto",
         knobs: "default",
         time: 20e-6,
-        error: Some(("true_motion_error_1s", 1e-4)),
+        error: Some((Metric::TrueMotionError1s, 1e-4)),
     },
     Target {
         issue: 9,
@@ -170,7 +171,7 @@ const TARGETS: [Target; 11] = [
         method: "auto",
         knobs: "default",
         time: 20e-6,
-        error: Some(("true_motion_error_1s", 1e-4)),
+        error: Some((Metric::TrueMotionError1s, 1e-4)),
     },
     Target {
         issue: 9,
@@ -179,7 +180,7 @@ const TARGETS: [Target; 11] = [
         method: "auto",
         knobs: "default",
         time: 200e-6,
-        error: Some(("true_motion_error_1s", 1e-4)),
+        error: Some((Metric::TrueMotionError1s, 1e-4)),
     },
 ];
 
@@ -218,7 +219,7 @@ fn headline(records: &[Record]) -> String {
             Some((key, limit)) => {
                 let v = metric(r, key).unwrap_or(f64::NAN);
                 let verdict = if v <= limit { "met" } else { "NOT met" };
-                format!("{key} {} ({verdict})", fmt_err(v))
+                format!("{} {} ({verdict})", key.name(), fmt_err(v))
             }
             None => headline_error(r),
         };
@@ -255,99 +256,139 @@ fn headline_error(r: &Record) -> String {
     match r.section {
         Section::Ik => format!(
             "{} of {} reachable within 1e-6",
-            metric_count(r, "reachable_within_1e-6"),
-            metric_count(r, "reachable")
+            metric_count(r, Metric::ReachableWithin1e6),
+            metric_count(r, Metric::Reachable)
         ),
-        Section::Cloth => match metric(r, "solver_error_1s") {
+        Section::Cloth => match metric(r, Metric::SolverError1s) {
             Some(e) => format!("from backward Euler at 1e-12: {} at 1 s", fmt_err(e)),
             None => format!(
                 "from backward Euler at 1e-12: {} at the end",
-                metric_text(r, "solver_error_end")
+                metric_text(r, Metric::SolverErrorEnd)
             ),
         },
         Section::Curves => fmt_err(r.error),
     }
 }
 
-/// A table column: its header and how a record fills it.
-type Column = (&'static str, fn(&Record) -> String);
+/// What a table cell shows of a record.
+#[derive(Clone, Copy)]
+enum Cell {
+    /// The timing: median and spread.
+    Timing,
+    /// A metric as a short number (`-` when missing).
+    Value(Metric),
+    /// A count (`-` when missing).
+    Count(Metric),
+    /// `a / b` of two counts.
+    OutOf(Metric, Metric),
+    /// `total (max)` of two counts.
+    WithMax(Metric, Metric),
+    /// A time in seconds with its unit.
+    Seconds(Metric),
+    /// The record's note.
+    Note,
+}
+
+impl Cell {
+    fn text(self, r: &Record) -> String {
+        match self {
+            Cell::Timing => fmt_timing(&r.time),
+            Cell::Value(m) => metric_text(r, m),
+            Cell::Count(m) => metric_count(r, m),
+            Cell::OutOf(a, b) => format!("{} / {}", metric_count(r, a), metric_count(r, b)),
+            Cell::WithMax(a, b) => format!("{} ({})", metric_count(r, a), metric_count(r, b)),
+            Cell::Seconds(m) => fmt_time(metric(r, m).unwrap_or(f64::NAN)),
+            Cell::Note => r.note.clone(),
+        }
+    }
+}
 
 /// The columns after `method` and `knobs`, per section (W2 reports its reachable and
-/// unreachable targets apart).
-fn columns(section: Section, w2: bool) -> Vec<Column> {
-    let time: fn(&Record) -> String = |r| fmt_timing(&r.time);
-    match (section, w2) {
-        (Section::Ik, true) => vec![
-            ("time per solve", time),
-            ("reachable within 1e-6", |r| {
-                format!(
-                    "{} / {}",
-                    metric_count(r, "reachable_within_1e-6"),
-                    metric_count(r, "reachable")
-                )
-            }),
-            ("reachable error mean", |r| {
-                metric_text(r, "reachable_error_mean")
-            }),
-            ("reachable error max", |r| {
-                metric_text(r, "reachable_error_max")
-            }),
-            ("unreachable excess max", |r| {
-                metric_text(r, "unreachable_excess_max")
-            }),
-            ("iterations", |r| metric_count(r, "iterations_total")),
-            ("bone length error", |r| {
-                metric_text(r, "bone_length_error_max")
-            }),
-        ],
-        (Section::Ik, false) => vec![
-            ("time per frame", time),
-            ("frames within 1e-6", |r| {
-                format!(
-                    "{} / {}",
-                    metric_count(r, "frames_within_1e-6"),
-                    metric_count(r, "frames")
-                )
-            }),
-            ("error mean", |r| metric_text(r, "error_mean")),
-            ("error max", |r| metric_text(r, "error_max")),
-            ("iterations", |r| metric_count(r, "iterations_total")),
-            ("bone length error", |r| {
-                metric_text(r, "bone_length_error_max")
-            }),
-        ],
+/// unreachable targets apart): header and cell.
+fn columns(section: Section, w2: bool) -> Vec<(&'static str, Cell)> {
+    use Cell::{Count, Note, OutOf, Seconds, Timing, Value, WithMax};
+    // The IK tables end alike.
+    let ik_tail = [
+        ("iterations", Count(Metric::IterationsTotal)),
+        ("bone length error", Value(Metric::BoneLengthErrorMax)),
+    ];
+    // The IK tables: time, share within 1e-6, mean and largest error, then alike.
+    let ik = |unit, within, count, mean, max| {
+        vec![
+            (unit, Timing),
+            (
+                if w2 {
+                    "reachable within 1e-6"
+                } else {
+                    "frames within 1e-6"
+                },
+                OutOf(within, count),
+            ),
+            (
+                if w2 {
+                    "reachable error mean"
+                } else {
+                    "error mean"
+                },
+                Value(mean),
+            ),
+            (
+                if w2 {
+                    "reachable error max"
+                } else {
+                    "error max"
+                },
+                Value(max),
+            ),
+        ]
+    };
+    let mut columns = match (section, w2) {
+        (Section::Ik, true) => {
+            let mut c = ik(
+                "time per solve",
+                Metric::ReachableWithin1e6,
+                Metric::Reachable,
+                Metric::ReachableErrorMean,
+                Metric::ReachableErrorMax,
+            );
+            c.push((
+                "unreachable excess max",
+                Value(Metric::UnreachableExcessMax),
+            ));
+            c
+        }
+        (Section::Ik, false) => ik(
+            "time per frame",
+            Metric::FramesWithin1e6,
+            Metric::Frames,
+            Metric::ErrorMean,
+            Metric::ErrorMax,
+        ),
         (Section::Curves, _) => vec![
-            ("time per call", time),
-            ("time per point", |r| {
-                fmt_time(metric(r, "time_per_point_s").unwrap_or(f64::NAN))
-            }),
-            ("spacing deviation", |r| metric_text(r, "spacing_deviation")),
-            ("length error", |r| metric_text(r, "length_error")),
+            ("time per call", Timing),
+            ("time per point", Seconds(Metric::TimePerPointS)),
+            ("spacing deviation", Value(Metric::SpacingDeviation)),
+            ("length error", Value(Metric::LengthError)),
         ],
         (Section::Cloth, _) => vec![
-            ("time per step", time),
-            ("per simulated s", |r| {
-                fmt_time(metric(r, "time_per_simulated_second_s").unwrap_or(f64::NAN))
-            }),
-            ("from true motion, 1 s", |r| {
-                metric_text(r, "true_motion_error_1s")
-            }),
-            ("from true motion, end", |r| {
-                metric_text(r, "true_motion_error_end")
-            }),
-            ("from BE 1e-12, 1 s", |r| metric_text(r, "solver_error_1s")),
-            ("from BE 1e-12, end", |r| metric_text(r, "solver_error_end")),
-            ("iterations (max)", |r| {
-                format!(
-                    "{} ({})",
-                    metric_count(r, "iterations_total"),
-                    metric_count(r, "iterations_max")
-                )
-            }),
-            ("energy rise max", |r| metric_text(r, "energy_increase_max")),
-            ("note", |r| r.note.clone()),
+            ("time per step", Timing),
+            ("per simulated s", Seconds(Metric::TimePerSimulatedSecondS)),
+            ("from true motion, 1 s", Value(Metric::TrueMotionError1s)),
+            ("from true motion, end", Value(Metric::TrueMotionErrorEnd)),
+            ("from BE 1e-12, 1 s", Value(Metric::SolverError1s)),
+            ("from BE 1e-12, end", Value(Metric::SolverErrorEnd)),
+            (
+                "iterations (max)",
+                WithMax(Metric::IterationsTotal, Metric::IterationsMax),
+            ),
+            ("energy rise max", Value(Metric::EnergyIncreaseMax)),
+            ("note", Note),
         ],
+    };
+    if section == Section::Ik {
+        columns.extend(ik_tail);
     }
+    columns
 }
 
 fn table(section: Section, records: &[&Record], front: &[usize]) -> String {
@@ -364,7 +405,7 @@ fn table(section: Section, records: &[&Record], front: &[usize]) -> String {
         let star = if front.contains(&i) { " *" } else { "" };
         let _ = write!(s, "| {}{star} | {} |", r.method, r.knobs);
         for (_, cell) in &columns {
-            let _ = write!(s, " {} |", cell(r));
+            let _ = write!(s, " {} |", cell.text(r));
         }
         s.push('\n');
     }
@@ -473,11 +514,11 @@ pub fn write(results: &Results, sections: &[Section], out: &Path) -> Result<Stri
             let context = match (section, records.first()) {
                 (Section::Cloth, Some(r)) => format!(
                     " Time step {} s, {} steps; the stability bound asks for {} substeps per step at the start. True-motion reference check (64x against 32x the bound's substeps): {} after 1 s, {} at the end.",
-                    metric(r, "dt").map_or("-".into(), |dt| format!("{dt:.5}")),
-                    metric_count(r, "steps"),
-                    metric_count(r, "stability_bound_substeps"),
-                    metric_text(r, "true_motion_check_1s"),
-                    metric_text(r, "true_motion_check_end"),
+                    metric(r, Metric::Dt).map_or("-".into(), |dt| format!("{dt:.5}")),
+                    metric_count(r, Metric::Steps),
+                    metric_count(r, Metric::StabilityBoundSubsteps),
+                    metric_text(r, Metric::TrueMotionCheck1s),
+                    metric_text(r, Metric::TrueMotionCheckEnd),
                 ),
                 _ => String::new(),
             };
@@ -547,7 +588,7 @@ mod tests {
             },
             error: 1e-9,
             error_name: "e",
-            metrics: serde_json::Map::new(),
+            metrics: Default::default(),
             note: String::new(),
         };
         for (section, workload) in [

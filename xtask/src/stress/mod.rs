@@ -15,11 +15,10 @@
 //! runs write to `target/` so a smoke run never overwrites the committed file) and exits
 //! 1 if any case broke an invariant. What is checked and why: docs/stress.md.
 
-pub mod cloth;
-pub mod ik;
 pub mod table;
 
 use clap::ValueEnum;
+use sinew_scene::stress::{cloth, ik};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;

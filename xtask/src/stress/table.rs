@@ -3,8 +3,8 @@
 //! case, the IK table (one row per case and solver), then the failures.
 
 use super::StressResults;
-use super::cloth::{ClothOutcome, InitialState, dt_label};
-use super::ik::IkOutcome;
+use sinew_scene::stress::cloth::{ClothOutcome, InitialState, dt_label};
+use sinew_scene::stress::ik::IkOutcome;
 use std::fmt::Write;
 
 /// The grid sizes present, in order.
@@ -41,6 +41,40 @@ pub fn cloth_cell(o: &ClothOutcome) -> String {
 }
 
 /// Rows of (stiffness, dt) of one grid size, each with its outcomes by state.
+/// The steps each case of the `grid` x `grid` cloth ran for (0 when none ran).
+fn steps_per_case(results: &StressResults, grid: usize) -> usize {
+    results
+        .cloth
+        .iter()
+        .find(|o| o.case.grid == grid)
+        .map_or(0, |o| o.case.steps)
+}
+
+/// A markdown table of one grid: a row per stiffness and time step, a column per initial
+/// state, each case's cell written by `cell` (`-` where the case did not run).
+fn grid_table(
+    s: &mut String,
+    table: &[(f64, f64, Vec<Option<&ClothOutcome>>)],
+    cell: impl Fn(&ClothOutcome) -> String,
+) {
+    let _ = write!(s, "| k | dt |");
+    for st in InitialState::ALL {
+        let _ = write!(s, " {} |", st.name());
+    }
+    let _ = write!(s, "\n|---:|---:|");
+    for _ in InitialState::ALL {
+        s.push_str("---:|");
+    }
+    s.push('\n');
+    for (k, dt, cells) in table {
+        let _ = write!(s, "| {k:.0e} | {} |", dt_label(*dt));
+        for c in cells {
+            let _ = write!(s, " {} |", c.map_or_else(|| "-".into(), &cell));
+        }
+        s.push('\n');
+    }
+}
+
 fn rows(results: &StressResults, grid: usize) -> Vec<(f64, f64, Vec<Option<&ClothOutcome>>)> {
     let mut out: Vec<(f64, f64, Vec<Option<&ClothOutcome>>)> = Vec::new();
     for o in results.cloth.iter().filter(|o| o.case.grid == grid) {
@@ -84,11 +118,7 @@ fn ik_stop(o: &IkOutcome) -> String {
 pub fn console(results: &StressResults, failures: &[String], unconverged: &[String]) -> String {
     let mut s = String::new();
     for grid in grids(results) {
-        let steps = results
-            .cloth
-            .iter()
-            .find(|o| o.case.grid == grid)
-            .map_or(0, |o| o.case.steps);
+        let steps = steps_per_case(results, grid);
         let _ = writeln!(
             s,
             "\ncloth {grid}x{grid}, {steps} steps per case: Newton iterations max/mean (r: stops at round-off, F: far from converged, E: energy inequality broken, !: failed)"
@@ -232,50 +262,15 @@ fn cloth_markdown(s: &mut String, results: &StressResults) {
         "The lab cloth (W4's springs, corners (0, 0) and (0, n-1) pinned, the sheet 2 wide, mass 1, gravity 0.3, no damping) stepped by the default backward Euler (`NewtonSettings::default()`: tolerance 1e-9 m/h^2, cap 50). Cell: Newton iterations per step, max/mean; `rN`: N steps stopped (cap or stalled line search) at or below the round-off floor; `FN`: N steps stopped far from converged (reported); `EN`: N energy-inequality breaks; `DIVERGED`; `!`: the case failed.\n"
     );
     for grid in grids(results) {
-        let steps = results
-            .cloth
-            .iter()
-            .find(|o| o.case.grid == grid)
-            .map_or(0, |o| o.case.steps);
+        let steps = steps_per_case(results, grid);
         let _ = writeln!(s, "### {grid} x {grid} ({steps} steps per case)\n");
-        let _ = write!(s, "| k | dt |");
-        for st in InitialState::ALL {
-            let _ = write!(s, " {} |", st.name());
-        }
-        let _ = write!(s, "\n|---:|---:|");
-        for _ in InitialState::ALL {
-            s.push_str("---:|");
-        }
-        s.push('\n');
         let table = rows(results, grid);
-        for (k, dt, cells) in &table {
-            let _ = write!(s, "| {k:.0e} | {} |", dt_label(*dt));
-            for c in cells {
-                let _ = write!(s, " {} |", c.map_or_else(|| "-".into(), cloth_cell));
-            }
-            s.push('\n');
-        }
+        grid_table(s, &table, cloth_cell);
         let _ = writeln!(
             s,
             "\nLargest rise of the total energy in one step, relative to the run's starting `kinetic + spring + |gravity|` (0: never rose):\n"
         );
-        let _ = write!(s, "| k | dt |");
-        for st in InitialState::ALL {
-            let _ = write!(s, " {} |", st.name());
-        }
-        let _ = write!(s, "\n|---:|---:|");
-        for _ in InitialState::ALL {
-            s.push_str("---:|");
-        }
-        s.push('\n');
-        for (k, dt, cells) in &table {
-            let _ = write!(s, "| {k:.0e} | {} |", dt_label(*dt));
-            for c in cells {
-                let cell = c.map_or_else(|| "-".into(), |o| sci(o.energy_increase_max));
-                let _ = write!(s, " {cell} |");
-            }
-            s.push('\n');
-        }
+        grid_table(s, &table, |o| sci(o.energy_increase_max));
         s.push('\n');
     }
     let _ = writeln!(

@@ -2,7 +2,7 @@
 //! the Pareto front (the configurations no other is both faster and more accurate than)
 //! drawn as a black line through its points.
 
-use crate::render::chart::COLOURS;
+use super::chart::COLOURS;
 use plotters::prelude::*;
 use std::path::Path;
 

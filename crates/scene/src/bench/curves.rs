@@ -9,7 +9,7 @@
 //! implies - 4.8|). Time is per call (everything needed to produce the points, table
 //! build included unless the knobs say "table reused").
 
-use super::{Plan, Record, Section, measure, sci};
+use super::{Metric, Metrics, Plan, Record, Section, measure, sci};
 use serde_json::json;
 use sinew_curves::{
     ArcLengthTable, ArcParam, Ends, Epicycloid, Polyline, Samples, resample_evenly, sample_uniform,
@@ -143,14 +143,11 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
         let (time, first) = measure(plan, plan.repeats, 1, || (c.run)());
         let (samples, length) = first?;
         let deviation = spacing_deviation(&flower, &samples.params);
-        let mut metrics = serde_json::Map::new();
-        metrics.insert("points".into(), json!(c.points));
-        metrics.insert("spacing_deviation".into(), json!(deviation));
-        metrics.insert("length_error".into(), json!((length - exact).abs()));
-        metrics.insert(
-            "time_per_point_s".into(),
-            json!(time.median / c.points as f64),
-        );
+        let mut metrics = Metrics::new();
+        metrics.insert(Metric::Points, json!(c.points));
+        metrics.insert(Metric::SpacingDeviation, json!(deviation));
+        metrics.insert(Metric::LengthError, json!((length - exact).abs()));
+        metrics.insert(Metric::TimePerPointS, json!(time.median / c.points as f64));
         records.push(Record {
             section: Section::Curves,
             workload: "flower".into(),

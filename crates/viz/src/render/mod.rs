@@ -22,12 +22,17 @@ mod canvas;
 pub mod chart;
 mod cloth;
 mod ik;
+mod pages;
+pub mod plot;
 mod samples;
+mod task;
 
 pub use chart::{Series, line_chart_svg};
 pub use cloth::{ClothFrame, cloth_gif, cloth_png};
 pub use ik::{IkFrame, ik_gif, ik_png};
+pub use pages::viewer_page;
 pub use samples::samples_png;
+pub use task::draw_task;
 
 use animation::strain_colour;
 use canvas::{Canvas, GLYPH, Px, Rgb, ink};

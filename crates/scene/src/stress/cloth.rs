@@ -4,7 +4,7 @@
 //! divergence, the energy and the Newton solve's work, and the invariants whose breach
 //! fails the run (docs/stress.md says which and why).
 
-use crate::bench::workloads::{SplitMix64, in_ball};
+use crate::workloads::{SplitMix64, in_ball};
 use serde::Serialize;
 use sinew_labcheck::reference::springs::{
     combine, displacement_l1, gravity_energy, spring_energy, total_energy, velocity_change_energy,
@@ -419,7 +419,8 @@ pub fn run_case(case: &ClothCase) -> ClothOutcome {
         }
     };
     let start = system.energies();
-    let energy_scale = (start.kinetic + start.spring + start.gravity.abs()).max(f64::MIN_POSITIVE);
+    // The scene runner's scale (docs/scenes.md, "Energy rise").
+    let energy_scale = start.scale();
     let mut sim =
         match Simulation::new(system, Integrator::BackwardEuler(NewtonSettings::default())) {
             Ok(s) => s,

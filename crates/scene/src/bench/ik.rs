@@ -6,10 +6,10 @@
 //! compared and the largest disagreement is a metric). Time is per frame (W1) or per
 //! solve (W2) and covers the solves only.
 
-use super::workloads::{
+use super::{Metric, Metrics, Plan, Record, Section, Timing, measure, sci};
+use crate::workloads::{
     w1_skeleton, w1_targets, w2_skeleton, w2_targets, w7_ball, w7_feasible, w7_skeleton,
 };
-use super::{Plan, Record, Section, measure, sci};
 use serde_json::json;
 use sinew_ik::SolverOptions;
 use sinew_math::{DQuat, DVec3};
@@ -140,24 +140,20 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
     let w2_targets = w2_targets(if plan.quick { 500 } else { 10_000 });
     for (name, mut solver) in solvers()? {
         for s in settings(plan) {
-            records.push(w1_record(
-                plan,
+            let mut w1_subject = Subject {
                 name,
-                solver.as_mut(),
-                &w1,
-                &w1_chain,
-                &w1_targets,
-                &s,
-            )?);
-            records.push(w2_record(
-                plan,
-                name,
-                solver.as_mut(),
-                &w2,
-                &w2_chain,
-                &w2_targets,
-                &s,
-            )?);
+                solver: solver.as_mut(),
+                skeleton: &w1,
+                chain: &w1_chain,
+                settings: &s,
+            };
+            records.push(w1_record(plan, &mut w1_subject, &w1_targets)?);
+            let mut w2_subject = Subject {
+                skeleton: &w2,
+                chain: &w2_chain,
+                ..w1_subject
+            };
+            records.push(w2_record(plan, &mut w2_subject, &w2_targets)?);
         }
         eprintln!("  {name} done");
     }
@@ -172,138 +168,162 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
             continue;
         }
         let s = SolveSettings::default();
-        records.push(w7_record(
-            plan,
+        let mut subject = Subject {
             name,
-            solver.as_mut(),
-            &w7,
-            &w7_chain,
-            &feasible,
-            &ball,
-            &s,
-        )?);
+            solver: solver.as_mut(),
+            skeleton: &w7,
+            chain: &w7_chain,
+            settings: &s,
+        };
+        records.push(w7_record(plan, &mut subject, &feasible, &ball)?);
     }
     Ok(records)
 }
 
-/// W7: cold solves of the feasible targets (timed, the headline error), and the ball's
-/// points, reported separately (stop reasons, errors; untimed).
-#[allow(clippy::too_many_arguments)]
-fn w7_record(
-    plan: &Plan,
-    name: &str,
-    solver: &mut dyn IkSolver,
-    skeleton: &Skeleton,
-    chain: &Chain,
-    feasible: &[DVec3],
-    ball: &[DVec3],
-    s: &SolveSettings,
-) -> Result<Record, String> {
-    let checked = solve_all(solver, skeleton, chain, feasible, s, false, true)?;
-    let (time, _) = measure(plan, plan.repeats, feasible.len(), || {
-        solve_all(solver, skeleton, chain, feasible, s, false, false)
-    });
-    let outside = solve_all(solver, skeleton, chain, ball, s, false, true)?;
-    let within = checked.errors.iter().filter(|&&e| e <= 1e-6).count();
-    let error_max = checked.errors.iter().copied().fold(0.0, f64::max);
-    let mut metrics = serde_json::Map::new();
-    metrics.insert("solves".into(), json!(feasible.len()));
-    metrics.insert("feasible_within_1e-6".into(), json!(within));
-    metrics.insert(
-        "feasible_within_share".into(),
-        json!(within as f64 / feasible.len() as f64),
-    );
-    metrics.insert("feasible_error_mean".into(), json!(mean(&checked.errors)));
-    metrics.insert("feasible_stops".into(), json!(checked.stops));
-    metrics.insert(
-        "limit_violation_max".into(),
-        json!(checked.limit_violation_max.max(outside.limit_violation_max)),
-    );
-    metrics.insert("ball_solves".into(), json!(ball.len()));
-    metrics.insert("ball_error_mean".into(), json!(mean(&outside.errors)));
-    metrics.insert(
-        "ball_within_1e-6".into(),
-        json!(outside.errors.iter().filter(|&&e| e <= 1e-6).count()),
-    );
-    metrics.insert("ball_stops".into(), json!(outside.stops));
-    metrics.insert("iterations_total".into(), json!(checked.iterations));
-    metrics.insert(
-        "report_disagreement_max".into(),
-        json!(checked.report_disagreement_max),
-    );
-    Ok(Record {
-        section: Section::Ik,
-        workload: "W7".into(),
-        method: name.into(),
-        knobs: knobs(s),
-        unit: "solve",
-        time,
-        error: error_max,
-        error_name: "largest final distance over the feasible targets",
-        metrics,
-        note: String::new(),
-    })
+/// A solver configuration on a workload's chain: what every record of this section
+/// measures.
+struct Subject<'a> {
+    name: &'static str,
+    solver: &'a mut dyn IkSolver,
+    skeleton: &'a Skeleton,
+    chain: &'a Chain,
+    settings: &'a SolveSettings,
 }
 
-fn w1_record(
+impl Subject<'_> {
+    /// Solves every target (see [`solve_all`]).
+    fn solve(&mut self, targets: &[DVec3], warm: bool, check: bool) -> Result<Outcome, String> {
+        solve_all(
+            self.solver,
+            self.skeleton,
+            self.chain,
+            targets,
+            self.settings,
+            warm,
+            check,
+        )
+    }
+
+    /// The record of this configuration on `workload`.
+    fn record(
+        &self,
+        workload: &str,
+        unit: &'static str,
+        time: Timing,
+        (error, error_name): (f64, &'static str),
+        metrics: Metrics,
+    ) -> Record {
+        Record {
+            section: Section::Ik,
+            workload: workload.into(),
+            method: self.name.into(),
+            knobs: knobs(self.settings),
+            unit,
+            time,
+            error,
+            error_name,
+            metrics,
+            note: String::new(),
+        }
+    }
+}
+
+/// W7: cold solves of the feasible targets (timed, the headline error), and the ball's
+/// points, reported separately (stop reasons, errors; untimed).
+fn w7_record(
     plan: &Plan,
-    name: &str,
-    solver: &mut dyn IkSolver,
-    skeleton: &Skeleton,
-    chain: &Chain,
-    targets: &[DVec3],
-    s: &SolveSettings,
+    subject: &mut Subject,
+    feasible: &[DVec3],
+    ball: &[DVec3],
 ) -> Result<Record, String> {
-    let checked = solve_all(solver, skeleton, chain, targets, s, true, true)?;
+    let checked = subject.solve(feasible, false, true)?;
+    let (time, _) = measure(plan, plan.repeats, feasible.len(), || {
+        subject.solve(feasible, false, false)
+    });
+    let outside = subject.solve(ball, false, true)?;
+    let within = checked.errors.iter().filter(|&&e| e <= 1e-6).count();
+    let error_max = checked.errors.iter().copied().fold(0.0, f64::max);
+    let mut metrics = Metrics::new();
+    metrics.insert(Metric::Solves, json!(feasible.len()));
+    metrics.insert(Metric::FeasibleWithin1e6, json!(within));
+    metrics.insert(
+        Metric::FeasibleWithinShare,
+        json!(within as f64 / feasible.len() as f64),
+    );
+    metrics.insert(Metric::FeasibleErrorMean, json!(mean(&checked.errors)));
+    metrics.insert(Metric::FeasibleStops, json!(checked.stops));
+    metrics.insert(
+        Metric::LimitViolationMax,
+        json!(checked.limit_violation_max.max(outside.limit_violation_max)),
+    );
+    metrics.insert(Metric::BallSolves, json!(ball.len()));
+    metrics.insert(Metric::BallErrorMean, json!(mean(&outside.errors)));
+    metrics.insert(
+        Metric::BallWithin1e6,
+        json!(outside.errors.iter().filter(|&&e| e <= 1e-6).count()),
+    );
+    metrics.insert(Metric::BallStops, json!(outside.stops));
+    metrics.insert(Metric::IterationsTotal, json!(checked.iterations));
+    checks_into(&mut metrics, &checked, false);
+    Ok(subject.record(
+        "W7",
+        "solve",
+        time,
+        (
+            error_max,
+            "largest final distance over the feasible targets",
+        ),
+        metrics,
+    ))
+}
+
+/// The iteration count and the report's agreement with forward kinematics (and, with
+/// `bones`, the bone-length error) every IK record carries.
+fn checks_into(metrics: &mut Metrics, checked: &Outcome, bones: bool) {
+    if bones {
+        metrics.insert(
+            Metric::BoneLengthErrorMax,
+            json!(checked.bone_length_error_max),
+        );
+    }
+    metrics.insert(
+        Metric::ReportDisagreementMax,
+        json!(checked.report_disagreement_max),
+    );
+}
+
+fn w1_record(plan: &Plan, subject: &mut Subject, targets: &[DVec3]) -> Result<Record, String> {
+    let checked = subject.solve(targets, true, true)?;
     let (time, timed) = measure(plan, plan.repeats, targets.len(), || {
-        solve_all(solver, skeleton, chain, targets, s, true, false)
+        subject.solve(targets, true, false)
     });
     let timed = timed?;
     let errors = &checked.errors;
     let error_max = errors.iter().copied().fold(0.0, f64::max);
     let within = errors.iter().filter(|&&e| e <= 1e-6).count();
-    let mut metrics = serde_json::Map::new();
-    metrics.insert("frames".into(), json!(targets.len()));
-    metrics.insert("error_mean".into(), json!(mean(errors)));
-    metrics.insert("error_max".into(), json!(error_max));
-    metrics.insert("frames_within_1e-6".into(), json!(within));
-    metrics.insert("iterations_total".into(), json!(timed.iterations));
-    metrics.insert(
-        "bone_length_error_max".into(),
-        json!(checked.bone_length_error_max),
-    );
-    metrics.insert(
-        "report_disagreement_max".into(),
-        json!(checked.report_disagreement_max),
-    );
-    Ok(Record {
-        section: Section::Ik,
-        workload: "W1".into(),
-        method: name.into(),
-        knobs: knobs(s),
-        unit: "frame",
+    let mut metrics = Metrics::new();
+    metrics.insert(Metric::Frames, json!(targets.len()));
+    metrics.insert(Metric::ErrorMean, json!(mean(errors)));
+    metrics.insert(Metric::ErrorMax, json!(error_max));
+    metrics.insert(Metric::FramesWithin1e6, json!(within));
+    // Warm-started tracking: the timed run's iterations are the ones that count.
+    metrics.insert(Metric::IterationsTotal, json!(timed.iterations));
+    checks_into(&mut metrics, &checked, true);
+    Ok(subject.record(
+        "W1",
+        "frame",
         time,
-        error: error_max,
-        error_name: "largest final distance over the 500 frames",
+        (error_max, "largest final distance over the 500 frames"),
         metrics,
-        note: String::new(),
-    })
+    ))
 }
 
-fn w2_record(
-    plan: &Plan,
-    name: &str,
-    solver: &mut dyn IkSolver,
-    skeleton: &Skeleton,
-    chain: &Chain,
-    targets: &[DVec3],
-    s: &SolveSettings,
-) -> Result<Record, String> {
-    let checked = solve_all(solver, skeleton, chain, targets, s, false, true)?;
+fn w2_record(plan: &Plan, subject: &mut Subject, targets: &[DVec3]) -> Result<Record, String> {
+    let checked = subject.solve(targets, false, true)?;
     let (time, _) = measure(plan, plan.repeats, targets.len(), || {
-        solve_all(solver, skeleton, chain, targets, s, false, false)
+        subject.solve(targets, false, false)
     });
-    let reach = chain.reach();
+    let reach = subject.chain.reach();
     let root = DVec3::ZERO;
     let (mut reachable, mut unreachable_excess_max) = (Vec::new(), 0.0_f64);
     for (target, &error) in targets.iter().zip(&checked.errors) {
@@ -317,37 +337,25 @@ fn w2_record(
     }
     let within = reachable.iter().filter(|&&e| e <= 1e-6).count();
     let reachable_max = reachable.iter().copied().fold(0.0, f64::max);
-    let mut metrics = serde_json::Map::new();
-    metrics.insert("solves".into(), json!(targets.len()));
-    metrics.insert("reachable".into(), json!(reachable.len()));
-    metrics.insert("reachable_within_1e-6".into(), json!(within));
-    metrics.insert("reachable_error_mean".into(), json!(mean(&reachable)));
-    metrics.insert("reachable_error_max".into(), json!(reachable_max));
-    metrics.insert(
-        "unreachable_excess_max".into(),
-        json!(unreachable_excess_max),
-    );
-    metrics.insert(
-        "bone_length_error_max".into(),
-        json!(checked.bone_length_error_max),
-    );
-    metrics.insert("iterations_total".into(), json!(checked.iterations));
-    metrics.insert(
-        "report_disagreement_max".into(),
-        json!(checked.report_disagreement_max),
-    );
-    Ok(Record {
-        section: Section::Ik,
-        workload: "W2".into(),
-        method: name.into(),
-        knobs: knobs(s),
-        unit: "solve",
+    let mut metrics = Metrics::new();
+    metrics.insert(Metric::Solves, json!(targets.len()));
+    metrics.insert(Metric::Reachable, json!(reachable.len()));
+    metrics.insert(Metric::ReachableWithin1e6, json!(within));
+    metrics.insert(Metric::ReachableErrorMean, json!(mean(&reachable)));
+    metrics.insert(Metric::ReachableErrorMax, json!(reachable_max));
+    metrics.insert(Metric::UnreachableExcessMax, json!(unreachable_excess_max));
+    metrics.insert(Metric::IterationsTotal, json!(checked.iterations));
+    checks_into(&mut metrics, &checked, true);
+    Ok(subject.record(
+        "W2",
+        "solve",
         time,
-        error: reachable_max,
-        error_name: "largest final distance over the reachable targets",
+        (
+            reachable_max,
+            "largest final distance over the reachable targets",
+        ),
         metrics,
-        note: String::new(),
-    })
+    ))
 }
 
 fn mean(v: &[f64]) -> f64 {

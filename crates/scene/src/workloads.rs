@@ -1,12 +1,23 @@
-//! The IK workloads of docs/workloads.md (W1 flower tracking, W2 random cold
-//! solves), built in one place so every figure of `cargo xtask bench` (and anything else
-//! in xtask that needs them) uses the same chains and the same targets.
+//! The reference workloads of docs/workloads.md that are built in code, in one place,
+//! so every figure of the benchmark and the stress grid uses the same chains, targets
+//! and cloths:
+//!
+//! - W1 (the lab flower tracked by the lab chain): [`w1_skeleton`], [`w1_targets`];
+//! - W2 (10 000 seeded cold solves of a 10-joint chain): [`w2_skeleton`], [`w2_targets`];
+//! - W4, W5, W6 (the lab cloth, stiff, and 101 x 101): [`cloth`];
+//! - W7 (the human arm with joint limits): [`w7_skeleton`], [`w7_feasible`], [`w7_ball`].
+//!
+//! The others are scene files: W3 (a target out of reach) is `scenes/ik-too-far.ron`;
+//! the contact workloads C1, C2 and C3 are `scenes/cloth-ground.ron`,
+//! `scenes/cloth-drape-sphere.ron` and `scenes/cloth-rotating-sphere.ron`. W8 (a
+//! humanoid with five effectors) and C4, C5 (self-contact) have no code here yet.
 //!
 //! The W2 targets come from splitmix64 with the seed of sinew-ik-fabrik's tests and
 //! benchmarks (`W2_SEED`), which gives 8 554 reachable targets of 10 000.
 
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::{GlobalPose, Skeleton};
+use sinew_spring_sim::{ClothGrid, SpringSystem};
 use std::f64::consts::TAU;
 
 /// W1: 8 joints, root offset (0, 0.5, 0), joints 1..7 offset (0.15, 0, 0). Reach 1.05.
@@ -91,6 +102,53 @@ pub fn w7_feasible(skeleton: &Skeleton, count: usize) -> Result<Vec<(DVec3, DQua
 pub fn w7_ball(count: usize) -> Vec<DVec3> {
     let mut rng = SplitMix64(W7_SEED + 1);
     (0..count).map(|_| in_ball(&mut rng, 0.63)).collect()
+}
+
+/// A cloth workload: a system, a time step and a step count.
+pub struct ClothWorkload {
+    /// The workload and its variant, e.g. "W5 k=1e6".
+    pub name: &'static str,
+    /// The system at the start.
+    pub system: SpringSystem,
+    /// Time step in seconds.
+    pub dt: f64,
+    /// Steps to take.
+    pub steps: usize,
+}
+
+/// W4 (the lab cloth, damping 0 and 0.2), W5 (k = 1e4 and 1e6) and W6 (101 x 101),
+/// W5 and W6 with the lab's damping 0.2 as in their scenes; `quick` gives the reduced
+/// set a smoke run uses (W4 with damping 0.2 and W5 with k = 1e6, a tenth of the steps).
+pub fn cloth(quick: bool) -> Result<Vec<ClothWorkload>, String> {
+    // (name, particles per side, spacing, damping, stiffness, dt, steps).
+    let specs: &[(&'static str, usize, f64, f64, f64, f64, usize)] = if quick {
+        &[
+            ("W4 d=0.2", 11, 0.2, 0.2, 100.0, 1.0 / 60.0, 60),
+            ("W5 k=1e6", 11, 0.2, 0.2, 1e6, 1.0 / 30.0, 30),
+        ]
+    } else {
+        &[
+            ("W4 d=0", 11, 0.2, 0.0, 100.0, 1.0 / 60.0, 600),
+            ("W4 d=0.2", 11, 0.2, 0.2, 100.0, 1.0 / 60.0, 600),
+            ("W5 k=1e4", 11, 0.2, 0.2, 1e4, 1.0 / 30.0, 300),
+            ("W5 k=1e6", 11, 0.2, 0.2, 1e6, 1.0 / 30.0, 300),
+            ("W6", 101, 0.02, 0.2, 100.0, 1.0 / 60.0, 30),
+        ]
+    };
+    specs
+        .iter()
+        .map(|&(name, size, spacing, damping, stiffness, dt, steps)| {
+            let mut grid = ClothGrid::lab_sized(size, spacing, damping);
+            grid.material.stiffness = stiffness;
+            let system = grid.build().map_err(|e| format!("{name}: {e}"))?;
+            Ok(ClothWorkload {
+                name,
+                system,
+                dt,
+                steps,
+            })
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -2,18 +2,15 @@
 //! `target/render-demo/` (or the folder given as the first argument), so that the
 //! rendering can be looked at without running a scene:
 //!
-//! `cargo run -p xtask --example render_demo [OUT_DIR]`
+//! `cargo run -p sinew-viz --example render_demo [OUT_DIR]`
 //!
 //! The IK chain and the cloth motion here are faked (interpolated, not solved or
 //! simulated): this is a picture test, not a physics one. Each GIF is also decoded back
 //! and its first, middle and last frames written as PNG files, to check the animation
 //! as it will be seen.
 
-#[path = "../src/render/mod.rs"]
-mod render;
-
-use render::{ClothFrame, IkFrame, Series, View};
 use sinew_math::DVec3;
+use sinew_viz::render::{self, ClothFrame, IkFrame, Series, View};
 use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -158,7 +155,7 @@ fn report(what: &str, path: &Path, started: Instant, result: Result<(), String>)
 
 fn main() {
     let out: PathBuf = std::env::args_os().nth(1).map_or_else(
-        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/render-demo"),
+        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target/render-demo"),
         PathBuf::from,
     );
     std::fs::create_dir_all(&out).expect("output folder");

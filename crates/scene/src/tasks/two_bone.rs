@@ -5,10 +5,10 @@
 //! the reported error against forward kinematics of the result.
 
 use super::fk::bone_length_error_max;
-use super::{Metrics, RunContext, TaskOutput, TaskSpec, median, median_time_ns};
+use super::{RunContext, TaskOutput, TaskSpec, median, median_time_ns};
+use crate::results::{Csv, Pictures, TaskMetrics, TwoBoneMetrics};
 use crate::spec::SkeletonSpec;
 use serde::Deserialize;
-use serde_json::json;
 use sinew_ik_two_bone::{Hinge, TwoBoneIk};
 use sinew_math::{DVec3, try_unit};
 use sinew_skeleton::limits::{self, JointLimit};
@@ -269,7 +269,7 @@ impl TaskSpec for TwoBoneTask {
             ));
             progress.inc();
         }
-        ctx.write_output(&self.name, "frames.csv", &csv)?;
+        drop(progress);
 
         if within_tol < reached {
             failures.push(format!(
@@ -295,19 +295,20 @@ impl TaskSpec for TwoBoneTask {
         }
 
         let time_ns = median(&mut times);
-        let mut metrics = Metrics::new();
-        metrics.insert("frames".into(), json!(points.len()));
-        metrics.insert("reached".into(), json!(reached));
-        metrics.insert("within_tol".into(), json!(within_tol));
-        metrics.insert("error_max".into(), json!(error_max));
-        metrics.insert("reached_error_max".into(), json!(reached_error_max));
-        metrics.insert("report_fk_diff_max".into(), json!(report_fk_diff));
-        metrics.insert("limit_violation_max".into(), json!(limit_violation_max));
-        metrics.insert("wrong_side_max".into(), json!(wrong_side_max));
-        metrics.insert("bone_length_error_max".into(), json!(bone_error_max));
-        metrics.insert("bend_angle_min".into(), json!(bend_min));
-        metrics.insert("bend_angle_max".into(), json!(bend_max));
-        metrics.insert("time_per_solve_ns_median".into(), json!(time_ns));
+        let metrics = TwoBoneMetrics {
+            frames: points.len(),
+            reached,
+            within_tol,
+            error_max,
+            reached_error_max,
+            report_fk_diff_max: report_fk_diff,
+            limit_violation_max,
+            wrong_side_max,
+            bone_length_error_max: bone_error_max,
+            bend_angle_min: bend_min,
+            bend_angle_max: bend_max,
+            time_per_solve_ns_median: time_ns,
+        };
         let headline = format!(
             "two-bone {} frames: {reached} reached, error max {error_max:.1e}, bend {:.1}..{:.1} deg, {time_ns:.0} ns/solve",
             points.len(),
@@ -315,9 +316,14 @@ impl TaskSpec for TwoBoneTask {
             bend_max.to_degrees()
         );
         Ok(TaskOutput {
-            metrics,
+            metrics: TaskMetrics::TwoBone(metrics),
             headline,
             failures,
+            table: Csv {
+                suffix: "frames.csv",
+                text: csv,
+            },
+            pictures: Pictures::None,
         })
     }
 }

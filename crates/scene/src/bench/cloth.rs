@@ -12,56 +12,20 @@
 //! Stiff runs are ranked (plotted) by the 1 s figure: after 10 s a stiff cloth's motion is
 //! chaotic. W6 runs 30 steps (0.5 s), so its figures are at 0.5 s.
 
-use super::{Plan, Record, Section, sci, timing_of};
+use super::{Metric, Metrics, Plan, Record, Section, sci, timing_of};
 use serde_json::json;
 use sinew_math::DVec3;
 use sinew_spring_sim::DIVERGENCE_RADIUS;
 use sinew_spring_sim::StabilityBound;
 use sinew_spring_sim::{
-    AutoSettings, ClothGrid, Integrator, LinearSolverChoice, NewtonSettings, Simulation,
-    SpringSystem, StepStop,
+    AutoSettings, Integrator, LinearSolverChoice, NewtonSettings, Simulation, StepStop,
 };
 use std::time::Instant;
 
-/// A cloth workload.
-struct Workload {
-    name: &'static str,
-    system: SpringSystem,
-    dt: f64,
-    steps: usize,
-}
+use crate::workloads::ClothWorkload as Workload;
 
 fn workloads(plan: &Plan) -> Result<Vec<Workload>, String> {
-    // (name, particles per side, spacing, damping, stiffness, dt, steps): W4, W5 and W6
-    // of docs/workloads.md (W5 and W6 with the lab's damping 0.2, as in their scenes).
-    let specs: &[(&'static str, usize, f64, f64, f64, f64, usize)] = if plan.quick {
-        &[
-            ("W4 d=0.2", 11, 0.2, 0.2, 100.0, 1.0 / 60.0, 60),
-            ("W5 k=1e6", 11, 0.2, 0.2, 1e6, 1.0 / 30.0, 30),
-        ]
-    } else {
-        &[
-            ("W4 d=0", 11, 0.2, 0.0, 100.0, 1.0 / 60.0, 600),
-            ("W4 d=0.2", 11, 0.2, 0.2, 100.0, 1.0 / 60.0, 600),
-            ("W5 k=1e4", 11, 0.2, 0.2, 1e4, 1.0 / 30.0, 300),
-            ("W5 k=1e6", 11, 0.2, 0.2, 1e6, 1.0 / 30.0, 300),
-            ("W6", 101, 0.02, 0.2, 100.0, 1.0 / 60.0, 30),
-        ]
-    };
-    specs
-        .iter()
-        .map(|&(name, size, spacing, damping, stiffness, dt, steps)| {
-            let mut grid = ClothGrid::lab_sized(size, spacing).with_damping(damping);
-            grid.material.stiffness = stiffness;
-            let system = grid.build().map_err(|e| format!("{name}: {e}"))?;
-            Ok(Workload {
-                name,
-                system,
-                dt,
-                steps,
-            })
-        })
-        .collect()
+    crate::workloads::cloth(plan.quick)
 }
 
 fn newton(tolerance: f64, linear_solver: LinearSolverChoice) -> NewtonSettings {
@@ -173,8 +137,8 @@ fn one_second_step(w: &Workload) -> Option<usize> {
 fn simulate(w: &Workload, integrator: Integrator) -> Result<Run, String> {
     let mut sim = Simulation::new(w.system.clone(), integrator).map_err(|e| e.to_string())?;
     let one_second = one_second_step(w);
-    let energy_start = sim.system().energies().total();
-    let scale = energy_start.abs().max(f64::MIN_POSITIVE);
+    // The scene runner's scale (docs/scenes.md, "Energy rise").
+    let scale = sim.system().energies().scale();
     let mut run = Run {
         at_one_second: None,
         end: Vec::new(),
@@ -332,35 +296,29 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
             let time = timing_of(&mut times);
             let (solver_1s, solver_end) = errors(&first, &be_ref, w.steps);
             let (true_1s, true_end) = errors(&first, &truth, w.steps);
-            let mut metrics = serde_json::Map::new();
-            metrics.insert("dt".into(), json!(w.dt));
-            metrics.insert("steps".into(), json!(w.steps));
-            metrics.insert("steps_done".into(), json!(first.steps_done));
+            let mut metrics = Metrics::new();
+            metrics.insert(Metric::Dt, json!(w.dt));
+            metrics.insert(Metric::Steps, json!(w.steps));
+            metrics.insert(Metric::StepsDone, json!(first.steps_done));
+            metrics.insert(Metric::TimePerSimulatedSecondS, json!(time.median / w.dt));
+            metrics.insert(Metric::TrueMotionError1s, json!(true_1s));
+            metrics.insert(Metric::TrueMotionErrorEnd, json!(true_end));
+            metrics.insert(Metric::SolverError1s, json!(solver_1s));
+            metrics.insert(Metric::SolverErrorEnd, json!(solver_end));
+            metrics.insert(Metric::TrueMotionCheck1s, json!(truth_check_1s));
+            metrics.insert(Metric::TrueMotionCheckEnd, json!(truth_check_end));
+            metrics.insert(Metric::StabilityBoundSubsteps, json!(bound));
+            metrics.insert(Metric::IterationsTotal, json!(first.iterations_total));
+            metrics.insert(Metric::IterationsMax, json!(first.iterations_max));
+            metrics.insert(Metric::SubstepsLastStep, json!(first.substeps_last));
+            metrics.insert(Metric::Backtracks, json!(first.backtracks));
+            metrics.insert(Metric::UnconvergedSteps, json!(first.unconverged_steps));
             metrics.insert(
-                "time_per_simulated_second_s".into(),
-                json!(time.median / w.dt),
-            );
-            metrics.insert("true_motion_error_1s".into(), json!(true_1s));
-            metrics.insert("true_motion_error_end".into(), json!(true_end));
-            metrics.insert("solver_error_1s".into(), json!(solver_1s));
-            metrics.insert("solver_error_end".into(), json!(solver_end));
-            metrics.insert("true_motion_check_1s".into(), json!(truth_check_1s));
-            metrics.insert("true_motion_check_end".into(), json!(truth_check_end));
-            metrics.insert("stability_bound_substeps".into(), json!(bound));
-            metrics.insert("iterations_total".into(), json!(first.iterations_total));
-            metrics.insert("iterations_max".into(), json!(first.iterations_max));
-            metrics.insert("substeps_last_step".into(), json!(first.substeps_last));
-            metrics.insert("backtracks".into(), json!(first.backtracks));
-            metrics.insert("unconverged_steps".into(), json!(first.unconverged_steps));
-            metrics.insert(
-                "residual_over_tolerance_max".into(),
+                Metric::ResidualOverToleranceMax,
                 json!(first.residual_over_tolerance_max),
             );
-            metrics.insert(
-                "energy_increase_max".into(),
-                json!(first.energy_increase_max),
-            );
-            metrics.insert("diverged".into(), json!(first.stopped_by.is_some()));
+            metrics.insert(Metric::EnergyIncreaseMax, json!(first.energy_increase_max));
+            metrics.insert(Metric::Diverged, json!(first.stopped_by.is_some()));
             let (error, error_name) = match true_1s {
                 Some(e) => (e, "distance from the true motion after 1 s"),
                 None => (true_end, "distance from the true motion at the end (0.5 s)"),

@@ -1,10 +1,10 @@
 //! The `Fk` task: forward kinematics of a skeleton in a pose, with optional expected
 //! joint positions (so a scene doubles as a data-driven test).
 
-use super::{Metrics, RunContext, TaskOutput, TaskSpec, max_distance, median_time_ns};
+use super::{RunContext, TaskOutput, TaskSpec, max_distance, median_time_ns};
+use crate::results::{Csv, FkMetrics, Pictures, TaskMetrics};
 use crate::spec::{JointRotation, SkeletonSpec, build_pose};
 use serde::Deserialize;
-use serde_json::json;
 use sinew_math::DVec3;
 use sinew_skeleton::{GlobalPose, Skeleton};
 
@@ -78,7 +78,7 @@ impl TaskSpec for FkTask {
         Ok(())
     }
 
-    fn run(&self, ctx: &RunContext) -> Result<TaskOutput, String> {
+    fn run(&self, _ctx: &RunContext) -> Result<TaskOutput, String> {
         let skeleton = self.skeleton.build()?;
         let pose = build_pose(&skeleton, &self.pose)?;
         let mut global = GlobalPose::new();
@@ -132,19 +132,16 @@ impl TaskSpec for FkTask {
         for (i, p) in global.positions.iter().enumerate() {
             csv.push_str(&format!("{i},{},{},{}\n", p.x, p.y, p.z));
         }
-        ctx.write_output(&self.name, "positions.csv", &csv)?;
 
         let effector = global.positions[skeleton.len() - 1];
-        let mut metrics = Metrics::new();
-        metrics.insert("joints".into(), json!(skeleton.len()));
-        metrics.insert(
-            "effector".into(),
-            json!([effector.x, effector.y, effector.z]),
-        );
-        metrics.insert("bone_length_error_max".into(), json!(bone_error));
-        metrics.insert("fk_from_diff_max".into(), json!(incremental_diff));
-        metrics.insert("expect_error_max".into(), json!(expect_error_max));
-        metrics.insert("time_ns_median".into(), json!(time_ns));
+        let metrics = FkMetrics {
+            joints: skeleton.len(),
+            effector: effector.to_array(),
+            bone_length_error_max: bone_error,
+            fk_from_diff_max: incremental_diff,
+            expect_error_max,
+            time_ns_median: time_ns,
+        };
         let headline = format!(
             "{} joints, effector ({:.4}, {:.4}, {:.4}), bone length error {:.1e}",
             skeleton.len(),
@@ -154,9 +151,14 @@ impl TaskSpec for FkTask {
             bone_error
         );
         Ok(TaskOutput {
-            metrics,
+            metrics: TaskMetrics::Fk(metrics),
             headline,
             failures,
+            table: Csv {
+                suffix: "positions.csv",
+                text: csv,
+            },
+            pictures: Pictures::None,
         })
     }
 }

@@ -13,7 +13,7 @@ use super::canvas::ink;
 use super::canvas::{Canvas, Px};
 use super::{Mark, View, axis_gizmo, draw_pin, format_strain, legend};
 use sinew_math::DVec3;
-use sinew_spring_sim::contact::Shape;
+use sinew_scene::results::Shape;
 use std::path::Path;
 
 /// One frame of a cloth run: every particle's world position.

@@ -2,11 +2,10 @@
 //! arc length) and measure how even they are and how long the curve is (the lab's
 //! Sub-Task 4.1, done right).
 
-use super::{Metrics, RunContext, TaskOutput, TaskSpec, median_time_ns};
-use crate::render;
+use super::{RunContext, TaskOutput, TaskSpec, median_time_ns};
+use crate::results::{Csv, CurveMetrics, CurvePictures, Pictures, TaskMetrics};
 use crate::spec::build_sampled;
 use serde::Deserialize;
-use serde_json::json;
 use sinew_curves::{Curve, CurveSpec, Sampling};
 
 /// Scene fields of a `Curve` task.
@@ -79,19 +78,17 @@ impl TaskSpec for CurveTask {
         for (i, (p, t)) in samples.points.iter().zip(&samples.params).enumerate() {
             csv.push_str(&format!("{i},{t},{},{},{}\n", p.x, p.y, p.z));
         }
-        ctx.write_output(&self.name, "points.csv", &csv)?;
-
-        if ctx.render {
+        let pictures = if ctx.keep_frames {
             // Beyond about 100 points the dots merge into a line and the bunching no
             // longer shows, so the picture draws at most that many (its caption says how
             // many); the metrics are for all of them.
-            draw_comparison(
-                ctx,
-                &self.name,
+            Pictures::Curve(comparison(
                 &curve,
                 samples.points.len().min(MAX_DRAWN_POINTS),
-            )?;
-        }
+            )?)
+        } else {
+            Pictures::None
+        };
 
         let mut failures = Vec::new();
         if let (Some(limit), Some(dev)) = (self.expect_spacing_rel_dev_max, arc)
@@ -101,17 +98,15 @@ impl TaskSpec for CurveTask {
                 "arc spacing deviation {dev:.3e} > expected at most {limit:.1e}"
             ));
         }
-        let mut metrics = Metrics::new();
-        metrics.insert("sampling".into(), json!(sampling_name(&sampling)));
-        metrics.insert("points".into(), json!(samples.points.len()));
-        metrics.insert("length".into(), json!(length));
-        metrics.insert("length_error".into(), json!(length_error));
-        metrics.insert("spacing_rel_dev_max".into(), json!(arc));
-        metrics.insert(
-            "chord_spacing_rel_dev_max".into(),
-            json!(samples.chord.rel_dev_max),
-        );
-        metrics.insert("time_ns".into(), json!(time_ns));
+        let metrics = CurveMetrics {
+            sampling: sampling_name(&sampling),
+            points: samples.points.len(),
+            length,
+            length_error,
+            spacing_rel_dev_max: arc,
+            chord_spacing_rel_dev_max: samples.chord.rel_dev_max,
+            time_ns,
+        };
         let headline = format!(
             "{} points, spacing deviation {}, length error {}",
             samples.points.len(),
@@ -119,9 +114,14 @@ impl TaskSpec for CurveTask {
             length_error.map_or("n/a".into(), |e| format!("{e:.1e}")),
         );
         Ok(TaskOutput {
-            metrics,
+            metrics: TaskMetrics::Curve(metrics),
             headline,
             failures,
+            table: Csv {
+                suffix: "points.csv",
+                text: csv,
+            },
+            pictures,
         })
     }
 }
@@ -137,9 +137,9 @@ fn sampling_name(s: &Sampling) -> &'static str {
 /// Pictures show at most this many points (more would be a solid line).
 const MAX_DRAWN_POINTS: usize = 100;
 
-/// The Sub-Task 4.1 picture: `n` points at uniform parameter steps next to `n` points
-/// evenly spaced by arc length, on the curve's line.
-fn draw_comparison(ctx: &RunContext, name: &str, curve: &Curve, n: usize) -> Result<(), String> {
+/// What the Sub-Task 4.1 picture shows: `n` points at uniform parameter steps next to
+/// `n` points evenly spaced by arc length, on the curve's line.
+fn comparison(curve: &Curve, n: usize) -> Result<CurvePictures, String> {
     let line = curve
         .sample(&Sampling::ArcLength {
             n: 2_000,
@@ -158,15 +158,9 @@ fn draw_comparison(ctx: &RunContext, name: &str, curve: &Curve, n: usize) -> Res
         })
         .map_err(|e| e.to_string())?
         .points;
-    let path = ctx.out_dir.join(format!("{name}.png"));
-    // Looking straight down (elevation pi/2) shows a curve in the plane y = 0, such as
-    // the lab flower, flat.
-    render::samples_png(
-        &path,
-        &line,
-        ("uniform parameter t", &uniform),
-        ("even arc length", &even),
-        0.0,
-        std::f64::consts::FRAC_PI_2,
-    )
+    Ok(CurvePictures {
+        line,
+        uniform,
+        even,
+    })
 }

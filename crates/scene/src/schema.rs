@@ -11,10 +11,10 @@ use serde::Deserialize;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-/// A scene file.
+/// A scene file as written.
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Scene {
+#[serde(rename = "Scene", deny_unknown_fields)]
+pub struct SceneFile {
     /// One line saying what the scene shows (for `--list` and the summary).
     pub description: String,
     /// The tasks, run in order.
@@ -49,32 +49,48 @@ impl Task {
     }
 }
 
-/// A scene read from disk and checked.
-pub struct LoadedScene {
+/// A scene read and checked: every task's values are valid and the task names are
+/// unique. [`Scene::run`] runs it.
+#[derive(Debug)]
+pub struct Scene {
     /// The file it came from.
     pub path: PathBuf,
     /// The scene's name: the file stem.
     pub name: String,
-    /// Its contents.
-    pub scene: Scene,
+    /// One line saying what the scene shows.
+    pub description: String,
+    /// The tasks, run in order.
+    pub tasks: Vec<Task>,
 }
 
 /// Why a scene could not be loaded.
 #[derive(Debug)]
 pub enum SceneError {
     /// The file could not be read.
-    Io { path: PathBuf, message: String },
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The operating system's message.
+        message: String,
+    },
     /// The file is not a valid scene (syntax or schema); with its position.
     Parse {
+        /// The file.
         path: PathBuf,
+        /// The line of the offending text, from 1.
         line: usize,
+        /// The column of the offending text, from 1.
         col: usize,
+        /// What was expected (with the nearest known name for a misspelt one).
         message: String,
     },
     /// A value is out of range or inconsistent.
     Invalid {
+        /// The file.
         path: PathBuf,
+        /// The task's name.
         task: String,
+        /// The offending item and what is allowed.
         message: String,
     },
 }
@@ -98,6 +114,8 @@ impl fmt::Display for SceneError {
     }
 }
 
+impl std::error::Error for SceneError {}
+
 /// The scene's name: the file stem.
 pub fn scene_name(path: &Path) -> String {
     path.file_stem()
@@ -105,48 +123,60 @@ pub fn scene_name(path: &Path) -> String {
         .unwrap_or_else(|| "scene".to_string())
 }
 
-/// Reads, parses and checks a scene file.
-pub fn load(path: &Path) -> Result<LoadedScene, SceneError> {
-    let text = std::fs::read_to_string(path).map_err(|e| SceneError::Io {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })?;
-    let scene = parse(path, &text)?;
-    for task in &scene.tasks {
-        let spec = task.spec();
-        spec.validate().map_err(|message| SceneError::Invalid {
+impl Scene {
+    /// Reads, parses and checks a scene file.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Scene, SceneError> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|e| SceneError::Io {
             path: path.to_path_buf(),
-            task: spec.name().to_string(),
-            message,
+            message: e.to_string(),
         })?;
+        Scene::from_text(path, &text)
     }
-    let mut seen = std::collections::HashSet::new();
-    for task in &scene.tasks {
-        let name = task.spec().name();
-        if !seen.insert(name) {
-            return Err(SceneError::Invalid {
+
+    /// Parses and checks scene text; `path` names it in errors and gives the scene's
+    /// name (its file stem).
+    pub fn from_text(path: impl AsRef<Path>, text: &str) -> Result<Scene, SceneError> {
+        let path = path.as_ref();
+        let file = parse(path, text)?;
+        for task in &file.tasks {
+            let spec = task.spec();
+            spec.validate().map_err(|message| SceneError::Invalid {
                 path: path.to_path_buf(),
-                task: name.to_string(),
-                message: "another task has the same name (names must be unique: they name outputs)"
-                    .into(),
-            });
+                task: spec.name().to_string(),
+                message,
+            })?;
         }
+        let mut seen = std::collections::HashSet::new();
+        for task in &file.tasks {
+            let name = task.spec().name();
+            if !seen.insert(name) {
+                return Err(SceneError::Invalid {
+                    path: path.to_path_buf(),
+                    task: name.to_string(),
+                    message:
+                        "another task has the same name (names must be unique: they name outputs)"
+                            .into(),
+                });
+            }
+        }
+        Ok(Scene {
+            path: path.to_path_buf(),
+            name: scene_name(path),
+            description: file.description,
+            tasks: file.tasks,
+        })
     }
-    Ok(LoadedScene {
-        path: path.to_path_buf(),
-        name: scene_name(path),
-        scene,
-    })
 }
 
 /// Parses scene text; errors carry the position and, for misspelt names, a suggestion.
-pub fn parse(path: &Path, text: &str) -> Result<Scene, SceneError> {
+pub fn parse(path: &Path, text: &str) -> Result<SceneFile, SceneError> {
     let options = ron::Options::default().with_default_extension(
         ron::extensions::Extensions::IMPLICIT_SOME
             | ron::extensions::Extensions::UNWRAP_VARIANT_NEWTYPES,
     );
     options
-        .from_str::<Scene>(text)
+        .from_str::<SceneFile>(text)
         .map_err(|e| SceneError::Parse {
             path: path.to_path_buf(),
             line: e.span.start.line,

@@ -3,11 +3,10 @@
 //! shared tracker (`sinew_skeleton::track`). Covers the lab's W1 flower, Q1 (a target out
 //! of reach), Q2 (a low iteration cap) and Q3 (a per-frame rotation limit).
 
-use super::{Metrics, RunContext, TaskOutput, TaskSpec, median};
-use crate::render;
+use super::{RunContext, TaskOutput, TaskSpec, median};
+use crate::results::{Csv, IkFrame, IkMetrics, IkPictures, Pictures, TaskMetrics};
 use crate::spec::{SkeletonSpec, build_sampled};
 use serde::Deserialize;
-use serde_json::json;
 use sinew_curves::{CurveSpec, Sampling};
 use sinew_ik::SolverOptions;
 use sinew_math::{DQuat, DVec3, angle_between};
@@ -216,7 +215,11 @@ impl TaskSpec for IkTask {
         // Pictures animate at most MAX_FRAMES frames (the last always among them); the
         // positions are copied outside the timed part.
         let frame_every = targets.len().div_ceil(MAX_FRAMES).max(1);
-        let mut shown: Vec<(Vec<DVec3>, DVec3)> = Vec::new();
+        // The interactive viewer gets a finer selection (it thins it to its own budget).
+        let track_every = targets.len().div_ceil(MAX_TRACK_FRAMES).max(1);
+        let mut track: Vec<IkFrame> = Vec::new();
+        let mut track_frames: Vec<usize> = Vec::new();
+        let mut shown: Vec<IkFrame> = Vec::new();
         let mut progress = ctx.progress(&self.name, targets.len());
         for (k, (&target, &goal)) in targets.iter().zip(&goals).enumerate() {
             let start = Instant::now();
@@ -230,13 +233,21 @@ impl TaskSpec for IkTask {
                 )
                 .map_err(|e| e.to_string())?;
             frame_ns.push(start.elapsed().as_secs_f64() * 1e9);
-            if ctx.render && (k % frame_every == 0 || k + 1 == targets.len()) {
-                let joints = chain
+            let last = k + 1 == targets.len();
+            if ctx.keep_frames && (k % track_every == 0 || last) {
+                let joints: Vec<DVec3> = chain
                     .joints()
                     .iter()
                     .map(|&j| global.positions[j])
                     .collect();
-                shown.push((joints, target));
+                if k % frame_every == 0 || last {
+                    shown.push(IkFrame {
+                        joints: joints.clone(),
+                        target,
+                    });
+                }
+                track.push(IkFrame { joints, target });
+                track_frames.push(k);
             }
             progress.inc();
         }
@@ -259,13 +270,20 @@ impl TaskSpec for IkTask {
                 r.clamped
             ));
         }
-        ctx.write_output(&self.name, "frames.csv", &csv)?;
-
-        if ctx.render {
-            progress.phase("rendering");
-            self.draw(ctx, &shown, &targets, records)?;
-        }
         drop(progress);
+        let pictures = if ctx.keep_frames {
+            Pictures::Ik(IkPictures {
+                solver: self.solver.label().to_string(),
+                frames: shown,
+                track,
+                track_frames,
+                targets: targets.clone(),
+                error: records.iter().map(|r| r.error).collect(),
+                iterations: records.iter().map(|r| r.iterations).collect(),
+            })
+        } else {
+            Pictures::None
+        };
 
         let out_of_reach = records
             .iter()
@@ -316,42 +334,25 @@ impl TaskSpec for IkTask {
                 summary.bone_length_error_max
             ));
         }
-        let mut metrics = Metrics::new();
-        metrics.insert("solver".into(), json!(self.solver.label()));
-        metrics.insert("frames".into(), json!(summary.frames));
-        metrics.insert("error_mean".into(), json!(summary.error_mean));
-        metrics.insert("error_max".into(), json!(summary.error_max));
-        metrics.insert("iterations_total".into(), json!(summary.iterations_total));
-        metrics.insert("converged_frames".into(), json!(summary.converged_frames));
-        metrics.insert("out_of_reach_frames".into(), json!(out_of_reach));
-        metrics.insert("within_tol".into(), json!(summary.converged_frames));
-        metrics.insert(
-            "limit_violation_max".into(),
-            json!(summary.limit_violation_max),
-        );
-        metrics.insert(
-            "rotation_error_max".into(),
-            json!(summary.rotation_error_max),
-        );
-        metrics.insert(
-            "local_minimum_frames".into(),
-            json!(summary.local_minimum_frames),
-        );
-        metrics.insert("clamped_frames".into(), json!(summary.clamped_frames));
-        metrics.insert(
-            "bone_length_error_max".into(),
-            json!(summary.bone_length_error_max),
-        );
-        metrics.insert(
-            "rotation_jump_max_rad".into(),
-            json!(summary.rotation_jump_max_rad),
-        );
-        metrics.insert(
-            "time_per_frame_ns_median".into(),
-            json!(median(&mut frame_ns)),
-        );
-        metrics.insert("final_bend_max_rad".into(), json!(bend_max));
-        metrics.insert("closed_form_gap".into(), json!(closed_form_gap));
+        let metrics = IkMetrics {
+            solver: self.solver.label().to_string(),
+            frames: summary.frames,
+            error_mean: summary.error_mean,
+            error_max: summary.error_max,
+            iterations_total: summary.iterations_total,
+            converged_frames: summary.converged_frames,
+            out_of_reach_frames: out_of_reach,
+            within_tol: summary.converged_frames,
+            limit_violation_max: summary.limit_violation_max,
+            rotation_error_max: summary.rotation_error_max,
+            local_minimum_frames: summary.local_minimum_frames,
+            clamped_frames: summary.clamped_frames,
+            bone_length_error_max: summary.bone_length_error_max,
+            rotation_jump_max_rad: summary.rotation_jump_max_rad,
+            time_per_frame_ns_median: median(&mut frame_ns),
+            final_bend_max_rad: bend_max,
+            closed_form_gap,
+        };
         let headline = format!(
             "{} {} frames: error mean {:.1e} max {:.1e}, {}/{} within tol, {} iterations",
             self.solver.label(),
@@ -363,80 +364,19 @@ impl TaskSpec for IkTask {
             summary.iterations_total
         );
         Ok(TaskOutput {
-            metrics,
+            metrics: TaskMetrics::Ik(metrics),
             headline,
             failures,
+            table: Csv {
+                suffix: "frames.csv",
+                text: csv,
+            },
+            pictures,
         })
     }
 }
 
 /// The most frames an IK animation shows.
 const MAX_FRAMES: usize = 120;
-
-impl IkTask {
-    /// The animation, the last frame with the whole target path, and plots of error and
-    /// iterations per frame.
-    fn draw(
-        &self,
-        ctx: &RunContext,
-        shown: &[(Vec<DVec3>, DVec3)],
-        targets: &[DVec3],
-        records: &[sinew_skeleton::track::FrameRecord],
-    ) -> Result<(), String> {
-        let out = |suffix: &str| ctx.out_dir.join(format!("{}.{suffix}", self.name));
-        let points = shown
-            .iter()
-            .flat_map(|(joints, _)| joints.iter().copied())
-            .chain(targets.iter().copied());
-        let view = render::View::fit(points, 0.6, 0.45, 480, 480);
-        let frames: Vec<render::IkFrame> = shown
-            .iter()
-            .map(|(joints, target)| render::IkFrame {
-                joints,
-                target: *target,
-            })
-            .collect();
-        if frames.len() > 1 {
-            render::ik_gif(&out("gif"), &view, &frames, targets, 20)?;
-        }
-        if let Some(last) = frames.last() {
-            render::ik_png(&out("png"), &view, last, targets)?;
-        }
-        if records.len() > 1 {
-            let error: Vec<(f64, f64)> = records
-                .iter()
-                .enumerate()
-                .map(|(k, r)| (k as f64, r.error))
-                .collect();
-            let iterations: Vec<(f64, f64)> = records
-                .iter()
-                .enumerate()
-                .map(|(k, r)| (k as f64, r.iterations as f64))
-                .collect();
-            let label = self.solver.label();
-            render::line_chart_svg(
-                &out("error.svg"),
-                &format!("{}: final error per frame", self.name),
-                "frame",
-                "effector to target distance",
-                &[render::Series {
-                    name: label,
-                    points: &error,
-                }],
-                true,
-            )?;
-            render::line_chart_svg(
-                &out("iterations.svg"),
-                &format!("{}: iterations per frame", self.name),
-                "frame",
-                "iterations",
-                &[render::Series {
-                    name: label,
-                    points: &iterations,
-                }],
-                false,
-            )?;
-        }
-        Ok(())
-    }
-}
+/// The most frames kept for the interactive viewer.
+const MAX_TRACK_FRAMES: usize = 1000;

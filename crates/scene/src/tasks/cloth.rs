@@ -2,10 +2,11 @@
 //! springs) stepped by an integrator of sinew-spring-sim, with the run's energies,
 //! iterations and timing.
 
-use super::{Metrics, RunContext, TaskOutput, TaskSpec, max_distance};
-use crate::render;
+use super::{RunContext, TaskOutput, TaskSpec, max_distance};
+use crate::results::{
+    ClothFrame, ClothMetrics, ClothPictures, ContactMetrics, Csv, Pictures, TaskMetrics,
+};
 use serde::Deserialize;
-use serde_json::json;
 use sinew_math::DVec3;
 use sinew_spring_sim::AutoSettings;
 use sinew_spring_sim::StabilityBound;
@@ -109,6 +110,9 @@ pub enum SystemSpec {
 const MAX_STEPS: usize = 10_000_000;
 /// The most frames a picture animates.
 const MAX_FRAMES: usize = 100;
+/// The most frames kept for the interactive viewer (a 101 x 101 cloth frame is about
+/// 245 kB in memory).
+const MAX_TRACK_FRAMES: usize = 300;
 
 impl ClothTask {
     fn build(&self) -> Result<Simulation, String> {
@@ -185,12 +189,22 @@ impl TaskSpec for ClothTask {
             .filter(|&i| sim.system().fixed()[i])
             .collect();
         let frame_every = self.steps.div_ceil(MAX_FRAMES).max(1);
+        // The interactive viewer gets a finer selection (it thins it to its own budget):
+        // the start, then after every `track_every`-th step and the last.
+        let track_every = self.steps.div_ceil(MAX_TRACK_FRAMES).max(1);
+        let mut track: Vec<ClothFrame> = Vec::new();
+        let mut track_steps: Vec<usize> = Vec::new();
         let mut frames: Vec<Vec<DVec3>> = Vec::new();
         // The colliders posed at each frame's time, for the pictures.
         let mut frame_colliders: Vec<Vec<Shape>> = Vec::new();
-        if ctx.render {
+        if ctx.keep_frames {
             frames.push(sim.system().positions().to_vec());
             frame_colliders.push(sim.colliders().iter().map(|c| c.at(sim.time())).collect());
+            track.push(ClothFrame {
+                positions: sim.system().positions().to_vec(),
+                colliders: sim.colliders().iter().map(|c| c.at(sim.time())).collect(),
+            });
+            track_steps.push(0);
         }
         let mut csv = String::from(
             "step,time,kinetic,spring,gravity,total,iterations,residual,linear_solver\n",
@@ -244,86 +258,43 @@ impl TaskSpec for ClothTask {
                 }
                 contact_pairs_max = contact_pairs_max.max(pairs);
             }
-            if ctx.render && ((step + 1) % frame_every == 0 || step + 1 == self.steps) {
+            let last = step + 1 == self.steps;
+            if ctx.keep_frames && ((step + 1) % frame_every == 0 || last) {
                 frames.push(system.positions().to_vec());
                 frame_colliders.push(colliders.iter().map(|c| c.at(time)).collect::<Vec<_>>());
             }
+            if ctx.keep_frames && ((step + 1) % track_every == 0 || last) {
+                track.push(ClothFrame {
+                    positions: system.positions().to_vec(),
+                    colliders: colliders.iter().map(|c| c.at(time)).collect(),
+                });
+                track_steps.push(step + 1);
+            }
         })
         .map_err(|e| e.to_string())?;
-        ctx.write_output(&self.name, "steps.csv", &csv)?;
-
-        if ctx.render {
-            progress.phase("rendering");
-            let out = |suffix: &str| ctx.out_dir.join(format!("{}.{suffix}", self.name));
-            // The view frames the cloth and every ball's extent (a ground is drawn under
-            // the cloth only, so it does not widen the view).
-            let ball_extents = frame_colliders.iter().flatten().flat_map(|shape| {
-                let balls = match *shape {
-                    Shape::Sphere { center, radius } => vec![(center, radius)],
-                    Shape::Capsule { a, b, radius } => vec![(a, radius), (b, radius)],
-                    Shape::HalfSpace { .. } => Vec::new(),
-                };
-                balls.into_iter().flat_map(|(c, r)| {
-                    [DVec3::X, DVec3::Y, DVec3::Z]
-                        .into_iter()
-                        .flat_map(move |axis| [c + r * axis, c - r * axis])
-                })
-            });
-            let view = render::View::fit(
-                frames.iter().flatten().copied().chain(ball_extents),
-                0.7,
-                0.35,
-                480,
-                480,
-            );
-            let cloth_frames: Vec<render::ClothFrame> = frames
-                .iter()
-                .zip(&frame_colliders)
-                .map(|(p, c)| render::ClothFrame {
-                    positions: p,
-                    colliders: c,
-                })
-                .collect();
-            let fps = 15;
-            render::cloth_gif(
-                &out("gif"),
-                &view,
-                &cloth_frames,
-                &springs,
-                &fixed,
-                0.05,
-                fps,
-            )?;
-            if let Some(last) = cloth_frames.last() {
-                render::cloth_png(&out("png"), &view, last, &springs, &fixed, 0.05)?;
-            }
-            render::line_chart_svg(
-                &out("energy.svg"),
-                &format!("{}: total energy", self.name),
-                "time (s)",
-                "energy",
-                &[render::Series {
-                    name: "kinetic + spring + gravity",
-                    points: &energy,
-                }],
-                false,
-            )?;
-            if !iterations.is_empty() {
-                render::line_chart_svg(
-                    &out("iterations.svg"),
-                    &format!("{}: iterations per step", self.name),
-                    "time (s)",
-                    "iterations",
-                    &[render::Series {
-                        name: &metrics.integrator,
-                        points: &iterations,
-                    }],
-                    false,
-                )?;
-            }
-        }
-
         drop(progress);
+        let pictures = if ctx.keep_frames {
+            Pictures::Cloth(ClothPictures {
+                integrator: metrics.integrator.clone(),
+                springs,
+                fixed,
+                frames: frames
+                    .into_iter()
+                    .zip(frame_colliders)
+                    .map(|(positions, colliders)| ClothFrame {
+                        positions,
+                        colliders,
+                    })
+                    .collect(),
+                track,
+                track_steps,
+                dt,
+                energy,
+                iterations,
+            })
+        } else {
+            Pictures::None
+        };
         let mut failures = Vec::new();
         let mut true_motion = None;
         if self.true_motion_reference
@@ -359,48 +330,29 @@ impl TaskSpec for ClothTask {
                 metrics.energy_increase_max
             ));
         }
-        let mut out = Metrics::new();
-        out.insert("steps".into(), json!(metrics.steps));
-        out.insert("integrator".into(), json!(metrics.integrator));
-        out.insert(
-            "newton_iterations_total".into(),
-            json!(metrics.newton_iterations_total),
-        );
-        out.insert(
-            "newton_iterations_max".into(),
-            json!(metrics.newton_iterations_max),
-        );
-        out.insert("residual_max".into(), json!(metrics.residual_max));
-        out.insert("energy_start".into(), json!(metrics.energy_start));
-        out.insert("energy_end".into(), json!(metrics.energy_end));
-        out.insert(
-            "energy_increase_max".into(),
-            json!(metrics.energy_increase_max),
-        );
-        out.insert(
-            "time_per_step_ms_median".into(),
-            json!(metrics.time_per_step_ms_median),
-        );
-        out.insert("diverged".into(), json!(metrics.diverged));
-        out.insert("auto_reason".into(), json!(last_reason));
-        out.insert("substeps".into(), json!(last_substeps));
-        out.insert(
-            "true_motion_error_1s".into(),
-            json!(true_motion.map(|t| t.0)),
-        );
-        out.insert(
-            "true_motion_reference_check".into(),
-            json!(true_motion.map(|t| t.1)),
-        );
-        if contact_settings.is_some() {
-            out.insert(
-                "min_distance".into(),
-                json!(min_distance.is_finite().then_some(min_distance)),
-            );
-            out.insert("penetrations".into(), json!(penetrations));
-            out.insert("contact_pairs_max".into(), json!(contact_pairs_max));
-            out.insert("kappa".into(), json!(sim.contact_kappa()));
-        }
+        let contact = contact_settings.is_some().then(|| ContactMetrics {
+            min_distance: min_distance.is_finite().then_some(min_distance),
+            penetrations,
+            contact_pairs_max,
+            kappa: sim.contact_kappa(),
+        });
+        let out = ClothMetrics {
+            steps: metrics.steps,
+            integrator: metrics.integrator.clone(),
+            newton_iterations_total: metrics.newton_iterations_total,
+            newton_iterations_max: metrics.newton_iterations_max,
+            residual_max: metrics.residual_max,
+            energy_start: metrics.energy_start,
+            energy_end: metrics.energy_end,
+            energy_increase_max: metrics.energy_increase_max,
+            time_per_step_ms_median: metrics.time_per_step_ms_median,
+            diverged: metrics.diverged,
+            auto_reason: last_reason,
+            substeps: last_substeps,
+            true_motion_error_1s: true_motion.map(|t| t.0),
+            true_motion_reference_check: true_motion.map(|t| t.1),
+            contact,
+        };
         // Explicit integrators report substeps where implicit ones report Newton
         // iterations (the metric keys keep one name for both; docs/scenes.md says so).
         let work =
@@ -425,9 +377,14 @@ impl TaskSpec for ClothTask {
             ))
         );
         Ok(TaskOutput {
-            metrics: out,
+            metrics: TaskMetrics::Cloth(out),
             headline,
             failures,
+            table: Csv {
+                suffix: "steps.csv",
+                text: csv,
+            },
+            pictures,
         })
     }
 }

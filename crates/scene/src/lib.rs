@@ -1,0 +1,41 @@
+//! `sinew-scene`: sinew's scene files and what they run.
+//!
+//! A scene is a RON file: a description and a list of tasks (forward kinematics, IK
+//! tracking, two-bone IK, curve sampling, cloth), each naming what it builds. Reading it
+//! checks every value before anything runs; a bad file is an error with the file, line
+//! and column and what was expected, a bad value names the task and the item. Running it
+//! gives typed results: one metrics struct per task kind, serialized as `metrics.json`.
+//!
+//! Running a scene from code:
+//!
+//! ```
+//! use sinew_scene::{RunOptions, Scene};
+//! # let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/fk-tree.ron");
+//! let scene = Scene::from_file(path)?;
+//! let results = scene.run(&RunOptions::default());
+//! println!("{}", serde_json::to_string_pretty(&results)?);
+//! # assert!(results.ok() && results.tasks.len() == scene.tasks.len());
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! [`schema`] reads and checks a scene, [`spec`] holds the descriptions several task
+//! kinds share, [`tasks`] the task kinds, [`results`] their typed results and [`run`]
+//! the loop that runs them. With the `bench` feature, `bench` holds the
+//! time-against-error sweeps, `stress` the numerical stress grid and `workloads` the
+//! reference workloads they share.
+
+#[cfg(feature = "bench")]
+pub mod bench;
+pub mod results;
+pub mod run;
+pub mod schema;
+pub mod spec;
+#[cfg(feature = "bench")]
+pub mod stress;
+pub mod tasks;
+#[cfg(feature = "bench")]
+pub mod workloads;
+
+pub use results::{SceneResults, TaskMetrics, TaskResult};
+pub use run::RunOptions;
+pub use schema::{Scene, SceneError};

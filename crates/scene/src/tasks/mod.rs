@@ -1,0 +1,121 @@
+//! Task kinds: each module holds one kind's scene fields ([`TaskSpec::validate`] checks
+//! them) and how to run it. A task returns its typed metrics (documented per kind in
+//! `docs/scenes.md`), a one-line headline for the summary table, the checks it failed
+//! (expectations written in the scene), its per-frame table and, when asked, what its
+//! pictures need. Tasks write no files and draw nothing: that is the caller's choice.
+
+pub mod cloth;
+pub mod curve;
+pub mod fk;
+pub mod ik;
+pub mod two_bone;
+
+use crate::results::{Csv, Pictures, TaskMetrics};
+use std::time::Instant;
+
+/// Told `(task, done, total)` after each unit of work (frame, step) of a task.
+pub type ProgressFn<'a> = &'a dyn Fn(&str, usize, usize);
+
+/// What the runner hands a task.
+pub struct RunContext<'a> {
+    /// Whether to keep what the pictures need (animation frames, curves to draw); it
+    /// is gathered outside every timed region, so it never changes a metric.
+    pub keep_frames: bool,
+    /// Told `(task, done, total)` after each unit of work (frame, step), if set.
+    pub progress: Option<ProgressFn<'a>>,
+}
+
+impl RunContext<'_> {
+    /// A progress counter for `total` units of work (frames, steps) of `task`.
+    #[must_use]
+    pub fn progress(&self, task: &str, total: usize) -> Progress<'_> {
+        Progress {
+            sink: self.progress,
+            task: task.to_string(),
+            total,
+            done: 0,
+        }
+    }
+}
+
+/// See [`RunContext::progress`].
+pub struct Progress<'a> {
+    sink: Option<ProgressFn<'a>>,
+    task: String,
+    total: usize,
+    done: usize,
+}
+
+impl Progress<'_> {
+    /// One more unit done.
+    pub fn inc(&mut self) {
+        self.done += 1;
+        if let Some(sink) = self.sink {
+            sink(&self.task, self.done, self.total);
+        }
+    }
+}
+
+/// What a task produced.
+pub struct TaskOutput {
+    /// The task's metrics, typed by kind.
+    pub metrics: TaskMetrics,
+    /// A short human summary for the table.
+    pub headline: String,
+    /// Expectations written in the scene that did not hold; any makes the run fail.
+    pub failures: Vec<String>,
+    /// The per-frame (or per-step, per-joint, per-point) table.
+    pub table: Csv,
+    /// What the pictures need (empty unless the run keeps frames).
+    pub pictures: Pictures,
+}
+
+/// A task kind's behaviour.
+pub trait TaskSpec {
+    /// The task's name (unique in its scene).
+    fn name(&self) -> &str;
+    /// The task kind, as in the scene file (`Fk`, ...).
+    fn kind(&self) -> &'static str;
+    /// Checks every value; the message names the item and what is allowed.
+    fn validate(&self) -> Result<(), String>;
+    /// Runs the task.
+    fn run(&self, ctx: &RunContext) -> Result<TaskOutput, String>;
+}
+
+/// Median wall time in nanoseconds of `f`, over enough calls to fill about `budget_ms`
+/// (at least 5, at most 100 000).
+pub fn median_time_ns(budget_ms: f64, mut f: impl FnMut()) -> f64 {
+    let start = Instant::now();
+    f();
+    let first = start.elapsed().as_secs_f64();
+    let runs = ((budget_ms * 1e-3 / first.max(1e-9)) as usize).clamp(5, 100_000);
+    let mut times = Vec::with_capacity(runs);
+    for _ in 0..runs {
+        let t = Instant::now();
+        f();
+        times.push(t.elapsed().as_secs_f64() * 1e9);
+    }
+    median(&mut times)
+}
+
+/// The largest distance between corresponding points of two equally long lists.
+pub fn max_distance(a: &[sinew_math::DVec3], b: &[sinew_math::DVec3]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| x.distance(*y))
+        .fold(0.0, f64::max)
+}
+
+/// The median of `values` (sorted in place); NaN for an empty slice.
+pub fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    if n % 2 == 1 {
+        values[n / 2]
+    } else {
+        0.5 * (values[n / 2 - 1] + values[n / 2])
+    }
+}

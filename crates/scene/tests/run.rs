@@ -1,0 +1,142 @@
+//! Scenes run from code: typed results against closed forms, the JSON shape of
+//! `metrics.json`, and what the pictures are handed.
+
+use sinew_scene::results::Pictures;
+use sinew_scene::{RunOptions, Scene, TaskMetrics, TaskResult};
+
+fn scene(text: &str) -> Scene {
+    Scene::from_text("test.ron", text).unwrap_or_else(|e| panic!("{e}"))
+}
+
+#[test]
+fn fk_result_is_the_closed_form() {
+    // A quarter turn of the root about +y swings a 3-bone chain of 0.5 from +x to -z.
+    let scene = scene(
+        "Scene(description: \"d\", tasks: [Fk(name: \"quarter\",
+            skeleton: Chain(bones: 3, length: 0.5),
+            pose: [(joint: 0, axis: (0.0, 1.0, 0.0), degrees: 90.0)])])",
+    );
+    let results = scene.run(&RunOptions::default());
+    assert_eq!(results.scene, "test");
+    assert!(results.ok());
+    let TaskMetrics::Fk(fk) = &results.tasks[0].metrics else {
+        panic!("an Fk task gives Fk metrics");
+    };
+    assert_eq!(fk.joints, 4);
+    let expected = [0.0, 0.0, -1.5];
+    for (got, want) in fk.effector.iter().zip(expected) {
+        assert!((got - want).abs() < 1e-15, "{:?}", fk.effector);
+    }
+    assert_eq!(fk.fk_from_diff_max, 0.0);
+    assert_eq!(results.tasks[0].table.suffix, "positions.csv");
+    assert_eq!(results.tasks[0].table.text.lines().count(), 5);
+}
+
+#[test]
+fn metrics_serialize_with_the_documented_keys() {
+    let scene = scene(
+        "Scene(description: \"d\", tasks: [Ik(name: \"far\",
+            skeleton: Chain(bones: 9, length: 0.1), solver: Fabrik(),
+            target: Point(3.0, 1.0, 0.0))])",
+    );
+    let value = serde_json::to_value(scene.run(&RunOptions::default())).unwrap();
+    let task = &value["tasks"][0];
+    assert_eq!(task["kind"], "Ik");
+    assert_eq!(task["ok"], true);
+    assert!(task.get("error").is_none());
+    let mut keys: Vec<&str> = task["metrics"]
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(String::as_str)
+        .collect();
+    keys.sort_unstable();
+    assert_eq!(
+        keys,
+        [
+            "bone_length_error_max",
+            "clamped_frames",
+            "closed_form_gap",
+            "converged_frames",
+            "error_max",
+            "error_mean",
+            "final_bend_max_rad",
+            "frames",
+            "iterations_total",
+            "limit_violation_max",
+            "local_minimum_frames",
+            "out_of_reach_frames",
+            "rotation_error_max",
+            "rotation_jump_max_rad",
+            "solver",
+            "time_per_frame_ns_median",
+            "within_tol",
+        ]
+    );
+    // Out of reach: the straight chain aimed at the target, error = distance - reach.
+    let error = task["metrics"]["error_max"].as_f64().unwrap();
+    assert!((error - (10f64.sqrt() - 0.9)).abs() < 1e-12, "{error}");
+}
+
+#[test]
+fn a_task_that_could_not_run_has_empty_metrics_and_its_error() {
+    let failed = TaskResult::failed("t", "Cloth", 0.5, "integrator: no".into());
+    let value = serde_json::to_value(&failed).unwrap();
+    assert_eq!(value["metrics"], serde_json::json!({}));
+    assert_eq!(value["error"], "integrator: no");
+    assert_eq!(value["ok"], false);
+}
+
+#[test]
+fn frames_are_kept_only_when_asked() {
+    let scene = scene(
+        "Scene(description: \"d\", tasks: [Ik(name: \"pts\",
+            skeleton: Chain(bones: 3, length: 0.5), solver: Ccd(),
+            target: Points([(1.0, 0.2, 0.0), (0.9, 0.4, 0.1), (0.8, 0.5, 0.2)]))])",
+    );
+    let plain = scene.run(&RunOptions::default());
+    assert!(matches!(plain.tasks[0].pictures, Pictures::None));
+    let kept = scene.run(&RunOptions {
+        keep_frames: true,
+        ..RunOptions::default()
+    });
+    let Pictures::Ik(p) = &kept.tasks[0].pictures else {
+        panic!("an Ik task keeps Ik pictures");
+    };
+    assert_eq!(p.frames.len(), 3);
+    assert_eq!(p.targets.len(), 3);
+    assert_eq!(p.frames[2].target, p.targets[2]);
+    assert_eq!(p.frames[2].joints.len(), 4);
+    // Keeping frames changes no metric but the timings.
+    let (TaskMetrics::Ik(a), TaskMetrics::Ik(b)) =
+        (&plain.tasks[0].metrics, &kept.tasks[0].metrics)
+    else {
+        panic!("Ik metrics");
+    };
+    assert_eq!(
+        (a.error_max, a.iterations_total),
+        (b.error_max, b.iterations_total)
+    );
+}
+
+#[test]
+fn progress_is_told_every_frame() {
+    let scene = scene(
+        "Scene(description: \"d\", tasks: [Ik(name: \"pts\",
+            skeleton: Chain(bones: 3, length: 0.5), solver: Fabrik(),
+            target: Points([(1.0, 0.2, 0.0), (0.9, 0.4, 0.1)]))])",
+    );
+    let seen = std::cell::RefCell::new(Vec::new());
+    let record = |task: &str, done: usize, total: usize| {
+        seen.borrow_mut().push((task.to_string(), done, total));
+    };
+    let results = scene.run(&RunOptions {
+        progress: Some(&record),
+        ..RunOptions::default()
+    });
+    assert!(results.ok());
+    assert_eq!(
+        seen.into_inner(),
+        [("pts".to_string(), 1, 2), ("pts".to_string(), 2, 2)]
+    );
+}

@@ -1,0 +1,177 @@
+//! The pictures of one task's result, written beside its metrics: what `cargo xtask
+//! run-scene` draws for each task kind, from [`sinew_scene::results::Pictures`] alone.
+
+use super::{ClothFrame, IkFrame, Series, View, cloth_gif, cloth_png, ik_gif, ik_png};
+use super::{line_chart_svg, samples_png};
+use sinew_math::DVec3;
+use sinew_scene::results::{ClothPictures, CurvePictures, IkPictures, Pictures, Shape};
+use std::path::Path;
+
+/// Draws the pictures of task `name` into `out_dir` as `<name>.<suffix>` (GIF, PNG,
+/// SVG charts); a task whose result kept no pictures draws nothing. The error names the
+/// file that could not be written.
+pub fn draw_task(name: &str, pictures: &Pictures, out_dir: &Path) -> Result<(), String> {
+    let out = |suffix: &str| out_dir.join(format!("{name}.{suffix}"));
+    match pictures {
+        Pictures::None => Ok(()),
+        Pictures::Ik(p) => draw_ik(name, p, &out),
+        Pictures::Curve(p) => draw_curve(p, &out("png")),
+        Pictures::Cloth(p) => draw_cloth(name, p, &out),
+    }
+}
+
+/// The animation, the last frame with the whole target path, and plots of error and
+/// iterations per frame.
+fn draw_ik(
+    name: &str,
+    p: &IkPictures,
+    out: &dyn Fn(&str) -> std::path::PathBuf,
+) -> Result<(), String> {
+    let points = p
+        .frames
+        .iter()
+        .flat_map(|f| f.joints.iter().copied())
+        .chain(p.targets.iter().copied());
+    let view = View::fit(points, 0.6, 0.45, 480, 480);
+    let frames: Vec<IkFrame> = p
+        .frames
+        .iter()
+        .map(|f| IkFrame {
+            joints: &f.joints,
+            target: f.target,
+        })
+        .collect();
+    if frames.len() > 1 {
+        ik_gif(&out("gif"), &view, &frames, &p.targets, 20)?;
+    }
+    if let Some(last) = frames.last() {
+        ik_png(&out("png"), &view, last, &p.targets)?;
+    }
+    if p.error.len() > 1 {
+        let error: Vec<(f64, f64)> = p
+            .error
+            .iter()
+            .enumerate()
+            .map(|(k, &e)| (k as f64, e))
+            .collect();
+        let iterations: Vec<(f64, f64)> = p
+            .iterations
+            .iter()
+            .enumerate()
+            .map(|(k, &i)| (k as f64, i as f64))
+            .collect();
+        line_chart_svg(
+            &out("error.svg"),
+            &format!("{name}: final error per frame"),
+            "frame",
+            "effector to target distance",
+            &[Series {
+                name: &p.solver,
+                points: &error,
+            }],
+            true,
+        )?;
+        line_chart_svg(
+            &out("iterations.svg"),
+            &format!("{name}: iterations per frame"),
+            "frame",
+            "iterations",
+            &[Series {
+                name: &p.solver,
+                points: &iterations,
+            }],
+            false,
+        )?;
+    }
+    Ok(())
+}
+
+/// The Sub-Task 4.1 picture: points at uniform parameter steps next to as many evenly
+/// spaced by arc length, on the curve's line.
+fn draw_curve(p: &CurvePictures, path: &Path) -> Result<(), String> {
+    // Looking straight down (elevation pi/2) shows a curve in the plane y = 0, such as
+    // the lab flower, flat.
+    samples_png(
+        path,
+        &p.line,
+        ("uniform parameter t", &p.uniform),
+        ("even arc length", &p.even),
+        0.0,
+        std::f64::consts::FRAC_PI_2,
+    )
+}
+
+/// The animation, the last frame as a still, and charts of the total energy and the
+/// Newton iterations per step.
+fn draw_cloth(
+    name: &str,
+    p: &ClothPictures,
+    out: &dyn Fn(&str) -> std::path::PathBuf,
+) -> Result<(), String> {
+    // The view frames the cloth and every ball's extent (a ground is drawn under the
+    // cloth only, so it does not widen the view).
+    let ball_extents = p
+        .frames
+        .iter()
+        .flat_map(|f| f.colliders.iter())
+        .flat_map(|shape| {
+            let balls = match *shape {
+                Shape::Sphere { center, radius } => vec![(center, radius)],
+                Shape::Capsule { a, b, radius } => vec![(a, radius), (b, radius)],
+                Shape::HalfSpace { .. } => Vec::new(),
+            };
+            balls.into_iter().flat_map(|(c, r)| {
+                [DVec3::X, DVec3::Y, DVec3::Z]
+                    .into_iter()
+                    .flat_map(move |axis| [c + r * axis, c - r * axis])
+            })
+        });
+    let view = View::fit(
+        p.frames
+            .iter()
+            .flat_map(|f| f.positions.iter().copied())
+            .chain(ball_extents),
+        0.7,
+        0.35,
+        480,
+        480,
+    );
+    let frames: Vec<ClothFrame> = p
+        .frames
+        .iter()
+        .map(|f| ClothFrame {
+            positions: &f.positions,
+            colliders: &f.colliders,
+        })
+        .collect();
+    let fps = 15;
+    cloth_gif(&out("gif"), &view, &frames, &p.springs, &p.fixed, 0.05, fps)?;
+    if let Some(last) = frames.last() {
+        cloth_png(&out("png"), &view, last, &p.springs, &p.fixed, 0.05)?;
+    }
+    line_chart_svg(
+        &out("energy.svg"),
+        &format!("{name}: total energy"),
+        "time (s)",
+        "energy",
+        &[Series {
+            name: "kinetic + spring + gravity",
+            points: &p.energy,
+        }],
+        false,
+    )?;
+    if !p.iterations.is_empty() {
+        line_chart_svg(
+            &out("iterations.svg"),
+            &format!("{name}: iterations per step"),
+            "time (s)",
+            "iterations",
+            &[Series {
+                name: &p.integrator,
+                points: &p.iterations,
+            }],
+            false,
+        )?;
+    }
+    Ok(())
+}
