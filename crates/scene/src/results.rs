@@ -221,7 +221,7 @@ pub struct ClothMetrics {
     /// Whether the run diverged.
     pub diverged: bool,
     /// Why `auto` chose its integrator (the last step's reason), if it did.
-    pub auto_reason: Option<&'static str>,
+    pub auto_reason: Option<String>,
     /// Substeps of the last step (explicit integrators).
     pub substeps: usize,
     /// Distance from the true motion after 1 s, when the scene asks for it.

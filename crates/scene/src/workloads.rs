@@ -138,7 +138,7 @@ pub fn cloth(quick: bool) -> Result<Vec<ClothWorkload>, String> {
     specs
         .iter()
         .map(|&(name, size, spacing, damping, stiffness, dt, steps)| {
-            let mut grid = ClothGrid::lab_sized(size, spacing, damping);
+            let mut grid = ClothGrid::lab_sized(size, spacing).with_damping(damping);
             grid.material.stiffness = stiffness;
             let system = grid.build().map_err(|e| format!("{name}: {e}"))?;
             Ok(ClothWorkload {
