@@ -7,6 +7,7 @@
 
 use serde::Serialize;
 use sinew_math::DVec3;
+use sinew_spring_sim::RunMetrics;
 pub use sinew_spring_sim::contact::Shape;
 
 /// Everything one run of a scene produced; serialized, this is `metrics.json`.
@@ -200,26 +201,13 @@ pub struct CurveMetrics {
 /// A `Cloth` task's metrics.
 #[derive(Clone, Debug, Serialize)]
 pub struct ClothMetrics {
-    /// Steps taken.
-    pub steps: usize,
-    /// The integrator that stepped (for `auto`, the one it chose).
-    pub integrator: String,
-    /// Newton iterations over all steps (explicit integrators: 0).
-    pub newton_iterations_total: usize,
-    /// Most Newton iterations of a step.
-    pub newton_iterations_max: usize,
-    /// Largest final residual of a step.
-    pub residual_max: f64,
-    /// Total energy at the start.
-    pub energy_start: f64,
-    /// Total energy at the end.
-    pub energy_end: f64,
-    /// Largest rise of the total energy in one step, on the scale docs/scenes.md gives.
-    pub energy_increase_max: f64,
-    /// Median wall time of a step, in milliseconds.
-    pub time_per_step_ms_median: f64,
-    /// Whether the run diverged.
-    pub diverged: bool,
+    /// The run as spring-sim measures it (steps, integrator, Newton iterations,
+    /// residual, energies, the largest per-step energy rise on the scale
+    /// docs/scenes.md gives, median step time, divergence). Flattened, so its keys
+    /// stand beside the ones below in `metrics.json`; `stopped_by` appears only when
+    /// a step failed.
+    #[serde(flatten)]
+    pub run: RunMetrics,
     /// Why `auto` chose its integrator (the last step's reason), if it did.
     pub auto_reason: Option<String>,
     /// Substeps of the last step (explicit integrators).
@@ -335,4 +323,58 @@ pub struct ClothPictures {
     pub energy: Vec<(f64, f64)>,
     /// (time, Newton iterations) per step.
     pub iterations: Vec<(f64, f64)>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The run's metrics are embedded but flattened, so `metrics.json` keeps one flat
+    /// object per cloth task with the keys docs/scenes.md lists.
+    #[test]
+    fn cloth_metrics_serialize_flat_with_the_documented_keys() {
+        let mut metrics = ClothMetrics {
+            run: RunMetrics {
+                steps: 3,
+                integrator: "backward_euler".into(),
+                newton_iterations_total: 6,
+                newton_iterations_max: 2,
+                residual_max: 1e-10,
+                energy_start: 1.0,
+                energy_end: 0.5,
+                energy_increase_max: 0.0,
+                time_per_step_ms_median: 0.1,
+                diverged: false,
+                stopped_by: None,
+            },
+            auto_reason: None,
+            substeps: 1,
+            true_motion_error_1s: None,
+            true_motion_reference_check: None,
+            contact: None,
+        };
+        let keys = |m: &ClothMetrics| -> Vec<String> {
+            let value = serde_json::to_value(TaskMetrics::Cloth(m.clone())).unwrap();
+            value.as_object().unwrap().keys().cloned().collect()
+        };
+        let expected = [
+            "auto_reason",
+            "diverged",
+            "energy_end",
+            "energy_increase_max",
+            "energy_start",
+            "integrator",
+            "newton_iterations_max",
+            "newton_iterations_total",
+            "residual_max",
+            "steps",
+            "substeps",
+            "time_per_step_ms_median",
+            "true_motion_error_1s",
+            "true_motion_reference_check",
+        ];
+        assert_eq!(keys(&metrics), expected);
+        metrics.run.stopped_by = Some("step 3: non-finite state".into());
+        assert!(keys(&metrics).contains(&"stopped_by".to_string()));
+    }
 }

@@ -38,7 +38,9 @@ pub struct RunMetrics {
     /// [`DIVERGENCE_RADIUS`].
     pub diverged: bool,
     /// The error that stopped the run early, if any (input errors are returned by
-    /// [`run`] instead).
+    /// [`run`] instead). Serialized only when set, so a run that finished writes the
+    /// same keys as before this field existed.
+    #[cfg_attr(feature = "serde", serde(skip_serializing_if = "Option::is_none"))]
     pub stopped_by: Option<String>,
 }
 

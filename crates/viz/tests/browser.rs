@@ -485,6 +485,17 @@ struct PageCheck {
     draw_ms: f64,
 }
 
+/// Checks a page written into `dir` (a screenshot beside it), failing the test with
+/// the page's name on any problem, and prints what was measured.
+fn check_written_page(browser: &mut Browser, dir: &Path, page: &PageSummary) -> PageCheck {
+    let file = dir.join(&page.file_name);
+    let shot = dir.join(format!("{}.png", page.file_name.trim_end_matches(".html")));
+    let check = check_viewer_page(browser, &file, &shot)
+        .unwrap_or_else(|e| panic!("{}: {e}", page.file_name));
+    println!("{}: {check:?}", page.file_name);
+    check
+}
+
 /// Opens a viewer page and checks everything the module documentation lists.
 fn check_viewer_page(
     browser: &mut Browser,
@@ -1020,11 +1031,7 @@ fn viewer_pages_work_in_headless_chromium() {
     let pages = write_pages(&dir);
     let mut browser = Browser::start("pages").unwrap_or_else(|e| panic!("headless Chromium: {e}"));
     for page in &pages {
-        let file = dir.join(&page.file_name);
-        let shot = dir.join(format!("{}.png", page.file_name.trim_end_matches(".html")));
-        let check = check_viewer_page(&mut browser, &file, &shot)
-            .unwrap_or_else(|e| panic!("{}: {e}", page.file_name));
-        println!("{}: {check:?}", page.file_name);
+        let check = check_written_page(&mut browser, &dir, page);
         let expected = if page.shown_frames == page.total_frames {
             format!("showing all {} frames", page.total_frames)
         } else {
@@ -1086,7 +1093,7 @@ fn lab_scene_pages_work_in_headless_chromium() {
         .iter()
         .filter(|t| match &t.metrics {
             sinew_scene::TaskMetrics::Ik(m) => m.frames > 1,
-            sinew_scene::TaskMetrics::Cloth(m) => m.steps > 0,
+            sinew_scene::TaskMetrics::Cloth(m) => m.run.steps > 0,
             _ => false,
         })
         .count();
@@ -1099,11 +1106,7 @@ fn lab_scene_pages_work_in_headless_chromium() {
     write_scene_index(&dir, &results.scene, &pages).unwrap();
     let mut browser = Browser::start("lab4").unwrap_or_else(|e| panic!("headless Chromium: {e}"));
     for page in &pages {
-        let file = dir.join(&page.file_name);
-        let shot = dir.join(format!("{}.png", page.file_name.trim_end_matches(".html")));
-        let check = check_viewer_page(&mut browser, &file, &shot)
-            .unwrap_or_else(|e| panic!("{}: {e}", page.file_name));
-        println!("{}: {check:?}", page.file_name);
+        let check = check_written_page(&mut browser, &dir, page);
         assert_eq!(page.shown_frames, page.total_frames, "{page:?}");
         assert!(check.changed_by_slider > 0 && check.changed_by_orbit > 0);
     }

@@ -337,16 +337,7 @@ impl TaskSpec for ClothTask {
             kappa: sim.contact_kappa(),
         });
         let out = ClothMetrics {
-            steps: metrics.steps,
-            integrator: metrics.integrator.clone(),
-            newton_iterations_total: metrics.newton_iterations_total,
-            newton_iterations_max: metrics.newton_iterations_max,
-            residual_max: metrics.residual_max,
-            energy_start: metrics.energy_start,
-            energy_end: metrics.energy_end,
-            energy_increase_max: metrics.energy_increase_max,
-            time_per_step_ms_median: metrics.time_per_step_ms_median,
-            diverged: metrics.diverged,
+            run: metrics.clone(),
             auto_reason: last_reason,
             substeps: last_substeps,
             true_motion_error_1s: true_motion.map(|t| t.0),
