@@ -125,7 +125,7 @@ pub(crate) fn group_thousands(n: usize) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     #[test]
@@ -149,8 +149,9 @@ mod tests {
         assert_eq!(decode_base64(&text), all);
     }
 
-    /// A reference decoder for the round trip, written independently of the encoder.
-    fn decode_base64(text: &str) -> Vec<u8> {
+    /// A reference decoder for the round trip, written independently of the encoder
+    /// (the viewer's tests also read embedded fields with it).
+    pub(in crate::viewer) fn decode_base64(text: &str) -> Vec<u8> {
         let value = |c: u8| ALPHABET.iter().position(|&a| a == c).unwrap() as u32;
         let mut out = Vec::new();
         for chunk in text.as_bytes().chunks(4) {

@@ -100,21 +100,7 @@ fn embedded_data(html: &str) -> Value {
 /// The f32 values of a base64 field of the embedded data.
 fn decode_f32(field: &Value) -> Vec<f32> {
     let text = field.as_str().expect("a base64 string");
-    let value = |c: u8| {
-        encode::ALPHABET
-            .iter()
-            .position(|&a| a == c)
-            .expect("base64 symbol") as u32
-    };
-    let mut bytes = Vec::new();
-    for chunk in text.as_bytes().chunks(4) {
-        let pad = chunk.iter().filter(|&&c| c == b'=').count();
-        let n = chunk
-            .iter()
-            .map(|&c| if c == b'=' { 0 } else { value(c) })
-            .fold(0u32, |acc, v| (acc << 6) | v);
-        bytes.extend_from_slice(&[(n >> 16) as u8, (n >> 8) as u8, n as u8][..3 - pad]);
-    }
+    let bytes = encode::tests::decode_base64(text);
     bytes
         .chunks(4)
         .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
