@@ -65,6 +65,32 @@ impl TreeCcdOptions {
 }
 
 /// Tree CCD; see the [module docs](self).
+///
+/// # Example
+///
+/// Plain CCD lowers the weighted cost of a feasible goal set; with the damped
+/// least-squares finish it reaches every goal to the tolerance.
+///
+/// ```
+/// use sinew_ik_body::{BodyProblem, BodySolver, BodyState, TreeCcdOptions, TreeCcdSolver, workload};
+/// use sinew_skeleton::ik::SolveSettings;
+///
+/// let skeleton = workload::humanoid()?;
+/// let goals = &workload::goal_sets(&skeleton, 1, 7, false)[0];
+/// let settings = SolveSettings::default();
+/// let problem =
+///     BodyProblem::new(&skeleton, &goals.effectors, settings).with_root_translation(true);
+///
+/// let mut state = BodyState::rest(&skeleton);
+/// let plain = TreeCcdSolver::new().solve(&problem, &mut state)?;
+/// assert!(plain.cost < plain.initial_cost, "{plain:?}");
+///
+/// let mut state = BodyState::rest(&skeleton);
+/// let mut finished = TreeCcdSolver::with_options(TreeCcdOptions::with_finish())?;
+/// let report = finished.solve(&problem, &mut state)?;
+/// assert!(report.within(&settings), "{report:?}");
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 #[derive(Clone, Debug, Default)]
 pub struct TreeCcdSolver {
     options: TreeCcdOptions,

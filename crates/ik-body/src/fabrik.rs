@@ -92,6 +92,30 @@ impl TreeFabrikOptions {
 }
 
 /// Tree FABRIK with the damped least-squares finish; see the [module docs](self).
+///
+/// # Example
+///
+/// Goals made by forward kinematics of a random pose inside the limits (so one exact
+/// answer exists): both wrists, both ankles and the head, the hips free to move.
+///
+/// ```
+/// use sinew_ik_body::{BodyProblem, BodySolver, BodyState, TreeFabrikSolver, workload};
+/// use sinew_skeleton::ik::SolveSettings;
+///
+/// let skeleton = workload::humanoid()?;
+/// let goals = &workload::goal_sets(&skeleton, 1, 7, false)[0];
+/// let settings = SolveSettings::default();
+/// let problem =
+///     BodyProblem::new(&skeleton, &goals.effectors, settings).with_root_translation(true);
+/// let mut state = BodyState::rest(&skeleton);
+///
+/// let mut solver = TreeFabrikSolver::new();
+/// let report = solver.solve(&problem, &mut state)?;
+/// assert!(report.within(&settings), "{report:?}");
+/// assert!(report.cost <= report.initial_cost);
+/// assert!(report.limit_violation <= 1e-9);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 #[derive(Clone, Debug, Default)]
 pub struct TreeFabrikSolver {
     options: TreeFabrikOptions,

@@ -271,6 +271,18 @@ fn parse_number(t: &Token<'_>, what: &str) -> Result<f64, BvhError> {
 const MAX_CHANNELS: usize = 9;
 
 /// Reads a BVH file from its text.
+///
+/// # Example
+///
+/// A malformed number is an error naming its line and column.
+///
+/// ```
+/// use sinew_io::parse_bvh;
+///
+/// let err = parse_bvh("HIERARCHY\nROOT Hips\n{\n  OFFSET 0 zero 0\n").unwrap_err();
+/// assert_eq!((err.line, err.column), (4, 12));
+/// assert!(err.message.contains("`zero`"), "{err}");
+/// ```
 pub fn parse_bvh(text: &str) -> Result<Bvh, BvhError> {
     let mut cur = Cursor::new(text);
     cur.keyword("HIERARCHY")?;

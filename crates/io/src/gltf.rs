@@ -134,6 +134,30 @@ fn rigid(node: &gltf::Node<'_>) -> Result<(DVec3, DQuat), GltfError> {
 }
 
 /// Reads skin `skin` of a glTF document (JSON `.gltf`, or binary `.glb`).
+///
+/// # Example
+///
+/// A skin of two joints: the hips one unit up, the spine half a unit above them.
+///
+/// ```
+/// use sinew_io::gltf::read_gltf_skin;
+/// use sinew_math::DVec3;
+///
+/// let document = r#"{
+///   "asset": {"version": "2.0"},
+///   "nodes": [
+///     {"name": "Hips", "translation": [0, 1, 0], "children": [1]},
+///     {"name": "Spine", "translation": [0, 0.5, 0]}
+///   ],
+///   "skins": [{"joints": [0, 1]}]
+/// }"#;
+/// let read = read_gltf_skin(document.as_bytes(), 0)?;
+/// let skeleton = &read.skeleton;
+/// let spine = skeleton.joint_index("Spine")?;
+/// assert_eq!(skeleton.len(), 2);
+/// assert!(skeleton.offset(spine).distance(DVec3::new(0.0, 0.5, 0.0)) < 1e-12);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 pub fn read_gltf_skin(bytes: &[u8], skin: usize) -> Result<GltfSkeleton, GltfError> {
     let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| GltfError::Document(e.to_string()))?;
     let doc = &gltf.document;

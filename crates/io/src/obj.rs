@@ -57,6 +57,19 @@ impl fmt::Display for ObjError {
 impl std::error::Error for ObjError {}
 
 /// Reads an OBJ file from its text (see the module documentation).
+///
+/// # Example
+///
+/// A unit square given as one quad becomes two triangles over its four vertices.
+///
+/// ```
+/// use sinew_io::obj::parse_obj;
+///
+/// let mesh = parse_obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n")?;
+/// assert_eq!(mesh.positions.len(), 4);
+/// assert_eq!(mesh.triangles, vec![[0, 1, 2], [0, 2, 3]]);
+/// # Ok::<(), sinew_io::obj::ObjError>(())
+/// ```
 pub fn parse_obj(text: &str) -> Result<TriangleMesh, ObjError> {
     // The struct update stays although every field is given today: `tobj` features that
     // another crate may turn on add fields.

@@ -13,8 +13,8 @@
 //! # let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/fk-tree.ron");
 //! let scene = Scene::from_file(path)?;
 //! let results = scene.run(&RunOptions::default());
+//! assert!(results.ok() && results.tasks.len() == scene.tasks.len());
 //! println!("{}", serde_json::to_string_pretty(&results)?);
-//! # assert!(results.ok() && results.tasks.len() == scene.tasks.len());
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!

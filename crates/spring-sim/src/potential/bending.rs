@@ -222,6 +222,31 @@ fn angle_gradient<S: Scalar>(x: [V3<S>; 4]) -> [V3<S>; 4] {
 /// The hinges' bending energy, a [`Term`] of the incremental potential. Its Hessian
 /// couples the two opposite vertices of each hinge, a pair no edge spring joins: add it
 /// with [`crate::BackwardEuler::add_coupled_term`] and [`DihedralBending::coupled_pairs`].
+///
+/// # Example
+///
+/// Two unit right triangles flat along the edge from vertex 0 to vertex 1; folding
+/// vertex 3 by an angle `theta` about that edge gives the closed form
+/// `k/2 w theta^2`, with `w = 3 |e|^2 / (A1 + A2) = 3`.
+///
+/// ```
+/// use sinew_spring_sim::DVec3;
+/// use sinew_spring_sim::potential::{DihedralBending, Hinge};
+///
+/// let (k, theta) = (2.0, 0.3_f64);
+/// let mut x = vec![DVec3::ZERO, DVec3::X, DVec3::Y, -DVec3::Y];
+/// let hinge = Hinge::at_rest(&x, [0, 1], [2, 3], k).expect("both triangles have area");
+/// let term = DihedralBending::new(vec![hinge]);
+/// // The Hessian couples all six pairs of the hinge's vertices, among them the
+/// // opposite vertices, which no edge spring joins.
+/// assert_eq!(term.coupled_pairs().len(), 6);
+/// assert!(term.coupled_pairs().contains(&[2, 3]));
+/// assert!(term.hinges()[0].energy(&x).abs() < 1e-15);
+///
+/// x[3] = DVec3::new(0.0, -theta.cos(), theta.sin());
+/// let expected = 0.5 * k * 3.0 * theta * theta;
+/// assert!((term.hinges()[0].energy(&x) - expected).abs() < 1e-12);
+/// ```
 #[derive(Clone, Debug, Default)]
 pub struct DihedralBending {
     hinges: Vec<Hinge>,
