@@ -83,6 +83,8 @@ pub enum TaskMetrics {
     Curve(CurveMetrics),
     /// A `Cloth` task's.
     Cloth(ClothMetrics),
+    /// A `FullBody` task's.
+    Body(BodyMetrics),
     /// None: the task could not run (serialized as `{}`).
     None(NoMetrics),
 }
@@ -249,6 +251,8 @@ pub enum Pictures {
     Curve(CurvePictures),
     /// A `Cloth` task's animation and charts.
     Cloth(ClothPictures),
+    /// A `FullBody` task's animation and charts.
+    Body(BodyPictures),
 }
 
 /// One animation frame of an IK chain.
@@ -324,6 +328,57 @@ pub struct ClothPictures {
     /// (time, Newton iterations) per step.
     pub iterations: Vec<(f64, f64)>,
 }
+
+/// A `FullBody` task's metrics (the keys documented in `docs/scenes.md`).
+#[derive(Clone, Debug, Serialize)]
+pub struct BodyMetrics {
+    /// Effectors solved together on every frame (followed and pinned).
+    pub effectors: usize,
+    /// Frames solved.
+    pub frames: usize,
+    /// Frames that ended with every effector within the tolerances.
+    pub within_tol: usize,
+    /// Largest joint-limit violation of any frame's returned pose, in radians.
+    pub limit_violation_max: f64,
+    /// Largest distance of any effector from its goal, over every frame.
+    pub error_max: f64,
+    /// Median wall time of one frame's solve, in microseconds.
+    pub time_per_solve_us_median: f64,
+}
+
+/// One animation frame of a body: every joint's position and every effector's goal.
+#[derive(Clone, Debug)]
+pub struct BodyFrame {
+    /// Every joint's global position, in the skeleton's order.
+    pub joints: Vec<DVec3>,
+    /// Every effector's goal position, in the order of [`BodyPictures::effectors`].
+    pub goals: Vec<DVec3>,
+    /// The frame's worst effector error.
+    pub error: f64,
+}
+
+/// What a `FullBody` task's pictures need.
+#[derive(Clone, Debug)]
+pub struct BodyPictures {
+    /// The solver's label.
+    pub solver: String,
+    /// Each joint's parent (`None` for a root): the bones drawn.
+    pub parents: Vec<Option<usize>>,
+    /// The effectors' joints.
+    pub effectors: Vec<usize>,
+    /// Whether each effector is pinned.
+    pub pinned: Vec<bool>,
+    /// The frames shown (at most a fixed number, the last always among them).
+    pub frames: Vec<BodyFrame>,
+    /// A finer selection of frames for the interactive viewer (evenly spaced, at most a
+    /// thousand, the first and last among them).
+    pub track: Vec<BodyFrame>,
+    /// The frame index of each of `track`.
+    pub track_frames: Vec<usize>,
+    /// Every frame's worst effector error.
+    pub error: Vec<f64>,
+    /// Every frame's iterations.
+    pub iterations: Vec<usize>,
 
 #[cfg(test)]
 mod tests {

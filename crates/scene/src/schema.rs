@@ -34,6 +34,8 @@ pub enum Task {
     Curve(tasks::curve::CurveTask),
     /// A mass-spring system stepped by an integrator.
     Cloth(tasks::cloth::ClothTask),
+    /// Full-body IK: several effectors on a skeleton tree solved together over a clip.
+    FullBody(tasks::full_body::FullBodyTask),
 }
 
 impl Task {
@@ -45,6 +47,7 @@ impl Task {
             Task::TwoBone(t) => t,
             Task::Curve(t) => t,
             Task::Cloth(t) => t,
+            Task::FullBody(t) => t,
         }
     }
 }
@@ -138,7 +141,14 @@ impl Scene {
     /// name (its file stem).
     pub fn from_text(path: impl AsRef<Path>, text: &str) -> Result<Scene, SceneError> {
         let path = path.as_ref();
-        let file = parse(path, text)?;
+        let mut file = parse(path, text)?;
+        // Files a task reads are named relative to the scene file.
+        let dir = path.parent().unwrap_or(Path::new(""));
+        for task in &mut file.tasks {
+            if let Task::FullBody(t) = task {
+                t.base_dir = dir.to_path_buf();
+            }
+        }
         for task in &file.tasks {
             let spec = task.spec();
             spec.validate().map_err(|message| SceneError::Invalid {

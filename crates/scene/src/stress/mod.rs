@@ -9,6 +9,10 @@
 //!   (measured independently), NaN, divergence and unconverged steps.
 //! - [`ik`]: the degenerate IK set for every solver, with the invariants every solve
 //!   must keep (no NaN, bone lengths, a truthful report, the geometric error bound).
+//! - [`body`]: the full-body degenerate set for every body solver configuration, with
+//!   the invariants every body solve must keep (no NaN, no limit violated, a report equal
+//!   to forward kinematics, the cost never above the start).
 
+pub mod body;
 pub mod cloth;
 pub mod ik;

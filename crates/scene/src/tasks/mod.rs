@@ -7,6 +7,7 @@
 pub mod cloth;
 pub mod curve;
 pub mod fk;
+pub mod full_body;
 pub mod ik;
 pub mod two_bone;
 

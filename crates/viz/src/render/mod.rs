@@ -1,4 +1,5 @@
-//! Pictures of scene results: animated GIFs and PNG stills of IK chains and cloth, the
+//! Pictures of scene results: animated GIFs and PNG stills of IK chains, full bodies and
+//! cloth, the
 //! curve-sampling comparison, and SVG line charts of per-frame metrics.
 //!
 //! Rendering only reads the data it is given; nothing here feeds back into a simulation,
@@ -18,6 +19,7 @@
 //! (about `+y`, from `+z` towards `+x`) and elevation (above the `xz` plane).
 
 mod animation;
+mod body;
 mod canvas;
 pub mod chart;
 mod cloth;
@@ -27,6 +29,7 @@ pub mod plot;
 mod samples;
 mod task;
 
+pub use body::{BodyLayout, BodySnapshot, body_gif, body_png};
 pub use chart::{Series, line_chart_svg};
 pub use cloth::{ClothFrame, cloth_gif, cloth_png};
 pub use ik::{IkFrame, ik_gif, ik_png};

@@ -1,10 +1,10 @@
 //! Interactive viewer pages from scene results: what `cargo xtask run-scene` writes
-//! beside the GIFs for each animated task (IK tracks and cloths), converted from
+//! beside the GIFs for each animated task (IK tracks, full-body clips and cloths), converted from
 //! [`sinew_scene::results::Pictures`] into the viewer's own [`ViewerPage`].
 
 use crate::viewer::{Collider, Frame, PageKind, Series, ViewerPage};
 use sinew_scene::TaskResult;
-use sinew_scene::results::{ClothPictures, IkPictures, Pictures, Shape};
+use sinew_scene::results::{BodyPictures, ClothPictures, IkPictures, Pictures, Shape};
 
 /// IK tracks have frames, not times: the page's clock runs them at this many frames a
 /// second (the viewer's own playback rate at 1x).
@@ -18,6 +18,7 @@ pub fn viewer_page(result: &TaskResult) -> Option<ViewerPage> {
     let mut page = match &result.pictures {
         Pictures::Ik(p) if p.track.len() > 1 => ik_page(&result.name, p),
         Pictures::Cloth(p) if p.track.len() > 1 => cloth_page(&result.name, p),
+        Pictures::Body(p) if p.track.len() > 1 => body_page(&result.name, p),
         _ => return None,
     };
     page.metrics = metrics_table(result);
@@ -50,6 +51,68 @@ fn ik_page(name: &str, p: &IkPictures) -> ViewerPage {
     page.charts = vec![
         Series {
             name: "effector error".into(),
+            unit: "scene units".into(),
+            values: p.track_frames.iter().map(|&k| p.error[k]).collect(),
+            log_scale: true,
+        },
+        Series {
+            name: "iterations".into(),
+            unit: String::new(),
+            values: p
+                .track_frames
+                .iter()
+                .map(|&k| p.iterations[k] as f64)
+                .collect(),
+            log_scale: false,
+        },
+    ];
+    page
+}
+
+fn body_page(name: &str, p: &BodyPictures) -> ViewerPage {
+    let mut page = ViewerPage::new(name, PageKind::Clip);
+    page.subtitle = format!(
+        "{}, {} effectors, {} frames (shown at {IK_FRAMES_PER_SECOND} a second)",
+        p.solver,
+        p.effectors.len(),
+        p.error.len()
+    );
+    page.frames = p
+        .track
+        .iter()
+        .zip(&p.track_frames)
+        .map(|(f, &k)| Frame {
+            time: k as f64 / IK_FRAMES_PER_SECOND,
+            points: f.joints.clone(),
+            goals: f.goals.clone(),
+            colliders: Vec::new(),
+        })
+        .collect();
+    page.segments = p
+        .parents
+        .iter()
+        .enumerate()
+        .filter_map(|(j, parent)| parent.map(|q| (q, j)))
+        .collect();
+    // Pinned effectors are the points that do not move; the others are drawn as
+    // effectors with their trails.
+    page.fixed = p
+        .effectors
+        .iter()
+        .zip(&p.pinned)
+        .filter(|&(_, &pinned)| pinned)
+        .map(|(&j, _)| j)
+        .collect();
+    page.effectors = p
+        .effectors
+        .iter()
+        .zip(&p.pinned)
+        .filter(|&(_, &pinned)| !pinned)
+        .map(|(&j, _)| j)
+        .collect();
+    page.charts = vec![
+        Series {
+            name: "worst effector error".into(),
             unit: "scene units".into(),
             values: p.track_frames.iter().map(|&k| p.error[k]).collect(),
             log_scale: true,

@@ -1,10 +1,12 @@
 //! The pictures of one task's result, written beside its metrics: what `cargo xtask
 //! run-scene` draws for each task kind, from [`sinew_scene::results::Pictures`] alone.
 
+use super::{BodyLayout, BodySnapshot, body_gif, body_png, line_chart_svg, samples_png};
 use super::{ClothFrame, IkFrame, Series, View, cloth_gif, cloth_png, ik_gif, ik_png};
-use super::{line_chart_svg, samples_png};
 use sinew_math::DVec3;
-use sinew_scene::results::{ClothPictures, CurvePictures, IkPictures, Pictures, Shape};
+use sinew_scene::results::{
+    BodyPictures, ClothPictures, CurvePictures, IkPictures, Pictures, Shape,
+};
 use std::path::Path;
 
 /// Draws the pictures of task `name` into `out_dir` as `<name>.<suffix>` (GIF, PNG,
@@ -17,6 +19,7 @@ pub fn draw_task(name: &str, pictures: &Pictures, out_dir: &Path) -> Result<(), 
         Pictures::Ik(p) => draw_ik(name, p, &out),
         Pictures::Curve(p) => draw_curve(p, &out("png")),
         Pictures::Cloth(p) => draw_cloth(name, p, &out),
+        Pictures::Body(p) => draw_body(name, p, &out),
     }
 }
 
@@ -65,6 +68,78 @@ fn draw_ik(
             &format!("{name}: final error per frame"),
             "frame",
             "effector to target distance",
+            &[Series {
+                name: &p.solver,
+                points: &error,
+            }],
+            true,
+        )?;
+        line_chart_svg(
+            &out("iterations.svg"),
+            &format!("{name}: iterations per frame"),
+            "frame",
+            "iterations",
+            &[Series {
+                name: &p.solver,
+                points: &iterations,
+            }],
+            false,
+        )?;
+    }
+    Ok(())
+}
+
+/// The animation (seen from the front and a little to the side, so both the squat's
+/// depth and the hands' circles show), the last frame as a still, and charts of the
+/// worst effector error and the iterations per frame.
+fn draw_body(
+    name: &str,
+    p: &BodyPictures,
+    out: &dyn Fn(&str) -> std::path::PathBuf,
+) -> Result<(), String> {
+    let points = p
+        .frames
+        .iter()
+        .flat_map(|f| f.joints.iter().chain(&f.goals).copied());
+    let view = View::fit(points, 0.6, 0.25, 480, 480);
+    let layout = BodyLayout {
+        parents: &p.parents,
+        effectors: &p.effectors,
+        pinned: &p.pinned,
+    };
+    let frames: Vec<BodySnapshot> = p
+        .frames
+        .iter()
+        .map(|f| BodySnapshot {
+            joints: &f.joints,
+            goals: &f.goals,
+            error: f.error,
+        })
+        .collect();
+    if frames.len() > 1 {
+        body_gif(&out("gif"), &view, &layout, &frames, 20)?;
+    }
+    if let Some(last) = frames.last() {
+        body_png(&out("png"), &view, &layout, last)?;
+    }
+    if p.error.len() > 1 {
+        let error: Vec<(f64, f64)> = p
+            .error
+            .iter()
+            .enumerate()
+            .map(|(k, &e)| (k as f64, e))
+            .collect();
+        let iterations: Vec<(f64, f64)> = p
+            .iterations
+            .iter()
+            .enumerate()
+            .map(|(k, &i)| (k as f64, i as f64))
+            .collect();
+        line_chart_svg(
+            &out("error.svg"),
+            &format!("{name}: worst effector error per frame"),
+            "frame",
+            "largest effector to goal distance",
             &[Series {
                 name: &p.solver,
                 points: &error,
