@@ -379,6 +379,7 @@ pub struct BodyPictures {
     pub error: Vec<f64>,
     /// Every frame's iterations.
     pub iterations: Vec<usize>,
+}
 
 #[cfg(test)]
 mod tests {
