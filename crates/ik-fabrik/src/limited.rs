@@ -7,12 +7,11 @@
 //! this one works on the pose itself, because a limit constrains a joint's local rotation
 //! and the rotation goal needs the effector's frame:
 //!
-//! - Degrees of freedom per joint, as world-frame rotation axes, in two groups a limit
-//!   can stop separately: a free joint has the three world axes; a hinge its axis turned
+//! - Degrees of freedom per joint, as world-frame rotation axes: a hinge its axis turned
 //!   into the world by its parent's global rotation (a hinge rotation composed on the left
-//!   stays a hinge rotation); a swing-twist joint its twist axis turned by its own global
-//!   rotation (composed on the right, it changes the twist only) and its two swing axes
-//!   turned by its parent's; a fixed joint none.
+//!   stays a hinge rotation); a free or swing-twist joint the three world axes (a world
+//!   rotation composed on the left of its global rotation), less the directions its
+//!   active set blocks; a fixed joint none.
 //! - A degree of freedom with world axis `u` at the joint's position `P` moves the
 //!   effector `E` by `u x (E - P)` and turns it by `u`, per radian: the Jacobian columns.
 //!   The weighted residual is `e = (wp (target - E), wr log(goal G_E^-1))`; the damped
@@ -20,53 +19,140 @@
 //!   degree of freedom by `J_k . y`.
 //! - Every trial pose is projected onto the limits joint by joint, so every pose the
 //!   finish accepts is inside them. A trial is kept only when it lowers `|e|^2`.
-//! - Hinges: a hinge on a bound whose step points outwards is left out before the trial
-//!   and the step solved again (its constraint is a box on its angle, so this part of the
-//!   active set is exact).
-//! - Active set: a joint the projection clamped (the step pushed it out of its limit) is
-//!   frozen, its columns left out (its groups are not independent: a swing step composed
-//!   on the left also moves the twist, so the whole joint); after a rejected trial that
-//!   froze a joint the step is recomputed at the same damping, so the other joints do
-//!   the work. An accepted step starts a new active set (every joint free again). Only a
-//!   rejection that froze nothing grows the damping.
+//! - Active set, decided before the trial where it can be: a hinge on a bound whose step
+//!   points outwards is frozen (its constraint is a box on its angle), and a swing-twist
+//!   joint on its swing or twist bound whose step has a component along the bound's
+//!   outward normal gets that direction blocked; the step is solved again, so the joint
+//!   slides along its bound. After a rejected trial, the direction each clamped joint was
+//!   pulled back along is blocked the same way and the damping doubles. An accepted step
+//!   starts a new active set. This is the one-effector case of the full-body finish of
+//!   `sinew-ik-body`, with dense columns.
+//! - The first damping follows the cost; a run of accepted steps that each gain under 2%
+//!   is crawling and ends the finish as a local minimum, so the solver can restart.
 //!
-//! It stops within both tolerances, at the iteration cap, or after `MAX_REJECTIONS`
-//! consecutive rejections (the damping then 1e8 times larger): a local minimum of the
+//! It stops within both tolerances, at the iteration cap, after `MAX_REJECTIONS`
+//! consecutive rejections, or after `CRAWL_STEPS` crawling steps: a local minimum of the
 //! error over the allowed set. The argument is in `docs/ik-limits.md`.
 
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{Chain, EffectorGoal, StopReason, rotation_angle};
-use sinew_skeleton::limits::{JointLimit, swing_twist};
+use sinew_skeleton::limits::{JointLimit, SwingTwist};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
+use std::f64::consts::PI;
 
-/// Relative to the trace of `J J^T`: the first damping (nearly Gauss-Newton).
-const INITIAL_DAMPING: f64 = 1e-6;
+/// The first damping is the smaller of this times the mean diagonal of `J J^T` and
+/// `COST_DAMPING` times the weighted cost.
+const INITIAL_DAMPING: f64 = 0.1;
+const COST_DAMPING: f64 = 0.1;
 /// Consecutive rejections before the finish declares a local minimum.
 const MAX_REJECTIONS: usize = 8;
+/// The damping's growth after any rejected trial (a rejection that blocked nothing grows
+/// it by 10 more).
+const CLAMP_GROWTH: f64 = 2.0;
+/// Accepted steps in a row that each lower the cost by less than `CRAWL_GAIN` (relative)
+/// before the finish declares a local minimum.
+const CRAWL_STEPS: usize = 4;
+const CRAWL_GAIN: f64 = 0.02;
 /// A hinge angle this close to a bound (radians) counts as on it.
 const AT_BOUND: f64 = 1e-12;
 /// A projection that turns a joint by more than this (radians) counts as a clamp.
 const CLAMPED: f64 = 1e-12;
 
-/// A joint's degrees of freedom come in two groups that its limit can stop separately:
-/// the twist (for a hinge: its one axis) and the swing (the two axes across the bone).
-const TWIST: usize = 0;
-const SWING: usize = 1;
+/// The active set of one movable chain joint.
+#[derive(Clone, Copy, Debug, Default)]
+struct Active {
+    /// Frozen: none of its degrees of freedom moves (a hinge at a bound pushed outwards,
+    /// or a three-axis joint with a third direction blocked).
+    frozen: bool,
+    /// The world directions of rotation blocked (orthonormal, the first `blocked_count`).
+    blocked: [DVec3; 2],
+    blocked_count: usize,
+    /// The direction the last trial's projection pulled the joint back along (world).
+    pulled_back: DVec3,
+    /// Whether the last trial's projection clamped it.
+    clamped: bool,
+    /// Whether it may sit on its bound (clamped by an accepted trial, or the finish just
+    /// started), and then the outward normals of its swing bound and its twist range as
+    /// local rotation vectors (zero when off that bound or already blocked).
+    on_bound: bool,
+    outward: [DVec3; 2],
+}
+
+impl Active {
+    /// Blocks the direction the projection pulled the joint back along: a hinge is
+    /// frozen; a free or swing-twist joint loses that one direction and keeps sliding
+    /// along its bound in the others, until a third direction would be blocked.
+    fn block(&mut self, limit: &JointLimit) {
+        if !matches!(limit, JointLimit::SwingTwist(_)) {
+            self.frozen = true;
+            return;
+        }
+        let mut d = self.pulled_back;
+        for b in &self.blocked[..self.blocked_count] {
+            d -= *b * b.dot(d);
+        }
+        match d.try_normalize() {
+            Some(unit)
+                if self.blocked_count < 2 && d.length() > 1e-3 * self.pulled_back.length() =>
+            {
+                self.blocked[self.blocked_count] = unit;
+                self.blocked_count += 1;
+            }
+            _ => self.frozen = true,
+        }
+    }
+
+    /// The outward normals of a swing-twist joint's bounds at `local`, by one-sided
+    /// differences of the limit's violation (0 inside, growing linearly outside).
+    fn find_outward(&mut self, limit: &JointLimit, local: DQuat) {
+        const H: f64 = 1e-7;
+        self.outward = [DVec3::ZERO; 2];
+        if !self.on_bound {
+            return;
+        }
+        let JointLimit::SwingTwist(st) = limit else {
+            self.on_bound = false;
+            return;
+        };
+        // The swing bound and the twist range are two constraints that can both be active
+        // (a corner): one normal each, from the limit with the other one opened up.
+        let swing_only = JointLimit::SwingTwist(SwingTwist {
+            twist_min: -PI,
+            twist_max: PI,
+            ..*st
+        });
+        let twist_only = JointLimit::SwingTwist(SwingTwist {
+            swing_a: PI,
+            swing_b: PI,
+            ..*st
+        });
+        for (g, limit) in [swing_only, twist_only].iter().enumerate() {
+            let mut n = DVec3::ZERO;
+            for e in [DVec3::X, DVec3::Y, DVec3::Z] {
+                let plus = limit.violation(DQuat::from_scaled_axis(e * H) * local);
+                let minus = limit.violation(DQuat::from_scaled_axis(e * -H) * local);
+                n += e * (plus - minus);
+            }
+            self.outward[g] = n.try_normalize().unwrap_or(DVec3::ZERO);
+        }
+        // Off both bounds: not watched again until a projection clamps it.
+        self.on_bound = self.outward != [DVec3::ZERO; 2];
+    }
+}
 
 /// Buffers of the finish, owned by the solver so a solve does not allocate once grown.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct LimitedRefiner {
-    /// Degrees of freedom: the chain position of the joint, its group, the world axis.
-    dofs: Vec<(usize, usize, DVec3)>,
-    /// Per movable chain joint and group: frozen by the active set (at its limit, with
-    /// the residual pushing it outwards).
-    frozen: Vec<[bool; 2]>,
-    /// Per movable chain joint and group: whether the last trial's projection clamped it.
-    clamped: Vec<[bool; 2]>,
+    /// Degrees of freedom: the chain position of the joint and the world axis.
+    dofs: Vec<(usize, DVec3)>,
+    /// Per movable chain joint: its active set.
+    active: Vec<Active>,
     /// The chain's local rotations before a trial.
     saved: Vec<DQuat>,
     /// The step of each degree of freedom (radians).
     step: Vec<f64>,
+    /// Per movable chain joint: the world rotation vector of the step.
+    turn: Vec<DVec3>,
 }
 
 /// What a finish did.
@@ -105,46 +191,36 @@ pub(crate) fn cost(goal: &EffectorGoal, global: &GlobalPose) -> f64 {
     residual(goal, global).1
 }
 
-/// Which groups of `limit` the projection from `turned` to `projected` moved.
-fn clamped_groups(limit: &JointLimit, turned: DQuat, projected: DQuat) -> [bool; 2] {
-    match limit {
-        JointLimit::Free | JointLimit::Fixed => [false, false],
-        JointLimit::Hinge(_) => [rotation_angle(turned, projected) > CLAMPED, false],
-        JointLimit::SwingTwist(st) => {
-            let (swing_a, twist_a) = swing_twist(turned, st.twist_axis);
-            let (swing_b, twist_b) = swing_twist(projected, st.twist_axis);
-            [
-                rotation_angle(twist_a, twist_b) > CLAMPED,
-                rotation_angle(swing_a, swing_b) > CLAMPED,
-            ]
-        }
+/// The world axes of a joint's free degrees of freedom: none for a fixed or frozen joint,
+/// a hinge's axis turned into the world by its parent's global rotation (a hinge rotation
+/// composed on the left stays one), for a free or swing-twist joint an orthonormal basis
+/// of the world directions its active set has not blocked (the world axes when none is:
+/// exact for a rotation composed on the left, and never short of rank where the limit's
+/// own frame would be at a quarter-turn swing).
+fn joint_axes(limit: &JointLimit, parent: DQuat, active: &Active, mut push: impl FnMut(DVec3)) {
+    if active.frozen {
+        return;
     }
-}
-
-/// The world axes of joint `j`'s degrees of freedom, by group, given its parent's global
-/// rotation and its own local rotation: a free joint the world axes (one group, never
-/// clamped), a hinge its axis turned into the world by the parent (a hinge rotation
-/// composed on the left stays one), a swing-twist joint its twist axis turned by its own
-/// global rotation (composed on the right, it changes the twist only) and its two swing
-/// axes turned by the parent.
-fn joint_axes(limit: &JointLimit, parent: DQuat, local: DQuat, mut push: impl FnMut(usize, DVec3)) {
     match limit {
         JointLimit::Fixed => {}
-        JointLimit::Free => {
-            for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
-                push(SWING, axis);
+        JointLimit::Hinge(h) => push((parent * h.axis).normalize()),
+        JointLimit::Free | JointLimit::SwingTwist(_) => match active.blocked_count {
+            0 => {
+                for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
+                    push(axis);
+                }
             }
-        }
-        JointLimit::Hinge(h) => push(TWIST, (parent * h.axis).normalize()),
-        JointLimit::SwingTwist(_) => {
-            // The world axes: any three spanning axes are exact (the columns are world
-            // rotations composed on the left), and these never lose rank, where the
-            // limit's own frame would at a swing of a quarter turn.
-            let _ = (parent, local);
-            for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
-                push(SWING, axis);
+            1 => {
+                let (u, v) = active.blocked[0].any_orthonormal_pair();
+                push(u);
+                push(v);
             }
-        }
+            _ => {
+                if let Some(u) = active.blocked[0].cross(active.blocked[1]).try_normalize() {
+                    push(u);
+                }
+            }
+        },
     }
 }
 
@@ -166,16 +242,27 @@ impl LimitedRefiner {
     ) -> Result<Finished, SkeletonError> {
         let movable = &chain.joints()[..chain.bone_count()];
         let n = movable.len();
-        self.frozen.clear();
-        self.frozen.resize(n, [false; 2]);
-        self.clamped.clear();
-        self.clamped.resize(n, [false; 2]);
+        self.active.clear();
+        self.active.resize(
+            n,
+            Active {
+                on_bound: true,
+                ..Active::default()
+            },
+        );
+        for (active, &j) in self.active.iter_mut().zip(movable) {
+            active.find_outward(skeleton.limit(j), pose.rotations[j]);
+        }
+        self.turn.clear();
+        self.turn.resize(n, DVec3::ZERO);
         let rows = if goal.rotation.is_some() { 6 } else { 3 };
         let (mut r, mut cost) = residual(goal, global);
         let mut damping = f64::NAN;
         let mut rejections = 0;
+        let mut crawl = 0;
         let mut steps = 0;
-        // Whether this pass recomputes the last step with fewer joints (not a new step).
+        // Whether this pass recomputes the last step with fewer directions (not a new
+        // step).
         let mut resolving = false;
         loop {
             let (position, rotation) = goal.errors(global);
@@ -203,19 +290,15 @@ impl LimitedRefiner {
                 let w = u * goal.rotation_weight;
                 [p.x, p.y, p.z, w.x, w.y, w.z]
             };
-            // The degrees of freedom of the joints the active set leaves free.
+            // The directions the active set leaves free.
             self.dofs.clear();
             for (c, &j) in movable.iter().enumerate() {
                 let parent = skeleton
                     .parent(j)
                     .map_or(DQuat::IDENTITY, |p| global.rotations[p]);
-                let limit = skeleton.limit(j);
-                let frozen = self.frozen[c];
                 let dofs = &mut self.dofs;
-                joint_axes(limit, parent, pose.rotations[j], |group, axis| {
-                    if !frozen[group] {
-                        dofs.push((c, group, axis));
-                    }
+                joint_axes(skeleton.limit(j), parent, &self.active[c], |axis| {
+                    dofs.push((c, axis));
                 });
             }
             if self.dofs.is_empty() {
@@ -225,7 +308,7 @@ impl LimitedRefiner {
                 });
             }
             let mut normal = [[0.0; 6]; 6];
-            for &(c, _, u) in &self.dofs {
+            for &(c, u) in &self.dofs {
                 let col = column(c, u);
                 for a in 0..rows {
                     for b in 0..=a {
@@ -235,7 +318,10 @@ impl LimitedRefiner {
             }
             if damping.is_nan() {
                 let trace: f64 = (0..rows).map(|a| normal[a][a]).sum();
-                damping = INITIAL_DAMPING * trace / rows as f64;
+                // Far from the goal a cautious first step, near it a nearly Gauss-Newton
+                // one: the damping follows the cost (Yamashita and Fukushima's choice
+                // `lambda = |r|^2`), capped by the scale of `J J^T`.
+                damping = (INITIAL_DAMPING * trace / rows as f64).min(COST_DAMPING * cost);
             }
             if !resolving {
                 steps += 1;
@@ -247,66 +333,116 @@ impl LimitedRefiner {
                 continue;
             };
             self.step.clear();
-            for &(c, _, u) in &self.dofs {
+            self.turn.fill(DVec3::ZERO);
+            for &(c, u) in &self.dofs {
                 let col = column(c, u);
-                self.step.push((0..rows).map(|a| col[a] * y[a]).sum());
+                let s: f64 = (0..rows).map(|a| col[a] * y[a]).sum();
+                self.step.push(s);
+                self.turn[c] += u * s;
             }
             // A hinge is a box constraint on its angle, so its active set is exact: a hinge
             // at a bound whose step points outwards would only be clamped back, while the
             // other joints moved as if it had turned. Leave it out and solve again (the
             // same step, not counted twice), so the step is the reduced problem's.
-            for (&(c, _, _), &step) in self.dofs.iter().zip(&self.step) {
+            for (&(c, _), &step) in self.dofs.iter().zip(&self.step) {
                 let j = movable[c];
                 if let JointLimit::Hinge(h) = skeleton.limit(j)
                     && h.pushes_outwards(pose.rotations[j], step, AT_BOUND)
                 {
-                    self.frozen[c] = [true; 2];
+                    self.active[c].frozen = true;
                     resolving = true;
+                }
+            }
+            // The same for a swing-twist joint on its bound: the step's component along
+            // the bound's outward normal would be projected away; block that direction
+            // (the joint keeps sliding along the bound) and solve again.
+            for (c, &j) in movable.iter().enumerate() {
+                let w = self.turn[c];
+                let active = &mut self.active[c];
+                if active.frozen || active.outward == [DVec3::ZERO; 2] || w == DVec3::ZERO {
+                    continue;
+                }
+                let parent = skeleton
+                    .parent(j)
+                    .map_or(DQuat::IDENTITY, |p| global.rotations[p]);
+                let local = parent.conjugate() * w;
+                for g in 0..2 {
+                    let normal = active.outward[g];
+                    if normal != DVec3::ZERO && local.dot(normal) > 0.0 {
+                        active.pulled_back = parent * normal;
+                        active.block(skeleton.limit(j));
+                        // Blocked once per linearization: the normal is not asked again.
+                        active.outward[g] = DVec3::ZERO;
+                        resolving = true;
+                        break;
+                    }
                 }
             }
             if resolving {
                 continue;
             }
-            // Trial: turn each joint by its degrees of freedom (world axes taken into the
-            // parent's frame of the linearization), project it onto its limit.
+            // Trial: turn each joint by its step (world axes taken into the parent's
+            // frame of the linearization), project it onto its limit.
             self.saved.clear();
             self.saved
                 .extend(movable.iter().map(|&j| pose.rotations[j]));
-            let mut k = 0;
             for (c, &j) in movable.iter().enumerate() {
-                let mut w = DVec3::ZERO;
-                while k < self.dofs.len() && self.dofs[k].0 == c {
-                    w += self.dofs[k].2 * self.step[k];
-                    k += 1;
-                }
-                self.clamped[c] = [false; 2];
+                let w = self.turn[c];
+                let active = &mut self.active[c];
+                active.clamped = false;
                 if w == DVec3::ZERO {
                     continue;
                 }
-                let local = match skeleton.parent(j) {
-                    Some(p) => global.rotations[p].conjugate() * w,
-                    None => w,
-                };
+                let parent = skeleton.parent(j).map(|p| global.rotations[p]);
+                let local = parent.map_or(w, |p| p.conjugate() * w);
                 let turned = (DQuat::from_scaled_axis(local) * pose.rotations[j]).normalize();
                 let limit = skeleton.limit(j);
                 if matches!(limit, JointLimit::Free) {
                     pose.rotations[j] = turned;
                 } else {
                     let projected = limit.project(turned);
-                    self.clamped[c] = clamped_groups(limit, turned, projected);
+                    active.clamped = rotation_angle(turned, projected) > CLAMPED;
+                    if active.clamped {
+                        // The pull-back as a world rotation vector: composed on the left
+                        // in the parent's frame, then turned into the world like the step.
+                        let mut back = projected * turned.conjugate();
+                        if back.w < 0.0 {
+                            back = -back;
+                        }
+                        let back = back.to_scaled_axis();
+                        active.pulled_back = parent.map_or(back, |p| p * back);
+                    }
                     pose.rotations[j] = projected;
                 }
             }
             skeleton.forward_kinematics_from(pose, chain.base(), global)?;
             let (trial_r, trial_cost) = residual(goal, global);
             if trial_cost < cost {
+                // Crawling along the bounds: accepted steps that each gain almost nothing
+                // are a local minimum in all but name; say so, so that the caller may
+                // restart, rather than spend the iterations.
+                if trial_cost > (1.0 - CRAWL_GAIN) * cost {
+                    crawl += 1;
+                } else {
+                    crawl = 0;
+                }
                 r = trial_r;
                 cost = trial_cost;
+                if crawl >= CRAWL_STEPS {
+                    return Ok(Finished {
+                        stop: StopReason::LocalMinimum,
+                        steps,
+                    });
+                }
                 damping /= 3.0;
                 rejections = 0;
-                // A new point, a new active set: every joint may move again.
-                for frozen in &mut self.frozen {
-                    *frozen = [false; 2];
+                // A new point, a new active set: every joint may move again, and the
+                // ones a projection left on a bound are watched there.
+                for (active, &j) in self.active.iter_mut().zip(movable) {
+                    active.frozen = false;
+                    active.blocked_count = 0;
+                    active.on_bound |= active.clamped;
+                    active.find_outward(skeleton.limit(j), pose.rotations[j]);
                 }
                 continue;
             }
@@ -314,18 +450,19 @@ impl LimitedRefiner {
                 pose.rotations[j] = saved;
             }
             skeleton.forward_kinematics_from(pose, chain.base(), global)?;
-            // Joints the projection clamped are at their limit with the step pushing
-            // outwards: freeze them and retry at the same damping.
-            let mut newly_frozen = false;
-            for (frozen, clamped) in self.frozen.iter_mut().zip(&self.clamped) {
-                // The groups of a joint are not independent (a swing step composed on
-                // the left also moves the twist), so a clamp freezes the whole joint.
-                if *clamped != [false; 2] && *frozen != [true; 2] {
-                    *frozen = [true; 2];
-                    newly_frozen = true;
+            // A rejected trial means the step was too long for the linearization or for
+            // the bounds: shorten the next one too, whether or not a joint was blocked.
+            // Joints the projection clamped lose the direction they were pulled back
+            // along, and the step is recomputed.
+            damping *= CLAMP_GROWTH;
+            let mut newly_blocked = false;
+            for (active, &j) in self.active.iter_mut().zip(movable) {
+                if active.clamped && !active.frozen {
+                    active.block(skeleton.limit(j));
+                    newly_blocked = true;
                 }
             }
-            if !newly_frozen {
+            if !newly_blocked {
                 damping = (damping * 10.0).max(f64::MIN_POSITIVE);
                 rejections += 1;
             }

@@ -132,6 +132,7 @@ fn w7_feasible_targets_are_reached_inside_the_limits() {
         let mut solver = options.build().unwrap();
         let mut within = 0;
         let mut restarts = 0;
+        let mut worst_violation: f64 = 0.0;
         let mut missed = std::collections::BTreeMap::new();
         for (k, &goal) in goals.iter().enumerate() {
             let what = format!("{name} feasible {k}");
@@ -145,20 +146,20 @@ fn w7_feasible_targets_are_reached_inside_the_limits() {
             );
             within += usize::from(report.error <= 1e-6);
             restarts += usize::from(report.restarted);
+            worst_violation = worst_violation.max(report.limit_violation);
             if report.error > 1e-6 {
                 *missed.entry(report.stop.name()).or_insert(0) += 1;
             }
         }
         eprintln!(
-            "W7 {name}: {within} of {} feasible targets within 1e-6, {restarts} restarts; missed: {missed:?}",
+            "W7 {name}: {within} of {} feasible targets within 1e-6, {restarts} restarts; missed: {missed:?}; limit violation max {worst_violation:e} rad",
             goals.len()
         );
         // The workload's bar for FABRIK is 99.9% of the feasible targets at the cap of
-        // 100; the finish measured 96.9% here (1 938 of 2 000: 47 stop at the cap while
-        // still converging, 15 in local minima). The bar is not met yet; this guards the
-        // measured figure. CCD measured 95.8% (1 916; 87.3% before it restarted from the
-        // centre of the limits after a local minimum).
-        let floor = if name == "fabrik" { 0.965 } else { 0.955 };
+        // 100; its finish, which slides along the swing-twist bounds, measured 1 999 of
+        // 2 000 here (96.9% before it did). CCD measured 95.8% (1 916; 87.3% before it
+        // restarted from the centre of the limits after a local minimum).
+        let floor = if name == "fabrik" { 0.999 } else { 0.955 };
         assert!(
             within as f64 >= floor * goals.len() as f64,
             "{name}: {within} of {}",
@@ -289,7 +290,7 @@ fn w7_rotation_goals_converge_both_errors_with_fabrik() {
         "W7 rotation goals, fabrik: {within} of {} within 1e-6 and 1e-6 rad",
         goals.len()
     );
-    // Measured 799 of 1000 (the rest stop at the cap of 100 or in local minima); this
-    // guards the measured figure, short of the workload's bar.
-    assert!(within >= 795, "{within} of {}", goals.len());
+    // Measured 982 of 1000 since the finish slides along the swing-twist bounds (799
+    // before); this guards the measured figure, short of the workload's bar.
+    assert!(within >= 978, "{within} of {}", goals.len());
 }
