@@ -34,7 +34,7 @@ use crate::linear::{
     DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, PcgOutcome, PcgSolver,
     SolverCosts,
 };
-use crate::model::{ModelError, SpringSystem, check_time_step};
+use crate::model::{ModelError, SpringSystem, Topology, check_time_step};
 use crate::pattern::{FIXED, HessianPattern};
 use crate::potential::{HessianSink, Potential, StepContext, Term};
 use crate::report::{IntegratorKind, StepError, StepReport};
@@ -109,8 +109,8 @@ pub struct BackwardEuler {
     /// The counts of the automatic solver choice, analysed the first time it needs them.
     costs: Option<SolverCosts>,
     objective_trace: Vec<f64>,
-    particle_count: usize,
-    spring_count: usize,
+    /// The fingerprint of the system this workspace was built for, compared on each step.
+    topology: Topology,
     /// Particle pairs coupled by terms other than the springs, in the pattern too.
     coupled_pairs: Vec<[usize; 2]>,
 }
@@ -150,8 +150,7 @@ impl BackwardEuler {
             chooser: SolverChooser::default(),
             costs: None,
             objective_trace: Vec::new(),
-            particle_count: system.len(),
-            spring_count: system.springs().len(),
+            topology: system.topology(),
             coupled_pairs: Vec::new(),
             direct,
             pattern,
@@ -281,11 +280,11 @@ impl BackwardEuler {
         self.have_prev_velocity = false;
     }
 
-    fn check_topology(&self, system: &SpringSystem) -> Result<(), ModelError> {
-        if system.len() != self.particle_count || system.springs().len() != self.spring_count {
-            return Err(ModelError::TopologyMismatch);
-        }
-        Ok(())
+    /// The pattern, the factorization and the potential's per-particle state were built
+    /// for one topology: another system of the same counts but other pins, pairs or masses
+    /// would run silently on them, so the fingerprints are compared (O(1)).
+    pub(crate) fn check_topology(&self, system: &SpringSystem) -> Result<(), ModelError> {
+        self.topology.check(&system.topology())
     }
 
     /// Advances `system` by one backward Euler step of length `h`.
@@ -307,7 +306,10 @@ impl BackwardEuler {
         if let Scheme::Bdf2 { prev_x, prev_v } = scheme
             && (prev_x.len() != system.len() || prev_v.len() != system.len())
         {
-            return Err(ModelError::TopologyMismatch.into());
+            return Err(ModelError::TopologyMismatch {
+                what: "BDF2 history length",
+            }
+            .into());
         }
         let (kind, h_eff) = match scheme {
             Scheme::BackwardEuler => (IntegratorKind::BackwardEuler, h),
