@@ -19,8 +19,10 @@
 //! so the sufficient-decrease test stays meaningful when the change is far below `g`.
 //! The code is split by concern: [`NewtonSettings`] (settings), the `Auto` solver choice
 //! (solver_choice), the iteration (minimize) and the line search (line_search).
-//! Stops when `|grad g|_inf <= tolerance * m_min / h^2` (`m_min` the smallest free mass),
-//! at the iteration cap, or when the line search cannot decrease `g` any more.
+//! Stops when `|grad g|_inf <= tolerance * m_min / h^2` (`m_min` the smallest free mass)
+//! after at least one Newton iteration (none only when the first guess is already at the
+//! gradient's round-off floor), at the iteration cap, or when the line search cannot
+//! decrease `g` any more.
 //! The derivation and the rules are in docs/spring-sim.md.
 
 mod line_search;
