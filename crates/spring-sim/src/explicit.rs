@@ -50,6 +50,8 @@ pub struct SymplecticEuler {
     threaded: ThreadedForces,
     work_x: Vec<DVec3>,
     work_v: Vec<DVec3>,
+    /// The fingerprint of the system the force lists were built for, compared per step.
+    topology: crate::model::Topology,
 }
 
 impl SymplecticEuler {
@@ -67,6 +69,7 @@ impl SymplecticEuler {
             threaded: ThreadedForces::new(system, 0)?,
             work_x: system.positions().to_vec(),
             work_v: system.velocities().to_vec(),
+            topology: system.topology(),
         })
     }
 
@@ -90,6 +93,7 @@ impl SymplecticEuler {
         system: &SpringSystem,
         threads: usize,
     ) -> Result<(), crate::model::ModelError> {
+        self.topology.check(&system.topology())?;
         self.threaded = ThreadedForces::new(system, threads)?;
         Ok(())
     }
@@ -104,9 +108,7 @@ impl SymplecticEuler {
     /// Advances `system` by `h`.
     pub fn step(&mut self, system: &mut SpringSystem, h: f64) -> Result<StepReport, StepError> {
         check_time_step(h)?;
-        if self.forces.len() != system.len() {
-            return Err(crate::model::ModelError::TopologyMismatch.into());
-        }
+        self.topology.check(&system.topology())?;
         let mut report = StepReport::new(IntegratorKind::SymplecticEuler);
         report.substeps = self.substeps;
         report.energy_before = system.energies();
@@ -360,6 +362,9 @@ pub struct VelocityVerlet {
     end_energy: Option<crate::model::Energies>,
     /// `1/m`, 0 for fixed particles (whose velocity is 0), so the update has no branch.
     inv_mass: Vec<f64>,
+    /// The fingerprint of the system `inv_mass` and the force lists were built for: a
+    /// system of equal counts but other masses, pins or pairs would run on them silently.
+    topology: crate::model::Topology,
 }
 
 impl VelocityVerlet {
@@ -381,6 +386,7 @@ impl VelocityVerlet {
             end_v: Vec::new(),
             end_energy: None,
             inv_mass: inverse_masses(system),
+            topology: system.topology(),
         })
     }
 
@@ -404,6 +410,7 @@ impl VelocityVerlet {
         system: &SpringSystem,
         threads: usize,
     ) -> Result<(), crate::model::ModelError> {
+        self.topology.check(&system.topology())?;
         self.threaded = ThreadedForces::new(system, threads)?;
         Ok(())
     }
@@ -418,9 +425,7 @@ impl VelocityVerlet {
     /// Advances `system` by `h`. A non-finite value undoes the step and is an error.
     pub fn step(&mut self, system: &mut SpringSystem, h: f64) -> Result<StepReport, StepError> {
         check_time_step(h)?;
-        if self.forces.len() != system.len() {
-            return Err(crate::model::ModelError::TopologyMismatch.into());
-        }
+        self.topology.check(&system.topology())?;
         let mut report = StepReport::new(IntegratorKind::VelocityVerlet);
         report.substeps = self.substeps;
         let unchanged = self.end_energy.is_some()

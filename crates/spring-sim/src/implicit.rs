@@ -116,9 +116,8 @@ impl Bdf2 {
     /// Advances `system` by `h`: BDF2 when the last step had the same length, else a
     /// midpoint step that starts the history (reported as BDF2 either way).
     pub fn step(&mut self, system: &mut SpringSystem, h: f64) -> Result<StepReport, StepError> {
-        if self.start_x.len() != system.len() {
-            return Err(ModelError::TopologyMismatch.into());
-        }
+        // Checked before the history buffers are touched (the Newton step checks again).
+        self.newton.check_topology(system)?;
         self.start_x.copy_from_slice(system.positions());
         self.start_v.copy_from_slice(system.velocities());
         let mut report = if self.prev_h == Some(h) {

@@ -413,6 +413,10 @@ pub struct Simulation {
     /// are posed at.
     time: f64,
     contact: Option<Contact>,
+    /// The fingerprint of the system the stepper was built for: [`Simulation::system_mut`]
+    /// allows replacing the whole system, and `auto` builds BDF2 lazily on whatever
+    /// system it is given, so the check is made here once per step as well.
+    topology: crate::model::Topology,
 }
 
 /// The colliders of a simulation and how they act (see [`Simulation::set_contact`]).
@@ -455,6 +459,7 @@ impl Simulation {
             }
         };
         Ok(Self {
+            topology: system.topology(),
             system,
             stepper,
             time: 0.0,
@@ -580,6 +585,7 @@ impl Simulation {
     /// Advances by `dt`. On error the system is unchanged.
     pub fn step(&mut self, dt: f64) -> Result<StepReport, StepError> {
         crate::model::check_time_step(dt)?;
+        self.topology.check(&self.system.topology())?;
         if let (Some(contact), Stepper::BackwardEuler(_)) = (&mut self.contact, &self.stepper) {
             // The minimization starts from an admissible state: the step's start, with
             // particles a kinematic collider would run over carried along with it

@@ -70,6 +70,7 @@ pub use mesh::{Bending, EdgeHinge, MeshCloth, MeshClothModel, MeshError, Triangl
 pub use metrics::{DIVERGENCE_RADIUS, RunMetrics, run, run_observed};
 pub use model::{
     ClothGrid, Energies, Material, ModelError, Particle, Rope, Spring, SpringSpec, SpringSystem,
+    Topology,
 };
 pub use newton::{BackwardEuler, InitialGuess, NewtonSettings, newton_matrix_triplets};
 pub use pattern::HessianPattern;

@@ -238,8 +238,12 @@ pub enum ModelError {
         /// What is wrong with it.
         reason: &'static str,
     },
-    /// A mismatch between a system and a workspace built for another topology.
-    TopologyMismatch,
+    /// A system given to a stepper built for another topology (see [`Topology`]).
+    TopologyMismatch {
+        /// What differs: "particle count", "spring count", "fixed set", "spring pairs"
+        /// or "masses" (the first of these that does), or "BDF2 history length".
+        what: &'static str,
+    },
 }
 
 impl fmt::Display for ModelError {
@@ -293,9 +297,9 @@ impl fmt::Display for ModelError {
                 write!(f, "time step {dt} is not positive and finite")
             }
             Self::BadParameter { name, reason } => write!(f, "parameter {name}: {reason}"),
-            Self::TopologyMismatch => write!(
+            Self::TopologyMismatch { what } => write!(
                 f,
-                "the system's particles, springs or fixed set differ from the ones the integrator was built for"
+                "topology: the system's {what} differ from those the integrator was built for"
             ),
         }
     }
@@ -324,6 +328,108 @@ pub struct SpringSystem {
     fixed: Vec<bool>,
     springs: Vec<Spring>,
     material: Material,
+    /// Computed once here: the topology cannot change after construction.
+    topology: Topology,
+}
+
+/// A fingerprint of what a stepper's workspace is built from: the particle and spring
+/// counts, the fixed set, the spring pairs (in order) and the masses.
+///
+/// Each part except the counts is a 64-bit hash (FNV-1a over the exact bits), computed
+/// once when the system is built, so a stepper compares a system against the one it was
+/// built for in O(1) per step. Two different systems share a part's hash only by a hash
+/// collision (about 2^-64 for unrelated inputs). Stiffness, rest lengths, damping and
+/// gravity are not part of it: every stepper reads them from the system at each step.
+///
+/// ```
+/// use sinew_spring_sim::{ClothGrid, ModelError, SpringSystem};
+/// let grid = ClothGrid::lab();
+/// let a = SpringSystem::cloth(&grid).unwrap();
+/// assert_eq!(a.topology().check(&a.clone().topology()), Ok(()));
+/// let b = SpringSystem::cloth(&grid.with_damping(0.5)).unwrap();
+/// assert_eq!(a.topology(), b.topology()); // damping is read at each step
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Topology {
+    particles: usize,
+    springs: usize,
+    fixed: u64,
+    pairs: u64,
+    masses: u64,
+}
+
+/// FNV-1a over 64-bit words, byte by byte: deterministic across runs and platforms
+/// (unlike the standard library's randomly keyed hasher).
+#[derive(Clone, Copy)]
+struct Fnv(u64);
+
+impl Fnv {
+    const fn new() -> Self {
+        Self(0xcbf2_9ce4_8422_2325)
+    }
+
+    fn word(&mut self, w: u64) {
+        for b in w.to_le_bytes() {
+            self.0 ^= u64::from(b);
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+}
+
+impl Topology {
+    /// The fingerprint of `particles` (mass, fixed) and `springs` (pairs) in O(n).
+    fn compute(masses: &[f64], fixed: &[bool], springs: &[Spring]) -> Self {
+        let (mut f, mut p, mut m) = (Fnv::new(), Fnv::new(), Fnv::new());
+        // The indices of the fixed particles, so the hash sees the set, not only its size.
+        for (i, _) in fixed.iter().enumerate().filter(|(_, x)| **x) {
+            f.word(i as u64);
+        }
+        for s in springs {
+            p.word(s.a as u64);
+            p.word(s.b as u64);
+        }
+        for x in masses {
+            m.word(x.to_bits());
+        }
+        Self {
+            particles: masses.len(),
+            springs: springs.len(),
+            fixed: f.0,
+            pairs: p.0,
+            masses: m.0,
+        }
+    }
+
+    /// `Ok` when `other` is the same topology; otherwise the mismatch, naming the first
+    /// part that differs (particle count, spring count, fixed set, spring pairs, masses).
+    pub fn check(&self, other: &Self) -> Result<(), ModelError> {
+        let what = if self.particles != other.particles {
+            "particle count"
+        } else if self.springs != other.springs {
+            "spring count"
+        } else if self.fixed != other.fixed {
+            "fixed set"
+        } else if self.pairs != other.pairs {
+            "spring pairs"
+        } else if self.masses != other.masses {
+            "masses"
+        } else {
+            return Ok(());
+        };
+        Err(ModelError::TopologyMismatch { what })
+    }
+
+    /// The particle count.
+    #[must_use]
+    pub fn particles(&self) -> usize {
+        self.particles
+    }
+
+    /// The spring count.
+    #[must_use]
+    pub fn springs(&self) -> usize {
+        self.springs
+    }
 }
 
 impl SpringSystem {
@@ -424,16 +530,20 @@ impl SpringSystem {
                 stiffness,
             });
         }
+        let masses: Vec<f64> = particles.iter().map(|p| p.mass).collect();
+        let fixed: Vec<bool> = particles.iter().map(|p| p.fixed).collect();
+        let topology = Topology::compute(&masses, &fixed, &resolved);
         Ok(Self {
             positions: particles.iter().map(|p| p.position).collect(),
             velocities: particles
                 .iter()
                 .map(|p| if p.fixed { DVec3::ZERO } else { p.velocity })
                 .collect(),
-            masses: particles.iter().map(|p| p.mass).collect(),
-            fixed: particles.iter().map(|p| p.fixed).collect(),
+            masses,
+            fixed,
             springs: resolved,
             material,
+            topology,
         })
     }
 
@@ -590,17 +700,18 @@ impl SpringSystem {
         }
     }
 
+    /// The fingerprint of the topology, computed when the system was built (O(1)).
+    #[must_use]
+    pub fn topology(&self) -> Topology {
+        self.topology
+    }
+
     /// Whether two systems have the same topology (particle count, fixed set, spring
-    /// pairs), so an integrator workspace built for one fits the other.
+    /// pairs, masses), so a stepper built for one fits the other; compares the
+    /// fingerprints, O(1).
     #[must_use]
     pub fn same_topology(&self, other: &Self) -> bool {
-        self.fixed == other.fixed
-            && self.springs.len() == other.springs.len()
-            && self
-                .springs
-                .iter()
-                .zip(&other.springs)
-                .all(|(s, t)| s.a == t.a && s.b == t.b)
+        self.topology == other.topology
     }
 }
 

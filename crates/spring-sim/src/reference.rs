@@ -48,6 +48,8 @@ pub mod flawed_report_method {
         grad: Vec<DVec3>,
         blocks: Vec<DMat3>,
         directions: Vec<DVec3>,
+        /// The fingerprint of the system the buffers were sized for.
+        topology: crate::model::Topology,
     }
 
     impl FlawedReportMethod {
@@ -62,6 +64,7 @@ pub mod flawed_report_method {
                 grad: vec![DVec3::ZERO; n],
                 blocks: vec![DMat3::ZERO; n],
                 directions: vec![DVec3::ZERO; system.springs().len()],
+                topology: system.topology(),
             }
         }
 
@@ -69,9 +72,7 @@ pub mod flawed_report_method {
         /// block. Errors (and undoes the step) when a value becomes non-finite.
         pub fn step(&mut self, system: &mut SpringSystem, h: f64) -> Result<StepReport, StepError> {
             check_time_step(h)?;
-            if self.x.len() != system.len() || self.directions.len() != system.springs().len() {
-                return Err(crate::model::ModelError::TopologyMismatch.into());
-            }
+            self.topology.check(&system.topology())?;
             let mut report = StepReport::new(IntegratorKind::FlawedReportMethod);
             report.energy_before = system.energies();
             let gravity = system.material().gravity;

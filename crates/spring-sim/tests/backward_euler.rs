@@ -283,7 +283,7 @@ fn damped_energy_never_rises() {
     }
 }
 
-/// A system at rest costs no Newton iteration.
+/// A system at rest at its equilibrium (to round-off) costs no Newton iteration.
 #[test]
 fn system_at_rest_is_already_solved() {
     let particles = [

@@ -19,8 +19,10 @@
 //! so the sufficient-decrease test stays meaningful when the change is far below `g`.
 //! The code is split by concern: [`NewtonSettings`] (settings), the `Auto` solver choice
 //! (solver_choice), the iteration (minimize) and the line search (line_search).
-//! Stops when `|grad g|_inf <= tolerance * m_min / h^2` (`m_min` the smallest free mass),
-//! at the iteration cap, or when the line search cannot decrease `g` any more.
+//! Stops when `|grad g|_inf <= tolerance * m_min / h^2` (`m_min` the smallest free mass)
+//! after at least one Newton iteration (none only when the first guess is already at the
+//! gradient's round-off floor), at the iteration cap, or when the line search cannot
+//! decrease `g` any more.
 //! The derivation and the rules are in docs/spring-sim.md.
 
 mod line_search;
@@ -34,7 +36,7 @@ use crate::linear::{
     DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, PcgOutcome, PcgSolver,
     SolverCosts,
 };
-use crate::model::{ModelError, SpringSystem, check_time_step};
+use crate::model::{ModelError, SpringSystem, Topology, check_time_step};
 use crate::pattern::{FIXED, HessianPattern};
 use crate::potential::{HessianSink, Potential, StepContext, Term};
 use crate::report::{IntegratorKind, StepError, StepReport};
@@ -109,8 +111,8 @@ pub struct BackwardEuler {
     /// The counts of the automatic solver choice, analysed the first time it needs them.
     costs: Option<SolverCosts>,
     objective_trace: Vec<f64>,
-    particle_count: usize,
-    spring_count: usize,
+    /// The fingerprint of the system this workspace was built for, compared on each step.
+    topology: Topology,
     /// Particle pairs coupled by terms other than the springs, in the pattern too.
     coupled_pairs: Vec<[usize; 2]>,
 }
@@ -150,8 +152,7 @@ impl BackwardEuler {
             chooser: SolverChooser::default(),
             costs: None,
             objective_trace: Vec::new(),
-            particle_count: system.len(),
-            spring_count: system.springs().len(),
+            topology: system.topology(),
             coupled_pairs: Vec::new(),
             direct,
             pattern,
@@ -281,11 +282,11 @@ impl BackwardEuler {
         self.have_prev_velocity = false;
     }
 
-    fn check_topology(&self, system: &SpringSystem) -> Result<(), ModelError> {
-        if system.len() != self.particle_count || system.springs().len() != self.spring_count {
-            return Err(ModelError::TopologyMismatch);
-        }
-        Ok(())
+    /// The pattern, the factorization and the potential's per-particle state were built
+    /// for one topology: another system of the same counts but other pins, pairs or masses
+    /// would run silently on them, so the fingerprints are compared (O(1)).
+    pub(crate) fn check_topology(&self, system: &SpringSystem) -> Result<(), ModelError> {
+        self.topology.check(&system.topology())
     }
 
     /// Advances `system` by one backward Euler step of length `h`.
@@ -307,7 +308,10 @@ impl BackwardEuler {
         if let Scheme::Bdf2 { prev_x, prev_v } = scheme
             && (prev_x.len() != system.len() || prev_v.len() != system.len())
         {
-            return Err(ModelError::TopologyMismatch.into());
+            return Err(ModelError::TopologyMismatch {
+                what: "BDF2 history length",
+            }
+            .into());
         }
         let (kind, h_eff) = match scheme {
             Scheme::BackwardEuler => (IntegratorKind::BackwardEuler, h),
