@@ -713,10 +713,31 @@ pub fn begin_solve(
             StopReason::Converged,
         )));
     }
-    if state.global.positions[chain.base()].distance(goal.position) >= chain.reach()
-        && !chain_has_limits(skeleton, chain)
-    {
+    let distance = state.global.positions[chain.base()].distance(goal.position);
+    if distance >= chain.reach() && !chain_has_limits(skeleton, chain) {
+        // No pose comes closer than `distance - reach`. A pose already there to
+        // round-off (straight, pointing at the goal) could come out of the closed form a
+        // few ulps further away, so it is kept when it is at least as close. Only then is
+        // the chain's pose copied, so a solve far from the floor allocates nothing.
+        let floor = distance - chain.reach();
+        let near_floor =
+            now.0 <= floor + 16.0 * f64::EPSILON * (chain.bone_count() as f64 + 1.0) * distance;
+        let saved: Option<Vec<DQuat>> = near_floor.then(|| {
+            chain
+                .joints()
+                .iter()
+                .map(|&j| state.pose.rotations[j])
+                .collect()
+        });
         straighten_towards(skeleton, chain, state.pose, state.global, goal.position)?;
+        if let Some(saved) = saved
+            && state.global.positions[chain.effector()].distance(goal.position) > now.0
+        {
+            for (&j, &r) in chain.joints().iter().zip(&saved) {
+                state.pose.rotations[j] = r;
+            }
+            skeleton.forward_kinematics_from(state.pose, chain.base(), state.global)?;
+        }
         return Ok(SolveStart::Done(measure(
             problem,
             state,
@@ -924,6 +945,51 @@ mod tests {
         assert!(Chain::new(&skel, 0, 9).is_err());
         let single = Chain::new(&skel, 2, 2).unwrap();
         assert_eq!((single.bone_count(), single.reach()), (0, 0.0));
+    }
+
+    #[test]
+    fn an_already_straight_chain_out_of_reach_is_never_moved_further_away() {
+        // Chains with uneven and zero-length bones, straightened towards far targets, then
+        // asked again: each pose is already the closed-form answer to round-off, and the
+        // second answer may not be further away than the pose given.
+        let offsets = [
+            DVec3::new(0.3, 0.0, 0.0),
+            DVec3::ZERO,
+            DVec3::new(0.0, 0.7, 0.1),
+            DVec3::new(0.011, 0.0, -0.2),
+            DVec3::ZERO,
+            DVec3::new(1.3, 0.2, 0.0),
+        ];
+        let skel = Skeleton::chain(DVec3::new(0.1, -0.4, 0.25), &offsets).unwrap();
+        let chain = Chain::whole(&skel).unwrap();
+        let settings = SolveSettings::default();
+        let mut pose = skel.rest_pose();
+        let mut global = GlobalPose::new();
+        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut uniform = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        for _ in 0..2000 {
+            let direction = DVec3::new(uniform(), uniform(), uniform());
+            let target = direction.normalize() * (4.0 + 10.0 * uniform().abs());
+            for _ in 0..2 {
+                let start =
+                    start(&skel, &chain, &mut pose, &mut global, target, &settings).unwrap();
+                let SolveStart::Done(report) = start else {
+                    panic!("expected closed form")
+                };
+                assert_eq!(report.stop, StopReason::OutOfReach);
+                assert!(
+                    report.error <= report.initial_error,
+                    "{:e} > {:e}",
+                    report.error,
+                    report.initial_error
+                );
+            }
+        }
     }
 
     #[test]
