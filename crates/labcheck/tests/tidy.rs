@@ -3,10 +3,12 @@
 //! Walks every `.rs`, `.md`, `.ron` and `.toml` file of the repository (skipping build
 //! output and hidden directories) and reports, as `file:line: message`:
 //!
-//! - comments and docs that cite issue numbers ("issue 9", "issues 5 and 9", "#12"):
+//! - comments and docs that cite an issue by its number (the word followed by a number
+//!   or a list of numbers, or a hash followed by digits):
 //!   an issue tracker is not part of the repository, so the text must say what it means;
 //! - paths outside the repository: a parent-directory path into a sibling checkout
-//!   (`../shared`), an absolute path under the machine's work directory, or a relative
+//!   (a sibling directory of the repository), an absolute path under the machine's work
+//!   directory, or a relative
 //!   link that climbs above the repository root;
 //! - docs naming repository files that do not exist: a relative path to a `.rs`, `.md`,
 //!   `.ron` or `.toml` file, in backticks, in a Markdown link, or written plainly under
@@ -19,6 +21,22 @@
 use std::fmt::Write as _;
 use std::fs;
 use std::path::{Component, Path, PathBuf};
+
+/// The sibling checkout and the work directory a path must not point into. Spelled in
+/// pieces so that this file does not contain what it looks for.
+const SIBLING_CHECKOUT: &str = concat!("..", "/sha", "red");
+const WORK_DIRECTORY: &str = concat!("/wo", "rk/");
+
+/// A test fixture with the words this file looks for spelled in pieces: `{I}` is the
+/// lower-case word, `{C}` the capitalised one, `{S}` the sibling checkout and `{W}` the
+/// work directory.
+#[cfg(test)]
+fn fixture(text: &str) -> String {
+    text.replace("{I}", concat!("iss", "ue"))
+        .replace("{C}", concat!("Iss", "ue"))
+        .replace("{S}", SIBLING_CHECKOUT)
+        .replace("{W}", WORK_DIRECTORY)
+}
 
 /// Files not checked, each with the reason. Only genuine fixtures belong here.
 const ALLOWED: &[(&str, &str)] = &[(
@@ -104,8 +122,9 @@ fn prose(kind: Kind, line: &str, in_fence: bool) -> Option<&str> {
     }
 }
 
-/// "issue 9", "Issues 5 and 9", "issue #12", or a bare "#12" not part of a word, a
-/// colour or a Rust attribute.
+/// The word "issue" (any case, singular or plural) followed by a number, a list of
+/// numbers or a hash and a number, or a bare hash and digits that is not part of a
+/// word, a colour or a Rust attribute.
 fn cites_issue(text: &str) -> Option<String> {
     let lower = text.to_ascii_lowercase();
     let bytes = lower.as_bytes();
@@ -241,7 +260,7 @@ fn check_text(
             continue;
         }
         // Paths outside the repository are wrong anywhere, code blocks included.
-        for outside in ["../shared", "/work/"] {
+        for outside in [SIBLING_CHECKOUT, WORK_DIRECTORY] {
             if line.contains(outside) {
                 report(format!("names a path outside the repository ({outside})"));
             }
@@ -348,27 +367,31 @@ fn every_rule_finds_what_it_is_for() {
             .collect()
     };
     // Issue numbers, in comments only.
-    let text = "// fixed for issue 9\n/// see Issues 5 and 9\n//! as #12 asked\nlet s = \"issue 3\";\n#[derive(Debug)]\n// colour #1f77b4, {:#?}, tissue 4\n";
-    assert_eq!(lines(rust, text), [1, 2, 3]);
+    let text = fixture(
+        "// fixed for {I} 9\n/// see {C}s 5 and 9\n//! as #12 asked\nlet s = \"{I} 3\";\n#[derive(Debug)]\n// colour #1f77b4, {:#?}, t{I} 4\n",
+    );
+    assert_eq!(lines(rust, &text), [1, 2, 3]);
     // Paths outside the repository, anywhere.
-    let text = "// ../shared/WORKLOADS.md\nlet p = \"/work/main\";\n";
-    assert_eq!(lines(rust, text), [1, 2]);
+    let text = fixture("// {S}/WORKLOADS.md\nlet p = \"{W}main\";\n");
+    assert_eq!(lines(rust, &text), [1, 2]);
     // Files that do not exist: backticked, plain, linked; relative to the crate too.
     let text = "// `docs/curves.md` and docs/curves.md exist\n// `docs/nope.md`\n// crates/spring-sim/src/gone.rs.\n// `benches/common/mod.rs`\n// `benches/other.rs`\n";
     assert_eq!(lines(rust, text), [2, 3, 5]);
     let md = Path::new("docs/bench/ik.md");
-    let text = "[curves](../curves.md) and [gone](../gone.md)\n[out](../../../x.md)\n```\ncargo run # 1\n```\nissue 4\n`tests/math.rs` and `tests/maths.rs`\n";
-    assert_eq!(lines(md, text), [1, 2, 6, 7]);
+    let text = fixture(
+        "[curves](../curves.md) and [gone](../gone.md)\n[out](../../../x.md)\n```\ncargo run # 1\n```\n{I} 4\n`tests/math.rs` and `tests/maths.rs`\n",
+    );
+    assert_eq!(lines(md, &text), [1, 2, 6, 7]);
     let toml = Path::new("crates/x/Cargo.toml");
-    assert_eq!(lines(toml, "name = \"#1\" # see issue 2\n"), [1]);
+    assert_eq!(lines(toml, &fixture("name = \"#1\" # see {I} 2\n")), [1]);
     // A finding says where and what.
-    let found = check_text(rust, "\n// see issue 7\n", &exists, &packages);
+    let found = check_text(rust, &fixture("\n// see {I} 7\n"), &exists, &packages);
     assert_eq!(
         found,
         [Finding {
             file: "crates/ik-ccd/src/lib.rs".into(),
             line: 2,
-            message: "cites an issue number (\"issue 7\"): say what is meant instead".into(),
+            message: fixture("cites an issue number (\"{I} 7\"): say what is meant instead"),
         }]
     );
 }
