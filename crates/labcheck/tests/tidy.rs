@@ -29,13 +29,15 @@ const WORK_DIRECTORY: &str = concat!("/wo", "rk/");
 
 /// A test fixture with the words this file looks for spelled in pieces: `{I}` is the
 /// lower-case word, `{C}` the capitalised one, `{S}` the sibling checkout and `{W}` the
-/// work directory.
+/// work directory, `{H}` a hash and `{L}` the shared workloads file's name.
 #[cfg(test)]
 fn fixture(text: &str) -> String {
     text.replace("{I}", concat!("iss", "ue"))
         .replace("{C}", concat!("Iss", "ue"))
         .replace("{S}", SIBLING_CHECKOUT)
         .replace("{W}", WORK_DIRECTORY)
+        .replace("{H}", "#")
+        .replace("{L}", concat!("WORK", "LOADS.md"))
 }
 
 /// Files not checked, each with the reason. Only genuine fixtures belong here.
@@ -368,11 +370,11 @@ fn every_rule_finds_what_it_is_for() {
     };
     // Issue numbers, in comments only.
     let text = fixture(
-        "// fixed for {I} 9\n/// see {C}s 5 and 9\n//! as #12 asked\nlet s = \"{I} 3\";\n#[derive(Debug)]\n// colour #1f77b4, {:#?}, t{I} 4\n",
+        "// fixed for {I} 9\n/// see {C}s 5 and 9\n//! as {H}12 asked\nlet s = \"{I} 3\";\n#[derive(Debug)]\n// colour #1f77b4, {:#?}, t{I} 4\n",
     );
     assert_eq!(lines(rust, &text), [1, 2, 3]);
     // Paths outside the repository, anywhere.
-    let text = fixture("// {S}/WORKLOADS.md\nlet p = \"{W}main\";\n");
+    let text = fixture("// {S}/{L}\nlet p = \"{W}main\";\n");
     assert_eq!(lines(rust, &text), [1, 2]);
     // Files that do not exist: backticked, plain, linked; relative to the crate too.
     let text = "// `docs/curves.md` and docs/curves.md exist\n// `docs/nope.md`\n// crates/spring-sim/src/gone.rs.\n// `benches/common/mod.rs`\n// `benches/other.rs`\n";
