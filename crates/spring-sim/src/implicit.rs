@@ -136,7 +136,9 @@ impl Bdf2 {
         report.integrator = crate::report::IntegratorKind::Bdf2;
         std::mem::swap(&mut self.prev_x, &mut self.start_x);
         std::mem::swap(&mut self.prev_v, &mut self.start_v);
-        self.prev_h = Some(h);
+        // A step split in pieces ended with a midpoint piece shorter than h: the state
+        // before it is not one step of h back, so the history restarts.
+        self.prev_h = (report.pieces == 1).then_some(h);
         Ok(report)
     }
 

@@ -490,6 +490,12 @@ impl Simulation {
         settings.validate()?;
         let stats = match &mut self.stepper {
             Stepper::BackwardEuler(be) => {
+                if colliders.iter().any(|c| !c.is_static()) {
+                    // The contact term advances its own clock at every start of a step,
+                    // so a step redone in pieces would pose moving colliders at the
+                    // wrong times.
+                    be.forbid_splitting();
+                }
                 let term = ContactTerm::new(ContactPotential::new(
                     colliders.clone(),
                     settings,

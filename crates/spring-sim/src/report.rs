@@ -158,6 +158,25 @@ pub struct StepReport {
     pub omega_max: f64,
     /// The substep count the stability bound asks for at this step (0 when not computed).
     pub stable_substeps: usize,
+    /// Implicit steps: the pieces the step was taken in (1 when it was not split; see
+    /// `NewtonSettings::max_split_depth`). A split step is that many ordinary steps of
+    /// the lengths `h / 2^d` they were split to, taken one after the other; `iterations`
+    /// and the other counts include the abandoned attempts, and `residual`, `tolerance`
+    /// and `stop` are those of the piece with the largest `residual / tolerance`.
+    pub pieces: usize,
+    /// How many times the shortest piece was halved (0 when not split).
+    pub split_depth: usize,
+    /// Pieces kept although they stopped far from converged (their residual above both
+    /// the tolerance and the round-off floor), because the split was at its deepest
+    /// allowed or splitting is off (then the whole step counts as one piece): 0 when
+    /// every piece converged or stopped at round-off. The step's `stop` then says why the
+    /// worst one stopped (the iteration cap or a stalled line search).
+    pub unconverged_pieces: usize,
+    /// Backward Euler: splits computed and then discarded because the pieces together
+    /// broke the energy inequality a step of `h` keeps (`E_spring + E_gravity +
+    /// 1/2 |v' - v_n|_M^2 <= E_total` at the start); the abandoned unsplit iterate is
+    /// then the step, counted in `unconverged_pieces`.
+    pub rejected_splits: usize,
 }
 
 impl StepReport {
@@ -183,6 +202,10 @@ impl StepReport {
             auto_reason: None,
             omega_max: 0.0,
             stable_substeps: 0,
+            pieces: 1,
+            split_depth: 0,
+            unconverged_pieces: 0,
+            rejected_splits: 0,
         }
     }
 

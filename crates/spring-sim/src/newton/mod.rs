@@ -39,7 +39,7 @@ use crate::linear::{
 use crate::model::{ModelError, SpringSystem, Topology, check_time_step};
 use crate::pattern::{FIXED, HessianPattern};
 use crate::potential::{HessianSink, Potential, StepContext, Term};
-use crate::report::{IntegratorKind, StepError, StepReport};
+use crate::report::{IntegratorKind, StepError, StepReport, StepStop};
 use crate::spring::Curvature;
 use sinew_math::DVec3;
 use solver_choice::SolverChooser;
@@ -115,6 +115,11 @@ pub struct BackwardEuler {
     topology: Topology,
     /// Particle pairs coupled by terms other than the springs, in the pattern too.
     coupled_pairs: Vec<[usize; 2]>,
+    /// Whether a step may be redone in pieces (off when a term keeps state a redo
+    /// cannot rewind: contact with a kinematic collider keeps its own clock).
+    splitting_allowed: bool,
+    /// Per split depth, what a split step falls back on (allocated at the first split).
+    split_saves: Vec<SplitSave>,
 }
 
 impl BackwardEuler {
@@ -154,6 +159,8 @@ impl BackwardEuler {
             objective_trace: Vec::new(),
             topology: system.topology(),
             coupled_pairs: Vec::new(),
+            splitting_allowed: true,
+            split_saves: Vec::new(),
             direct,
             pattern,
         })
@@ -194,7 +201,9 @@ impl BackwardEuler {
         self.direct.as_ref()
     }
 
-    /// `g` at every iterate of the last step, when `record_objective` is set.
+    /// `g` at every iterate of the last minimization run, when `record_objective` is set:
+    /// the last step's, or for a step split in pieces (`StepReport::pieces`), its last
+    /// piece's (the `g` of that piece's own length).
     #[must_use]
     pub fn objective_trace(&self) -> &[f64] {
         &self.objective_trace
@@ -276,6 +285,13 @@ impl BackwardEuler {
             .is_some_and(|d| d.factor_only(&self.pattern, &self.values)))
     }
 
+    /// Turns off splitting a step in pieces (see `NewtonSettings::max_split_depth`) for a
+    /// term whose per-step state a redone step cannot rewind: the contact term advances
+    /// its own clock at every start of a step, which matters when a collider moves.
+    pub(crate) fn forbid_splitting(&mut self) {
+        self.splitting_allowed = false;
+    }
+
     /// Forgets the velocity history used by the extrapolated first guess (call after
     /// changing the state by hand).
     pub fn reset_history(&mut self) {
@@ -313,12 +329,159 @@ impl BackwardEuler {
             }
             .into());
         }
+        let energy_before = system.energies();
+        let depth = if self.splitting_allowed {
+            self.settings.max_split_depth
+        } else {
+            0
+        };
+        let mut report = self.step_in_pieces(system, h, scheme, depth, true)?;
+        report.energy_before = energy_before;
+        report.energy_after = system.energies();
+        Ok(report)
+    }
+
+    /// One step of `scheme`, split in two halves (recursively, at most `depth` times)
+    /// when its solve stops far from converged. The system is written only by a solve
+    /// that is kept, so an abandoned attempt needs no undo: each half starts from the
+    /// state and the velocity history the attempt started from, exactly as if the
+    /// halves had been asked for one by one.
+    fn step_in_pieces(
+        &mut self,
+        system: &mut SpringSystem,
+        h: f64,
+        scheme: Scheme<'_>,
+        depth: usize,
+        whole_step: bool,
+    ) -> Result<StepReport, StepError> {
+        let (attempt, h_eff) = self.solve(system, h, scheme)?;
+        let far = self.far_from_converged(system, &attempt, h_eff);
+        if !far || depth == 0 {
+            self.commit(system, h_eff, scheme, attempt.integrator)?;
+            let mut report = attempt;
+            report.unconverged_pieces = usize::from(far);
+            return Ok(report);
+        }
+        // BDF2's pieces are midpoint steps, its own starting step: a BDF2 step of h/2
+        // would need a history at spacing h/2, which a step of h does not have.
+        let piece = match scheme {
+            Scheme::BackwardEuler => Scheme::BackwardEuler,
+            Scheme::Midpoint | Scheme::Bdf2 { .. } => Scheme::Midpoint,
+        };
+        // Backward Euler promises its energy inequality for the step asked for (below),
+        // not for each piece: it is checked once, for the whole step, with the start
+        // state and the abandoned iterate kept to fall back on.
+        let guard = whole_step && matches!(scheme, Scheme::BackwardEuler);
+        let mut save = if guard {
+            let mut save = self.take_split_save(depth);
+            save.x_n.clear();
+            save.x_n.extend_from_slice(system.positions());
+            save.v_n.clear();
+            save.v_n.extend_from_slice(system.velocities());
+            save.attempt.clear();
+            save.attempt.extend_from_slice(&self.x);
+            save.energy = system.energies();
+            Some(save)
+        } else {
+            None
+        };
+        let first = self.step_in_pieces(system, 0.5 * h, piece, depth - 1, false)?;
+        let second = self.step_in_pieces(system, 0.5 * h, piece, depth - 1, false)?;
+        let combined = combine_pieces(&attempt, &first, &second);
+        let Some(saved) = save.as_mut() else {
+            return Ok(combined);
+        };
+        let kept = keeps_energy_inequality(system, saved);
+        let report = if kept {
+            combined
+        } else {
+            // The pieces together broke the inequality a backward Euler step of h keeps
+            // (a shorter step dissipates less, and a split trajectory need not stay
+            // below the energy of one step of h): the abandoned iterate, which keeps it,
+            // is the step after all, reported as stopped far from converged.
+            system.set_state(&saved.x_n, &saved.v_n)?;
+            self.x.copy_from_slice(&saved.attempt);
+            self.x_ref.copy_from_slice(&saved.x_n);
+            self.commit(system, h_eff, scheme, attempt.integrator)?;
+            let mut report = attempt;
+            for part in [&first, &second] {
+                report.iterations += part.iterations;
+                report.backtracks += part.backtracks;
+                report.linear_iterations += part.linear_iterations;
+                report.shifted_factorizations += part.shifted_factorizations;
+                report.direct_failures += part.direct_failures;
+                report.descent_fallbacks += part.descent_fallbacks;
+                report.exact_hessian_iterations += part.exact_hessian_iterations;
+            }
+            report.unconverged_pieces = 1;
+            report.rejected_splits = 1 + first.rejected_splits + second.rejected_splits;
+            report
+        };
+        self.split_saves[depth - 1] = save.take().expect("guarded");
+        Ok(report)
+    }
+
+    /// The buffers of the split at remaining depth `depth` (at least 1), grown the
+    /// first time a split that deep happens and reused after.
+    fn take_split_save(&mut self, depth: usize) -> SplitSave {
+        if self.split_saves.len() < depth {
+            self.split_saves.resize_with(depth, SplitSave::default);
+        }
+        std::mem::take(&mut self.split_saves[depth - 1])
+    }
+
+    /// Whether a solve stopped without converging (at the cap or in a stalled line
+    /// search) with its residual above both its tolerance and the round-off floor
+    /// `16 eps |x|_max max_p (m_p/h^2 + sum of the stiffnesses at p)`: moving a
+    /// coordinate by one ulp of `|x|_max` changes `grad g` by up to the Newton matrix's
+    /// row sum times that ulp, so no solver can be asked for less. Only then can a
+    /// shorter step help; a solve stopped at round-off is as good as converged.
+    fn far_from_converged(&mut self, system: &SpringSystem, report: &StepReport, h: f64) -> bool {
+        if !matches!(
+            report.stop,
+            StepStop::IterationCap | StepStop::LineSearchStalled
+        ) || report.residual <= report.tolerance
+        {
+            return false;
+        }
+        let x_max = self
+            .x
+            .iter()
+            .fold(0.0f64, |m, x| m.max(x.abs().max_element()));
+        // Per-particle stiffness sums, in the gradient buffer (free until the next solve).
+        let row = &mut self.grad_particles;
+        row.fill(DVec3::ZERO);
+        for s in system.springs() {
+            row[s.a].x += s.stiffness;
+            row[s.b].x += s.stiffness;
+        }
+        let inv_h2 = 1.0 / (h * h);
+        let largest = system
+            .masses()
+            .iter()
+            .zip(row.iter())
+            .zip(system.fixed())
+            .filter(|(_, f)| !**f)
+            .map(|((m, k), _)| m * inv_h2 + k.x)
+            .fold(0.0f64, f64::max);
+        let floor = 16.0 * f64::EPSILON * x_max * largest;
+        report.residual > floor
+    }
+
+    /// Sets up and runs the minimization of one step of `scheme` from `system`'s state,
+    /// leaving the minimizer in `self.x` and the system untouched; returns the report and
+    /// the effective step.
+    fn solve(
+        &mut self,
+        system: &SpringSystem,
+        h: f64,
+        scheme: Scheme<'_>,
+    ) -> Result<(StepReport, f64), StepError> {
         let (kind, h_eff) = match scheme {
             Scheme::BackwardEuler => (IntegratorKind::BackwardEuler, h),
             Scheme::Midpoint => (IntegratorKind::ImplicitMidpoint, 0.5 * h),
             Scheme::Bdf2 { .. } => (IntegratorKind::Bdf2, 2.0 * h / 3.0),
         };
-        let energy_before = system.energies();
         let fixed = system.fixed();
         for (i, (&x, &v)) in system
             .positions()
@@ -381,6 +544,18 @@ impl BackwardEuler {
         }
         let mut report = self.minimize(system, h_eff)?;
         report.integrator = kind;
+        Ok((report, h_eff))
+    }
+
+    /// Writes the minimizer in `self.x` to `system` as the end of a step of `scheme`
+    /// with effective step `h_eff`, and moves the velocity history on.
+    fn commit(
+        &mut self,
+        system: &mut SpringSystem,
+        h_eff: f64,
+        scheme: Scheme<'_>,
+        kind: IntegratorKind,
+    ) -> Result<(), StepError> {
         if let Some(particle) = self.x.iter().position(|x| !x.is_finite()) {
             // Not reached with finite input (every iterate passed the line search); kept
             // so a NaN can never leave this call.
@@ -405,9 +580,7 @@ impl BackwardEuler {
             }
         }
         self.have_prev_velocity = true;
-        report.energy_before = energy_before;
-        report.energy_after = system.energies();
-        Ok(report)
+        Ok(())
     }
 
     /// The counts the automatic linear-solver choice is made from (analysing the pattern
@@ -460,6 +633,72 @@ impl BackwardEuler {
         }
         Ok(kind)
     }
+}
+
+/// What a split backward Euler step keeps to fall back on: the start state, the
+/// abandoned iterate and the start's energies.
+#[derive(Debug, Default)]
+struct SplitSave {
+    x_n: Vec<DVec3>,
+    v_n: Vec<DVec3>,
+    attempt: Vec<DVec3>,
+    energy: crate::model::Energies,
+}
+
+/// Whether `system`, after the pieces of a step from `save`'s start state, keeps backward
+/// Euler's energy inequality for the whole step,
+/// `E_spring(x') + E_gravity(x') + 1/2 |v' - v_n|_M^2 <= E_total(x_n, v_n)`, up to
+/// `64 eps` of the terms' sizes. One backward Euler step keeps it because
+/// `g(x_{n+1}) <= g(x_n)` (docs/spring-sim.md); pieces need not.
+fn keeps_energy_inequality(system: &SpringSystem, save: &SplitSave) -> bool {
+    let after = system.energies();
+    let velocity_change: f64 = system
+        .velocities()
+        .iter()
+        .zip(&save.v_n)
+        .zip(system.masses())
+        .map(|((v, v0), m)| 0.5 * m * (*v - *v0).length_squared())
+        .sum();
+    let lhs = after.spring + after.gravity + velocity_change;
+    let rhs = save.energy.total();
+    let scale = save.energy.scale() + after.scale() + velocity_change;
+    lhs <= rhs + 64.0 * f64::EPSILON * scale
+}
+
+/// The report of a step split into `first` and `second` after the solve `attempt` was
+/// abandoned: the work of all three, the pieces of both halves, and the residual,
+/// tolerance and stop of the piece furthest from its tolerance.
+fn combine_pieces(attempt: &StepReport, first: &StepReport, second: &StepReport) -> StepReport {
+    let worst = if second.residual / second.tolerance > first.residual / first.tolerance {
+        second
+    } else {
+        first
+    };
+    let mut report = *worst;
+    report.integrator = attempt.integrator;
+    report.linear_solver = second.linear_solver;
+    // A piece that converged reports Converged; the step converged only if both did.
+    report.stop = match (first.stop, second.stop) {
+        (StepStop::Converged, StepStop::Converged) => StepStop::Converged,
+        (StepStop::Converged, other) | (other, _) => other,
+    };
+    for part in [attempt, first, second] {
+        if std::ptr::eq(part, worst) {
+            continue;
+        }
+        report.iterations += part.iterations;
+        report.backtracks += part.backtracks;
+        report.linear_iterations += part.linear_iterations;
+        report.shifted_factorizations += part.shifted_factorizations;
+        report.direct_failures += part.direct_failures;
+        report.descent_fallbacks += part.descent_fallbacks;
+        report.exact_hessian_iterations += part.exact_hessian_iterations;
+    }
+    report.pieces = first.pieces + second.pieces;
+    report.split_depth = 1 + first.split_depth.max(second.split_depth);
+    report.unconverged_pieces = first.unconverged_pieces + second.unconverged_pieces;
+    report.rejected_splits = first.rejected_splits + second.rejected_splits;
+    report
 }
 
 fn fixed_at(pattern: &HessianPattern, particle: usize) -> bool {

@@ -55,6 +55,23 @@ pub struct NewtonSettings {
     /// the same for every value (fixed chunks, sums in chunk order); without the
     /// `parallel` feature it is ignored.
     pub threads: usize,
+    /// How many times a step may be halved when its solve does not converge (default
+    /// 6: pieces down to `h/64`; 0 turns splitting off).
+    ///
+    /// The rule: when the Newton solve of a step stops at the iteration cap or in a
+    /// stalled line search with `|grad g|_inf` above both the tolerance and the round-off
+    /// floor `16 eps |x|_max max_p (m_p/h^2 + sum of the stiffnesses at p)`, the step is
+    /// redone from its start state as two steps of `h/2` (each of which may be split
+    /// again, down to `h / 2^max_split_depth`). Each piece is an ordinary step of its
+    /// own length, so a split step is bitwise the same as those smaller steps taken one
+    /// by one. [`crate::StepReport::pieces`] says how many pieces a step took and
+    /// [`crate::StepReport::unconverged_pieces`] how many pieces at the deepest split
+    /// still stopped far from converged (their stop is the step's `stop`). A step that
+    /// converges at once is never split and costs nothing more. Implicit midpoint is
+    /// split into midpoint steps; a BDF2 step into midpoint steps (its own starting
+    /// step), after which BDF2 restarts its history. Backward Euler with kinematic
+    /// colliders is never split (the contact term keeps its own clock).
+    pub max_split_depth: usize,
 }
 
 impl Default for NewtonSettings {
@@ -72,6 +89,7 @@ impl Default for NewtonSettings {
             reprobe_interval: 64,
             record_objective: false,
             threads: 0,
+            max_split_depth: 6,
         }
     }
 }
@@ -97,6 +115,16 @@ impl NewtonSettings {
                 reason: "must be in (0, 0.5)",
             });
         }
+        if self.max_split_depth > MAX_SPLIT_DEPTH {
+            return Err(ModelError::BadParameter {
+                name: "max_split_depth",
+                reason: "must be at most 20 (pieces of h / 2^20)",
+            });
+        }
         Ok(())
     }
 }
+
+/// The largest [`NewtonSettings::max_split_depth`] accepted: a million pieces per step
+/// is already far past any use.
+pub(crate) const MAX_SPLIT_DEPTH: usize = 20;

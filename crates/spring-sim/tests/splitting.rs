@@ -1,0 +1,276 @@
+//! Steps whose Newton solve stops far from converged are redone in pieces: the cases of
+//! the stress grid (the lab cloth, 11 x 11, undamped, stiffness up to 1e7, steps up to
+//! 1/4, sheets stretched to twice or compressed to half their rest size) that stopped at
+//! the iteration cap now converge in pieces; a split step is bitwise the same as its
+//! pieces taken by hand; a step that converges at once is not touched; and what cannot
+//! converge even at the deepest split says so.
+
+use sinew_math::DVec3;
+use sinew_spring_sim::*;
+
+/// The stress grid's starting states (velocities zero).
+#[derive(Clone, Copy, Debug)]
+enum State {
+    Rest,
+    Stretched,
+    Compressed,
+}
+
+/// The stress grid's lab cloth: `grid` particles per side, the sheet 2 wide, mass 1,
+/// stiffness `k`, no damping, the lab's gravity, corners (0, 0) and (0, n-1) pinned,
+/// every particle scaled about the sheet's centre by 2 (stretched) or 0.5 (compressed).
+fn cloth(grid: usize, k: f64, state: State) -> SpringSystem {
+    let mut spec = ClothGrid::lab_sized(grid, 2.0 / (grid - 1) as f64).with_damping(0.0);
+    spec.material.stiffness = k;
+    let mut system = SpringSystem::cloth(&spec).unwrap();
+    let rest = system.positions().to_vec();
+    let centre = rest.iter().copied().sum::<DVec3>() / rest.len() as f64;
+    let scale = match state {
+        State::Rest => 1.0,
+        State::Stretched => 2.0,
+        State::Compressed => 0.5,
+    };
+    let x: Vec<DVec3> = rest
+        .iter()
+        .map(|&x| centre + scale * (x - centre))
+        .collect();
+    let v = vec![DVec3::ZERO; x.len()];
+    system.set_state(&x, &v).unwrap();
+    system
+}
+
+fn settings(depth: usize) -> NewtonSettings {
+    NewtonSettings {
+        // A fixed solver, so the abandoned attempt's observations cannot change the
+        // automatic choice of a later piece.
+        linear_solver: LinearSolverChoice::Direct,
+        max_split_depth: depth,
+        ..NewtonSettings::default()
+    }
+}
+
+/// `E_spring(x') + E_gravity(x') + 1/2 |v' - v_n|_M^2 - E_total(x_n, v_n)`, relative to the
+/// start's energy scale: backward Euler's energy inequality says it is at most 0.
+fn inequality_excess(before: &SpringSystem, after: &SpringSystem) -> f64 {
+    let e0 = before.energies();
+    let e1 = after.energies();
+    let dv: f64 = after
+        .velocities()
+        .iter()
+        .zip(before.velocities())
+        .zip(before.masses())
+        .map(|((v, v0), m)| 0.5 * m * (*v - *v0).length_squared())
+        .sum();
+    (e1.spring + e1.gravity + dv - e0.total()) / e0.scale()
+}
+
+/// First steps of the stress grid that stopped at the cap with residuals 1e7 to 1e11
+/// times the tolerance with the automatic solver, above 1e5 times with the direct one
+/// (11 x 11, stiffness, 1/dt, state).
+const HARD_FIRST_STEPS: [(f64, f64, State); 4] = [
+    (1e4, 60.0, State::Compressed),
+    (1e6, 240.0, State::Compressed),
+    (1e6, 4.0, State::Compressed),
+    (1e7, 4.0, State::Compressed),
+];
+
+#[test]
+fn stress_grid_steps_left_at_the_cap_converge_in_pieces() {
+    for (k, inv_dt, state) in HARD_FIRST_STEPS {
+        let h = 1.0 / inv_dt;
+        // Without splitting: the cap, far above the tolerance (as in the stress grid).
+        let mut system = cloth(11, k, state);
+        let mut unsplit = BackwardEuler::new(&system, settings(0)).unwrap();
+        let report = unsplit.step(&mut system, h).unwrap();
+        assert_eq!(
+            report.stop,
+            StepStop::IterationCap,
+            "k {k:e} 1/{inv_dt}: {report:?}"
+        );
+        assert!(
+            report.residual > 1e5 * report.tolerance,
+            "k {k:e} 1/{inv_dt}: {report:?}"
+        );
+        assert_eq!((report.pieces, report.unconverged_pieces), (1, 1));
+        // With the default depth: converged, in pieces.
+        let mut system = cloth(11, k, state);
+        let before = system.clone();
+        let mut split = BackwardEuler::new(&system, settings(6)).unwrap();
+        let report = split.step(&mut system, h).unwrap();
+        assert_eq!(report.stop, StepStop::Converged, "k {k:e} 1/{inv_dt}");
+        assert!(report.residual <= report.tolerance, "{report:?}");
+        assert!(report.pieces > 1, "k {k:e} 1/{inv_dt}: {report:?}");
+        assert!(report.pieces <= 1 << report.split_depth);
+        assert_eq!((report.unconverged_pieces, report.rejected_splits), (0, 0));
+        // The tolerance is the one of the pieces' own step (tol m_min / h_piece^2).
+        let shortest = h / f64::from(1u32 << report.split_depth);
+        assert!(
+            report.tolerance >= 1e-9 / (h * h)
+                && report.tolerance <= 1e-9 / (shortest * shortest) * (1.0 + 1e-12)
+        );
+        assert!(inequality_excess(&before, &system) <= 1e-12);
+        assert!(system.positions().iter().all(|x| x.is_finite()));
+    }
+}
+
+/// A split step equals two steps of h/2 taken by hand with the same settings (each of
+/// which may split again the same way), bit for bit, and so does the step after it (the
+/// velocity history of the first guess goes on the same way).
+#[test]
+fn a_split_step_is_its_pieces_taken_by_hand() {
+    for (k, inv_dt, state) in HARD_FIRST_STEPS {
+        let h = 1.0 / inv_dt;
+        let mut split_system = cloth(11, k, state);
+        let mut by_hand_system = split_system.clone();
+        let mut split = BackwardEuler::new(&split_system, settings(6)).unwrap();
+        let mut by_hand = BackwardEuler::new(&by_hand_system, settings(6)).unwrap();
+        let report = split.step(&mut split_system, h).unwrap();
+        assert!(report.pieces > 1, "k {k:e} 1/{inv_dt}: {report:?}");
+        assert_eq!(report.stop, StepStop::Converged);
+        let (mut iterations, mut pieces) = (0, 0);
+        for _ in 0..2 {
+            let half = by_hand.step(&mut by_hand_system, 0.5 * h).unwrap();
+            iterations += half.iterations;
+            pieces += half.pieces;
+        }
+        assert_eq!(
+            split_system.positions(),
+            by_hand_system.positions(),
+            "k {k:e} 1/{inv_dt}"
+        );
+        assert_eq!(split_system.velocities(), by_hand_system.velocities());
+        assert_eq!(report.pieces, pieces);
+        // The split step's count includes the abandoned attempt (the cap, 50 iterations).
+        assert_eq!(report.iterations, iterations + 50);
+        // The next step (the same length on both) continues bitwise alike.
+        split.step(&mut split_system, 0.5 * h).unwrap();
+        by_hand.step(&mut by_hand_system, 0.5 * h).unwrap();
+        assert_eq!(split_system.positions(), by_hand_system.positions());
+        assert_eq!(split_system.velocities(), by_hand_system.velocities());
+    }
+}
+
+/// Implicit midpoint is split into midpoint steps, bitwise the same as taken by hand.
+#[test]
+fn a_split_midpoint_step_is_its_pieces_taken_by_hand() {
+    let (k, h) = (1e7, 1.0 / 4.0);
+    let mut split_system = cloth(11, k, State::Compressed);
+    let mut by_hand_system = split_system.clone();
+    let mut split = ImplicitMidpoint::new(&split_system, settings(6)).unwrap();
+    let mut by_hand = ImplicitMidpoint::new(&by_hand_system, settings(6)).unwrap();
+    let report = split.step(&mut split_system, h).unwrap();
+    assert_eq!(report.stop, StepStop::Converged, "{report:?}");
+    assert!(report.pieces > 1, "{report:?}");
+    let mut pieces = 0;
+    for _ in 0..2 {
+        pieces += by_hand.step(&mut by_hand_system, 0.5 * h).unwrap().pieces;
+    }
+    assert_eq!(report.pieces, pieces);
+    assert_eq!(split_system.positions(), by_hand_system.positions());
+    assert_eq!(split_system.velocities(), by_hand_system.velocities());
+}
+
+/// BDF2 splits into midpoint steps (its starting step) and converges.
+#[test]
+fn a_bdf2_step_left_at_the_cap_converges_in_pieces() {
+    let (k, h) = (1e7, 1.0 / 4.0);
+    let mut unsplit_system = cloth(11, k, State::Compressed);
+    let mut unsplit = Bdf2::new(&unsplit_system, settings(0)).unwrap();
+    let report = unsplit.step(&mut unsplit_system, h).unwrap();
+    assert_eq!(report.stop, StepStop::IterationCap, "{report:?}");
+    let mut system = cloth(11, k, State::Compressed);
+    let mut bdf2 = Bdf2::new(&system, settings(6)).unwrap();
+    for n in 0..3 {
+        let report = bdf2.step(&mut system, h).unwrap();
+        assert_eq!(report.integrator, IntegratorKind::Bdf2);
+        assert_eq!(report.stop, StepStop::Converged, "step {n}: {report:?}");
+        assert!(report.residual <= report.tolerance);
+        if n == 0 {
+            assert!(report.pieces > 1, "{report:?}");
+        }
+    }
+}
+
+/// A step that converges at once is bitwise the same with splitting on and off: 60 steps
+/// of the lab cloth (W4: 11 x 11, stiffness 100, damping 0.2, h = 1/60) and of a stiff
+/// one (stiffness 1e4, h = 1/30).
+#[test]
+fn steps_that_converge_are_unchanged() {
+    for (k, h) in [(100.0, 1.0 / 60.0), (1e4, 1.0 / 30.0)] {
+        let mut spec = ClothGrid::lab();
+        spec.material.stiffness = k;
+        let mut a = SpringSystem::cloth(&spec).unwrap();
+        let mut b = a.clone();
+        let mut on = BackwardEuler::new(&a, NewtonSettings::default()).unwrap();
+        let off_settings = NewtonSettings {
+            max_split_depth: 0,
+            ..NewtonSettings::default()
+        };
+        let mut off = BackwardEuler::new(&b, off_settings).unwrap();
+        for _ in 0..60 {
+            let ra = on.step(&mut a, h).unwrap();
+            let rb = off.step(&mut b, h).unwrap();
+            assert_eq!(ra.stop, StepStop::Converged);
+            assert_eq!((ra.pieces, ra.split_depth), (1, 0));
+            assert_eq!(ra, rb);
+        }
+        assert_eq!(a.positions(), b.positions());
+        assert_eq!(a.velocities(), b.velocities());
+    }
+}
+
+/// When even the deepest split allowed does not converge, the report says so: the stop
+/// of the worst piece, its residual above its tolerance, and the pieces kept unconverged.
+#[test]
+fn a_split_too_shallow_says_so() {
+    let (k, h) = (1e7, 1.0 / 4.0);
+    let mut system = cloth(11, k, State::Compressed);
+    let before = system.clone();
+    let mut be = BackwardEuler::new(&system, settings(1)).unwrap();
+    let report = be.step(&mut system, h).unwrap();
+    assert_ne!(report.stop, StepStop::Converged, "{report:?}");
+    assert!(report.residual > report.tolerance);
+    assert!(report.unconverged_pieces >= 1, "{report:?}");
+    assert!(report.split_depth <= 1);
+    assert!(inequality_excess(&before, &system) <= 1e-12);
+}
+
+/// The energy inequality of backward Euler holds for every step, split or not: where the
+/// pieces of a split break it (the stretched stiff sheet's second step), the split is
+/// discarded and the report says so.
+#[test]
+fn splits_that_break_the_energy_inequality_are_discarded() {
+    let (k, h) = (1e7, 1.0 / 4.0);
+    let mut system = cloth(11, k, State::Stretched);
+    let mut be = BackwardEuler::new(&system, NewtonSettings::default()).unwrap();
+    let mut rejected = 0;
+    let mut split = 0;
+    for n in 0..4 {
+        let before = system.clone();
+        let report = be.step(&mut system, h).unwrap();
+        rejected += report.rejected_splits;
+        split += usize::from(report.pieces > 1);
+        if report.rejected_splits > 0 {
+            assert_eq!(report.pieces, 1, "step {n}: {report:?}");
+            assert!(report.unconverged_pieces >= 1);
+            assert_ne!(report.stop, StepStop::Converged);
+        }
+        let excess = inequality_excess(&before, &system);
+        assert!(excess <= 1e-12, "step {n}: excess {excess:e}, {report:?}");
+    }
+    assert!(
+        split >= 1 && rejected >= 1,
+        "split {split}, rejected {rejected}"
+    );
+}
+
+#[test]
+fn a_split_depth_beyond_the_limit_is_refused_by_name() {
+    let system = cloth(3, 10.0, State::Rest);
+    let settings = NewtonSettings {
+        max_split_depth: 21,
+        ..NewtonSettings::default()
+    };
+    let err = BackwardEuler::new(&system, settings).unwrap_err();
+    assert!(err.to_string().contains("max_split_depth"), "{err}");
+}
