@@ -154,4 +154,9 @@ impl Bdf2 {
     pub fn newton(&self) -> &BackwardEuler {
         &self.newton
     }
+
+    /// The Newton workspace, for the solver-cost counts `auto` reads.
+    pub(crate) fn newton_mut(&mut self) -> &mut BackwardEuler {
+        &mut self.newton
+    }
 }

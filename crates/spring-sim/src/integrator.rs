@@ -78,11 +78,21 @@ pub struct AutoSettings {
     /// it BDF2 is used whatever the costs.
     pub max_substeps: usize,
     /// The cost of one implicit step in explicit substeps, assumed until an implicit step
-    /// has been timed (default 300; measured, docs/bench/spring-sim.md: a backward Euler or
-    /// BDF2 step costs about 20 Verlet substeps on W4 and 300 to 1000 on W5 k = 1e6).
+    /// has been taken in this run (default 300; measured, docs/bench/spring-sim.md: a
+    /// backward Euler or BDF2 step costs about 20 to 30 Verlet substeps on W4 and 300 to
+    /// 1000 on W5 k = 1e6).
     pub implicit_cost_model: f64,
     /// Hysteresis: the other integrator must be this much cheaper to switch (default 1.25).
     pub switch_ratio: f64,
+    /// Choose from wall-clock timings of this run instead of the count model (default
+    /// false). The default compares costs computed from counts (springs, particles,
+    /// the substeps the stability bound needs, the Newton and PCG iterations of the last
+    /// implicit step, the matrix's and the factor's nonzeros; docs/integrators.md), so
+    /// two identical runs make the same choices and give bitwise the same results. With
+    /// `true` the costs are the fastest of the last 8 measured times of each choice: the
+    /// choice then follows this machine and its load, and two identical runs can choose
+    /// differently and end in different states.
+    pub tune_by_timing: bool,
 }
 
 impl Default for AutoSettings {
@@ -93,6 +103,7 @@ impl Default for AutoSettings {
             max_substeps: 100_000,
             implicit_cost_model: 300.0,
             switch_ratio: 1.25,
+            tune_by_timing: false,
         }
     }
 }
@@ -261,12 +272,50 @@ impl Timing {
 }
 
 /// Explicit steps `auto` times before trusting the explicit cost against a measured
-/// implicit one.
+/// implicit one (with `tune_by_timing`).
 const PROBES: usize = 3;
 
+/// The count model's costs, in multiply-adds of PCG's sparse product (the unit of
+/// [`crate::SolverCosts`], about 0.54 ns here). One Verlet substep: the force pass per
+/// spring and the updates per particle (measured 2.7 us per substep on W5: 600 springs,
+/// 121 particles).
+const SUBSTEP_PER_SPRING: f64 = 7.0;
+/// See [`SUBSTEP_PER_SPRING`].
+const SUBSTEP_PER_PARTICLE: f64 = 6.0;
+/// One Newton iteration besides its linear solve: the gradient, the Hessian's assembly
+/// and the line search's energy changes, per spring and per particle (about 31 us per
+/// iteration on W4 besides PCG).
+const NEWTON_PER_SPRING: f64 = 80.0;
+/// See [`NEWTON_PER_SPRING`].
+const NEWTON_PER_PARTICLE: f64 = 40.0;
+/// One implicit step besides its Newton iterations: the first guess's two evaluations of
+/// `g`, the terms' per-step state and the energies of the report, per spring.
+const STEP_PER_SPRING: f64 = 20.0;
+
+/// The count model's cost of one Verlet substep of `system`.
+fn substep_cost(system: &SpringSystem) -> f64 {
+    SUBSTEP_PER_SPRING * system.springs().len() as f64 + SUBSTEP_PER_PARTICLE * system.len() as f64
+}
+
+/// The costs `auto` compared for a step, and in what unit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct AutoCosts {
+    /// Velocity Verlet at the stability bound's substep count.
+    pub explicit: f64,
+    /// One BDF2 step.
+    pub implicit: f64,
+    /// True: seconds, measured (`AutoSettings::tune_by_timing`); false: the count
+    /// model's multiply-adds.
+    pub timed: bool,
+    /// Whether the implicit cost comes from an implicit step of this run (false: the
+    /// prior `AutoSettings::implicit_cost_model` substeps).
+    pub implicit_observed: bool,
+}
+
 /// The `auto` integrator: velocity Verlet at the bound's substep count or BDF2, whichever
-/// costs less per step (measured, or modelled before measured), or backward Euler when
-/// asked to settle.
+/// costs less per step (by the count model, or measured when asked), or backward Euler
+/// when asked to settle.
 #[derive(Debug)]
 struct AutoStepper {
     settings: AutoSettings,
@@ -275,9 +324,11 @@ struct AutoStepper {
     bdf2: Option<Box<Bdf2>>,
     settle: Option<Box<BackwardEuler>>,
     current: Option<IntegratorKind>,
-    /// Seconds per explicit substep.
+    /// The count model's cost of the last implicit step (`None` before one).
+    implicit_counted: Option<f64>,
+    /// Seconds per explicit substep (`tune_by_timing`).
     substep_time: Timing,
-    /// Seconds per implicit step.
+    /// Seconds per implicit step (`tune_by_timing`).
     implicit_time: Timing,
 }
 
@@ -296,6 +347,7 @@ impl AutoStepper {
             bdf2: None,
             settle,
             current: None,
+            implicit_counted: None,
             substep_time: Timing::default(),
             implicit_time: Timing::default(),
         })
@@ -310,37 +362,109 @@ impl AutoStepper {
         }
     }
 
-    /// The choice for a step of `h` with `needed` substeps for Verlet.
-    fn choose(&self, needed: usize) -> AutoReason {
-        if needed > self.settings.max_substeps {
-            return AutoReason::SubstepCap;
+    /// The costs of the two choices for a step with `needed` Verlet substeps, by the
+    /// count model: `needed` substeps of [`substep_cost`] against the last implicit
+    /// step's counted cost (before one, `implicit_cost_model` substeps).
+    fn counted_costs(&self, system: &SpringSystem, needed: usize) -> AutoCosts {
+        let substep = substep_cost(system);
+        let (implicit, implicit_observed) = match self.implicit_counted {
+            Some(c) => (c, true),
+            None => (self.settings.implicit_cost_model * substep, false),
+        };
+        AutoCosts {
+            explicit: needed as f64 * substep,
+            implicit,
+            timed: false,
+            implicit_observed,
         }
-        // Costs in seconds when measured; before, in units of one explicit substep.
-        let (explicit, implicit) =
-            match (self.substep_time.estimate(), self.implicit_time.estimate()) {
-                // Fewer than PROBES explicit timings: time another explicit step (safe,
-                // at the bound's count), so one preempted step cannot decide for good.
-                (Some(_), Some(_)) if self.substep_time.samples < PROBES => {
-                    return AutoReason::ExplicitCheapest;
-                }
-                (Some(t), Some(ti)) => (needed as f64 * t, ti),
-                (Some(t), None) => (needed as f64 * t, self.settings.implicit_cost_model * t),
-                // An implicit step was timed but no explicit one: time one explicit step
-                // (stable at the bound's count, so the probe is safe).
-                (None, Some(_)) => return AutoReason::ExplicitCheapest,
-                (None, None) => (needed as f64, self.settings.implicit_cost_model),
-            };
+    }
+
+    /// The costs by the measured times (`tune_by_timing`); `None` when an explicit probe
+    /// must be timed first (see docs/integrators.md).
+    fn timed_costs(&self, needed: usize) -> Option<AutoCosts> {
+        let costs = |explicit, implicit, implicit_observed| AutoCosts {
+            explicit,
+            implicit,
+            timed: true,
+            implicit_observed,
+        };
+        match (self.substep_time.estimate(), self.implicit_time.estimate()) {
+            // Fewer than PROBES explicit timings: time another explicit step (safe, at
+            // the bound's count), so one preempted step cannot decide for good.
+            (Some(_), Some(_)) if self.substep_time.samples < PROBES => None,
+            (Some(t), Some(ti)) => Some(costs(needed as f64 * t, ti, true)),
+            (Some(t), None) => Some(costs(
+                needed as f64 * t,
+                self.settings.implicit_cost_model * t,
+                false,
+            )),
+            // An implicit step was timed but no explicit one: time one explicit step
+            // (stable at the bound's count, so the probe is safe).
+            (None, Some(_)) => None,
+            (None, None) => Some(costs(
+                needed as f64,
+                self.settings.implicit_cost_model,
+                false,
+            )),
+        }
+    }
+
+    /// The choice for a step of `h` with `needed` substeps for Verlet, and the costs it
+    /// was made from.
+    fn choose(&self, system: &SpringSystem, needed: usize) -> (AutoReason, Option<AutoCosts>) {
+        if needed > self.settings.max_substeps {
+            return (AutoReason::SubstepCap, None);
+        }
+        let costs = if self.settings.tune_by_timing {
+            match self.timed_costs(needed) {
+                Some(c) => c,
+                None => return (AutoReason::ExplicitCheapest, None),
+            }
+        } else {
+            self.counted_costs(system, needed)
+        };
+        let (explicit, implicit) = (costs.explicit, costs.implicit);
         let ratio = self.settings.switch_ratio;
         let explicit_wins = match self.current {
             Some(IntegratorKind::Bdf2) => explicit * ratio < implicit,
             Some(IntegratorKind::VelocityVerlet) => explicit < implicit * ratio,
             _ => explicit <= implicit,
         };
-        if explicit_wins {
+        let reason = if explicit_wins {
             AutoReason::ExplicitCheapest
         } else {
             AutoReason::ImplicitCheaper
-        }
+        };
+        (reason, Some(costs))
+    }
+
+    /// The count model's cost of the implicit step `report` (Newton iterations, PCG
+    /// iterations, the direct solve's modelled cost when it ran) on `bdf2`'s pattern.
+    fn implicit_step_cost(
+        system: &SpringSystem,
+        bdf2: &mut Bdf2,
+        report: &StepReport,
+    ) -> Result<f64, ModelError> {
+        let springs = system.springs().len() as f64;
+        let particles = system.len() as f64;
+        let pattern = bdf2.newton().pattern();
+        let cg_iteration = 2.0 * pattern.nnz() as f64 + 9.0 * pattern.dim() as f64;
+        let direct_solves = if report.linear_solver == Some(crate::linear::LinearSolverKind::Direct)
+        {
+            report.iterations.saturating_sub(report.direct_failures) as f64
+        } else {
+            0.0
+        };
+        let direct = if direct_solves > 0.0 {
+            direct_solves * bdf2.newton_mut().solver_costs()?.direct_cost()
+        } else {
+            0.0
+        };
+        Ok(STEP_PER_SPRING * springs
+            + report.iterations as f64
+                * (NEWTON_PER_SPRING * springs + NEWTON_PER_PARTICLE * particles)
+            + report.linear_iterations as f64 * cg_iteration
+            + direct)
     }
 
     fn step(&mut self, system: &mut SpringSystem, h: f64) -> Result<StepReport, StepError> {
@@ -352,13 +476,17 @@ impl AutoStepper {
         }
         let bound = self.monitor.update(system, h);
         let needed = bound.substeps(h);
-        let reason = self.choose(needed);
-        let started = Instant::now();
+        let (reason, costs) = self.choose(system, needed);
+        let timing = self.settings.tune_by_timing;
+        // The clock is read only when asked to tune by it.
+        let started = timing.then(Instant::now);
         let mut report = if reason == AutoReason::ExplicitCheapest {
             self.verlet.set_substeps(needed);
             let report = self.verlet.step(system, h)?;
-            self.substep_time
-                .record(started.elapsed().as_secs_f64() / needed as f64);
+            if let Some(started) = started {
+                self.substep_time
+                    .record(started.elapsed().as_secs_f64() / needed as f64);
+            }
             self.current = Some(IntegratorKind::VelocityVerlet);
             report
         } else {
@@ -371,11 +499,15 @@ impl AutoStepper {
                 bdf2.reset_history();
             }
             let report = bdf2.step(system, h)?;
-            self.implicit_time.record(started.elapsed().as_secs_f64());
+            if let Some(started) = started {
+                self.implicit_time.record(started.elapsed().as_secs_f64());
+            }
+            self.implicit_counted = Some(Self::implicit_step_cost(system, bdf2, &report)?);
             self.current = Some(IntegratorKind::Bdf2);
             report
         };
         report.auto_reason = Some(reason);
+        report.auto_costs = costs;
         report.omega_max = bound.omega_max();
         report.stable_substeps = needed;
         Ok(report)

@@ -62,7 +62,7 @@ mod stability;
 
 pub use explicit::{PARALLEL_MIN_PARTICLES, SymplecticEuler, VelocityVerlet};
 pub use implicit::{Bdf2, ImplicitMidpoint};
-pub use integrator::{AutoSettings, Integrator, Simulation};
+pub use integrator::{AutoCosts, AutoSettings, Integrator, Simulation};
 pub use linear::{
     DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, SolverCosts,
 };

@@ -32,7 +32,8 @@ pub enum AutoReason {
     /// The settings ask to settle (numerical damping wanted): backward Euler.
     Settle,
     /// Velocity Verlet at the substep count from the stability bound costs no more than
-    /// an implicit step (measured, or modelled before any was measured).
+    /// an implicit step (by the count model, or measured with
+    /// `AutoSettings::tune_by_timing`; `StepReport::auto_costs` has the figures).
     ExplicitCheapest,
     /// The substeps the stability bound asks for cost more than an implicit step: BDF2.
     ImplicitCheaper,
@@ -152,6 +153,9 @@ pub struct StepReport {
     pub energy_after: Energies,
     /// With `auto`: why this step's integrator was chosen (`None` otherwise).
     pub auto_reason: Option<AutoReason>,
+    /// With `auto`: the costs the choice compared (`None` otherwise, and when no
+    /// comparison was made: settling, the substep cap, a timing probe).
+    pub auto_costs: Option<crate::integrator::AutoCosts>,
     /// The estimated largest effective frequency `omega_eff` (rad/s) of the stability
     /// bound, when it was computed for this step (explicit bounded integrators and `auto`;
     /// 0 otherwise).
@@ -200,6 +204,7 @@ impl StepReport {
             energy_before: Energies::default(),
             energy_after: Energies::default(),
             auto_reason: None,
+            auto_costs: None,
             omega_max: 0.0,
             stable_substeps: 0,
             pieces: 1,

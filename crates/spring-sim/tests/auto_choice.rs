@@ -1,0 +1,123 @@
+//! `Integrator::Auto` chooses from counts by default, not from a clock: two runs of the
+//! same setup give bitwise the same states and the same choices, each step says why and
+//! with which costs, and the choice follows the costs it reports.
+
+use sinew_spring_sim::*;
+
+/// The lab cloth (11 x 11, mass 1, the lab's gravity, corners (0, 0) and (0, 10) pinned)
+/// at stiffness `k` and damping `damping`; or `size` x `size`, 2 wide.
+fn cloth(size: usize, k: f64, damping: f64) -> SpringSystem {
+    let mut spec = if size == 11 {
+        ClothGrid::lab().with_damping(damping)
+    } else {
+        ClothGrid::lab_sized(size, 2.0 / (size - 1) as f64).with_damping(damping)
+    };
+    spec.material.stiffness = k;
+    SpringSystem::cloth(&spec).unwrap()
+}
+
+fn run(
+    system: &SpringSystem,
+    settings: AutoSettings,
+    h: f64,
+    steps: usize,
+) -> (SpringSystem, Vec<StepReport>) {
+    let mut sim = Simulation::new(system.clone(), Integrator::Auto(settings)).unwrap();
+    let reports = (0..steps).map(|_| sim.step(h).unwrap()).collect();
+    (sim.into_system(), reports)
+}
+
+/// W4 (k = 100, h = 1/60), W5 (k = 1e4 and 1e6, h = 1/30, damping 0.2), and a cloth so
+/// stiff (k = 1e8, h = 1/10) that the bound asks for far more substeps than an implicit
+/// step costs; and the same with an implicit step modelled as cheap as 2 substeps, so
+/// BDF2 runs and its observed counts decide afterwards.
+#[test]
+fn two_runs_of_auto_are_bitwise_equal_and_say_why() {
+    let cases = [
+        (cloth(11, 100.0, 0.0), 1.0 / 60.0, 30),
+        (cloth(11, 1e4, 0.2), 1.0 / 30.0, 15),
+        (cloth(11, 1e6, 0.2), 1.0 / 30.0, 15),
+        (cloth(11, 1e8, 0.0), 0.1, 6),
+    ];
+    let mut seen = Vec::new();
+    for (system, h, steps) in &cases {
+        for settings in [
+            AutoSettings::default(),
+            AutoSettings {
+                implicit_cost_model: 2.0,
+                ..AutoSettings::default()
+            },
+        ] {
+            let (a, reports_a) = run(system, settings, *h, *steps);
+            let (b, reports_b) = run(system, settings, *h, *steps);
+            assert_eq!(a.positions(), b.positions());
+            assert_eq!(a.velocities(), b.velocities());
+            for (n, (ra, rb)) in reports_a.iter().zip(&reports_b).enumerate() {
+                // Everything but the energies' bits is compared; those follow from the
+                // states, equal above.
+                assert_eq!(ra.integrator, rb.integrator, "step {n}");
+                assert_eq!(ra.auto_reason, rb.auto_reason, "step {n}");
+                assert_eq!(ra.auto_costs, rb.auto_costs, "step {n}");
+                assert_eq!(ra.substeps, rb.substeps, "step {n}");
+                let reason = ra.auto_reason.expect("auto reports its reason");
+                let costs = ra.auto_costs.expect("the costs compared are reported");
+                assert!(!costs.timed);
+                assert!(costs.explicit > 0.0 && costs.implicit > 0.0);
+                // The choice follows the reported costs, within the hysteresis.
+                match reason {
+                    AutoReason::ExplicitCheapest => {
+                        assert_eq!(ra.integrator, IntegratorKind::VelocityVerlet);
+                        assert!(costs.explicit <= costs.implicit * settings.switch_ratio);
+                    }
+                    AutoReason::ImplicitCheaper => {
+                        assert_eq!(ra.integrator, IntegratorKind::Bdf2);
+                        assert!(costs.explicit * settings.switch_ratio >= costs.implicit);
+                    }
+                    other => panic!("step {n}: unexpected reason {other:?}"),
+                }
+                // The implicit cost is the prior until BDF2 has run once.
+                let bdf2_before = reports_a[..n]
+                    .iter()
+                    .any(|r| r.integrator == IntegratorKind::Bdf2);
+                assert_eq!(costs.implicit_observed, bdf2_before, "step {n}");
+                seen.push((ra.integrator, costs.implicit_observed));
+            }
+        }
+    }
+    // Both integrators were chosen, and BDF2 also from an observed cost.
+    assert!(seen.contains(&(IntegratorKind::VelocityVerlet, false)));
+    assert!(seen.contains(&(IntegratorKind::Bdf2, false)));
+    assert!(seen.contains(&(IntegratorKind::Bdf2, true)));
+}
+
+/// On W4, W5 k = 1e6 (h = 1/30) and W6 (101 x 101, h = 1/60), the workloads where Verlet at
+/// the bound was measured cheapest, the count model chooses it on every step.
+#[test]
+fn the_count_model_keeps_verlet_on_the_workloads() {
+    for (system, h, steps) in [
+        (cloth(11, 100.0, 0.0), 1.0 / 60.0, 10),
+        (cloth(11, 1e6, 0.0), 1.0 / 30.0, 10),
+        (cloth(101, 100.0, 0.0), 1.0 / 60.0, 3),
+    ] {
+        let (_, reports) = run(&system, AutoSettings::default(), h, steps);
+        for r in reports {
+            assert_eq!(r.integrator, IntegratorKind::VelocityVerlet, "{r:?}");
+            assert_eq!(r.substeps, r.stable_substeps);
+        }
+    }
+}
+
+/// Timing-based tuning is there when asked for, and says its costs are seconds.
+#[test]
+fn tuning_by_timing_is_opt_in_and_reported() {
+    let system = cloth(11, 100.0, 0.0);
+    let settings = AutoSettings {
+        tune_by_timing: true,
+        ..AutoSettings::default()
+    };
+    let (_, reports) = run(&system, settings, 1.0 / 60.0, 10);
+    let timed: Vec<_> = reports.iter().filter_map(|r| r.auto_costs).collect();
+    assert!(!timed.is_empty());
+    assert!(timed.iter().all(|c| c.timed));
+    assert!(reports.iter().all(|r| r.auto_reason.is_some()));
+}
