@@ -58,10 +58,12 @@ impl SymplecticEuler {
     /// `substeps` substeps per step (at least 1).
     pub fn new(system: &SpringSystem, substeps: usize) -> Result<Self, crate::model::ModelError> {
         if substeps == 0 {
-            return Err(crate::model::ModelError::BadParameter {
-                name: "substeps",
-                reason: "must be at least 1",
-            });
+            return Err(crate::model::SettingsError::new(
+                "SymplecticEuler",
+                "substeps",
+                "must be at least 1",
+            )
+            .into());
         }
         Ok(Self {
             substeps,
@@ -225,10 +227,7 @@ impl ThreadedForces {
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(count)
                     .build()
-                    .map_err(|_| crate::model::ModelError::BadParameter {
-                        name: "threads",
-                        reason: "the thread pool could not be started",
-                    })?;
+                    .map_err(|e| crate::linear::SolverError::thread_pool(count, e))?;
                 let mut lists: Vec<Vec<(usize, bool)>> = vec![Vec::new(); system.len()];
                 for (k, s) in system.springs().iter().enumerate() {
                     lists[s.a].push((k, true));
@@ -371,10 +370,12 @@ impl VelocityVerlet {
     /// `substeps` substeps per step (at least 1).
     pub fn new(system: &SpringSystem, substeps: usize) -> Result<Self, crate::model::ModelError> {
         if substeps == 0 {
-            return Err(crate::model::ModelError::BadParameter {
-                name: "substeps",
-                reason: "must be at least 1",
-            });
+            return Err(crate::model::SettingsError::new(
+                "VelocityVerlet",
+                "substeps",
+                "must be at least 1",
+            )
+            .into());
         }
         Ok(Self {
             substeps,

@@ -13,7 +13,7 @@ use crate::contact::{
 };
 use crate::explicit::{SymplecticEuler, VelocityVerlet};
 use crate::implicit::{Bdf2, ImplicitMidpoint};
-use crate::model::{ModelError, SpringSystem};
+use crate::model::{ModelError, SettingsError, SpringSystem};
 use crate::newton::{BackwardEuler, NewtonSettings};
 use crate::reference::flawed_report_method::FlawedReportMethod;
 use crate::report::{AutoReason, IntegratorKind, StepError, StepReport};
@@ -110,25 +110,28 @@ impl Default for AutoSettings {
 
 impl AutoSettings {
     /// Checks the settings, naming the bad field.
-    pub fn validate(&self) -> Result<(), ModelError> {
+    pub fn validate(&self) -> Result<(), SettingsError> {
         self.newton.validate()?;
         if self.max_substeps == 0 {
-            return Err(ModelError::BadParameter {
-                name: "max_substeps",
-                reason: "must be at least 1",
-            });
+            return Err(SettingsError::new(
+                "AutoSettings",
+                "max_substeps",
+                "must be at least 1",
+            ));
         }
         if !(self.implicit_cost_model.is_finite() && self.implicit_cost_model > 0.0) {
-            return Err(ModelError::BadParameter {
-                name: "implicit_cost_model",
-                reason: "must be positive and finite",
-            });
+            return Err(SettingsError::new(
+                "AutoSettings",
+                "implicit_cost_model",
+                "must be positive and finite",
+            ));
         }
         if !(self.switch_ratio.is_finite() && self.switch_ratio >= 1.0) {
-            return Err(ModelError::BadParameter {
-                name: "switch_ratio",
-                reason: "must be finite and at least 1",
-            });
+            return Err(SettingsError::new(
+                "AutoSettings",
+                "switch_ratio",
+                "must be finite and at least 1",
+            ));
         }
         Ok(())
     }

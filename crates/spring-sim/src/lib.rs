@@ -64,13 +64,13 @@ pub use explicit::{PARALLEL_MIN_PARTICLES, SymplecticEuler, VelocityVerlet};
 pub use implicit::{Bdf2, ImplicitMidpoint};
 pub use integrator::{AutoCosts, AutoSettings, Integrator, Simulation};
 pub use linear::{
-    DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, SolverCosts,
+    DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, SolverCosts, SolverError,
 };
 pub use mesh::{Bending, EdgeHinge, MeshCloth, MeshClothModel, MeshError, TriangleMesh};
 pub use metrics::{DIVERGENCE_RADIUS, RunMetrics, run, run_observed};
 pub use model::{
-    ClothGrid, Energies, Material, ModelError, Particle, Rope, Spring, SpringSpec, SpringSystem,
-    Topology,
+    ClothGrid, Energies, Material, ModelError, Particle, Rope, SettingsError, Spring, SpringSpec,
+    SpringSystem, Topology,
 };
 pub use newton::{BackwardEuler, InitialGuess, NewtonSettings, newton_matrix_triplets};
 pub use pattern::HessianPattern;

@@ -17,15 +17,86 @@
 use crate::pattern::HessianPattern;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
-use faer::sparse::SymbolicSparseColMat;
 use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
     CholeskySymbolicParams, SymbolicCholesky, SymbolicCholeskyRaw, SymmetricOrdering,
     factorize_symbolic_cholesky, simplicial,
 };
+use faer::sparse::{FaerError, SymbolicSparseColMat};
 use faer::{Conj, MatMut, Par, Side};
 use sinew_math::{DMat3, DVec3};
+use std::sync::Arc;
+
+/// A linear solver that could not be set up, with faer's (or the thread pool's) own
+/// error as its `source`, so a caller can reach the structured cause.
+#[derive(Clone, Debug)]
+pub enum SolverError {
+    /// faer's symbolic Cholesky factorization of the Newton matrix's pattern failed
+    /// (an index overflow or an allocation failure).
+    SymbolicFactorization(FaerError),
+    /// faer's approximate minimum degree ordering of the particle graph, for the
+    /// automatic solver choice's cost counts, failed.
+    Ordering(FaerError),
+    /// The thread pool of `threads` threads could not be started.
+    ThreadPool {
+        /// The threads asked for.
+        threads: usize,
+        /// The thread pool builder's error.
+        cause: Arc<dyn std::error::Error + Send + Sync>,
+    },
+}
+
+impl SolverError {
+    /// A thread pool of `threads` threads failed to start with `cause`.
+    pub(crate) fn thread_pool(
+        threads: usize,
+        cause: impl std::error::Error + Send + Sync + 'static,
+    ) -> Self {
+        Self::ThreadPool {
+            threads,
+            cause: Arc::new(cause),
+        }
+    }
+}
+
+impl PartialEq for SolverError {
+    /// The same failure of the same step: the causes are compared where they can be
+    /// (faer's errors), the thread pool's by the thread count alone.
+    fn eq(&self, other: &Self) -> bool {
+        match (self, other) {
+            (Self::SymbolicFactorization(a), Self::SymbolicFactorization(b))
+            | (Self::Ordering(a), Self::Ordering(b)) => a == b,
+            (Self::ThreadPool { threads: a, .. }, Self::ThreadPool { threads: b, .. }) => a == b,
+            _ => false,
+        }
+    }
+}
+
+impl std::fmt::Display for SolverError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::SymbolicFactorization(_) => f.write_str(
+                "linear_solver: the symbolic Cholesky factorization of the Newton matrix failed",
+            ),
+            Self::Ordering(_) => f.write_str(
+                "linear_solver: the ordering of the particle graph for the solver's cost model failed",
+            ),
+            Self::ThreadPool { threads, .. } => {
+                write!(f, "threads: a pool of {threads} threads could not be started")
+            }
+        }
+    }
+}
+
+impl std::error::Error for SolverError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::SymbolicFactorization(e) | Self::Ordering(e) => Some(e),
+            Self::ThreadPool { cause, .. } => Some(cause.as_ref()),
+        }
+    }
+}
 
 /// Which linear solver the Newton iterations use.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -122,7 +193,7 @@ pub struct SolverCosts {
 impl SolverCosts {
     /// Analyses `pattern` (see the type's documentation). `O(springs)` memory; the time
     /// of an ordering of the particle graph (milliseconds on 101 x 101).
-    pub fn analyze(pattern: &HessianPattern) -> Result<Self, String> {
+    pub fn analyze(pattern: &HessianPattern) -> Result<Self, SolverError> {
         let particles = pattern.free_particles.len();
         let dim = pattern.dim();
         let matrix_nonzeros = pattern.nnz();
@@ -168,7 +239,7 @@ impl SolverCosts {
             amd::Control::default(),
             MemStack::new(&mut work),
         )
-        .map_err(|e| format!("minimum degree ordering of the particle graph failed: {e:?}"))?;
+        .map_err(SolverError::Ordering)?;
         // The permuted graph's upper triangle (what the column counts read).
         let mut columns: Vec<Vec<usize>> = vec![Vec::new(); particles];
         for p in 0..particles {
@@ -280,7 +351,7 @@ impl std::fmt::Debug for DirectSolver {
 
 impl DirectSolver {
     /// The symbolic factorization of `pattern`'s matrix with the given structure.
-    pub fn new(pattern: &HessianPattern, structure: FactorStructure) -> Result<Self, String> {
+    pub fn new(pattern: &HessianPattern, structure: FactorStructure) -> Result<Self, SolverError> {
         let threshold = match structure {
             FactorStructure::Supernodal => SupernodalThreshold::FORCE_SUPERNODAL,
             FactorStructure::Simplicial => SupernodalThreshold::FORCE_SIMPLICIAL,
@@ -296,7 +367,7 @@ impl DirectSolver {
             SymmetricOrdering::Amd,
             params,
         )
-        .map_err(|e| format!("symbolic Cholesky factorization failed: {e:?}"))?;
+        .map_err(SolverError::SymbolicFactorization)?;
         let factor_values = vec![0.0; symbolic.len_val()];
         let factor_work = MemBuffer::new(
             symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
@@ -581,7 +652,7 @@ impl PcgSolver {
     /// per core). The result does not depend on it (see [`CHUNK`]). Without the
     /// `parallel` feature everything runs on the calling thread. An error if the thread
     /// pool cannot be built.
-    pub fn set_threads(&mut self, threads: usize) -> Result<(), String> {
+    pub fn set_threads(&mut self, threads: usize) -> Result<(), SolverError> {
         #[cfg(feature = "parallel")]
         {
             let count = if threads == 0 {
@@ -593,7 +664,7 @@ impl PcgSolver {
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(count)
                     .build()
-                    .map_err(|e| format!("could not start {count} threads: {e}"))?;
+                    .map_err(|e| SolverError::thread_pool(count, e))?;
                 Some(std::sync::Arc::new(pool))
             } else {
                 None

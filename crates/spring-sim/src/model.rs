@@ -231,7 +231,15 @@ pub enum ModelError {
         /// The value given.
         dt: f64,
     },
-    /// A builder parameter is invalid.
+    /// An integrator's or solver's setting is invalid ([`SettingsError`] names the
+    /// settings and the field; it is also this error's `source`).
+    Settings(SettingsError),
+    /// A linear solver could not be set up (faer's symbolic factorization or ordering,
+    /// or the thread pool failed); [`crate::SolverError`] keeps the cause, reached by
+    /// `source`.
+    Solver(crate::linear::SolverError),
+    /// A builder's or the model's own parameter is invalid (a grid's size or spacing, a
+    /// state of the wrong length, a coupled pair out of range).
     BadParameter {
         /// The parameter's name.
         name: &'static str,
@@ -296,6 +304,8 @@ impl fmt::Display for ModelError {
             Self::BadTimeStep { dt } => {
                 write!(f, "time step {dt} is not positive and finite")
             }
+            Self::Settings(e) => write!(f, "{e}"),
+            Self::Solver(e) => write!(f, "{e}"),
             Self::BadParameter { name, reason } => write!(f, "parameter {name}: {reason}"),
             Self::TopologyMismatch { what } => write!(
                 f,
@@ -305,7 +315,61 @@ impl fmt::Display for ModelError {
     }
 }
 
-impl std::error::Error for ModelError {}
+impl std::error::Error for ModelError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::Settings(e) => Some(e),
+            Self::Solver(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+impl From<SettingsError> for ModelError {
+    fn from(e: SettingsError) -> Self {
+        Self::Settings(e)
+    }
+}
+
+impl From<crate::linear::SolverError> for ModelError {
+    fn from(e: crate::linear::SolverError) -> Self {
+        Self::Solver(e)
+    }
+}
+
+/// An invalid setting of an integrator or a solver, naming the settings and the field:
+/// `NewtonSettings.tolerance: must be positive and finite`. Settings are checked when the
+/// integrator is built, so a step never meets one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SettingsError {
+    /// The settings: `NewtonSettings`, `AutoSettings`, `SymplecticEuler` or
+    /// `VelocityVerlet` (their substep counts).
+    pub settings: &'static str,
+    /// The field.
+    pub field: &'static str,
+    /// What is wrong with its value.
+    pub reason: &'static str,
+}
+
+impl SettingsError {
+    /// The error for `settings.field`.
+    #[must_use]
+    pub const fn new(settings: &'static str, field: &'static str, reason: &'static str) -> Self {
+        Self {
+            settings,
+            field,
+            reason,
+        }
+    }
+}
+
+impl fmt::Display for SettingsError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}.{}: {}", self.settings, self.field, self.reason)
+    }
+}
+
+impl std::error::Error for SettingsError {}
 
 /// Checks a time step: positive and finite.
 pub fn check_time_step(dt: f64) -> Result<(), ModelError> {

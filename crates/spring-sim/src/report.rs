@@ -225,8 +225,11 @@ impl StepReport {
 /// Why a step could not be taken. The system is left as it was before the step.
 #[derive(Clone, Debug, PartialEq)]
 pub enum StepError {
-    /// Invalid input (time step, settings, topology), naming the item.
+    /// Invalid input (time step, topology), naming the item.
     Invalid(crate::model::ModelError),
+    /// A linear solver needed by the step could not be set up (the direct solver is
+    /// built at the first step that chooses it); the cause is this error's `source`.
+    Solver(crate::linear::SolverError),
     /// A non-finite value appeared (an explicit integrator above its stability limit,
     /// or the flawed reference method); names the first particle affected.
     NonFinite {
@@ -268,6 +271,7 @@ impl std::fmt::Display for StepError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Self::Invalid(e) => write!(f, "{e}"),
+            Self::Solver(e) => write!(f, "{e}"),
             Self::NonFinite {
                 integrator,
                 particle,
@@ -296,10 +300,29 @@ impl std::fmt::Display for StepError {
     }
 }
 
-impl std::error::Error for StepError {}
+impl std::error::Error for StepError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::Invalid(e) => Some(e),
+            Self::Solver(e) => Some(e),
+            _ => None,
+        }
+    }
+}
 
 impl From<crate::model::ModelError> for StepError {
+    /// A solver failure stays one ([`StepError::Solver`]); anything else is input the
+    /// step refused.
     fn from(e: crate::model::ModelError) -> Self {
-        Self::Invalid(e)
+        match e {
+            crate::model::ModelError::Solver(e) => Self::Solver(e),
+            e => Self::Invalid(e),
+        }
+    }
+}
+
+impl From<crate::linear::SolverError> for StepError {
+    fn from(e: crate::linear::SolverError) -> Self {
+        Self::Solver(e)
     }
 }

@@ -134,11 +134,7 @@ impl BackwardEuler {
             None
         };
         let mut pcg = PcgSolver::new(&pattern);
-        pcg.set_threads(settings.threads)
-            .map_err(|_| ModelError::BadParameter {
-                name: "threads",
-                reason: "the thread pool could not be started",
-            })?;
+        pcg.set_threads(settings.threads)?;
         Ok(Self {
             settings,
             pcg,
@@ -170,10 +166,7 @@ impl BackwardEuler {
         pattern: &HessianPattern,
         structure: FactorStructure,
     ) -> Result<DirectSolver, ModelError> {
-        DirectSolver::new(pattern, structure).map_err(|_| ModelError::BadParameter {
-            name: "linear_solver",
-            reason: "the symbolic Cholesky factorization failed",
-        })
+        Ok(DirectSolver::new(pattern, structure)?)
     }
 
     /// The threads PCG's vector work runs on (1: the calling thread, as for systems too
@@ -589,10 +582,7 @@ impl BackwardEuler {
         if let Some(c) = self.costs {
             return Ok(c);
         }
-        let c = SolverCosts::analyze(&self.pattern).map_err(|_| ModelError::BadParameter {
-            name: "linear_solver",
-            reason: "the ordering of the particle graph for the solver's cost model failed",
-        })?;
+        let c = SolverCosts::analyze(&self.pattern)?;
         self.costs = Some(c);
         Ok(c)
     }

@@ -1,7 +1,7 @@
 //! The settings of the Newton solve and of its first guess, with their validation.
 
 use crate::linear::{FactorStructure, LinearSolverChoice};
-use crate::model::ModelError;
+use crate::model::SettingsError;
 
 /// The Newton iteration's first guess.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -96,30 +96,34 @@ impl Default for NewtonSettings {
 
 impl NewtonSettings {
     /// Checks the settings, naming the bad field.
-    pub fn validate(&self) -> Result<(), ModelError> {
+    pub fn validate(&self) -> Result<(), SettingsError> {
         if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
-            return Err(ModelError::BadParameter {
-                name: "tolerance",
-                reason: "must be positive and finite",
-            });
+            return Err(SettingsError::new(
+                "NewtonSettings",
+                "tolerance",
+                "must be positive and finite",
+            ));
         }
         if !(self.pcg_forcing > 0.0 && self.pcg_forcing < 1.0) {
-            return Err(ModelError::BadParameter {
-                name: "pcg_forcing",
-                reason: "must be in (0, 1)",
-            });
+            return Err(SettingsError::new(
+                "NewtonSettings",
+                "pcg_forcing",
+                "must be in (0, 1)",
+            ));
         }
         if !(self.armijo > 0.0 && self.armijo < 0.5) {
-            return Err(ModelError::BadParameter {
-                name: "armijo",
-                reason: "must be in (0, 0.5)",
-            });
+            return Err(SettingsError::new(
+                "NewtonSettings",
+                "armijo",
+                "must be in (0, 0.5)",
+            ));
         }
         if self.max_split_depth > MAX_SPLIT_DEPTH {
-            return Err(ModelError::BadParameter {
-                name: "max_split_depth",
-                reason: "must be at most 20 (pieces of h / 2^20)",
-            });
+            return Err(SettingsError::new(
+                "NewtonSettings",
+                "max_split_depth",
+                "must be at most 20 (pieces of h / 2^20)",
+            ));
         }
         Ok(())
     }
