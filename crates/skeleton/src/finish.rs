@@ -34,10 +34,9 @@
 //! conflicting goals is the weighted least-squares best.
 
 use crate::ik::{Chain, EffectorGoal, SolveSettings, StopReason, rotation_angle};
-use crate::limits::{JointLimit, SwingTwist};
+use crate::limits::{JointLimit, LimitFrame};
 use crate::{GlobalPose, Pose, Skeleton, SkeletonError};
 use sinew_math::{DQuat, DVec3};
-use std::f64::consts::PI;
 
 /// The first damping is the smaller of this times the mean diagonal of `J J^T` and
 /// `COST_DAMPING` times the weighted cost.
@@ -845,28 +844,18 @@ impl Finish {
                 continue;
             };
             // The swing bound and the twist range are two constraints, which can both
-            // be active (a corner): one normal each, from the limit with the other one
-            // opened up.
-            let swing_only = JointLimit::SwingTwist(SwingTwist {
-                twist_min: -PI,
-                twist_max: PI,
-                ..*st
-            });
-            let twist_only = JointLimit::SwingTwist(SwingTwist {
-                swing_a: PI,
-                swing_b: PI,
-                ..*st
-            });
+            // be active (a corner): one normal each, from the violation of the limit with
+            // the other one opened up (the two parts of one decomposition).
+            let frame = LimitFrame::of(st);
             let local = pose.rotations[j];
-            for (g, limit) in [swing_only, twist_only].iter().enumerate() {
-                let mut n = DVec3::ZERO;
-                for e in [DVec3::X, DVec3::Y, DVec3::Z] {
-                    let plus = limit.violation(DQuat::from_scaled_axis(e * H) * local);
-                    let minus = limit.violation(DQuat::from_scaled_axis(e * -H) * local);
-                    n += e * (plus - minus);
-                }
-                self.outward[m][g] = n.try_normalize().unwrap_or(DVec3::ZERO);
+            let mut normals = [DVec3::ZERO; 2];
+            for e in [DVec3::X, DVec3::Y, DVec3::Z] {
+                let plus = st.violation_parts_in(&frame, DQuat::from_scaled_axis(e * H) * local);
+                let minus = st.violation_parts_in(&frame, DQuat::from_scaled_axis(e * -H) * local);
+                normals[0] += e * (plus.0 - minus.0);
+                normals[1] += e * (plus.1 - minus.1);
             }
+            self.outward[m] = normals.map(|n| n.try_normalize().unwrap_or(DVec3::ZERO));
             // Off both bounds: no longer watched until a projection clamps it again.
             self.on_bound[m] = self.outward[m] != [DVec3::ZERO; 2];
         }
