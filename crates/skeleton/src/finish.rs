@@ -349,6 +349,8 @@ pub struct Finish {
     /// joint), and the world rotation vector of the current step.
     first_dof: Vec<usize>,
     turn: Vec<DVec3>,
+    /// The column of one blocked direction of a joint (see `reduce`).
+    combined: Vec<(usize, f64)>,
     factor: Vec<f64>,
     residual: Vec<f64>,
     y: Vec<f64>,
@@ -918,27 +920,32 @@ impl Finish {
             if self.frozen[m] {
                 for k in k0..k0 + count {
                     let (a, b) = (self.col_start[k], self.col_start[k + 1]);
-                    subtract_outer(&mut self.normal, rows, self.entries[a..b].iter().copied());
+                    subtract_outer(&mut self.normal, rows, &self.entries[a..b]);
                 }
                 continue;
             }
             active = true;
             for i in 0..self.blocked_count[m] {
                 let d = self.blocked[m][i];
-                let len = self.col_start[k0 + 1] - self.col_start[k0];
-                let (x, y, z) = (
+                let (x, y, z, end) = (
                     self.col_start[k0],
                     self.col_start[k0 + 1],
                     self.col_start[k0 + 2],
+                    self.col_start[k0 + 3],
                 );
-                let combined = (0..len).map(|e| {
-                    let row = self.entries[x + e].0;
-                    let v = d.x * self.entries[x + e].1
-                        + d.y * self.entries[y + e].1
-                        + d.z * self.entries[z + e].1;
-                    (row, v)
-                });
-                subtract_outer(&mut self.normal, rows, combined);
+                // The column of the blocked direction, made once: the outer product
+                // reads each entry as often as the column has rows.
+                self.combined.clear();
+                self.combined.extend(
+                    self.entries[x..y]
+                        .iter()
+                        .zip(&self.entries[y..z])
+                        .zip(&self.entries[z..end])
+                        .map(|((&(row, vx), &(_, vy)), &(_, vz))| {
+                            (row, d.x * vx + d.y * vy + d.z * vz)
+                        }),
+                );
+                subtract_outer(&mut self.normal, rows, &self.combined);
             }
         }
         active
@@ -949,13 +956,13 @@ impl Finish {
     /// returns the translation's step.
     fn turns(&mut self, movable: &[usize]) -> DVec3 {
         self.step.clear();
-        for k in 0..self.dofs.len() {
-            let s = self.entries[self.col_start[k]..self.col_start[k + 1]]
+        let (entries, y) = (&self.entries, &self.y);
+        self.step.extend(self.col_start.windows(2).map(|w| {
+            entries[w[0]..w[1]]
                 .iter()
-                .map(|&(row, v)| v * self.y[row])
-                .sum();
-            self.step.push(s);
-        }
+                .map(|&(row, v)| v * y[row])
+                .sum::<f64>()
+        }));
         let mut shift = DVec3::ZERO;
         self.turn.fill(DVec3::ZERO);
         for (&(m, u), &s) in self.dofs.iter().zip(&self.step) {
@@ -978,38 +985,48 @@ impl Finish {
     /// Solves `(J J^T + damping I) y = residual` by Cholesky into `self.y`; false when a
     /// pivot is not a positive finite number.
     fn solve(&mut self, rows: usize, damping: f64) -> bool {
-        let (n, l) = (&self.normal, &mut self.factor);
+        // Row slices rather than indexing, so the inner products carry no bounds checks;
+        // the sums run in the same order as the textbook loops.
+        let n = &self.normal[..rows * rows];
+        let l = &mut self.factor[..rows * rows];
         for a in 0..rows {
-            for b in 0..=a {
-                let mut sum = n[a * rows + b] + if a == b { damping } else { 0.0 };
-                for k in 0..b {
-                    sum -= l[a * rows + k] * l[b * rows + k];
+            let (above, from_a) = l.split_at_mut(a * rows);
+            let row_a = &mut from_a[..rows];
+            for b in 0..a {
+                let row_b = &above[b * rows..b * rows + b + 1];
+                let mut sum = n[a * rows + b];
+                for (x, y) in row_a[..b].iter().zip(&row_b[..b]) {
+                    sum -= x * y;
                 }
-                if a == b {
-                    if !(sum.is_finite() && sum > 0.0) {
-                        return false;
-                    }
-                    l[a * rows + a] = sum.sqrt();
-                } else {
-                    l[a * rows + b] = sum / l[b * rows + b];
-                }
+                row_a[b] = sum / row_b[b];
             }
+            let mut sum = n[a * rows + a] + damping;
+            for x in &row_a[..a] {
+                sum -= x * x;
+            }
+            if !(sum.is_finite() && sum > 0.0) {
+                return false;
+            }
+            row_a[a] = sum.sqrt();
         }
+        let y = &mut self.y[..rows];
         for a in 0..rows {
+            let row_a = &l[a * rows..=a * rows + a];
             let mut sum = self.residual[a];
-            for k in 0..a {
-                sum -= l[a * rows + k] * self.y[k];
+            for (x, v) in row_a[..a].iter().zip(&y[..a]) {
+                sum -= x * v;
             }
-            self.y[a] = sum / l[a * rows + a];
+            y[a] = sum / row_a[a];
         }
         for a in (0..rows).rev() {
-            let mut sum = self.y[a];
-            for k in a + 1..rows {
-                sum -= l[k * rows + a] * self.y[k];
+            let mut sum = y[a];
+            let column = l[a * rows + a..].iter().step_by(rows).skip(1);
+            for (x, v) in column.zip(&y[a + 1..]) {
+                sum -= x * v;
             }
-            self.y[a] = sum / l[a * rows + a];
+            y[a] = sum / l[a * rows + a];
         }
-        self.y[..rows].iter().all(|v| v.is_finite())
+        y.iter().all(|v| v.is_finite())
     }
 
     /// Turns each movable joint by its step `turn` (world axes taken into the parent's
@@ -1059,14 +1076,11 @@ impl Finish {
 
 /// Subtracts the outer product of a sparse column (rows increasing) from the lower
 /// triangle of a rows x rows matrix.
-fn subtract_outer(
-    matrix: &mut [f64],
-    rows: usize,
-    column: impl Iterator<Item = (usize, f64)> + Clone,
-) {
-    for (i, (a, va)) in column.clone().enumerate() {
-        for (b, vb) in column.clone().take(i + 1) {
-            matrix[a * rows + b] -= va * vb;
+fn subtract_outer(matrix: &mut [f64], rows: usize, column: &[(usize, f64)]) {
+    for (i, &(a, va)) in column.iter().enumerate() {
+        let line = &mut matrix[a * rows..=a * rows + a];
+        for &(b, vb) in &column[..=i] {
+            line[b] -= va * vb;
         }
     }
 }
