@@ -462,6 +462,27 @@ impl SwingTwist {
         }
     }
 
+    /// Whether `q` is at least `margin` radians inside both constraints, in a form every
+    /// rotation within a small fraction of `margin` of `q` keeps: its swing is under 3 rad
+    /// (where the twist is well defined) and inside the disc of radius
+    /// `min(swing_a, swing_b) - margin` (which the ellipse contains), and its twist is at
+    /// least `margin` from both ends of the range (or the range is the whole circle).
+    /// Such a `q` and its neighbours have both violation parts exactly 0.
+    pub(crate) fn deep_inside(&self, frame: &LimitFrame, q: DQuat, margin: f64) -> bool {
+        let Some(q) = unit_quat(q) else {
+            return false;
+        };
+        let parts = Parts::of(q, frame.0.twist);
+        let (ra, rb) = frame.0.swing_coordinates(&parts);
+        let swing = ra.hypot(rb);
+        let twist = parts.twist_angle;
+        let whole_circle = self.twist_min <= -PI && self.twist_max >= PI;
+        swing < 3.0
+            && swing <= self.swing_a.min(self.swing_b) - margin
+            && (whole_circle
+                || (twist >= self.twist_min + margin && twist <= self.twist_max - margin))
+    }
+
     /// The parts for a unit `q`.
     fn unit_violation_parts(&self, frame: &Frame, q: DQuat) -> (f64, f64) {
         let parts = Parts::of(q, frame.twist);
