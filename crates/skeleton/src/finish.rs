@@ -1065,7 +1065,10 @@ impl Finish {
                 pose.rotations[j] = turned;
             } else {
                 let projected = limit.project(turned);
-                self.clamped[m] = rotation_angle(turned, projected) > CLAMPED;
+                // A rotation inside its limit comes back unchanged; only one that moved
+                // needs its angle measured.
+                self.clamped[m] =
+                    projected != turned && rotation_angle(turned, projected) > CLAMPED;
                 if self.clamped[m] {
                     // The pull-back as a world rotation vector: composed on the left in the
                     // parent's frame, then turned into the world like the step.
