@@ -69,6 +69,7 @@ impl SolverOptions {
             Self::Ccd(CcdOptions {
                 extrapolation: true,
                 relaxation: 1.0,
+                finish: true,
             }),
         ),
         (
@@ -76,6 +77,7 @@ impl SolverOptions {
             Self::Ccd(CcdOptions {
                 extrapolation: false,
                 relaxation: 1.0,
+                finish: false,
             }),
         ),
         (
@@ -194,6 +196,7 @@ mod tests {
         let ok = SolverOptions::Ccd(CcdOptions {
             relaxation: 1.5,
             extrapolation: false,
+            finish: true,
         });
         assert_eq!(ok.label(), "ccd-relaxed");
         assert!(ok.build().is_ok());
