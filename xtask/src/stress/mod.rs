@@ -18,7 +18,7 @@
 pub mod table;
 
 use clap::ValueEnum;
-use sinew_scene::stress::{cloth, ik};
+use sinew_bench::stress::{cloth, ik};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;

@@ -3,8 +3,8 @@
 //! case, the IK table (one row per case and solver), then the failures.
 
 use super::StressResults;
-use sinew_scene::stress::cloth::{ClothOutcome, InitialState, dt_label};
-use sinew_scene::stress::ik::IkOutcome;
+use sinew_bench::stress::cloth::{ClothOutcome, InitialState, dt_label};
+use sinew_bench::stress::ik::IkOutcome;
 use std::fmt::Write;
 
 /// The grid sizes present, in order.
