@@ -39,6 +39,32 @@ pub enum Task {
 }
 
 impl Task {
+    /// The task's name (unique in its scene).
+    #[must_use]
+    pub fn name(&self) -> &str {
+        match self {
+            Task::Fk(t) => &t.name,
+            Task::Ik(t) => &t.name,
+            Task::TwoBone(t) => &t.name,
+            Task::Curve(t) => &t.name,
+            Task::Cloth(t) => &t.name,
+            Task::FullBody(t) => &t.name,
+        }
+    }
+
+    /// The task kind, as the scene file spells it (`Fk`, ...).
+    #[must_use]
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Task::Fk(_) => "Fk",
+            Task::Ik(_) => "Ik",
+            Task::TwoBone(_) => "TwoBone",
+            Task::Curve(_) => "Curve",
+            Task::Cloth(_) => "Cloth",
+            Task::FullBody(_) => "FullBody",
+        }
+    }
+
     /// The task's behaviour, whatever its kind.
     pub fn spec(&self) -> &dyn TaskSpec {
         match self {
@@ -150,16 +176,17 @@ impl Scene {
             }
         }
         for task in &file.tasks {
-            let spec = task.spec();
-            spec.validate().map_err(|message| SceneError::Invalid {
-                path: path.to_path_buf(),
-                task: spec.name().to_string(),
-                message,
-            })?;
+            task.spec()
+                .validate()
+                .map_err(|message| SceneError::Invalid {
+                    path: path.to_path_buf(),
+                    task: task.name().to_string(),
+                    message,
+                })?;
         }
         let mut seen = std::collections::HashSet::new();
         for task in &file.tasks {
-            let name = task.spec().name();
+            let name = task.name();
             if !seen.insert(name) {
                 return Err(SceneError::Invalid {
                     path: path.to_path_buf(),

@@ -2,7 +2,7 @@
 //! springs) stepped by an integrator of sinew-spring-sim, with the run's energies,
 //! iterations and timing.
 
-use super::{RunContext, TaskOutput, TaskSpec, max_distance};
+use super::{RunContext, TaskOutput, TaskSpec, max_distance, non_negative};
 use crate::results::{
     ClothFrame, ClothMetrics, ClothPictures, ContactMetrics, Csv, Pictures, TaskMetrics,
 };
@@ -152,23 +152,12 @@ impl ClothTask {
 }
 
 impl TaskSpec for ClothTask {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        "Cloth"
-    }
-
     fn validate(&self) -> Result<(), String> {
         self.build()?;
-        if let Some(x) = self.expect_energy_increase_max
-            && !(x.is_finite() && x >= 0.0)
-        {
-            return Err(format!(
-                "expect_energy_increase_max = {x}, must be finite and >= 0"
-            ));
-        }
+        non_negative(
+            "expect_energy_increase_max",
+            self.expect_energy_increase_max,
+        )?;
         Ok(())
     }
 

@@ -6,8 +6,8 @@
 //! the body follows while other joints (the feet) stay pinned where they stand on the
 //! first frame (foot locking).
 
-use super::{RunContext, TaskOutput, TaskSpec, median};
-use crate::results::{BodyFrame, BodyMetrics, BodyPictures, Csv, Pictures, TaskMetrics};
+use super::{RunContext, TaskOutput, TaskSpec, median, non_negative};
+use crate::results::{BodyFrame, BodyMetrics, BodyPictures, Pictures, TaskMetrics};
 use serde::Deserialize;
 use sinew_ik_body::{BodyEffector, BodyProblem, BodySolverOptions, BodyState, workload};
 use sinew_math::DVec3;
@@ -205,23 +205,11 @@ impl FullBodyTask {
 }
 
 impl TaskSpec for FullBodyTask {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        "FullBody"
-    }
-
     fn validate(&self) -> Result<(), String> {
         self.settings
             .validate()
             .map_err(|e| format!("settings: {e}"))?;
-        if let Some(x) = self.expect_error_max
-            && !(x.is_finite() && x >= 0.0)
-        {
-            return Err(format!("expect_error_max = {x}, must be finite and >= 0"));
-        }
+        non_negative("expect_error_max", self.expect_error_max)?;
         self.build()?;
         Ok(())
     }
@@ -411,16 +399,13 @@ impl TaskSpec for FullBodyTask {
             error_max,
             metrics.time_per_solve_us_median
         );
-        Ok(TaskOutput {
-            metrics: TaskMetrics::Body(metrics),
+        Ok(TaskOutput::per_frame(
+            TaskMetrics::Body(metrics),
             headline,
             failures,
-            table: Csv {
-                suffix: "frames.csv",
-                text: csv,
-            },
+            csv,
             pictures,
-        })
+        ))
     }
 }
 

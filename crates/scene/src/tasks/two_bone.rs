@@ -5,8 +5,8 @@
 //! the reported error against forward kinematics of the result.
 
 use super::fk::bone_length_error_max;
-use super::{RunContext, TaskOutput, TaskSpec, median, median_time_ns};
-use crate::results::{Csv, Pictures, TaskMetrics, TwoBoneMetrics};
+use super::{RunContext, TaskOutput, TaskSpec, median, median_time_ns, non_negative};
+use crate::results::{Pictures, TaskMetrics, TwoBoneMetrics};
 use crate::spec::SkeletonSpec;
 use serde::Deserialize;
 use sinew_ik_two_bone::{Hinge, TwoBoneIk};
@@ -174,14 +174,6 @@ fn wrong_side(root: DVec3, mid: DVec3, tip: DVec3, pole: DVec3) -> f64 {
 }
 
 impl TaskSpec for TwoBoneTask {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        "TwoBone"
-    }
-
     fn validate(&self) -> Result<(), String> {
         let skeleton = self.skeleton.build()?;
         let pose = skeleton.rest_pose();
@@ -189,12 +181,7 @@ impl TaskSpec for TwoBoneTask {
         self.job(points[0])
             .validate(&skeleton, &pose)
             .map_err(|e| e.to_string())?;
-        if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
-            return Err(format!(
-                "tolerance = {}, must be finite and >= 0",
-                self.tolerance
-            ));
-        }
+        non_negative("tolerance", Some(self.tolerance))?;
         Ok(())
     }
 
@@ -315,15 +302,12 @@ impl TaskSpec for TwoBoneTask {
             bend_min.to_degrees(),
             bend_max.to_degrees()
         );
-        Ok(TaskOutput {
-            metrics: TaskMetrics::TwoBone(metrics),
+        Ok(TaskOutput::per_frame(
+            TaskMetrics::TwoBone(metrics),
             headline,
             failures,
-            table: Csv {
-                suffix: "frames.csv",
-                text: csv,
-            },
-            pictures: Pictures::None,
-        })
+            csv,
+            Pictures::None,
+        ))
     }
 }
