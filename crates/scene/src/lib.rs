@@ -18,12 +18,13 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
-//! [`schema`] reads and checks a scene, [`spec`] holds the descriptions several task
+//! [`schema`] reads and checks a scene ([`limits`] bounds the work it may ask for), [`spec`] holds the descriptions several task
 //! kinds share, [`tasks`] the task kinds, [`results`] their typed results and [`run`]
 //! the loop that runs them. [`workloads`] builds the reference workloads that are fixed
 //! numbers alone (the chains, the lab flower's targets, the cloths), shared with the
 //! benchmark sweeps and the stress grid of the unpublished sinew-bench crate.
 
+pub mod limits;
 pub mod results;
 pub mod run;
 pub mod schema;

@@ -7,6 +7,7 @@
 //! first frame (foot locking).
 
 use super::{RunContext, TaskOutput, TaskSpec, median, non_negative};
+use crate::limits::{self, at_most, check_solve_work};
 use crate::results::{BodyFrame, BodyMetrics, BodyPictures, Pictures, TaskMetrics};
 use serde::Deserialize;
 use sinew_ik_body::{BodyEffector, BodyProblem, BodySolverOptions, BodyState, workload};
@@ -94,6 +95,7 @@ impl ClipSpec {
                 if *frames == 0 {
                     return Err("clip: frames = 0, must be at least 1".into());
                 }
+                at_most("clip: frames", *frames, limits::MAX_FRAMES)?;
                 let skeleton =
                     workload::humanoid().map_err(|e| format!("clip: the humanoid: {e}"))?;
                 let rest = BodyState::rest(&skeleton);
@@ -210,7 +212,17 @@ impl TaskSpec for FullBodyTask {
             .validate()
             .map_err(|e| format!("settings: {e}"))?;
         non_negative("expect_error_max", self.expect_error_max)?;
-        self.build()?;
+        let built = self.build()?;
+        let attempts = match self.solver {
+            BodySolverOptions::Fabrik(o) => o.restarts.saturating_add(1),
+            BodySolverOptions::Ccd(_) => 1,
+        };
+        check_solve_work(
+            built.frames.len(),
+            self.settings.max_iterations,
+            attempts,
+            built.skeleton.len(),
+        )?;
         Ok(())
     }
 

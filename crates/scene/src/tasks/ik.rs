@@ -4,6 +4,7 @@
 //! of reach), Q2 (a low iteration cap) and Q3 (a per-frame rotation limit).
 
 use super::{RunContext, TaskOutput, TaskSpec, median, non_negative};
+use crate::limits::check_solve_work;
 use crate::results::{IkFrame, IkMetrics, IkPictures, Pictures, TaskMetrics};
 use crate::spec::{SkeletonSpec, build_sampled};
 use serde::Deserialize;
@@ -179,7 +180,13 @@ impl IkTask {
 
 impl TaskSpec for IkTask {
     fn validate(&self) -> Result<(), String> {
-        self.build()?;
+        let built = self.build()?;
+        check_solve_work(
+            built.goals.len(),
+            self.settings.max_iterations,
+            1,
+            built.skeleton.len(),
+        )?;
         non_negative("expect_error_max", self.expect_error_max)?;
         Ok(())
     }
