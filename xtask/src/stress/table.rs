@@ -185,25 +185,13 @@ pub fn console(results: &StressResults, failures: &[String], unconverged: &[Stri
             "body case", "solver", "error", "cost 0", "cost", "limit", "fk gap"
         );
         for o in &results.body {
-            let _ = writeln!(
-                s,
-                "{:<40} {:<12} {:>10.3e} {:>10.3e} {:>10.3e} {:>10.3e} {:>10.3e}  {}",
-                o.case,
-                o.solver,
-                o.max_error,
-                o.cost.0,
-                o.cost.1,
-                o.limit_violation,
-                o.fk_gap,
-                body_status(o)
-            );
+            let figures = [o.max_error, o.cost.0, o.cost.1, o.limit_violation, o.fk_gap];
+            let figures: String = figures.iter().map(|x| format!(" {x:>10.3e}")).collect();
+            let status = body_status(o);
+            let _ = writeln!(s, "{:<40} {:<12}{figures}  {status}", o.case, o.solver);
         }
-        let _ = writeln!(
-            s,
-            "body: {} solves in {:.1} s",
-            results.body.len(),
-            results.body_seconds
-        );
+        let (count, seconds) = (results.body.len(), results.body_seconds);
+        let _ = writeln!(s, "body: {count} solves in {seconds:.1} s");
     }
     if !unconverged.is_empty() {
         let _ = writeln!(

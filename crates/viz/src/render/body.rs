@@ -18,6 +18,17 @@ pub struct BodySnapshot<'a> {
     pub error: f64,
 }
 
+impl<'a> From<&'a sinew_scene::results::BodyFrame> for BodySnapshot<'a> {
+    /// The frame of a `FullBody` task's result, as drawn.
+    fn from(f: &'a sinew_scene::results::BodyFrame) -> Self {
+        BodySnapshot {
+            joints: &f.joints,
+            goals: &f.goals,
+            error: f.error,
+        }
+    }
+}
+
 /// The skeleton's shape and which joints are effectors, shared by every frame.
 #[derive(Clone, Copy, Debug)]
 pub struct BodyLayout<'a> {

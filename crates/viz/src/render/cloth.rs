@@ -25,6 +25,16 @@ pub struct ClothFrame<'a> {
     pub colliders: &'a [Shape],
 }
 
+impl<'a> From<&'a sinew_scene::results::ClothFrame> for ClothFrame<'a> {
+    /// The frame of a `Cloth` task's result, as drawn.
+    fn from(f: &'a sinew_scene::results::ClothFrame) -> Self {
+        ClothFrame {
+            positions: &f.positions,
+            colliders: &f.colliders,
+        }
+    }
+}
+
 /// Writes an animated GIF of the cloth: each spring `(i, j, rest_length)` as a line
 /// coloured by its strain on the symmetric scale `±strain_scale`, fixed particles as
 /// pins, captioned with the frame number and the strain range of the frame.

@@ -17,6 +17,16 @@ pub struct IkFrame<'a> {
     pub target: DVec3,
 }
 
+impl<'a> From<&'a sinew_scene::results::IkFrame> for IkFrame<'a> {
+    /// The frame of an `Ik` task's result, as drawn.
+    fn from(f: &'a sinew_scene::results::IkFrame) -> Self {
+        IkFrame {
+            joints: &f.joints,
+            target: f.target,
+        }
+    }
+}
+
 impl IkFrame<'_> {
     /// Distance from the end effector to the target (NaN with no joints).
     #[must_use]

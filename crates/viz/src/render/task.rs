@@ -35,14 +35,7 @@ fn draw_ik(name: &str, p: &IkPictures, out: OutPath) -> Result<(), String> {
         .flat_map(|f| f.joints.iter().copied())
         .chain(p.targets.iter().copied());
     let view = View::fit(points, 0.6, 0.45, 480, 480);
-    let frames: Vec<IkFrame> = p
-        .frames
-        .iter()
-        .map(|f| IkFrame {
-            joints: &f.joints,
-            target: f.target,
-        })
-        .collect();
+    let frames: Vec<IkFrame> = p.frames.iter().map(IkFrame::from).collect();
     if frames.len() > 1 {
         ik_gif(&out("gif"), &view, &frames, &p.targets, 20)?;
     }
@@ -74,15 +67,7 @@ fn draw_body(name: &str, p: &BodyPictures, out: OutPath) -> Result<(), String> {
         effectors: &p.effectors,
         pinned: &p.pinned,
     };
-    let frames: Vec<BodySnapshot> = p
-        .frames
-        .iter()
-        .map(|f| BodySnapshot {
-            joints: &f.joints,
-            goals: &f.goals,
-            error: f.error,
-        })
-        .collect();
+    let frames: Vec<BodySnapshot> = p.frames.iter().map(BodySnapshot::from).collect();
     if frames.len() > 1 {
         body_gif(&out("gif"), &view, &layout, &frames, 20)?;
     }
@@ -189,14 +174,7 @@ fn draw_cloth(name: &str, p: &ClothPictures, out: OutPath) -> Result<(), String>
         480,
         480,
     );
-    let frames: Vec<ClothFrame> = p
-        .frames
-        .iter()
-        .map(|f| ClothFrame {
-            positions: &f.positions,
-            colliders: &f.colliders,
-        })
-        .collect();
+    let frames: Vec<ClothFrame> = p.frames.iter().map(ClothFrame::from).collect();
     let fps = 15;
     cloth_gif(&out("gif"), &view, &frames, &p.springs, &p.fixed, 0.05, fps)?;
     if let Some(last) = frames.last() {
