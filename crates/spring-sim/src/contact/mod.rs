@@ -18,6 +18,8 @@
 //!   system for one implicit step, with a broad phase and the line-search cap.
 //! - [`term`]: [`ContactTerm`], that potential as a term of the implicit integrators'
 //!   minimization ([`crate::potential::Term`]).
+//! - [`self_contact`]: contact of a triangle-mesh cloth with itself (point-triangle and
+//!   edge-edge barriers, the broad phase and continuous collision detection).
 //! - [`projection`]: the position and velocity projection for the explicit integrators
 //!   (not guaranteed: see its documentation).
 //!
@@ -32,6 +34,7 @@ pub mod friction;
 pub mod potential;
 pub mod projection;
 pub mod psd;
+pub mod self_contact;
 pub mod term;
 pub mod toi;
 

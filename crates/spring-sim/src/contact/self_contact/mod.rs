@@ -1,0 +1,21 @@
+//! Self-contact of triangle-mesh cloth after IPC (Li et al. 2020) and its codimensional
+//! extension C-IPC (Li et al. 2021): every vertex against every triangle it is not part
+//! of, and every edge against every edge it shares no vertex with, kept apart by the log
+//! barrier on their distance minus the cloth's thickness, with a line search capped by
+//! continuous collision detection so no state the minimization visits has two triangles
+//! crossing.
+//!
+//! - [`dual`]: the second-order forward-mode dual number the distances are
+//!   differentiated with.
+//! - [`distance`]: point-triangle and edge-edge squared distances, their regions, exact
+//!   gradients and Hessians, and the mollifier for nearly parallel edges.
+//! - [`psd12`]: the positive semidefinite projection of a pair's 12x12 Hessian.
+//!
+//! Derivations: docs/contact.md.
+
+pub mod distance;
+pub mod dual;
+pub mod psd12;
+
+pub use distance::{Closest, PairKind, squared_distance, squared_distance_derivatives};
+pub use dual::Dual12;
