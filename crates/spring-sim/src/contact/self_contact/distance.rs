@@ -36,10 +36,12 @@ pub enum Closest {
 }
 
 /// Two edges are treated as parallel when `|e_a x e_b|^2 <= PARALLEL |e_a|^2 |e_b|^2`
-/// (the squared sine of their angle below 1e-10): the line-line form divides by
-/// `|e_a x e_b|^2` and would only amplify round-off there, and the segments' distance is
-/// then attained at an endpoint anyway up to `1e-5` of the edges' lengths.
-pub const PARALLEL: f64 = 1e-10;
+/// (the sine of their angle below 1e-7). The line-line form divides by `|e_a x e_b|^2`,
+/// so its closest-point parameters carry a round-off error of about `eps / sin^2` and the
+/// distance one of about `eps L / sin` (`L` the edges' length); taking the nearest
+/// endpoint form instead errs by at most `L sin`, the distance's variation along the
+/// edges. The threshold keeps both below `1e-7 L`.
+pub const PARALLEL: f64 = 1e-14;
 
 /// Point `p` against the segment `a b`: the closest-point parameter `t` clamped to
 /// `[0, 1]` and the squared distance.

@@ -10,15 +10,18 @@
 //! - [`distance`]: point-triangle and edge-edge squared distances, their regions, exact
 //!   gradients and Hessians, and the mollifier for nearly parallel edges.
 //! - [`broad`]: the broad phase, a spatial hash over the primitives' (swept) boxes.
+//! - [`ccd`]: additive continuous collision detection over a linear step.
 //! - [`psd12`]: the positive semidefinite projection of a pair's 12x12 Hessian.
 //!
 //! Derivations: docs/contact.md.
 
 pub mod broad;
+pub mod ccd;
 pub mod distance;
 pub mod dual;
 pub mod psd12;
 
 pub use broad::{Candidate, Primitives, candidates};
+pub use ccd::additive_ccd;
 pub use distance::{Closest, PairKind, squared_distance, squared_distance_derivatives};
 pub use dual::Dual12;
