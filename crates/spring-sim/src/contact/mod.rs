@@ -70,6 +70,14 @@ pub enum ContactError {
         /// What is not supported (an integrator's name, or the request).
         what: &'static str,
     },
+    /// Self-contact was given a bad mesh or state: a triangle refers to a particle that
+    /// does not exist, or two primitives start closer than the thickness.
+    BadMesh {
+        /// The item: "triangle 4", or the pair, "vertex 3 and triangle 7".
+        item: String,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
     /// A contact setting is invalid.
     BadSetting {
         /// The setting's name ("dhat", "thickness", "mu", "eps_v", ...).
@@ -101,6 +109,7 @@ impl fmt::Display for ContactError {
                 value,
                 reason,
             } => write!(f, "contact setting {name} = {value}: {reason}"),
+            Self::BadMesh { item, reason } => write!(f, "self-contact: {item} {reason}"),
             Self::Unsupported { what } => write!(
                 f,
                 "contact is not supported for {what} (backward Euler has the guaranteed barrier; the explicit integrators a projection)"

@@ -52,7 +52,11 @@ pub fn additive_ccd(
     if gap0.is_nan() || gap0 <= 0.0 {
         return 0.0;
     }
-    if lp.is_nan() || lp <= 0.0 || lp.is_infinite() {
+    if !lp.is_finite() {
+        // A non-finite motion is never safe.
+        return 0.0;
+    }
+    if lp <= 0.0 {
         // No relative motion: the distance does not change.
         return 1.0;
     }

@@ -12,6 +12,8 @@
 //! - [`broad`]: the broad phase, a spatial hash over the primitives' (swept) boxes.
 //! - [`ccd`]: additive continuous collision detection over a linear step.
 //! - [`psd12`]: the positive semidefinite projection of a pair's 12x12 Hessian.
+//! - [`term`]: [`SelfContactTerm`], the barrier as a term of backward Euler's
+//!   minimization, and [`enable_self_contact`].
 //!
 //! Derivations: docs/contact.md.
 
@@ -20,8 +22,10 @@ pub mod ccd;
 pub mod distance;
 pub mod dual;
 pub mod psd12;
+pub mod term;
 
 pub use broad::{Candidate, Primitives, candidates};
 pub use ccd::additive_ccd;
 pub use distance::{Closest, PairKind, squared_distance, squared_distance_derivatives};
 pub use dual::Dual12;
+pub use term::{SelfContactSettings, SelfContactStats, SelfContactTerm, enable_self_contact};
