@@ -19,6 +19,37 @@
 
 use sinew_math::DVec3;
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+/// A multiplicative hash of a cell's three integer coordinates. The keys are not chosen
+/// by an adversary, so the standard library's DoS-resistant hasher, which dominated the
+/// broad phase's cost, is not needed.
+#[derive(Default)]
+struct CellHasher(u64);
+
+impl Hasher for CellHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for chunk in bytes.chunks(8) {
+            let mut word = [0u8; 8];
+            word[..chunk.len()].copy_from_slice(chunk);
+            self.write_u64(u64::from_le_bytes(word));
+        }
+    }
+    fn write_i64(&mut self, i: i64) {
+        self.write_u64(i as u64);
+    }
+    fn write_u64(&mut self, i: u64) {
+        self.0 = (self.0.rotate_left(5) ^ i).wrapping_mul(0x517c_c1b7_2722_0a95);
+    }
+    fn write_usize(&mut self, i: usize) {
+        self.write_u64(i as u64);
+    }
+}
+
+type CellMap = HashMap<[i64; 3], Vec<usize>, BuildHasherDefault<CellHasher>>;
 
 /// A box touching more cells than this is not hashed (see the module documentation).
 pub const MAX_CELLS: usize = 512;
@@ -144,7 +175,7 @@ impl Boxes {
 /// A uniform hash of boxes (see the module documentation).
 struct Grid {
     cell: f64,
-    cells: HashMap<[i64; 3], Vec<usize>>,
+    cells: CellMap,
     large: Vec<usize>,
 }
 
@@ -166,7 +197,7 @@ impl Grid {
     fn new(boxes: &[Aabb], cell: f64) -> Self {
         let mut grid = Self {
             cell,
-            cells: HashMap::new(),
+            cells: CellMap::default(),
             large: Vec::new(),
         };
         for (i, b) in boxes.iter().enumerate() {

@@ -42,13 +42,14 @@ use crate::contact::barrier::{
     AdaptiveKappa, KappaSettings, barrier, barrier_first_derivative, barrier_second_derivative,
     minimum_kappa,
 };
-use crate::model::SpringSystem;
+use crate::model::{ModelError, SpringSystem};
 use crate::newton::BackwardEuler;
 use crate::potential::{HessianSink, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
 use sinew_math::{DMat3, DVec3};
-use std::sync::Arc;
+use std::collections::BTreeSet;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 
 /// The self-contact settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -144,6 +145,8 @@ pub struct SelfContactStats {
     kappa: AtomicU64,
     active_pairs: AtomicU64,
     min_gap: AtomicU64,
+    /// Particle pairs a contact pair coupled that the Hessian pattern had no slots for.
+    missing: Mutex<BTreeSet<[usize; 2]>>,
 }
 
 impl SelfContactStats {
@@ -164,6 +167,19 @@ impl SelfContactStats {
     pub fn min_gap(&self) -> f64 {
         f64::from_bits(self.min_gap.load(Ordering::Relaxed))
     }
+
+    /// Takes the particle pairs (`[low, high]`, sorted) that contact pairs coupled since
+    /// the last call but the Hessian pattern had no slots for (see [`widen_pattern`]).
+    #[must_use]
+    pub fn take_missing_pairs(&self) -> Vec<[usize; 2]> {
+        let mut set = self.missing.lock().unwrap_or_else(PoisonError::into_inner);
+        std::mem::take(&mut *set).into_iter().collect()
+    }
+
+    fn note_missing(&self, pairs: impl Iterator<Item = [usize; 2]>) {
+        let mut set = self.missing.lock().unwrap_or_else(PoisonError::into_inner);
+        set.extend(pairs.map(|[a, b]| [a.min(b), a.max(b)]));
+    }
 }
 
 /// The self-contact term (see the module documentation).
@@ -178,6 +194,10 @@ pub struct SelfContactTerm {
     /// The pairs within `dhat` at `active_at`.
     active: Vec<Candidate>,
     active_at: Vec<DVec3>,
+    /// Per active pair with a barrier at `active_at`: its particles, energy gradient and
+    /// projected Hessian (computed once per iteration for both the gradient and the
+    /// Hessian, which Newton asks for at the iterate the set was collected at).
+    cache: Vec<PairDerivatives>,
     stats: Arc<SelfContactStats>,
 }
 
@@ -223,6 +243,7 @@ impl SelfContactTerm {
             kappa: None,
             active: Vec::new(),
             active_at: Vec::new(),
+            cache: Vec::new(),
             stats: Arc::new(SelfContactStats::default()),
         };
         term.check_state(x, system.fixed())?;
@@ -353,9 +374,22 @@ impl SelfContactTerm {
         kappa * m * barrier(gap, self.settings.dhat)
     }
 
+    /// A pair's energy gradient and projected Hessian in the pair's twelve coordinates
+    /// (`None` when the pair is beyond `dhat` or not admissible).
+    fn pair_derivatives(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> Option<PairDerivatives> {
+        let (kind, v) = self.pair(c);
+        let e = self.pair_energy_dual(kappa, c, x)?;
+        Some(PairDerivatives {
+            kind,
+            particles: v,
+            gradient: e.gradient,
+            hessian: project_psd12(&e.hessian),
+        })
+    }
+
     /// A pair's energy with its exact gradient and Hessian in the pair's twelve
     /// coordinates (`None` when the pair is beyond `dhat` or not admissible).
-    fn pair_derivatives(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> Option<Dual12> {
+    fn pair_energy_dual(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> Option<Dual12> {
         let (kind, v) = self.pair(c);
         let p = v.map(|i| x[i]);
         let s = squared_distance_derivatives(kind, &p);
@@ -380,13 +414,23 @@ impl SelfContactTerm {
         Some(e.scale(kappa))
     }
 
-    /// The pairs within `dhat` at `x`: the active set if it was collected at `x`,
-    /// otherwise the broad phase's.
-    fn pairs_at(&self, x: &[DVec3], fixed: &[bool]) -> Vec<Candidate> {
+    /// The derivatives of every pair with a barrier at `x`: the cache if the active set
+    /// was collected at `x`, otherwise computed from the broad phase's pairs.
+    fn derivatives_at(
+        &self,
+        x: &[DVec3],
+        fixed: &[bool],
+    ) -> std::borrow::Cow<'_, [PairDerivatives]> {
         if self.active_at.as_slice() == x {
-            self.active.clone()
+            std::borrow::Cow::Borrowed(&self.cache)
         } else {
-            self.near(x, fixed)
+            let kappa = self.kappa();
+            std::borrow::Cow::Owned(
+                self.near(x, fixed)
+                    .into_iter()
+                    .filter_map(|c| self.pair_derivatives(kappa, c, x))
+                    .collect(),
+            )
         }
     }
 
@@ -453,6 +497,15 @@ impl Term for SelfContactTerm {
                 min = min.min(gap);
             }
         }
+        let kappa = self.kappa();
+        self.cache = if kappa > 0.0 {
+            active
+                .iter()
+                .filter_map(|&c| self.pair_derivatives(kappa, c, x))
+                .collect()
+        } else {
+            Vec::new()
+        };
         self.active = active;
         self.active_at.clear();
         self.active_at.extend_from_slice(x);
@@ -495,16 +548,13 @@ impl Term for SelfContactTerm {
         if kappa == 0.0 {
             return;
         }
-        for c in self.pairs_at(x, step.system.fixed()) {
-            if let Some(e) = self.pair_derivatives(kappa, c, x) {
-                let (_, v) = self.pair(c);
-                for (k, &i) in v.iter().enumerate() {
-                    gradient[i] += DVec3::new(
-                        e.gradient[3 * k],
-                        e.gradient[3 * k + 1],
-                        e.gradient[3 * k + 2],
-                    );
-                }
+        for e in self.derivatives_at(x, step.system.fixed()).iter() {
+            for (k, &i) in e.particles.iter().enumerate() {
+                gradient[i] += DVec3::new(
+                    e.gradient[3 * k],
+                    e.gradient[3 * k + 1],
+                    e.gradient[3 * k + 2],
+                );
             }
         }
     }
@@ -520,11 +570,12 @@ impl Term for SelfContactTerm {
         if kappa == 0.0 {
             return;
         }
-        for c in self.pairs_at(x, step.system.fixed()) {
-            if let Some(e) = self.pair_derivatives(kappa, c, x) {
-                let (kind, v) = self.pair(c);
-                scatter(&project_psd12(&e.hessian), kind, v, sink);
-            }
+        let mut missing = Vec::new();
+        for e in self.derivatives_at(x, step.system.fixed()).iter() {
+            scatter(&e.hessian, e.kind, e.particles, sink, &mut missing);
+        }
+        if !missing.is_empty() {
+            self.stats.note_missing(missing.into_iter());
         }
     }
 
@@ -547,10 +598,25 @@ fn block(h: &Mat12, a: usize, b: usize) -> DMat3 {
     }))
 }
 
+/// A pair's derivatives at one state.
+#[derive(Clone, Debug)]
+struct PairDerivatives {
+    kind: PairKind,
+    particles: [usize; 4],
+    gradient: [f64; 12],
+    hessian: Mat12,
+}
+
 /// Adds a pair's projected Hessian `h` to `sink`: all of it when the pattern has every
 /// coupling block, else the blocks within each primitive, else the diagonal blocks (see
-/// the module documentation).
-fn scatter(h: &Mat12, kind: PairKind, v: [usize; 4], sink: &mut HessianSink<'_>) {
+/// the module documentation). Particle pairs without slots are pushed to `missing`.
+fn scatter(
+    h: &Mat12,
+    kind: PairKind,
+    v: [usize; 4],
+    sink: &mut HessianSink<'_>,
+    missing: &mut Vec<[usize; 2]>,
+) {
     let group = |k: usize| match kind {
         PairKind::PointTriangle => usize::from(k > 0),
         PairKind::EdgeEdge => usize::from(k > 1),
@@ -558,6 +624,14 @@ fn scatter(h: &Mat12, kind: PairKind, v: [usize; 4], sink: &mut HessianSink<'_>)
     let pairs = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
     let has = |a: usize, b: usize| sink.has_pair(v[a], v[b]);
     let keep_all = pairs.iter().all(|&(a, b)| has(a, b));
+    if !keep_all {
+        missing.extend(
+            pairs
+                .iter()
+                .filter(|&&(a, b)| !has(a, b))
+                .map(|&(a, b)| [v[a], v[b]]),
+        );
+    }
     let keep_within = pairs
         .iter()
         .filter(|&&(a, b)| group(a) == group(b))
@@ -571,6 +645,22 @@ fn scatter(h: &Mat12, kind: PairKind, v: [usize; 4], sink: &mut HessianSink<'_>)
             let _ = sink.add_pair(v[a], v[b], &block(h, a, b));
         }
     }
+}
+
+/// Widens `integrator`'s Hessian pattern with the particle pairs self-contact coupled
+/// without slots since the last call ([`SelfContactStats::take_missing_pairs`]), so the
+/// next steps get the pairs' full Hessian blocks; call it between steps. Returns how
+/// many pairs were added (0: nothing was rebuilt).
+pub fn widen_pattern(
+    integrator: &mut BackwardEuler,
+    system: &SpringSystem,
+    stats: &SelfContactStats,
+) -> Result<usize, ModelError> {
+    let pairs = stats.take_missing_pairs();
+    if !pairs.is_empty() {
+        integrator.add_coupled_pairs(system, &pairs)?;
+    }
+    Ok(pairs.len())
 }
 
 /// Adds self-contact of the cloth `system` with surface `triangles` to `integrator`
