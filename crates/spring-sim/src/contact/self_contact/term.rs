@@ -29,6 +29,8 @@
 //! those are missing too, only its diagonal blocks). A principal block-diagonal part of a
 //! positive semidefinite matrix is positive semidefinite, so the Newton matrix stays
 //! positive definite and the step a descent direction; only the convergence rate pays.
+//! The particle pairs left without slots are recorded in the statistics, and
+//! [`widen_pattern`], called between steps, adds them to the integrator's pattern.
 
 use super::broad::{Candidate, Primitives, candidates};
 use super::ccd::additive_ccd;
