@@ -587,8 +587,10 @@ impl Term for SelfContactTerm {
         if t < 1.0 {
             return t;
         }
+        // The full step is known to be safe; ACCD along the longer path stops at its own
+        // conservative times, which may fall short of it, so never return less.
         let long: Vec<DVec3> = dx.iter().map(|d| LONG_STEP * *d).collect();
-        LONG_STEP * self.ccd_fraction(x, &long, fixed)
+        (LONG_STEP * self.ccd_fraction(x, &long, fixed)).max(1.0)
     }
 }
 
