@@ -184,13 +184,6 @@ pub fn squared_distance_derivatives(kind: PairKind, v: &[DVec3; 4]) -> Dual12 {
     squared_distance_in(&variables(v), kind.closest(v))
 }
 
-/// IPC's mollifier threshold for an edge pair: `eps_x = ratio |e_a|^2 |e_b|^2` with the
-/// rest lengths (IPC uses `ratio = 1e-3`).
-#[must_use]
-pub fn mollifier_threshold(ratio: f64, rest_a: f64, rest_b: f64) -> f64 {
-    ratio * rest_a * rest_a * rest_b * rest_b
-}
-
 /// The mollifier of an edge pair over any [`Scalar`]: with `c = |e_a x e_b|^2` and
 /// `x = c / eps_x`, `m = (2 - x) x` for `c < eps_x` and 1 beyond. It is 0 for parallel
 /// edges and rises to 1 with a zero slope at `eps_x`, so `m b(d)` is continuously

@@ -286,8 +286,7 @@ impl SelfContactTerm {
     }
 
     /// A pair's kind and its four particles.
-    #[must_use]
-    pub fn pair(&self, c: Candidate) -> (PairKind, [usize; 4]) {
+    fn pair(&self, c: Candidate) -> (PairKind, [usize; 4]) {
         match c {
             Candidate::PointTriangle { vertex, triangle } => {
                 let [a, b, t] = self.prims.triangles[triangle];
@@ -309,8 +308,7 @@ impl SelfContactTerm {
     }
 
     /// A pair's gap (distance minus thickness) at `x`.
-    #[must_use]
-    pub fn gap(&self, c: Candidate, x: &[DVec3]) -> f64 {
+    fn gap(&self, c: Candidate, x: &[DVec3]) -> f64 {
         let (kind, v) = self.pair(c);
         squared_distance(kind, &v.map(|i| x[i])).sqrt() - self.settings.thickness
     }
@@ -468,7 +466,7 @@ impl Term for SelfContactTerm {
         let (x, fixed) = (s.positions(), s.fixed());
         let dhat = self.settings.dhat;
         let settings = self.settings.kappa;
-        let kappa = self.kappa.get_or_insert_with(|| {
+        if self.kappa.is_none() {
             let (sum, count) = s
                 .masses()
                 .iter()
@@ -477,9 +475,8 @@ impl Term for SelfContactTerm {
                 .fold((0.0, 0usize), |(acc, n), (m, _)| (acc + m, n + 1));
             let mean = if count > 0 { sum / count as f64 } else { 1.0 };
             let kmin = minimum_kappa(dhat, mean, s.material().gravity.length(), step.h);
-            AdaptiveKappa::new(kmin, None, settings)
-        });
-        let _ = kappa;
+            self.kappa = Some(AdaptiveKappa::new(kmin, None, settings));
+        }
         let min = self.min_gap(x, fixed);
         if let Some(k) = self.kappa.as_mut() {
             k.update(min, dhat);
