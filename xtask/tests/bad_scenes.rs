@@ -53,3 +53,32 @@ fn every_bad_scene_fails_with_its_message() {
     }
     let _ = std::fs::remove_dir_all(&out);
 }
+
+/// A file that is not UTF-8 (it cannot live in `scenes/bad/`, whose files the tidy test
+/// reads as text) fails like a syntax error: exit code 2 and the line and column of its
+/// first bad byte.
+#[test]
+fn a_file_that_is_not_utf8_fails_at_its_first_bad_byte() {
+    let dir = std::env::temp_dir().join(format!("sinew-not-utf8-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("not-utf8.ron");
+    std::fs::write(
+        &file,
+        b"Scene(\n    description: \"bad \xff byte\",\n    tasks: [],\n)\n",
+    )
+    .unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_xtask"))
+        .args(["run-scene", "--quiet", "--no-render", "--out"])
+        .arg(dir.join("out"))
+        .arg(&file)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("not-utf8.ron:2:23: the file is not UTF-8 text"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

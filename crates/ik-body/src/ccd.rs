@@ -131,7 +131,7 @@ impl TreeCcdSolver {
         state: &mut BodyState,
     ) -> Result<(), IkError> {
         let skeleton = problem.skeleton;
-        let j = self.common.topology.movable[m];
+        let j = self.common.topology.movable()[m];
         if matches!(skeleton.limit(j), JointLimit::Fixed) {
             return Ok(());
         }
@@ -248,7 +248,7 @@ impl BodySolver for TreeCcdSolver {
             {
                 break StopReason::IterationCap;
             }
-            for m in (0..self.common.topology.movable.len()).rev() {
+            for m in (0..self.common.topology.movable().len()).rev() {
                 self.turn(problem, m, state)?;
             }
             if problem.root_translates {
@@ -263,15 +263,9 @@ impl BodySolver for TreeCcdSolver {
         };
         let (iterations, stop) = if self.options.finish && stop != StopReason::Converged {
             // The finish's steps share the cap with the sweeps.
-            let finished = self.common.dls.run(
-                problem.skeleton,
-                &self.common.topology,
-                &self.common.targets,
-                state,
-                problem.root_translates,
-                settings,
-                iterations.min(settings.max_iterations),
-            )?;
+            let finished =
+                self.common
+                    .finish(problem, state, iterations.min(settings.max_iterations))?;
             (iterations + finished.steps, finished.stop)
         } else {
             (iterations, stop)

@@ -2,12 +2,12 @@
 //! pose projected onto the limits, the resolved targets and topology, the early exit when
 //! every effector is already within tolerance, and the report.
 
-use crate::dls::Dls;
 use crate::problem::{
     BodyProblem, BodyReport, BodyState, Target, all_within, finish_report, forward_kinematics,
     pins_hold, resolve_targets, total_cost,
 };
-use crate::topology::Topology;
+use sinew_skeleton::finish::{Finish, FinishJob, Finished, Movers};
+
 use crate::workload::Rng;
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{IkError, StopReason};
@@ -17,10 +17,10 @@ use sinew_skeleton::limits::JointLimit;
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Common {
     pub targets: Vec<Target>,
-    pub topology: Topology,
+    pub topology: Movers,
     pub initial: Vec<(f64, f64)>,
     pub initial_cost: f64,
-    pub dls: Dls,
+    pub dls: Finish,
     /// A pose kept while one pass is tried, and the best pose kept while a restart is
     /// tried (two buffers: a restart runs passes).
     kept: Vec<DQuat>,
@@ -106,6 +106,31 @@ impl Common {
             )?));
         }
         Ok(Begin::Iterate)
+    }
+
+    /// The damped least-squares finish over every effector from `state` (see
+    /// [`sinew_skeleton::finish`]), `iterations` already spent of the cap.
+    pub fn finish(
+        &mut self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+        iterations: usize,
+    ) -> Result<Finished, IkError> {
+        let job = FinishJob {
+            skeleton: problem.skeleton,
+            movers: &self.topology,
+            targets: &self.targets,
+            translates: problem.root_translates,
+            base: None,
+            settings: problem.settings,
+            iterations,
+        };
+        Ok(self.dls.run(
+            &job,
+            &mut state.pose,
+            &mut state.root_translation,
+            &mut state.global,
+        )?)
     }
 
     /// The report of the pose in `state`, after forward kinematics of it from the root
@@ -212,7 +237,7 @@ impl Common {
         state.pose.rotations.copy_from_slice(&self.start);
         state.root_translation = self.start_translation;
         let mut rng = Rng::new(0x5EED_0000 + k as u64);
-        for &j in &self.topology.movable {
+        for &j in self.topology.movable() {
             let limit = problem.skeleton.limit(j);
             if k == 0 || matches!(limit, JointLimit::Free) {
                 continue;

@@ -200,15 +200,7 @@ impl TreeFabrikSolver {
             }
         }
         if self.options.finish {
-            let finished = self.common.dls.run(
-                problem.skeleton,
-                &self.common.topology,
-                &self.common.targets,
-                state,
-                problem.root_translates,
-                settings,
-                iterations,
-            )?;
+            let finished = self.common.finish(problem, state, iterations)?;
             return Ok((iterations + finished.steps, finished.stop));
         }
         if crate::problem::all_within(&self.common.targets, &state.global, settings) {

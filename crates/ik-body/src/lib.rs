@@ -53,11 +53,9 @@
 
 pub mod ccd;
 mod common;
-mod dls;
 pub mod fabrik;
 mod horn;
 pub mod problem;
-mod topology;
 pub mod workload;
 
 pub use ccd::{TreeCcdOptions, TreeCcdSolver};

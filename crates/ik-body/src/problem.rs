@@ -13,7 +13,8 @@
 //! multiplied by [`PIN_WEIGHT`].
 
 use sinew_math::{DQuat, DVec3};
-use sinew_skeleton::ik::{EffectorGoal, IkError, SolveSettings, StopReason, rotation_angle};
+pub(crate) use sinew_skeleton::finish::{Target, all_within, pins_hold, total_cost};
+use sinew_skeleton::ik::{EffectorGoal, IkError, SolveSettings, StopReason};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
 
 /// How much more a pinned effector counts than its own weights say, so that a conflict
@@ -256,59 +257,6 @@ pub fn limit_violation(skeleton: &Skeleton, pose: &Pose) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// An effector's goal as a solve uses it: the weights final.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct Target {
-    pub joint: usize,
-    pub position: DVec3,
-    pub rotation: Option<DQuat>,
-    pub position_weight: f64,
-    pub rotation_weight: f64,
-    pub pinned: bool,
-}
-
-impl Target {
-    /// Whether the rotation goal takes part in the cost (a goal with weight 0 does not).
-    pub fn has_rotation(&self) -> bool {
-        self.rotation.is_some() && self.rotation_weight > 0.0
-    }
-
-    /// Position and rotation errors at `global`.
-    pub fn errors(&self, global: &GlobalPose) -> (f64, f64) {
-        let position = global.positions[self.joint].distance(self.position);
-        let rotation = self
-            .rotation
-            .map_or(0.0, |q| rotation_angle(global.rotations[self.joint], q));
-        (position, rotation)
-    }
-
-    /// The world rotation vector from the effector's frame to the goal's (the shorter
-    /// way round), zero without a rotation goal.
-    pub fn rotation_residual(&self, global: &GlobalPose) -> DVec3 {
-        match self.rotation {
-            Some(q) => {
-                let mut d = q * global.rotations[self.joint].conjugate();
-                if d.w < 0.0 {
-                    d = -d;
-                }
-                d.normalize().to_scaled_axis()
-            }
-            None => DVec3::ZERO,
-        }
-    }
-
-    /// This effector's term of the weighted cost.
-    pub fn cost(&self, global: &GlobalPose) -> f64 {
-        let position = (self.position - global.positions[self.joint]).length_squared();
-        let mut c = self.position_weight * self.position_weight * position;
-        if self.has_rotation() {
-            let w = self.rotation_weight;
-            c += w * w * self.rotation_residual(global).length_squared();
-        }
-        c
-    }
-}
-
 /// The targets of `problem` with their final weights.
 pub(crate) fn resolve_targets(problem: &BodyProblem<'_>, out: &mut Vec<Target>) {
     out.clear();
@@ -324,36 +272,6 @@ pub(crate) fn resolve_targets(problem: &BodyProblem<'_>, out: &mut Vec<Target>) 
             pinned: effector.pinned,
         });
     }
-}
-
-/// The weighted cost of every target at `global`.
-pub(crate) fn total_cost(targets: &[Target], global: &GlobalPose) -> f64 {
-    targets.iter().map(|t| t.cost(global)).sum()
-}
-
-/// Whether every target is within the tolerances at `global` (a rotation goal with
-/// weight 0 does not count).
-pub(crate) fn all_within(
-    targets: &[Target],
-    global: &GlobalPose,
-    settings: &SolveSettings,
-) -> bool {
-    targets.iter().all(|t| {
-        let (p, r) = t.errors(global);
-        p <= settings.tolerance && (!t.has_rotation() || r <= settings.rotation_tolerance)
-    })
-}
-
-/// Whether every pinned target is within `max(tolerance, allowed[e])` of its pin.
-pub(crate) fn pins_hold(
-    targets: &[Target],
-    global: &GlobalPose,
-    tolerance: f64,
-    allowed: &[f64],
-) -> bool {
-    targets.iter().zip(allowed).all(|(t, &allowed)| {
-        !t.pinned || global.positions[t.joint].distance(t.position) <= tolerance.max(allowed)
-    })
 }
 
 /// Fills `state.effectors` and the report's measured fields from `state.global`.
@@ -498,5 +416,38 @@ mod tests {
         let scaled = PIN_WEIGHT * PIN_WEIGHT * expected;
         assert!((total_cost(&targets, &state.global) - scaled).abs() < 1e-12 * scaled);
         assert_eq!(targets[0].position_weight, 2.0 * PIN_WEIGHT);
+    }
+
+    #[test]
+    fn movers_are_the_ancestors_and_a_rotation_goal_s_own_joint() {
+        // 0 -> 1 -> 2, 0 -> 3 -> 4, 0 -> 5 (no effector below 5).
+        let parents = [None, Some(0), Some(1), Some(0), Some(3), Some(0)];
+        let skel = Skeleton::new(parents.iter().map(|&parent| sinew_skeleton::JointDef {
+            parent,
+            offset: DVec3::X,
+            ..sinew_skeleton::JointDef::default()
+        }))
+        .unwrap();
+        let effectors = [
+            BodyEffector::at(2, DVec3::Y),
+            BodyEffector::new(EffectorGoal::at(4, DVec3::Z).with_rotation(DQuat::IDENTITY)),
+            BodyEffector::at(1, DVec3::Z),
+        ];
+        let problem = BodyProblem::new(&skel, &effectors, SolveSettings::default());
+        let mut targets = Vec::new();
+        resolve_targets(&problem, &mut targets);
+        let mut topo = sinew_skeleton::finish::Movers::default();
+        topo.build(&skel, &targets);
+        assert_eq!(topo.movable(), [0, 1, 3, 4]);
+        assert_eq!(topo.below(0), [0, 1, 2]);
+        assert_eq!(topo.below(1), [0]);
+        assert_eq!(topo.below(2), [1]);
+        assert_eq!(topo.below(3), [1]);
+        assert_eq!(topo.slot(5), None);
+        assert_eq!(topo.slot(4), Some(3));
+        // Rebuilding with fewer effectors shrinks the lists.
+        topo.build(&skel, &targets[..1]);
+        assert_eq!(topo.movable(), [0, 1]);
+        assert_eq!(topo.below(0), [0]);
     }
 }

@@ -25,6 +25,13 @@
 //! [`StopReason::LocalMinimum`] (the best reachable within the limits for CCD). Targets
 //! out of reach are not straightened through the limits: CCD iterates.
 //!
+//! The finish (on by default, [`CcdOptions::finish`]): the sweeps stop at the first one
+//! that keeps more than [`SWITCH_RATIO`] of the error, and the damped least-squares finish
+//! every sinew solver shares ([`sinew_skeleton::finish::ChainFinish`]) converges from
+//! there, sliding along the joint limits, with the same second seed; it also solves
+//! rotation goals, which plain CCD refuses. On W7 it takes CCD from 95.8% to all 2 000
+//! feasible targets within 1e-6 (`docs/ik-ccd.md`).
+//!
 //! Stop rules, reported in [`StopReason`]: within the tolerance
 //! ([`StopReason::Converged`]), the iteration cap ([`StopReason::IterationCap`]), or a
 //! sweep that did not reduce the error ([`StopReason::Stalled`]; a sweep that made the
@@ -78,12 +85,19 @@ use sinew_math::rotation_between;
 /// The math types targets and poses are given in, re-exported so a user of this crate
 /// does not also have to depend on sinew-math.
 pub use sinew_math::{DQuat, DVec3};
+use sinew_skeleton::finish::ChainFinish;
 use sinew_skeleton::ik::{
     Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveSettings, SolveStart,
     StopReason, begin_solve, chain_has_limits, measure, turn_towards_pole,
 };
 use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
+
+/// With the finish on, the sweeps stop once a sweep leaves more than this fraction of the
+/// error it started with: CCD's tail is linear convergence (and along a limit's bound
+/// often a crawl), where each accepted least-squares step of the finish roughly squares
+/// the error.
+pub const SWITCH_RATIO: f64 = 0.5;
 
 /// The over-relaxation factor [`CcdSolver::new`] uses: none, since over-relaxation
 /// measured slower than plain CCD on W1 and W2 (`docs/bench/ik-ccd.md`).
@@ -99,6 +113,12 @@ pub struct CcdOptions {
     pub extrapolation: bool,
     /// The over-relaxation factor `omega`, in `[1, 2)` (default [`DEFAULT_RELAXATION`]).
     pub relaxation: f64,
+    /// End with the damped least-squares finish every solver shares
+    /// ([`sinew_skeleton::finish`], default true): the sweeps make the large move and
+    /// stop once a sweep keeps more than [`SWITCH_RATIO`] of the error, then the finish
+    /// converges, sliding along the joint limits, and solves rotation goals too. Off,
+    /// CCD sweeps to the end and refuses a rotation goal.
+    pub finish: bool,
 }
 
 impl Default for CcdOptions {
@@ -106,17 +126,19 @@ impl Default for CcdOptions {
         Self {
             extrapolation: true,
             relaxation: DEFAULT_RELAXATION,
+            finish: true,
         }
     }
 }
 
 impl CcdOptions {
-    /// Plain CCD: no extrapolation, no relaxation.
+    /// Plain CCD: no extrapolation, no relaxation, no finish.
     #[must_use]
     pub fn plain() -> Self {
         Self {
             extrapolation: false,
             relaxation: 1.0,
+            finish: false,
         }
     }
 
@@ -164,6 +186,9 @@ impl CcdOptions {
 pub struct CcdSolver {
     relaxation: f64,
     extrapolate: bool,
+    finish: bool,
+    /// The damped least-squares finish and its buffers.
+    finisher: ChainFinish,
     /// The chain's local rotations before the current sweep.
     saved: Vec<DQuat>,
     /// The chain's local rotations right after the current sweep.
@@ -185,6 +210,8 @@ impl CcdSolver {
         Self {
             relaxation: DEFAULT_RELAXATION,
             extrapolate: true,
+            finish: true,
+            finisher: ChainFinish::default(),
             saved: Vec::new(),
             swept: Vec::new(),
             best: Vec::new(),
@@ -192,12 +219,14 @@ impl CcdSolver {
     }
 
     /// Plain CCD: every joint turns by exactly the minimal rotation (`omega = 1`), no
-    /// sweep extrapolation.
+    /// sweep extrapolation, no finish.
     #[must_use]
     pub fn plain() -> Self {
         Self {
             relaxation: 1.0,
             extrapolate: false,
+            finish: false,
+            finisher: ChainFinish::default(),
             saved: Vec::new(),
             swept: Vec::new(),
             best: Vec::new(),
@@ -221,6 +250,8 @@ impl CcdSolver {
         Ok(Self {
             relaxation: options.relaxation,
             extrapolate: options.extrapolation,
+            finish: options.finish,
+            finisher: ChainFinish::default(),
             saved: Vec::new(),
             swept: Vec::new(),
             best: Vec::new(),
@@ -233,6 +264,7 @@ impl CcdSolver {
         CcdOptions {
             extrapolation: self.extrapolate,
             relaxation: self.relaxation,
+            finish: self.finish,
         }
     }
 
@@ -241,6 +273,20 @@ impl CcdSolver {
     pub fn with_extrapolation(mut self, on: bool) -> Self {
         self.extrapolate = on;
         self
+    }
+
+    /// The same solver with the damped least-squares finish on or off (see
+    /// [`CcdOptions::finish`]).
+    #[must_use]
+    pub fn with_finish(mut self, on: bool) -> Self {
+        self.finish = on;
+        self
+    }
+
+    /// Whether the solve ends with the damped least-squares finish.
+    #[must_use]
+    pub fn finish(&self) -> bool {
+        self.finish
     }
 
     /// Whether sweep extrapolation is on.
@@ -315,11 +361,13 @@ impl IkSolver for CcdSolver {
             } => (initial_error, initial_rotation_error),
         };
         let goal = problem.goal()?;
-        if goal.rotation.is_some() {
+        if goal.rotation.is_some() && !self.finish {
             return Err(IkError::InvalidGoal {
                 goal: 0,
                 field: "rotation",
-                reason: "CCD solves position goals only".into(),
+                reason: "CCD without its finish solves position goals only (turn \
+                         CcdOptions::finish on for a rotation goal)"
+                    .into(),
             });
         }
         let (skeleton, chain, settings) = (problem.skeleton, problem.chain, &problem.settings);
@@ -330,6 +378,7 @@ impl IkSolver for CcdSolver {
         self.saved.resize(movable.len(), DQuat::IDENTITY);
         self.swept.clear();
         self.swept.resize(movable.len(), DQuat::IDENTITY);
+        let switch = if self.finish { SWITCH_RATIO } else { 1.0 };
         let (mut stop, mut error, mut iterations) = self.descend(
             skeleton,
             chain,
@@ -339,9 +388,33 @@ impl IkSolver for CcdSolver {
             settings,
             initial_error,
             0,
+            switch,
         )?;
         let mut restarted = false;
-        if stop == StopReason::LocalMinimum && iterations < settings.max_iterations {
+        if self.finish {
+            // The sweeps stopped at the tolerance, the cap, a local minimum or a slow
+            // sweep: the finish takes over unless both errors are met, with the second
+            // seed of the chain solvers when it ends in a local minimum.
+            let (position, rotation) = goal.errors(global);
+            let met = position <= settings.tolerance && rotation <= settings.rotation_tolerance;
+            if !met && iterations < settings.max_iterations {
+                let (finished, restart) = self
+                    .finisher
+                    .run_restarting(skeleton, chain, goal, pose, global, settings, iterations)?;
+                iterations += finished.steps;
+                restarted = restart;
+                stop = finished.stop;
+                if stop == StopReason::LocalMinimum && !chain_has_limits(skeleton, chain) {
+                    // Nothing but the goal holds the chain: the finish simply stopped
+                    // helping.
+                    stop = StopReason::Stalled;
+                }
+            } else if !met && stop == StopReason::Converged {
+                // The position was met by the sweeps at the cap, the rotation was not.
+                stop = StopReason::IterationCap;
+            }
+            error = global.positions[chain.effector()].distance(target);
+        } else if stop == StopReason::LocalMinimum && iterations < settings.max_iterations {
             // CCD is local: a limit can hold it away from a target that another branch of
             // the chain's poses reaches. Run once more from a second seed, every limited
             // joint at the centre of its range, and keep the better end.
@@ -355,7 +428,7 @@ impl IkSolver for CcdSolver {
             skeleton.forward_kinematics_from(pose, chain.base(), global)?;
             let seeded = global.positions[chain.effector()].distance(target);
             let second = self.descend(
-                skeleton, chain, pose, global, target, settings, seeded, iterations,
+                skeleton, chain, pose, global, target, settings, seeded, iterations, 1.0,
             )?;
             restarted = true;
             iterations = second.2;
@@ -389,8 +462,10 @@ impl IkSolver for CcdSolver {
 
 impl CcdSolver {
     /// Sweeps from the current pose (`error` its effector distance, `iterations` already
-    /// spent) until the tolerance, the cap, or a sweep that does not lower the error
-    /// (undone). Returns the stop reason, the error and the iterations spent in all.
+    /// spent) until the tolerance, the cap, a sweep that does not lower the error
+    /// (undone), or a sweep that keeps more than `switch` of the error
+    /// ([`StopReason::Stalled`]; never for a `switch` of 1). Returns the stop reason, the
+    /// error and the iterations spent in all.
     #[allow(clippy::too_many_arguments)]
     fn descend(
         &mut self,
@@ -402,6 +477,7 @@ impl CcdSolver {
         settings: &SolveSettings,
         mut error: f64,
         mut iterations: usize,
+        switch: f64,
     ) -> Result<(StopReason, f64, usize), IkError> {
         let has_limits = chain_has_limits(skeleton, chain);
         let movable = &chain.joints()[..chain.bone_count()];
@@ -435,6 +511,9 @@ impl CcdSolver {
             }
             let ratio = swept / error;
             error = swept;
+            if ratio > switch {
+                break StopReason::Stalled;
+            }
             if self.extrapolate {
                 error = self.extrapolate(skeleton, chain, pose, global, target, error, ratio)?;
                 if error <= settings.tolerance {

@@ -475,3 +475,63 @@ fn w1_tracks_every_frame_and_honours_the_rotation_limit() {
         }
     }
 }
+
+#[test]
+fn the_finish_reaches_rotation_goals_and_plain_ccd_refuses_them() {
+    use sinew_skeleton::ik::{EffectorGoal, IkProblem};
+    // Four bones in a bent chain; the goal is the effector's frame in a known pose, so
+    // both errors can reach 0.
+    let arm = Skeleton::chain(
+        DVec3::ZERO,
+        &[
+            DVec3::X * 0.3,
+            DVec3::X * 0.25,
+            DVec3::new(0.2, 0.05, 0.0),
+            DVec3::X * 0.15,
+        ],
+    )
+    .unwrap();
+    let chain = Chain::whole(&arm).unwrap();
+    let mut wanted = arm.rest_pose();
+    wanted.rotations[0] = DQuat::from_rotation_z(0.4);
+    wanted.rotations[1] = DQuat::from_rotation_y(-0.7);
+    wanted.rotations[2] = DQuat::from_euler(glam_order(), 0.3, 0.5, -0.2);
+    wanted.rotations[3] = DQuat::from_rotation_x(0.9);
+    let mut goal_global = GlobalPose::new();
+    arm.forward_kinematics(&wanted, &mut goal_global).unwrap();
+    let effector = chain.effector();
+    let goals = [EffectorGoal::at(effector, goal_global.positions[effector])
+        .with_rotation(goal_global.rotations[effector])];
+    let settings = SolveSettings::default();
+    let problem = IkProblem::new(&arm, &chain, &goals, settings);
+    let (mut pose, mut global) = (arm.rest_pose(), GlobalPose::new());
+    arm.forward_kinematics(&pose, &mut global).unwrap();
+    let report = CcdSolver::new()
+        .solve(&problem, &mut IkState::new(&mut pose, &mut global))
+        .unwrap();
+    assert_eq!(report.stop, StopReason::Converged, "{report:?}");
+    assert!(report.within(&settings), "{report:?}");
+    // The report's errors are the true ones.
+    let true_rotation = rotation_angle(global.rotations[effector], goals[0].rotation.unwrap());
+    assert_eq!(report.rotation_error, true_rotation);
+    assert!(true_rotation <= settings.rotation_tolerance);
+    // Without the finish, a rotation goal is refused, naming the field.
+    let (mut pose, mut global) = (arm.rest_pose(), GlobalPose::new());
+    let err = CcdSolver::plain()
+        .solve(&problem, &mut IkState::new(&mut pose, &mut global))
+        .unwrap_err();
+    assert!(
+        matches!(
+            err,
+            IkError::InvalidGoal {
+                field: "rotation",
+                ..
+            }
+        ),
+        "{err}"
+    );
+}
+
+fn glam_order() -> sinew_math::EulerRot {
+    sinew_math::EulerRot::XYZ
+}

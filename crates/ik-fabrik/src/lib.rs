@@ -57,7 +57,6 @@
 //! }
 //! ```
 
-mod limited;
 mod pass;
 mod refine;
 
@@ -66,9 +65,9 @@ pub use pass::fabrik_pass;
 /// does not also have to depend on sinew-math.
 pub use sinew_math::{DQuat, DVec3};
 
-use limited::LimitedRefiner;
 use refine::Refiner;
 use sinew_math::rotation_between;
+use sinew_skeleton::finish::ChainFinish;
 use sinew_skeleton::ik::{
     Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveSettings, SolveStart,
     StopReason, begin_solve, chain_has_limits, measure, project_onto_limits, turn_towards_pole,
@@ -265,9 +264,7 @@ pub struct FabrikSolver {
     /// Local rotations of the chain joints before the solve wrote them.
     saved: Vec<DQuat>,
     refiner: Refiner,
-    limited: LimitedRefiner,
-    /// Local rotations of the chain joints kept while a second seed is tried.
-    best: Vec<DQuat>,
+    finish: ChainFinish,
     stats: FabrikStats,
 }
 
@@ -411,7 +408,7 @@ impl FabrikSolver {
     /// The solve with joint limits or a rotation goal: one FABRIK pass for the large move
     /// (unconstrained, on positions), the rotations recovered and projected onto the
     /// limits (kept only if that lowered the weighted residual), then the limited damped
-    /// least-squares finish (`limited.rs`). When the finish ends in a local minimum of a
+    /// least-squares finish ([`sinew_skeleton::finish`]). When the finish ends in a local minimum of a
     /// chain with limits, it is run once more from a second seed, every limited joint at
     /// the centre of its range (hinge: the middle angle; swing-twist: no swing, the middle
     /// twist; free joints keep their rotation), and the better of the two is returned.
@@ -428,7 +425,7 @@ impl FabrikSolver {
         let movable = &chain.joints()[..chain.bone_count()];
         let mut passes = 0;
         if settings.max_iterations > 0 {
-            let start_cost = limited::cost(goal, global);
+            let start_cost = ChainFinish::cost(goal, global);
             self.copy_chain_positions(chain, global);
             let base = self.positions[0];
             pass::pass_unchecked(
@@ -442,7 +439,7 @@ impl FabrikSolver {
             if has_limits && project_onto_limits(skeleton, chain, pose) {
                 skeleton.forward_kinematics_from(pose, chain.base(), global)?;
             }
-            if limited::cost(goal, global) > start_cost {
+            if ChainFinish::cost(goal, global) > start_cost {
                 for (&j, &saved) in movable.iter().zip(&self.saved) {
                     pose.rotations[j] = saved;
                 }
@@ -451,45 +448,11 @@ impl FabrikSolver {
             }
         }
         self.stats.passes = passes;
-        let tolerances = (settings.tolerance, settings.rotation_tolerance);
-        let cap = settings.max_iterations;
-        let first = self
-            .limited
-            .run(skeleton, chain, goal, pose, global, tolerances, passes, cap)?;
-        self.stats.refinement_steps = first.steps;
-        let mut stop = first.stop;
-        let mut restarted = false;
-        if stop == StopReason::LocalMinimum && has_limits && passes + first.steps < cap {
-            self.best.clear();
-            self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
-            let best_cost = limited::cost(goal, global);
-            for &j in movable {
-                if let Some(seed) = skeleton.limit(j).centre() {
-                    pose.rotations[j] = seed;
-                }
-            }
-            skeleton.forward_kinematics_from(pose, chain.base(), global)?;
-            let second = self.limited.run(
-                skeleton,
-                chain,
-                goal,
-                pose,
-                global,
-                tolerances,
-                passes + first.steps,
-                cap,
-            )?;
-            self.stats.refinement_steps += second.steps;
-            restarted = true;
-            if limited::cost(goal, global) < best_cost {
-                stop = second.stop;
-            } else {
-                for (&j, &kept) in movable.iter().zip(&self.best) {
-                    pose.rotations[j] = kept;
-                }
-                skeleton.forward_kinematics_from(pose, chain.base(), global)?;
-            }
-        }
+        let (finished, restarted) = self
+            .finish
+            .run_restarting(skeleton, chain, goal, pose, global, settings, passes)?;
+        self.stats.refinement_steps = finished.steps;
+        let mut stop = finished.stop;
         if stop == StopReason::LocalMinimum && !has_limits {
             // Nothing but the goal holds the chain: the finish simply stopped helping.
             stop = StopReason::Stalled;

@@ -69,6 +69,7 @@ impl SolverOptions {
             Self::Ccd(CcdOptions {
                 extrapolation: true,
                 relaxation: 1.0,
+                finish: true,
             }),
         ),
         (
@@ -76,6 +77,7 @@ impl SolverOptions {
             Self::Ccd(CcdOptions {
                 extrapolation: false,
                 relaxation: 1.0,
+                finish: false,
             }),
         ),
         (
@@ -126,15 +128,21 @@ impl SolverOptions {
         })
     }
 
-    /// A short label for tables: `ccd` (extrapolated), `ccd-plain`, `ccd-relaxed`
-    /// (over-relaxed, whether extrapolated or not), `fabrik` (the hybrid) or
-    /// `fabrik-plain`.
+    /// A short label for tables: `ccd` (extrapolated sweeps and the least-squares
+    /// finish), `ccd-plain` (the lab's plain sweeps, no finish), `ccd-no-finish`
+    /// (extrapolated sweeps alone), `ccd-plain-finish` (plain sweeps, then the finish),
+    /// `ccd-relaxed` (over-relaxed, whatever else), `fabrik` (the hybrid) or
+    /// `fabrik-plain`. Distinct options that behave differently get distinct labels.
     #[must_use]
     pub fn label(&self) -> &'static str {
         match self {
             Self::Ccd(o) if o.relaxation != 1.0 => "ccd-relaxed",
-            Self::Ccd(o) if o.extrapolation => "ccd",
-            Self::Ccd(_) => "ccd-plain",
+            Self::Ccd(o) => match (o.extrapolation, o.finish) {
+                (true, true) => "ccd",
+                (false, false) => "ccd-plain",
+                (true, false) => "ccd-no-finish",
+                (false, true) => "ccd-plain-finish",
+            },
             Self::Fabrik(o) => match o.mode {
                 FabrikMode::Hybrid => "fabrik",
                 FabrikMode::Plain => "fabrik-plain",
@@ -171,6 +179,25 @@ mod tests {
             SolverOptions::NAMED[3].1,
             SolverOptions::Fabrik(FabrikOptions::plain())
         );
+        // Every CCD combination gets its own label, so a table never shows two different
+        // solvers under one name.
+        let ccd = |extrapolation, finish| {
+            SolverOptions::Ccd(CcdOptions {
+                extrapolation,
+                finish,
+                ..CcdOptions::default()
+            })
+            .label()
+        };
+        assert_eq!(
+            [
+                ccd(true, true),
+                ccd(false, false),
+                ccd(true, false),
+                ccd(false, true)
+            ],
+            ["ccd", "ccd-plain", "ccd-no-finish", "ccd-plain-finish"]
+        );
         let err = SolverOptions::by_name("newton").unwrap_err().to_string();
         assert!(
             err.contains("newton") && err.contains("fabrik-plain"),
@@ -194,6 +221,7 @@ mod tests {
         let ok = SolverOptions::Ccd(CcdOptions {
             relaxation: 1.5,
             extrapolation: false,
+            finish: true,
         });
         assert_eq!(ok.label(), "ccd-relaxed");
         assert!(ok.build().is_ok());

@@ -155,11 +155,11 @@ fn w7_feasible_targets_are_reached_inside_the_limits() {
             "W7 {name}: {within} of {} feasible targets within 1e-6, {restarts} restarts; missed: {missed:?}; limit violation max {worst_violation:e} rad",
             goals.len()
         );
-        // The workload's bar for FABRIK is 99.9% of the feasible targets at the cap of
-        // 100; its finish, which slides along the swing-twist bounds, measured 1 999 of
-        // 2 000 here (96.9% before it did). CCD measured 95.8% (1 916; 87.3% before it
-        // restarted from the centre of the limits after a local minimum).
-        let floor = if name == "fabrik" { 0.999 } else { 0.955 };
+        // The workload's bar is 99.9% of the feasible targets at the cap of 100. FABRIK's
+        // finish, which slides along the swing-twist bounds, measured 1 999 of 2 000 here
+        // (96.9% before it did). CCD measured 95.8% (1 916) sweeping to the end; ending
+        // with the same finish it measured 2 000 of 2 000.
+        let floor = 0.999;
         assert!(
             within as f64 >= floor * goals.len() as f64,
             "{name}: {within} of {}",
@@ -272,25 +272,28 @@ fn the_flower_with_a_45_degree_cone_on_every_joint_never_leaves_a_limit() {
 }
 
 #[test]
-fn w7_rotation_goals_converge_both_errors_with_fabrik() {
+fn w7_rotation_goals_converge_both_errors() {
     let skeleton = w7();
     let chain = Chain::whole(&skeleton).unwrap();
     let goals = feasible_goals(&skeleton, 1_000, true);
-    let mut solver = SolverOptions::Fabrik(FabrikOptions::default())
-        .build()
-        .unwrap();
     let settings = SolveSettings::default();
-    let mut within = 0;
-    for (k, &goal) in goals.iter().enumerate() {
-        let what = format!("fabrik rotation goal {k}");
-        let report = solve_checked(solver.as_mut(), &skeleton, &chain, goal, settings, &what);
-        within += usize::from(report.within(&settings));
+    for (name, options) in solvers() {
+        let mut solver = options.build().unwrap();
+        let mut within = 0;
+        for (k, &goal) in goals.iter().enumerate() {
+            let what = format!("{name} rotation goal {k}");
+            let report = solve_checked(solver.as_mut(), &skeleton, &chain, goal, settings, &what);
+            within += usize::from(report.within(&settings));
+        }
+        eprintln!(
+            "W7 rotation goals, {name}: {within} of {} within 1e-6 and 1e-6 rad",
+            goals.len()
+        );
+        // FABRIK measured 982 of 1000 since the finish slides along the swing-twist
+        // bounds (799 before); CCD, which refused rotation goals before it ended with the
+        // same finish, measured 990. This guards the measured figures, short of the
+        // workload's bar.
+        let floor = if name == "fabrik" { 978 } else { 985 };
+        assert!(within >= floor, "{name}: {within} of {}", goals.len());
     }
-    eprintln!(
-        "W7 rotation goals, fabrik: {within} of {} within 1e-6 and 1e-6 rad",
-        goals.len()
-    );
-    // Measured 982 of 1000 since the finish slides along the swing-twist bounds (799
-    // before); this guards the measured figure, short of the workload's bar.
-    assert!(within >= 978, "{within} of {}", goals.len());
 }

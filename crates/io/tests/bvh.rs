@@ -312,7 +312,11 @@ fn every_truncation_and_many_byte_flips_give_err_or_ok_never_a_panic() {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(256))]
+    // A fixed seed: the same corruptions on every run, so a CI verdict is reproducible.
+    #![proptest_config(ProptestConfig {
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x5eed_0b5f),
+        ..ProptestConfig::with_cases(256)
+    })]
     #[test]
     fn random_corruption_never_panics(
         flips in proptest::collection::vec((0usize..10_000, any::<u8>()), 1..8),

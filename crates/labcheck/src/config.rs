@@ -9,8 +9,38 @@
 //! Regressions: a failing case, once shrunk, is written to
 //! `tests/<file>.proptest-regressions` beside the test file and replayed first on every
 //! later run (commit those files).
+//!
+//! Seeds: every run draws the same cases from a fixed seed ([`DEFAULT_SEED`]), so a
+//! green CI run is green again on the same code, and a red one is red again. Another seed
+//! is one environment variable away: `PROPTEST_RNG_SEED=<u64>` draws a different fixed
+//! set, and `PROPTEST_RNG_SEED=random` draws a fresh set on every run (for deep runs,
+//! which then explore cases CI never saw; a failure is still written to the regression
+//! file, so it is replayed by every later run whatever the seed).
 
-use proptest::test_runner::{Config, FileFailurePersistence};
+use proptest::test_runner::{Config, FileFailurePersistence, RngSeed};
+
+/// The seed every property uses unless `PROPTEST_RNG_SEED` says otherwise.
+pub const DEFAULT_SEED: u64 = 0x5eed_1ab5;
+
+/// The seed from `PROPTEST_RNG_SEED`: a number, `random`, or unset ([`DEFAULT_SEED`]).
+/// Any other value is not silently ignored: the seed falls back to the default and the
+/// value is reported on standard error once per property.
+#[must_use]
+pub fn seed() -> RngSeed {
+    match std::env::var("PROPTEST_RNG_SEED") {
+        Err(_) => RngSeed::Fixed(DEFAULT_SEED),
+        Ok(v) if v.trim().eq_ignore_ascii_case("random") => RngSeed::Random,
+        Ok(v) => match v.trim().parse::<u64>() {
+            Ok(n) => RngSeed::Fixed(n),
+            Err(_) => {
+                eprintln!(
+                    "PROPTEST_RNG_SEED={v:?} is neither a u64 nor `random`; using the default seed {DEFAULT_SEED}"
+                );
+                RngSeed::Fixed(DEFAULT_SEED)
+            }
+        },
+    }
+}
 
 /// proptest's default case count, the reference for [`cases`].
 pub const DEFAULT_CASES: u32 = 256;
@@ -40,6 +70,7 @@ pub fn with_cases(default: u32) -> Config {
         failure_persistence: Some(Box::new(FileFailurePersistence::WithSource(
             "proptest-regressions",
         ))),
+        rng_seed: seed(),
         ..Config::default()
     }
 }
@@ -64,4 +95,51 @@ pub fn standard() -> Config {
     // within tolerance) reject a few percent of cases: allow one reject per case, so deep
     // runs of 20 000 cases are not cut short by proptest's fixed 1 024.
     with_rejects(DEFAULT_CASES, 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::strategy::{Strategy, ValueTree};
+    use proptest::test_runner::TestRunner;
+
+    fn draw(config: Config) -> Vec<u64> {
+        let mut runner = TestRunner::new(config);
+        (0..8)
+            .map(|_| {
+                (0u64..u64::MAX)
+                    .new_tree(&mut runner)
+                    .expect("a range strategy never rejects")
+                    .current()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_fixed_seed_draws_the_same_cases_every_run() {
+        let seed = RngSeed::Fixed(DEFAULT_SEED);
+        let a = draw(Config {
+            rng_seed: seed,
+            ..with_cases(8)
+        });
+        let b = draw(Config {
+            rng_seed: seed,
+            ..with_cases(8)
+        });
+        assert_eq!(a, b);
+        let other = draw(Config {
+            rng_seed: RngSeed::Fixed(DEFAULT_SEED + 1),
+            ..with_cases(8)
+        });
+        assert_ne!(a, other, "another seed must draw other cases");
+    }
+
+    #[test]
+    fn the_configuration_uses_the_seed_from_the_environment_or_the_default() {
+        // `seed()` reads the environment; whatever it says, the configuration carries it.
+        assert_eq!(with_cases(8).rng_seed, seed());
+        if std::env::var_os("PROPTEST_RNG_SEED").is_none() {
+            assert_eq!(seed(), RngSeed::Fixed(DEFAULT_SEED));
+        }
+    }
 }

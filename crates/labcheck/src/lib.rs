@@ -16,11 +16,12 @@
 //! - [`bounds`]: the round-off allowances the properties use, each one derived in
 //!   `docs/labcheck.md` (no tolerance is chosen by trial).
 //! - [`config`]: the proptest configuration (case counts that scale with
-//!   `PROPTEST_CASES`, regression files beside the test files).
+//!   `PROPTEST_CASES`, a fixed seed unless `PROPTEST_RNG_SEED` names another or
+//!   `random`, regression files beside the test files).
 //!
 //! Run: `cargo test -p sinew-labcheck` (proptest's default of 256 cases per property,
 //! scaled down for the few expensive ones, see [`config::cases`]); deep run:
-//! `PROPTEST_CASES=20000 cargo test -p sinew-labcheck --release`.
+//! `PROPTEST_CASES=20000 PROPTEST_RNG_SEED=random cargo test -p sinew-labcheck --release`.
 
 pub mod bounds;
 pub mod config;

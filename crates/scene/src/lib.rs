@@ -18,22 +18,18 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
-//! [`schema`] reads and checks a scene, [`spec`] holds the descriptions several task
+//! [`schema`] reads and checks a scene ([`limits`] bounds the work it may ask for), [`spec`] holds the descriptions several task
 //! kinds share, [`tasks`] the task kinds, [`results`] their typed results and [`run`]
-//! the loop that runs them. With the `bench` feature, `bench` holds the
-//! time-against-error sweeps, `stress` the numerical stress grid and `workloads` the
-//! reference workloads they share.
+//! the loop that runs them. [`workloads`] builds the reference workloads that are fixed
+//! numbers alone (the chains, the lab flower's targets, the cloths), shared with the
+//! benchmark sweeps and the stress grid of the unpublished sinew-bench crate.
 
-#[cfg(feature = "bench")]
-pub mod bench;
+pub mod limits;
 pub mod results;
 pub mod run;
 pub mod schema;
 pub mod spec;
-#[cfg(feature = "bench")]
-pub mod stress;
 pub mod tasks;
-#[cfg(feature = "bench")]
 pub mod workloads;
 
 pub use results::{SceneResults, TaskMetrics, TaskResult};

@@ -31,14 +31,13 @@ impl Scene {
             .tasks
             .iter()
             .map(|task| {
-                let spec = task.spec();
                 let start = Instant::now();
-                let result = spec.run(&ctx);
+                let result = task.spec().run(&ctx);
                 let wall_time_s = start.elapsed().as_secs_f64();
                 match result {
                     Ok(output) => TaskResult {
-                        name: spec.name().to_string(),
-                        kind: spec.kind(),
+                        name: task.name().to_string(),
+                        kind: task.kind(),
                         wall_time_s,
                         ok: output.failures.is_empty(),
                         error: None,
@@ -48,7 +47,7 @@ impl Scene {
                         table: output.table,
                         pictures: output.pictures,
                     },
-                    Err(e) => TaskResult::failed(spec.name(), spec.kind(), wall_time_s, e),
+                    Err(e) => TaskResult::failed(task.name(), task.kind(), wall_time_s, e),
                 }
             })
             .collect();

@@ -39,6 +39,32 @@ pub enum Task {
 }
 
 impl Task {
+    /// The task's name (unique in its scene).
+    #[must_use]
+    pub fn name(&self) -> &str {
+        match self {
+            Task::Fk(t) => &t.name,
+            Task::Ik(t) => &t.name,
+            Task::TwoBone(t) => &t.name,
+            Task::Curve(t) => &t.name,
+            Task::Cloth(t) => &t.name,
+            Task::FullBody(t) => &t.name,
+        }
+    }
+
+    /// The task kind, as the scene file spells it (`Fk`, ...).
+    #[must_use]
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Task::Fk(_) => "Fk",
+            Task::Ik(_) => "Ik",
+            Task::TwoBone(_) => "TwoBone",
+            Task::Curve(_) => "Curve",
+            Task::Cloth(_) => "Cloth",
+            Task::FullBody(_) => "FullBody",
+        }
+    }
+
     /// The task's behaviour, whatever its kind.
     pub fn spec(&self) -> &dyn TaskSpec {
         match self {
@@ -130,11 +156,34 @@ impl Scene {
     /// Reads, parses and checks a scene file.
     pub fn from_file(path: impl AsRef<Path>) -> Result<Scene, SceneError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|e| SceneError::Io {
+        let bytes = std::fs::read(path).map_err(|e| SceneError::Io {
             path: path.to_path_buf(),
             message: e.to_string(),
         })?;
-        Scene::from_text(path, &text)
+        Scene::from_bytes(path, &bytes)
+    }
+
+    /// Parses and checks the bytes of a scene file: text that is not UTF-8 is an error
+    /// at the line and column of its first bad byte, as a syntax error is.
+    pub fn from_bytes(path: impl AsRef<Path>, bytes: &[u8]) -> Result<Scene, SceneError> {
+        let path = path.as_ref();
+        match std::str::from_utf8(bytes) {
+            Ok(text) => Scene::from_text(path, text),
+            Err(e) => {
+                let good = &bytes[..e.valid_up_to()];
+                let line = 1 + good.iter().filter(|&&b| b == b'\n').count();
+                let line_start = good.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+                // Columns count characters, as the parser's do.
+                let col = 1 + String::from_utf8_lossy(&good[line_start..]).chars().count();
+                Err(SceneError::Parse {
+                    path: path.to_path_buf(),
+                    line,
+                    col,
+                    message: "the file is not UTF-8 text (a byte that no character begins with)"
+                        .into(),
+                })
+            }
+        }
     }
 
     /// Parses and checks scene text; `path` names it in errors and gives the scene's
@@ -150,16 +199,17 @@ impl Scene {
             }
         }
         for task in &file.tasks {
-            let spec = task.spec();
-            spec.validate().map_err(|message| SceneError::Invalid {
-                path: path.to_path_buf(),
-                task: spec.name().to_string(),
-                message,
-            })?;
+            task.spec()
+                .validate()
+                .map_err(|message| SceneError::Invalid {
+                    path: path.to_path_buf(),
+                    task: task.name().to_string(),
+                    message,
+                })?;
         }
         let mut seen = std::collections::HashSet::new();
         for task in &file.tasks {
-            let name = task.spec().name();
+            let name = task.name();
             if !seen.insert(name) {
                 return Err(SceneError::Invalid {
                     path: path.to_path_buf(),
@@ -284,6 +334,15 @@ mod tests {
         .unwrap_err();
         let text = err.to_string();
         assert!(text.starts_with("x.ron:3:"), "{text}");
+    }
+
+    #[test]
+    fn bytes_that_are_not_utf8_are_located() {
+        let err = Scene::from_bytes("x.ron", b"Scene(\n  descr\xC3\xA9: \xFF)").unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "x.ron:2:11: the file is not UTF-8 text (a byte that no character begins with)"
+        );
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! Scene-file descriptions shared by several task kinds: skeletons and joint rotations.
 //! They build the library types and check every value on the way, naming the item.
 
+use crate::limits::{MAX_JOINTS, MAX_PETALS, MAX_SAMPLES, at_most};
 use serde::Deserialize;
 use sinew_math::{DQuat, DVec3, try_unit};
 use sinew_skeleton::limits::JointLimit;
@@ -35,9 +36,6 @@ fn default_direction() -> DVec3 {
     DVec3::X
 }
 
-/// The most joints a scene may ask for (a bound so a typo cannot exhaust memory).
-pub const MAX_JOINTS: usize = 1_000_000;
-
 impl SkeletonSpec {
     /// Builds the skeleton, or says which item is wrong.
     pub fn build(&self) -> Result<Skeleton, String> {
@@ -49,12 +47,7 @@ impl SkeletonSpec {
                 direction,
                 limit,
             } => {
-                if *bones >= MAX_JOINTS {
-                    return Err(format!(
-                        "skeleton: bones = {bones}, at most {} allowed",
-                        MAX_JOINTS - 1
-                    ));
-                }
+                at_most("skeleton: bones", *bones, MAX_JOINTS - 1)?;
                 if !(length.is_finite() && *length >= 0.0) {
                     return Err(format!(
                         "skeleton: length = {length}, must be finite and >= 0"
@@ -75,12 +68,7 @@ impl SkeletonSpec {
                 Ok(skeleton)
             }
             Self::Joints(joints) => {
-                if joints.len() > MAX_JOINTS {
-                    return Err(format!(
-                        "skeleton: {} joints, at most {MAX_JOINTS} allowed",
-                        joints.len()
-                    ));
-                }
+                at_most("skeleton: joints", joints.len(), MAX_JOINTS)?;
                 Skeleton::new(joints.iter().cloned()).map_err(|e| format!("skeleton: {e}"))
             }
         }
@@ -126,29 +114,34 @@ pub fn build_pose(skeleton: &Skeleton, rotations: &[JointRotation]) -> Result<Po
     Ok(pose)
 }
 
-/// The most points a sampling may ask for (a bound so a typo cannot exhaust memory).
-pub const MAX_SAMPLES: usize = 10_000_000;
-
 /// Builds `curve` and checks `sampling` against it, naming the bad field.
 pub fn build_sampled(
     curve: &sinew_curves::CurveSpec,
     sampling: &sinew_curves::Sampling,
 ) -> Result<sinew_curves::Curve, String> {
-    use sinew_curves::Sampling;
+    use sinew_curves::{CurveSpec, Sampling};
+    // The work of measuring a curve grows with its petals (an arc-length table refines
+    // every petal), so their number is bounded before anything is built.
+    match curve {
+        CurveSpec::Epicycloid { petals, .. } => at_most("curve: petals", *petals, MAX_PETALS)?,
+        CurveSpec::Rose { k, .. } => at_most("curve: k", *k, MAX_PETALS)?,
+        CurveSpec::Polyline { points, .. } => at_most("curve: points", points.len(), MAX_SAMPLES)?,
+    }
     let curve = curve.build().map_err(|e| format!("curve: {e}"))?;
     match *sampling {
-        Sampling::Uniform { n } | Sampling::ArcLength { n, .. } if n > MAX_SAMPLES => {
-            return Err(format!("sampling: n = {n}, at most {MAX_SAMPLES} allowed"));
+        Sampling::Uniform { n } | Sampling::ArcLength { n, .. } => {
+            at_most("sampling: n", n, MAX_SAMPLES)?;
         }
         Sampling::ArcSpacing { spacing, .. } => {
             let length = curve.exact_length().unwrap_or(0.0);
             if spacing > 0.0 && length / spacing > MAX_SAMPLES as f64 {
                 return Err(format!(
-                    "sampling: spacing = {spacing} gives more than {MAX_SAMPLES} points"
+                    "sampling: spacing = {spacing} gives {:.3e} points, above the limit of \
+                     {MAX_SAMPLES} (docs/scenes.md, \"Limits\")",
+                    length / spacing
                 ));
             }
         }
-        _ => {}
     }
     Ok(curve)
 }

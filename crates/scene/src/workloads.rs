@@ -1,22 +1,22 @@
-//! The reference workloads of docs/workloads.md that are built in code, in one place,
-//! so every figure of the benchmark and the stress grid uses the same chains, targets
-//! and cloths:
+//! The reference workloads that are built in code from fixed numbers alone, in one
+//! place, so every figure of the benchmark and the stress grid uses the same chains,
+//! targets and cloths:
 //!
 //! - W1 (the lab flower tracked by the lab chain): [`w1_skeleton`], [`w1_targets`];
-//! - W2 (10 000 seeded cold solves of a 10-joint chain): [`w2_skeleton`], [`w2_targets`];
+//! - W2 (10 000 seeded cold solves of a 10-joint chain): the chain, [`w2_skeleton`];
 //! - W4, W5, W6 (the lab cloth, stiff, and 101 x 101): [`cloth`];
-//! - W7 (the human arm with joint limits): [`w7_skeleton`], [`w7_feasible`], [`w7_ball`].
+//! - W7 (the human arm with joint limits): the arm, [`w7_skeleton`].
 //!
-//! The others are scene files: W3 (a target out of reach) is `scenes/ik-too-far.ron`;
-//! the contact workloads C1, C2 and C3 are `scenes/cloth-ground.ron`,
-//! `scenes/cloth-drape-sphere.ron` and `scenes/cloth-rotating-sphere.ron`. W8 (a
-//! humanoid with five effectors) and C4, C5 (self-contact) have no code here yet.
-//!
-//! The W2 targets come from splitmix64 with the seed of sinew-ik-fabrik's tests and
-//! benchmarks (`W2_SEED`), which gives 8 554 reachable targets of 10 000.
+//! The seeded parts (the W2 targets, the W7 poses and ball points) are drawn with the
+//! property suite's generator and live beside the benchmark in the unpublished
+//! sinew-bench crate, so this crate needs no test-only dependency. The others are scene
+//! files: W3 (a target out of reach) is `scenes/ik-too-far.ron`; W8 (a humanoid with
+//! five effectors) is `scenes/ik-full-body.ron`; the contact workloads C1, C2 and C3 are
+//! `scenes/cloth-ground.ron`, `scenes/cloth-drape-sphere.ron` and
+//! `scenes/cloth-rotating-sphere.ron`.
 
-use sinew_math::{DQuat, DVec3};
-use sinew_skeleton::{GlobalPose, Skeleton};
+use sinew_math::DVec3;
+use sinew_skeleton::Skeleton;
 use sinew_spring_sim::{ClothGrid, SpringSystem};
 use std::f64::consts::TAU;
 
@@ -28,6 +28,7 @@ pub fn w1_skeleton() -> Result<Skeleton, String> {
 
 /// W1 targets: `count` points of the lab flower `a(6 cos t - cos 6t), 0,
 /// a(6 sin t - sin 6t)`, a = 0.1, at `t = 2 pi i / count`.
+#[must_use]
 pub fn w1_targets(count: usize) -> Vec<DVec3> {
     let a = 0.1;
     (0..count)
@@ -48,60 +49,9 @@ pub fn w2_skeleton() -> Result<Skeleton, String> {
         .map_err(|e| format!("W2 chain: {e}"))
 }
 
-/// The seed of the W2 targets (the same as sinew-ik-fabrik's workloads).
-pub const W2_SEED: u64 = 0x5EED_0000_0000_0002;
-
-/// The seeded generator of the workloads: labcheck's splitmix64, one implementation for
-/// the property suite, the benchmarks and the stress grid.
-pub use sinew_labcheck::strategies::SplitMix64;
-
-/// Uniform in the ball of radius `r` about the origin (rejection from the cube).
-pub fn in_ball(rng: &mut SplitMix64, r: f64) -> DVec3 {
-    loop {
-        let v = rng.vector();
-        if v.length_squared() <= 1.0 {
-            return r * v;
-        }
-    }
-}
-
-/// W2 targets: the first `count` points uniform in the ball of radius 0.95 about the
-/// origin (rejection from the cube), from [`W2_SEED`].
-pub fn w2_targets(count: usize) -> Vec<DVec3> {
-    let mut rng = SplitMix64(W2_SEED);
-    (0..count).map(|_| in_ball(&mut rng, 0.95)).collect()
-}
-
 /// W7: the human arm with joint limits ([`sinew_ik::workloads::human_arm`]).
 pub fn w7_skeleton() -> Result<Skeleton, String> {
     sinew_ik::workloads::human_arm().map_err(|e| format!("W7 arm: {e}"))
-}
-
-/// The seed of the W7 poses and ball points.
-pub const W7_SEED: u64 = 0x5EED_0000_0000_0007;
-
-/// W7 feasible set: forward kinematics of the hand tip (position and global rotation) of
-/// `count` poses uniform in every joint's limit parameters, from [`W7_SEED`].
-pub fn w7_feasible(skeleton: &Skeleton, count: usize) -> Result<Vec<(DVec3, DQuat)>, String> {
-    let mut rng = SplitMix64(W7_SEED);
-    let mut global = GlobalPose::new();
-    let effector = skeleton.len() - 1;
-    (0..count)
-        .map(|_| {
-            let pose = sinew_ik::workloads::allowed_pose(skeleton, || rng.unit());
-            skeleton
-                .forward_kinematics(&pose, &mut global)
-                .map_err(|e| e.to_string())?;
-            Ok((global.positions[effector], global.rotations[effector]))
-        })
-        .collect()
-}
-
-/// W7 ball set: `count` points uniform in the ball of radius 0.63 (the arm's reach)
-/// about the shoulder, from the seed after [`W7_SEED`].
-pub fn w7_ball(count: usize) -> Vec<DVec3> {
-    let mut rng = SplitMix64(W7_SEED + 1);
-    (0..count).map(|_| in_ball(&mut rng, 0.63)).collect()
 }
 
 /// A cloth workload: a system, a time step and a step count.
@@ -156,21 +106,37 @@ mod tests {
     use super::*;
 
     #[test]
-    fn w2_has_the_documented_reachable_count_and_is_in_the_ball() {
-        let targets = w2_targets(10_000);
-        assert!(targets.iter().all(|p| p.length() <= 0.95 + 1e-15));
-        let reachable = targets.iter().filter(|p| p.length() <= 0.9).count();
-        assert_eq!(reachable, 8_554);
-        // Uniform in the ball: the share within 0.9 is (0.9/0.95)^3 = 0.8503.
-        assert!((reachable as f64 / 1e4 - 0.8503).abs() < 0.01);
-    }
-
-    #[test]
     fn w1_targets_lie_on_the_flower() {
         let t = w1_targets(500);
         assert_eq!(t.len(), 500);
         // t = 0: a(6 - 1, 0, 0) = (0.5, 0, 0).
         assert!((t[0] - DVec3::new(0.5, 0.0, 0.0)).length() < 1e-15);
+        // Every point is on the flower: |p|^2 = a^2 (37 - 12 cos 5t).
+        for (i, p) in t.iter().enumerate() {
+            let s = TAU * i as f64 / 500.0;
+            let expected = 0.01 * (37.0 - 12.0 * (5.0 * s).cos());
+            assert!((p.length_squared() - expected).abs() < 1e-14, "target {i}");
+        }
         assert_eq!(w1_skeleton().unwrap().len(), 8);
+    }
+
+    #[test]
+    fn the_chains_have_the_documented_reach() {
+        let reach = |s: &Skeleton| (1..s.len()).map(|i| s.offset(i).length()).sum::<f64>();
+        assert!((reach(&w1_skeleton().unwrap()) - 1.05).abs() < 1e-12);
+        assert!((reach(&w2_skeleton().unwrap()) - 0.9).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_quick_cloth_set_is_a_subset_of_the_full_one() {
+        let full = cloth(false).unwrap();
+        let quick = cloth(true).unwrap();
+        assert_eq!(full.len(), 5);
+        assert_eq!(full[4].system.len(), 101 * 101);
+        for q in &quick {
+            let f = full.iter().find(|f| f.name == q.name).unwrap();
+            assert_eq!((q.dt, q.system.len()), (f.dt, f.system.len()), "{}", q.name);
+            assert!(q.steps < f.steps);
+        }
     }
 }

@@ -1,6 +1,9 @@
 //! The `FullBody` task run from code: its metric keys, the BVH clip's foot locking
 //! checked against the file's own joint positions, and located errors for bad clips.
 
+mod common;
+
+use common::metric_keys;
 use sinew_scene::results::Pictures;
 use sinew_scene::{RunOptions, Scene, TaskMetrics};
 use std::path::PathBuf;
@@ -25,13 +28,7 @@ fn squat_metrics_have_the_documented_keys_and_hold_the_contract() {
     let value = serde_json::to_value(&results).unwrap();
     let task = &value["tasks"][0];
     assert_eq!(task["kind"], "FullBody");
-    let mut keys: Vec<&str> = task["metrics"]
-        .as_object()
-        .unwrap()
-        .keys()
-        .map(String::as_str)
-        .collect();
-    keys.sort_unstable();
+    let keys = metric_keys(task);
     assert_eq!(
         keys,
         [

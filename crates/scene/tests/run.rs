@@ -1,6 +1,9 @@
 //! Scenes run from code: typed results against closed forms, the JSON shape of
 //! `metrics.json`, and what the pictures are handed.
 
+mod common;
+
+use common::metric_keys;
 use sinew_scene::results::Pictures;
 use sinew_scene::{RunOptions, Scene, TaskMetrics, TaskResult};
 
@@ -44,13 +47,7 @@ fn metrics_serialize_with_the_documented_keys() {
     assert_eq!(task["kind"], "Ik");
     assert_eq!(task["ok"], true);
     assert!(task.get("error").is_none());
-    let mut keys: Vec<&str> = task["metrics"]
-        .as_object()
-        .unwrap()
-        .keys()
-        .map(String::as_str)
-        .collect();
-    keys.sort_unstable();
+    let keys = metric_keys(task);
     assert_eq!(
         keys,
         [

@@ -8,6 +8,8 @@
 //! - [`GlobalPose`]: what forward kinematics computes, the global rotation and position of
 //!   every joint. [`Skeleton::forward_kinematics`] fills all of it;
 //!   [`Skeleton::forward_kinematics_from`] recomputes one joint and its descendants only.
+//! - [`finish`]: the damped least-squares finish with a sliding active set on the joint
+//!   limits that every IK solver ends with, over any set of joints and effectors.
 //! - [`ik`]: chains inside a skeleton, solve settings and reports, the closed-form answer
 //!   for a target out of reach, and the [`ik::IkSolver`] trait the solver crates implement.
 //! - [`limits`]: joint limits (free, fixed, hinge, swing-twist) relative to a joint's
@@ -39,6 +41,7 @@
 //!
 //! Architecture invariant: depends on sinew-math only (serde behind the `serde` feature).
 
+pub mod finish;
 pub mod ik;
 pub mod limits;
 pub mod track;

@@ -356,16 +356,7 @@ impl JointLimit {
                     .max(outside_range(parts.twist_angle, h.min, h.max))
             }
             Self::SwingTwist(st) => {
-                let frame = Frame::of(st);
-                let parts = Parts::of(q, frame.twist);
-                let twist = outside_range(parts.twist_angle, st.twist_min, st.twist_max);
-                let (ra, rb) = frame.swing_coordinates(&parts);
-                let swing = if st.swing_inside(ra, rb) {
-                    0.0
-                } else {
-                    let level = (ra / st.swing_a).hypot(rb / st.swing_b);
-                    ra.hypot(rb) * (1.0 - 1.0 / level)
-                };
+                let (swing, twist) = st.unit_violation_parts(&Frame::of(st), q);
                 twist.max(swing)
             }
         }
@@ -452,6 +443,60 @@ impl Hinge {
 }
 
 impl SwingTwist {
+    /// The two parts of [`JointLimit::violation`] for this limit, from one decomposition:
+    /// the swing's radial excess past the ellipse and the twist's distance to its range
+    /// (each 0 inside). Each is the violation of the limit with the other constraint
+    /// opened up (the twist range the whole circle, or both swing half-angles pi), which
+    /// is what the least-squares finish differentiates for the outward normals of the two
+    /// bounds. Infinite for a zero or non-finite `q`.
+    #[must_use]
+    pub fn violation_parts(&self, q: DQuat) -> (f64, f64) {
+        self.violation_parts_in(&LimitFrame::of(self), q)
+    }
+
+    /// [`SwingTwist::violation_parts`] with the limit's frame computed once by the caller.
+    pub(crate) fn violation_parts_in(&self, frame: &LimitFrame, q: DQuat) -> (f64, f64) {
+        match unit_quat(q) {
+            Some(q) => self.unit_violation_parts(&frame.0, q),
+            None => (f64::INFINITY, f64::INFINITY),
+        }
+    }
+
+    /// Whether `q` is at least `margin` radians inside both constraints, in a form every
+    /// rotation within a small fraction of `margin` of `q` keeps: its swing is under 3 rad
+    /// (where the twist is well defined) and inside the disc of radius
+    /// `min(swing_a, swing_b) - margin` (which the ellipse contains), and its twist is at
+    /// least `margin` from both ends of the range (or the range is the whole circle).
+    /// Such a `q` and its neighbours have both violation parts exactly 0.
+    pub(crate) fn deep_inside(&self, frame: &LimitFrame, q: DQuat, margin: f64) -> bool {
+        let Some(q) = unit_quat(q) else {
+            return false;
+        };
+        let parts = Parts::of(q, frame.0.twist);
+        let (ra, rb) = frame.0.swing_coordinates(&parts);
+        let swing = ra.hypot(rb);
+        let twist = parts.twist_angle;
+        let whole_circle = self.twist_min <= -PI && self.twist_max >= PI;
+        swing < 3.0
+            && swing <= self.swing_a.min(self.swing_b) - margin
+            && (whole_circle
+                || (twist >= self.twist_min + margin && twist <= self.twist_max - margin))
+    }
+
+    /// The parts for a unit `q`.
+    fn unit_violation_parts(&self, frame: &Frame, q: DQuat) -> (f64, f64) {
+        let parts = Parts::of(q, frame.twist);
+        let twist = outside_range(parts.twist_angle, self.twist_min, self.twist_max);
+        let (ra, rb) = frame.swing_coordinates(&parts);
+        let swing = if self.swing_inside(ra, rb) {
+            0.0
+        } else {
+            let level = (ra / self.swing_a).hypot(rb / self.swing_b);
+            ra.hypot(rb) * (1.0 - 1.0 / level)
+        };
+        (swing, twist)
+    }
+
     /// Whether the swing with ellipse coordinates `(ra, rb)` is inside the ellipse. A full
     /// disc (both half-angles pi) holds every swing, whatever the rounding of `|s| = pi`.
     fn swing_inside(&self, ra: f64, rb: f64) -> bool {
@@ -569,6 +614,16 @@ impl Parts {
         } else {
             DVec3::ZERO
         }
+    }
+}
+
+/// A swing-twist limit's frame, computed once for many evaluations of its violation.
+pub(crate) struct LimitFrame(Frame);
+
+impl LimitFrame {
+    /// The frame of `st`.
+    pub(crate) fn of(st: &SwingTwist) -> Self {
+        Self(Frame::of(st))
     }
 }
 

@@ -804,3 +804,44 @@ fn a_hinge_pushes_outwards_only_from_a_bound_it_sits_on() {
     };
     assert!(!wide.pushes_outwards(DQuat::from_axis_angle(DVec3::X, 3.0), 1e-3, 1e-12));
 }
+
+#[test]
+fn the_violation_parts_are_the_violations_with_the_other_constraint_opened_up() {
+    let st = SwingTwist {
+        twist_axis: DVec3::Y,
+        a_axis: DVec3::Z,
+        swing_a: 1.1,
+        swing_b: 0.4,
+        twist_min: -0.3,
+        twist_max: 0.8,
+    };
+    let swing_only = JointLimit::SwingTwist(SwingTwist {
+        twist_min: -PI,
+        twist_max: PI,
+        ..st
+    });
+    let twist_only = JointLimit::SwingTwist(SwingTwist {
+        swing_a: PI,
+        swing_b: PI,
+        ..st
+    });
+    let whole = JointLimit::SwingTwist(st);
+    // A fixed walk over rotations inside, outside and on the far side of the limit.
+    let mut outside = 0;
+    for k in 0..500 {
+        let t = k as f64;
+        let axis = DVec3::new((t * 0.37).sin(), (t * 0.91).cos(), (t * 0.53).sin() + 0.1);
+        let q = DQuat::from_axis_angle(axis.normalize(), (t * 0.0123) % TAU - PI);
+        let (swing, twist) = st.violation_parts(q);
+        assert_eq!(swing, swing_only.violation(q), "{q}");
+        assert_eq!(twist, twist_only.violation(q), "{q}");
+        assert_eq!(swing.max(twist), whole.violation(q), "{q}");
+        outside += usize::from(swing > 0.0 && twist > 0.0);
+    }
+    // The walk does reach the corner where both constraints are violated.
+    assert!(outside > 10, "{outside}");
+    assert_eq!(
+        st.violation_parts(DQuat::from_xyzw(f64::NAN, 0.0, 0.0, 1.0)),
+        (f64::INFINITY, f64::INFINITY)
+    );
+}

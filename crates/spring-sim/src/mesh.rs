@@ -5,17 +5,21 @@
 //! energy of [`crate::potential::DihedralBending`].
 //!
 //! Also here: [`ClothGrid::triangles`], the triangles of the grid cloth, so every cloth has
-//! a surface.
+//! a surface, and [`MeshClothModel::enable_self_contact`], the cloth's contact with
+//! itself ([`crate::contact::self_contact`]).
 //!
 //! Derivations (the lumped masses, the hinge weight, the dihedral angle's derivatives):
 //! docs/bending.md.
 
+use crate::contact::ContactError;
+use crate::contact::self_contact::{SelfContactSettings, SelfContactStats, enable_self_contact};
 use crate::model::{ClothGrid, Material, ModelError, Particle, SpringSpec, SpringSystem};
 use crate::newton::{BackwardEuler, NewtonSettings};
 use crate::potential::{DihedralBending, Hinge};
 use sinew_math::DVec3;
 use std::collections::HashMap;
 use std::fmt;
+use std::sync::Arc;
 
 /// Why a mesh or a mesh cloth was refused. Every variant names the triangle, vertex or
 /// field.
@@ -366,6 +370,20 @@ impl MeshClothModel {
             integrator.add_coupled_term(&self.system, Box::new(term.clone()), &pairs)?;
         }
         Ok(integrator)
+    }
+
+    /// Adds self-contact of the cloth with itself to `integrator` (built for this model,
+    /// e.g. by [`Self::backward_euler`]): the IPC barrier between every vertex and
+    /// triangle and every two edges that share no vertex, with the line search capped by
+    /// continuous collision detection ([`crate::contact::self_contact`]). Returns the
+    /// term's statistics. The settings are checked (the error names the setting), and so
+    /// is the current state (two primitives within the thickness: the error names them).
+    pub fn enable_self_contact(
+        &self,
+        integrator: &mut BackwardEuler,
+        settings: SelfContactSettings,
+    ) -> Result<Arc<SelfContactStats>, ContactError> {
+        enable_self_contact(integrator, &self.system, &self.triangles, settings)
     }
 }
 

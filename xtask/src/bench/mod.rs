@@ -13,7 +13,7 @@ mod report;
 
 use crate::machine::Machine;
 use serde::Serialize;
-use sinew_scene::bench::{Plan, Record, Section, cloth, curves, ik};
+use sinew_bench::sweep::{Plan, Record, Section, cloth, curves, ik};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;

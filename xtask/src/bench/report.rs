@@ -3,7 +3,7 @@
 //! plot per workload) and `plots/*.svg`.
 
 use super::Results;
-use sinew_scene::bench::{Metric, Record, Section, Timing};
+use sinew_bench::sweep::{Metric, Record, Section, Timing};
 use sinew_viz::render::plot::{Point, pareto_front, time_error_svg};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

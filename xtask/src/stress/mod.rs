@@ -9,6 +9,9 @@
 //!   unconverged steps; any penetration fails the run.
 //! - [`ik`]: the degenerate IK set for every solver, with the invariants every solve
 //!   must keep (no NaN, bone lengths, a truthful report, the geometric error bound).
+//! - [`body`]: the full-body degenerate set for every body solver configuration, with
+//!   the invariants every body solve must keep (no NaN, no limit violated, a report equal
+//!   to forward kinematics, the cost never above the start).
 //! - [`table`]: the console tables and `stress.md`.
 //!
 //! Prints the tables, writes `stress.md` (default `docs/bench/`; `--quick` and filtered
@@ -18,7 +21,7 @@
 pub mod table;
 
 use clap::ValueEnum;
-use sinew_scene::stress::{cloth, ik};
+use sinew_bench::stress::{body, cloth, ik};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -73,6 +76,8 @@ pub enum Part {
     Cloth,
     /// The IK set.
     Ik,
+    /// The full-body set.
+    Body,
 }
 
 impl StressArgs {
@@ -134,6 +139,10 @@ pub struct StressResults {
     pub ik: Vec<ik::IkOutcome>,
     /// Wall-clock seconds of the IK part.
     pub ik_seconds: f64,
+    /// Full-body outcomes, case-major.
+    pub body: Vec<body::BodyOutcome>,
+    /// Wall-clock seconds of the full-body part.
+    pub body_seconds: f64,
 }
 
 impl StressResults {
@@ -158,6 +167,11 @@ impl StressResults {
         for o in &self.ik {
             for f in &o.failures {
                 out.push(format!("ik {} [{}]: {f}", o.case, o.solver));
+            }
+        }
+        for o in &self.body {
+            for f in &o.violations {
+                out.push(format!("body {} [{}]: {f}", o.case, o.solver));
             }
         }
         out
@@ -230,8 +244,11 @@ pub fn run(args: &StressArgs) -> ExitCode {
         contact_seconds: 0.0,
         ik: Vec::new(),
         ik_seconds: 0.0,
+        body: Vec::new(),
+        body_seconds: 0.0,
     };
-    if args.only != Some(Part::Ik) {
+    let runs = |part: Part| args.only.is_none_or(|only| only == part);
+    if runs(Part::Cloth) {
         let cases = args.cloth_cases();
         let started = Instant::now();
         let bar = indicatif::ProgressBar::new(cases.len() as u64);
@@ -251,10 +268,15 @@ pub fn run(args: &StressArgs) -> ExitCode {
             .collect();
         results.contact_seconds = started.elapsed().as_secs_f64();
     }
-    if args.only != Some(Part::Cloth) {
+    if runs(Part::Ik) {
         let started = Instant::now();
         results.ik = ik::run_all(&ik::cases());
         results.ik_seconds = started.elapsed().as_secs_f64();
+    }
+    if runs(Part::Body) {
+        let started = Instant::now();
+        results.body = body::run_all(&body::cases());
+        results.body_seconds = started.elapsed().as_secs_f64();
     }
     let failures = results.failures(args.strict);
     let unconverged = results.unconverged();
@@ -300,10 +322,11 @@ pub fn run(args: &StressArgs) -> ExitCode {
         return ExitCode::from(2);
     }
     eprintln!(
-        "wrote {} (cloth {:.1} s, ik {:.1} s; {} failure(s); {} case(s) with a step left far from converged{})",
+        "wrote {} (cloth {:.1} s, ik {:.1} s, body {:.1} s; {} failure(s); {} case(s) with a step left far from converged{})",
         path.display(),
         results.cloth_seconds,
         results.ik_seconds,
+        results.body_seconds,
         failures.len(),
         unconverged.len(),
         if args.strict {

@@ -2,15 +2,18 @@
 //! springs) stepped by an integrator of sinew-spring-sim, with the run's energies,
 //! iterations and timing.
 
-use super::{RunContext, TaskOutput, TaskSpec, max_distance};
+use super::{RunContext, TaskOutput, TaskSpec, max_distance, non_negative};
+use crate::limits::{
+    MAX_GRID_SIZE, MAX_ITERATIONS, MAX_PARTICLE_STEPS, MAX_PARTICLES, MAX_STEPS, at_most,
+};
 use crate::results::{
     ClothFrame, ClothMetrics, ClothPictures, ContactMetrics, Csv, Pictures, TaskMetrics,
 };
 use serde::Deserialize;
 use sinew_math::DVec3;
-use sinew_spring_sim::AutoSettings;
 use sinew_spring_sim::StabilityBound;
 use sinew_spring_sim::contact::{Collider, ContactSettings, Shape, signed_distance};
+use sinew_spring_sim::{AutoSettings, NewtonSettings};
 use sinew_spring_sim::{
     ClothGrid, Integrator, Material, Particle, Simulation, SpringSpec, SpringSystem, run,
     run_observed,
@@ -106,8 +109,6 @@ pub enum SystemSpec {
     },
 }
 
-/// The most steps a scene may ask for.
-const MAX_STEPS: usize = 10_000_000;
 /// The most frames a picture animates.
 const MAX_FRAMES: usize = 100;
 /// The most frames kept for the interactive viewer (a 101 x 101 cloth frame is about
@@ -116,6 +117,17 @@ const MAX_TRACK_FRAMES: usize = 300;
 
 impl ClothTask {
     fn build(&self) -> Result<Simulation, String> {
+        // The size is checked before the system is built: a grid's particles are
+        // allocated by the build.
+        let particles = match &self.system {
+            SystemSpec::Grid(grid) => {
+                at_most("system: size", grid.size, MAX_GRID_SIZE)?;
+                grid.size * grid.size
+            }
+            SystemSpec::Explicit { particles, .. } => particles.len(),
+        };
+        at_most("system: particles", particles, MAX_PARTICLES)?;
+        at_most("steps", self.steps, MAX_STEPS)?;
         let system = match &self.system {
             SystemSpec::Grid(grid) => SpringSystem::cloth(grid),
             SystemSpec::Explicit {
@@ -128,12 +140,7 @@ impl ClothTask {
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(format!("dt = {}, must be finite and > 0", self.dt));
         }
-        if self.steps > MAX_STEPS {
-            return Err(format!(
-                "steps = {}, at most {MAX_STEPS} allowed",
-                self.steps
-            ));
-        }
+        self.check_work(&system)?;
         let mut sim =
             Simulation::new(system, self.integrator).map_err(|e| format!("integrator: {e}"))?;
         if let Some(contact) = &self.contact {
@@ -145,6 +152,54 @@ impl ClothTask {
 }
 
 impl ClothTask {
+    /// Checks the particle steps the run asks for: particles x steps x the work of a
+    /// step (the substeps of an explicit integrator, the Newton iteration cap of an
+    /// implicit one), and those of the reference run when it is asked for.
+    fn check_work(&self, system: &SpringSystem) -> Result<(), String> {
+        let bound = || StabilityBound::of(system).substeps(self.dt);
+        let newton_cap = |n: &NewtonSettings| -> Result<usize, String> {
+            at_most(
+                "integrator: max_iterations",
+                n.max_iterations,
+                MAX_ITERATIONS,
+            )?;
+            Ok(n.max_iterations)
+        };
+        let per_step = match &self.integrator {
+            Integrator::BackwardEuler(n)
+            | Integrator::Bdf2(n)
+            | Integrator::ImplicitMidpoint(n) => newton_cap(n)?,
+            Integrator::SymplecticEuler { substeps } => *substeps,
+            Integrator::VelocityVerlet { substeps }
+            | Integrator::SymplecticEulerBounded { substeps } => substeps.unwrap_or_else(bound),
+            Integrator::FlawedReportMethod => 1,
+            // Auto takes the explicit substeps when they are below its cap, else Newton.
+            Integrator::Auto(a) => bound().min(a.max_substeps).max(newton_cap(&a.newton)?),
+        };
+        let work = system.len() as f64 * self.steps as f64 * per_step.max(1) as f64;
+        if work > MAX_PARTICLE_STEPS {
+            return Err(format!(
+                "steps = {} of {} particles at {per_step} substeps or iterations a step asks \
+                 for {work:.2e} particle steps, above the limit of {MAX_PARTICLE_STEPS:.0e} \
+                 (docs/scenes.md, \"Limits\")",
+                self.steps,
+                system.len()
+            ));
+        }
+        if self.true_motion_reference {
+            let substeps = bound().max(1).saturating_mul(REFERENCE_SUBSTEP_FACTOR);
+            let work = system.len() as f64 * substeps as f64 * self.steps_to_one_second() as f64;
+            if work > MAX_PARTICLE_STEPS {
+                return Err(format!(
+                    "true_motion_reference = true asks for {work:.2e} particle steps of the \
+                     reference run ({substeps} substeps a step for 1 s), above the limit of \
+                     {MAX_PARTICLE_STEPS:.0e} (docs/scenes.md, \"Limits\")"
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// The step after which the simulated time is closest to 1 s.
     fn steps_to_one_second(&self) -> usize {
         ((1.0 / self.dt).round() as usize).max(1)
@@ -152,23 +207,12 @@ impl ClothTask {
 }
 
 impl TaskSpec for ClothTask {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        "Cloth"
-    }
-
     fn validate(&self) -> Result<(), String> {
         self.build()?;
-        if let Some(x) = self.expect_energy_increase_max
-            && !(x.is_finite() && x >= 0.0)
-        {
-            return Err(format!(
-                "expect_energy_increase_max = {x}, must be finite and >= 0"
-            ));
-        }
+        non_negative(
+            "expect_energy_increase_max",
+            self.expect_energy_increase_max,
+        )?;
         Ok(())
     }
 

@@ -2,7 +2,7 @@
 //! arc length) and measure how even they are and how long the curve is (the lab's
 //! Sub-Task 4.1, done right).
 
-use super::{RunContext, TaskOutput, TaskSpec, median_time_ns};
+use super::{RunContext, TaskOutput, TaskSpec, median_time_ns, non_negative};
 use crate::results::{Csv, CurveMetrics, CurvePictures, Pictures, TaskMetrics};
 use crate::spec::build_sampled;
 use serde::Deserialize;
@@ -27,23 +27,12 @@ pub struct CurveTask {
 const MEASURE_TOLERANCE: f64 = 1e-12;
 
 impl TaskSpec for CurveTask {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        "Curve"
-    }
-
     fn validate(&self) -> Result<(), String> {
         build_sampled(&self.curve, &self.sampling)?;
-        if let Some(x) = self.expect_spacing_rel_dev_max
-            && !(x.is_finite() && x >= 0.0)
-        {
-            return Err(format!(
-                "expect_spacing_rel_dev_max = {x}, must be finite and >= 0"
-            ));
-        }
+        non_negative(
+            "expect_spacing_rel_dev_max",
+            self.expect_spacing_rel_dev_max,
+        )?;
         Ok(())
     }
 

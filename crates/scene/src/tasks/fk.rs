@@ -1,7 +1,7 @@
 //! The `Fk` task: forward kinematics of a skeleton in a pose, with optional expected
 //! joint positions (so a scene doubles as a data-driven test).
 
-use super::{RunContext, TaskOutput, TaskSpec, max_distance, median_time_ns};
+use super::{RunContext, TaskOutput, TaskSpec, max_distance, median_time_ns, non_negative};
 use crate::results::{Csv, FkMetrics, Pictures, TaskMetrics};
 use crate::spec::{JointRotation, SkeletonSpec, build_pose};
 use serde::Deserialize;
@@ -43,14 +43,6 @@ fn default_tolerance() -> f64 {
 }
 
 impl TaskSpec for FkTask {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        "Fk"
-    }
-
     fn validate(&self) -> Result<(), String> {
         let skeleton = self.skeleton.build()?;
         build_pose(&skeleton, &self.pose)?;
@@ -69,12 +61,7 @@ impl TaskSpec for FkTask {
                 ));
             }
         }
-        if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
-            return Err(format!(
-                "tolerance = {}, must be finite and >= 0",
-                self.tolerance
-            ));
-        }
+        non_negative("tolerance", Some(self.tolerance))?;
         Ok(())
     }
 

@@ -6,8 +6,9 @@
 //! the body follows while other joints (the feet) stay pinned where they stand on the
 //! first frame (foot locking).
 
-use super::{RunContext, TaskOutput, TaskSpec, median};
-use crate::results::{BodyFrame, BodyMetrics, BodyPictures, Csv, Pictures, TaskMetrics};
+use super::{RunContext, TaskOutput, TaskSpec, median, non_negative};
+use crate::limits::{self, at_most, check_solve_work};
+use crate::results::{BodyFrame, BodyMetrics, BodyPictures, Pictures, TaskMetrics};
 use serde::Deserialize;
 use sinew_ik_body::{BodyEffector, BodyProblem, BodySolverOptions, BodyState, workload};
 use sinew_math::DVec3;
@@ -94,6 +95,7 @@ impl ClipSpec {
                 if *frames == 0 {
                     return Err("clip: frames = 0, must be at least 1".into());
                 }
+                at_most("clip: frames", *frames, limits::MAX_FRAMES)?;
                 let skeleton =
                     workload::humanoid().map_err(|e| format!("clip: the humanoid: {e}"))?;
                 let rest = BodyState::rest(&skeleton);
@@ -205,24 +207,22 @@ impl FullBodyTask {
 }
 
 impl TaskSpec for FullBodyTask {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        "FullBody"
-    }
-
     fn validate(&self) -> Result<(), String> {
         self.settings
             .validate()
             .map_err(|e| format!("settings: {e}"))?;
-        if let Some(x) = self.expect_error_max
-            && !(x.is_finite() && x >= 0.0)
-        {
-            return Err(format!("expect_error_max = {x}, must be finite and >= 0"));
-        }
-        self.build()?;
+        non_negative("expect_error_max", self.expect_error_max)?;
+        let built = self.build()?;
+        let attempts = match self.solver {
+            BodySolverOptions::Fabrik(o) => o.restarts.saturating_add(1),
+            BodySolverOptions::Ccd(_) => 1,
+        };
+        check_solve_work(
+            built.frames.len(),
+            self.settings.max_iterations,
+            attempts,
+            built.skeleton.len(),
+        )?;
         Ok(())
     }
 
@@ -411,16 +411,13 @@ impl TaskSpec for FullBodyTask {
             error_max,
             metrics.time_per_solve_us_median
         );
-        Ok(TaskOutput {
-            metrics: TaskMetrics::Body(metrics),
+        Ok(TaskOutput::per_frame(
+            TaskMetrics::Body(metrics),
             headline,
             failures,
-            table: Csv {
-                suffix: "frames.csv",
-                text: csv,
-            },
+            csv,
             pictures,
-        })
+        ))
     }
 }
 

@@ -3,8 +3,9 @@
 //! shared tracker (`sinew_skeleton::track`). Covers the lab's W1 flower, Q1 (a target out
 //! of reach), Q2 (a low iteration cap) and Q3 (a per-frame rotation limit).
 
-use super::{RunContext, TaskOutput, TaskSpec, median};
-use crate::results::{Csv, IkFrame, IkMetrics, IkPictures, Pictures, TaskMetrics};
+use super::{RunContext, TaskOutput, TaskSpec, median, non_negative};
+use crate::limits::check_solve_work;
+use crate::results::{IkFrame, IkMetrics, IkPictures, Pictures, TaskMetrics};
 use crate::spec::{SkeletonSpec, build_sampled};
 use serde::Deserialize;
 use sinew_curves::{CurveSpec, Sampling};
@@ -178,21 +179,15 @@ impl IkTask {
 }
 
 impl TaskSpec for IkTask {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        "Ik"
-    }
-
     fn validate(&self) -> Result<(), String> {
-        self.build()?;
-        if let Some(x) = self.expect_error_max
-            && !(x.is_finite() && x >= 0.0)
-        {
-            return Err(format!("expect_error_max = {x}, must be finite and >= 0"));
-        }
+        let built = self.build()?;
+        check_solve_work(
+            built.goals.len(),
+            self.settings.max_iterations,
+            1,
+            built.skeleton.len(),
+        )?;
+        non_negative("expect_error_max", self.expect_error_max)?;
         Ok(())
     }
 
@@ -363,16 +358,13 @@ impl TaskSpec for IkTask {
             summary.frames,
             summary.iterations_total
         );
-        Ok(TaskOutput {
-            metrics: TaskMetrics::Ik(metrics),
+        Ok(TaskOutput::per_frame(
+            TaskMetrics::Ik(metrics),
             headline,
             failures,
-            table: Csv {
-                suffix: "frames.csv",
-                text: csv,
-            },
+            csv,
             pictures,
-        })
+        ))
     }
 }
 

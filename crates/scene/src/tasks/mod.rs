@@ -71,16 +71,47 @@ pub struct TaskOutput {
     pub pictures: Pictures,
 }
 
-/// A task kind's behaviour.
+impl TaskOutput {
+    /// An output whose table has a row per frame (written as `<task>.frames.csv`).
+    #[must_use]
+    pub fn per_frame(
+        metrics: TaskMetrics,
+        headline: String,
+        failures: Vec<String>,
+        csv: String,
+        pictures: Pictures,
+    ) -> Self {
+        TaskOutput {
+            metrics,
+            headline,
+            failures,
+            table: Csv {
+                suffix: "frames.csv",
+                text: csv,
+            },
+            pictures,
+        }
+    }
+}
+
+/// A task kind's behaviour. Its name and kind are the scene's to tell
+/// ([`crate::schema::Task::name`], [`crate::schema::Task::kind`]).
 pub trait TaskSpec {
-    /// The task's name (unique in its scene).
-    fn name(&self) -> &str;
-    /// The task kind, as in the scene file (`Fk`, ...).
-    fn kind(&self) -> &'static str;
     /// Checks every value; the message names the item and what is allowed.
     fn validate(&self) -> Result<(), String>;
     /// Runs the task.
     fn run(&self, ctx: &RunContext) -> Result<TaskOutput, String>;
+}
+
+/// Checks an optional limit or tolerance of a task: absent, or finite and `>= 0`; the
+/// error names `field` and its value.
+pub fn non_negative(field: &str, value: Option<f64>) -> Result<(), String> {
+    match value {
+        Some(x) if !(x.is_finite() && x >= 0.0) => {
+            Err(format!("{field} = {x}, must be finite and >= 0"))
+        }
+        _ => Ok(()),
+    }
 }
 
 /// Median wall time in nanoseconds of `f`, over enough calls to fill about `budget_ms`

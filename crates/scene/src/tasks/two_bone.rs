@@ -5,8 +5,9 @@
 //! the reported error against forward kinematics of the result.
 
 use super::fk::bone_length_error_max;
-use super::{RunContext, TaskOutput, TaskSpec, median, median_time_ns};
-use crate::results::{Csv, Pictures, TaskMetrics, TwoBoneMetrics};
+use super::{RunContext, TaskOutput, TaskSpec, median, median_time_ns, non_negative};
+use crate::limits::{MAX_FRAMES, at_most};
+use crate::results::{Pictures, TaskMetrics, TwoBoneMetrics};
 use crate::spec::SkeletonSpec;
 use serde::Deserialize;
 use sinew_ik_two_bone::{Hinge, TwoBoneIk};
@@ -82,9 +83,6 @@ fn one_cycle() -> usize {
     1
 }
 
-/// The most frames a task may ask for (so a typo cannot exhaust memory).
-const MAX_FRAMES: usize = 10_000_000;
-
 impl TipPath {
     fn points(&self) -> Result<Vec<DVec3>, String> {
         match self {
@@ -95,6 +93,7 @@ impl TipPath {
                 if let Some(k) = points.iter().position(|p| !p.is_finite()) {
                     return Err(format!("target: point {k} is not finite"));
                 }
+                at_most("target: points", points.len(), MAX_FRAMES)?;
                 Ok(points.clone())
             }
             Self::Step {
@@ -121,12 +120,17 @@ impl TipPath {
                 if !lift.is_finite() {
                     return Err(format!("target: lift = {lift} is not finite"));
                 }
-                if *frames < 2 || *cycles == 0 || frames.saturating_mul(*cycles) > MAX_FRAMES {
+                if *frames < 2 || *cycles == 0 {
                     return Err(format!(
-                        "target: frames = {frames}, cycles = {cycles}: need frames >= 2, \
-                         cycles >= 1 and at most {MAX_FRAMES} frames in all"
+                        "target: frames = {frames}, cycles = {cycles}: need frames >= 2 and \
+                         cycles >= 1"
                     ));
                 }
+                at_most(
+                    "target: frames x cycles",
+                    frames.saturating_mul(*cycles),
+                    MAX_FRAMES,
+                )?;
                 let half = frames / 2;
                 let points = (0..frames * cycles)
                     .map(|i| {
@@ -174,14 +178,6 @@ fn wrong_side(root: DVec3, mid: DVec3, tip: DVec3, pole: DVec3) -> f64 {
 }
 
 impl TaskSpec for TwoBoneTask {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn kind(&self) -> &'static str {
-        "TwoBone"
-    }
-
     fn validate(&self) -> Result<(), String> {
         let skeleton = self.skeleton.build()?;
         let pose = skeleton.rest_pose();
@@ -189,12 +185,7 @@ impl TaskSpec for TwoBoneTask {
         self.job(points[0])
             .validate(&skeleton, &pose)
             .map_err(|e| e.to_string())?;
-        if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
-            return Err(format!(
-                "tolerance = {}, must be finite and >= 0",
-                self.tolerance
-            ));
-        }
+        non_negative("tolerance", Some(self.tolerance))?;
         Ok(())
     }
 
@@ -315,15 +306,12 @@ impl TaskSpec for TwoBoneTask {
             bend_min.to_degrees(),
             bend_max.to_degrees()
         );
-        Ok(TaskOutput {
-            metrics: TaskMetrics::TwoBone(metrics),
+        Ok(TaskOutput::per_frame(
+            TaskMetrics::TwoBone(metrics),
             headline,
             failures,
-            table: Csv {
-                suffix: "frames.csv",
-                text: csv,
-            },
-            pictures: Pictures::None,
-        })
+            csv,
+            Pictures::None,
+        ))
     }
 }

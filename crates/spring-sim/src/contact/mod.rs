@@ -18,6 +18,8 @@
 //!   system for one implicit step, with a broad phase and the line-search cap.
 //! - [`term`]: [`ContactTerm`], that potential as a term of the implicit integrators'
 //!   minimization ([`crate::potential::Term`]).
+//! - [`self_contact`]: contact of a triangle-mesh cloth with itself (point-triangle and
+//!   edge-edge barriers, the broad phase and continuous collision detection).
 //! - [`projection`]: the position and velocity projection for the explicit integrators
 //!   (not guaranteed: see its documentation).
 //!
@@ -32,6 +34,7 @@ pub mod friction;
 pub mod potential;
 pub mod projection;
 pub mod psd;
+pub mod self_contact;
 pub mod term;
 pub mod toi;
 
@@ -67,6 +70,14 @@ pub enum ContactError {
         /// What is not supported (an integrator's name, or the request).
         what: &'static str,
     },
+    /// Self-contact was given a bad mesh or state: a triangle refers to a particle that
+    /// does not exist, or two primitives start closer than the thickness.
+    BadMesh {
+        /// The item: "triangle 4", or the pair, "vertex 3 and triangle 7".
+        item: String,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
     /// A contact setting is invalid.
     BadSetting {
         /// The setting's name ("dhat", "thickness", "mu", "eps_v", ...).
@@ -98,6 +109,7 @@ impl fmt::Display for ContactError {
                 value,
                 reason,
             } => write!(f, "contact setting {name} = {value}: {reason}"),
+            Self::BadMesh { item, reason } => write!(f, "self-contact: {item} {reason}"),
             Self::Unsupported { what } => write!(
                 f,
                 "contact is not supported for {what} (backward Euler has the guaranteed barrier; the explicit integrators a projection)"

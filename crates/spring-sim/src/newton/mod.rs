@@ -262,6 +262,39 @@ impl BackwardEuler {
         Ok(())
     }
 
+    /// Widens the Hessian pattern with slots for the particle pairs `pairs` (kept with
+    /// those of earlier calls) without adding a term, for a term whose coupled pairs
+    /// appear during a run (self-contact: see
+    /// `contact::self_contact::widen_pattern`). The linear solvers are rebuilt on the
+    /// new pattern. An index out of range is an `Err` naming it, and nothing changes.
+    pub fn add_coupled_pairs(
+        &mut self,
+        system: &SpringSystem,
+        pairs: &[[usize; 2]],
+    ) -> Result<(), ModelError> {
+        self.check_topology(system)?;
+        if pairs.iter().flatten().any(|&p| p >= system.len()) {
+            return Err(ModelError::BadParameter {
+                name: "pairs",
+                reason: "a coupled particle index is out of range",
+            });
+        }
+        let mut coupled = self.coupled_pairs.clone();
+        coupled.extend_from_slice(pairs);
+        let pattern = HessianPattern::with_pairs(system, &coupled);
+        if self.direct.is_some() {
+            self.direct = Some(Self::build_direct(
+                &pattern,
+                self.settings.factor_structure,
+            )?);
+        }
+        self.coupled_pairs = coupled;
+        self.pcg = PcgSolver::new(&pattern);
+        self.values = vec![0.0; pattern.nnz()];
+        self.pattern = pattern;
+        Ok(())
+    }
+
     /// Numerically factors the last assembled Newton matrix (building the symbolic
     /// factorization first if needed); false if it is not positive definite (a kernel for
     /// benchmarks).

@@ -253,6 +253,22 @@ impl<'a> HessianSink<'a> {
         }
     }
 
+    /// Whether [`Self::add_pair`] would accept the pair `(i, j)`: always for the row-sum
+    /// and product targets; for the matrix values, when `i == j`, either particle is
+    /// fixed, or the pattern has slots for the pair. A term whose pairs change from one
+    /// iteration to the next (self-contact) asks first, so it can keep its blocks
+    /// positive semidefinite when some pairs have no slots.
+    #[must_use]
+    pub fn has_pair(&self, i: usize, j: usize) -> bool {
+        match &self.target {
+            Target::Values { pattern, .. } => {
+                let (fi, fj) = (pattern.free_index[i], pattern.free_index[j]);
+                i == j || fi == FIXED || fj == FIXED || pattern.off_block_slots(fi, fj).is_some()
+            }
+            Target::RowSums { .. } | Target::Product { .. } => true,
+        }
+    }
+
     /// Adds the block `b` at `(i, j)` (and `b^T` at `(j, i)`), looking the pair up in the
     /// pattern's structure. `i == j` adds the symmetric part of `b` on the diagonal.
     /// Blocks touching a fixed particle are skipped. A pair of free particles the

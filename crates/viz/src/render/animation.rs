@@ -22,6 +22,20 @@ pub(super) const MAX_GIF_FRAMES: usize = 300;
 /// Extra time the last frame stays on screen before the animation loops, in 1/100 s.
 const END_PAUSE_CS: u16 = 150;
 
+/// The frames of an animation of `count` frames to draw (see [`frames_to_draw`]), or,
+/// when there are none, the error every animation gives: `what` (e.g. "IK animation")
+/// and the file that was not written.
+pub(super) fn frames_to_draw_or_err(
+    count: usize,
+    what: &str,
+    path: &Path,
+) -> Result<Vec<usize>, String> {
+    if count == 0 {
+        return Err(format!("{what} {}: no frames to draw", path.display()));
+    }
+    Ok(frames_to_draw(count))
+}
+
 /// Indices of the frames to draw out of `count`: all of them up to [`MAX_GIF_FRAMES`],
 /// otherwise that many spread evenly from the first to the last.
 #[must_use]

@@ -1,9 +1,9 @@
 //! Pictures of a full-body clip: an animated GIF of the skeleton tree with its effectors
 //! and their goals, and a PNG still of one frame.
 
-use super::animation::{GifWriter, frames_to_draw};
+use super::animation::{GifWriter, frames_to_draw_or_err};
 use super::canvas::{Canvas, ink};
-use super::{Mark, View, axis_gizmo, draw_pin, draw_target, format_length, legend};
+use super::{Mark, View, annotate, draw_pin, draw_target, format_length};
 use sinew_math::DVec3;
 use std::path::Path;
 
@@ -16,6 +16,17 @@ pub struct BodySnapshot<'a> {
     pub goals: &'a [DVec3],
     /// The frame's worst effector error (shown in the caption).
     pub error: f64,
+}
+
+impl<'a> From<&'a sinew_scene::results::BodyFrame> for BodySnapshot<'a> {
+    /// The frame of a `FullBody` task's result, as drawn.
+    fn from(f: &'a sinew_scene::results::BodyFrame) -> Self {
+        BodySnapshot {
+            joints: &f.joints,
+            goals: &f.goals,
+            error: f.error,
+        }
+    }
 }
 
 /// The skeleton's shape and which joints are effectors, shared by every frame.
@@ -45,14 +56,9 @@ pub fn body_gif(
     frames: &[BodySnapshot],
     fps: u16,
 ) -> Result<(), String> {
-    if frames.is_empty() {
-        return Err(format!(
-            "body animation {}: no frames to draw",
-            path.display()
-        ));
-    }
+    let picked = frames_to_draw_or_err(frames.len(), "body animation", path)?;
     let mut gif = GifWriter::create(path, view.width(), view.height(), fps)?;
-    for index in frames_to_draw(frames.len()) {
+    for index in picked {
         let frame = &frames[index];
         let caption = [
             format!("frame {}/{}", index + 1, frames.len()),
@@ -110,12 +116,10 @@ fn draw(
             canvas.dot(at(j), 4.5, ink::EFFECTOR);
         }
     }
-    let max_caption = canvas.width() as f32 - 80.0;
-    let lines: Vec<&str> = caption.iter().map(String::as_str).collect();
-    canvas.caption(8.0, 8.0, &lines, max_caption);
-    axis_gizmo(&mut canvas, view);
-    legend(
+    annotate(
         &mut canvas,
+        view,
+        caption,
         &[
             (Mark::Line(ink::BONE, 4.0), "bones"),
             (Mark::Dot(ink::EFFECTOR, 4.5), "effector"),

@@ -8,10 +8,10 @@
 //! `strain_scale` or more). The scale is fixed for a whole animation so that colours
 //! compare across frames.
 
-use super::animation::{GifWriter, frames_to_draw, strain_colour};
+use super::animation::{GifWriter, frames_to_draw_or_err, strain_colour};
 use super::canvas::ink;
 use super::canvas::{Canvas, Px};
-use super::{Mark, View, axis_gizmo, draw_pin, format_strain, legend};
+use super::{Mark, View, annotate, draw_pin, format_strain};
 use sinew_math::DVec3;
 use sinew_scene::results::Shape;
 use std::path::Path;
@@ -23,6 +23,16 @@ pub struct ClothFrame<'a> {
     pub positions: &'a [DVec3],
     /// The colliders, posed at the frame's time (empty without contact).
     pub colliders: &'a [Shape],
+}
+
+impl<'a> From<&'a sinew_scene::results::ClothFrame> for ClothFrame<'a> {
+    /// The frame of a `Cloth` task's result, as drawn.
+    fn from(f: &'a sinew_scene::results::ClothFrame) -> Self {
+        ClothFrame {
+            positions: &f.positions,
+            colliders: &f.colliders,
+        }
+    }
 }
 
 /// Writes an animated GIF of the cloth: each spring `(i, j, rest_length)` as a line
@@ -46,13 +56,7 @@ pub fn cloth_gif(
     strain_scale: f64,
     fps: u16,
 ) -> Result<(), String> {
-    if frames.is_empty() {
-        return Err(format!(
-            "cloth animation {}: no frames to draw",
-            path.display()
-        ));
-    }
-    let picked = frames_to_draw(frames.len());
+    let picked = frames_to_draw_or_err(frames.len(), "cloth animation", path)?;
     let scale = resolve_scale(strain_scale, picked.iter().map(|&k| &frames[k]), springs);
     let mut gif = GifWriter::create(path, view.width(), view.height(), fps)?;
     for index in picked {
@@ -162,11 +166,10 @@ fn draw(
         .into_iter()
         .filter(|l| !l.is_empty())
         .collect();
-    let max_caption = canvas.width() as f32 - 80.0;
-    canvas.caption(8.0, 8.0, &lines, max_caption);
-    axis_gizmo(&mut canvas, view);
-    legend(
+    annotate(
         &mut canvas,
+        view,
+        &lines,
         &[(Mark::StrainBar(scale), "strain"), (Mark::Pin, "fixed")],
     );
     Ok(canvas)

@@ -1,9 +1,9 @@
 //! Pictures of an IK chain following its target: an animated GIF of the run and a PNG
 //! still with the whole target path.
 
-use super::animation::{GifWriter, frames_to_draw};
+use super::animation::{GifWriter, frames_to_draw_or_err};
 use super::canvas::{Canvas, ink};
-use super::{Mark, View, axis_gizmo, draw_target, format_length, legend, path_shown};
+use super::{Mark, View, annotate, draw_target, format_length, path_shown};
 use sinew_math::DVec3;
 use std::path::Path;
 
@@ -15,6 +15,16 @@ pub struct IkFrame<'a> {
     pub joints: &'a [DVec3],
     /// The target of this frame.
     pub target: DVec3,
+}
+
+impl<'a> From<&'a sinew_scene::results::IkFrame> for IkFrame<'a> {
+    /// The frame of an `Ik` task's result, as drawn.
+    fn from(f: &'a sinew_scene::results::IkFrame) -> Self {
+        IkFrame {
+            joints: &f.joints,
+            target: f.target,
+        }
+    }
 }
 
 impl IkFrame<'_> {
@@ -47,14 +57,9 @@ pub fn ik_gif(
     targets_path: &[DVec3],
     fps: u16,
 ) -> Result<(), String> {
-    if frames.is_empty() {
-        return Err(format!(
-            "IK animation {}: no frames to draw",
-            path.display()
-        ));
-    }
+    let picked = frames_to_draw_or_err(frames.len(), "IK animation", path)?;
     let mut gif = GifWriter::create(path, view.width(), view.height(), fps)?;
-    for index in frames_to_draw(frames.len()) {
+    for index in picked {
         let shown = path_shown(index, frames.len(), targets_path.len());
         let frame = &frames[index];
         let caption = [
@@ -108,12 +113,10 @@ fn draw(
         canvas.dot(effector, 5.0, ink::EFFECTOR);
     }
 
-    let max_caption = canvas.width() as f32 - 80.0;
-    let lines: Vec<&str> = caption.iter().map(String::as_str).collect();
-    canvas.caption(8.0, 8.0, &lines, max_caption);
-    axis_gizmo(&mut canvas, view);
-    legend(
+    annotate(
         &mut canvas,
+        view,
+        caption,
         &[
             (Mark::Line(ink::BONE, 5.0), "chain"),
             (Mark::Dot(ink::EFFECTOR, 5.0), "effector"),

@@ -251,6 +251,21 @@ enum Mark {
     StrainBar(f64),
 }
 
+/// Writes the caption lines in the top-left corner, the world axes in the top-right and
+/// the legend along the bottom: what every still of a skeleton carries.
+fn annotate(
+    canvas: &mut Canvas,
+    view: &View,
+    caption: &[impl AsRef<str>],
+    entries: &[(Mark, &str)],
+) {
+    let max_caption = canvas.width() as f32 - 80.0;
+    let lines: Vec<&str> = caption.iter().map(AsRef::as_ref).collect();
+    canvas.caption(8.0, 8.0, &lines, max_caption);
+    axis_gizmo(canvas, view);
+    legend(canvas, entries);
+}
+
 /// Draws the legend entries in a row along the bottom of the canvas.
 fn legend(canvas: &mut Canvas, entries: &[(Mark, &str)]) {
     let y_mid = canvas.height() as f32 - BOTTOM_BAND as f32 * 0.5 - 2.0;

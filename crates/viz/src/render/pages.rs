@@ -3,6 +3,7 @@
 //! [`sinew_scene::results::Pictures`] into the viewer's own [`ViewerPage`].
 
 use crate::viewer::{Collider, Frame, PageKind, Series, ViewerPage};
+use sinew_math::DVec3;
 use sinew_scene::TaskResult;
 use sinew_scene::results::{BodyPictures, ClothPictures, IkPictures, Pictures, Shape};
 
@@ -32,40 +33,16 @@ fn ik_page(name: &str, p: &IkPictures) -> ViewerPage {
         p.solver,
         p.targets.len()
     );
-    page.frames = p
-        .track
-        .iter()
-        .zip(&p.track_frames)
-        .map(|(f, &k)| Frame {
-            time: k as f64 / IK_FRAMES_PER_SECOND,
-            points: f.joints.clone(),
-            goals: vec![f.target],
-            colliders: Vec::new(),
-        })
-        .collect();
+    page.frames = clip_frames(
+        p.track.iter().map(|f| (&f.joints, vec![f.target])),
+        &p.track_frames,
+    );
     let joints = p.track[0].joints.len();
     page.segments = (1..joints).map(|j| (j - 1, j)).collect();
     page.fixed = vec![0];
     page.effectors = vec![joints - 1];
     page.target_path = p.targets.clone();
-    page.charts = vec![
-        Series {
-            name: "effector error".into(),
-            unit: "scene units".into(),
-            values: p.track_frames.iter().map(|&k| p.error[k]).collect(),
-            log_scale: true,
-        },
-        Series {
-            name: "iterations".into(),
-            unit: String::new(),
-            values: p
-                .track_frames
-                .iter()
-                .map(|&k| p.iterations[k] as f64)
-                .collect(),
-            log_scale: false,
-        },
-    ];
+    page.charts = track_charts("effector error", &p.track_frames, &p.error, &p.iterations);
     page
 }
 
@@ -77,17 +54,10 @@ fn body_page(name: &str, p: &BodyPictures) -> ViewerPage {
         p.effectors.len(),
         p.error.len()
     );
-    page.frames = p
-        .track
-        .iter()
-        .zip(&p.track_frames)
-        .map(|(f, &k)| Frame {
-            time: k as f64 / IK_FRAMES_PER_SECOND,
-            points: f.joints.clone(),
-            goals: f.goals.clone(),
-            colliders: Vec::new(),
-        })
-        .collect();
+    page.frames = clip_frames(
+        p.track.iter().map(|f| (&f.joints, f.goals.clone())),
+        &p.track_frames,
+    );
     page.segments = p
         .parents
         .iter()
@@ -110,25 +80,54 @@ fn body_page(name: &str, p: &BodyPictures) -> ViewerPage {
         .filter(|&(_, &pinned)| !pinned)
         .map(|(&j, _)| j)
         .collect();
-    page.charts = vec![
+    page.charts = track_charts(
+        "worst effector error",
+        &p.track_frames,
+        &p.error,
+        &p.iterations,
+    );
+    page
+}
+
+/// The page's frames of an IK track (chain or full body): each shown frame's joints and
+/// goals, timed by its frame index at [`IK_FRAMES_PER_SECOND`].
+fn clip_frames<'a>(
+    shown: impl Iterator<Item = (&'a Vec<DVec3>, Vec<DVec3>)>,
+    track_frames: &[usize],
+) -> Vec<Frame> {
+    shown
+        .zip(track_frames)
+        .map(|((joints, goals), &k)| Frame {
+            time: k as f64 / IK_FRAMES_PER_SECOND,
+            points: joints.clone(),
+            goals,
+            colliders: Vec::new(),
+        })
+        .collect()
+}
+
+/// The charts of an IK track (chain or full body) at the frames the page shows: the
+/// error (log scale) and the iterations.
+fn track_charts(
+    error_name: &str,
+    track_frames: &[usize],
+    error: &[f64],
+    iterations: &[usize],
+) -> Vec<Series> {
+    vec![
         Series {
-            name: "worst effector error".into(),
+            name: error_name.into(),
             unit: "scene units".into(),
-            values: p.track_frames.iter().map(|&k| p.error[k]).collect(),
+            values: track_frames.iter().map(|&k| error[k]).collect(),
             log_scale: true,
         },
         Series {
             name: "iterations".into(),
             unit: String::new(),
-            values: p
-                .track_frames
-                .iter()
-                .map(|&k| p.iterations[k] as f64)
-                .collect(),
+            values: track_frames.iter().map(|&k| iterations[k] as f64).collect(),
             log_scale: false,
         },
-    ];
-    page
+    ]
 }
 
 fn cloth_page(name: &str, p: &ClothPictures) -> ViewerPage {

@@ -7,7 +7,10 @@ use sinew_math::DVec3;
 use sinew_scene::results::{
     BodyPictures, ClothPictures, CurvePictures, IkPictures, Pictures, Shape,
 };
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// Where a picture of the task goes, from its suffix (`gif`, `error.svg`, ...).
+type OutPath<'a> = &'a dyn Fn(&str) -> PathBuf;
 
 /// Draws the pictures of task `name` into `out_dir` as `<name>.<suffix>` (GIF, PNG,
 /// SVG charts); a task whose result kept no pictures draws nothing. The error names the
@@ -25,78 +28,35 @@ pub fn draw_task(name: &str, pictures: &Pictures, out_dir: &Path) -> Result<(), 
 
 /// The animation, the last frame with the whole target path, and plots of error and
 /// iterations per frame.
-fn draw_ik(
-    name: &str,
-    p: &IkPictures,
-    out: &dyn Fn(&str) -> std::path::PathBuf,
-) -> Result<(), String> {
+fn draw_ik(name: &str, p: &IkPictures, out: OutPath) -> Result<(), String> {
     let points = p
         .frames
         .iter()
         .flat_map(|f| f.joints.iter().copied())
         .chain(p.targets.iter().copied());
     let view = View::fit(points, 0.6, 0.45, 480, 480);
-    let frames: Vec<IkFrame> = p
-        .frames
-        .iter()
-        .map(|f| IkFrame {
-            joints: &f.joints,
-            target: f.target,
-        })
-        .collect();
+    let frames: Vec<IkFrame> = p.frames.iter().map(IkFrame::from).collect();
     if frames.len() > 1 {
         ik_gif(&out("gif"), &view, &frames, &p.targets, 20)?;
     }
     if let Some(last) = frames.last() {
         ik_png(&out("png"), &view, last, &p.targets)?;
     }
-    if p.error.len() > 1 {
-        let error: Vec<(f64, f64)> = p
-            .error
-            .iter()
-            .enumerate()
-            .map(|(k, &e)| (k as f64, e))
-            .collect();
-        let iterations: Vec<(f64, f64)> = p
-            .iterations
-            .iter()
-            .enumerate()
-            .map(|(k, &i)| (k as f64, i as f64))
-            .collect();
-        line_chart_svg(
-            &out("error.svg"),
-            &format!("{name}: final error per frame"),
-            "frame",
-            "effector to target distance",
-            &[Series {
-                name: &p.solver,
-                points: &error,
-            }],
-            true,
-        )?;
-        line_chart_svg(
-            &out("iterations.svg"),
-            &format!("{name}: iterations per frame"),
-            "frame",
-            "iterations",
-            &[Series {
-                name: &p.solver,
-                points: &iterations,
-            }],
-            false,
-        )?;
-    }
-    Ok(())
+    frame_charts(
+        out,
+        &p.solver,
+        &p.error,
+        &p.iterations,
+        &format!("{name}: final error per frame"),
+        "effector to target distance",
+        &format!("{name}: iterations per frame"),
+    )
 }
 
 /// The animation (seen from the front and a little to the side, so both the squat's
 /// depth and the hands' circles show), the last frame as a still, and charts of the
 /// worst effector error and the iterations per frame.
-fn draw_body(
-    name: &str,
-    p: &BodyPictures,
-    out: &dyn Fn(&str) -> std::path::PathBuf,
-) -> Result<(), String> {
+fn draw_body(name: &str, p: &BodyPictures, out: OutPath) -> Result<(), String> {
     let points = p
         .frames
         .iter()
@@ -107,58 +67,65 @@ fn draw_body(
         effectors: &p.effectors,
         pinned: &p.pinned,
     };
-    let frames: Vec<BodySnapshot> = p
-        .frames
-        .iter()
-        .map(|f| BodySnapshot {
-            joints: &f.joints,
-            goals: &f.goals,
-            error: f.error,
-        })
-        .collect();
+    let frames: Vec<BodySnapshot> = p.frames.iter().map(BodySnapshot::from).collect();
     if frames.len() > 1 {
         body_gif(&out("gif"), &view, &layout, &frames, 20)?;
     }
     if let Some(last) = frames.last() {
         body_png(&out("png"), &view, &layout, last)?;
     }
-    if p.error.len() > 1 {
-        let error: Vec<(f64, f64)> = p
-            .error
-            .iter()
-            .enumerate()
-            .map(|(k, &e)| (k as f64, e))
-            .collect();
-        let iterations: Vec<(f64, f64)> = p
-            .iterations
-            .iter()
-            .enumerate()
-            .map(|(k, &i)| (k as f64, i as f64))
-            .collect();
-        line_chart_svg(
-            &out("error.svg"),
-            &format!("{name}: worst effector error per frame"),
-            "frame",
-            "largest effector to goal distance",
-            &[Series {
-                name: &p.solver,
-                points: &error,
-            }],
-            true,
-        )?;
-        line_chart_svg(
-            &out("iterations.svg"),
-            &format!("{name}: iterations per frame"),
-            "frame",
-            "iterations",
-            &[Series {
-                name: &p.solver,
-                points: &iterations,
-            }],
-            false,
-        )?;
+    frame_charts(
+        out,
+        &p.solver,
+        &p.error,
+        &p.iterations,
+        &format!("{name}: worst effector error per frame"),
+        "largest effector to goal distance",
+        &format!("{name}: iterations per frame"),
+    )
+}
+
+/// The charts of an IK track (chain or full body): the error (log scale) and the
+/// iterations per frame, as `<name>.error.svg` and `<name>.iterations.svg`; nothing for a
+/// single frame, which makes no line.
+fn frame_charts(
+    out: OutPath,
+    solver: &str,
+    error: &[f64],
+    iterations: &[usize],
+    error_title: &str,
+    error_axis: &str,
+    iterations_title: &str,
+) -> Result<(), String> {
+    if error.len() <= 1 {
+        return Ok(());
     }
-    Ok(())
+    let per_frame = |values: &mut dyn Iterator<Item = f64>| -> Vec<(f64, f64)> {
+        values.enumerate().map(|(k, v)| (k as f64, v)).collect()
+    };
+    let error = per_frame(&mut error.iter().copied());
+    let iterations = per_frame(&mut iterations.iter().map(|&i| i as f64));
+    let chart = |suffix: &str, title: &str, axis: &str, points: &[(f64, f64)], log: bool| {
+        line_chart_svg(
+            &out(suffix),
+            title,
+            "frame",
+            axis,
+            &[Series {
+                name: solver,
+                points,
+            }],
+            log,
+        )
+    };
+    chart("error.svg", error_title, error_axis, &error, true)?;
+    chart(
+        "iterations.svg",
+        iterations_title,
+        "iterations",
+        &iterations,
+        false,
+    )
 }
 
 /// The Sub-Task 4.1 picture: points at uniform parameter steps next to as many evenly
@@ -178,11 +145,7 @@ fn draw_curve(p: &CurvePictures, path: &Path) -> Result<(), String> {
 
 /// The animation, the last frame as a still, and charts of the total energy and the
 /// Newton iterations per step.
-fn draw_cloth(
-    name: &str,
-    p: &ClothPictures,
-    out: &dyn Fn(&str) -> std::path::PathBuf,
-) -> Result<(), String> {
+fn draw_cloth(name: &str, p: &ClothPictures, out: OutPath) -> Result<(), String> {
     // The view frames the cloth and every ball's extent (a ground is drawn under the
     // cloth only, so it does not widen the view).
     let ball_extents = p
@@ -211,14 +174,7 @@ fn draw_cloth(
         480,
         480,
     );
-    let frames: Vec<ClothFrame> = p
-        .frames
-        .iter()
-        .map(|f| ClothFrame {
-            positions: &f.positions,
-            colliders: &f.colliders,
-        })
-        .collect();
+    let frames: Vec<ClothFrame> = p.frames.iter().map(ClothFrame::from).collect();
     let fps = 15;
     cloth_gif(&out("gif"), &view, &frames, &p.springs, &p.fixed, 0.05, fps)?;
     if let Some(last) = frames.last() {

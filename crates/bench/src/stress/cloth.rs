@@ -4,7 +4,7 @@
 //! divergence, the energy and the Newton solve's work, and the invariants whose breach
 //! fails the run (docs/stress.md says which and why).
 
-use crate::workloads::{SplitMix64, in_ball};
+use crate::seeded::{SplitMix64, in_ball};
 use serde::Serialize;
 use sinew_labcheck::reference::springs::{
     combine, displacement_l1, gravity_energy, spring_energy, total_energy, velocity_change_energy,

@@ -281,7 +281,7 @@ pub fn run_case(case: &BodyCase, solver: &'static str) -> BodyOutcome {
         .sum::<f64>()
         .max(1.0)
         + state.root_translation.length();
-    outcome.fk_gap = crate::tasks::max_distance(&check.positions, &state.global.positions);
+    outcome.fk_gap = sinew_scene::tasks::max_distance(&check.positions, &state.global.positions);
     let worst = case
         .effectors
         .iter()

@@ -22,10 +22,10 @@ use sinew_spring_sim::{
 };
 use std::time::Instant;
 
-use crate::workloads::ClothWorkload as Workload;
+use sinew_scene::workloads::ClothWorkload as Workload;
 
 fn workloads(plan: &Plan) -> Result<Vec<Workload>, String> {
-    crate::workloads::cloth(plan.quick)
+    sinew_scene::workloads::cloth(plan.quick)
 }
 
 fn newton(tolerance: f64, linear_solver: LinearSolverChoice) -> NewtonSettings {

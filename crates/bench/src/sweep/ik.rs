@@ -7,12 +7,11 @@
 //! solve (W2) and covers the solves only.
 
 use super::{Metric, Metrics, Plan, Record, Section, Timing, measure, sci};
-use crate::workloads::{
-    w1_skeleton, w1_targets, w2_skeleton, w2_targets, w7_ball, w7_feasible, w7_skeleton,
-};
+use crate::seeded::{w2_targets, w7_ball, w7_feasible};
 use serde_json::json;
 use sinew_ik::SolverOptions;
 use sinew_math::{DQuat, DVec3};
+use sinew_scene::workloads::{w1_skeleton, w1_targets, w2_skeleton, w7_skeleton};
 use sinew_skeleton::ik::{Chain, IkSolver, SolveSettings, chain_limit_violation};
 use sinew_skeleton::{GlobalPose, Skeleton};
 

@@ -1,0 +1,92 @@
+//! A fixed amount of W8 work for an instruction counter: run with
+//! `valgrind --tool=callgrind target/release/examples/w8_count PART [COUNT] [SOLVER]`.
+//!
+//! PART is `cold` (COUNT goal sets, default 100, solved from the rest pose, as the `body`
+//! criterion bench's cold solves), `warm` (COUNT frames of the squat clip, default 600,
+//! warm-started) or `batch` (1 000 characters each solving one warm frame, COUNT times,
+//! default 1). SOLVER is a body solver name (default `fabrik`, the default solver). With
+//! a fixed amount of work, the instructions counted divided by COUNT are the cost of one
+//! solve, a figure that does not depend on the load of the machine the way a clock does.
+
+use sinew_ik_body::workload::{self, CLIP_FRAMES};
+use sinew_ik_body::{
+    BodyBatch, BodyEffector, BodyProblem, BodyReport, BodySolverOptions, BodyState,
+    TreeFabrikOptions,
+};
+use sinew_skeleton::ik::{SolveSettings, StopReason};
+use std::hint::black_box;
+
+fn main() {
+    let mut args = std::env::args().skip(1);
+    let part = args.next().unwrap_or_else(|| "cold".into());
+    let count: Option<usize> = args.next().map(|s| s.parse().expect("a count"));
+    let name = args.next().unwrap_or_else(|| "fabrik".into());
+    let skel = workload::humanoid().expect("valid");
+    let settings = SolveSettings::default();
+    let rest = BodyState::rest(&skel);
+    let mut solver = BodySolverOptions::by_name(&name)
+        .and_then(|o| o.build())
+        .expect("a body solver name");
+    let frames: Vec<[BodyEffector; 5]> = (0..CLIP_FRAMES)
+        .map(|f| workload::clip_frame(&rest.global, f))
+        .collect();
+    let mut within = 0;
+    let total;
+    match part.as_str() {
+        "cold" => {
+            total = count.unwrap_or(100);
+            let sets = workload::goal_sets(&skel, total, 8, false);
+            let mut state = rest.clone();
+            for set in &sets {
+                state.copy_pose_from(&rest.pose, rest.root_translation);
+                let problem =
+                    BodyProblem::new(&skel, &set.effectors, settings).with_root_translation(true);
+                let report = solver.solve(&problem, &mut state).expect("valid");
+                within += usize::from(report.within(&settings));
+                black_box(report);
+            }
+        }
+        "warm" => {
+            total = count.unwrap_or(CLIP_FRAMES);
+            let mut state = rest.clone();
+            for f in 0..total {
+                let problem = BodyProblem::new(&skel, &frames[f % CLIP_FRAMES], settings)
+                    .with_root_translation(true);
+                let report = solver.solve(&problem, &mut state).expect("valid");
+                within += usize::from(report.within(&settings));
+                black_box(report);
+            }
+        }
+        "batch" => {
+            total = count.unwrap_or(1);
+            let characters = 1000;
+            let mut states = vec![rest.clone(); characters];
+            let empty = BodyReport {
+                iterations: 0,
+                stop: StopReason::Stalled,
+                initial_cost: 0.0,
+                cost: 0.0,
+                max_error: 0.0,
+                max_rotation_error: 0.0,
+                limit_violation: 0.0,
+                restarted: false,
+            };
+            let mut reports = vec![empty; characters];
+            let mut batch = BodyBatch::new(TreeFabrikOptions::default()).expect("valid");
+            for step in 0..total {
+                let problems: Vec<BodyProblem<'_>> = (0..characters)
+                    .map(|c| {
+                        BodyProblem::new(&skel, &frames[(c * 7 + step) % CLIP_FRAMES], settings)
+                            .with_root_translation(true)
+                    })
+                    .collect();
+                batch
+                    .solve(&problems, &mut states, &mut reports, 1)
+                    .expect("valid");
+                within += reports.iter().filter(|r| r.within(&settings)).count();
+            }
+        }
+        other => panic!("unknown part {other}: cold, warm or batch"),
+    }
+    println!("{part} {name}: {within} within of {total}");
+}

@@ -1,0 +1,1249 @@
+//! The damped least-squares finish every IK solver of sinew ends with: Levenberg-Marquardt
+//! steps on the local rotations of a set of joints (and on a translation of the whole
+//! skeleton, when it may translate), over the residual of several effectors with position
+//! and rotation rows and weights, every trial projected onto the joint limits, with a
+//! sliding active set on the limits' bounds.
+//!
+//! The chain solvers (FABRIK, CCD) run it with one effector and the chain's joints
+//! ([`ChainFinish`]); the full-body solvers with every effector of the body and the joints
+//! above them ([`Movers::build`]). The derivation is in `docs/ik-finish.md`; in short:
+//!
+//! - Degrees of freedom, as world-frame axes: a free or swing-twist joint the three world
+//!   axes (a world rotation composed on the left of the joint's global rotation), a hinge
+//!   its axis turned into the world by its parent's global rotation (composed on the left
+//!   it stays a hinge rotation), a fixed joint none; the translation the three world axes.
+//! - A rotation dof with world axis `u` at joint position `p` moves effector `e` (below it)
+//!   by `u x (x_e - p)` and turns its frame by `u`, per radian; the effector's own joint
+//!   turns its frame only. A translation dof moves every effector by `u`. With the
+//!   weights on the rows, these are the columns of `J`.
+//! - The step solves `(J J^T + lambda I) y = r` (rows x rows, Cholesky) and moves each dof
+//!   by `J_k . y`. Every trial pose is projected onto the limits, so every pose the finish
+//!   accepts is inside them; a trial is kept only when it lowers the weighted cost and no
+//!   pinned effector moves further than the tolerance (or than it already was) from its
+//!   pin, so the cost never increases.
+//! - Active set: a hinge on a bound whose step points outwards is left out and the step
+//!   solved again; a swing-twist joint on its swing or twist bound whose step has a
+//!   component along the bound's outward normal loses that direction, so it slides along
+//!   the bound; after a rejected trial, the direction each clamped joint was pulled back
+//!   along is blocked the same way and the step recomputed. An accepted step frees every
+//!   joint again.
+//!
+//! It stops when every effector is within both tolerances, at the iteration cap, after
+//! `MAX_REJECTIONS` consecutive rejections, or after `CRAWL_STEPS` accepted steps that
+//! each gain almost nothing: a local minimum of the cost over the allowed set, which for
+//! conflicting goals is the weighted least-squares best.
+
+use crate::ik::{Chain, EffectorGoal, SolveSettings, StopReason, rotation_angle};
+use crate::limits::{JointLimit, LimitFrame};
+use crate::{GlobalPose, Pose, Skeleton, SkeletonError};
+use sinew_math::{DQuat, DVec3};
+
+/// The first damping is the smaller of this times the mean diagonal of `J J^T` and
+/// `COST_DAMPING` times the weighted cost.
+const INITIAL_DAMPING: f64 = 0.1;
+const COST_DAMPING: f64 = 0.1;
+/// Consecutive rejections before the finish declares a local minimum.
+const MAX_REJECTIONS: usize = 8;
+/// The damping's growth after any rejected trial (a rejection that blocked nothing grows
+/// it by 10 more).
+const CLAMP_GROWTH: f64 = 2.0;
+/// How much further than it may end a step may take a pinned effector from its pin.
+const PIN_SLACK: f64 = 1e4;
+/// Accepted steps in a row that each lower the cost by less than `CRAWL_GAIN` (relative)
+/// before the finish declares a local minimum.
+const CRAWL_STEPS: usize = 4;
+const CRAWL_GAIN: f64 = 0.02;
+/// A hinge angle this close to a bound (radians) counts as on it.
+const AT_BOUND: f64 = 1e-12;
+/// A projection that turns a joint by more than this (radians) counts as a clamp.
+const CLAMPED: f64 = 1e-12;
+/// How far inside both constraints of its limit (radians) a swing-twist joint counts as
+/// off its bounds without differencing: a thousand times the difference step, so the
+/// perturbed rotations cannot reach a bound.
+const DEEP_INSIDE: f64 = 1e-4;
+/// The dof "joint" index of the translation.
+const TRANSLATION: usize = usize::MAX;
+/// A movable joint without degrees of freedom (a fixed joint).
+const NO_DOF: usize = usize::MAX;
+/// Not a movable joint.
+const NONE: usize = usize::MAX;
+
+/// One effector's goal as the finish uses it: the weights final (a pinned effector's
+/// already scaled by its caller).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Target {
+    /// The effector's joint.
+    pub joint: usize,
+    /// Where the joint should be (world frame).
+    pub position: DVec3,
+    /// The global rotation it should have, normalized, if any.
+    pub rotation: Option<DQuat>,
+    /// The weight of the three position rows (> 0).
+    pub position_weight: f64,
+    /// The weight of the three rotation rows (>= 0; 0 leaves the rotation out).
+    pub rotation_weight: f64,
+    /// A pinned effector may not end further from its goal position than the tolerance
+    /// (or than it was when the finish started, if further).
+    pub pinned: bool,
+}
+
+impl Target {
+    /// The target of a goal: its rotation normalized, not pinned.
+    #[must_use]
+    pub fn from_goal(goal: &EffectorGoal) -> Self {
+        Self {
+            joint: goal.joint,
+            position: goal.position,
+            rotation: goal.rotation.map(DQuat::normalize),
+            position_weight: goal.position_weight,
+            rotation_weight: goal.rotation_weight,
+            pinned: false,
+        }
+    }
+
+    /// Whether the rotation goal takes part in the cost (a goal with weight 0 does not).
+    #[must_use]
+    pub fn has_rotation(&self) -> bool {
+        self.rotation.is_some() && self.rotation_weight > 0.0
+    }
+
+    /// Position and rotation errors at `global` (the rotation error 0 without a goal).
+    #[must_use]
+    pub fn errors(&self, global: &GlobalPose) -> (f64, f64) {
+        let position = global.positions[self.joint].distance(self.position);
+        let rotation = self
+            .rotation
+            .map_or(0.0, |q| rotation_angle(global.rotations[self.joint], q));
+        (position, rotation)
+    }
+
+    /// The world rotation vector from the effector's frame to the goal's (the shorter
+    /// way round), zero without a rotation goal.
+    #[must_use]
+    pub fn rotation_residual(&self, global: &GlobalPose) -> DVec3 {
+        match self.rotation {
+            Some(q) => {
+                let mut d = q * global.rotations[self.joint].conjugate();
+                if d.w < 0.0 {
+                    d = -d;
+                }
+                d.normalize().to_scaled_axis()
+            }
+            None => DVec3::ZERO,
+        }
+    }
+
+    /// This effector's term of the weighted cost,
+    /// `wp^2 |t - x|^2 + wr^2 |log(q g^-1)|^2`.
+    #[must_use]
+    pub fn cost(&self, global: &GlobalPose) -> f64 {
+        let position = (self.position - global.positions[self.joint]).length_squared();
+        let mut c = self.position_weight * self.position_weight * position;
+        if self.has_rotation() {
+            let w = self.rotation_weight;
+            c += w * w * self.rotation_residual(global).length_squared();
+        }
+        c
+    }
+}
+
+/// The weighted cost of every target at `global`, the quantity the finish decreases.
+#[must_use]
+pub fn total_cost(targets: &[Target], global: &GlobalPose) -> f64 {
+    targets.iter().map(|t| t.cost(global)).sum()
+}
+
+/// Whether every target is within the tolerances of `settings` at `global` (a rotation
+/// goal with weight 0 does not count).
+#[must_use]
+pub fn all_within(targets: &[Target], global: &GlobalPose, settings: &SolveSettings) -> bool {
+    targets.iter().all(|t| {
+        let (p, r) = t.errors(global);
+        p <= settings.tolerance && (!t.has_rotation() || r <= settings.rotation_tolerance)
+    })
+}
+
+/// Whether every pinned target is within `max(tolerance, allowed[e])` of its pin.
+#[must_use]
+pub fn pins_hold(targets: &[Target], global: &GlobalPose, tolerance: f64, allowed: &[f64]) -> bool {
+    targets.iter().zip(allowed).all(|(t, &allowed)| {
+        !t.pinned || global.positions[t.joint].distance(t.position) <= tolerance.max(allowed)
+    })
+}
+
+/// Forward kinematics of `pose` with every position moved by `translation`, from joint
+/// `from` and its descendants only when given (the rest of `out` must already be that of
+/// `pose`), else of the whole skeleton. A joint with a parent takes its position from the
+/// (already translated) parent, so only a root needs the whole computation.
+pub fn translated_forward_kinematics(
+    skeleton: &Skeleton,
+    pose: &Pose,
+    translation: DVec3,
+    from: Option<usize>,
+    out: &mut GlobalPose,
+) -> Result<(), SkeletonError> {
+    if let Some(joint) = from
+        && (skeleton.parent(joint).is_some() || translation == DVec3::ZERO)
+        && out.positions.len() == skeleton.len()
+    {
+        return skeleton.forward_kinematics_from(pose, joint, out);
+    }
+    skeleton.forward_kinematics(pose, out)?;
+    if translation != DVec3::ZERO {
+        for p in &mut out.positions {
+            *p += translation;
+        }
+    }
+    Ok(())
+}
+
+/// Which joints a finish turns, and which effectors each of them moves, as compressed
+/// lists. Built without allocation once its buffers have grown.
+///
+/// For a body ([`Movers::build`]) a joint moves an effector when it is a strict ancestor
+/// of the effector's joint (its rotation carries the effector's position and frame), or
+/// when it is the effector's own joint and the effector has a rotation goal (a joint's
+/// rotation turns its own frame but not its position); every other joint cannot change
+/// the cost. For a chain ([`Movers::chain`]) the chain's joints move its one effector.
+#[derive(Clone, Debug, Default)]
+pub struct Movers {
+    /// The movable joints, in increasing index (topological) order.
+    movable: Vec<usize>,
+    /// `below[start[m]..start[m + 1]]`: the effectors (indices into the targets, in
+    /// increasing order) that movable joint `m` moves.
+    start: Vec<usize>,
+    below: Vec<usize>,
+    /// Per joint: its index in `movable`, or `NONE`.
+    slot: Vec<usize>,
+    /// Per joint: how many effectors it moves (then a fill cursor).
+    count: Vec<usize>,
+}
+
+impl Movers {
+    /// Recomputes the lists for `targets` on `skeleton` (every ancestor of an effector,
+    /// and an effector's own joint when it has a rotation goal), in O(joints + sum of
+    /// effector depths).
+    pub fn build(&mut self, skeleton: &Skeleton, targets: &[Target]) {
+        let n = skeleton.len();
+        self.count.clear();
+        self.count.resize(n, 0);
+        let count = &mut self.count;
+        Self::walk(skeleton, targets, |j, _| count[j] += 1);
+        self.movable.clear();
+        self.slot.clear();
+        self.slot.resize(n, NONE);
+        self.start.clear();
+        let mut total = 0;
+        for j in 0..n {
+            if self.count[j] > 0 {
+                self.slot[j] = self.movable.len();
+                self.movable.push(j);
+                self.start.push(total);
+                total += self.count[j];
+                // From here on `count` is the fill cursor of the joint's list.
+                self.count[j] = self.start[self.slot[j]];
+            }
+        }
+        self.start.push(total);
+        self.below.clear();
+        self.below.resize(total, 0);
+        let below = &mut self.below;
+        let cursor = &mut self.count;
+        Self::walk(skeleton, targets, |j, e| {
+            below[cursor[j]] = e;
+            cursor[j] += 1;
+        });
+    }
+
+    /// The lists of a chain: the joints `movable` (in increasing order, each a descendant
+    /// of the one before) all move the one effector.
+    pub fn chain(&mut self, movable: &[usize]) {
+        self.movable.clear();
+        self.movable.extend_from_slice(movable);
+        self.start.clear();
+        self.start.extend(0..=movable.len());
+        self.below.clear();
+        self.below.resize(movable.len(), 0);
+        self.slot.clear();
+        self.count.clear();
+    }
+
+    /// The movable joints, in increasing index order.
+    #[must_use]
+    pub fn movable(&self) -> &[usize] {
+        &self.movable
+    }
+
+    /// The effectors (indices into the targets, increasing) movable joint `m` moves.
+    #[must_use]
+    pub fn below(&self, m: usize) -> &[usize] {
+        &self.below[self.start[m]..self.start[m + 1]]
+    }
+
+    /// The index in [`Movers::movable`] of joint `j` (after [`Movers::build`]), if it is
+    /// movable.
+    #[must_use]
+    pub fn slot(&self, j: usize) -> Option<usize> {
+        self.slot.get(j).copied().filter(|&m| m != NONE)
+    }
+
+    /// Calls `f(joint, effector)` for every joint that moves each effector, effectors in
+    /// order, so every joint's list comes out in increasing effector order.
+    fn walk(skeleton: &Skeleton, targets: &[Target], mut f: impl FnMut(usize, usize)) {
+        for (e, target) in targets.iter().enumerate() {
+            if target.has_rotation() {
+                f(target.joint, e);
+            }
+            let mut j = skeleton.parent(target.joint);
+            while let Some(k) = j {
+                f(k, e);
+                j = skeleton.parent(k);
+            }
+        }
+    }
+}
+
+/// What a finish works on, besides the pose.
+#[derive(Clone, Copy, Debug)]
+pub struct FinishJob<'a> {
+    /// The skeleton, with its joint limits.
+    pub skeleton: &'a Skeleton,
+    /// The joints the finish turns and the effectors each one moves.
+    pub movers: &'a Movers,
+    /// The effectors' goals, indexed as in `movers`.
+    pub targets: &'a [Target],
+    /// Whether the whole skeleton may translate (three more degrees of freedom).
+    pub translates: bool,
+    /// A joint whose subtree holds every movable joint, so that forward kinematics after
+    /// a step starts there; `None` recomputes the whole skeleton.
+    pub base: Option<usize>,
+    /// Tolerances and the iteration cap (the finish's steps count with `iterations`).
+    pub settings: SolveSettings,
+    /// Iterations the caller already spent.
+    pub iterations: usize,
+}
+
+/// What a finish did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Finished {
+    /// Why it stopped.
+    pub stop: StopReason,
+    /// Steps tried (accepted or not).
+    pub steps: usize,
+}
+
+/// The finish's buffers, owned by a solver so that a solve does not allocate once they
+/// have grown to the problem's size. See the [module docs](self).
+#[derive(Clone, Debug, Default)]
+pub struct Finish {
+    /// First residual row of each target.
+    first_row: Vec<usize>,
+    /// Degrees of freedom: movable joint slot (or `TRANSLATION`) and world axis.
+    dofs: Vec<(usize, DVec3)>,
+    /// Sparse columns: `entries[col_start[k]..col_start[k + 1]]` are (row, value) pairs of
+    /// dof `k`, rows increasing.
+    col_start: Vec<usize>,
+    entries: Vec<(usize, f64)>,
+    /// Lower triangle of `J J^T` over every degree of freedom at the linearization point
+    /// (rows x rows, row-major); the same without the frozen and blocked ones; and its
+    /// damped Cholesky factor.
+    normal_full: Vec<f64>,
+    normal: Vec<f64>,
+    /// Per movable joint: the index of its first degree of freedom (`NO_DOF` for a fixed
+    /// joint), and the world rotation vector of the current step.
+    first_dof: Vec<usize>,
+    turn: Vec<DVec3>,
+    /// The column of one blocked direction of a joint (see `reduce`).
+    combined: Vec<(usize, f64)>,
+    factor: Vec<f64>,
+    residual: Vec<f64>,
+    y: Vec<f64>,
+    step: Vec<f64>,
+    /// Per movable joint: frozen by the active set, and clamped by the last trial.
+    frozen: Vec<bool>,
+    clamped: Vec<bool>,
+    /// Per movable joint: the world directions of rotation the active set has blocked
+    /// (orthonormal, the first `blocked_count` of them), and the direction the last
+    /// trial's projection pulled the joint back along.
+    blocked: Vec<[DVec3; 2]>,
+    blocked_count: Vec<usize>,
+    pulled_back: Vec<DVec3>,
+    /// Per movable joint: whether the projection may have left it on its bound (it was
+    /// clamped by the last accepted trial, or the finish just started), and then the
+    /// outward normals of its swing bound and its twist range as local rotation vectors
+    /// (zero when off that bound).
+    on_bound: Vec<bool>,
+    outward: Vec<[DVec3; 2]>,
+    /// The movable joints' local rotations and the global pose before a trial.
+    saved: Vec<DQuat>,
+    saved_global: GlobalPose,
+    /// Per target: how far from its pin a pinned effector may end (its distance at the
+    /// start of the finish, or the tolerance if larger), and how far an intermediate
+    /// step may take it (`PIN_SLACK` times more).
+    pin_allowed: Vec<f64>,
+    pin_slack: Vec<f64>,
+    /// The best pose accepted so far with every pin within `pin_allowed`: the movable
+    /// joints' rotations, the translation, and its cost.
+    best: Vec<DQuat>,
+    best_translation: DVec3,
+    best_cost: f64,
+}
+
+/// The finish of a chain solver: the chain's one effector, turned by the chain's movable
+/// joints (every chain joint but the effector), forward kinematics from the chain's base.
+/// Owns its buffers, so a solve does not allocate once they have grown.
+#[derive(Clone, Debug, Default)]
+pub struct ChainFinish {
+    finish: Finish,
+    movers: Movers,
+    targets: Vec<Target>,
+    /// The chain joints' local rotations kept while a second seed is tried.
+    best: Vec<DQuat>,
+}
+
+impl ChainFinish {
+    /// The weighted cost of `goal` at `global` (see [`Target::cost`]), the quantity the
+    /// finish decreases.
+    #[must_use]
+    pub fn cost(goal: &EffectorGoal, global: &GlobalPose) -> f64 {
+        Target::from_goal(goal).cost(global)
+    }
+
+    /// Runs the finish once from `pose` (inside the limits, `global` its forward
+    /// kinematics), `iterations` already spent of `settings.max_iterations`.
+    ///
+    /// A rotation goal with weight 0 is left out of the cost; since the chain solvers'
+    /// reports still measure it against the rotation tolerance, a finish that met the
+    /// position but not such a rotation says [`StopReason::LocalMinimum`], not
+    /// [`StopReason::Converged`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn run(
+        &mut self,
+        skeleton: &Skeleton,
+        chain: &Chain,
+        goal: &EffectorGoal,
+        pose: &mut Pose,
+        global: &mut GlobalPose,
+        settings: &SolveSettings,
+        iterations: usize,
+    ) -> Result<Finished, SkeletonError> {
+        self.targets.clear();
+        self.targets.push(Target::from_goal(goal));
+        self.movers.chain(&chain.joints()[..chain.bone_count()]);
+        let job = FinishJob {
+            skeleton,
+            movers: &self.movers,
+            targets: &self.targets,
+            translates: false,
+            base: Some(chain.base()),
+            settings: *settings,
+            iterations,
+        };
+        let mut translation = DVec3::ZERO;
+        let mut finished = self.finish.run(&job, pose, &mut translation, global)?;
+        if finished.stop == StopReason::Converged
+            && goal.errors(global).1 > settings.rotation_tolerance
+        {
+            finished.stop = StopReason::LocalMinimum;
+        }
+        Ok(finished)
+    }
+
+    /// [`ChainFinish::run`], and when that ends in a local minimum of a chain with limits
+    /// with iterations left, once more from a second seed, every limited joint at the
+    /// centre of its range (hinge: the middle angle; swing-twist: no swing, the middle
+    /// twist; free joints keep their rotation); the better end is kept. Returns what the
+    /// finish did (steps of both runs) and whether it restarted.
+    #[allow(clippy::too_many_arguments)]
+    pub fn run_restarting(
+        &mut self,
+        skeleton: &Skeleton,
+        chain: &Chain,
+        goal: &EffectorGoal,
+        pose: &mut Pose,
+        global: &mut GlobalPose,
+        settings: &SolveSettings,
+        iterations: usize,
+    ) -> Result<(Finished, bool), SkeletonError> {
+        let first = self.run(skeleton, chain, goal, pose, global, settings, iterations)?;
+        let movable = &chain.joints()[..chain.bone_count()];
+        let has_limits = movable
+            .iter()
+            .any(|&j| !matches!(skeleton.limit(j), JointLimit::Free));
+        let mut finished = first;
+        if first.stop != StopReason::LocalMinimum
+            || !has_limits
+            || iterations + first.steps >= settings.max_iterations
+        {
+            return Ok((finished, false));
+        }
+        self.best.clear();
+        self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
+        let best_cost = Self::cost(goal, global);
+        for &j in movable {
+            if let Some(seed) = skeleton.limit(j).centre() {
+                pose.rotations[j] = seed;
+            }
+        }
+        skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+        let second = self.run(
+            skeleton,
+            chain,
+            goal,
+            pose,
+            global,
+            settings,
+            iterations + first.steps,
+        )?;
+        finished.steps += second.steps;
+        if Self::cost(goal, global) < best_cost {
+            finished.stop = second.stop;
+        } else {
+            for (&kept, &j) in self.best.iter().zip(movable) {
+                pose.rotations[j] = kept;
+            }
+            skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+        }
+        Ok((finished, true))
+    }
+}
+
+impl Finish {
+    /// Runs the finish from `pose` moved by `translation` (inside the limits, `global`
+    /// its exact forward kinematics) until every effector is within the tolerances,
+    /// `job.iterations + steps` reaches the cap, or steps stop helping. `translation`
+    /// only changes when `job.translates`.
+    pub fn run(
+        &mut self,
+        job: &FinishJob<'_>,
+        pose: &mut Pose,
+        translation: &mut DVec3,
+        global: &mut GlobalPose,
+    ) -> Result<Finished, SkeletonError> {
+        let (skeleton, targets, settings) = (job.skeleton, job.targets, &job.settings);
+        let movable = job.movers.movable();
+        self.first_row.clear();
+        let mut rows = 0;
+        for t in targets {
+            self.first_row.push(rows);
+            rows += if t.has_rotation() { 6 } else { 3 };
+        }
+        self.pin_allowed.clear();
+        self.pin_allowed.extend(targets.iter().map(|t| {
+            let d = global.positions[t.joint].distance(t.position);
+            if t.pinned {
+                d.max(settings.tolerance)
+            } else {
+                0.0
+            }
+        }));
+        self.pin_slack.clear();
+        self.pin_slack
+            .extend(self.pin_allowed.iter().map(|&a| a * PIN_SLACK));
+        self.best.clear();
+        self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
+        self.best_translation = *translation;
+        self.best_cost = total_cost(targets, global);
+        let finished = self.iterate(job, pose, translation, global, rows)?;
+        // A step may move a pin by up to the slack, so that one step can fix the other
+        // goals and the next bring the pin back; an ending that has not brought it back
+        // returns to the best pose that kept every pin.
+        if !pins_hold(targets, global, settings.tolerance, &self.pin_allowed) {
+            for (&saved, &j) in self.best.iter().zip(movable) {
+                pose.rotations[j] = saved;
+            }
+            *translation = self.best_translation;
+            translated_forward_kinematics(skeleton, pose, *translation, job.base, global)?;
+            return Ok(Finished {
+                stop: StopReason::LocalMinimum,
+                steps: finished.steps,
+            });
+        }
+        Ok(finished)
+    }
+
+    /// The steps of [`Finish::run`], with `rows` residual rows.
+    fn iterate(
+        &mut self,
+        job: &FinishJob<'_>,
+        pose: &mut Pose,
+        translation: &mut DVec3,
+        global: &mut GlobalPose,
+        rows: usize,
+    ) -> Result<Finished, SkeletonError> {
+        let (skeleton, targets, settings) = (job.skeleton, job.targets, &job.settings);
+        let movable = job.movers.movable();
+        self.frozen.clear();
+        self.frozen.resize(movable.len(), false);
+        self.clamped.clear();
+        self.clamped.resize(movable.len(), false);
+        self.blocked.clear();
+        self.blocked.resize(movable.len(), [DVec3::ZERO; 2]);
+        self.blocked_count.clear();
+        self.blocked_count.resize(movable.len(), 0);
+        self.pulled_back.clear();
+        self.pulled_back.resize(movable.len(), DVec3::ZERO);
+        self.on_bound.clear();
+        self.on_bound.resize(movable.len(), true);
+        self.outward.clear();
+        self.outward.resize(movable.len(), [DVec3::ZERO; 2]);
+        self.find_outward(skeleton, movable, pose);
+        self.normal.resize(rows * rows, 0.0);
+        self.normal_full.resize(rows * rows, 0.0);
+        self.factor.resize(rows * rows, 0.0);
+        self.turn.clear();
+        self.turn.resize(movable.len(), DVec3::ZERO);
+        self.residual.resize(rows, 0.0);
+        self.y.resize(rows, 0.0);
+        let mut cost = total_cost(targets, global);
+        let mut damping = f64::NAN;
+        let mut rejections = 0;
+        let mut crawl = 0;
+        let mut steps = 0;
+        let mut resolving = false;
+        // Whether the columns and `normal_full` are those of the current pose: a rejected
+        // trial or a change of the active set keeps them, only an accepted step moves
+        // the linearization point.
+        let mut fresh = false;
+        loop {
+            if all_within(targets, global, settings) {
+                return Ok(Finished {
+                    stop: StopReason::Converged,
+                    steps,
+                });
+            }
+            if job.iterations + steps >= settings.max_iterations {
+                return Ok(Finished {
+                    stop: StopReason::IterationCap,
+                    steps,
+                });
+            }
+            if rejections >= MAX_REJECTIONS || rows == 0 {
+                return Ok(Finished {
+                    stop: StopReason::LocalMinimum,
+                    steps,
+                });
+            }
+            if !fresh {
+                self.linearize(job, global);
+                self.accumulate_normal(rows);
+                fresh = true;
+            }
+            if !self.reduce(skeleton, movable, rows) {
+                return Ok(Finished {
+                    stop: StopReason::LocalMinimum,
+                    steps,
+                });
+            }
+            if damping.is_nan() {
+                let trace: f64 = (0..rows).map(|a| self.normal[a * rows + a]).sum();
+                // Far from the goals (a cold start) a cautious first step, near them (a warm
+                // frame) a nearly Gauss-Newton one: the damping follows the cost, as in
+                // Yamashita and Fukushima's choice `lambda = |r|^2`, capped by the scale
+                // of `J J^T`.
+                damping = (INITIAL_DAMPING * trace / rows as f64).min(COST_DAMPING * cost);
+            }
+            if !resolving {
+                steps += 1;
+            }
+            resolving = false;
+            if !self.solve(rows, damping) {
+                damping = damping.max(f64::MIN_POSITIVE) * 10.0;
+                rejections += 1;
+                continue;
+            }
+            let shift = self.turns(movable);
+            // A hinge is a box on its angle, so this part of the active set is exact: a
+            // hinge on a bound stepping outwards would be clamped back while the others
+            // moved as if it had turned. Leave it out and solve the same step again.
+            for (m, &j) in movable.iter().enumerate() {
+                if let JointLimit::Hinge(h) = skeleton.limit(j)
+                    && !self.frozen[m]
+                {
+                    let k = self.first_dof[m];
+                    if k != NO_DOF && h.pushes_outwards(pose.rotations[j], self.step[k], AT_BOUND) {
+                        self.frozen[m] = true;
+                        resolving = true;
+                    }
+                }
+            }
+            // The same for a swing-twist joint on its bound: the step's component along
+            // the bound's outward normal would be projected away; block that direction
+            // (the joint keeps sliding along the bound) and solve again.
+            for (m, &j) in movable.iter().enumerate() {
+                let w = self.turn[m];
+                if self.outward[m] == [DVec3::ZERO; 2] || w == DVec3::ZERO {
+                    continue;
+                }
+                let parent = skeleton
+                    .parent(j)
+                    .map_or(DQuat::IDENTITY, |p| global.rotations[p]);
+                let local = parent.conjugate() * w;
+                for g in 0..2 {
+                    let n = self.outward[m][g];
+                    if n != DVec3::ZERO && local.dot(n) > 0.0 && !self.frozen[m] {
+                        self.pulled_back[m] = parent * n;
+                        self.block(skeleton.limit(j), m);
+                        // Blocked once per linearization: the normal is not asked again.
+                        self.outward[m][g] = DVec3::ZERO;
+                        resolving = true;
+                        break;
+                    }
+                }
+            }
+            if resolving {
+                continue;
+            }
+            self.saved.clear();
+            self.saved
+                .extend(movable.iter().map(|&j| pose.rotations[j]));
+            let saved_translation = *translation;
+            self.saved_global.rotations.clone_from(&global.rotations);
+            self.saved_global.positions.clone_from(&global.positions);
+            self.apply_step(skeleton, movable, pose, global);
+            *translation += shift;
+            translated_forward_kinematics(skeleton, pose, *translation, job.base, global)?;
+            let trial_cost = total_cost(targets, global);
+            if trial_cost < cost && pins_hold(targets, global, settings.tolerance, &self.pin_slack)
+            {
+                if trial_cost < self.best_cost
+                    && pins_hold(targets, global, settings.tolerance, &self.pin_allowed)
+                {
+                    self.best.clear();
+                    self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
+                    self.best_translation = *translation;
+                    self.best_cost = trial_cost;
+                }
+                // Crawling along the bounds: accepted steps that each gain almost nothing
+                // are a local minimum in all but name; say so, so that the caller may
+                // restart, rather than spend the iterations.
+                if trial_cost > (1.0 - CRAWL_GAIN) * cost {
+                    crawl += 1;
+                } else {
+                    crawl = 0;
+                }
+                cost = trial_cost;
+                if crawl >= CRAWL_STEPS {
+                    return Ok(Finished {
+                        stop: StopReason::LocalMinimum,
+                        steps,
+                    });
+                }
+                damping /= 3.0;
+                rejections = 0;
+                fresh = false;
+                self.frozen.fill(false);
+                self.blocked_count.fill(0);
+                for (on, &clamped) in self.on_bound.iter_mut().zip(&self.clamped) {
+                    *on |= clamped;
+                }
+                self.find_outward(skeleton, movable, pose);
+                continue;
+            }
+            for (&saved, &j) in self.saved.iter().zip(movable) {
+                pose.rotations[j] = saved;
+            }
+            *translation = saved_translation;
+            global.rotations.clone_from(&self.saved_global.rotations);
+            global.positions.clone_from(&self.saved_global.positions);
+            // A rejected trial means the step was too long for the linearization or for
+            // the bounds: shorten the next one too, whether or not a joint was frozen;
+            // left out, the finish crawls along the bounds (`docs/ik-finish.md` has the
+            // measurements).
+            let mut newly_frozen = false;
+            damping *= CLAMP_GROWTH;
+            for (m, &j) in movable.iter().enumerate() {
+                if self.clamped[m] && !self.frozen[m] {
+                    self.block(skeleton.limit(j), m);
+                    newly_frozen = true;
+                }
+            }
+            if !newly_frozen {
+                damping = (damping * 10.0).max(f64::MIN_POSITIVE);
+                rejections += 1;
+            }
+        }
+    }
+
+    /// The residual and the sparse columns of the weighted Jacobian at `state`.
+    fn linearize(&mut self, job: &FinishJob<'_>, global: &GlobalPose) {
+        let (skeleton, targets) = (job.skeleton, job.targets);
+        for (t, &row) in targets.iter().zip(&self.first_row) {
+            let p = (t.position - global.positions[t.joint]) * t.position_weight;
+            self.residual[row..row + 3].copy_from_slice(&[p.x, p.y, p.z]);
+            if t.has_rotation() {
+                let r = t.rotation_residual(global) * t.rotation_weight;
+                self.residual[row + 3..row + 6].copy_from_slice(&[r.x, r.y, r.z]);
+            }
+        }
+        self.dofs.clear();
+        self.col_start.clear();
+        self.entries.clear();
+        self.first_dof.clear();
+        for (m, &j) in job.movers.movable().iter().enumerate() {
+            let axes: [DVec3; 3];
+            let axes: &[DVec3] = match skeleton.limit(j) {
+                JointLimit::Fixed => &[],
+                JointLimit::Hinge(h) => {
+                    let parent = skeleton
+                        .parent(j)
+                        .map_or(DQuat::IDENTITY, |p| global.rotations[p]);
+                    axes = [(parent * h.axis).normalize(), DVec3::ZERO, DVec3::ZERO];
+                    &axes[..1]
+                }
+                // The world axes: exact for a rotation composed on the left, and never
+                // short of rank, where the limit's own frame would be at a quarter-turn
+                // swing.
+                JointLimit::Free | JointLimit::SwingTwist(_) => &[DVec3::X, DVec3::Y, DVec3::Z],
+            };
+            self.first_dof.push(if axes.is_empty() {
+                NO_DOF
+            } else {
+                self.dofs.len()
+            });
+            let at = global.positions[j];
+            for &u in axes {
+                self.col_start.push(self.entries.len());
+                self.dofs.push((m, u));
+                for &e in job.movers.below(m) {
+                    let t = &targets[e];
+                    let row = self.first_row[e];
+                    if t.joint != j {
+                        let v = u.cross(global.positions[t.joint] - at) * t.position_weight;
+                        self.entries
+                            .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
+                    }
+                    if t.has_rotation() {
+                        let w = u * t.rotation_weight;
+                        self.entries
+                            .extend([(row + 3, w.x), (row + 4, w.y), (row + 5, w.z)]);
+                    }
+                }
+            }
+        }
+        if job.translates {
+            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
+                self.col_start.push(self.entries.len());
+                self.dofs.push((TRANSLATION, u));
+                for (t, &row) in targets.iter().zip(&self.first_row) {
+                    let v = u * t.position_weight;
+                    self.entries
+                        .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
+                }
+            }
+        }
+        self.col_start.push(self.entries.len());
+    }
+
+    /// The outward normal of the bound of every swing-twist joint that may sit on it,
+    /// as a local rotation vector, by one-sided differences of the limit's violation
+    /// (0 inside, growing linearly outside): zero for a joint inside its limit.
+    fn find_outward(&mut self, skeleton: &Skeleton, movable: &[usize], pose: &Pose) {
+        const H: f64 = 1e-7;
+        for (m, &j) in movable.iter().enumerate() {
+            self.outward[m] = [DVec3::ZERO; 2];
+            if !self.on_bound[m] {
+                continue;
+            }
+            let JointLimit::SwingTwist(st) = skeleton.limit(j) else {
+                self.on_bound[m] = false;
+                continue;
+            };
+            // The swing bound and the twist range are two constraints, which can both
+            // be active (a corner): one normal each, from the violation of the limit with
+            // the other one opened up (the two parts of one decomposition).
+            let frame = LimitFrame::of(st);
+            let local = pose.rotations[j];
+            // A joint well inside its limit has both normals exactly zero (every
+            // perturbed rotation is inside): one decomposition tells, instead of six.
+            // Most joints of a warm frame are.
+            if st.deep_inside(&frame, local, DEEP_INSIDE) {
+                self.on_bound[m] = false;
+                continue;
+            }
+            let mut normals = [DVec3::ZERO; 2];
+            for e in [DVec3::X, DVec3::Y, DVec3::Z] {
+                let plus = st.violation_parts_in(&frame, DQuat::from_scaled_axis(e * H) * local);
+                let minus = st.violation_parts_in(&frame, DQuat::from_scaled_axis(e * -H) * local);
+                normals[0] += e * (plus.0 - minus.0);
+                normals[1] += e * (plus.1 - minus.1);
+            }
+            self.outward[m] = normals.map(|n| n.try_normalize().unwrap_or(DVec3::ZERO));
+            // Off both bounds: no longer watched until a projection clamps it again.
+            self.on_bound[m] = self.outward[m] != [DVec3::ZERO; 2];
+        }
+    }
+
+    /// Blocks, after a rejected trial that clamped movable joint `m`, the direction its
+    /// projection pulled it back along: a hinge (one axis) is frozen; a free or
+    /// swing-twist joint loses that one direction of rotation and keeps sliding along
+    /// its bound in the others, until a third direction would be blocked.
+    fn block(&mut self, limit: &JointLimit, m: usize) {
+        if !matches!(limit, JointLimit::SwingTwist(_)) {
+            self.frozen[m] = true;
+            return;
+        }
+        let mut d = self.pulled_back[m];
+        for b in &self.blocked[m][..self.blocked_count[m]] {
+            d -= *b * b.dot(d);
+        }
+        match (d.try_normalize(), self.blocked_count[m]) {
+            (Some(unit), count)
+                if count < 2 && d.length() > 1e-3 * self.pulled_back[m].length() =>
+            {
+                self.blocked[m][count] = unit;
+                self.blocked_count[m] = count + 1;
+            }
+            _ => self.frozen[m] = true,
+        }
+    }
+
+    /// `J J^T` (lower triangle) from the sparse columns.
+    fn accumulate_normal(&mut self, rows: usize) {
+        self.normal_full[..rows * rows].fill(0.0);
+        for k in 0..self.dofs.len() {
+            let col = &self.entries[self.col_start[k]..self.col_start[k + 1]];
+            for (i, &(a, va)) in col.iter().enumerate() {
+                let line = &mut self.normal_full[a * rows..a * rows + a + 1];
+                for &(b, vb) in &col[..=i] {
+                    line[b] += va * vb;
+                }
+            }
+        }
+    }
+
+    /// `J J^T` over the active degrees of freedom into `normal`: `normal_full` less the
+    /// columns of the frozen joints and, for a joint with blocked directions `b`, less
+    /// `c(b) c(b)^T` (its three world-axis columns `C` span `C C^T`, and the allowed
+    /// directions `P = I - sum b b^T` leave `C P C^T`). False when nothing may move.
+    fn reduce(&mut self, skeleton: &Skeleton, movable: &[usize], rows: usize) -> bool {
+        self.normal[..rows * rows].copy_from_slice(&self.normal_full[..rows * rows]);
+        let mut active = self.dofs.last().is_some_and(|d| d.0 == TRANSLATION);
+        for (m, &j) in movable.iter().enumerate() {
+            let k0 = self.first_dof[m];
+            if k0 == NO_DOF {
+                continue;
+            }
+            let count = match skeleton.limit(j) {
+                JointLimit::Hinge(_) => 1,
+                _ => 3,
+            };
+            if self.frozen[m] {
+                for k in k0..k0 + count {
+                    let (a, b) = (self.col_start[k], self.col_start[k + 1]);
+                    subtract_outer(&mut self.normal, rows, &self.entries[a..b]);
+                }
+                continue;
+            }
+            active = true;
+            for i in 0..self.blocked_count[m] {
+                let d = self.blocked[m][i];
+                let (x, y, z, end) = (
+                    self.col_start[k0],
+                    self.col_start[k0 + 1],
+                    self.col_start[k0 + 2],
+                    self.col_start[k0 + 3],
+                );
+                // The column of the blocked direction, made once: the outer product
+                // reads each entry as often as the column has rows.
+                self.combined.clear();
+                self.combined.extend(
+                    self.entries[x..y]
+                        .iter()
+                        .zip(&self.entries[y..z])
+                        .zip(&self.entries[z..end])
+                        .map(|((&(row, vx), &(_, vy)), &(_, vz))| {
+                            (row, d.x * vx + d.y * vy + d.z * vz)
+                        }),
+                );
+                subtract_outer(&mut self.normal, rows, &self.combined);
+            }
+        }
+        active
+    }
+
+    /// The step of every degree of freedom (`J_k . y`), and from them each movable joint's
+    /// world rotation vector (zero when frozen, its blocked directions projected out);
+    /// returns the translation's step.
+    fn turns(&mut self, movable: &[usize]) -> DVec3 {
+        self.step.clear();
+        let (entries, y) = (&self.entries, &self.y);
+        self.step.extend(self.col_start.windows(2).map(|w| {
+            entries[w[0]..w[1]]
+                .iter()
+                .map(|&(row, v)| v * y[row])
+                .sum::<f64>()
+        }));
+        let mut shift = DVec3::ZERO;
+        self.turn.fill(DVec3::ZERO);
+        for (&(m, u), &s) in self.dofs.iter().zip(&self.step) {
+            if m == TRANSLATION {
+                shift += u * s;
+            } else if !self.frozen[m] {
+                self.turn[m] += u * s;
+            }
+        }
+        for m in 0..movable.len() {
+            for i in 0..self.blocked_count[m] {
+                let b = self.blocked[m][i];
+                let w = self.turn[m];
+                self.turn[m] = w - b * b.dot(w);
+            }
+        }
+        shift
+    }
+
+    /// Solves `(J J^T + damping I) y = residual` by Cholesky into `self.y`; false when a
+    /// pivot is not a positive finite number.
+    fn solve(&mut self, rows: usize, damping: f64) -> bool {
+        // Row slices rather than indexing, so the inner products carry no bounds checks;
+        // the sums run in the same order as the textbook loops.
+        let n = &self.normal[..rows * rows];
+        let l = &mut self.factor[..rows * rows];
+        for a in 0..rows {
+            let (above, from_a) = l.split_at_mut(a * rows);
+            let row_a = &mut from_a[..rows];
+            for b in 0..a {
+                let row_b = &above[b * rows..b * rows + b + 1];
+                let mut sum = n[a * rows + b];
+                for (x, y) in row_a[..b].iter().zip(&row_b[..b]) {
+                    sum -= x * y;
+                }
+                row_a[b] = sum / row_b[b];
+            }
+            let mut sum = n[a * rows + a] + damping;
+            for x in &row_a[..a] {
+                sum -= x * x;
+            }
+            if !(sum.is_finite() && sum > 0.0) {
+                return false;
+            }
+            row_a[a] = sum.sqrt();
+        }
+        let y = &mut self.y[..rows];
+        for a in 0..rows {
+            let row_a = &l[a * rows..=a * rows + a];
+            let mut sum = self.residual[a];
+            for (x, v) in row_a[..a].iter().zip(&y[..a]) {
+                sum -= x * v;
+            }
+            y[a] = sum / row_a[a];
+        }
+        for a in (0..rows).rev() {
+            let mut sum = y[a];
+            let column = l[a * rows + a..].iter().step_by(rows).skip(1);
+            for (x, v) in column.zip(&y[a + 1..]) {
+                sum -= x * v;
+            }
+            y[a] = sum / l[a * rows + a];
+        }
+        y.iter().all(|v| v.is_finite())
+    }
+
+    /// Turns each movable joint by its step `turn` (world axes taken into the parent's
+    /// frame of the linearization, `global`) and projects it onto its limit.
+    fn apply_step(
+        &mut self,
+        skeleton: &Skeleton,
+        movable: &[usize],
+        pose: &mut Pose,
+        global: &GlobalPose,
+    ) {
+        self.clamped.fill(false);
+        for (m, &j) in movable.iter().enumerate() {
+            let w = self.turn[m];
+            if w == DVec3::ZERO {
+                continue;
+            }
+            let local = match skeleton.parent(j) {
+                Some(p) => global.rotations[p].conjugate() * w,
+                None => w,
+            };
+            let turned = (DQuat::from_scaled_axis(local) * pose.rotations[j]).normalize();
+            let limit = skeleton.limit(j);
+            if matches!(limit, JointLimit::Free) {
+                pose.rotations[j] = turned;
+            } else {
+                let projected = limit.project(turned);
+                // A rotation inside its limit comes back unchanged; only one that moved
+                // needs its angle measured.
+                self.clamped[m] =
+                    projected != turned && rotation_angle(turned, projected) > CLAMPED;
+                if self.clamped[m] {
+                    // The pull-back as a world rotation vector: composed on the left in the
+                    // parent's frame, then turned into the world like the step.
+                    let mut back = projected * turned.conjugate();
+                    if back.w < 0.0 {
+                        back = -back;
+                    }
+                    let back = back.to_scaled_axis();
+                    self.pulled_back[m] = match skeleton.parent(j) {
+                        Some(p) => global.rotations[p] * back,
+                        None => back,
+                    };
+                }
+                pose.rotations[j] = projected;
+            }
+        }
+    }
+}
+
+/// Subtracts the outer product of a sparse column (rows increasing) from the lower
+/// triangle of a rows x rows matrix.
+fn subtract_outer(matrix: &mut [f64], rows: usize, column: &[(usize, f64)]) {
+    for (i, &(a, va)) in column.iter().enumerate() {
+        let line = &mut matrix[a * rows..=a * rows + a];
+        for &(b, vb) in &column[..=i] {
+            line[b] -= va * vb;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_joint_deep_inside_its_limit_has_no_bound_within_the_difference_step() {
+        let st = crate::limits::SwingTwist {
+            twist_axis: DVec3::X,
+            a_axis: DVec3::Z,
+            swing_a: 1.2,
+            swing_b: 0.5,
+            twist_min: -0.4,
+            twist_max: 0.9,
+        };
+        let frame = LimitFrame::of(&st);
+        let (mut deep, mut near) = (0, 0);
+        for k in 0..2000 {
+            let t = k as f64;
+            let axis = DVec3::new((t * 0.71).sin(), (t * 0.29).cos(), (t * 0.13).sin());
+            let q = DQuat::from_scaled_axis(axis * (0.2 + (t * 0.007) % 1.0));
+            if st.deep_inside(&frame, q, DEEP_INSIDE) {
+                deep += 1;
+                // Each rotation the differences of `find_outward` evaluate is inside.
+                for e in [DVec3::X, DVec3::Y, DVec3::Z] {
+                    for h in [1e-7, -1e-7] {
+                        let moved = DQuat::from_scaled_axis(e * h) * q;
+                        assert_eq!(st.violation_parts(moved), (0.0, 0.0), "{q}");
+                    }
+                }
+            } else if st.violation_parts(q) == (0.0, 0.0) {
+                near += 1;
+            }
+        }
+        // Both kinds occur: joints deep inside, and joints inside but near a bound (or
+        // off the inscribed disc), which are left to the differences.
+        assert!(deep > 100 && near > 100, "{deep} {near}");
+    }
+
+    #[test]
+    fn a_chain_s_joints_all_move_its_effector() {
+        let mut movers = Movers::default();
+        movers.chain(&[2, 3, 4]);
+        assert_eq!(movers.movable(), [2, 3, 4]);
+        for m in 0..3 {
+            assert_eq!(movers.below(m), [0]);
+        }
+    }
+
+    #[test]
+    #[allow(clippy::needless_range_loop)]
+    fn the_normal_matrix_is_j_j_transpose_and_the_solve_inverts_it() {
+        let mut fin = Finish::default();
+        let rows = 4;
+        fin.dofs = vec![(0, DVec3::X), (1, DVec3::Y), (2, DVec3::Z)];
+        fin.col_start = vec![0, 2, 5, 7];
+        fin.entries = vec![
+            (0, 1.0),
+            (2, -2.0),
+            (0, 0.5),
+            (1, 3.0),
+            (3, 1.5),
+            (2, 0.25),
+            (3, -1.0),
+        ];
+        fin.normal_full.resize(rows * rows, 0.0);
+        fin.normal.resize(rows * rows, 0.0);
+        fin.factor.resize(rows * rows, 0.0);
+        fin.accumulate_normal(rows);
+        fin.normal.copy_from_slice(&fin.normal_full);
+        // Dense J, rows x dofs.
+        let mut j = [[0.0; 3]; 4];
+        for k in 0..3 {
+            for &(r, v) in &fin.entries[fin.col_start[k]..fin.col_start[k + 1]] {
+                j[r][k] = v;
+            }
+        }
+        for a in 0..rows {
+            for b in 0..=a {
+                let expected: f64 = (0..3).map(|k| j[a][k] * j[b][k]).sum();
+                assert!((fin.normal[a * rows + b] - expected).abs() < 1e-15);
+            }
+        }
+        fin.residual = vec![1.0, -2.0, 0.5, 3.0];
+        fin.y.resize(rows, 0.0);
+        let damping = 0.1;
+        assert!(fin.solve(rows, damping));
+        for a in 0..rows {
+            let mut back = damping * fin.y[a];
+            for b in 0..rows {
+                let n: f64 = (0..3).map(|k| j[a][k] * j[b][k]).sum();
+                back += n * fin.y[b];
+            }
+            assert!((back - fin.residual[a]).abs() < 1e-12, "row {a}");
+        }
+        // J J^T is singular here (rank 3 of 4): without damping there is no solution,
+        // and the solve says so instead of returning NaN.
+        assert!(!fin.solve(rows, 0.0) || fin.y.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    #[allow(clippy::field_reassign_with_default)]
+    fn blocking_a_direction_leaves_the_normal_matrix_of_the_other_two() {
+        // One swing-twist joint with world-axis columns over 3 rows; blocking `b` must
+        // leave exactly the normal matrix of two columns along a basis orthogonal to `b`.
+        let limit = JointLimit::cone(DVec3::X, 1.0).unwrap();
+        let skel = Skeleton::new([crate::JointDef {
+            limit,
+            ..Default::default()
+        }])
+        .unwrap();
+        let cols = [[0.3, -1.2, 0.5], [1.1, 0.4, -0.7], [-0.2, 0.9, 1.3]];
+        let rows = 3;
+        let mut fin = Finish::default();
+        fin.dofs = vec![(0, DVec3::X), (0, DVec3::Y), (0, DVec3::Z)];
+        fin.col_start = vec![0, 3, 6, 9];
+        fin.entries = cols
+            .iter()
+            .flat_map(|c| (0..3).map(move |r| (r, c[r])))
+            .collect();
+        fin.first_dof = vec![0];
+        fin.frozen = vec![false];
+        let b = DVec3::new(1.0, 2.0, -2.0) / 3.0;
+        fin.blocked = vec![[b, DVec3::ZERO]];
+        fin.blocked_count = vec![1];
+        fin.normal_full.resize(9, 0.0);
+        fin.normal.resize(9, 0.0);
+        fin.accumulate_normal(rows);
+        assert!(fin.reduce(&skel, &[0], rows));
+        let column = |u: DVec3| -> [f64; 3] {
+            std::array::from_fn(|r| u.x * cols[0][r] + u.y * cols[1][r] + u.z * cols[2][r])
+        };
+        let (u, v) = b.any_orthonormal_pair();
+        let (cu, cv) = (column(u), column(v));
+        for a in 0..rows {
+            for c in 0..=a {
+                let expected = cu[a] * cu[c] + cv[a] * cv[c];
+                assert!(
+                    (fin.normal[a * rows + c] - expected).abs() < 1e-14,
+                    "{a} {c}"
+                );
+            }
+        }
+        // Frozen: nothing of the joint is left.
+        fin.frozen = vec![true];
+        assert!(!fin.reduce(&skel, &[0], rows));
+        assert!(fin.normal.iter().all(|x| x.abs() < 1e-14));
+    }
+}

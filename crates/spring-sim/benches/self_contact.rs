@@ -1,0 +1,109 @@
+//! Self-contact cost: a sheet dropped onto a sheet pinned along its border below it
+//! (both `n x n`, spacing 5 cm and 4 cm, the top one 2 cm up and turned by 0.1 rad;
+//! `dhat` 2 mm, thickness 1 mm, h = 1/60, backward Euler with the default Newton
+//! settings), stepped 45 times, with the Hessian pattern widened after every step by the
+//! pairs contact coupled (`widen_pattern`) and without. Prints, per `n`, the wall time
+//! per step and per vertex per step, the Newton iterations, and the active pairs at the
+//! end. Not a criterion
+//! benchmark: a table for docs/contact.md, run with
+//! `cargo bench -p sinew-spring-sim --bench self_contact [-- n...]`.
+
+use sinew_math::DVec3;
+use sinew_spring_sim::contact::self_contact::{SelfContactSettings, widen_pattern};
+use sinew_spring_sim::{Bending, ClothGrid, Material, MeshCloth, NewtonSettings, TriangleMesh};
+use std::time::Instant;
+
+fn grid(
+    n: usize,
+    origin: DVec3,
+    u: DVec3,
+    w: DVec3,
+    s: f64,
+    offset: usize,
+) -> (Vec<DVec3>, Vec<[usize; 3]>) {
+    let x = (0..n)
+        .flat_map(|i| (0..n).map(move |j| origin + s * (i as f64 * u + j as f64 * w)))
+        .collect();
+    let grid = ClothGrid {
+        size: n,
+        ..ClothGrid::lab()
+    };
+    let t = grid
+        .triangles()
+        .into_iter()
+        .map(|t| t.map(|v| v + offset))
+        .collect();
+    (x, t)
+}
+
+fn main() {
+    let sizes: Vec<usize> = std::env::args()
+        .skip(1)
+        .filter_map(|a| a.parse().ok())
+        .collect();
+    let sizes = if sizes.is_empty() { vec![7, 12] } else { sizes };
+    println!(
+        "| n | vertices | pattern widened | steps | Newton iterations | active pairs (end) | ms per step | us per vertex per step |"
+    );
+    println!("|---|---:|---|---:|---:|---:|---:|---:|");
+    for (n, widen) in sizes.iter().flat_map(|&n| [(n, true), (n, false)]) {
+        let s = 0.05 * 7.0 / n as f64;
+        let (mut x, mut t) = grid(n, DVec3::ZERO, DVec3::X, DVec3::Z, s, 0);
+        let (turn_u, turn_w) = (
+            DVec3::new(0.995, 0.0, 0.0998),
+            DVec3::new(-0.0998, 0.0, 0.995),
+        );
+        let (xt, tt) = grid(
+            n,
+            DVec3::new(0.03, 0.02, 0.02),
+            turn_u,
+            turn_w,
+            0.8 * s,
+            x.len(),
+        );
+        x.extend(xt);
+        t.extend(tt);
+        let fixed: Vec<usize> = (0..n * n)
+            .filter(|k| k / n == 0 || k / n == n - 1 || k % n == 0 || k % n == n - 1)
+            .collect();
+        let mesh = TriangleMesh::new(x, t).unwrap();
+        let cloth = MeshCloth {
+            areal_density: 0.2,
+            material: Material {
+                stiffness: 500.0,
+                damping: 0.1,
+                gravity: DVec3::new(0.0, -9.81, 0.0),
+            },
+            bending: Bending::None,
+            fixed,
+        };
+        let model = cloth.build(&mesh).unwrap();
+        let mut be = model.backward_euler(NewtonSettings::default()).unwrap();
+        let settings = SelfContactSettings {
+            dhat: 2e-3,
+            thickness: 1e-3,
+            ..SelfContactSettings::default()
+        };
+        let stats = model.enable_self_contact(&mut be, settings).unwrap();
+        let mut system = model.system.clone();
+        let steps = 45;
+        let mut iterations = 0;
+        let start = Instant::now();
+        for _ in 0..steps {
+            let report = be.step(&mut system, 1.0 / 60.0).unwrap();
+            iterations += report.iterations;
+            if widen {
+                widen_pattern(&mut be, &system, &stats).unwrap();
+            }
+        }
+        let elapsed = start.elapsed().as_secs_f64();
+        let verts = system.len();
+        println!(
+            "| {n} | {verts} | {} | {steps} | {iterations} | {} | {:.1} | {:.1} |",
+            if widen { "yes" } else { "no" },
+            stats.active_pairs(),
+            1e3 * elapsed / steps as f64,
+            1e6 * elapsed / (steps * verts) as f64
+        );
+    }
+}

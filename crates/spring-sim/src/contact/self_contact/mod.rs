@@ -1,0 +1,33 @@
+//! Self-contact of triangle-mesh cloth after IPC (Li et al. 2020) and its codimensional
+//! extension C-IPC (Li et al. 2021): every vertex against every triangle it is not part
+//! of, and every edge against every edge it shares no vertex with, kept apart by the log
+//! barrier on their distance minus the cloth's thickness, with a line search capped by
+//! continuous collision detection so no state the minimization visits has two triangles
+//! crossing.
+//!
+//! - [`dual`]: the second-order forward-mode dual number the distances are
+//!   differentiated with.
+//! - [`distance`]: point-triangle and edge-edge squared distances, their regions, exact
+//!   gradients and Hessians, and the mollifier for nearly parallel edges.
+//! - [`broad`]: the broad phase, a spatial hash over the primitives' (swept) boxes.
+//! - [`ccd`]: additive continuous collision detection over a linear step.
+//! - [`psd12`]: the positive semidefinite projection of a pair's 12x12 Hessian.
+//! - [`term`]: [`SelfContactTerm`], the barrier as a term of backward Euler's
+//!   minimization, and [`enable_self_contact`].
+//!
+//! Derivations: docs/contact.md.
+
+pub mod broad;
+pub mod ccd;
+pub mod distance;
+pub mod dual;
+pub mod psd12;
+pub mod term;
+
+pub use broad::{Candidate, Primitives, candidates};
+pub use ccd::additive_ccd;
+pub use distance::{Closest, PairKind, squared_distance, squared_distance_derivatives};
+pub use dual::Dual12;
+pub use term::{
+    SelfContactSettings, SelfContactStats, SelfContactTerm, enable_self_contact, widen_pattern,
+};

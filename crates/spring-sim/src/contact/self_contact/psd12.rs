@@ -1,0 +1,138 @@
+//! The projection of a symmetric 12x12 matrix (a contact pair's Hessian) onto positive
+//! semidefinite matrices: cyclic Jacobi rotations give the eigen-decomposition, negative
+//! eigenvalues are replaced by zero.
+//!
+//! Jacobi is chosen for the same reason as for the 3x3 blocks ([`crate::contact::psd`]):
+//! it is accurate for repeated and nearly repeated eigenvalues, which a pair's Hessian
+//! has (most of its twelve eigenvalues are zero), and it needs no library.
+
+use super::dual::VARIABLES;
+
+/// A symmetric 12x12 matrix, rows of columns.
+pub type Mat12 = [[f64; VARIABLES]; VARIABLES];
+
+/// Largest number of sweeps; a sweep reduces the off-diagonal mass quadratically once it
+/// is small, and 12x12 matrices converge in well under 15, so this guards only against
+/// non-finite input.
+const MAX_SWEEPS: usize = 50;
+
+/// The eigenvalues and the eigenvectors (as the columns of the returned matrix) of the
+/// symmetric part of `m`.
+#[must_use]
+pub fn symmetric_eigen12(m: &Mat12) -> ([f64; VARIABLES], Mat12) {
+    let all: [usize; VARIABLES] = std::array::from_fn(|i| i);
+    symmetric_eigen_on(m, &all)
+}
+
+/// The eigen-decomposition of the principal submatrix of `m` on the rows and columns
+/// `index` (the first `index.len()` eigenvalues and eigenvector columns of the result;
+/// eigenvector `k`'s entry for `index[i]` is at row `i`).
+// Index loops over rows and columns read as the matrix formulas they implement.
+#[allow(clippy::needless_range_loop)]
+fn symmetric_eigen_on(m: &Mat12, index: &[usize]) -> ([f64; VARIABLES], Mat12) {
+    let n = index.len();
+    let mut a = [[0.0; VARIABLES]; VARIABLES];
+    for i in 0..n {
+        for j in 0..=i {
+            let s = 0.5 * (m[index[i]][index[j]] + m[index[j]][index[i]]);
+            a[i][j] = s;
+            a[j][i] = s;
+        }
+    }
+    let mut v = [[0.0; VARIABLES]; VARIABLES];
+    for i in 0..n {
+        v[i][i] = 1.0;
+    }
+    let scale: f64 = a.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
+    // Converged when the off-diagonal part is below 1e-14 of the matrix: the projected
+    // matrix is then within that relative distance of the exact projection.
+    let tol = (1e-14 * scale).powi(2);
+    for _ in 0..MAX_SWEEPS {
+        let mut off = 0.0;
+        for i in 0..n {
+            for j in 0..i {
+                off += a[i][j] * a[i][j];
+            }
+        }
+        if !(off.is_finite() && off > tol) {
+            break;
+        }
+        for p in 0..n {
+            for q in p + 1..n {
+                let apq = a[p][q];
+                // An entry far below the off-diagonal target is not worth a rotation.
+                if apq * apq <= 1e-4 * tol / (n * n) as f64 {
+                    continue;
+                }
+                // The rotation that zeroes a[p][q], with |angle| <= pi/4 for stability.
+                let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
+                let t = if theta.abs() > 1e150 {
+                    0.5 / theta
+                } else {
+                    theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt())
+                };
+                let c = 1.0 / (t * t + 1.0).sqrt();
+                let s = t * c;
+                for row in a.iter_mut().take(n) {
+                    let (rp, rq) = (row[p], row[q]);
+                    row[p] = c * rp - s * rq;
+                    row[q] = s * rp + c * rq;
+                }
+                for k in 0..n {
+                    let (rp, rq) = (a[p][k], a[q][k]);
+                    a[p][k] = c * rp - s * rq;
+                    a[q][k] = s * rp + c * rq;
+                }
+                a[p][q] = 0.0;
+                a[q][p] = 0.0;
+                for row in v.iter_mut().take(n) {
+                    let (vp, vq) = (row[p], row[q]);
+                    row[p] = c * vp - s * vq;
+                    row[q] = s * vp + c * vq;
+                }
+            }
+        }
+    }
+    (
+        std::array::from_fn(|i| if i < n { a[i][i] } else { 0.0 }),
+        v,
+    )
+}
+
+/// The positive semidefinite matrix nearest to the symmetric part of `m` in the
+/// Frobenius norm: eigenvectors kept, negative eigenvalues set to 0. Rows and columns
+/// that are entirely zero (the vertices a pair's closest points do not involve) are left
+/// out of the decomposition, which is then of a smaller matrix (a vertex-vertex pair's is
+/// 6x6, an eighth of the work).
+// Index loops over rows and columns read as the matrix formulas they implement.
+#[allow(clippy::needless_range_loop)]
+#[must_use]
+pub fn project_psd12(m: &Mat12) -> Mat12 {
+    const N: usize = VARIABLES;
+    let mut index = [0usize; N];
+    let mut n = 0;
+    for i in 0..N {
+        if (0..N).any(|j| m[i][j] != 0.0 || m[j][i] != 0.0) {
+            index[n] = i;
+            n += 1;
+        }
+    }
+    let index = &index[..n];
+    let (values, vectors) = symmetric_eigen_on(m, index);
+    let mut out = [[0.0; N]; N];
+    for (k, &lambda) in values.iter().take(n).enumerate() {
+        if lambda <= 0.0 {
+            continue;
+        }
+        for i in 0..n {
+            let vi = lambda * vectors[i][k];
+            if vi == 0.0 {
+                continue;
+            }
+            for j in 0..n {
+                out[index[i]][index[j]] += vi * vectors[j][k];
+            }
+        }
+    }
+    out
+}

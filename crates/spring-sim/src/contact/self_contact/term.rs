@@ -1,0 +1,679 @@
+//! [`SelfContactTerm`]: the self-contact barrier of a triangle-mesh cloth as a term of the
+//! backward Euler minimization ([`crate::potential::Term`]), and [`enable_self_contact`].
+//!
+//! The energy is `sum_pairs kappa m_k b(d_k - xi)` over every vertex-triangle and
+//! edge-edge pair that shares no vertex, with `d_k` the pair's distance, `xi` the
+//! thickness, `b` IPC's log barrier with reach `dhat` ([`crate::contact::barrier`]) and
+//! `m_k` IPC's mollifier for edge-edge pairs (1 for vertex-triangle pairs). It is `+inf`
+//! where a pair's gap `d_k - xi` is zero or negative. Every evaluation (energy, change,
+//! gradient, Hessian) finds its pairs with the broad phase at the state it is given, so
+//! the energy, its gradient and its Hessian are those of one function; the active set
+//! collected at the start of each Newton iteration (the pairs within `dhat`) is reused by
+//! the gradient and Hessian at that same state and feeds the statistics.
+//!
+//! The line search is capped by additive CCD over the Newton step, so no state it tries
+//! is reached through a crossing; backward Euler also asks the cap whether the straight
+//! path from the step's start to its first guess is clear.
+//!
+//! `kappa` starts at [`minimum_kappa`] on the first step (mean free mass, gravity, the
+//! step, `dhat`) and follows [`AdaptiveKappa`]'s rule, applied once per step at the
+//! step's start (to the smallest gap there) rather than per iteration: the incremental
+//! potential is then one function throughout a step, and Newton with its line search
+//! never increases it within the step.
+//!
+//! Hessian blocks: each pair's 12x12 Hessian is projected to be positive semidefinite
+//! and scattered into its 4x4 particle blocks. A pair couples particles no spring joins,
+//! and the Hessian pattern has slots only for the springs' pairs (and pairs added with
+//! [`crate::BackwardEuler::add_coupled_term`]); when some of a pair's blocks have no
+//! slots, the pair contributes only the blocks within each of its two primitives (or, if
+//! those are missing too, only its diagonal blocks). A principal block-diagonal part of a
+//! positive semidefinite matrix is positive semidefinite, so the Newton matrix stays
+//! positive definite and the step a descent direction; only the convergence rate pays.
+//! The particle pairs left without slots are recorded in the statistics, and
+//! [`widen_pattern`], called between steps, adds them to the integrator's pattern.
+
+use super::broad::{Candidate, Primitives, candidates};
+use super::ccd::additive_ccd;
+use super::distance::{
+    PairKind, mollifier, mollifier_derivatives, squared_distance, squared_distance_derivatives,
+};
+use super::dual::{Dual12, Scalar};
+use super::psd12::{Mat12, project_psd12};
+use crate::contact::ContactError;
+use crate::contact::barrier::{
+    AdaptiveKappa, KappaSettings, barrier, barrier_first_derivative, barrier_second_derivative,
+    minimum_kappa,
+};
+use crate::model::{ModelError, SpringSystem};
+use crate::newton::BackwardEuler;
+use crate::potential::{HessianSink, StepContext, SymBlock, Term};
+use crate::spring::Curvature;
+use sinew_math::{DMat3, DVec3};
+use std::collections::BTreeSet;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+
+/// The self-contact settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default))]
+pub struct SelfContactSettings {
+    /// The barrier's reach `dhat`: it acts where a pair's gap is below it (default 1e-3).
+    pub dhat: f64,
+    /// The cloth's thickness `xi`: gaps are distances minus it (default 0).
+    pub thickness: f64,
+    /// The line search may close at most this fraction of any pair's gap (default 0.9,
+    /// as for colliders: a tenth is kept).
+    pub toi_fraction: f64,
+    /// IPC's mollifier threshold ratio: an edge pair is mollified where
+    /// `|e_a x e_b|^2 < ratio |e_a|^2 |e_b|^2` at rest (default 1e-3, IPC's).
+    pub mollifier_ratio: f64,
+    /// The adaptive stiffness rule's constants.
+    pub kappa: KappaSettings,
+}
+
+impl Default for SelfContactSettings {
+    fn default() -> Self {
+        Self {
+            dhat: 1e-3,
+            thickness: 0.0,
+            toi_fraction: 0.9,
+            mollifier_ratio: 1e-3,
+            kappa: KappaSettings::default(),
+        }
+    }
+}
+
+impl SelfContactSettings {
+    /// Checks every setting (`dhat > 0`, `thickness >= 0`, `0 < toi_fraction < 1`,
+    /// `mollifier_ratio > 0`, all finite); the error names the setting.
+    pub fn validate(&self) -> Result<(), ContactError> {
+        let bad = |name, value, reason| {
+            Err(ContactError::BadSetting {
+                name,
+                value,
+                reason,
+            })
+        };
+        if !(self.dhat.is_finite() && self.dhat > 0.0) {
+            return bad("dhat", self.dhat, "must be positive and finite");
+        }
+        if !(self.thickness.is_finite() && self.thickness >= 0.0) {
+            return bad(
+                "thickness",
+                self.thickness,
+                "must be non-negative and finite",
+            );
+        }
+        if !(self.toi_fraction > 0.0 && self.toi_fraction < 1.0) {
+            return bad(
+                "toi_fraction",
+                self.toi_fraction,
+                "must lie strictly between 0 and 1",
+            );
+        }
+        if !(self.mollifier_ratio.is_finite() && self.mollifier_ratio > 0.0) {
+            return bad(
+                "mollifier_ratio",
+                self.mollifier_ratio,
+                "must be positive and finite",
+            );
+        }
+        let k = self.kappa;
+        if !(k.max_ratio.is_finite() && k.max_ratio >= 1.0) {
+            return bad(
+                "kappa.max_ratio",
+                k.max_ratio,
+                "must be at least 1 and finite",
+            );
+        }
+        if !(k.growth.is_finite() && k.growth >= 1.0) {
+            return bad("kappa.growth", k.growth, "must be at least 1 and finite");
+        }
+        if !(k.too_close.is_finite() && k.too_close > 0.0 && k.too_close < 1.0) {
+            return bad(
+                "kappa.too_close",
+                k.too_close,
+                "must lie strictly between 0 and 1",
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Numbers the term publishes while an integrator owns it.
+#[derive(Debug, Default)]
+pub struct SelfContactStats {
+    kappa: AtomicU64,
+    active_pairs: AtomicU64,
+    min_gap: AtomicU64,
+    /// Particle pairs a contact pair coupled that the Hessian pattern had no slots for.
+    missing: Mutex<BTreeSet<[usize; 2]>>,
+}
+
+impl SelfContactStats {
+    /// The barrier stiffness (0 before the first step).
+    #[must_use]
+    pub fn kappa(&self) -> f64 {
+        f64::from_bits(self.kappa.load(Ordering::Relaxed))
+    }
+
+    /// The number of pairs within `dhat` at the last Newton iteration's start.
+    #[must_use]
+    pub fn active_pairs(&self) -> usize {
+        self.active_pairs.load(Ordering::Relaxed) as usize
+    }
+
+    /// The smallest gap (distance minus thickness) among them (`+inf` when none).
+    #[must_use]
+    pub fn min_gap(&self) -> f64 {
+        f64::from_bits(self.min_gap.load(Ordering::Relaxed))
+    }
+
+    /// Takes the particle pairs (`[low, high]`, sorted) that contact pairs coupled since
+    /// the last call but the Hessian pattern had no slots for (see [`widen_pattern`]).
+    #[must_use]
+    pub fn take_missing_pairs(&self) -> Vec<[usize; 2]> {
+        let mut set = self.missing.lock().unwrap_or_else(PoisonError::into_inner);
+        std::mem::take(&mut *set).into_iter().collect()
+    }
+
+    fn note_missing(&self, pairs: impl Iterator<Item = [usize; 2]>) {
+        let mut set = self.missing.lock().unwrap_or_else(PoisonError::into_inner);
+        set.extend(pairs.map(|[a, b]| [a.min(b), a.max(b)]));
+    }
+}
+
+/// The self-contact term (see the module documentation).
+#[derive(Debug)]
+pub struct SelfContactTerm {
+    prims: Primitives,
+    /// Each edge's mollifier factor `sqrt(ratio) |e|^2` at rest, so a pair's threshold
+    /// is the product of its two edges' factors.
+    edge_factor: Vec<f64>,
+    settings: SelfContactSettings,
+    kappa: Option<AdaptiveKappa>,
+    /// The pairs within `dhat` at `active_at`.
+    active: Vec<Candidate>,
+    active_at: Vec<DVec3>,
+    /// Per active pair with a barrier at `active_at`: its particles, energy gradient and
+    /// projected Hessian (computed once per iteration for both the gradient and the
+    /// Hessian, which Newton asks for at the iterate the set was collected at).
+    cache: Vec<PairDerivatives>,
+    stats: Arc<SelfContactStats>,
+}
+
+impl SelfContactTerm {
+    /// A term for the cloth `system` with surface `triangles` (indices into the
+    /// particles; mollifier thresholds from the edges' lengths at the system's current
+    /// positions, taken as rest), checked: the settings (the error names the setting),
+    /// every index (the error names the triangle), and the current state (no pair may be
+    /// within the thickness; the error names the pair).
+    pub fn new(
+        system: &SpringSystem,
+        triangles: &[[usize; 3]],
+        settings: SelfContactSettings,
+    ) -> Result<Self, ContactError> {
+        settings.validate()?;
+        let len = system.len();
+        for (t, tri) in triangles.iter().enumerate() {
+            if tri.iter().any(|&v| v >= len) {
+                return Err(ContactError::BadMesh {
+                    item: format!("triangle {t} {tri:?}"),
+                    reason: "refers to a particle that does not exist",
+                });
+            }
+            if tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2] {
+                return Err(ContactError::BadMesh {
+                    item: format!("triangle {t} {tri:?}"),
+                    reason: "repeats a vertex",
+                });
+            }
+        }
+        let prims = Primitives::new(triangles);
+        let x = system.positions();
+        let root = settings.mollifier_ratio.sqrt();
+        let edge_factor = prims
+            .edges
+            .iter()
+            .map(|&[a, b]| root * (x[a] - x[b]).length_squared())
+            .collect();
+        let term = Self {
+            prims,
+            edge_factor,
+            settings,
+            kappa: None,
+            active: Vec::new(),
+            active_at: Vec::new(),
+            cache: Vec::new(),
+            stats: Arc::new(SelfContactStats::default()),
+        };
+        term.check_state(x, system.fixed())?;
+        term.publish(f64::INFINITY);
+        Ok(term)
+    }
+
+    /// The shared statistics.
+    #[must_use]
+    pub fn stats(&self) -> Arc<SelfContactStats> {
+        Arc::clone(&self.stats)
+    }
+
+    /// The settings.
+    #[must_use]
+    pub fn settings(&self) -> &SelfContactSettings {
+        &self.settings
+    }
+
+    /// The mesh's primitives.
+    #[must_use]
+    pub fn primitives(&self) -> &Primitives {
+        &self.prims
+    }
+
+    /// The barrier stiffness (0 before the first step).
+    #[must_use]
+    pub fn kappa(&self) -> f64 {
+        self.kappa.map_or(0.0, |k| k.kappa)
+    }
+
+    fn publish(&self, min_gap: f64) {
+        let s = &self.stats;
+        s.kappa.store(self.kappa().to_bits(), Ordering::Relaxed);
+        s.active_pairs
+            .store(self.active.len() as u64, Ordering::Relaxed);
+        s.min_gap.store(min_gap.to_bits(), Ordering::Relaxed);
+    }
+
+    /// A pair's kind and its four particles.
+    fn pair(&self, c: Candidate) -> (PairKind, [usize; 4]) {
+        match c {
+            Candidate::PointTriangle { vertex, triangle } => {
+                let [a, b, t] = self.prims.triangles[triangle];
+                (PairKind::PointTriangle, [vertex, a, b, t])
+            }
+            Candidate::EdgeEdge { a, b } => {
+                let (ea, eb) = (self.prims.edges[a], self.prims.edges[b]);
+                (PairKind::EdgeEdge, [ea[0], ea[1], eb[0], eb[1]])
+            }
+        }
+    }
+
+    fn mollifier_threshold(&self, c: Candidate) -> Option<f64> {
+        match c {
+            Candidate::PointTriangle { .. } => None,
+            // ratio |e_a|^2 |e_b|^2 = (sqrt(ratio) |e_a|^2) (sqrt(ratio) |e_b|^2).
+            Candidate::EdgeEdge { a, b } => Some(self.edge_factor[a] * self.edge_factor[b]),
+        }
+    }
+
+    /// A pair's gap (distance minus thickness) at `x`.
+    fn gap(&self, c: Candidate, x: &[DVec3]) -> f64 {
+        let (kind, v) = self.pair(c);
+        squared_distance(kind, &v.map(|i| x[i])).sqrt() - self.settings.thickness
+    }
+
+    /// The pairs whose gap may be below `dhat` at `x` (broad phase).
+    fn near(&self, x: &[DVec3], fixed: &[bool]) -> Vec<Candidate> {
+        let margin = self.settings.dhat + self.settings.thickness;
+        candidates(&self.prims, x, None, margin, fixed)
+    }
+
+    /// The smallest gap at `x` over the pairs within `dhat` (`+inf` when none).
+    #[must_use]
+    pub fn min_gap(&self, x: &[DVec3], fixed: &[bool]) -> f64 {
+        let min = self
+            .near(x, fixed)
+            .into_iter()
+            .map(|c| self.gap(c, x))
+            .fold(f64::INFINITY, f64::min);
+        if min < self.settings.dhat {
+            min
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// `Err` naming the first pair (in the broad phase's order) whose gap at `x` is zero
+    /// or negative.
+    pub fn check_state(&self, x: &[DVec3], fixed: &[bool]) -> Result<(), ContactError> {
+        for c in self.near(x, fixed) {
+            let gap = self.gap(c, x);
+            if gap.is_nan() || gap <= 0.0 {
+                let item = match c {
+                    Candidate::PointTriangle { vertex, triangle } => {
+                        format!("vertex {vertex} and triangle {triangle}")
+                    }
+                    Candidate::EdgeEdge { a, b } => format!(
+                        "edge {:?} and edge {:?}",
+                        self.prims.edges[a], self.prims.edges[b]
+                    ),
+                };
+                return Err(ContactError::BadMesh {
+                    item,
+                    reason: "are within the thickness of each other (or touching)",
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// A pair's barrier energy at `x` (`+inf` at a gap of zero or below).
+    fn pair_energy(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> f64 {
+        let gap = self.gap(c, x);
+        if gap.is_nan() || gap <= 0.0 {
+            return f64::INFINITY;
+        }
+        if gap >= self.settings.dhat {
+            return 0.0;
+        }
+        let (_, v) = self.pair(c);
+        let m = self
+            .mollifier_threshold(c)
+            .map_or(1.0, |eps| mollifier(&v.map(|i| x[i]), eps));
+        kappa * m * barrier(gap, self.settings.dhat)
+    }
+
+    /// A pair's energy gradient and projected Hessian in the pair's twelve coordinates
+    /// (`None` when the pair is beyond `dhat` or not admissible).
+    fn pair_derivatives(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> Option<PairDerivatives> {
+        let (kind, v) = self.pair(c);
+        let e = self.pair_energy_dual(kappa, c, x)?;
+        Some(PairDerivatives {
+            kind,
+            particles: v,
+            gradient: e.gradient,
+            hessian: project_psd12(&e.hessian),
+        })
+    }
+
+    /// A pair's energy with its exact gradient and Hessian in the pair's twelve
+    /// coordinates (`None` when the pair is beyond `dhat` or not admissible).
+    fn pair_energy_dual(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> Option<Dual12> {
+        let (kind, v) = self.pair(c);
+        let p = v.map(|i| x[i]);
+        let s = squared_distance_derivatives(kind, &p);
+        if s.value <= 0.0 {
+            return None;
+        }
+        let mut gap = s.sqrt();
+        gap.value -= self.settings.thickness;
+        let (g, dhat) = (gap.value, self.settings.dhat);
+        if g.is_nan() || g <= 0.0 || g >= dhat {
+            return None;
+        }
+        let b = gap.chain(
+            barrier(g, dhat),
+            barrier_first_derivative(g, dhat),
+            barrier_second_derivative(g, dhat),
+        );
+        let e = match self.mollifier_threshold(c) {
+            Some(eps) => mollifier_derivatives(&p, eps) * b,
+            None => b,
+        };
+        Some(e.scale(kappa))
+    }
+
+    /// The derivatives of every pair with a barrier at `x`: the cache if the active set
+    /// was collected at `x`, otherwise computed from the broad phase's pairs.
+    fn derivatives_at(
+        &self,
+        x: &[DVec3],
+        fixed: &[bool],
+    ) -> std::borrow::Cow<'_, [PairDerivatives]> {
+        if self.active_at.as_slice() == x {
+            std::borrow::Cow::Borrowed(&self.cache)
+        } else {
+            let kappa = self.kappa();
+            std::borrow::Cow::Owned(
+                self.near(x, fixed)
+                    .into_iter()
+                    .filter_map(|c| self.pair_derivatives(kappa, c, x))
+                    .collect(),
+            )
+        }
+    }
+
+    /// The largest safe fraction of the step `x -> x + dx` (see [`additive_ccd`]) over
+    /// every pair the swept broad phase finds, 1 when none comes close.
+    fn ccd_fraction(&self, x: &[DVec3], dx: &[DVec3], fixed: &[bool]) -> f64 {
+        let margin = self.settings.dhat + self.settings.thickness;
+        let keep = 1.0 - self.settings.toi_fraction;
+        let mut t: f64 = 1.0;
+        for c in candidates(&self.prims, x, Some(dx), margin, fixed) {
+            let (kind, v) = self.pair(c);
+            let (p, d) = (v.map(|i| x[i]), v.map(|i| dx[i]));
+            t = t.min(additive_ccd(kind, &p, &d, self.settings.thickness, keep));
+            if t <= 0.0 {
+                break;
+            }
+        }
+        t
+    }
+}
+
+/// The longest multiple of the Newton step the cap looks along when the full step is
+/// clear: the line search may lengthen an accepted step, and this lets it up to 8 times.
+const LONG_STEP: f64 = 8.0;
+
+impl Term for SelfContactTerm {
+    fn name(&self) -> &'static str {
+        "self-contact"
+    }
+
+    fn begin_step(&mut self, step: &StepContext<'_>) {
+        let s = step.system;
+        let (x, fixed) = (s.positions(), s.fixed());
+        let dhat = self.settings.dhat;
+        let settings = self.settings.kappa;
+        if self.kappa.is_none() {
+            let (sum, count) = s
+                .masses()
+                .iter()
+                .zip(fixed)
+                .filter(|(_, f)| !**f)
+                .fold((0.0, 0usize), |(acc, n), (m, _)| (acc + m, n + 1));
+            let mean = if count > 0 { sum / count as f64 } else { 1.0 };
+            let kmin = minimum_kappa(dhat, mean, s.material().gravity.length(), step.h);
+            self.kappa = Some(AdaptiveKappa::new(kmin, None, settings));
+        }
+        let min = self.min_gap(x, fixed);
+        if let Some(k) = self.kappa.as_mut() {
+            k.update(min, dhat);
+        }
+        self.publish(min);
+    }
+
+    fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
+        let fixed = step.system.fixed();
+        let dhat = self.settings.dhat;
+        let mut min = f64::INFINITY;
+        let mut active = Vec::new();
+        for c in self.near(x, fixed) {
+            let gap = self.gap(c, x);
+            if gap < dhat {
+                active.push(c);
+                min = min.min(gap);
+            }
+        }
+        let kappa = self.kappa();
+        self.cache = if kappa > 0.0 {
+            active
+                .iter()
+                .filter_map(|&c| self.pair_derivatives(kappa, c, x))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        self.active = active;
+        self.active_at.clear();
+        self.active_at.extend_from_slice(x);
+        self.publish(min);
+    }
+
+    fn energy(&self, step: &StepContext<'_>, x: &[DVec3]) -> f64 {
+        let kappa = self.kappa();
+        if kappa == 0.0 {
+            return 0.0;
+        }
+        self.near(x, step.system.fixed())
+            .into_iter()
+            .map(|c| self.pair_energy(kappa, c, x))
+            .sum()
+    }
+
+    fn energy_change(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
+        let kappa = self.kappa();
+        if kappa == 0.0 {
+            return 0.0;
+        }
+        let moved: Vec<DVec3> = x.iter().zip(dx).map(|(p, d)| *p + alpha * *d).collect();
+        let sweep: Vec<DVec3> = dx.iter().map(|d| alpha * *d).collect();
+        let margin = self.settings.dhat + self.settings.thickness;
+        // Every pair within dhat at either end: the swept boxes contain both ends.
+        let mut change = 0.0;
+        for c in candidates(&self.prims, x, Some(&sweep), margin, step.system.fixed()) {
+            let after = self.pair_energy(kappa, c, &moved);
+            if after == f64::INFINITY {
+                return f64::INFINITY;
+            }
+            change += after - self.pair_energy(kappa, c, x);
+        }
+        change
+    }
+
+    fn add_gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
+        let kappa = self.kappa();
+        if kappa == 0.0 {
+            return;
+        }
+        for e in self.derivatives_at(x, step.system.fixed()).iter() {
+            for (k, &i) in e.particles.iter().enumerate() {
+                gradient[i] += DVec3::new(
+                    e.gradient[3 * k],
+                    e.gradient[3 * k + 1],
+                    e.gradient[3 * k + 2],
+                );
+            }
+        }
+    }
+
+    fn add_hessian(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        _curvature: Curvature,
+        sink: &mut HessianSink<'_>,
+    ) {
+        let kappa = self.kappa();
+        if kappa == 0.0 {
+            return;
+        }
+        let mut missing = Vec::new();
+        for e in self.derivatives_at(x, step.system.fixed()).iter() {
+            scatter(&e.hessian, e.kind, e.particles, sink, &mut missing);
+        }
+        if !missing.is_empty() {
+            self.stats.note_missing(missing.into_iter());
+        }
+    }
+
+    fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
+        let fixed = step.system.fixed();
+        let t = self.ccd_fraction(x, dx, fixed);
+        if t < 1.0 {
+            return t;
+        }
+        // The full step is known to be safe; ACCD along the longer path stops at its own
+        // conservative times, which may fall short of it, so never return less.
+        let long: Vec<DVec3> = dx.iter().map(|d| LONG_STEP * *d).collect();
+        (LONG_STEP * self.ccd_fraction(x, &long, fixed)).max(1.0)
+    }
+}
+
+/// The 3x3 block of `h` at particle rows `a` and columns `b` (pair-local indices).
+fn block(h: &Mat12, a: usize, b: usize) -> DMat3 {
+    DMat3::from_cols_array(&std::array::from_fn(|k| {
+        let (col, row) = (k / 3, k % 3);
+        h[3 * a + row][3 * b + col]
+    }))
+}
+
+/// A pair's derivatives at one state.
+#[derive(Clone, Debug)]
+struct PairDerivatives {
+    kind: PairKind,
+    particles: [usize; 4],
+    gradient: [f64; 12],
+    hessian: Mat12,
+}
+
+/// Adds a pair's projected Hessian `h` to `sink`: all of it when the pattern has every
+/// coupling block, else the blocks within each primitive, else the diagonal blocks (see
+/// the module documentation). Particle pairs without slots are pushed to `missing`.
+fn scatter(
+    h: &Mat12,
+    kind: PairKind,
+    v: [usize; 4],
+    sink: &mut HessianSink<'_>,
+    missing: &mut Vec<[usize; 2]>,
+) {
+    let group = |k: usize| match kind {
+        PairKind::PointTriangle => usize::from(k > 0),
+        PairKind::EdgeEdge => usize::from(k > 1),
+    };
+    let pairs = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
+    let has = |a: usize, b: usize| sink.has_pair(v[a], v[b]);
+    let keep_all = pairs.iter().all(|&(a, b)| has(a, b));
+    if !keep_all {
+        missing.extend(
+            pairs
+                .iter()
+                .filter(|&&(a, b)| !has(a, b))
+                .map(|&(a, b)| [v[a], v[b]]),
+        );
+    }
+    let keep_within = pairs
+        .iter()
+        .filter(|&&(a, b)| group(a) == group(b))
+        .all(|&(a, b)| has(a, b));
+    for (k, &i) in v.iter().enumerate() {
+        sink.add_diagonal(i, SymBlock::from_lower(&block(h, k, k)));
+    }
+    for (a, b) in pairs {
+        if keep_all || (keep_within && group(a) == group(b)) {
+            // Checked above: the pattern has the pair, so this cannot fail.
+            let _ = sink.add_pair(v[a], v[b], &block(h, a, b));
+        }
+    }
+}
+
+/// Widens `integrator`'s Hessian pattern with the particle pairs self-contact coupled
+/// without slots since the last call ([`SelfContactStats::take_missing_pairs`]), so the
+/// next steps get the pairs' full Hessian blocks; call it between steps. Returns how
+/// many pairs were added (0: nothing was rebuilt).
+pub fn widen_pattern(
+    integrator: &mut BackwardEuler,
+    system: &SpringSystem,
+    stats: &SelfContactStats,
+) -> Result<usize, ModelError> {
+    let pairs = stats.take_missing_pairs();
+    if !pairs.is_empty() {
+        integrator.add_coupled_pairs(system, &pairs)?;
+    }
+    Ok(pairs.len())
+}
+
+/// Adds self-contact of the cloth `system` with surface `triangles` to `integrator`
+/// (see [`SelfContactTerm::new`] for the checks) and returns the term's statistics.
+pub fn enable_self_contact(
+    integrator: &mut BackwardEuler,
+    system: &SpringSystem,
+    triangles: &[[usize; 3]],
+    settings: SelfContactSettings,
+) -> Result<Arc<SelfContactStats>, ContactError> {
+    let term = SelfContactTerm::new(system, triangles, settings)?;
+    let stats = term.stats();
+    integrator.add_term(Box::new(term));
+    Ok(stats)
+}

@@ -1,0 +1,144 @@
+//! The self-contact broad phase: the spatial hash finds exactly the pairs brute force
+//! finds on random crumpled meshes (at a state and over a step, with a primitive swept
+//! far, with fixed vertices), never a pair sharing a vertex, and every pair closer than
+//! the margin.
+
+use sinew_math::DVec3;
+use sinew_spring_sim::ClothGrid;
+use sinew_spring_sim::contact::self_contact::broad::{
+    Candidate, Primitives, candidates, candidates_brute_force,
+};
+use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn vec(&mut self, scale: f64) -> DVec3 {
+        scale
+            * DVec3::new(
+                2.0 * self.next() - 1.0,
+                2.0 * self.next() - 1.0,
+                2.0 * self.next() - 1.0,
+            )
+    }
+}
+
+/// An `n x n` grid of spacing 0.1 crumpled by random offsets of size `crumple`.
+fn crumpled(n: usize, crumple: f64, rng: &mut Rng) -> (Vec<DVec3>, Vec<[usize; 3]>) {
+    let mut x = Vec::new();
+    for i in 0..n {
+        for j in 0..n {
+            x.push(DVec3::new(0.1 * i as f64, 0.1 * j as f64, 0.0) + rng.vec(crumple));
+        }
+    }
+    let grid = ClothGrid {
+        size: n,
+        ..ClothGrid::lab()
+    };
+    (x, grid.triangles())
+}
+
+#[test]
+fn the_hash_finds_the_brute_force_pairs_on_random_meshes() {
+    let mut rng = Rng(12345);
+    let mut total = 0;
+    for case in 0..24 {
+        let n = 4 + case % 5;
+        let (x, triangles) = crumpled(n, 0.02 + 0.03 * (case % 4) as f64, &mut rng);
+        let prims = Primitives::new(&triangles);
+        let dx: Vec<DVec3> = x
+            .iter()
+            .map(|_| rng.vec(0.05 * (case % 3) as f64))
+            .collect();
+        let mut skip = vec![false; x.len()];
+        if case % 2 == 1 {
+            for s in skip.iter_mut().take(n * 2) {
+                *s = true;
+            }
+        }
+        let margin = 0.01 * (1 + case % 6) as f64;
+        for sweep in [None, Some(dx.as_slice())] {
+            let fast = candidates(&prims, &x, sweep, margin, &skip);
+            let slow = candidates_brute_force(&prims, &x, sweep, margin, &skip);
+            assert_eq!(fast, slow, "case {case}, sweep {}", sweep.is_some());
+            total += fast.len();
+            for c in &fast {
+                match *c {
+                    Candidate::PointTriangle { vertex, triangle } => {
+                        assert!(!triangles[triangle].contains(&vertex));
+                    }
+                    Candidate::EdgeEdge { a, b } => {
+                        assert!(a < b);
+                        let (ea, eb) = (prims.edges[a], prims.edges[b]);
+                        assert!(!ea.iter().any(|v| eb.contains(v)));
+                    }
+                }
+            }
+        }
+    }
+    // The cases are not vacuous.
+    assert!(total > 1000, "{total} candidates in all");
+}
+
+#[test]
+fn a_primitive_swept_far_is_still_found() {
+    let mut rng = Rng(99);
+    let (x, triangles) = crumpled(6, 0.01, &mut rng);
+    let prims = Primitives::new(&triangles);
+    let mut dx = vec![DVec3::ZERO; x.len()];
+    // One corner sweeps across the whole sheet and far beyond: its boxes touch more
+    // cells than the hash lists, so they go to the large list.
+    dx[0] = DVec3::new(40.0, 40.0, 3.0);
+    let skip = vec![false; x.len()];
+    let fast = candidates(&prims, &x, Some(&dx), 0.01, &skip);
+    let slow = candidates_brute_force(&prims, &x, Some(&dx), 0.01, &skip);
+    assert_eq!(fast, slow);
+    assert!(
+        fast.iter().any(
+            |c| matches!(c, Candidate::PointTriangle { vertex: 0, triangle } if *triangle > 40)
+        )
+    );
+}
+
+#[test]
+fn every_pair_closer_than_the_margin_is_a_candidate() {
+    let mut rng = Rng(2024);
+    for _ in 0..10 {
+        let (x, triangles) = crumpled(6, 0.08, &mut rng);
+        let prims = Primitives::new(&triangles);
+        let skip = vec![false; x.len()];
+        let margin = 0.03;
+        let found = candidates(&prims, &x, None, margin, &skip);
+        for &v in &prims.vertices {
+            for (t, tri) in triangles.iter().enumerate() {
+                if tri.contains(&v) {
+                    continue;
+                }
+                let pair = [x[v], x[tri[0]], x[tri[1]], x[tri[2]]];
+                if squared_distance(PairKind::PointTriangle, &pair) < margin * margin {
+                    assert!(found.contains(&Candidate::PointTriangle {
+                        vertex: v,
+                        triangle: t
+                    }));
+                }
+            }
+        }
+        for a in 0..prims.edges.len() {
+            for b in a + 1..prims.edges.len() {
+                let (ea, eb) = (prims.edges[a], prims.edges[b]);
+                if ea.iter().any(|v| eb.contains(v)) {
+                    continue;
+                }
+                let pair = [x[ea[0]], x[ea[1]], x[eb[0]], x[eb[1]]];
+                if squared_distance(PairKind::EdgeEdge, &pair) < margin * margin {
+                    assert!(found.contains(&Candidate::EdgeEdge { a, b }));
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,432 @@
+//! Self-contact distances: hand-computed point-triangle and edge-edge cases in every
+//! region (parallel edges included), the chosen region against a brute-force minimum,
+//! the exact gradients and Hessians of the dual numbers against finite differences, the
+//! mollifier, and the 12x12 PSD projection.
+
+use sinew_math::DVec3;
+use sinew_spring_sim::contact::self_contact::distance::{
+    Closest, PairKind, edge_edge_closest, mollifier, mollifier_derivatives, point_triangle_closest,
+    squared_distance, squared_distance_derivatives, squared_distance_in,
+};
+use sinew_spring_sim::contact::self_contact::dual::values;
+use sinew_spring_sim::contact::self_contact::psd12::{project_psd12, symmetric_eigen12};
+
+fn v(x: f64, y: f64, z: f64) -> DVec3 {
+    DVec3::new(x, y, z)
+}
+
+/// A small deterministic generator (xorshift), so the random cases are reproducible.
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn vec(&mut self, scale: f64) -> DVec3 {
+        scale
+            * v(
+                2.0 * self.next() - 1.0,
+                2.0 * self.next() - 1.0,
+                2.0 * self.next() - 1.0,
+            )
+    }
+}
+
+const TRI: [DVec3; 3] = [
+    DVec3::new(0.0, 0.0, 0.0),
+    DVec3::new(1.0, 0.0, 0.0),
+    DVec3::new(0.0, 1.0, 0.0),
+];
+
+fn pt(p: DVec3) -> [DVec3; 4] {
+    [p, TRI[0], TRI[1], TRI[2]]
+}
+
+#[test]
+fn point_triangle_every_region_by_hand() {
+    let cases = [
+        (v(0.2, 0.2, 0.5), 0.25, Closest::PointPlane([0, 1, 2, 3])),
+        (v(0.5, -1.0, 1.0), 2.0, Closest::PointEdge([0, 1, 2])),
+        (v(1.0, 1.0, 0.0), 0.5, Closest::PointEdge([0, 2, 3])),
+        (v(-2.0, 0.5, 0.0), 4.0, Closest::PointEdge([0, 3, 1])),
+        (v(-1.0, -1.0, 1.0), 3.0, Closest::PointPoint([0, 1])),
+        (v(2.0, -1.0, 0.0), 2.0, Closest::PointPoint([0, 2])),
+        (v(-1.0, 3.0, 0.0), 5.0, Closest::PointPoint([0, 3])),
+        // In the plane, inside: distance zero, face region.
+        (v(0.25, 0.25, 0.0), 0.0, Closest::PointPlane([0, 1, 2, 3])),
+    ];
+    for (p, want, region) in cases {
+        let pair = pt(p);
+        assert_eq!(point_triangle_closest(&pair), region, "point {p}");
+        let got = squared_distance(PairKind::PointTriangle, &pair);
+        assert!((got - want).abs() < 1e-15, "point {p}: {got} vs {want}");
+    }
+}
+
+#[test]
+fn edge_edge_every_region_by_hand() {
+    let cases = [
+        // Crossing interiors one unit apart.
+        (
+            [
+                v(-1.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(0.0, -1.0, 1.0),
+                v(0.0, 1.0, 1.0),
+            ],
+            1.0,
+            Some(Closest::LineLine([0, 1, 2, 3])),
+        ),
+        // a0 against the interior of b.
+        (
+            [
+                v(0.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(-1.0, -1.0, 2.0),
+                v(-1.0, 1.0, 2.0),
+            ],
+            5.0,
+            Some(Closest::PointEdge([0, 2, 3])),
+        ),
+        // b1 against the interior of a.
+        (
+            [
+                v(0.0, 0.0, 0.0),
+                v(4.0, 0.0, 0.0),
+                v(2.0, 5.0, 3.0),
+                v(2.0, 1.0, 1.0),
+            ],
+            2.0,
+            Some(Closest::PointEdge([3, 0, 1])),
+        ),
+        // Endpoints a1 and b0.
+        (
+            [
+                v(0.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(2.0, 1.0, 0.0),
+                v(3.0, 5.0, 0.0),
+            ],
+            2.0,
+            Some(Closest::PointPoint([1, 2])),
+        ),
+        // Parallel and overlapping: a whole interval is closest; any endpoint form gives 1.
+        (
+            [
+                v(0.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(0.5, 1.0, 0.0),
+                v(2.0, 1.0, 0.0),
+            ],
+            1.0,
+            None,
+        ),
+        // Parallel, antiparallel direction, overlapping.
+        (
+            [
+                v(0.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(0.75, 0.0, 2.0),
+                v(0.25, 0.0, 2.0),
+            ],
+            4.0,
+            None,
+        ),
+        // Parallel, disjoint along the line: endpoints a1 and b0.
+        (
+            [
+                v(0.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(3.0, 1.0, 0.0),
+                v(4.0, 1.0, 0.0),
+            ],
+            5.0,
+            Some(Closest::PointPoint([1, 2])),
+        ),
+        // Collinear, disjoint.
+        (
+            [
+                v(0.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(1.5, 0.0, 0.0),
+                v(3.0, 0.0, 0.0),
+            ],
+            0.25,
+            Some(Closest::PointPoint([1, 2])),
+        ),
+    ];
+    for (pair, want, region) in cases {
+        let got = squared_distance(PairKind::EdgeEdge, &pair);
+        assert!((got - want).abs() < 1e-14, "{pair:?}: {got} vs {want}");
+        let closest = edge_edge_closest(&pair);
+        if let Some(region) = region {
+            assert_eq!(closest, region, "{pair:?}");
+        } else {
+            assert!(!matches!(closest, Closest::LineLine(_)), "{pair:?}");
+        }
+    }
+}
+
+#[test]
+fn nearly_parallel_edges_keep_their_distance() {
+    // Edges one unit apart, turned out of parallel by angles down to 1e-12: the distance
+    // stays 1 to round-off on both sides of the parallel threshold.
+    for k in 0..12 {
+        let tilt = 10f64.powi(-k);
+        let pair = [
+            v(0.0, 0.0, 0.0),
+            v(1.0, 0.0, 0.0),
+            v(0.25, 1.0, -0.5 * tilt),
+            v(0.75, 1.0, 0.5 * tilt),
+        ];
+        let d2 = squared_distance(PairKind::EdgeEdge, &pair);
+        // The exact distance: the lines cross x = 0.5 at z = 0 (crossing interiors) for
+        // every tilt, so it is exactly 1.
+        assert!((d2 - 1.0).abs() < 1e-12, "tilt {tilt}: {d2}");
+    }
+}
+
+/// The smallest squared distance between points sampled on the two primitives (an upper
+/// bound of the exact one, within the sampling's resolution of it).
+fn sampled(kind: PairKind, pair: &[DVec3; 4], n: usize) -> f64 {
+    let mut best = f64::INFINITY;
+    match kind {
+        PairKind::PointTriangle => {
+            for i in 0..=n {
+                for j in 0..=n - i {
+                    let (a, b) = (i as f64 / n as f64, j as f64 / n as f64);
+                    let q = pair[1] + a * (pair[2] - pair[1]) + b * (pair[3] - pair[1]);
+                    best = best.min((q - pair[0]).length_squared());
+                }
+            }
+        }
+        PairKind::EdgeEdge => {
+            for i in 0..=n {
+                for j in 0..=n {
+                    let (s, t) = (i as f64 / n as f64, j as f64 / n as f64);
+                    let a = pair[0].lerp(pair[1], s);
+                    let b = pair[2].lerp(pair[3], t);
+                    best = best.min((a - b).length_squared());
+                }
+            }
+        }
+    }
+    best
+}
+
+#[test]
+fn the_chosen_region_gives_the_true_minimum_on_random_pairs() {
+    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    for case in 0..300 {
+        let pair: [DVec3; 4] = std::array::from_fn(|_| rng.vec(1.0));
+        for kind in [PairKind::PointTriangle, PairKind::EdgeEdge] {
+            let d2 = squared_distance(kind, &pair);
+            let s = sampled(kind, &pair, 200);
+            // The exact minimum is below every sample and within the sampling's
+            // resolution of the best one (a point is at most diameter/200 from a sample).
+            let diameter = pair
+                .iter()
+                .flat_map(|a| pair.iter().map(move |b| (*a - *b).length()))
+                .fold(0.0, f64::max);
+            let slack = diameter / 200.0;
+            assert!(d2 <= s + 1e-12, "case {case} {kind:?}: {d2} > sampled {s}");
+            assert!(
+                d2.sqrt() >= s.sqrt() - slack,
+                "case {case} {kind:?}: {d2} well below sampled {s}"
+            );
+        }
+    }
+}
+
+/// Random pairs whose region is `want` with the kind `kind` (rejection sampling).
+fn pairs_in(
+    kind: PairKind,
+    want: fn(&Closest) -> bool,
+    count: usize,
+    seed: u64,
+) -> Vec<[DVec3; 4]> {
+    let mut rng = Rng(seed);
+    let mut out = Vec::new();
+    while out.len() < count {
+        let pair: [DVec3; 4] = std::array::from_fn(|_| rng.vec(1.0));
+        if want(&kind.closest(&pair)) {
+            out.push(pair);
+        }
+    }
+    out
+}
+
+fn perturbed(pair: &[DVec3; 4], var: usize, delta: f64) -> [DVec3; 4] {
+    let mut out = *pair;
+    out[var / 3][var % 3] += delta;
+    out
+}
+
+/// Checks the dual gradient against central differences of the value and the dual Hessian
+/// against central differences of the dual gradient, in the pair's region.
+fn check_derivatives(kind: PairKind, pair: &[DVec3; 4]) {
+    let closest = kind.closest(pair);
+    let f = |q: &[DVec3; 4]| squared_distance_in(&values(q), closest);
+    let dual = squared_distance_derivatives(kind, pair);
+    assert!((dual.value - f(pair)).abs() <= 1e-14 * (1.0 + dual.value));
+    let h = 1e-6;
+    let scale = 1.0 + dual.gradient.iter().fold(0.0f64, |m, g| m.max(g.abs()));
+    for i in 0..12 {
+        let fd = (f(&perturbed(pair, i, h)) - f(&perturbed(pair, i, -h))) / (2.0 * h);
+        assert!(
+            (fd - dual.gradient[i]).abs() < 1e-6 * scale,
+            "{closest:?} gradient {i}: {} vs {fd}",
+            dual.gradient[i]
+        );
+        let plus = squared_distance_in(
+            &sinew_spring_sim::contact::self_contact::dual::variables(&perturbed(pair, i, h)),
+            closest,
+        );
+        let minus = squared_distance_in(
+            &sinew_spring_sim::contact::self_contact::dual::variables(&perturbed(pair, i, -h)),
+            closest,
+        );
+        let hscale = 1.0
+            + dual
+                .hessian
+                .iter()
+                .flatten()
+                .fold(0.0f64, |m, x| m.max(x.abs()));
+        for j in 0..12 {
+            let fd = (plus.gradient[j] - minus.gradient[j]) / (2.0 * h);
+            assert!(
+                (fd - dual.hessian[i][j]).abs() < 1e-5 * hscale,
+                "{closest:?} hessian {i},{j}: {} vs {fd}",
+                dual.hessian[i][j]
+            );
+            assert_eq!(dual.hessian[i][j], dual.hessian[j][i]);
+        }
+    }
+}
+
+/// Whether a region is the one a case wants.
+type RegionTest = fn(&Closest) -> bool;
+
+#[test]
+fn gradients_and_hessians_match_finite_differences_in_every_region() {
+    let regions: [(PairKind, RegionTest); 7] = [
+        (PairKind::PointTriangle, |c| {
+            matches!(c, Closest::PointPlane(_))
+        }),
+        (PairKind::PointTriangle, |c| {
+            matches!(c, Closest::PointEdge(_))
+        }),
+        (PairKind::PointTriangle, |c| {
+            matches!(c, Closest::PointPoint(_))
+        }),
+        (PairKind::EdgeEdge, |c| matches!(c, Closest::LineLine(_))),
+        (PairKind::EdgeEdge, |c| matches!(c, Closest::PointEdge(_))),
+        (PairKind::EdgeEdge, |c| matches!(c, Closest::PointPoint(_))),
+        (PairKind::EdgeEdge, |_| true),
+    ];
+    for (r, (kind, want)) in regions.iter().enumerate() {
+        for pair in pairs_in(*kind, *want, 20, 1 + r as u64) {
+            check_derivatives(*kind, &pair);
+        }
+    }
+}
+
+#[test]
+fn the_mollifier_vanishes_for_parallel_edges_and_is_one_beyond_its_threshold() {
+    let parallel = [
+        v(0.0, 0.0, 0.0),
+        v(1.0, 0.0, 0.0),
+        v(0.0, 1.0, 0.0),
+        v(2.0, 1.0, 0.0),
+    ];
+    assert_eq!(mollifier(&parallel, 1e-3), 0.0);
+    let crossing = [
+        v(0.0, 0.0, 0.0),
+        v(1.0, 0.0, 0.0),
+        v(0.0, 1.0, 0.0),
+        v(0.0, 1.0, 1.0),
+    ];
+    // |e_a x e_b|^2 = 1 >= eps_x.
+    assert_eq!(mollifier(&crossing, 0.5), 1.0);
+    // Tilted: e_a = x, e_b = (1, 0, s), |e_a x e_b|^2 = s^2; with eps_x = 1e-2 and
+    // s = 0.05, x = 0.25 and m = (2 - 0.25) 0.25 = 0.4375.
+    let tilted = [
+        v(0.0, 0.0, 0.0),
+        v(1.0, 0.0, 0.0),
+        v(0.0, 1.0, 0.0),
+        v(1.0, 1.0, 0.05),
+    ];
+    assert!((mollifier(&tilted, 1e-2) - 0.4375).abs() < 1e-15);
+    // Derivatives against finite differences below the threshold.
+    let dual = mollifier_derivatives(&tilted, 1e-2);
+    let h = 1e-7;
+    for i in 0..12 {
+        let fd = (mollifier(&perturbed(&tilted, i, h), 1e-2)
+            - mollifier(&perturbed(&tilted, i, -h), 1e-2))
+            / (2.0 * h);
+        assert!(
+            (fd - dual.gradient[i]).abs() < 1e-6,
+            "{i}: {fd} vs {}",
+            dual.gradient[i]
+        );
+        let plus = mollifier_derivatives(&perturbed(&tilted, i, h), 1e-2);
+        let minus = mollifier_derivatives(&perturbed(&tilted, i, -h), 1e-2);
+        for j in 0..12 {
+            let fd = (plus.gradient[j] - minus.gradient[j]) / (2.0 * h);
+            assert!((fd - dual.hessian[i][j]).abs() < 1e-4, "{i},{j}");
+        }
+    }
+}
+
+// Index loops read as the matrix formulas.
+#[allow(clippy::needless_range_loop)]
+#[test]
+fn the_12x12_projection_keeps_psd_matrices_and_clamps_negative_eigenvalues() {
+    let mut rng = Rng(77);
+    for _ in 0..20 {
+        let mut m = [[0.0; 12]; 12];
+        for i in 0..12 {
+            for j in 0..=i {
+                let x = 2.0 * rng.next() - 1.0;
+                m[i][j] = x;
+                m[j][i] = x;
+            }
+        }
+        let (values, vectors) = symmetric_eigen12(&m);
+        // V diag(values) V^T reconstructs m, and V is orthonormal.
+        for i in 0..12 {
+            for j in 0..12 {
+                let r: f64 = (0..12)
+                    .map(|k| vectors[i][k] * values[k] * vectors[j][k])
+                    .sum();
+                assert!((r - m[i][j]).abs() < 1e-12);
+                let o: f64 = (0..12).map(|k| vectors[k][i] * vectors[k][j]).sum();
+                assert!((o - if i == j { 1.0 } else { 0.0 }).abs() < 1e-12);
+            }
+        }
+        let p = project_psd12(&m);
+        let (pv, _) = symmetric_eigen12(&p);
+        for (k, &lambda) in pv.iter().enumerate() {
+            assert!(lambda > -1e-12, "eigenvalue {k}: {lambda}");
+        }
+        // Its positive eigenvalues are m's: the traces agree.
+        let positive: f64 = values.iter().filter(|&&x| x > 0.0).sum();
+        let trace: f64 = (0..12).map(|i| p[i][i]).sum();
+        assert!((positive - trace).abs() < 1e-11);
+        // A PSD matrix (m m^T) is unchanged.
+        let mut g = [[0.0; 12]; 12];
+        for i in 0..12 {
+            for j in 0..12 {
+                g[i][j] = (0..12).map(|k| m[i][k] * m[j][k]).sum();
+            }
+        }
+        let q = project_psd12(&g);
+        for i in 0..12 {
+            for j in 0..12 {
+                assert!((q[i][j] - g[i][j]).abs() < 1e-11);
+            }
+        }
+    }
+}

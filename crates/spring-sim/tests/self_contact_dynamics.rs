@@ -1,0 +1,466 @@
+//! Self-contact in backward Euler: a sheet dropped onto a sheet pinned below it, and a
+//! hanging sheet collapsing onto the ground and folding onto itself. At every accepted
+//! state an independent exact check (Shewchuk's orientation predicates from the `robust`
+//! crate, with the triangle-triangle test written here on top of them) finds no two
+//! triangles that share no vertex intersecting; the incremental potential recorded at
+//! every Newton iterate never increases within a step; and the smallest gap over all
+//! such pairs, by brute force, stays positive.
+
+use robust::{Coord, Coord3D, orient2d, orient3d};
+use sinew_math::DVec3;
+use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
+use sinew_spring_sim::contact::self_contact::{
+    SelfContactSettings, SelfContactStats, widen_pattern,
+};
+use sinew_spring_sim::contact::{Collider, ContactPotential, ContactSettings, ContactTerm};
+use sinew_spring_sim::{
+    Bending, ClothGrid, Material, MeshCloth, MeshClothModel, NewtonSettings, SpringSystem,
+    TriangleMesh,
+};
+use std::sync::Arc;
+
+const H: f64 = 1.0 / 60.0;
+
+fn material() -> Material {
+    Material {
+        stiffness: 500.0,
+        damping: 0.1,
+        gravity: DVec3::new(0.0, -9.81, 0.0),
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// The independent intersection check.
+
+fn c3(p: DVec3) -> Coord3D<f64> {
+    Coord3D {
+        x: p.x,
+        y: p.y,
+        z: p.z,
+    }
+}
+
+fn o3(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
+    orient3d(c3(a), c3(b), c3(c), c3(d))
+}
+
+/// Exact coplanar tests after dropping the coordinate `axis` (the plane's normal is not
+/// perpendicular to the remaining ones, so orientations are preserved up to one sign).
+fn c2(p: DVec3, axis: usize) -> Coord<f64> {
+    match axis {
+        0 => Coord { x: p.y, y: p.z },
+        1 => Coord { x: p.z, y: p.x },
+        _ => Coord { x: p.x, y: p.y },
+    }
+}
+
+fn o2(a: DVec3, b: DVec3, c: DVec3, axis: usize) -> f64 {
+    orient2d(c2(a, axis), c2(b, axis), c2(c, axis))
+}
+
+/// Whether the closed segments `ab` and `cd`, all four points collinear or coplanar in
+/// the projection, meet.
+fn segments_meet_2d(a: DVec3, b: DVec3, c: DVec3, d: DVec3, axis: usize) -> bool {
+    let (d1, d2) = (o2(c, d, a, axis), o2(c, d, b, axis));
+    let (d3, d4) = (o2(a, b, c, axis), o2(a, b, d, axis));
+    if ((d1 > 0.0 && d2 < 0.0) || (d1 < 0.0 && d2 > 0.0))
+        && ((d3 > 0.0 && d4 < 0.0) || (d3 < 0.0 && d4 > 0.0))
+    {
+        return true;
+    }
+    // Touching or collinear overlap: a point on the other segment's line within its box.
+    let on = |p: DVec3, q: DVec3, r: DVec3| {
+        let (u, v) = (c2(p, axis), c2(q, axis));
+        let w = c2(r, axis);
+        w.x >= u.x.min(v.x) && w.x <= u.x.max(v.x) && w.y >= u.y.min(v.y) && w.y <= u.y.max(v.y)
+    };
+    (d1 == 0.0 && on(c, d, a))
+        || (d2 == 0.0 && on(c, d, b))
+        || (d3 == 0.0 && on(a, b, c))
+        || (d4 == 0.0 && on(a, b, d))
+}
+
+/// Whether point `p` lies in the closed triangle `t` (all coplanar), projected.
+fn point_in_triangle_2d(p: DVec3, t: [DVec3; 3], axis: usize) -> bool {
+    let s = [
+        o2(t[0], t[1], p, axis),
+        o2(t[1], t[2], p, axis),
+        o2(t[2], t[0], p, axis),
+    ];
+    s.iter().all(|&x| x >= 0.0) || s.iter().all(|&x| x <= 0.0)
+}
+
+/// Whether the closed segment `ab` meets the closed triangle `t`, exactly.
+fn segment_meets_triangle(a: DVec3, b: DVec3, t: [DVec3; 3]) -> bool {
+    let (oa, ob) = (o3(t[0], t[1], t[2], a), o3(t[0], t[1], t[2], b));
+    if (oa > 0.0 && ob > 0.0) || (oa < 0.0 && ob < 0.0) {
+        return false;
+    }
+    if oa == 0.0 && ob == 0.0 {
+        // The segment lies in the triangle's plane: 2D tests on the plane's projection
+        // along the normal's largest component.
+        let n = (t[1] - t[0]).cross(t[2] - t[0]).abs();
+        let axis = if n.x >= n.y && n.x >= n.z {
+            0
+        } else if n.y >= n.z {
+            1
+        } else {
+            2
+        };
+        return point_in_triangle_2d(a, t, axis)
+            || point_in_triangle_2d(b, t, axis)
+            || (0..3).any(|k| segments_meet_2d(a, b, t[k], t[(k + 1) % 3], axis));
+    }
+    // The segment crosses (or touches) the plane at one point; it is in the closed
+    // triangle exactly when the line ab passes every edge on the same side.
+    let s = [
+        o3(a, b, t[0], t[1]),
+        o3(a, b, t[1], t[2]),
+        o3(a, b, t[2], t[0]),
+    ];
+    s.iter().all(|&x| x >= 0.0) || s.iter().all(|&x| x <= 0.0)
+}
+
+/// Whether two closed triangles meet: their intersection, if any, has an endpoint on an
+/// edge of one of them, which then meets the other triangle.
+fn triangles_meet(p: [DVec3; 3], q: [DVec3; 3]) -> bool {
+    (0..3).any(|k| segment_meets_triangle(p[k], p[(k + 1) % 3], q))
+        || (0..3).any(|k| segment_meets_triangle(q[k], q[(k + 1) % 3], p))
+}
+
+/// The pairs of triangles sharing no vertex that meet at `x` (boxes compared first; the
+/// box test is exact in floating point).
+fn intersecting_pairs(x: &[DVec3], triangles: &[[usize; 3]]) -> Vec<(usize, usize)> {
+    let boxes: Vec<(DVec3, DVec3)> = triangles
+        .iter()
+        .map(|t| {
+            let p = t.map(|i| x[i]);
+            (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]))
+        })
+        .collect();
+    let mut out = Vec::new();
+    for i in 0..triangles.len() {
+        for j in i + 1..triangles.len() {
+            if triangles[i].iter().any(|v| triangles[j].contains(v)) {
+                continue;
+            }
+            let (a, b) = (boxes[i], boxes[j]);
+            if a.0.cmpgt(b.1).any() || b.0.cmpgt(a.1).any() {
+                continue;
+            }
+            if triangles_meet(triangles[i].map(|v| x[v]), triangles[j].map(|v| x[v])) {
+                out.push((i, j));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn the_intersection_check_sees_crossing_touching_and_coplanar_overlaps() {
+    let t = [DVec3::ZERO, DVec3::X, DVec3::Y];
+    let v = DVec3::new;
+    // Piercing.
+    assert!(triangles_meet(
+        t,
+        [v(0.2, 0.2, -1.0), v(0.2, 0.2, 1.0), v(3.0, 3.0, 0.5)]
+    ));
+    // Just above: apart.
+    assert!(!triangles_meet(
+        t,
+        [v(0.2, 0.2, 1e-12), v(0.3, 0.2, 1.0), v(0.2, 0.3, 1.0)]
+    ));
+    // Touching with a vertex on the face.
+    assert!(triangles_meet(
+        t,
+        [v(0.2, 0.2, 0.0), v(0.3, 0.2, 1.0), v(0.2, 0.3, 1.0)]
+    ));
+    // Coplanar overlap and coplanar disjoint.
+    assert!(triangles_meet(
+        t,
+        [v(0.5, 0.5, 0.0), v(-1.0, 0.2, 0.0), v(0.2, -1.0, 0.0)]
+    ));
+    assert!(!triangles_meet(
+        t,
+        [v(2.0, 2.0, 0.0), v(3.0, 2.0, 0.0), v(2.0, 3.0, 0.0)]
+    ));
+    // One inside the other, coplanar.
+    assert!(triangles_meet(
+        t,
+        [v(0.1, 0.1, 0.0), v(0.2, 0.1, 0.0), v(0.1, 0.2, 0.0)]
+    ));
+    // An edge through an edge: the other triangle's edge from (0.5, -0.5) to
+    // (0.25, 0.25) crosses the edge along x at (0.417, 0), leaving the plane upward.
+    assert!(triangles_meet(
+        t,
+        [v(0.5, -0.5, 0.0), v(0.25, 0.25, 0.0), v(0.5, -0.5, 1.0)]
+    ));
+    // Interlocked like chain links, no vertex inside the other.
+    assert!(triangles_meet(
+        [v(-1.0, 0.0, 0.0), v(1.0, 0.0, 0.0), v(0.0, 2.0, 0.0)],
+        [v(0.0, 1.0, -1.0), v(0.0, 1.0, 1.0), v(0.0, -1.0, 0.0)]
+    ));
+}
+
+// ---------------------------------------------------------------------------------------
+// The runs.
+
+/// The smallest gap (distance minus `thickness`) over every vertex-triangle and edge-edge
+/// pair sharing no vertex, by brute force.
+fn min_gap(x: &[DVec3], triangles: &[[usize; 3]], thickness: f64) -> f64 {
+    let mesh = TriangleMesh::new(x.to_vec(), triangles.to_vec()).unwrap();
+    let edges = mesh.edges();
+    let mut min = f64::INFINITY;
+    for (v, _) in x.iter().enumerate() {
+        for t in triangles {
+            if !t.contains(&v) {
+                let pair = [x[v], x[t[0]], x[t[1]], x[t[2]]];
+                min = min.min(squared_distance(PairKind::PointTriangle, &pair));
+            }
+        }
+    }
+    for (i, a) in edges.iter().enumerate() {
+        for b in &edges[i + 1..] {
+            if !a.iter().any(|v| b.contains(v)) {
+                let pair = [x[a[0]], x[a[1]], x[b[0]], x[b[1]]];
+                min = min.min(squared_distance(PairKind::EdgeEdge, &pair));
+            }
+        }
+    }
+    min.sqrt() - thickness
+}
+
+/// An `n x m` grid of points `origin + i s u + j s w` and its triangles, indices offset.
+fn grid(
+    n: usize,
+    origin: DVec3,
+    u: DVec3,
+    w: DVec3,
+    s: f64,
+    offset: usize,
+) -> (Vec<DVec3>, Vec<[usize; 3]>) {
+    let x = (0..n)
+        .flat_map(|i| (0..n).map(move |j| origin + s * (i as f64 * u + j as f64 * w)))
+        .collect();
+    let grid = ClothGrid {
+        size: n,
+        ..ClothGrid::lab()
+    };
+    let t = grid
+        .triangles()
+        .into_iter()
+        .map(|t| t.map(|v| v + offset))
+        .collect();
+    (x, t)
+}
+
+struct Run {
+    model: MeshClothModel,
+    system: SpringSystem,
+    integrator: sinew_spring_sim::BackwardEuler,
+    stats: Arc<SelfContactStats>,
+    settings: SelfContactSettings,
+}
+
+fn build(
+    positions: Vec<DVec3>,
+    triangles: Vec<[usize; 3]>,
+    fixed: Vec<usize>,
+    colliders: Vec<Collider>,
+    settings: SelfContactSettings,
+) -> Run {
+    let mesh = TriangleMesh::new(positions, triangles).unwrap();
+    let cloth = MeshCloth {
+        areal_density: 0.2,
+        material: material(),
+        bending: Bending::None,
+        fixed,
+    };
+    let model = cloth.build(&mesh).unwrap();
+    let newton = NewtonSettings {
+        record_objective: true,
+        ..NewtonSettings::default()
+    };
+    let mut integrator = model.backward_euler(newton).unwrap();
+    if !colliders.is_empty() {
+        let contact = ContactPotential::new(colliders, ContactSettings::default(), 0.0).unwrap();
+        integrator.add_term(Box::new(ContactTerm::new(contact)));
+    }
+    let stats = model
+        .enable_self_contact(&mut integrator, settings)
+        .unwrap();
+    let system = model.system.clone();
+    Run {
+        model,
+        system,
+        integrator,
+        stats,
+        settings,
+    }
+}
+
+/// Steps `run` `steps` times, checking every accepted state; returns the smallest gap
+/// seen and the number of particle pairs the pattern was widened by.
+fn run_checked(run: &mut Run, steps: usize) -> (f64, usize) {
+    let triangles = run.model.triangles.clone();
+    let mut smallest = f64::INFINITY;
+    let mut widened = 0;
+    for step in 0..steps {
+        let nnz = run.integrator.pattern().nnz();
+        run.integrator.step(&mut run.system, H).unwrap();
+        // Slots for the pairs contact coupled, so later steps get their full blocks.
+        let added = widen_pattern(&mut run.integrator, &run.system, &run.stats).unwrap();
+        assert_eq!(
+            added > 0,
+            run.integrator.pattern().nnz() > nnz,
+            "step {step}"
+        );
+        widened += added;
+        let trace = run.integrator.objective_trace();
+        for (k, w) in trace.windows(2).enumerate() {
+            // Only the round-off of evaluating g twice separates equal values.
+            assert!(
+                w[1] <= w[0] + 1e-12 * w[0].abs(),
+                "step {step}, iterate {k}: g rose from {} to {}",
+                w[0],
+                w[1]
+            );
+        }
+        let x = run.system.positions();
+        let bad = intersecting_pairs(x, &triangles);
+        assert!(bad.is_empty(), "step {step}: triangles {bad:?} intersect");
+        let gap = min_gap(x, &triangles, run.settings.thickness);
+        assert!(gap > 0.0, "step {step}: smallest gap {gap}");
+        smallest = smallest.min(gap);
+    }
+    (smallest, widened)
+}
+
+#[test]
+fn a_sheet_dropped_onto_a_pinned_sheet_rests_on_it_without_crossing() {
+    let n = 7;
+    let s = 0.05;
+    let (mut x, mut t) = grid(n, DVec3::ZERO, DVec3::X, DVec3::Z, s, 0);
+    // The top sheet, 2 cm up, shifted so no vertex is above a vertex, and turned a little.
+    let (turn_u, turn_w) = (
+        DVec3::new(0.995, 0.0, 0.0998),
+        DVec3::new(-0.0998, 0.0, 0.995),
+    );
+    let (xt, tt) = grid(
+        n,
+        DVec3::new(0.03, 0.02, 0.02),
+        turn_u,
+        turn_w,
+        0.8 * s,
+        x.len(),
+    );
+    x.extend(xt);
+    t.extend(tt);
+    // The bottom sheet is pinned along its border.
+    let fixed: Vec<usize> = (0..n * n)
+        .filter(|k| k / n == 0 || k / n == n - 1 || k % n == 0 || k % n == n - 1)
+        .collect();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 1e-3,
+        ..SelfContactSettings::default()
+    };
+    let mut run = build(x, t, fixed, Vec::new(), settings);
+    let (smallest, widened) = run_checked(&mut run, 45);
+    // Contact coupled particles no spring joins, and the pattern gained their slots.
+    assert!(widened > 0);
+    // The top sheet landed: it came within the barrier's reach and stays there, resting
+    // on the bottom sheet rather than falling through it.
+    assert!(smallest < settings.dhat, "smallest gap {smallest}");
+    let x = run.system.positions();
+    let top_low = x[n * n..].iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
+    let bottom_high = x[..n * n]
+        .iter()
+        .map(|p| p.y)
+        .fold(f64::NEG_INFINITY, f64::max);
+    assert!(top_low > bottom_high - 0.05, "{top_low} {bottom_high}");
+    assert!(run.stats.kappa() > 0.0);
+    // Every top vertex is still above the bottom sheet's plane region it is over.
+    let centre_top = x[n * n + n * n / 2];
+    let centre_bottom = x[n * n / 2];
+    assert!(
+        centre_top.y > centre_bottom.y,
+        "{centre_top} {centre_bottom}"
+    );
+}
+
+#[test]
+fn a_hanging_sheet_collapses_onto_the_ground_and_folds_onto_itself_without_crossing() {
+    let n = 8;
+    let s = 0.04;
+    // A vertical sheet, bottom edge 5 mm above the ground, leaning a little so it folds.
+    let up = DVec3::new(0.0, 0.995, 0.0998);
+    let (x, t) = grid(n, DVec3::new(0.0, 0.005, 0.0), DVec3::X, up, s, 0);
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 1e-3,
+        ..SelfContactSettings::default()
+    };
+    let mut run = build(x, t, Vec::new(), vec![Collider::ground(0.0)], settings);
+    let (smallest, _) = run_checked(&mut run, 40);
+    let x = run.system.positions();
+    // It fell: the top edge came down from 0.28 m to a pile.
+    let top = x.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max);
+    assert!(top < 0.15, "top at {top}");
+    // And it touched itself (a pair came within the barrier's reach).
+    assert!(smallest < settings.dhat, "smallest gap {smallest}");
+    assert!(x.iter().all(|p| p.y > 0.0));
+}
+
+#[test]
+fn bad_input_is_an_error_naming_it() {
+    let (x, t) = grid(3, DVec3::ZERO, DVec3::X, DVec3::Z, 0.1, 0);
+    let mesh = TriangleMesh::new(x.clone(), t.clone()).unwrap();
+    let cloth = MeshCloth {
+        areal_density: 0.2,
+        material: material(),
+        bending: Bending::None,
+        fixed: vec![],
+    };
+    let model = cloth.build(&mesh).unwrap();
+    let mut be = model.backward_euler(NewtonSettings::default()).unwrap();
+    let err = model
+        .enable_self_contact(
+            &mut be,
+            SelfContactSettings {
+                dhat: -1.0,
+                ..SelfContactSettings::default()
+            },
+        )
+        .unwrap_err();
+    assert!(err.to_string().contains("dhat"), "{err}");
+    let err = sinew_spring_sim::contact::self_contact::enable_self_contact(
+        &mut be,
+        &model.system,
+        &[[0, 1, 99]],
+        SelfContactSettings::default(),
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("triangle 0"), "{err}");
+    // Two sheets 0.5 mm apart with a 1 mm thickness: the start is refused, naming a pair.
+    let (mut x2, mut t2) = grid(3, DVec3::ZERO, DVec3::X, DVec3::Z, 0.1, 0);
+    let (xb, tb) = grid(3, DVec3::new(0.01, 5e-4, 0.01), DVec3::X, DVec3::Z, 0.1, 9);
+    x2.extend(xb);
+    t2.extend(tb);
+    let mesh = TriangleMesh::new(x2, t2).unwrap();
+    let model = cloth.build(&mesh).unwrap();
+    let mut be = model.backward_euler(NewtonSettings::default()).unwrap();
+    let err = model
+        .enable_self_contact(
+            &mut be,
+            SelfContactSettings {
+                thickness: 1e-3,
+                ..SelfContactSettings::default()
+            },
+        )
+        .unwrap_err();
+    assert!(
+        err.to_string().contains("vertex") || err.to_string().contains("edge"),
+        "{err}"
+    );
+}

@@ -1,0 +1,179 @@
+//! The self-contact term on two small sheets 1.5 mm apart: its gradient against central
+//! differences of its energy, its energy change against the direct difference, its
+//! Hessian positive semidefinite, `max_step` stopping a step that would pass one sheet
+//! through the other at the kept fraction of the gap, and the energy `+inf` within the
+//! thickness.
+
+use sinew_math::DVec3;
+use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactTerm};
+use sinew_spring_sim::potential::{HessianSink, StepContext, Term};
+use sinew_spring_sim::spring::Curvature;
+use sinew_spring_sim::{Bending, ClothGrid, Material, MeshCloth, SpringSystem, TriangleMesh};
+
+fn two_sheets() -> (SpringSystem, Vec<[usize; 3]>) {
+    let n = 3;
+    let grid = ClothGrid {
+        size: n,
+        ..ClothGrid::lab()
+    };
+    let mut x = Vec::new();
+    let mut t = grid.triangles();
+    for (offset, h) in [(DVec3::ZERO, 0.0), (DVec3::new(0.013, 0.0, 0.021), 0.0015)] {
+        let base = x.len();
+        for i in 0..n {
+            for j in 0..n {
+                x.push(offset + DVec3::new(0.05 * i as f64, h, 0.05 * j as f64));
+            }
+        }
+        if base > 0 {
+            t.extend(
+                grid.triangles()
+                    .into_iter()
+                    .map(|tri| tri.map(|v| v + base)),
+            );
+        }
+    }
+    let mesh = TriangleMesh::new(x, t.clone()).unwrap();
+    let cloth = MeshCloth {
+        areal_density: 0.2,
+        material: Material {
+            stiffness: 100.0,
+            damping: 0.0,
+            gravity: DVec3::new(0.0, -9.81, 0.0),
+        },
+        bending: Bending::None,
+        fixed: vec![0],
+    };
+    (cloth.build(&mesh).unwrap().system, t)
+}
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    }
+}
+
+#[test]
+fn the_term_is_one_consistent_function() {
+    let (system, triangles) = two_sheets();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        ..SelfContactSettings::default()
+    };
+    let mut term = SelfContactTerm::new(&system, &triangles, settings).unwrap();
+    let x0 = system.positions().to_vec();
+    let step = StepContext::new(&system, 1.0 / 60.0, &x0, &x0);
+    term.begin_step(&step);
+    assert!(term.kappa() > 0.0);
+    let mut rng = Rng(7);
+    // A state with the sheets a little crumpled, every gap between 0.5 and 2.5 mm.
+    let x: Vec<DVec3> = x0
+        .iter()
+        .map(|p| *p + 2e-4 * DVec3::new(rng.next(), rng.next(), rng.next()))
+        .collect();
+    let e = term.energy(&step, &x);
+    assert!(e > 0.0 && e.is_finite(), "{e}");
+    // The gradient against central differences (every free coordinate).
+    let mut g = vec![DVec3::ZERO; x.len()];
+    term.add_gradient(&step, &x, &mut g);
+    let h = 1e-9;
+    let scale = g.iter().map(|v| v.abs().max_element()).fold(0.0, f64::max);
+    for i in 1..x.len() {
+        for c in 0..3 {
+            let (mut xp, mut xm) = (x.clone(), x.clone());
+            xp[i][c] += h;
+            xm[i][c] -= h;
+            let fd = (term.energy(&step, &xp) - term.energy(&step, &xm)) / (2.0 * h);
+            assert!(
+                (fd - g[i][c]).abs() <= 1e-5 * scale,
+                "particle {i} coordinate {c}: {} vs {fd}",
+                g[i][c]
+            );
+        }
+    }
+    // The same gradient through the active set collected at x.
+    term.update_active_set(&step, &x);
+    let mut g2 = vec![DVec3::ZERO; x.len()];
+    term.add_gradient(&step, &x, &mut g2);
+    for (a, b) in g.iter().zip(&g2) {
+        assert!((*a - *b).length() <= 1e-12 * scale);
+    }
+    // The change along a direction against the direct difference.
+    let dx: Vec<DVec3> = (0..x.len())
+        .map(|_| 5e-4 * DVec3::new(rng.next(), rng.next(), rng.next()))
+        .collect();
+    for alpha in [1e-3, 0.1, 0.5] {
+        let moved: Vec<DVec3> = x.iter().zip(&dx).map(|(p, d)| *p + alpha * *d).collect();
+        let direct = term.energy(&step, &moved) - term.energy(&step, &x);
+        let change = term.energy_change(&step, &x, &dx, alpha);
+        assert!(
+            (change - direct).abs() <= 1e-9 * e,
+            "{alpha}: {change} vs {direct}"
+        );
+    }
+    // The Hessian is positive semidefinite: z^T H z >= 0 for random z.
+    let fixed = system.fixed().to_vec();
+    for _ in 0..20 {
+        let z: Vec<DVec3> = (0..x.len())
+            .map(|_| DVec3::new(rng.next(), rng.next(), rng.next()))
+            .collect();
+        let mut out = vec![DVec3::ZERO; x.len()];
+        let mut sink = HessianSink::product(&fixed, &z, &mut out);
+        term.add_hessian(&step, &x, Curvature::Clamped, &mut sink);
+        let q: f64 = z.iter().zip(&out).map(|(a, b)| a.dot(*b)).sum();
+        let norm: f64 = out.iter().map(|v| v.length()).sum();
+        assert!(q >= -1e-12 * norm, "{q}");
+        assert!(norm > 0.0);
+    }
+}
+
+#[test]
+fn max_step_stops_a_step_through_the_other_sheet() {
+    let (system, triangles) = two_sheets();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 5e-4,
+        ..SelfContactSettings::default()
+    };
+    let mut term = SelfContactTerm::new(&system, &triangles, settings).unwrap();
+    let x = system.positions().to_vec();
+    let step = StepContext::new(&system, 1.0 / 60.0, &x, &x);
+    term.begin_step(&step);
+    // The top sheet moves 3 mm down: through the bottom sheet (1.5 mm below it).
+    let dx: Vec<DVec3> = (0..x.len())
+        .map(|i| {
+            if i >= 9 {
+                DVec3::new(0.0, -3e-3, 0.0)
+            } else {
+                DVec3::ZERO
+            }
+        })
+        .collect();
+    let alpha = term.max_step(&step, &x, &dx);
+    // The gap is 1 mm (1.5 mm minus the thickness), closing at 3 mm per unit step: it
+    // would vanish at 1/3, and a tenth of it is kept, so alpha = 0.9 / 3.
+    assert!((alpha - 0.3).abs() < 1e-9, "{alpha}");
+    let moved: Vec<DVec3> = x.iter().zip(&dx).map(|(p, d)| *p + alpha * *d).collect();
+    assert!(term.min_gap(&moved, system.fixed()) > 0.0);
+    assert!(term.energy(&step, &moved).is_finite());
+    // The full step's end: through the sheet and out, but the energy's change to within
+    // the thickness is infinite, so no line search accepts it.
+    let within: Vec<DVec3> = x.iter().zip(&dx).map(|(p, d)| *p + 0.45 * *d).collect();
+    assert_eq!(term.energy(&step, &within), f64::INFINITY);
+    assert_eq!(term.energy_change(&step, &x, &dx, 0.45), f64::INFINITY);
+    // A step moving the sheets apart is not capped below the full step.
+    let apart: Vec<DVec3> = (0..x.len())
+        .map(|i| {
+            if i >= 9 {
+                DVec3::new(0.0, 1e-3, 0.0)
+            } else {
+                DVec3::ZERO
+            }
+        })
+        .collect();
+    assert!(term.max_step(&step, &x, &apart) >= 1.0);
+}
