@@ -181,6 +181,9 @@ pub struct StepReport {
     /// 1/2 |v' - v_n|_M^2 <= E_total` at the start); the abandoned unsplit iterate is
     /// then the step, counted in `unconverged_pieces`.
     pub rejected_splits: usize,
+    /// Particle pairs given Hessian slots after this step because a term (self-contact)
+    /// coupled them without one; the next steps' Newton matrices have their full blocks.
+    pub pattern_pairs_added: usize,
 }
 
 impl StepReport {
@@ -211,6 +214,7 @@ impl StepReport {
             split_depth: 0,
             unconverged_pieces: 0,
             rejected_splits: 0,
+            pattern_pairs_added: 0,
         }
     }
 

@@ -264,9 +264,9 @@ impl BackwardEuler {
 
     /// Widens the Hessian pattern with slots for the particle pairs `pairs` (kept with
     /// those of earlier calls) without adding a term, for a term whose coupled pairs
-    /// appear during a run (self-contact: see
-    /// `contact::self_contact::widen_pattern`). The linear solvers are rebuilt on the
-    /// new pattern. An index out of range is an `Err` naming it, and nothing changes.
+    /// appear during a run (each step already does this for the pairs its terms report
+    /// through `Term::take_missing_pairs`). The linear solvers are rebuilt on the new
+    /// pattern. An index out of range is an `Err` naming it, and nothing changes.
     pub fn add_coupled_pairs(
         &mut self,
         system: &SpringSystem,
@@ -364,6 +364,14 @@ impl BackwardEuler {
         let mut report = self.step_in_pieces(system, h, scheme, depth, true)?;
         report.energy_before = energy_before;
         report.energy_after = system.energies();
+        // Pairs a term coupled without Hessian slots (self-contact between particles no
+        // spring joins) get slots for the next steps: the pattern only grows, and a step
+        // that found none rebuilds nothing.
+        let missing = self.potential.take_missing_pairs();
+        if !missing.is_empty() {
+            self.add_coupled_pairs(system, &missing)?;
+            report.pattern_pairs_added = missing.len();
+        }
         Ok(report)
     }
 

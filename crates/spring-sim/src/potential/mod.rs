@@ -135,6 +135,14 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
         let _ = (step, x, dx);
         f64::INFINITY
     }
+
+    /// The particle pairs (`[low, high]`) this term coupled since the last call without a
+    /// slot in the Hessian pattern (it then wrote only the blocks the pattern has). The
+    /// integrator takes them after every step and widens its pattern, so later steps get
+    /// the pairs' full blocks; none by default.
+    fn take_missing_pairs(&mut self) -> Vec<[usize; 2]> {
+        Vec::new()
+    }
 }
 
 /// The terms of one minimization, evaluated in order and summed.
@@ -224,6 +232,18 @@ impl Potential {
         for t in &self.terms {
             t.prepare_start(step, x);
         }
+    }
+
+    /// Every term's [`Term::take_missing_pairs`], sorted and without repeats.
+    pub fn take_missing_pairs(&mut self) -> Vec<[usize; 2]> {
+        let mut pairs: Vec<[usize; 2]> = self
+            .terms
+            .iter_mut()
+            .flat_map(|t| t.take_missing_pairs())
+            .collect();
+        pairs.sort_unstable();
+        pairs.dedup();
+        pairs
     }
 
     /// [`Term::update_active_set`] on every term.

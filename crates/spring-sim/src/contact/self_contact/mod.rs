@@ -28,6 +28,4 @@ pub use broad::{Candidate, Primitives, candidates};
 pub use ccd::additive_ccd;
 pub use distance::{Closest, PairKind, squared_distance, squared_distance_derivatives};
 pub use dual::Dual12;
-pub use term::{
-    SelfContactSettings, SelfContactStats, SelfContactTerm, enable_self_contact, widen_pattern,
-};
+pub use term::{SelfContactSettings, SelfContactStats, SelfContactTerm, enable_self_contact};

@@ -29,8 +29,9 @@
 //! those are missing too, only its diagonal blocks). A principal block-diagonal part of a
 //! positive semidefinite matrix is positive semidefinite, so the Newton matrix stays
 //! positive definite and the step a descent direction; only the convergence rate pays.
-//! The particle pairs left without slots are recorded in the statistics, and
-//! [`widen_pattern`], called between steps, adds them to the integrator's pattern.
+//! The particle pairs left without slots are recorded, and the integrator takes them
+//! after every step ([`crate::potential::Term::take_missing_pairs`]) and widens its
+//! pattern, so later steps get the pairs' full blocks.
 
 use super::broad::{Candidate, Primitives, candidates};
 use super::ccd::additive_ccd;
@@ -44,7 +45,7 @@ use crate::contact::barrier::{
     AdaptiveKappa, KappaSettings, barrier, barrier_first_derivative, barrier_second_derivative,
     minimum_kappa,
 };
-use crate::model::{ModelError, SpringSystem};
+use crate::model::SpringSystem;
 use crate::newton::BackwardEuler;
 use crate::potential::{HessianSink, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
@@ -171,7 +172,8 @@ impl SelfContactStats {
     }
 
     /// Takes the particle pairs (`[low, high]`, sorted) that contact pairs coupled since
-    /// the last call but the Hessian pattern had no slots for (see [`widen_pattern`]).
+    /// the last call but the Hessian pattern had no slots for (the integrator takes them
+    /// after every step through the term; this is for a caller that runs the term alone).
     #[must_use]
     pub fn take_missing_pairs(&self) -> Vec<[usize; 2]> {
         let mut set = self.missing.lock().unwrap_or_else(PoisonError::into_inner);
@@ -461,6 +463,10 @@ impl Term for SelfContactTerm {
         "self-contact"
     }
 
+    fn take_missing_pairs(&mut self) -> Vec<[usize; 2]> {
+        self.stats.take_missing_pairs()
+    }
+
     fn begin_step(&mut self, step: &StepContext<'_>) {
         let s = step.system;
         let (x, fixed) = (s.positions(), s.fixed());
@@ -646,22 +652,6 @@ fn scatter(
             let _ = sink.add_pair(v[a], v[b], &block(h, a, b));
         }
     }
-}
-
-/// Widens `integrator`'s Hessian pattern with the particle pairs self-contact coupled
-/// without slots since the last call ([`SelfContactStats::take_missing_pairs`]), so the
-/// next steps get the pairs' full Hessian blocks; call it between steps. Returns how
-/// many pairs were added (0: nothing was rebuilt).
-pub fn widen_pattern(
-    integrator: &mut BackwardEuler,
-    system: &SpringSystem,
-    stats: &SelfContactStats,
-) -> Result<usize, ModelError> {
-    let pairs = stats.take_missing_pairs();
-    if !pairs.is_empty() {
-        integrator.add_coupled_pairs(system, &pairs)?;
-    }
-    Ok(pairs.len())
 }
 
 /// Adds self-contact of the cloth `system` with surface `triangles` to `integrator`
