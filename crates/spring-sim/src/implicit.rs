@@ -66,6 +66,11 @@ impl ImplicitMidpoint {
     pub fn newton(&self) -> &BackwardEuler {
         &self.newton
     }
+
+    /// The Newton workspace, to add terms (contact) and set the step's time.
+    pub(crate) fn newton_mut(&mut self) -> &mut BackwardEuler {
+        &mut self.newton
+    }
 }
 
 /// BDF2 by Newton, with its one step of history. Second order and L-stable: it damps

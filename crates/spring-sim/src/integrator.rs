@@ -603,14 +603,15 @@ impl Simulation {
     }
 
     /// Adds contact with `colliders` (validated; the error names the collider or the
-    /// setting). With backward Euler, contact is IPC's barrier and lagged friction in the
-    /// minimization, with the line search capped by the time of impact, so no accepted
-    /// state has a particle inside a collider (docs/contact.md). With the explicit
+    /// setting). With backward Euler, BDF2 and implicit midpoint, contact is IPC's barrier
+    /// and lagged friction in the minimization, with the line search capped by the time
+    /// of impact, so no accepted state has a particle inside a collider (docs/contact.md;
+    /// for the midpoint the barrier acts on the end state). With the explicit
     /// integrators ([`Integrator::SymplecticEuler`], [`Integrator::VelocityVerlet`],
     /// [`Integrator::SymplecticEulerBounded`]) every particle is projected out of every
     /// collider after each step ([`crate::contact::projection`]): **not guaranteed**.
-    /// BDF2, implicit midpoint, `auto` and the flawed reference method have no contact
-    /// yet: an error. Contact can be set once.
+    /// `auto` and the flawed reference method have no contact yet: an error. Contact can
+    /// be set once.
     pub fn set_contact(
         &mut self,
         colliders: Vec<Collider>,
@@ -623,13 +624,25 @@ impl Simulation {
         }
         crate::contact::collider::validate_colliders(&colliders)?;
         settings.validate()?;
-        let stats = match &mut self.stepper {
-            Stepper::BackwardEuler(be) => {
+        let newton = match &mut self.stepper {
+            Stepper::BackwardEuler(be) => Some(&mut **be),
+            Stepper::Bdf2(b) => Some(b.newton_mut()),
+            Stepper::Midpoint(m) => Some(m.newton_mut()),
+            Stepper::SymplecticEuler(_) | Stepper::Bounded(_) => None,
+            Stepper::Auto(_) => return Err(ContactError::Unsupported { what: "auto" }),
+            Stepper::Flawed(_) => {
+                return Err(ContactError::Unsupported {
+                    what: "the flawed reference method",
+                });
+            }
+        };
+        let stats = match newton {
+            Some(newton) => {
                 if colliders.iter().any(|c| !c.is_static()) {
                     // The contact term advances its own clock at every start of a step,
                     // so a step redone in pieces would pose moving colliders at the
                     // wrong times.
-                    be.forbid_splitting();
+                    newton.forbid_splitting();
                 }
                 let term = ContactTerm::new(ContactPotential::new(
                     colliders.clone(),
@@ -637,22 +650,10 @@ impl Simulation {
                     self.time,
                 )?);
                 let stats = term.stats();
-                be.add_term(Box::new(term));
+                newton.add_term(Box::new(term));
                 Some(stats)
             }
-            Stepper::SymplecticEuler(_) | Stepper::Bounded(_) => None,
-            Stepper::Bdf2(_) => return Err(ContactError::Unsupported { what: "BDF2" }),
-            Stepper::Midpoint(_) => {
-                return Err(ContactError::Unsupported {
-                    what: "implicit midpoint",
-                });
-            }
-            Stepper::Auto(_) => return Err(ContactError::Unsupported { what: "auto" }),
-            Stepper::Flawed(_) => {
-                return Err(ContactError::Unsupported {
-                    what: "the flawed reference method",
-                });
-            }
+            None => None,
         };
         self.contact = Some(Contact {
             colliders,
@@ -676,7 +677,7 @@ impl Simulation {
         self.contact.as_ref().map(|c| &c.settings)
     }
 
-    /// The barrier stiffness `kappa` of backward Euler's contact term (`None` without
+    /// The barrier stiffness `kappa` of the implicit integrators' contact term (`None` without
     /// one; 0 before the first step).
     #[must_use]
     pub fn contact_kappa(&self) -> Option<f64> {
@@ -727,7 +728,17 @@ impl Simulation {
     pub fn step(&mut self, dt: f64) -> Result<StepReport, StepError> {
         crate::model::check_time_step(dt)?;
         self.topology.check(&self.system.topology())?;
-        if let (Some(contact), Stepper::BackwardEuler(_)) = (&mut self.contact, &self.stepper) {
+        // The implicit integrators' step starts at the simulation's time (their terms
+        // pose kinematic colliders from it).
+        match &mut self.stepper {
+            Stepper::BackwardEuler(be) => be.set_time(self.time),
+            Stepper::Bdf2(b) => b.newton_mut().set_time(self.time),
+            Stepper::Midpoint(m) => m.newton_mut().set_time(self.time),
+            _ => {}
+        }
+        if let Some(contact) = &mut self.contact
+            && contact.stats.is_some()
+        {
             // The minimization starts from an admissible state: the step's start, with
             // particles a kinematic collider would run over carried along with it
             // (the contact term does the same to Newton's first iterate). Two colliders

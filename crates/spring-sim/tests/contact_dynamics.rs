@@ -240,8 +240,8 @@ fn refusals_name_what_is_wrong() {
     let particle = Particle::at_rest(DVec3::new(0.0, 0.01, 0.0), 1.0);
     let system = SpringSystem::new(&[particle], &[], material()).unwrap();
     for integrator in [
-        Integrator::Bdf2(NewtonSettings::default()),
-        Integrator::ImplicitMidpoint(NewtonSettings::default()),
+        Integrator::FlawedReportMethod,
+        Integrator::Auto(sinew_spring_sim::AutoSettings::default()),
     ] {
         let mut sim = Simulation::new(system.clone(), integrator).unwrap();
         let err = sim

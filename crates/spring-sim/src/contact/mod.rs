@@ -42,7 +42,7 @@ pub use barrier::{AdaptiveKappa, KappaSettings, PointBarrier, point_barrier};
 pub use collider::{Collider, Motion, Shape};
 pub use distance::{SignedDistance, signed_distance};
 pub use friction::FrictionContact;
-pub use potential::ContactPotential;
+pub use potential::{ContactPotential, ContactStep};
 pub use projection::{ProjectedParticle, project_particle};
 pub use term::{ContactStats, ContactTerm};
 pub use toi::time_of_impact;
@@ -112,7 +112,7 @@ impl fmt::Display for ContactError {
             Self::BadMesh { item, reason } => write!(f, "self-contact: {item} {reason}"),
             Self::Unsupported { what } => write!(
                 f,
-                "contact is not supported for {what} (backward Euler has the guaranteed barrier; the explicit integrators a projection)"
+                "contact is not supported for {what} (backward Euler, BDF2 and implicit midpoint have the guaranteed barrier; the explicit integrators a projection)"
             ),
         }
     }

@@ -40,6 +40,32 @@ pub struct ContactPotential {
     /// The colliders posed at the current step's end time.
     posed: Vec<Shape>,
     friction: Vec<(usize, FrictionContact)>,
+    /// `kappa` at the last start of a step, for [`Self::rewind_kappa`].
+    kappa_at_start: Option<AdaptiveKappa>,
+}
+
+/// One step as the contact potential sees it: its positions are the ones the barrier
+/// constrains (the end-of-step positions), minimized with the effective step `h`.
+#[derive(Clone, Copy, Debug)]
+pub struct ContactStep<'a> {
+    /// The positions at the step's start, `x_n` (friction is lagged there).
+    pub positions: &'a [DVec3],
+    /// The point friction's tangential displacement is measured from (`x_n` for backward
+    /// Euler and for the midpoint's end state, `(4 x_n - x_{n-1})/3` for BDF2).
+    pub anchor: &'a [DVec3],
+    /// Which particles are fixed.
+    pub fixed: &'a [bool],
+    /// The particle masses (for the first `kappa`).
+    pub masses: &'a [f64],
+    /// Gravity's magnitude (for the first `kappa`).
+    pub gravity: f64,
+    /// The effective step over the constrained positions: the velocity is
+    /// `(x - anchor)/h`, the inertia term's stiffness `m/h^2`.
+    pub h: f64,
+    /// The time at the step's start (friction's lag, the carry's start pose).
+    pub start: f64,
+    /// The time at the step's end (the colliders are posed there).
+    pub end: f64,
 }
 
 impl ContactPotential {
@@ -69,6 +95,7 @@ impl ContactPotential {
             step_start: start_time,
             posed,
             friction: Vec::new(),
+            kappa_at_start: None,
         })
     }
 
@@ -108,10 +135,9 @@ impl ContactPotential {
         self.friction.len()
     }
 
-    /// Starts a step of length `h` from `positions` (the state at the step's start):
-    /// sets `kappa` on the first step (from the mean free mass, gravity's magnitude, `h`
-    /// and `dhat`), lags the friction contacts at the start state and start time, and
-    /// poses the colliders at the end time.
+    /// Starts a step of length `h` from `positions` (the state at the step's start) at
+    /// the potential's own time ([`Self::time`], advanced by `h`): backward Euler's
+    /// [`ContactStep`] with the anchor at the start state (see [`Self::begin`]).
     pub fn begin_step(
         &mut self,
         positions: &[DVec3],
@@ -120,17 +146,39 @@ impl ContactPotential {
         gravity: f64,
         h: f64,
     ) {
+        let start = self.clock;
+        self.begin(&ContactStep {
+            positions,
+            anchor: positions,
+            fixed,
+            masses,
+            gravity,
+            h,
+            start,
+            end: start + h,
+        });
+    }
+
+    /// Starts the step `step`: sets `kappa` on the first step (from the mean free mass,
+    /// gravity's magnitude, `step.h` and `dhat`), lags the friction contacts at
+    /// `step.positions` and `step.start` with their displacement measured from
+    /// `step.anchor` over `step.h`, and poses the colliders at `step.end`. The times are
+    /// inputs, so a step redone (in pieces) poses the colliders again from its own start.
+    pub fn begin(&mut self, step: &ContactStep<'_>) {
+        let (positions, fixed, h) = (step.positions, step.fixed, step.h);
         let kappa = *self.kappa.get_or_insert_with(|| {
-            let (sum, count) = masses
+            let (sum, count) = step
+                .masses
                 .iter()
                 .zip(fixed)
                 .filter(|(_, f)| !**f)
                 .fold((0.0, 0usize), |(s, c), (m, _)| (s + m, c + 1));
             let mean = if count > 0 { sum / count as f64 } else { 1.0 };
-            let kmin = minimum_kappa(self.settings.dhat, mean, gravity, h);
+            let kmin = minimum_kappa(self.settings.dhat, mean, step.gravity, h);
             AdaptiveKappa::new(kmin, None, self.kappa_settings)
         });
-        let start = self.clock;
+        self.kappa_at_start = Some(kappa);
+        let start = step.start;
         self.friction.clear();
         if self.settings.mu > 0.0 {
             for collider in &self.colliders {
@@ -144,17 +192,28 @@ impl ContactPotential {
                     if fixed[i] {
                         continue;
                     }
-                    if let Some(contact) =
+                    if let Some(mut contact) =
                         FrictionContact::lagged(collider, x, start, h, kappa.kappa, &self.settings)
                     {
+                        // The lag point stays x_n (normal, force, basis); the displacement
+                        // is measured from the scheme's reference point.
+                        contact.start = step.anchor[i];
                         self.friction.push((i, contact));
                     }
                 }
             }
         }
         self.step_start = start;
-        self.clock = start + h;
+        self.clock = step.end;
         self.posed = self.colliders.iter().map(|c| c.at(self.clock)).collect();
+    }
+
+    /// Puts `kappa` back to its value at the last [`Self::begin`], for a step that is
+    /// abandoned and redone (its growth during the abandoned solve is not kept).
+    pub fn rewind_kappa(&mut self) {
+        if let Some(k) = self.kappa_at_start {
+            self.kappa = Some(k);
+        }
     }
 
     /// [`carry_with_colliders`] for the current step (from the time of the last
@@ -296,6 +355,18 @@ impl ContactPotential {
 
     /// Adds the gradient at `x` (one entry per particle; fixed particles get nothing).
     pub fn add_gradient(&self, x: &[DVec3], fixed: &[bool], gradient: &mut [DVec3]) {
+        self.add_gradient_scaled(x, fixed, 1.0, gradient);
+    }
+
+    /// Adds `scale` times the gradient at `x` (the chain rule's factor when `x` is an
+    /// affine function of the unknowns, as the midpoint's end state is).
+    pub fn add_gradient_scaled(
+        &self,
+        x: &[DVec3],
+        fixed: &[bool],
+        scale: f64,
+        gradient: &mut [DVec3],
+    ) {
         if let Some(kappa) = self.kappa {
             let bounds = free_box(x, fixed, None);
             for shape in self.near(&bounds) {
@@ -307,14 +378,14 @@ impl ContactPotential {
                     if let PointBarrier::Active { gradient: g, .. } =
                         point_barrier(kappa.kappa, self.settings.dhat, &sd)
                     {
-                        gradient[i] += g;
+                        gradient[i] += scale * g;
                     }
                 }
             }
         }
         for (i, c) in &self.friction {
             if !fixed[*i] {
-                gradient[*i] += c.gradient(x[*i]);
+                gradient[*i] += scale * c.gradient(x[*i]);
             }
         }
     }

@@ -3,18 +3,23 @@
 //! integrators' shared minimization ([`crate::potential::Term`]).
 //!
 //! The term wraps a [`ContactPotential`]: `begin_step` lags friction at the step's start
-//! and poses the colliders at its end (the term keeps its own clock, advanced by the
-//! step's `h` at every `begin_step`), `update_active_set` adapts `kappa` to the iterate,
-//! and `max_step` is the smallest time of impact, so no state the line search tries has
-//! a particle inside a collider. Only backward Euler is guaranteed by this argument:
-//! its minimization is over the end-of-step positions themselves.
+//! and poses the colliders at its end (both times come from the step's
+//! [`StepTiming`], so a step redone in pieces poses them again from its own start),
+//! `update_active_set` adapts `kappa` to the iterate, and `max_step` is the smallest time
+//! of impact, so no state the line search tries has a particle inside a collider.
+//!
+//! The barrier constrains the end-of-step positions. Backward Euler and BDF2 minimize
+//! over those themselves. Implicit midpoint minimizes over the midpoint `z`, and its end
+//! state `w = 2 z - x_n` is what must stay outside: the term evaluates the potential at
+//! `w`, with a line-search direction `dz` moving `w` by `2 dz`, the gradient times 2 and
+//! the Hessian times 4 (the chain rule). Derivation: docs/contact.md.
 
-use super::ContactPotential;
+use super::{ContactPotential, ContactStep};
 use crate::potential::{HessianSink, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
 use sinew_math::DVec3;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 
 /// The longest step the line search may try, in Newton steps (it doubles an accepted
 /// full step at most 10 times).
@@ -52,6 +57,8 @@ impl ContactStats {
 pub struct ContactTerm {
     potential: ContactPotential,
     stats: Arc<ContactStats>,
+    /// Scratch for the midpoint's end state and its direction (unused otherwise).
+    end_state: Mutex<(Vec<DVec3>, Vec<DVec3>)>,
 }
 
 impl ContactTerm {
@@ -62,6 +69,7 @@ impl ContactTerm {
         Self {
             potential,
             stats: Arc::new(ContactStats::default()),
+            end_state: Mutex::new((Vec::new(), Vec::new())),
         }
     }
 
@@ -78,6 +86,37 @@ impl ContactTerm {
     }
 }
 
+impl ContactTerm {
+    /// Runs `f` on the end-of-step positions of the iterate `x` and the direction they
+    /// move along for a direction `dx` of the unknowns (zero when `dx` is `None`), with
+    /// the chain rule's factor `dw/dz`: `x` itself and 1, or for the midpoint
+    /// `2 x - x_n` and 2.
+    fn at_end<R>(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        dx: Option<&[DVec3]>,
+        f: impl FnOnce(&[DVec3], &[DVec3], f64) -> R,
+    ) -> R {
+        if !step.timing.midpoint {
+            return f(x, dx.unwrap_or(&[]), 1.0);
+        }
+        let x_n = step.system.positions();
+        let mut scratch = self
+            .end_state
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let (w, dw) = &mut *scratch;
+        w.clear();
+        w.extend(x.iter().zip(x_n).map(|(z, x0)| 2.0 * *z - *x0));
+        dw.clear();
+        if let Some(dx) = dx {
+            dw.extend(dx.iter().map(|d| 2.0 * *d));
+        }
+        f(w, dw, 2.0)
+    }
+}
+
 impl Term for ContactTerm {
     fn name(&self) -> &'static str {
         "contact"
@@ -85,18 +124,37 @@ impl Term for ContactTerm {
 
     fn begin_step(&mut self, step: &StepContext<'_>) {
         let s = step.system;
-        self.potential.begin_step(
-            s.positions(),
-            s.fixed(),
-            s.masses(),
-            s.material().gravity.length(),
-            step.h,
-        );
+        let timing = step.timing;
+        // Over the end state: backward Euler and BDF2 minimize over it with the
+        // effective step and measure velocities from x_ref; the midpoint's end state
+        // moves as a backward Euler step of the real length from x_n (docs/contact.md).
+        let (h, anchor) = if timing.midpoint {
+            (timing.length, s.positions())
+        } else {
+            (step.h, step.x_ref)
+        };
+        self.potential.begin(&ContactStep {
+            positions: s.positions(),
+            anchor,
+            fixed: s.fixed(),
+            masses: s.masses(),
+            gravity: s.material().gravity.length(),
+            h,
+            start: timing.start,
+            end: timing.start + timing.length,
+        });
         self.stats.publish(&self.potential);
     }
 
     fn prepare_start(&self, step: &StepContext<'_>, x: &mut [DVec3]) {
         let (x_n, fixed) = (step.system.positions(), step.system.fixed());
+        let midpoint = step.timing.midpoint;
+        // The carry acts on the end state; the midpoint's is 2 z - x_n.
+        if midpoint {
+            for (z, x0) in x.iter_mut().zip(x_n) {
+                *z = 2.0 * *z - *x0;
+            }
+        }
         if self.potential.prepare_start(x_n, fixed, x).is_err() {
             // The guess, partly carried, is not admissible: start from x_n carried
             // instead, the state `Simulation::step` checked before the step (it refuses
@@ -104,26 +162,51 @@ impl Term for ContactTerm {
             x.copy_from_slice(x_n);
             let _ = self.potential.prepare_start(x_n, fixed, x);
         }
+        if midpoint {
+            for (w, x0) in x.iter_mut().zip(x_n) {
+                *w = 0.5 * (*w + *x0);
+            }
+        }
     }
 
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
-        if self.potential.update_kappa(x, step.system.fixed()) {
+        let fixed = step.system.fixed();
+        let grew = if step.timing.midpoint {
+            let x_n = step.system.positions();
+            let mut scratch = self
+                .end_state
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner);
+            let w = &mut scratch.0;
+            w.clear();
+            w.extend(x.iter().zip(x_n).map(|(z, x0)| 2.0 * *z - *x0));
+            self.potential.update_kappa(w, fixed)
+        } else {
+            self.potential.update_kappa(x, fixed)
+        };
+        if grew {
             self.stats.publish(&self.potential);
         }
     }
 
     fn energy(&self, step: &StepContext<'_>, x: &[DVec3]) -> f64 {
-        self.potential.energy(x, step.system.fixed())
+        self.at_end(step, x, None, |w, _, _| {
+            self.potential.energy(w, step.system.fixed())
+        })
     }
 
     fn energy_change(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
-        self.potential
-            .energy_change(x, dx, alpha, step.system.fixed())
+        self.at_end(step, x, Some(dx), |w, dw, _| {
+            self.potential
+                .energy_change(w, dw, alpha, step.system.fixed())
+        })
     }
 
     fn add_gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
-        self.potential
-            .add_gradient(x, step.system.fixed(), gradient);
+        self.at_end(step, x, None, |w, _, scale| {
+            self.potential
+                .add_gradient_scaled(w, step.system.fixed(), scale, gradient);
+        });
     }
 
     fn add_hessian(
@@ -133,18 +216,23 @@ impl Term for ContactTerm {
         _curvature: Curvature,
         sink: &mut HessianSink<'_>,
     ) {
-        self.potential
-            .for_each_hessian_block(x, step.system.fixed(), |i, block| {
-                sink.add_diagonal(i, SymBlock::from_lower(&block));
-            });
+        self.at_end(step, x, None, |w, _, scale| {
+            let s2 = scale * scale;
+            self.potential
+                .for_each_hessian_block(w, step.system.fixed(), |i, block| {
+                    sink.add_diagonal(i, SymBlock::from_lower(&(block * s2)));
+                });
+        });
     }
 
     fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
         // The line search may lengthen an accepted full step up to 2^10 times, so the
-        // cap is computed over that whole range; nothing near within it: no cap.
-        let alpha = self
-            .potential
-            .max_step(x, dx, step.system.fixed(), LINE_SEARCH_HORIZON);
+        // cap is computed over that whole range; nothing near within it: no cap. The
+        // end state moves along its own direction by the same fraction alpha.
+        let alpha = self.at_end(step, x, Some(dx), |w, dw, _| {
+            self.potential
+                .max_step(w, dw, step.system.fixed(), LINE_SEARCH_HORIZON)
+        });
         if alpha >= LINE_SEARCH_HORIZON {
             f64::INFINITY
         } else {

@@ -60,7 +60,7 @@ impl BackwardEuler {
         self.objective_trace.clear();
         let y = std::mem::take(&mut self.y);
         let x_ref = std::mem::take(&mut self.x_ref);
-        let step = StepContext::new(system, h, &y, &x_ref);
+        let step = StepContext::new(system, h, &y, &x_ref).with_timing(self.timing);
         let mut first_residual_l2 = 0.0;
         let mut previous_residual = f64::INFINITY;
         // Once an iteration is slow, every later one of the step tries the softened

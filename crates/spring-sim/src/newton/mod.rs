@@ -38,7 +38,7 @@ use crate::linear::{
 };
 use crate::model::{ModelError, SpringSystem, Topology, check_time_step};
 use crate::pattern::{FIXED, HessianPattern};
-use crate::potential::{HessianSink, Potential, StepContext, Term};
+use crate::potential::{HessianSink, Potential, StepContext, StepTiming, Term};
 use crate::report::{IntegratorKind, StepError, StepReport, StepStop};
 use crate::spring::Curvature;
 use sinew_math::DVec3;
@@ -120,6 +120,10 @@ pub struct BackwardEuler {
     splitting_allowed: bool,
     /// Per split depth, what a split step falls back on (allocated at the first split).
     split_saves: Vec<SplitSave>,
+    /// The time the next step starts at (kinematic colliders are posed from it).
+    time: f64,
+    /// The current solve's times and unknowns, handed to the terms.
+    timing: StepTiming,
 }
 
 impl BackwardEuler {
@@ -157,6 +161,12 @@ impl BackwardEuler {
             coupled_pairs: Vec::new(),
             splitting_allowed: true,
             split_saves: Vec::new(),
+            time: 0.0,
+            timing: StepTiming {
+                start: 0.0,
+                length: 0.0,
+                midpoint: false,
+            },
             direct,
             pattern,
         })
@@ -318,6 +328,18 @@ impl BackwardEuler {
         self.splitting_allowed = false;
     }
 
+    /// The time the next step starts at: 0 at first, advanced by every step.
+    #[must_use]
+    pub fn time(&self) -> f64 {
+        self.time
+    }
+
+    /// Sets the time the next step starts at (a simulation that also steps by other
+    /// means, or starts its colliders' clock elsewhere, says where the step begins).
+    pub fn set_time(&mut self, time: f64) {
+        self.time = time;
+    }
+
     /// Forgets the velocity history used by the extrapolated first guess (call after
     /// changing the state by hand).
     pub fn reset_history(&mut self) {
@@ -361,7 +383,9 @@ impl BackwardEuler {
         } else {
             0
         };
-        let mut report = self.step_in_pieces(system, h, scheme, depth, true)?;
+        let start = self.time;
+        let mut report = self.step_in_pieces(system, h, scheme, depth, true, start)?;
+        self.time = start + h;
         report.energy_before = energy_before;
         report.energy_after = system.energies();
         // Pairs a term coupled without Hessian slots (self-contact between particles no
@@ -387,8 +411,9 @@ impl BackwardEuler {
         scheme: Scheme<'_>,
         depth: usize,
         whole_step: bool,
+        start: f64,
     ) -> Result<StepReport, StepError> {
-        let (attempt, h_eff) = self.solve(system, h, scheme)?;
+        let (attempt, h_eff) = self.solve(system, h, scheme, start)?;
         let far = self.far_from_converged(system, &attempt, h_eff);
         if !far || depth == 0 {
             self.commit(system, h_eff, scheme, attempt.integrator)?;
@@ -419,8 +444,9 @@ impl BackwardEuler {
         } else {
             None
         };
-        let first = self.step_in_pieces(system, 0.5 * h, piece, depth - 1, false)?;
-        let second = self.step_in_pieces(system, 0.5 * h, piece, depth - 1, false)?;
+        let first = self.step_in_pieces(system, 0.5 * h, piece, depth - 1, false, start)?;
+        let second =
+            self.step_in_pieces(system, 0.5 * h, piece, depth - 1, false, start + 0.5 * h)?;
         let combined = combine_pieces(&attempt, &first, &second);
         let Some(saved) = save.as_mut() else {
             return Ok(combined);
@@ -510,7 +536,13 @@ impl BackwardEuler {
         system: &SpringSystem,
         h: f64,
         scheme: Scheme<'_>,
+        start: f64,
     ) -> Result<(StepReport, f64), StepError> {
+        self.timing = StepTiming {
+            start,
+            length: h,
+            midpoint: matches!(scheme, Scheme::Midpoint),
+        };
         let (kind, h_eff) = match scheme {
             Scheme::BackwardEuler => (IntegratorKind::BackwardEuler, h),
             Scheme::Midpoint => (IntegratorKind::ImplicitMidpoint, 0.5 * h),
@@ -546,36 +578,45 @@ impl BackwardEuler {
             }
         }
         // Per-step state of the terms (damping directions frozen at the step's start).
+        let timing = self.timing;
         self.potential
-            .begin_step(&StepContext::new(system, h_eff, &self.y, &self.x_ref));
-        if matches!(scheme, Scheme::BackwardEuler) {
-            // Start from x_n when the predicted guess is worse: Newton with the line
-            // search never increases g from its starting point, so then every step has
-            // g(x_{n+1}) <= g(x_n), which is what the energy inequality of
-            // docs/labcheck.md rests on. Costs two evaluations of g per step.
-            let step = StepContext::new(system, h_eff, &self.y, &self.x_ref);
+            .begin_step(&StepContext::new(system, h_eff, &self.y, &self.x_ref).with_timing(timing));
+        let step = StepContext::new(system, h_eff, &self.y, &self.x_ref).with_timing(timing);
+        // Start from x_n when the predicted guess is worse (backward Euler only): Newton
+        // with the line search never increases g from its starting point, so then every
+        // step has g(x_{n+1}) <= g(x_n), which is what the energy inequality of
+        // docs/labcheck.md rests on. Costs two evaluations of g per step.
+        let guess_is_no_worse = !matches!(scheme, Scheme::BackwardEuler) || {
             let g_guess = self.potential.energy(&step, &self.x);
-            let g_start = self.potential.energy(&step, &self.x_ref);
+            let g_start = self.potential.energy(&step, system.positions());
             // A NaN guess counts as worse, so it is never kept.
-            let guess_is_no_worse = matches!(
+            matches!(
                 g_guess.partial_cmp(&g_start),
                 Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
-            );
-            // A term with a barrier (contact) also asks that the straight path from x_n
-            // to the guess stays admissible: a guess beyond a thin collider is outside it
-            // but was reached through it. Without such a term the cap is infinite.
-            for ((d, x), r) in self.dx_particles.iter_mut().zip(&self.x).zip(&self.x_ref) {
-                *d = *x - *r;
-            }
-            let path_is_admissible =
-                self.potential
-                    .max_step(&step, &self.x_ref, &self.dx_particles)
-                    >= 1.0;
-            if !(guess_is_no_worse && path_is_admissible) {
-                self.x.copy_from_slice(&self.x_ref);
-            }
-            self.potential.prepare_start(&step, &mut self.x);
+            )
+        };
+        // A term with a barrier (contact) also asks that the straight path from the
+        // safe start to the guess stays admissible: a guess beyond a thin collider is
+        // outside it but was reached through it. The safe start is x_n for every scheme
+        // (the end state of backward Euler and BDF2; the midpoint z = x_n has the end
+        // state 2 z - x_n = x_n), not BDF2's x_ref, an extrapolation that may lie inside
+        // a collider. Without such a term the cap is infinite.
+        for ((d, x), r) in self
+            .dx_particles
+            .iter_mut()
+            .zip(&self.x)
+            .zip(system.positions())
+        {
+            *d = *x - *r;
         }
+        let path_is_admissible =
+            self.potential
+                .max_step(&step, system.positions(), &self.dx_particles)
+                >= 1.0;
+        if !(guess_is_no_worse && path_is_admissible) {
+            self.x.copy_from_slice(system.positions());
+        }
+        self.potential.prepare_start(&step, &mut self.x);
         let mut report = self.minimize(system, h_eff)?;
         report.integrator = kind;
         Ok((report, h_eff))

@@ -60,11 +60,14 @@ pub struct StepContext<'a> {
     /// The point velocities are measured from, `v' = (x' - x_ref)/h`, also the damping's
     /// reference (one per particle).
     pub x_ref: &'a [DVec3],
+    /// The step's times and what its unknowns are.
+    pub timing: StepTiming,
 }
 
 impl<'a> StepContext<'a> {
     /// A context for `system` at effective step `h`, prediction `y` and reference
-    /// `x_ref`.
+    /// `x_ref`, for a backward Euler step of length `h` starting at time 0 (see
+    /// [`Self::with_timing`]).
     #[must_use]
     pub fn new(system: &'a SpringSystem, h: f64, y: &'a [DVec3], x_ref: &'a [DVec3]) -> Self {
         Self {
@@ -72,8 +75,34 @@ impl<'a> StepContext<'a> {
             h,
             y,
             x_ref,
+            timing: StepTiming {
+                start: 0.0,
+                length: h,
+                midpoint: false,
+            },
         }
     }
+
+    /// The same context for the step `timing`.
+    #[must_use]
+    pub fn with_timing(self, timing: StepTiming) -> Self {
+        Self { timing, ..self }
+    }
+}
+
+/// Where a minimization's step lies in time, and what its unknowns are: the scheme's
+/// side of a step that terms acting on the end-of-step state (contact) need.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepTiming {
+    /// The time at the step's start (kinematic colliders are posed from it). An input
+    /// of every step, so a step redone in pieces poses them at each piece's own times.
+    pub start: f64,
+    /// The real step length (backward Euler: the effective step; implicit midpoint:
+    /// twice it; BDF2: 3/2 of it).
+    pub length: f64,
+    /// Whether the unknowns are the step's midpoint `z` (implicit midpoint: the end
+    /// state is `2 z - x_n`) rather than the end-of-step positions themselves.
+    pub midpoint: bool,
 }
 
 /// One summand of the incremental potential (see the module documentation).
