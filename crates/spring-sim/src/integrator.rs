@@ -333,6 +333,15 @@ struct AutoStepper {
     substep_time: Timing,
     /// Seconds per implicit step (`tune_by_timing`).
     implicit_time: Timing,
+    /// Whether contact is set: then every step is implicit (BDF2, or backward Euler when
+    /// settling), the integrators with the guaranteed barrier.
+    contact: bool,
+    /// The contact term, until BDF2 (built at its first step) takes it.
+    pending_contact: Option<ContactTerm>,
+    /// Whether the pending contact term forbids splitting (a moving collider).
+    pending_forbids_splitting: bool,
+    /// The time the next step starts at, for the implicit integrators' terms.
+    time: f64,
 }
 
 impl AutoStepper {
@@ -353,7 +362,45 @@ impl AutoStepper {
             implicit_counted: None,
             substep_time: Timing::default(),
             implicit_time: Timing::default(),
+            contact: false,
+            pending_contact: None,
+            pending_forbids_splitting: false,
+            time: 0.0,
         })
+    }
+
+    /// Adds the contact term to the implicit integrator that will take every step from
+    /// now on: backward Euler when settling, else BDF2 (now, or when it is built).
+    fn set_contact(&mut self, term: ContactTerm, forbid_splitting: bool) {
+        self.contact = true;
+        let newton = match (&mut self.settle, &mut self.bdf2) {
+            (Some(be), _) => Some(&mut **be),
+            (None, Some(b)) => Some(b.newton_mut()),
+            (None, None) => None,
+        };
+        match newton {
+            Some(newton) => {
+                if forbid_splitting {
+                    newton.forbid_splitting();
+                }
+                newton.add_term(Box::new(term));
+            }
+            None => {
+                self.pending_contact = Some(term);
+                self.pending_forbids_splitting = forbid_splitting;
+            }
+        }
+    }
+
+    /// Sets the time the next step starts at.
+    fn set_time(&mut self, time: f64) {
+        self.time = time;
+        if let Some(be) = &mut self.settle {
+            be.set_time(time);
+        }
+        if let Some(b) = &mut self.bdf2 {
+            b.newton_mut().set_time(time);
+        }
     }
 
     fn reset_history(&mut self) {
@@ -479,7 +526,11 @@ impl AutoStepper {
         }
         let bound = self.monitor.update(system, h);
         let needed = bound.substeps(h);
-        let (reason, costs) = self.choose(system, needed);
+        let (reason, costs) = if self.contact {
+            (AutoReason::Contact, None)
+        } else {
+            self.choose(system, needed)
+        };
         let timing = self.settings.tune_by_timing;
         // The clock is read only when asked to tune by it.
         let started = timing.then(Instant::now);
@@ -494,7 +545,15 @@ impl AutoStepper {
             report
         } else {
             if self.bdf2.is_none() {
-                self.bdf2 = Some(Box::new(Bdf2::new(system, self.settings.newton)?));
+                let mut bdf2 = Box::new(Bdf2::new(system, self.settings.newton)?);
+                bdf2.newton_mut().set_time(self.time);
+                if let Some(term) = self.pending_contact.take() {
+                    if self.pending_forbids_splitting {
+                        bdf2.newton_mut().forbid_splitting();
+                    }
+                    bdf2.newton_mut().add_term(Box::new(term));
+                }
+                self.bdf2 = Some(bdf2);
             }
             let bdf2 = self.bdf2.as_mut().expect("built above");
             if self.current != Some(IntegratorKind::Bdf2) {
@@ -610,8 +669,9 @@ impl Simulation {
     /// integrators ([`Integrator::SymplecticEuler`], [`Integrator::VelocityVerlet`],
     /// [`Integrator::SymplecticEulerBounded`]) every particle is projected out of every
     /// collider after each step ([`crate::contact::projection`]): **not guaranteed**.
-    /// `auto` and the flawed reference method have no contact yet: an error. Contact can
-    /// be set once.
+    /// With `auto`, every step from then on is implicit (BDF2, or backward Euler when
+    /// settling; `AutoReason::Contact`), so the guarantee holds. The flawed reference
+    /// method has no contact: an error. Contact can be set once.
     pub fn set_contact(
         &mut self,
         colliders: Vec<Collider>,
@@ -624,12 +684,31 @@ impl Simulation {
         }
         crate::contact::collider::validate_colliders(&colliders)?;
         settings.validate()?;
+        let moving = colliders.iter().any(|c| !c.is_static());
+        let term = |time| -> Result<(ContactTerm, Arc<ContactStats>), ContactError> {
+            let term = ContactTerm::new(ContactPotential::new(colliders.clone(), settings, time)?);
+            let stats = term.stats();
+            Ok((term, stats))
+        };
         let newton = match &mut self.stepper {
             Stepper::BackwardEuler(be) => Some(&mut **be),
             Stepper::Bdf2(b) => Some(b.newton_mut()),
             Stepper::Midpoint(m) => Some(m.newton_mut()),
             Stepper::SymplecticEuler(_) | Stepper::Bounded(_) => None,
-            Stepper::Auto(_) => return Err(ContactError::Unsupported { what: "auto" }),
+            Stepper::Auto(a) => {
+                // Every step is implicit from now on (AutoReason::Contact): the explicit
+                // projection is not guaranteed, the barrier is.
+                let (t, stats) = term(self.time)?;
+                a.set_contact(t, moving);
+                self.contact = Some(Contact {
+                    colliders,
+                    settings,
+                    stats: Some(stats),
+                    projections: 0,
+                    scratch: Vec::new(),
+                });
+                return Ok(());
+            }
             Stepper::Flawed(_) => {
                 return Err(ContactError::Unsupported {
                     what: "the flawed reference method",
@@ -638,19 +717,14 @@ impl Simulation {
         };
         let stats = match newton {
             Some(newton) => {
-                if colliders.iter().any(|c| !c.is_static()) {
+                if moving {
                     // The contact term advances its own clock at every start of a step,
                     // so a step redone in pieces would pose moving colliders at the
                     // wrong times.
                     newton.forbid_splitting();
                 }
-                let term = ContactTerm::new(ContactPotential::new(
-                    colliders.clone(),
-                    settings,
-                    self.time,
-                )?);
-                let stats = term.stats();
-                newton.add_term(Box::new(term));
+                let (t, stats) = term(self.time)?;
+                newton.add_term(Box::new(t));
                 Some(stats)
             }
             None => None,
@@ -734,6 +808,7 @@ impl Simulation {
             Stepper::BackwardEuler(be) => be.set_time(self.time),
             Stepper::Bdf2(b) => b.newton_mut().set_time(self.time),
             Stepper::Midpoint(m) => m.newton_mut().set_time(self.time),
+            Stepper::Auto(a) => a.set_time(self.time),
             _ => {}
         }
         if let Some(contact) = &mut self.contact

@@ -39,6 +39,10 @@ pub enum AutoReason {
     ImplicitCheaper,
     /// The bound asks for more substeps than `AutoSettings::max_substeps`: BDF2.
     SubstepCap,
+    /// The simulation has contact with colliders: BDF2, whose barrier keeps every
+    /// particle outside every collider (the explicit integrators' projection is not
+    /// guaranteed).
+    Contact,
 }
 
 impl AutoReason {
@@ -60,6 +64,7 @@ impl AutoReason {
             Self::ExplicitCheapest => "explicit_cheapest",
             Self::ImplicitCheaper => "implicit_cheaper",
             Self::SubstepCap => "substep_cap",
+            Self::Contact => "contact",
         }
     }
 }
@@ -76,6 +81,9 @@ impl std::fmt::Display for AutoReason {
                 "the substeps the stability bound needs cost more than an implicit step: BDF2"
             }
             Self::SubstepCap => "the stability bound needs more substeps than allowed: BDF2",
+            Self::Contact => {
+                "contact with colliders: BDF2, whose barrier keeps every particle outside (the explicit projection is not guaranteed)"
+            }
         })
     }
 }

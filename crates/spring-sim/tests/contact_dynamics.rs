@@ -239,11 +239,8 @@ fn explicit_projection_keeps_particles_out() {
 fn refusals_name_what_is_wrong() {
     let particle = Particle::at_rest(DVec3::new(0.0, 0.01, 0.0), 1.0);
     let system = SpringSystem::new(&[particle], &[], material()).unwrap();
-    for integrator in [
-        Integrator::FlawedReportMethod,
-        Integrator::Auto(sinew_spring_sim::AutoSettings::default()),
-    ] {
-        let mut sim = Simulation::new(system.clone(), integrator).unwrap();
+    {
+        let mut sim = Simulation::new(system.clone(), Integrator::FlawedReportMethod).unwrap();
         let err = sim
             .set_contact(vec![Collider::ground(0.0)], ContactSettings::default())
             .unwrap_err();

@@ -237,3 +237,49 @@ fn a_sheet_slides_with_coulomb_acceleration_when_mu_is_below_tan_theta() {
         );
     }
 }
+
+#[test]
+fn auto_with_contact_takes_every_step_implicitly_and_keeps_particles_outside() {
+    use sinew_spring_sim::{AutoReason, AutoSettings, IntegratorKind};
+    let colliders = vec![
+        Collider::ground(0.0),
+        Collider::sphere(DVec3::new(0.225, 0.15, 0.225), 0.12),
+    ];
+    let drop = || sheet(10, 0.05, DVec3::new(0.0, 0.35, 0.0), DVec3::X, DVec3::Z);
+    // Without contact this sheet is cheapest by Verlet: auto picks it.
+    let mut free = Simulation::new(drop(), Integrator::Auto(AutoSettings::default())).unwrap();
+    let first = free.step(H).unwrap();
+    assert_eq!(first.integrator, IntegratorKind::VelocityVerlet);
+    for (settle, kind, reason) in [
+        (false, IntegratorKind::Bdf2, AutoReason::Contact),
+        (true, IntegratorKind::BackwardEuler, AutoReason::Settle),
+    ] {
+        let settings = AutoSettings {
+            settle,
+            ..AutoSettings::default()
+        };
+        let mut sim = Simulation::new(drop(), Integrator::Auto(settings)).unwrap();
+        sim.set_contact(colliders.clone(), ContactSettings::default())
+            .unwrap();
+        let mut touched = false;
+        for step in 0..60 {
+            let report = sim.step(H).unwrap();
+            assert_eq!(report.integrator, kind, "step {step}");
+            assert_eq!(report.auto_reason, Some(reason), "step {step}");
+            let t = sim.time();
+            for (c, collider) in colliders.iter().enumerate() {
+                for (i, x) in sim.system().positions().iter().enumerate() {
+                    let d = distance(collider, t, *x);
+                    assert!(d > 0.0, "step {step}: particle {i} inside collider {c}");
+                    touched |= c == 1 && d < ContactSettings::default().dhat;
+                }
+            }
+        }
+        assert!(
+            touched,
+            "settle {settle}: the sheet never reached the sphere"
+        );
+        assert!(sim.contact_kappa().unwrap() > 0.0);
+        assert_eq!(sim.contact_projections(), 0);
+    }
+}
