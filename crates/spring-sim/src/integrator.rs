@@ -338,8 +338,6 @@ struct AutoStepper {
     contact: bool,
     /// The contact term, until BDF2 (built at its first step) takes it.
     pending_contact: Option<ContactTerm>,
-    /// Whether the pending contact term forbids splitting (a moving collider).
-    pending_forbids_splitting: bool,
     /// The time the next step starts at, for the implicit integrators' terms.
     time: f64,
 }
@@ -364,14 +362,13 @@ impl AutoStepper {
             implicit_time: Timing::default(),
             contact: false,
             pending_contact: None,
-            pending_forbids_splitting: false,
             time: 0.0,
         })
     }
 
     /// Adds the contact term to the implicit integrator that will take every step from
     /// now on: backward Euler when settling, else BDF2 (now, or when it is built).
-    fn set_contact(&mut self, term: ContactTerm, forbid_splitting: bool) {
+    fn set_contact(&mut self, term: ContactTerm) {
         self.contact = true;
         let newton = match (&mut self.settle, &mut self.bdf2) {
             (Some(be), _) => Some(&mut **be),
@@ -379,16 +376,8 @@ impl AutoStepper {
             (None, None) => None,
         };
         match newton {
-            Some(newton) => {
-                if forbid_splitting {
-                    newton.forbid_splitting();
-                }
-                newton.add_term(Box::new(term));
-            }
-            None => {
-                self.pending_contact = Some(term);
-                self.pending_forbids_splitting = forbid_splitting;
-            }
+            Some(newton) => newton.add_term(Box::new(term)),
+            None => self.pending_contact = Some(term),
         }
     }
 
@@ -548,9 +537,6 @@ impl AutoStepper {
                 let mut bdf2 = Box::new(Bdf2::new(system, self.settings.newton)?);
                 bdf2.newton_mut().set_time(self.time);
                 if let Some(term) = self.pending_contact.take() {
-                    if self.pending_forbids_splitting {
-                        bdf2.newton_mut().forbid_splitting();
-                    }
                     bdf2.newton_mut().add_term(Box::new(term));
                 }
                 self.bdf2 = Some(bdf2);
@@ -684,7 +670,6 @@ impl Simulation {
         }
         crate::contact::collider::validate_colliders(&colliders)?;
         settings.validate()?;
-        let moving = colliders.iter().any(|c| !c.is_static());
         let term = |time| -> Result<(ContactTerm, Arc<ContactStats>), ContactError> {
             let term = ContactTerm::new(ContactPotential::new(colliders.clone(), settings, time)?);
             let stats = term.stats();
@@ -699,7 +684,7 @@ impl Simulation {
                 // Every step is implicit from now on (AutoReason::Contact): the explicit
                 // projection is not guaranteed, the barrier is.
                 let (t, stats) = term(self.time)?;
-                a.set_contact(t, moving);
+                a.set_contact(t);
                 self.contact = Some(Contact {
                     colliders,
                     settings,
@@ -717,12 +702,6 @@ impl Simulation {
         };
         let stats = match newton {
             Some(newton) => {
-                if moving {
-                    // The contact term advances its own clock at every start of a step,
-                    // so a step redone in pieces would pose moving colliders at the
-                    // wrong times.
-                    newton.forbid_splitting();
-                }
                 let (t, stats) = term(self.time)?;
                 newton.add_term(Box::new(t));
                 Some(stats)

@@ -40,8 +40,9 @@ pub struct ContactPotential {
     /// The colliders posed at the current step's end time.
     posed: Vec<Shape>,
     friction: Vec<(usize, FrictionContact)>,
-    /// `kappa` at the last start of a step, for [`Self::rewind_kappa`].
-    kappa_at_start: Option<AdaptiveKappa>,
+    /// `kappa` before the last start of a step (`None` before the first), for
+    /// [`Self::rewind_kappa`].
+    kappa_before: Option<AdaptiveKappa>,
 }
 
 /// One step as the contact potential sees it: its positions are the ones the barrier
@@ -95,7 +96,7 @@ impl ContactPotential {
             step_start: start_time,
             posed,
             friction: Vec::new(),
-            kappa_at_start: None,
+            kappa_before: None,
         })
     }
 
@@ -166,6 +167,7 @@ impl ContactPotential {
     /// inputs, so a step redone (in pieces) poses the colliders again from its own start.
     pub fn begin(&mut self, step: &ContactStep<'_>) {
         let (positions, fixed, h) = (step.positions, step.fixed, step.h);
+        self.kappa_before = self.kappa;
         let kappa = *self.kappa.get_or_insert_with(|| {
             let (sum, count) = step
                 .masses
@@ -177,7 +179,6 @@ impl ContactPotential {
             let kmin = minimum_kappa(self.settings.dhat, mean, step.gravity, h);
             AdaptiveKappa::new(kmin, None, self.kappa_settings)
         });
-        self.kappa_at_start = Some(kappa);
         let start = step.start;
         self.friction.clear();
         if self.settings.mu > 0.0 {
@@ -208,12 +209,11 @@ impl ContactPotential {
         self.posed = self.colliders.iter().map(|c| c.at(self.clock)).collect();
     }
 
-    /// Puts `kappa` back to its value at the last [`Self::begin`], for a step that is
-    /// abandoned and redone (its growth during the abandoned solve is not kept).
+    /// Puts `kappa` back to its value before the last [`Self::begin`], for a step that
+    /// is abandoned and redone: neither its growth during the abandoned solve nor, on the
+    /// first step, its minimum (computed from the abandoned step's length) is kept.
     pub fn rewind_kappa(&mut self) {
-        if let Some(k) = self.kappa_at_start {
-            self.kappa = Some(k);
-        }
+        self.kappa = self.kappa_before;
     }
 
     /// [`carry_with_colliders`] for the current step (from the time of the last

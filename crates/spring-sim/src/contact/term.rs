@@ -169,6 +169,11 @@ impl Term for ContactTerm {
         }
     }
 
+    fn abandon_step(&mut self) {
+        self.potential.rewind_kappa();
+        self.stats.publish(&self.potential);
+    }
+
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
         let fixed = step.system.fixed();
         let grew = if step.timing.midpoint {

@@ -115,9 +115,6 @@ pub struct BackwardEuler {
     topology: Topology,
     /// Particle pairs coupled by terms other than the springs, in the pattern too.
     coupled_pairs: Vec<[usize; 2]>,
-    /// Whether a step may be redone in pieces (off when a term keeps state a redo
-    /// cannot rewind: contact with a kinematic collider keeps its own clock).
-    splitting_allowed: bool,
     /// Per split depth, what a split step falls back on (allocated at the first split).
     split_saves: Vec<SplitSave>,
     /// The time the next step starts at (kinematic colliders are posed from it).
@@ -159,7 +156,6 @@ impl BackwardEuler {
             objective_trace: Vec::new(),
             topology: system.topology(),
             coupled_pairs: Vec::new(),
-            splitting_allowed: true,
             split_saves: Vec::new(),
             time: 0.0,
             timing: StepTiming {
@@ -321,13 +317,6 @@ impl BackwardEuler {
             .is_some_and(|d| d.factor_only(&self.pattern, &self.values)))
     }
 
-    /// Turns off splitting a step in pieces (see `NewtonSettings::max_split_depth`) for a
-    /// term whose per-step state a redone step cannot rewind: the contact term advances
-    /// its own clock at every start of a step, which matters when a collider moves.
-    pub(crate) fn forbid_splitting(&mut self) {
-        self.splitting_allowed = false;
-    }
-
     /// The time the next step starts at: 0 at first, advanced by every step.
     #[must_use]
     pub fn time(&self) -> f64 {
@@ -378,11 +367,10 @@ impl BackwardEuler {
             .into());
         }
         let energy_before = system.energies();
-        let depth = if self.splitting_allowed {
-            self.settings.max_split_depth
-        } else {
-            0
-        };
+        // Every piece is given its own start time (kinematic colliders are posed from
+        // it) and the terms rewind what an abandoned solve changed, so any step may be
+        // redone in pieces, moving colliders included.
+        let depth = self.settings.max_split_depth;
         let start = self.time;
         let mut report = self.step_in_pieces(system, h, scheme, depth, true, start)?;
         self.time = start + h;
@@ -421,6 +409,9 @@ impl BackwardEuler {
             report.unconverged_pieces = usize::from(far);
             return Ok(report);
         }
+        // The attempt is abandoned: the terms forget what its solve adapted (contact's
+        // barrier stiffness), so the pieces run as if asked for one by one.
+        self.potential.abandon_step();
         // BDF2's pieces are midpoint steps, its own starting step: a BDF2 step of h/2
         // would need a history at spacing h/2, which a step of h does not have.
         let piece = match scheme {

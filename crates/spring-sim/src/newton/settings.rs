@@ -69,8 +69,9 @@ pub struct NewtonSettings {
     /// still stopped far from converged (their stop is the step's `stop`). A step that
     /// converges at once is never split and costs nothing more. Implicit midpoint is
     /// split into midpoint steps; a BDF2 step into midpoint steps (its own starting
-    /// step), after which BDF2 restarts its history. Backward Euler with kinematic
-    /// colliders is never split (the contact term keeps its own clock).
+    /// step), after which BDF2 restarts its history. Steps with kinematic colliders are
+    /// split too: each piece is given its own start time, from which the contact term
+    /// poses the colliders, and an abandoned solve's barrier stiffness is rewound.
     pub max_split_depth: usize,
 }
 

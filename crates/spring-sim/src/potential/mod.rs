@@ -165,6 +165,12 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
         f64::INFINITY
     }
 
+    /// Called when the solve begun by the last [`Term::begin_step`] is abandoned and its
+    /// step redone in pieces: the place to undo what the solve adapted (contact's barrier
+    /// stiffness), so the pieces run as if they had been asked for one by one. Nothing by
+    /// default.
+    fn abandon_step(&mut self) {}
+
     /// The particle pairs (`[low, high]`) this term coupled since the last call without a
     /// slot in the Hessian pattern (it then wrote only the blocks the pattern has). The
     /// integrator takes them after every step and widens its pattern, so later steps get
@@ -253,6 +259,13 @@ impl Potential {
     pub fn begin_step(&mut self, step: &StepContext<'_>) {
         for t in &mut self.terms {
             t.begin_step(step);
+        }
+    }
+
+    /// [`Term::abandon_step`] on every term.
+    pub fn abandon_step(&mut self) {
+        for t in &mut self.terms {
+            t.abandon_step();
         }
     }
 
