@@ -4,7 +4,7 @@
 //!
 //! The term wraps a [`ContactPotential`]: `begin_step` lags friction at the step's start
 //! and poses the colliders at its end (both times come from the step's
-//! [`StepTiming`], so a step redone in pieces poses them again from its own start),
+//! [`crate::potential::StepTiming`], so a step redone in pieces poses them again from its own start),
 //! `update_active_set` adapts `kappa` to the iterate, and `max_step` is the smallest time
 //! of impact, so no state the line search tries has a particle inside a collider.
 //!
