@@ -353,7 +353,11 @@ impl AutoStepper {
         Ok(Self {
             settings,
             monitor: StabilityMonitor::new(),
-            verlet: VelocityVerlet::new(system, 1)?,
+            verlet: {
+                let mut verlet = VelocityVerlet::new(system, 1)?;
+                verlet.keep_start_if_runaway = true;
+                verlet
+            },
             bdf2: None,
             settle,
             current: None,
@@ -515,7 +519,7 @@ impl AutoStepper {
         }
         let bound = self.monitor.update(system, h);
         let needed = bound.substeps(h);
-        let (reason, costs) = if self.contact {
+        let (mut reason, costs) = if self.contact {
             (AutoReason::Contact, None)
         } else {
             self.choose(system, needed)
@@ -523,9 +527,18 @@ impl AutoStepper {
         let timing = self.settings.tune_by_timing;
         // The clock is read only when asked to tune by it.
         let started = timing.then(Instant::now);
-        let mut report = if reason == AutoReason::ExplicitCheapest {
+        let mut explicit = None;
+        if reason == AutoReason::ExplicitCheapest {
             self.verlet.set_substeps(needed);
             let report = self.verlet.step(system, h)?;
+            // A run-away step left the system at its start: it is taken implicitly.
+            if crate::explicit::ran_away(&report.energy_before, &report.energy_after) {
+                reason = AutoReason::ExplicitUnstable;
+            } else {
+                explicit = Some(report);
+            }
+        }
+        let mut report = if let Some(report) = explicit {
             if let Some(started) = started {
                 self.substep_time
                     .record(started.elapsed().as_secs_f64() / needed as f64);

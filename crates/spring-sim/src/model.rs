@@ -733,28 +733,26 @@ impl SpringSystem {
     /// The energies of the current state.
     #[must_use]
     pub fn energies(&self) -> Energies {
+        self.energies_of(&self.positions, &self.velocities)
+    }
+
+    /// The energies of the state `(x, v)` of this system (same lengths as its own).
+    pub(crate) fn energies_of(&self, x: &[DVec3], v: &[DVec3]) -> Energies {
         let kinetic = self
             .masses
             .iter()
-            .zip(&self.velocities)
+            .zip(v)
             .map(|(m, v)| 0.5 * m * v.length_squared())
             .sum();
         let spring = self
             .springs
             .iter()
-            .map(|s| {
-                crate::spring::energy(
-                    self.positions[s.a],
-                    self.positions[s.b],
-                    s.rest_length,
-                    s.stiffness,
-                )
-            })
+            .map(|s| crate::spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness))
             .sum();
         let gravity = self
             .masses
             .iter()
-            .zip(&self.positions)
+            .zip(x)
             .map(|(m, x)| -m * self.material.gravity.dot(*x))
             .sum();
         Energies {

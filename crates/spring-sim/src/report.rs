@@ -43,6 +43,11 @@ pub enum AutoReason {
     /// particle outside every collider (the explicit integrators' projection is not
     /// guaranteed).
     Contact,
+    /// Velocity Verlet was tried at the bound's substep count and its energy rose by more
+    /// than half the energy scale in one step (the bound, taken at the step's start, no
+    /// longer held as springs shortened within the step): the step was redone from its
+    /// start by BDF2.
+    ExplicitUnstable,
 }
 
 impl AutoReason {
@@ -65,6 +70,7 @@ impl AutoReason {
             Self::ImplicitCheaper => "implicit_cheaper",
             Self::SubstepCap => "substep_cap",
             Self::Contact => "contact",
+            Self::ExplicitUnstable => "explicit_unstable",
         }
     }
 }
@@ -83,6 +89,9 @@ impl std::fmt::Display for AutoReason {
             Self::SubstepCap => "the stability bound needs more substeps than allowed: BDF2",
             Self::Contact => {
                 "contact with colliders: BDF2, whose barrier keeps every particle outside (the explicit projection is not guaranteed)"
+            }
+            Self::ExplicitUnstable => {
+                "velocity Verlet's energy rose by more than half the energy scale in one step: redone by BDF2"
             }
         })
     }
