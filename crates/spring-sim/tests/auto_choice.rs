@@ -131,7 +131,7 @@ fn tuning_by_timing_is_opt_in_and_reported() {
 /// is a BDF2 step, and every state is finite. (BDF2 itself, at k h^2 / m up to 6e5, is
 /// not energy-stable on this sheet: it raised the energy up to 631 times the starting
 /// scale for k = 1e7 before the sheet settled; that is the implicit method's behaviour,
-/// not a run-away, and is reported in docs/spring-sim.md.)
+/// not a run-away, and is reported in docs/integrators.md, `auto`.)
 #[test]
 fn auto_redoes_a_runaway_explicit_step_implicitly() {
     for k in [1e4, 1e7] {
