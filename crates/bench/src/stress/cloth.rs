@@ -583,6 +583,33 @@ pub const CONTACT_DROP_HEIGHT: f64 = 0.1;
 /// Spacing of the contact cases' sheet, m (areal density 0.2 kg/m^2, gravity 9.81).
 pub const CONTACT_SPACING: f64 = 0.05;
 
+/// Gravity of the contact cases, m/s^2 (along -y).
+pub const CONTACT_GRAVITY: f64 = 9.81;
+
+/// How far from the origin a particle of a contact case may be at time `t` before the
+/// run calls it a divergence: the farthest particle at the start (`start_extent`), plus
+/// what a throw at `speed` and a free fall under `gravity` add by then, `speed t +
+/// gravity t^2 / 2`, plus [`DIVERGENCE_RADIUS`] as a margin. A sheet that misses the
+/// collider keeps falling (a throw at 20 m/s with quarter-second steps is 103 m down
+/// after 18 steps), which is motion, not divergence. The sheet's centre of mass cannot go
+/// farther down than the free fall (a static collider only pushes it back), and the
+/// margin leaves room for the sheet's motion about its centre (spreading, flapping, a
+/// corner flung by the collider), a few metres at most for a sheet under a metre wide;
+/// a blow-up leaves this envelope by orders of magnitude.
+#[must_use]
+pub fn contact_motion_radius(start_extent: f64, speed: f64, gravity: f64, t: f64) -> f64 {
+    start_extent + speed.abs() * t + 0.5 * gravity.abs() * t * t + DIVERGENCE_RADIUS
+}
+
+/// The first particle farther than `radius` from the origin (a NaN counts as beyond), if
+/// any.
+fn first_beyond(positions: &[DVec3], radius: f64) -> Option<usize> {
+    positions.iter().position(|x| {
+        let r = x.length();
+        r.is_nan() || r > radius
+    })
+}
+
 /// One contact case: a free square sheet thrown down onto a static collider by backward
 /// Euler with IPC contact (`dhat` 1e-3, friction 0.3).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -664,9 +691,12 @@ pub struct ContactOutcome {
     pub penetrations: usize,
     /// Smallest distance from a particle to the collider over the accepted states.
     pub min_distance: f64,
+    /// Largest distance of a particle from the origin over the accepted states.
+    pub max_extent: f64,
     /// Steps that stopped with a non-finite value, or left one in the state.
     pub nan_steps: usize,
-    /// Whether a particle went beyond [`DIVERGENCE_RADIUS`].
+    /// Whether a particle went beyond the radius its motion allows
+    /// ([`contact_motion_radius`]).
     pub diverged: bool,
     /// Steps that did not converge (iteration cap or stalled line search above the
     /// tolerance).
@@ -701,6 +731,7 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
         steps_run: 0,
         penetrations: 0,
         min_distance: f64::INFINITY,
+        max_extent: 0.0,
         nan_steps: 0,
         diverged: false,
         unconverged_steps: 0,
@@ -717,7 +748,7 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
         material: sinew_spring_sim::Material {
             stiffness: case.stiffness,
             damping: 0.1,
-            gravity: DVec3::new(0.0, -9.81, 0.0),
+            gravity: DVec3::new(0.0, -CONTACT_GRAVITY, 0.0),
         },
         fixed: Vec::new(),
     };
@@ -738,6 +769,11 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
         max_iterations: 100,
         ..NewtonSettings::default()
     };
+    let start_extent = system
+        .positions()
+        .iter()
+        .map(|x| x.length())
+        .fold(0.0, f64::max);
     let mut sim = match Simulation::new(system, Integrator::BackwardEuler(settings)) {
         Ok(s) => s,
         Err(e) => {
@@ -802,10 +838,21 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
                 "step {n}: {inside} particle(s) inside or on the collider"
             ));
         }
-        if positions.iter().any(|x| x.length() > DIVERGENCE_RADIUS) {
+        for x in positions {
+            out.max_extent = out.max_extent.max(x.length());
+        }
+        let radius = contact_motion_radius(
+            start_extent,
+            case.speed,
+            CONTACT_GRAVITY,
+            case.dt * (n + 1) as f64,
+        );
+        if let Some(p) = first_beyond(positions, radius) {
             out.diverged = true;
-            out.failures
-                .push(format!("step {n}: a particle beyond {DIVERGENCE_RADIUS}"));
+            out.failures.push(format!(
+                "step {n}: particle {p} at {:.3e} from the origin, beyond the {radius:.3e} its motion allows",
+                positions[p].length()
+            ));
             break;
         }
     }
@@ -820,17 +867,18 @@ pub fn contact_table(outcomes: &[ContactOutcome]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| case | steps | penetrations | min distance (m) | NaN steps | diverged | unconverged steps | Newton max | seconds |"
+        "| case | steps | penetrations | min distance (m) | max distance from the origin (m) | NaN steps | diverged | unconverged steps | Newton max | seconds |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
     for o in outcomes {
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {:.2e} | {} | {} | {} | {} | {:.2} |",
+            "| {} | {} | {} | {:.2e} | {:.2e} | {} | {} | {} | {} | {:.2} |",
             o.case.label(),
             o.steps_run,
             o.penetrations,
             o.min_distance,
+            o.max_extent,
             o.nan_steps,
             if o.diverged { "yes" } else { "no" },
             o.unconverged_steps,
@@ -968,35 +1016,6 @@ mod tests {
     }
 
     #[test]
-    fn grids_have_the_issue_sizes() {
-        assert_eq!(ClothGridSpec::full().cases().len(), 525);
-        assert_eq!(ClothGridSpec::quick().cases().len(), 45);
-    }
-
-    #[test]
-    fn contact_case_lands_without_penetration() {
-        // The hardest quick case: a stiff sheet thrown at 20 m/s onto the sphere with
-        // quarter-second steps.
-        let case = ContactCase {
-            grid: 4,
-            stiffness: 1e6,
-            dt: 0.25,
-            speed: 20.0,
-            target: ContactTarget::Sphere,
-            steps: 4,
-        };
-        let out = run_contact_case(&case);
-        assert!(out.failures.is_empty(), "{:?}", out.failures);
-        assert_eq!(out.steps_run, 4);
-        // It reached the collider (the throw covers the 0.1 m gap in the first step).
-        assert!(
-            out.min_distance > 0.0 && out.min_distance < 1e-3,
-            "{}",
-            out.min_distance
-        );
-    }
-
-    #[test]
     fn only_the_stiff_regime_raises_the_cap() {
         let case = |stiffness, dt| ClothCase {
             grid: 11,
@@ -1037,6 +1056,78 @@ mod tests {
         assert!(out.failures.is_empty(), "{:?}", out.failures);
         assert_eq!(out.far_stops, 0, "{:?}", out.unconverged);
         assert_eq!(out.steps_run, 3);
+    }
+
+    #[test]
+    fn grids_have_the_issue_sizes() {
+        assert_eq!(ClothGridSpec::full().cases().len(), 525);
+        assert_eq!(ClothGridSpec::quick().cases().len(), 45);
+    }
+
+    #[test]
+    fn contact_case_lands_without_penetration() {
+        // The hardest quick case: a stiff sheet thrown at 20 m/s onto the sphere with
+        // quarter-second steps.
+        let case = ContactCase {
+            grid: 4,
+            stiffness: 1e6,
+            dt: 0.25,
+            speed: 20.0,
+            target: ContactTarget::Sphere,
+            steps: 4,
+        };
+        let out = run_contact_case(&case);
+        assert!(out.failures.is_empty(), "{:?}", out.failures);
+        assert_eq!(out.steps_run, 4);
+        // It reached the collider (the throw covers the 0.1 m gap in the first step).
+        assert!(
+            out.min_distance > 0.0 && out.min_distance < 1e-3,
+            "{}",
+            out.min_distance
+        );
+    }
+
+    #[test]
+    fn a_sheet_that_misses_the_sphere_falls_without_diverging() {
+        // The full grid's case that the fixed radius of 100 called a divergence: a soft
+        // sheet thrown at 20 m/s misses the sphere and keeps falling. By step 17 it is
+        // past 100 m down; that is the fall its throw and gravity give it.
+        let case = ContactCase {
+            grid: 16,
+            stiffness: 1e1,
+            dt: 0.25,
+            speed: 20.0,
+            target: ContactTarget::Sphere,
+            steps: 20,
+        };
+        let out = run_contact_case(&case);
+        assert!(out.failures.is_empty(), "{:?}", out.failures);
+        assert!(!out.diverged);
+        assert_eq!(out.steps_run, 20);
+        // It did leave the old ball of radius 100: the check would have failed it.
+        assert!(out.max_extent > DIVERGENCE_RADIUS, "{}", out.max_extent);
+    }
+
+    #[test]
+    fn a_blow_up_is_still_a_divergence() {
+        let t = 4.0;
+        let radius = contact_motion_radius(0.5, 20.0, CONTACT_GRAVITY, t);
+        // The envelope of the motion itself: start + v t + g t^2 / 2 + the margin.
+        assert!((radius - (0.5 + 80.0 + 0.5 * 9.81 * 16.0 + DIVERGENCE_RADIUS)).abs() < 1e-12);
+        // A free fall from the start stays inside; a particle flung to twice the
+        // envelope, or one that became NaN, is caught.
+        let fallen = DVec3::new(0.3, -(20.0 * t + 0.5 * 9.81 * t * t), 0.2);
+        let mut x = vec![DVec3::new(0.1, 0.1, 0.1), fallen];
+        assert_eq!(first_beyond(&x, radius), None);
+        x.push(DVec3::new(2.0 * radius, 0.0, 0.0));
+        assert_eq!(first_beyond(&x, radius), Some(2));
+        x[2] = DVec3::new(f64::NAN, 0.0, 0.0);
+        assert_eq!(first_beyond(&x, radius), Some(2));
+        // At t = 0 the radius is the start extent plus the margin only.
+        assert_eq!(
+            contact_motion_radius(0.5, 20.0, CONTACT_GRAVITY, 0.0),
+            0.5 + DIVERGENCE_RADIUS
+        );
     }
 
     #[test]
