@@ -55,7 +55,10 @@ pub struct StressArgs {
     /// Cloth: only these initial states (rest, stretched, compressed, perturbed, far).
     #[arg(long, value_delimiter = ',', value_parser = cloth::InitialState::parse)]
     state: Vec<cloth::InitialState>,
-    /// Cloth: steps per case instead of the default (20 on 11 x 11, 3 on 51 x 51, 1 on
+    /// Cloth: only these integrators (backward-euler, auto).
+    #[arg(long, value_delimiter = ',', value_parser = cloth::ClothIntegrator::parse)]
+    integrator: Vec<cloth::ClothIntegrator>,
+    /// Cloth: steps per case instead of the default (20 on 11 x 11, 3 on 51 x 51, 10 on
     /// 101 x 101).
     #[arg(long)]
     steps: Option<usize>,
@@ -86,6 +89,7 @@ impl StressArgs {
             && self.stiffness.is_empty()
             && self.dt.is_empty()
             && self.state.is_empty()
+            && self.integrator.is_empty()
             && self.steps.is_none()
             && self.only.is_none())
     }
@@ -107,6 +111,9 @@ impl StressArgs {
         }
         if !self.state.is_empty() {
             spec.states.clone_from(&self.state);
+        }
+        if !self.integrator.is_empty() {
+            spec.integrators.clone_from(&self.integrator);
         }
         let mut cases = spec.cases();
         if let Some(steps) = self.steps {
