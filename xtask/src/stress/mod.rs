@@ -12,6 +12,8 @@
 //! - [`body`]: the full-body degenerate set for every body solver configuration, with
 //!   the invariants every body solve must keep (no NaN, no limit violated, a report equal
 //!   to forward kinematics, the cost never above the start).
+//! - `--soak`: W4 with `auto` and W1 tracking for a million steps and frames each
+//!   (`sinew_bench::stress::soak`), no tables written.
 //! - [`table`]: the console tables and `stress.md`.
 //!
 //! Prints the tables, writes `stress.md` (default `docs/bench/`; `--quick` and filtered
@@ -55,7 +57,10 @@ pub struct StressArgs {
     /// Cloth: only these initial states (rest, stretched, compressed, perturbed, far).
     #[arg(long, value_delimiter = ',', value_parser = cloth::InitialState::parse)]
     state: Vec<cloth::InitialState>,
-    /// Cloth: steps per case instead of the default (20 on 11 x 11, 3 on 51 x 51, 1 on
+    /// Cloth: only these integrators (backward-euler, auto).
+    #[arg(long, value_delimiter = ',', value_parser = cloth::ClothIntegrator::parse)]
+    integrator: Vec<cloth::ClothIntegrator>,
+    /// Cloth: steps per case instead of the default (20 on 11 x 11, 3 on 51 x 51, 10 on
     /// 101 x 101).
     #[arg(long)]
     steps: Option<usize>,
@@ -67,6 +72,15 @@ pub struct StressArgs {
     /// way; see docs/stress.md).
     #[arg(long)]
     strict: bool,
+    /// Run the soak instead of the grid: W4 with `auto` (damping 0.2 and 0) for
+    /// `--soak-steps` steps and W1 tracking for as many frames with every registry
+    /// solver, in release; exit 1 on NaN, energy gain beyond the allowance or a bone off
+    /// by more than 1e-12.
+    #[arg(long)]
+    soak: bool,
+    /// Steps (cloth) and frames (IK) of the soak.
+    #[arg(long, default_value_t = 1_000_000)]
+    soak_steps: usize,
 }
 
 /// Which part of the stress run.
@@ -86,6 +100,7 @@ impl StressArgs {
             && self.stiffness.is_empty()
             && self.dt.is_empty()
             && self.state.is_empty()
+            && self.integrator.is_empty()
             && self.steps.is_none()
             && self.only.is_none())
     }
@@ -107,6 +122,9 @@ impl StressArgs {
         }
         if !self.state.is_empty() {
             spec.states.clone_from(&self.state);
+        }
+        if !self.integrator.is_empty() {
+            spec.integrators.clone_from(&self.integrator);
         }
         let mut cases = spec.cases();
         if let Some(steps) = self.steps {
@@ -225,12 +243,61 @@ fn run_cloth_cases(
         .collect()
 }
 
+/// Runs the soak (`--soak`): prints one line per run and exits 1 on any failure.
+fn run_soak(args: &StressArgs) -> ExitCode {
+    use sinew_bench::stress::soak;
+    let n = args.soak_steps;
+    let machine = crate::machine::Machine::read();
+    println!("soak: {n} steps / frames each; {machine:?}");
+    let mut failures = Vec::new();
+    for damping in [0.2, 0.0] {
+        let o = soak::run_cloth(n, damping);
+        println!(
+            "{}: {} steps in {:.1} s (verlet {}, bdf2 {}, backward euler {}); largest one-step rise {:.3e}, largest E - E0 {:.3e}, end E - E0 {:.3e} (relative to the starting scale)",
+            o.name,
+            o.steps_run,
+            o.seconds,
+            o.verlet_steps,
+            o.bdf2_steps,
+            o.backward_euler_steps,
+            o.rise_max,
+            o.above_start_max,
+            o.end_change
+        );
+        failures.extend(o.failures.iter().map(|f| format!("{}: {f}", o.name)));
+    }
+    for o in soak::run_all_ik(n) {
+        println!(
+            "W1 tracking {}: {} frames in {:.1} s; largest relative bone error {:.3e}; effector error mean {:.3e}, max {:.3e}",
+            o.solver, o.frames, o.seconds, o.bone_error_max, o.error_mean, o.error_max
+        );
+        failures.extend(o.failures.iter().map(|f| format!("W1 {}: {f}", o.solver)));
+    }
+    println!(
+        "load at the end: {:?}",
+        crate::machine::Machine::read().load_at_start
+    );
+    if failures.is_empty() {
+        println!("soak: no failure");
+        ExitCode::SUCCESS
+    } else {
+        println!("soak failures ({}):", failures.len());
+        for f in &failures {
+            println!("  {f}");
+        }
+        ExitCode::FAILURE
+    }
+}
+
 /// Runs the stress grid; exit code 1 when an invariant broke, 2 on an I/O error.
 pub fn run(args: &StressArgs) -> ExitCode {
     if !args.quick
         && let Some(code) = crate::machine::rerun_in_release()
     {
         return code;
+    }
+    if args.soak {
+        return run_soak(args);
     }
     let machine = crate::machine::Machine::read();
     let command = std::env::args().skip(2).collect::<Vec<_>>().join(" ");

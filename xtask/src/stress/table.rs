@@ -4,13 +4,17 @@
 
 use super::StressResults;
 use sinew_bench::stress::body::BodyOutcome;
-use sinew_bench::stress::cloth::{ClothOutcome, InitialState, dt_label};
+use sinew_bench::stress::cloth::{ClothIntegrator, ClothOutcome, InitialState, dt_label};
 use sinew_bench::stress::ik::IkOutcome;
 use std::fmt::Write;
 
-/// The grid sizes present, in order.
-fn grids(results: &StressResults) -> Vec<usize> {
-    let mut g: Vec<usize> = results.cloth.iter().map(|o| o.case.grid).collect();
+/// The (integrator, grid size) pairs present, in order: one table each.
+fn grids(results: &StressResults) -> Vec<(ClothIntegrator, usize)> {
+    let mut g: Vec<(ClothIntegrator, usize)> = results
+        .cloth
+        .iter()
+        .map(|o| (o.case.integrator, o.case.grid))
+        .collect();
     g.dedup();
     g
 }
@@ -43,11 +47,11 @@ pub fn cloth_cell(o: &ClothOutcome) -> String {
 
 /// Rows of (stiffness, dt) of one grid size, each with its outcomes by state.
 /// The steps each case of the `grid` x `grid` cloth ran for (0 when none ran).
-fn steps_per_case(results: &StressResults, grid: usize) -> usize {
+fn steps_per_case(results: &StressResults, (integrator, grid): (ClothIntegrator, usize)) -> usize {
     results
         .cloth
         .iter()
-        .find(|o| o.case.grid == grid)
+        .find(|o| o.case.grid == grid && o.case.integrator == integrator)
         .map_or(0, |o| o.case.steps)
 }
 
@@ -76,9 +80,16 @@ fn grid_table(
     }
 }
 
-fn rows(results: &StressResults, grid: usize) -> Vec<(f64, f64, Vec<Option<&ClothOutcome>>)> {
+fn rows(
+    results: &StressResults,
+    (integrator, grid): (ClothIntegrator, usize),
+) -> Vec<(f64, f64, Vec<Option<&ClothOutcome>>)> {
     let mut out: Vec<(f64, f64, Vec<Option<&ClothOutcome>>)> = Vec::new();
-    for o in results.cloth.iter().filter(|o| o.case.grid == grid) {
+    for o in results
+        .cloth
+        .iter()
+        .filter(|o| o.case.grid == grid && o.case.integrator == integrator)
+    {
         let col = InitialState::ALL
             .iter()
             .position(|s| *s == o.case.state)
@@ -118,18 +129,20 @@ fn ik_stop(o: &IkOutcome) -> String {
 #[must_use]
 pub fn console(results: &StressResults, failures: &[String], unconverged: &[String]) -> String {
     let mut s = String::new();
-    for grid in grids(results) {
-        let steps = steps_per_case(results, grid);
+    for table in grids(results) {
+        let steps = steps_per_case(results, table);
+        let (integrator, grid) = table;
+        let integrator = integrator.name();
         let _ = writeln!(
             s,
-            "\ncloth {grid}x{grid}, {steps} steps per case: Newton iterations max/mean (r: stops at round-off, F: far from converged, E: energy inequality broken, !: failed)"
+            "\ncloth {grid}x{grid} {integrator}, {steps} steps per case: Newton iterations max/mean (r: stops at round-off, F: far from converged, E: energy inequality broken, !: failed)"
         );
         let _ = write!(s, "{:>6} {:>7}", "k", "dt");
         for st in InitialState::ALL {
             let _ = write!(s, " {:>14}", st.name());
         }
         s.push('\n');
-        for (k, dt, cells) in rows(results, grid) {
+        for (k, dt, cells) in rows(results, table) {
             let _ = write!(s, "{k:>6.0e} {:>7}", dt_label(dt));
             for c in cells {
                 let _ = write!(s, " {:>14}", c.map_or_else(|| "-".into(), cloth_cell));
@@ -280,12 +293,17 @@ fn cloth_markdown(s: &mut String, results: &StressResults) {
     let _ = writeln!(s, "## Cloth\n");
     let _ = writeln!(
         s,
-        "The lab cloth (W4's springs, corners (0, 0) and (0, n-1) pinned, the sheet 2 wide, mass 1, gravity 0.3, no damping) stepped by the default backward Euler (`NewtonSettings::default()`: tolerance 1e-9 m/h^2, cap 50). Cell: Newton iterations per step, max/mean; `rN`: N steps stopped (cap or stalled line search) at or below the round-off floor; `FN`: N steps stopped far from converged (reported); `EN`: N energy-inequality breaks; `DIVERGED`; `!`: the case failed.\n"
+        "The lab cloth (W4's springs, corners (0, 0) and (0, n-1) pinned, the sheet 2 wide, mass 1, gravity 0.3, no damping) stepped by the default backward Euler (`NewtonSettings::default()`: tolerance 1e-9 m/h^2, cap 50, raised to 200 where k h^2 / m >= 1e5, docs/stress.md) and by `auto` (its defaults, the same Newton settings for its BDF2 steps; the energy inequality is checked on backward Euler steps only). Cell: Newton iterations per step, max/mean; `rN`: N steps stopped (cap or stalled line search) at or below the round-off floor; `FN`: N steps stopped far from converged (reported); `EN`: N energy-inequality breaks; `DIVERGED`; `!`: the case failed.\n"
     );
-    for grid in grids(results) {
-        let steps = steps_per_case(results, grid);
-        let _ = writeln!(s, "### {grid} x {grid} ({steps} steps per case)\n");
-        let table = rows(results, grid);
+    for pair in grids(results) {
+        let steps = steps_per_case(results, pair);
+        let (integrator, grid) = pair;
+        let integrator = integrator.name();
+        let _ = writeln!(
+            s,
+            "### {grid} x {grid}, {integrator} ({steps} steps per case)\n"
+        );
+        let table = rows(results, pair);
         grid_table(s, &table, cloth_cell);
         let _ = writeln!(
             s,

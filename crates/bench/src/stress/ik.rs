@@ -5,7 +5,7 @@
 //! is checked against invariants that hold for any correct solver (docs/stress.md).
 
 use serde::Serialize;
-use sinew_ik::SolverOptions;
+use sinew_ik::{CcdOptions, SolverOptions};
 use sinew_math::{DQuat, DVec3, EulerRot};
 use sinew_skeleton::ik::{Chain, IkSolver, SolveReport, SolveSettings, StopReason};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton};
@@ -18,11 +18,32 @@ const EPS: f64 = f64::EPSILON;
 /// The relative accuracy every bone length must keep (the 1e-12).
 const BONE_RELATIVE: f64 = 1e-12;
 
-/// The solver the library's registry names `name` (one of `SolverOptions::NAMED`).
+/// Every solver configuration the set runs: the registry's `SolverOptions::NAMED`, then
+/// the two CCD combinations of extrapolation and finish it does not name (extrapolated
+/// sweeps without the finish, plain sweeps with it), so each on/off setting of the finish
+/// is stressed with each kind of sweep. Each label is `SolverOptions::label` of its
+/// options.
+#[must_use]
+pub fn solvers() -> Vec<(&'static str, SolverOptions)> {
+    let mut out = SolverOptions::NAMED.to_vec();
+    for (extrapolation, finish) in [(true, false), (false, true)] {
+        let options = SolverOptions::Ccd(CcdOptions {
+            extrapolation,
+            finish,
+            ..CcdOptions::default()
+        });
+        out.push((options.label(), options));
+    }
+    out
+}
+
+/// The solver of the configuration labelled `name` (one of [`solvers`]).
 fn make_solver(name: &str) -> Result<Box<dyn IkSolver>, String> {
-    SolverOptions::by_name(name)
-        .and_then(|options| options.build())
-        .map_err(|e| e.to_string())
+    solvers()
+        .into_iter()
+        .find(|(label, _)| *label == name)
+        .ok_or_else(|| format!("unknown solver {name:?}"))
+        .and_then(|(_, options)| options.build().map_err(|e| e.to_string()))
 }
 
 /// What a case expects of every solver.
@@ -573,8 +594,9 @@ fn check_solve(
 #[must_use]
 pub fn run_all(cases: &[IkCase]) -> Vec<IkOutcome> {
     let mut out = Vec::new();
+    let solvers = solvers();
     for c in cases {
-        for (s, _) in SolverOptions::NAMED {
+        for &(s, _) in &solvers {
             out.push(run_case(c, s));
         }
     }
@@ -586,9 +608,30 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_set_runs_every_named_solver_and_both_finish_settings_of_ccd() {
+        let labels: Vec<&str> = solvers().iter().map(|(l, _)| *l).collect();
+        for (name, _) in SolverOptions::NAMED {
+            assert!(labels.contains(&name), "{name}");
+        }
+        for extra in ["ccd-no-finish", "ccd-plain-finish"] {
+            assert!(labels.contains(&extra), "{extra}");
+        }
+        // Distinct labels: each names one configuration.
+        let mut unique = labels.clone();
+        unique.sort_unstable();
+        unique.dedup();
+        assert_eq!(unique.len(), labels.len());
+        // Each label is the library's own for its options, and every one builds.
+        for (label, options) in solvers() {
+            assert_eq!(options.label(), label);
+            assert!(make_solver(label).is_ok(), "{label}");
+        }
+    }
+
+    #[test]
     fn every_solver_passes_a_plain_reachable_case() {
         let c = case("2 bones", xs(&[1.0, 1.0]), DVec3::new(1.0, 1.0, 0.2));
-        for (s, _) in SolverOptions::NAMED {
+        for (s, _) in solvers() {
             let out = run_case(&c, s);
             assert!(out.failures.is_empty(), "{s}: {:?}", out.failures);
             assert_eq!(out.stop, Some(StopReason::Converged), "{s}");

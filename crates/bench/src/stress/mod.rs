@@ -12,7 +12,10 @@
 //! - [`body`]: the full-body degenerate set for every body solver configuration, with
 //!   the invariants every body solve must keep (no NaN, no limit violated, a report equal
 //!   to forward kinematics, the cost never above the start).
+//! - [`soak`]: W4 with `auto` and W1 tracking for a million steps and frames (no NaN,
+//!   no energy gain beyond the scenes' allowance, bone lengths to 1e-12).
 
 pub mod body;
 pub mod cloth;
 pub mod ik;
+pub mod soak;
