@@ -157,6 +157,39 @@ impl Default for ContactSettings {
     }
 }
 
+/// The checks every barrier's settings share: `dhat > 0` and `thickness >= 0`, both
+/// finite; the error names the setting.
+pub(crate) fn check_gap_settings(dhat: f64, thickness: f64) -> Result<(), ContactError> {
+    if !(dhat.is_finite() && dhat > 0.0) {
+        return Err(ContactError::BadSetting {
+            name: "dhat",
+            value: dhat,
+            reason: "must be positive and finite",
+        });
+    }
+    if !(thickness.is_finite() && thickness >= 0.0) {
+        return Err(ContactError::BadSetting {
+            name: "thickness",
+            value: thickness,
+            reason: "must be non-negative and finite",
+        });
+    }
+    Ok(())
+}
+
+/// The share of the distance to impact a line search may close: `0 < f < 1`.
+pub(crate) fn check_toi_fraction(fraction: f64) -> Result<(), ContactError> {
+    if fraction > 0.0 && fraction < 1.0 {
+        Ok(())
+    } else {
+        Err(ContactError::BadSetting {
+            name: "toi_fraction",
+            value: fraction,
+            reason: "must lie strictly between 0 and 1",
+        })
+    }
+}
+
 impl ContactSettings {
     /// Checks every setting: `dhat > 0`, `thickness >= 0`, `mu >= 0`, `eps_v > 0`,
     /// `0 < toi_fraction < 1`, all finite. The error names the setting.
@@ -168,29 +201,14 @@ impl ContactSettings {
                 reason,
             })
         };
-        if !(self.dhat.is_finite() && self.dhat > 0.0) {
-            return bad("dhat", self.dhat, "must be positive and finite");
-        }
-        if !(self.thickness.is_finite() && self.thickness >= 0.0) {
-            return bad(
-                "thickness",
-                self.thickness,
-                "must be non-negative and finite",
-            );
-        }
+        check_gap_settings(self.dhat, self.thickness)?;
         if !(self.mu.is_finite() && self.mu >= 0.0) {
             return bad("mu", self.mu, "must be non-negative and finite");
         }
         if !(self.eps_v.is_finite() && self.eps_v > 0.0) {
             return bad("eps_v", self.eps_v, "must be positive and finite");
         }
-        if !(self.toi_fraction > 0.0 && self.toi_fraction < 1.0) {
-            return bad(
-                "toi_fraction",
-                self.toi_fraction,
-                "must lie strictly between 0 and 1",
-            );
-        }
+        check_toi_fraction(self.toi_fraction)?;
         Ok(())
     }
 }

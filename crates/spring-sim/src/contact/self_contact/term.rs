@@ -96,23 +96,8 @@ impl SelfContactSettings {
                 reason,
             })
         };
-        if !(self.dhat.is_finite() && self.dhat > 0.0) {
-            return bad("dhat", self.dhat, "must be positive and finite");
-        }
-        if !(self.thickness.is_finite() && self.thickness >= 0.0) {
-            return bad(
-                "thickness",
-                self.thickness,
-                "must be non-negative and finite",
-            );
-        }
-        if !(self.toi_fraction > 0.0 && self.toi_fraction < 1.0) {
-            return bad(
-                "toi_fraction",
-                self.toi_fraction,
-                "must lie strictly between 0 and 1",
-            );
-        }
+        crate::contact::check_gap_settings(self.dhat, self.thickness)?;
+        crate::contact::check_toi_fraction(self.toi_fraction)?;
         if !(self.mollifier_ratio.is_finite() && self.mollifier_ratio > 0.0) {
             return bad(
                 "mollifier_ratio",
