@@ -556,6 +556,12 @@ struct RowProduct {
     upper_ptr: Vec<usize>,
     /// `(q, k)`: the block `(p, q)` is the `k`-th neighbour block of column particle `q`.
     upper: Vec<(usize, usize)>,
+    /// Particle `p`'s neighbours below it are `lower[lower_ptr[p]..lower_ptr[p + 1]]`,
+    /// in the order of its columns' blocks: one index per 3x3 block instead of the
+    /// pattern's one per entry, so the product reads a ninth of the indices.
+    lower_ptr: Vec<usize>,
+    /// The first unknown `3 q` of each neighbour `q` below the diagonal.
+    lower: Vec<usize>,
 }
 
 impl RowProduct {
@@ -564,6 +570,9 @@ impl RowProduct {
         let col_ptr = pattern.symbolic.col_ptr();
         let row_idx = pattern.symbolic.row_idx();
         let mut lists: Vec<Vec<(usize, usize)>> = vec![Vec::new(); particles];
+        let mut lower_ptr = Vec::with_capacity(particles + 1);
+        lower_ptr.push(0);
+        let mut lower = Vec::with_capacity(row_idx.len() / 9);
         for q in 0..particles {
             let start = col_ptr[3 * q] + 3;
             for (k, &row) in row_idx[start..col_ptr[3 * q + 1]]
@@ -572,7 +581,9 @@ impl RowProduct {
                 .enumerate()
             {
                 lists[row / 3].push((q, k));
+                lower.push(row);
             }
+            lower_ptr.push(lower.len());
         }
         let mut upper_ptr = Vec::with_capacity(particles + 1);
         upper_ptr.push(0);
@@ -581,7 +592,12 @@ impl RowProduct {
             upper.extend(list);
             upper_ptr.push(upper.len());
         }
-        Self { upper_ptr, upper }
+        Self {
+            upper_ptr,
+            upper,
+            lower_ptr,
+            lower,
+        }
     }
 
     /// Writes the rows of particles `first..first + y.len() / 3` of `A x` into `y`.
@@ -594,9 +610,9 @@ impl RowProduct {
         y: &mut [f64],
     ) {
         let col_ptr = pattern.symbolic.col_ptr();
-        let row_idx = pattern.symbolic.row_idx();
         for (offset, yp) in y.chunks_exact_mut(3).enumerate() {
             let p = first + offset;
+            let below = &self.lower[self.lower_ptr[p]..self.lower_ptr[p + 1]];
             let mut acc = [0.0f64; 3];
             // Column 3p + c: the diagonal block's lower entries (rows 3p + c..3p + 3),
             // then the blocks below it, which are the transposes of the blocks right of
@@ -611,8 +627,13 @@ impl RowProduct {
                     acc[r] += v * xj;
                     acc[c] += v * x[3 * p + r];
                 }
-                for k in start + 3 - c..end {
-                    acc[c] += values[k] * x[row_idx[k]];
+                // Three rows per neighbour block, in the stored order (the sum's order
+                // is the entry-by-entry one's).
+                let blocks = &values[start + 3 - c..end];
+                for (v, &row) in blocks.chunks_exact(3).zip(below) {
+                    acc[c] += v[0] * x[row];
+                    acc[c] += v[1] * x[row + 1];
+                    acc[c] += v[2] * x[row + 2];
                 }
             }
             // The blocks left of the diagonal: stored as the block (p, q) in q's columns.
@@ -675,6 +696,12 @@ impl PcgSolver {
         Ok(())
     }
 
+    /// The thread pool, when the work is spread over more than one thread.
+    #[cfg(feature = "parallel")]
+    pub(crate) fn pool(&self) -> Option<&std::sync::Arc<rayon::ThreadPool>> {
+        self.pool.as_ref()
+    }
+
     /// The threads the vector work runs on (1: the calling thread).
     #[must_use]
     pub fn threads(&self) -> usize {
@@ -733,12 +760,20 @@ impl PcgSolver {
             x.fill(0.0);
             return PcgOutcome::default();
         }
-        self.product(par, pattern, values, x);
-        chunks_mut(par, &mut self.r, CHUNK, |first, r| {
-            for (i, r) in r.iter_mut().enumerate() {
-                *r = b[first + i] - self.ap[first + i];
-            }
-        });
+        if x.iter().all(|v| *v == 0.0) {
+            // The usual cold start (every Newton direction starts from zero): `A 0 = 0`,
+            // so the residual is `b` itself and the product, a fifth to a third of the
+            // products of a solve that ends in a few iterations, is skipped. `b - 0`
+            // is `b` bit for bit, so the iterates are the same as with it.
+            self.r.copy_from_slice(b);
+        } else {
+            self.product(par, pattern, values, x);
+            chunks_mut(par, &mut self.r, CHUNK, |first, r| {
+                for (i, r) in r.iter_mut().enumerate() {
+                    *r = b[first + i] - self.ap[first + i];
+                }
+            });
+        }
         let mut r_norm = chunked_dot(par, &self.r, &self.r, &mut self.partials).sqrt();
         self.precondition(par);
         self.p.copy_from_slice(&self.z);

@@ -240,8 +240,10 @@ impl BackwardEuler {
     }
 
     fn assemble_gradient(&mut self, step: &StepContext<'_>) {
-        self.potential
-            .gradient(step, &self.x, &mut self.grad_particles);
+        if !self.gradient_on_pool(step) {
+            self.potential
+                .gradient(step, &self.x, &mut self.grad_particles);
+        }
         for (f, &p) in self.pattern.free_particles.iter().enumerate() {
             let g = self.grad_particles[p];
             self.grad[3 * f] = g.x;
@@ -253,9 +255,63 @@ impl BackwardEuler {
     /// Writes the Newton matrix at `self.x` in the form `curvature` asks for into
     /// `self.values`.
     fn assemble_hessian(&mut self, step: &StepContext<'_>, curvature: Curvature) {
+        if self.hessian_on_pool(step, curvature) {
+            return;
+        }
         self.values.fill(0.0);
         let mut sink = HessianSink::values(&self.pattern, &mut self.values);
         self.potential
             .add_hessian(step, &self.x, curvature, &mut sink);
+    }
+    /// With a thread pool (systems above one PCG chunk, more than one thread), the
+    /// gradient's per-spring part runs on it, bitwise equal to the sequential loop
+    /// (`potential::parallel`); false when there is no pool and nothing was done.
+    #[cfg(feature = "parallel")]
+    fn gradient_on_pool(&mut self, step: &StepContext<'_>) -> bool {
+        let Some(pool) = self.pcg.pool().cloned() else {
+            return false;
+        };
+        let mut gather = self.gather_for(step);
+        let (potential, x, out) = (&self.potential, &self.x, &mut self.grad_particles);
+        pool.install(|| gather.gradient(potential, step, x, out));
+        self.gather = Some(gather);
+        true
+    }
+
+    #[cfg(not(feature = "parallel"))]
+    fn gradient_on_pool(&mut self, _step: &StepContext<'_>) -> bool {
+        false
+    }
+
+    /// The Newton matrix's values on the thread pool, as [`Self::gradient_on_pool`].
+    #[cfg(feature = "parallel")]
+    fn hessian_on_pool(&mut self, step: &StepContext<'_>, curvature: Curvature) -> bool {
+        let Some(pool) = self.pcg.pool().cloned() else {
+            return false;
+        };
+        let mut gather = self.gather_for(step);
+        let (potential, x, pattern, values) = (
+            &mut self.potential,
+            &self.x,
+            &self.pattern,
+            &mut self.values,
+        );
+        pool.install(|| gather.hessian(potential, step, x, curvature, pattern, values));
+        self.gather = Some(gather);
+        true
+    }
+
+    #[cfg(not(feature = "parallel"))]
+    fn hessian_on_pool(&mut self, _step: &StepContext<'_>, _curvature: Curvature) -> bool {
+        false
+    }
+
+    /// The gather index (taken out of `self` while it is used), built on first use.
+    #[cfg(feature = "parallel")]
+    fn gather_for(&mut self, step: &StepContext<'_>) -> crate::potential::SpringGather {
+        match self.gather.take() {
+            Some(g) if g.fits(step.system) => g,
+            _ => crate::potential::SpringGather::new(step.system),
+        }
     }
 }

@@ -121,6 +121,10 @@ pub struct BackwardEuler {
     time: f64,
     /// The current solve's times and unknowns, handed to the terms.
     timing: StepTiming,
+    /// The springs' gather index for assembly on the thread pool, built the first time
+    /// a step assembles with more than one thread.
+    #[cfg(feature = "parallel")]
+    gather: Option<crate::potential::SpringGather>,
 }
 
 impl BackwardEuler {
@@ -163,6 +167,8 @@ impl BackwardEuler {
                 length: 0.0,
                 midpoint: false,
             },
+            #[cfg(feature = "parallel")]
+            gather: None,
             direct,
             pattern,
         })

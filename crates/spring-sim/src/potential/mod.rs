@@ -25,6 +25,8 @@ mod damping;
 mod fused;
 mod gravity;
 mod inertia;
+#[cfg(feature = "parallel")]
+mod parallel;
 mod sink;
 mod springs;
 
@@ -42,6 +44,8 @@ use crate::model::SpringSystem;
 use crate::spring::Curvature;
 use fused::PerSpring;
 pub(crate) use fused::{rate_product, rate_row_sums};
+#[cfg(feature = "parallel")]
+pub(crate) use parallel::SpringGather;
 use sinew_math::DVec3;
 use std::any::Any;
 
