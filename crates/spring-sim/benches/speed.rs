@@ -11,7 +11,8 @@
 //!   iterations. Workloads: `w4`, `w4d` (damping 0.2), `w5k4`, `w5k6`, `w6`, `w6d`,
 //!   `g<N>` (an N x N lab-pattern cloth 2 wide, like W6); integrators: `be-auto`,
 //!   `be-pcg`, `be-direct`, `verlet`, `se1` (symplectic Euler, 1 substep), `se<N>`,
-//!   `auto`, the backward Euler ones with a `-t<N>` suffix for N threads.
+//!   `auto`, the backward Euler ones with a `-t<N>` suffix for N threads and then a
+//!   `-f<eta>` suffix for PCG's largest forcing term (`NewtonSettings::pcg_forcing`).
 
 use sinew_spring_sim::*;
 use std::time::Instant;
@@ -41,6 +42,11 @@ fn workload(name: &str) -> (SpringSystem, f64) {
 }
 
 fn integrator(name: &str) -> Integrator {
+    // A `-f<eta>` suffix: PCG's largest forcing term (default 1e-2).
+    let (name, forcing) = match name.split_once("-f") {
+        Some((n, f)) => (n, f.parse().unwrap()),
+        None => (name, NewtonSettings::default().pcg_forcing),
+    };
     // A `-t<N>` suffix: N threads (default: one per core).
     let (name, threads) = match name.split_once("-t") {
         Some((n, t)) => (n, t.parse().unwrap()),
@@ -50,6 +56,7 @@ fn integrator(name: &str) -> Integrator {
         Integrator::BackwardEuler(NewtonSettings {
             linear_solver: solver,
             threads,
+            pcg_forcing: forcing,
             ..Default::default()
         })
     };
