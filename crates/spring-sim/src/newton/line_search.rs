@@ -23,7 +23,10 @@ pub(super) struct Outcome {
     pub(super) backtracks: usize,
 }
 
-/// Searches along `dx` from `x` with slope `grad g . dx = slope < 0`.
+/// Searches along `dx` from `x` with slope `grad g . dx = slope < 0`, the changes of `g`
+/// summed in fixed chunks (on the current thread pool when `par`; `partials` holds the
+/// chunks' sums).
+#[allow(clippy::too_many_arguments)]
 pub(super) fn search(
     potential: &Potential,
     step: &StepContext<'_>,
@@ -31,6 +34,8 @@ pub(super) fn search(
     dx: &[DVec3],
     slope: f64,
     settings: &NewtonSettings,
+    par: bool,
+    partials: &mut Vec<f64>,
 ) -> Outcome {
     // A term with a barrier caps the step so no tried state leaves its domain.
     let cap = potential.max_step(step, x, dx);
@@ -39,7 +44,7 @@ pub(super) fn search(
     let mut accepted = None;
     if alpha > 0.0 {
         for _ in 0..=settings.max_backtracks {
-            let change = potential.energy_change(step, x, dx, alpha);
+            let change = potential.energy_change_chunked(step, x, dx, alpha, par, partials);
             if change <= settings.armijo * alpha * slope {
                 accepted = Some(change);
                 break;
@@ -66,7 +71,7 @@ pub(super) fn search(
             if 2.0 * alpha > cap {
                 break;
             }
-            let trial = potential.energy_change(step, x, dx, 2.0 * alpha);
+            let trial = potential.energy_change_chunked(step, x, dx, 2.0 * alpha, par, partials);
             if trial < best && trial <= settings.armijo * 2.0 * alpha * slope {
                 alpha *= 2.0;
                 best = trial;

@@ -194,14 +194,7 @@ impl BackwardEuler {
                 self.dx_particles[p] =
                     DVec3::new(self.dx[3 * f], self.dx[3 * f + 1], self.dx[3 * f + 2]);
             }
-            let outcome = line_search::search(
-                &self.potential,
-                &step,
-                &self.x,
-                &self.dx_particles,
-                slope,
-                &self.settings,
-            );
+            let outcome = self.line_search(&step, slope);
             report.backtracks += outcome.backtracks;
             let Some(alpha) = outcome.alpha else {
                 // Below the tolerance already (an iteration the rule above asked for from
@@ -313,5 +306,23 @@ impl BackwardEuler {
             Some(g) if g.fits(step.system) => g,
             _ => crate::potential::SpringGather::new(step.system),
         }
+    }
+
+    /// The line search along `dx_particles`, on the thread pool when there is one.
+    fn line_search(&mut self, step: &StepContext<'_>, slope: f64) -> line_search::Outcome {
+        let (potential, x, dx, settings, partials) = (
+            &self.potential,
+            &self.x,
+            &self.dx_particles,
+            &self.settings,
+            &mut self.change_partials,
+        );
+        #[cfg(feature = "parallel")]
+        if let Some(pool) = self.pcg.pool() {
+            return pool.install(|| {
+                line_search::search(potential, step, x, dx, slope, settings, true, partials)
+            });
+        }
+        line_search::search(potential, step, x, dx, slope, settings, false, partials)
     }
 }

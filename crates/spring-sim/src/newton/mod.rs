@@ -121,6 +121,8 @@ pub struct BackwardEuler {
     time: f64,
     /// The current solve's times and unknowns, handed to the terms.
     timing: StepTiming,
+    /// The chunks' sums of the line search's changes of `g`.
+    change_partials: Vec<f64>,
     /// The springs' gather index for assembly on the thread pool, built the first time
     /// a step assembles with more than one thread.
     #[cfg(feature = "parallel")]
@@ -167,6 +169,7 @@ impl BackwardEuler {
                 length: 0.0,
                 midpoint: false,
             },
+            change_partials: Vec::new(),
             #[cfg(feature = "parallel")]
             gather: None,
             direct,

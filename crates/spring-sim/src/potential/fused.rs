@@ -71,6 +71,46 @@ impl PerSpring<'_> {
         }
     }
 
+    /// [`Self::energy_change`] over the springs `range` only, with the same per-spring
+    /// expressions and the same order of additions within the range; the spring term
+    /// must be present (the caller falls back to the whole sum otherwise).
+    pub(super) fn energy_change_over(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        dx: &[DVec3],
+        alpha: f64,
+        range: std::ops::Range<usize>,
+    ) -> f64 {
+        debug_assert!(self.springs);
+        let springs = &step.system.springs()[range.clone()];
+        let mut change = 0.0;
+        match self.damping {
+            Some((term, c)) => {
+                for (s, &w) in springs.iter().zip(&term.directions()[range]) {
+                    let delta = alpha * dx[s.a] - alpha * dx[s.b];
+                    if delta == DVec3::ZERO {
+                        continue;
+                    }
+                    let d = x[s.a] - x[s.b];
+                    let d_ref = step.x_ref[s.a] - step.x_ref[s.b];
+                    change += springs::energy_change(s, x, delta)
+                        + damping::energy_change(c, w, d, d_ref, delta);
+                }
+            }
+            None => {
+                for s in springs {
+                    let delta = alpha * dx[s.a] - alpha * dx[s.b];
+                    if delta == DVec3::ZERO {
+                        continue;
+                    }
+                    change += springs::energy_change(s, x, delta);
+                }
+            }
+        }
+        change
+    }
+
     /// Adds the sum of the terms' gradients to `gradient`.
     pub(super) fn add_gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
         match (self.springs, self.damping) {
