@@ -587,8 +587,10 @@ impl BackwardEuler {
         // step has g(x_{n+1}) <= g(x_n), which is what the energy inequality of
         // docs/labcheck.md rests on. Costs two evaluations of g per step.
         let guess_is_no_worse = !matches!(scheme, Scheme::BackwardEuler) || {
-            let g_guess = self.potential.energy(&step, &self.x);
-            let g_start = self.potential.energy(&step, system.positions());
+            let (potential, pcg, partials) =
+                (&self.potential, &self.pcg, &mut self.change_partials);
+            let g_guess = energy_on_pool(potential, pcg, partials, &step, &self.x);
+            let g_start = energy_on_pool(potential, pcg, partials, &step, system.positions());
             // A NaN guess counts as worse, so it is never kept.
             matches!(
                 g_guess.partial_cmp(&g_start),
@@ -771,6 +773,24 @@ fn combine_pieces(attempt: &StepReport, first: &StepReport, second: &StepReport)
     report.unconverged_pieces = first.unconverged_pieces + second.unconverged_pieces;
     report.rejected_splits = first.rejected_splits + second.rejected_splits;
     report
+}
+
+/// `g` at `x`, its springs summed in fixed chunks on `pcg`'s thread pool when it has one
+/// (the same bits for any number of threads).
+fn energy_on_pool(
+    potential: &Potential,
+    pcg: &PcgSolver,
+    partials: &mut Vec<f64>,
+    step: &StepContext<'_>,
+    x: &[DVec3],
+) -> f64 {
+    #[cfg(feature = "parallel")]
+    if let Some(pool) = pcg.pool() {
+        return pool.install(|| potential.energy_chunked(step, x, true, partials));
+    }
+    #[cfg(not(feature = "parallel"))]
+    let _ = pcg;
+    potential.energy_chunked(step, x, false, partials)
 }
 
 fn fixed_at(pattern: &HessianPattern, particle: usize) -> bool {

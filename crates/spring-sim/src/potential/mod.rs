@@ -186,9 +186,37 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
 
 /// The terms of one minimization, evaluated in order and summed.
 ///
-/// Springs per chunk of [`Potential::energy_change_chunked`]'s sum (the line search's):
-/// fixed, so the sum's order does not depend on the threads.
+/// Springs per chunk of [`Potential::energy_change_chunked`]'s and
+/// [`Potential::energy_chunked`]'s sums: fixed, so the sums' order does not depend on
+/// the threads.
 pub(crate) const CHANGE_CHUNK: usize = 4096;
+
+/// `sum_c part(chunk c)` over the chunks of [`CHANGE_CHUNK`] springs of `0..n` (at
+/// least one, possibly empty), each computed on the current thread pool when `par`,
+/// then added in chunk order starting from the first: one chunk gives `part(0..n)`
+/// itself.
+fn chunked_sum(
+    n: usize,
+    par: bool,
+    partials: &mut Vec<f64>,
+    part: impl Fn(std::ops::Range<usize>) -> f64 + Sync + Send,
+) -> f64 {
+    let chunks = n.div_ceil(CHANGE_CHUNK).max(1);
+    let range = |c: usize| c * CHANGE_CHUNK..((c + 1) * CHANGE_CHUNK).min(n);
+    #[cfg(feature = "parallel")]
+    if par {
+        use rayon::prelude::*;
+        (0..chunks)
+            .into_par_iter()
+            .map(|c| part(range(c)))
+            .collect_into_vec(partials);
+        return partials[1..].iter().fold(partials[0], |sum, p| sum + p);
+    }
+    let _ = par;
+    partials.clear();
+    partials.extend((0..chunks).map(|c| part(range(c))));
+    partials[1..].iter().fold(partials[0], |sum, p| sum + p)
+}
 
 /// The first [`Springs`] and the first [`AxialDamping`] among the terms are evaluated
 /// together in one loop over the springs (each term's per-spring formulas stay in its own
@@ -354,30 +382,34 @@ impl Potential {
             .iter()
             .map(|&t| self.terms[t].energy_change(step, x, dx, alpha))
             .sum();
-        let n = step.system.springs().len();
-        let chunks = n.div_ceil(CHANGE_CHUNK).max(1);
-        let part = |c: usize| {
-            let range = c * CHANGE_CHUNK..((c + 1) * CHANGE_CHUNK).min(n);
+        let springs = chunked_sum(step.system.springs().len(), par, partials, |range| {
             per.energy_change_over(step, x, dx, alpha, range)
-        };
-        #[cfg(feature = "parallel")]
-        if par {
-            use rayon::prelude::*;
-            (0..chunks)
-                .into_par_iter()
-                .map(part)
-                .collect_into_vec(partials);
-        } else {
-            partials.clear();
-            partials.extend((0..chunks).map(part));
+        });
+        others + springs
+    }
+
+    /// [`Self::energy`] with the springs' part summed in fixed chunks, as
+    /// [`Self::energy_change_chunked`]: the same bits for any number of threads, and
+    /// exactly [`Self::energy`]'s on a system of at most one chunk.
+    pub(crate) fn energy_chunked(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        par: bool,
+        partials: &mut Vec<f64>,
+    ) -> f64 {
+        let per = self.per_spring(step);
+        if !per.springs {
+            return self.energy(step, x);
         }
-        #[cfg(not(feature = "parallel"))]
-        {
-            let _ = par;
-            partials.clear();
-            partials.extend((0..chunks).map(part));
-        }
-        let springs = partials[1..].iter().fold(partials[0], |sum, p| sum + p);
+        let others: f64 = self
+            .other_terms
+            .iter()
+            .map(|&t| self.terms[t].energy(step, x))
+            .sum();
+        let springs = chunked_sum(step.system.springs().len(), par, partials, |range| {
+            per.energy_over(step, x, range)
+        });
         others + springs
     }
 
