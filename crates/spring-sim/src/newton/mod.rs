@@ -184,8 +184,8 @@ impl BackwardEuler {
         Ok(DirectSolver::new(pattern, structure)?)
     }
 
-    /// The threads PCG's vector work runs on (1: the calling thread, as for systems too
-    /// small to split).
+    /// The threads PCG's work, the springs' part of the assembly and the line search run
+    /// on (1: the calling thread, as for systems too small to split).
     #[must_use]
     pub fn threads(&self) -> usize {
         self.pcg.threads()

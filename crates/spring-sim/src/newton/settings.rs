@@ -52,7 +52,8 @@ pub struct NewtonSettings {
     pub reprobe_interval: usize,
     /// Record `g` at every iterate (costs one energy pass per iteration; for tests).
     pub record_objective: bool,
-    /// Threads for the PCG work of systems above 6 144 unknowns (2 048 particles)
+    /// Threads for the PCG work, the springs' part of the assembly and the line search
+    /// of systems above 6 144 unknowns (2 048 particles)
     /// (default 0: one per core; 1: the calling thread only). The results are bitwise
     /// the same for every value (fixed chunks, sums in chunk order); without the
     /// `parallel` feature it is ignored.
