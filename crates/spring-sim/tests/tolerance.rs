@@ -196,6 +196,7 @@ fn w5_error_from_the_exact_step_shrinks_with_the_tolerance() {
 fn w6_error_from_the_exact_step_shrinks_with_the_tolerance() {
     let system = SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02).with_damping(0.0)).unwrap();
     let errors = errors_over_tolerances(&system, LinearSolverChoice::Auto, 1.0 / 60.0, 60);
+    eprintln!("W6: error at 1e-3 {:e}, at 1e-4 {:e}", errors[0], errors[1]);
     assert!(errors[0] <= 1.1 * errors[1], "W6: {errors:?}");
     check_monotone("W6", 4, &errors[1..]);
     assert!(errors[0] < 1e-2);
