@@ -852,7 +852,10 @@ impl Finish {
             // The swing bound and the twist range are two constraints, which can both
             // be active (a corner): one normal each, from the violation of the limit with
             // the other one opened up (the two parts of one decomposition).
-            let frame = LimitFrame::of(st);
+            let frame = skeleton
+                .prepared_limit(j)
+                .frame()
+                .unwrap_or_else(|| LimitFrame::of(st));
             let local = pose.rotations[j];
             // A joint well inside its limit has both normals exactly zero (every
             // perturbed rotation is inside): one decomposition tells, instead of six.
@@ -1060,8 +1063,8 @@ impl Finish {
                 None => w,
             };
             let turned = (DQuat::from_scaled_axis(local) * pose.rotations[j]).normalize();
-            let limit = skeleton.limit(j);
-            if matches!(limit, JointLimit::Free) {
+            let limit = skeleton.prepared_limit(j);
+            if matches!(limit.limit(), JointLimit::Free) {
                 pose.rotations[j] = turned;
             } else {
                 let projected = limit.project(turned);

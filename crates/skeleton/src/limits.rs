@@ -286,41 +286,11 @@ impl JointLimit {
     #[must_use]
     pub fn project(&self, q: DQuat) -> DQuat {
         let q = unit_quat(q).unwrap_or(DQuat::IDENTITY);
-        let projected = match self {
-            Self::Free => return q,
-            Self::Fixed => DQuat::IDENTITY,
-            Self::Hinge(h) => {
-                let axis = unit_or_x(h.axis);
-                let parts = Parts::of(q, axis);
-                if parts.perp == DVec3::ZERO && in_range(parts.twist_angle, h.min, h.max) {
-                    return q;
-                }
-                let angle = clamp_circular(parts.twist_angle, h.min, h.max);
-                DQuat::from_axis_angle(axis, angle)
-            }
-            Self::SwingTwist(st) => {
-                let frame = Frame::of(st);
-                let parts = Parts::of(q, frame.twist);
-                let (ra, rb) = frame.swing_coordinates(&parts);
-                let swing_inside = st.swing_inside(ra, rb);
-                let twist_inside = in_range(parts.twist_angle, st.twist_min, st.twist_max);
-                if swing_inside && twist_inside {
-                    return q;
-                }
-                let swing = if swing_inside {
-                    parts.swing()
-                } else {
-                    let (xa, xb) = closest_on_ellipse(st.swing_a, st.swing_b, ra, rb);
-                    DQuat::from_scaled_axis(frame.a * xa + frame.b * xb)
-                };
-                let angle = clamp_circular(parts.twist_angle, st.twist_min, st.twist_max);
-                (swing * DQuat::from_axis_angle(frame.twist, angle)).normalize()
-            }
-        };
-        if projected.dot(q) < 0.0 {
-            -projected
-        } else {
-            projected
+        match self {
+            Self::Free => q,
+            Self::Fixed => same_sign(DQuat::IDENTITY, q),
+            Self::Hinge(h) => project_hinge(h, unit_or_x(h.axis), q),
+            Self::SwingTwist(st) => project_swing_twist(st, &Frame::of(st), q),
         }
     }
 
@@ -349,17 +319,32 @@ impl JointLimit {
         match self {
             Self::Free => 0.0,
             Self::Fixed => 2.0 * q.xyz().length().atan2(q.w.abs()),
-            Self::Hinge(h) => {
-                let parts = Parts::of(q, unit_or_x(h.axis));
-                parts
-                    .swing_angle()
-                    .max(outside_range(parts.twist_angle, h.min, h.max))
-            }
+            Self::Hinge(h) => hinge_violation(h, unit_or_x(h.axis), q),
             Self::SwingTwist(st) => {
                 let (swing, twist) = st.unit_violation_parts(&Frame::of(st), q);
                 twist.max(swing)
             }
         }
+    }
+
+    /// This limit with the constants of its quick inside test computed once (see
+    /// [`PreparedLimit`]).
+    #[must_use]
+    pub fn prepare(&self) -> PreparedLimit {
+        let fast = match self {
+            Self::Free | Self::Fixed => Fast::None,
+            Self::Hinge(h) => Fast::Hinge {
+                axis: unit_or_x(h.axis),
+                range: HalfRange::of(h.min, h.max),
+            },
+            Self::SwingTwist(st) => Fast::SwingTwist {
+                frame: Frame::of(st),
+                range: HalfRange::of(st.twist_min, st.twist_max),
+                inv_a2: 1.0 / (st.swing_a * st.swing_a),
+                inv_b2: 1.0 / (st.swing_b * st.swing_b),
+            },
+        };
+        PreparedLimit { limit: *self, fast }
     }
 
     /// The centre of the limit's range, the seed solvers restart from when a limit holds
@@ -505,6 +490,211 @@ impl SwingTwist {
     }
 }
 
+/// A [`JointLimit`] with the constants of a quick inside test computed once
+/// ([`JointLimit::prepare`]; a [`Skeleton`](crate::Skeleton) keeps one per joint):
+/// [`PreparedLimit::project`] and [`PreparedLimit::violation`] return exactly what the
+/// limit's own [`JointLimit::project`] and [`JointLimit::violation`] return, bit for bit,
+/// but tell a rotation clearly inside the limit without an arc tangent.
+///
+/// Solvers project every trial pose, and most joints of a trial are inside their limits;
+/// the decomposition behind the exact test costs two arc tangents and a `hypot` per joint.
+/// The quick test compares with the sines and cosines of the half bounds and an upper
+/// bound of the swing angle, squared, so it needs no trigonometry and no square root. It
+/// only says "inside" with a margin (1e-12 on the twist, a relative 1e-9 on the swing)
+/// far above the rounding of the exact test, so the exact test would say the same; every
+/// other rotation takes the exact path. The derivation is in `docs/ik-limits.md`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PreparedLimit {
+    limit: JointLimit,
+    fast: Fast,
+}
+
+/// The precomputed parts of a [`PreparedLimit`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Fast {
+    None,
+    Hinge {
+        axis: DVec3,
+        range: HalfRange,
+    },
+    SwingTwist {
+        frame: Frame,
+        range: HalfRange,
+        /// `1 / swing_a^2` and `1 / swing_b^2`.
+        inv_a2: f64,
+        inv_b2: f64,
+    },
+}
+
+/// How far inside (in the sine of the half-angle difference) a twist must be for the
+/// quick test to call it inside.
+const QUICK_TWIST_MARGIN: f64 = 1e-12;
+/// The relative margin of the quick swing test.
+const QUICK_SWING_MARGIN: f64 = 1e-9;
+/// Below this squared cosine of half the swing angle (a swing beyond about 169 degrees)
+/// the quick test leaves the answer to the exact one.
+const QUICK_SWING_MIN_H2: f64 = 0.01;
+
+/// The sine and cosine of half of each bound of an angle range in `[-pi, pi]`; `None`
+/// for a bound at the end of the circle (nothing to test).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct HalfRange {
+    lower: Option<(f64, f64)>,
+    upper: Option<(f64, f64)>,
+}
+
+impl HalfRange {
+    fn of(min: f64, max: f64) -> Self {
+        Self {
+            lower: (min > -PI).then(|| (0.5 * min).sin_cos()),
+            upper: (max < PI).then(|| (0.5 * max).sin_cos()),
+        }
+    }
+
+    /// Whether the twist with quaternion components `(along, w)` about its axis (`along`
+    /// the component of the vector part along the axis, `w` the scalar part, from a unit
+    /// quaternion) is inside the range by the margin. The twist's half-angle `t` has
+    /// `(sin t, cos t) = (a, c) / h` with `(a, c) = +-(along, w)` signed so that `c > 0`
+    /// (`t` in `(-pi/2, pi/2)`, as the decomposition chooses) and `h <= 1`. For a bound
+    /// `m` (a half bound, also in `[-pi/2, pi/2]`), `sin(t - m) = (a cos m - c sin m) / h`,
+    /// and `t - m` is in `(-pi, pi)`, so a value above the margin means `t > m` by more
+    /// than the margin; the same for `sin(M - t)` at the upper bound.
+    fn clearly_inside(&self, along: f64, w: f64) -> bool {
+        let (a, c) = if w > 0.0 {
+            (along, w)
+        } else if w < 0.0 {
+            (-along, -w)
+        } else {
+            return false;
+        };
+        self.lower
+            .is_none_or(|(sin, cos)| a * cos - c * sin > QUICK_TWIST_MARGIN)
+            && self
+                .upper
+                .is_none_or(|(sin, cos)| c * sin - a * cos > QUICK_TWIST_MARGIN)
+    }
+}
+
+impl PreparedLimit {
+    /// The limit this was prepared from.
+    #[must_use]
+    pub fn limit(&self) -> &JointLimit {
+        &self.limit
+    }
+
+    /// Exactly [`JointLimit::project`] of the prepared limit.
+    #[must_use]
+    pub fn project(&self, q: DQuat) -> DQuat {
+        match &self.fast {
+            Fast::None => self.limit.project(q),
+            Fast::Hinge { axis, range } => {
+                let q = unit_quat(q).unwrap_or(DQuat::IDENTITY);
+                if quick_hinge_inside(*axis, range, q) {
+                    return q;
+                }
+                let JointLimit::Hinge(h) = &self.limit else {
+                    unreachable!("a hinge's prepared parts belong to a hinge")
+                };
+                project_hinge(h, *axis, q)
+            }
+            Fast::SwingTwist { frame, .. } => {
+                let q = unit_quat(q).unwrap_or(DQuat::IDENTITY);
+                if self.quick_swing_twist_inside(q) {
+                    return q;
+                }
+                let JointLimit::SwingTwist(st) = &self.limit else {
+                    unreachable!("a swing-twist's prepared parts belong to a swing-twist")
+                };
+                project_swing_twist(st, frame, q)
+            }
+        }
+    }
+
+    /// Exactly [`JointLimit::violation`] of the prepared limit.
+    #[must_use]
+    pub fn violation(&self, q: DQuat) -> f64 {
+        match &self.fast {
+            Fast::None => self.limit.violation(q),
+            Fast::Hinge { axis, range } => {
+                let Some(q) = unit_quat(q) else {
+                    return f64::INFINITY;
+                };
+                if quick_hinge_inside(*axis, range, q) {
+                    return 0.0;
+                }
+                let JointLimit::Hinge(h) = &self.limit else {
+                    unreachable!("a hinge's prepared parts belong to a hinge")
+                };
+                hinge_violation(h, *axis, q)
+            }
+            Fast::SwingTwist { frame, .. } => {
+                let Some(q) = unit_quat(q) else {
+                    return f64::INFINITY;
+                };
+                if self.quick_swing_twist_inside(q) {
+                    return 0.0;
+                }
+                let JointLimit::SwingTwist(st) = &self.limit else {
+                    unreachable!("a swing-twist's prepared parts belong to a swing-twist")
+                };
+                let (swing, twist) = st.unit_violation_parts(frame, q);
+                twist.max(swing)
+            }
+        }
+    }
+
+    /// The frame of a swing-twist limit, for the finish's outward normals.
+    pub(crate) fn frame(&self) -> Option<LimitFrame> {
+        match &self.fast {
+            Fast::SwingTwist { frame, .. } => Some(LimitFrame(*frame)),
+            _ => None,
+        }
+    }
+
+    /// The quick inside test of a swing-twist limit for a unit `q`. The swing's
+    /// half-angle `u` has `tan u = n / h` (`n` the length of the vector part across the
+    /// twist axis, `h^2 = 1 - n^2`), and `atan x <= x / sqrt(1 + x^2 / 3)` for `x >= 0`,
+    /// so `(2u)^2 <= 4 n^2 / (h^2 + n^2 / 3)`. The exact test is
+    /// `(2u / n)^2 ((s.a / A)^2 + (s.b / B)^2) <= 1` with the swing's vector part
+    /// `s = P / h`, `P = w perp + along (axis x perp)`; with the bound it holds when
+    /// `4 ((P.a / A)^2 + (P.b / B)^2) <= h^2 (h^2 + n^2 / 3)`, tested with a margin.
+    fn quick_swing_twist_inside(&self, q: DQuat) -> bool {
+        let Fast::SwingTwist {
+            frame,
+            range,
+            inv_a2,
+            inv_b2,
+        } = &self.fast
+        else {
+            return false;
+        };
+        let v = q.xyz();
+        let along = v.dot(frame.twist);
+        if !range.clearly_inside(along, q.w) {
+            return false;
+        }
+        let h2 = along * along + q.w * q.w;
+        if h2 < QUICK_SWING_MIN_H2 {
+            return false;
+        }
+        let perp = v - frame.twist * along;
+        let p = perp * q.w + frame.twist.cross(perp) * along;
+        let (pa, pb) = (p.dot(frame.a), p.dot(frame.b));
+        let n2 = perp.length_squared();
+        4.0 * (pa * pa * inv_a2 + pb * pb * inv_b2)
+            <= (1.0 - QUICK_SWING_MARGIN) * h2 * (h2 + n2 / 3.0)
+    }
+}
+
+/// The quick inside test of a hinge for a unit `q`: exactly about the axis (the exact
+/// test's own condition, computed the same way) and the twist inside by the margin.
+fn quick_hinge_inside(axis: DVec3, range: &HalfRange, q: DQuat) -> bool {
+    let v = q.xyz();
+    let along = v.dot(axis);
+    let perp = v - axis * along;
+    perp == DVec3::ZERO && range.clearly_inside(along, q.w)
+}
+
 /// The decomposition `q = swing * twist`, the twist a rotation about `axis`.
 ///
 /// `axis` is normalised here (a zero or non-finite axis counts as +x), and a zero or
@@ -628,6 +818,7 @@ impl LimitFrame {
 }
 
 /// A swing-twist limit's orthonormal frame: the twist axis and the ellipse's two axes.
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct Frame {
     twist: DVec3,
     a: DVec3,
@@ -717,6 +908,55 @@ fn clamp_circular(angle: f64, min: f64, max: f64) -> f64 {
     } else {
         min
     }
+}
+
+/// `projected` with the sign that makes its dot product with `q` non-negative.
+fn same_sign(projected: DQuat, q: DQuat) -> DQuat {
+    if projected.dot(q) < 0.0 {
+        -projected
+    } else {
+        projected
+    }
+}
+
+/// [`JointLimit::project`] for a hinge with unit axis `axis`, `q` unit.
+fn project_hinge(h: &Hinge, axis: DVec3, q: DQuat) -> DQuat {
+    let parts = Parts::of(q, axis);
+    if parts.perp == DVec3::ZERO && in_range(parts.twist_angle, h.min, h.max) {
+        return q;
+    }
+    let angle = clamp_circular(parts.twist_angle, h.min, h.max);
+    same_sign(DQuat::from_axis_angle(axis, angle), q)
+}
+
+/// [`JointLimit::project`] for a swing-twist limit with frame `frame`, `q` unit.
+fn project_swing_twist(st: &SwingTwist, frame: &Frame, q: DQuat) -> DQuat {
+    let parts = Parts::of(q, frame.twist);
+    let (ra, rb) = frame.swing_coordinates(&parts);
+    let swing_inside = st.swing_inside(ra, rb);
+    let twist_inside = in_range(parts.twist_angle, st.twist_min, st.twist_max);
+    if swing_inside && twist_inside {
+        return q;
+    }
+    let swing = if swing_inside {
+        parts.swing()
+    } else {
+        let (xa, xb) = closest_on_ellipse(st.swing_a, st.swing_b, ra, rb);
+        DQuat::from_scaled_axis(frame.a * xa + frame.b * xb)
+    };
+    let angle = clamp_circular(parts.twist_angle, st.twist_min, st.twist_max);
+    same_sign(
+        (swing * DQuat::from_axis_angle(frame.twist, angle)).normalize(),
+        q,
+    )
+}
+
+/// [`JointLimit::violation`] for a hinge with unit axis `axis`, `q` unit.
+fn hinge_violation(h: &Hinge, axis: DVec3, q: DQuat) -> f64 {
+    let parts = Parts::of(q, axis);
+    parts
+        .swing_angle()
+        .max(outside_range(parts.twist_angle, h.min, h.max))
 }
 
 /// The point of the ellipse `(x / ea)^2 + (y / eb)^2 = 1` nearest to `(ya, yb)`.
@@ -835,4 +1075,41 @@ fn check_range(
         });
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The quick test must actually take the rotations well inside (or it saves nothing):
+    /// every sample of the inner part of the W7 shoulder and elbow ranges.
+    #[test]
+    fn the_quick_test_takes_rotations_well_inside() {
+        let shoulder = JointLimit::swing_twist(
+            DVec3::X,
+            DVec3::Z,
+            100f64.to_radians(),
+            70f64.to_radians(),
+            -80f64.to_radians(),
+            80f64.to_radians(),
+        )
+        .unwrap()
+        .prepare();
+        let elbow = JointLimit::hinge(-DVec3::Y, 0.0, 150f64.to_radians())
+            .unwrap()
+            .prepare();
+        for i in 0..=20 {
+            let f = 0.05 + 0.85 * f64::from(i) / 20.0;
+            for k in 0..8 {
+                let u = [f * f, f64::from(k) / 8.0, 0.5 + 0.45 * (f - 0.5)];
+                let q = shoulder.limit().sample(u);
+                assert!(shoulder.quick_swing_twist_inside(q), "shoulder {u:?}");
+            }
+            let q = elbow.limit().sample([f, 0.0, 0.0]);
+            let Fast::Hinge { axis, range } = &elbow.fast else {
+                panic!("a prepared hinge");
+            };
+            assert!(quick_hinge_inside(*axis, range, q), "elbow {f}");
+        }
+    }
 }
