@@ -336,6 +336,7 @@ impl JointLimit {
             Self::Hinge(h) => Fast::Hinge {
                 axis: unit_or_x(h.axis),
                 range: HalfRange::of(h.min, h.max),
+                bounds: HalfRange::closed(h.min, h.max),
             },
             Self::SwingTwist(st) => Fast::SwingTwist {
                 frame: Frame::of(st),
@@ -516,6 +517,9 @@ enum Fast {
     Hinge {
         axis: DVec3,
         range: HalfRange,
+        /// The same with both bounds tested even at the ends of the circle, where
+        /// [`Hinge::pushes_outwards`] still sees a bound.
+        bounds: HalfRange,
     },
     SwingTwist {
         frame: Frame,
@@ -548,6 +552,14 @@ impl HalfRange {
         Self {
             lower: (min > -PI).then(|| (0.5 * min).sin_cos()),
             upper: (max < PI).then(|| (0.5 * max).sin_cos()),
+        }
+    }
+
+    /// Both bounds, even at the ends of the circle.
+    fn closed(min: f64, max: f64) -> Self {
+        Self {
+            lower: Some((0.5 * min).sin_cos()),
+            upper: Some((0.5 * max).sin_cos()),
         }
     }
 
@@ -587,7 +599,7 @@ impl PreparedLimit {
     pub fn project(&self, q: DQuat) -> DQuat {
         match &self.fast {
             Fast::None => self.limit.project(q),
-            Fast::Hinge { axis, range } => {
+            Fast::Hinge { axis, range, .. } => {
                 let q = unit_quat(q).unwrap_or(DQuat::IDENTITY);
                 if quick_hinge_inside(*axis, range, q) {
                     return q;
@@ -615,7 +627,7 @@ impl PreparedLimit {
     pub fn violation(&self, q: DQuat) -> f64 {
         match &self.fast {
             Fast::None => self.limit.violation(q),
-            Fast::Hinge { axis, range } => {
+            Fast::Hinge { axis, range, .. } => {
                 let Some(q) = unit_quat(q) else {
                     return f64::INFINITY;
                 };
@@ -641,6 +653,21 @@ impl PreparedLimit {
                 twist.max(swing)
             }
         }
+    }
+
+    /// Exactly [`Hinge::pushes_outwards`] for a prepared hinge (false for any other
+    /// limit), without the arc tangent when `local` is clearly inside the range: its
+    /// half-angle then lies more than 1e-12 inside each bound (the quick twist test, with
+    /// `local`'s component along the hinge's own axis as the exact test takes it, a
+    /// near-unit `local`), so its angle is more than `at_bound <= 1e-12` from both.
+    pub(crate) fn hinge_pushes_outwards(&self, local: DQuat, step: f64, at_bound: f64) -> bool {
+        let (Fast::Hinge { bounds, .. }, JointLimit::Hinge(h)) = (&self.fast, &self.limit) else {
+            return false;
+        };
+        if at_bound <= 1e-12 && bounds.clearly_inside(local.xyz().dot(h.axis), local.w) {
+            return false;
+        }
+        h.pushes_outwards(local, step, at_bound)
     }
 
     /// The frame of a swing-twist limit, for the finish's outward normals.
@@ -1106,10 +1133,47 @@ mod tests {
                 assert!(shoulder.quick_swing_twist_inside(q), "shoulder {u:?}");
             }
             let q = elbow.limit().sample([f, 0.0, 0.0]);
-            let Fast::Hinge { axis, range } = &elbow.fast else {
+            let Fast::Hinge { axis, range, .. } = &elbow.fast else {
                 panic!("a prepared hinge");
             };
             assert!(quick_hinge_inside(*axis, range, q), "elbow {f}");
+        }
+    }
+
+    /// The prepared hinge's outward test gives the exact test's answer, at and near the
+    /// bounds (where the quick test must step aside) and well inside.
+    #[test]
+    fn the_prepared_hinge_pushes_outwards_exactly_as_the_hinge() {
+        let axis = DVec3::new(0.3, -0.4, 0.5).normalize();
+        for (min, max) in [
+            (0.0, 150f64.to_radians()),
+            (-1.0, 0.5),
+            (-PI, PI),
+            (-PI, 0.2),
+        ] {
+            let limit = JointLimit::hinge(axis, min, max).unwrap();
+            let JointLimit::Hinge(h) = limit else {
+                panic!("a hinge");
+            };
+            let prepared = limit.prepare();
+            let mut angles = vec![min, max, 0.5 * (min + max)];
+            for d in [1e-15, 1e-13, 1e-12, 2e-12, 1e-11, 1e-6] {
+                angles.extend([min + d, min - d, max + d, max - d]);
+            }
+            for angle in angles {
+                let local = DQuat::from_axis_angle(axis, angle);
+                for q in [local, -local] {
+                    for step in [1.0, -1.0, 0.0] {
+                        for at_bound in [1e-12, 1e-6] {
+                            assert_eq!(
+                                prepared.hinge_pushes_outwards(q, step, at_bound),
+                                h.pushes_outwards(q, step, at_bound),
+                                "range [{min}, {max}], angle {angle}, step {step}"
+                            );
+                        }
+                    }
+                }
+            }
         }
     }
 }
