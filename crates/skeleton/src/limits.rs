@@ -321,7 +321,7 @@ impl JointLimit {
             Self::Fixed => 2.0 * q.xyz().length().atan2(q.w.abs()),
             Self::Hinge(h) => hinge_violation(h, unit_or_x(h.axis), q),
             Self::SwingTwist(st) => {
-                let (swing, twist) = st.unit_violation_parts(&Frame::of(st), q);
+                let (swing, twist) = st.unit_violation_parts(&Frame::of(st), None, q);
                 twist.max(swing)
             }
         }
@@ -340,9 +340,7 @@ impl JointLimit {
             },
             Self::SwingTwist(st) => Fast::SwingTwist {
                 frame: Frame::of(st),
-                range: HalfRange::of(st.twist_min, st.twist_max),
-                inv_a2: 1.0 / (st.swing_a * st.swing_a),
-                inv_b2: 1.0 / (st.swing_b * st.swing_b),
+                quick: Quick::of(st),
             },
         };
         PreparedLimit { limit: *self, fast }
@@ -443,7 +441,7 @@ impl SwingTwist {
     /// [`SwingTwist::violation_parts`] with the limit's frame computed once by the caller.
     pub(crate) fn violation_parts_in(&self, frame: &LimitFrame, q: DQuat) -> (f64, f64) {
         match unit_quat(q) {
-            Some(q) => self.unit_violation_parts(&frame.0, q),
+            Some(q) => self.unit_violation_parts(&frame.0, frame.1.as_ref(), q),
             None => (f64::INFINITY, f64::INFINITY),
         }
     }
@@ -461,7 +459,7 @@ impl SwingTwist {
         let parts = Parts::of(q, frame.0.twist);
         let (ra, rb) = frame.0.swing_coordinates(&parts);
         let swing = ra.hypot(rb);
-        let twist = parts.twist_angle;
+        let twist = parts.twist_angle();
         let whole_circle = self.twist_min <= -PI && self.twist_max >= PI;
         swing < 3.0
             && swing <= self.swing_a.min(self.swing_b) - margin
@@ -469,10 +467,19 @@ impl SwingTwist {
                 || (twist >= self.twist_min + margin && twist <= self.twist_max - margin))
     }
 
-    /// The parts for a unit `q`.
-    fn unit_violation_parts(&self, frame: &Frame, q: DQuat) -> (f64, f64) {
+    /// The parts for a unit `q`; with the prepared constants of the quick inside tests,
+    /// a part they show to be inside is 0 without its arc tangent (the exact value is
+    /// then 0 too).
+    fn unit_violation_parts(&self, frame: &Frame, quick: Option<&Quick>, q: DQuat) -> (f64, f64) {
         let parts = Parts::of(q, frame.twist);
-        let twist = outside_range(parts.twist_angle, self.twist_min, self.twist_max);
+        let twist = if quick.is_some_and(|k| k.range.clearly_inside(parts.along, parts.w)) {
+            0.0
+        } else {
+            outside_range(parts.twist_angle(), self.twist_min, self.twist_max)
+        };
+        if quick.is_some_and(|k| k.swing_inside(frame, parts.along, parts.w, parts.perp)) {
+            return (0.0, twist);
+        }
         let (ra, rb) = frame.swing_coordinates(&parts);
         let swing = if self.swing_inside(ra, rb) {
             0.0
@@ -523,11 +530,47 @@ enum Fast {
     },
     SwingTwist {
         frame: Frame,
-        range: HalfRange,
-        /// `1 / swing_a^2` and `1 / swing_b^2`.
-        inv_a2: f64,
-        inv_b2: f64,
+        quick: Quick,
     },
+}
+
+/// The constants of a swing-twist limit's quick inside tests.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Quick {
+    range: HalfRange,
+    /// `1 / swing_a^2` and `1 / swing_b^2`.
+    inv_a2: f64,
+    inv_b2: f64,
+}
+
+impl Quick {
+    fn of(st: &SwingTwist) -> Self {
+        Self {
+            range: HalfRange::of(st.twist_min, st.twist_max),
+            inv_a2: 1.0 / (st.swing_a * st.swing_a),
+            inv_b2: 1.0 / (st.swing_b * st.swing_b),
+        }
+    }
+
+    /// The quick swing test for a unit rotation with components `along` the twist axis,
+    /// `w` (scalar) and `perp` (the vector part across the axis). The
+    /// swing's half-angle `u` has `tan u = n / h` (`n = |perp|`, `h^2 = along^2 + w^2 =
+    /// 1 - n^2`), and `atan x <= x / sqrt(1 + x^2 / 3)` for `x >= 0`, so
+    /// `(2u)^2 <= 4 n^2 / (h^2 + n^2 / 3)`. The exact test is
+    /// `(2u / n)^2 ((s.a / A)^2 + (s.b / B)^2) <= 1` with the swing's vector part
+    /// `s = P / h`, `P = w perp + along (axis x perp)`; with the bound it holds when
+    /// `4 ((P.a / A)^2 + (P.b / B)^2) <= h^2 (h^2 + n^2 / 3)`, tested with a margin.
+    fn swing_inside(&self, frame: &Frame, along: f64, w: f64, perp: DVec3) -> bool {
+        let h2 = along * along + w * w;
+        if h2 < QUICK_SWING_MIN_H2 {
+            return false;
+        }
+        let p = perp * w + frame.twist.cross(perp) * along;
+        let (pa, pb) = (p.dot(frame.a), p.dot(frame.b));
+        let n2 = perp.length_squared();
+        4.0 * (pa * pa * self.inv_a2 + pb * pb * self.inv_b2)
+            <= (1.0 - QUICK_SWING_MARGIN) * h2 * (h2 + n2 / 3.0)
+    }
 }
 
 /// How far inside (in the sine of the half-angle difference) a twist must be for the
@@ -639,7 +682,7 @@ impl PreparedLimit {
                 };
                 hinge_violation(h, *axis, q)
             }
-            Fast::SwingTwist { frame, .. } => {
+            Fast::SwingTwist { frame, quick } => {
                 let Some(q) = unit_quat(q) else {
                     return f64::INFINITY;
                 };
@@ -649,7 +692,7 @@ impl PreparedLimit {
                 let JointLimit::SwingTwist(st) = &self.limit else {
                     unreachable!("a swing-twist's prepared parts belong to a swing-twist")
                 };
-                let (swing, twist) = st.unit_violation_parts(frame, q);
+                let (swing, twist) = st.unit_violation_parts(frame, Some(quick), q);
                 twist.max(swing)
             }
         }
@@ -673,43 +716,20 @@ impl PreparedLimit {
     /// The frame of a swing-twist limit, for the finish's outward normals.
     pub(crate) fn frame(&self) -> Option<LimitFrame> {
         match &self.fast {
-            Fast::SwingTwist { frame, .. } => Some(LimitFrame(*frame)),
+            Fast::SwingTwist { frame, quick } => Some(LimitFrame(*frame, Some(*quick))),
             _ => None,
         }
     }
 
-    /// The quick inside test of a swing-twist limit for a unit `q`. The swing's
-    /// half-angle `u` has `tan u = n / h` (`n` the length of the vector part across the
-    /// twist axis, `h^2 = 1 - n^2`), and `atan x <= x / sqrt(1 + x^2 / 3)` for `x >= 0`,
-    /// so `(2u)^2 <= 4 n^2 / (h^2 + n^2 / 3)`. The exact test is
-    /// `(2u / n)^2 ((s.a / A)^2 + (s.b / B)^2) <= 1` with the swing's vector part
-    /// `s = P / h`, `P = w perp + along (axis x perp)`; with the bound it holds when
-    /// `4 ((P.a / A)^2 + (P.b / B)^2) <= h^2 (h^2 + n^2 / 3)`, tested with a margin.
+    /// The quick inside test of a swing-twist limit (both constraints) for a unit `q`.
     fn quick_swing_twist_inside(&self, q: DQuat) -> bool {
-        let Fast::SwingTwist {
-            frame,
-            range,
-            inv_a2,
-            inv_b2,
-        } = &self.fast
-        else {
+        let Fast::SwingTwist { frame, quick } = &self.fast else {
             return false;
         };
         let v = q.xyz();
         let along = v.dot(frame.twist);
-        if !range.clearly_inside(along, q.w) {
-            return false;
-        }
-        let h2 = along * along + q.w * q.w;
-        if h2 < QUICK_SWING_MIN_H2 {
-            return false;
-        }
-        let perp = v - frame.twist * along;
-        let p = perp * q.w + frame.twist.cross(perp) * along;
-        let (pa, pb) = (p.dot(frame.a), p.dot(frame.b));
-        let n2 = perp.length_squared();
-        4.0 * (pa * pa * inv_a2 + pb * pb * inv_b2)
-            <= (1.0 - QUICK_SWING_MARGIN) * h2 * (h2 + n2 / 3.0)
+        quick.range.clearly_inside(along, q.w)
+            && quick.swing_inside(frame, along, q.w, v - frame.twist * along)
     }
 }
 
@@ -758,8 +778,6 @@ struct Parts {
     /// `q`'s component along the axis, and its scalar part.
     along: f64,
     w: f64,
-    /// The twist angle in `(-pi, pi]`, 0 at the singular swing.
-    twist_angle: f64,
 }
 
 impl Parts {
@@ -778,18 +796,25 @@ impl Parts {
             (1.0, 0.0)
         };
         let swing_vec = perp * c + axis.cross(perp) * s;
-        let mut parts = Self {
+        Self {
             axis,
             perp,
             swing_vec,
             swing_w: h,
             along,
             w: q.w,
-            twist_angle: 0.0,
-        };
-        let (tp, tw, _) = parts.canonical_twist();
-        parts.twist_angle = if h > 0.0 { 2.0 * tp.atan2(tw) } else { 0.0 };
-        parts
+        }
+    }
+
+    /// The twist angle in `(-pi, pi]`, 0 at the singular swing. Computed on demand: a
+    /// caller that knows the twist is inside its range needs no arc tangent.
+    fn twist_angle(&self) -> f64 {
+        let (tp, tw, _) = self.canonical_twist();
+        if self.swing_w > 0.0 {
+            2.0 * tp.atan2(tw)
+        } else {
+            0.0
+        }
     }
 
     /// The twist's `(axis component, scalar part)` with the sign that puts its angle in
@@ -835,12 +860,12 @@ impl Parts {
 }
 
 /// A swing-twist limit's frame, computed once for many evaluations of its violation.
-pub(crate) struct LimitFrame(Frame);
+pub(crate) struct LimitFrame(Frame, Option<Quick>);
 
 impl LimitFrame {
     /// The frame of `st`.
     pub(crate) fn of(st: &SwingTwist) -> Self {
-        Self(Frame::of(st))
+        Self(Frame::of(st), Some(Quick::of(st)))
     }
 }
 
@@ -949,10 +974,11 @@ fn same_sign(projected: DQuat, q: DQuat) -> DQuat {
 /// [`JointLimit::project`] for a hinge with unit axis `axis`, `q` unit.
 fn project_hinge(h: &Hinge, axis: DVec3, q: DQuat) -> DQuat {
     let parts = Parts::of(q, axis);
-    if parts.perp == DVec3::ZERO && in_range(parts.twist_angle, h.min, h.max) {
+    let twist_angle = parts.twist_angle();
+    if parts.perp == DVec3::ZERO && in_range(twist_angle, h.min, h.max) {
         return q;
     }
-    let angle = clamp_circular(parts.twist_angle, h.min, h.max);
+    let angle = clamp_circular(twist_angle, h.min, h.max);
     same_sign(DQuat::from_axis_angle(axis, angle), q)
 }
 
@@ -961,7 +987,8 @@ fn project_swing_twist(st: &SwingTwist, frame: &Frame, q: DQuat) -> DQuat {
     let parts = Parts::of(q, frame.twist);
     let (ra, rb) = frame.swing_coordinates(&parts);
     let swing_inside = st.swing_inside(ra, rb);
-    let twist_inside = in_range(parts.twist_angle, st.twist_min, st.twist_max);
+    let twist_angle = parts.twist_angle();
+    let twist_inside = in_range(twist_angle, st.twist_min, st.twist_max);
     if swing_inside && twist_inside {
         return q;
     }
@@ -971,7 +998,7 @@ fn project_swing_twist(st: &SwingTwist, frame: &Frame, q: DQuat) -> DQuat {
         let (xa, xb) = closest_on_ellipse(st.swing_a, st.swing_b, ra, rb);
         DQuat::from_scaled_axis(frame.a * xa + frame.b * xb)
     };
-    let angle = clamp_circular(parts.twist_angle, st.twist_min, st.twist_max);
+    let angle = clamp_circular(twist_angle, st.twist_min, st.twist_max);
     same_sign(
         (swing * DQuat::from_axis_angle(frame.twist, angle)).normalize(),
         q,
@@ -983,7 +1010,7 @@ fn hinge_violation(h: &Hinge, axis: DVec3, q: DQuat) -> f64 {
     let parts = Parts::of(q, axis);
     parts
         .swing_angle()
-        .max(outside_range(parts.twist_angle, h.min, h.max))
+        .max(outside_range(parts.twist_angle(), h.min, h.max))
 }
 
 /// The point of the ellipse `(x / ea)^2 + (y / eb)^2 = 1` nearest to `(ya, yb)`.
@@ -1174,6 +1201,69 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The violation parts with the quick tests are those without, bit for bit, on
+    /// random rotations and rotations on and near the bounds, for round, thin, tilted and
+    /// full-circle limits.
+    #[test]
+    fn the_quick_violation_parts_are_the_exact_ones() {
+        let tilted = DVec3::new(1.0, 2.0, 3.0).normalize();
+        let limits = [
+            SwingTwist {
+                twist_axis: DVec3::X,
+                a_axis: DVec3::Z,
+                swing_a: 100f64.to_radians(),
+                swing_b: 70f64.to_radians(),
+                twist_min: -80f64.to_radians(),
+                twist_max: 80f64.to_radians(),
+            },
+            SwingTwist {
+                twist_axis: tilted,
+                a_axis: tilted.any_orthonormal_vector(),
+                swing_a: PI,
+                swing_b: 0.05,
+                twist_min: 1.0,
+                twist_max: 2.5,
+            },
+            SwingTwist {
+                twist_axis: DVec3::Y,
+                a_axis: DVec3::X,
+                swing_a: 0.3,
+                swing_b: 2.5,
+                twist_min: -PI,
+                twist_max: PI,
+            },
+        ];
+        let mut seed = 0x5EED_0000_0000_00B2_u64;
+        let mut unit = move || {
+            seed = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = seed;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for st in limits {
+            let limit = JointLimit::SwingTwist(st);
+            let (frame, quick) = (Frame::of(&st), Quick::of(&st));
+            let mut zeros = 0;
+            for _ in 0..20_000 {
+                let random = JointLimit::Free.sample([unit(), unit(), unit()]);
+                let on_bound = limit.project(random);
+                let inside = limit.sample([unit(), unit(), unit()]);
+                let nudge = DVec3::new(unit(), unit(), unit()) * 2.0 - DVec3::ONE;
+                let scale = 10f64.powf(-15.0 + 14.0 * unit());
+                for q in [random, on_bound, inside] {
+                    let q = (DQuat::from_scaled_axis(nudge * scale) * q).normalize();
+                    let exact = st.unit_violation_parts(&frame, None, q);
+                    let fast = st.unit_violation_parts(&frame, Some(&quick), q);
+                    assert_eq!(exact.0.to_bits(), fast.0.to_bits(), "{q}");
+                    assert_eq!(exact.1.to_bits(), fast.1.to_bits(), "{q}");
+                    zeros += usize::from(exact == (0.0, 0.0));
+                }
+            }
+            assert!(zeros > 10_000, "{zeros}");
         }
     }
 }
