@@ -169,8 +169,8 @@ impl TreeCcdSolver {
             .parent(j)
             .map_or(DQuat::IDENTITY, |p| state.global.rotations[p]);
         let turned = (parent_rotation.conjugate() * q * state.global.rotations[j]).normalize();
-        let limit = skeleton.limit(j);
-        state.pose.rotations[j] = if matches!(limit, JointLimit::Free) {
+        let limit = skeleton.prepared_limit(j);
+        state.pose.rotations[j] = if matches!(limit.limit(), JointLimit::Free) {
             turned
         } else {
             limit.project(turned)

@@ -67,8 +67,8 @@ impl Common {
         )?;
         let mut moved = false;
         for j in 0..skeleton.len() {
-            let limit = skeleton.limit(j);
-            if matches!(limit, JointLimit::Free) {
+            let limit = skeleton.prepared_limit(j);
+            if matches!(limit.limit(), JointLimit::Free) {
                 continue;
             }
             let projected = limit.project(state.pose.rotations[j]);

@@ -406,8 +406,8 @@ impl Passes {
                 }
             };
             let mut local = (parent_rotation.conjugate() * turn * current).normalize();
-            let limit = skeleton.limit(j);
-            if !matches!(limit, JointLimit::Free) {
+            let limit = skeleton.prepared_limit(j);
+            if !matches!(limit.limit(), JointLimit::Free) {
                 local = limit.project(local);
             }
             state.pose.rotations[j] = local;

@@ -253,7 +253,7 @@ pub(crate) fn forward_kinematics_from(
 #[must_use]
 pub fn limit_violation(skeleton: &Skeleton, pose: &Pose) -> f64 {
     (0..skeleton.len())
-        .map(|j| skeleton.limit(j).violation(pose.rotations[j]))
+        .map(|j| skeleton.prepared_limit(j).violation(pose.rotations[j]))
         .fold(0.0, f64::max)
 }
 

@@ -558,8 +558,8 @@ impl CcdSolver {
             };
             // Extrapolated rotations are projected onto the limits like any other.
             let extrapolated = (after + (after - before) * factor).normalize();
-            let limit = skeleton.limit(j);
-            pose.rotations[j] = if matches!(limit, JointLimit::Free) {
+            let limit = skeleton.prepared_limit(j);
+            pose.rotations[j] = if matches!(limit.limit(), JointLimit::Free) {
                 extrapolated
             } else {
                 limit.project(extrapolated)
@@ -620,8 +620,8 @@ fn sweep_unchecked(
             None => turn,
         };
         let turned = (local_turn * pose.rotations[j]).normalize();
-        let limit = skeleton.limit(j);
-        if matches!(limit, JointLimit::Free) {
+        let limit = skeleton.prepared_limit(j);
+        if matches!(limit.limit(), JointLimit::Free) {
             pose.rotations[j] = turned;
             effector = pivot + turn * to_effector;
         } else {

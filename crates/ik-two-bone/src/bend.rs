@@ -156,8 +156,17 @@ impl Limb {
         };
         if within(cosine) {
             let c = cosine.clamp(-1.0, 1.0);
-            // sin of the opening angle; (1 - c)(1 + c) keeps its digits near c = +-1.
-            let s = ((1.0 - c) * (1.0 + c)).sqrt();
+            // sin of the opening angle from `1 - c` and `1 + c` each computed from the
+            // squared distances directly: `(m + R - goal^2) / R` and
+            // `(goal^2 - (m - R)) / R`. Taken as `1 -+ c` after `c` was rounded, a goal at
+            // the fold or the full extension (`c = -+1` exactly in exact arithmetic) leaves
+            // an ulp in `1 +- c`, and the square root turns it into an angle error of
+            // `sqrt(2 eps)`, 1.5e-8 rad: a limb of equal bones folded onto its root would
+            // miss it by 4.5e-9 of a 0.3 bone. The differences of the squared distances
+            // are exact where they cancel, so the sine keeps its digits there.
+            let one_minus = ((self.squared_mean + amplitude - squared_goal) * inverse).max(0.0);
+            let one_plus = ((squared_goal - (self.squared_mean - amplitude)) * inverse).max(0.0);
+            let s = (one_minus * one_plus).sqrt();
             for s in [s, -s] {
                 let cos = cos_phi * c - sin_phi * s;
                 let sin = sin_phi * c + cos_phi * s;

@@ -804,3 +804,28 @@ fn a_skeleton_hinge_limit_converts_to_the_same_hinge() {
         (limit.axis, limit.min, limit.max)
     );
 }
+
+#[test]
+fn a_limb_folded_onto_its_root_or_near_it_lands_to_rounding() {
+    // Equal bones folded flat put the tip on the root: the fold is exactly reachable,
+    // and `reached` promises rounding only. The opening angle's sine comes from the
+    // squared distances, not from `1 +- cos` after rounding, or the fold would be off by
+    // sqrt(2 eps) rad (4.5e-9 at the tip of 0.3 bones). Targets a small distance from
+    // the root are reached to rounding too (closer than about 1e-12 of the limb the aim
+    // has no reliable direction; section 5 of the docs).
+    for (length, scale) in [(0.3, 1.0), (1.0, 1.0), (0.3, 1e-6), (0.3, 1e6)] {
+        let skel = limb(DVec3::X * length * scale, DVec3::X * length * scale);
+        for distance in [0.0, 1e-9, 1e-6, 1e-3] {
+            let target = DVec3::new(0.6, -0.8, 0.0) * distance * scale;
+            let mut job = TwoBoneIk::new(0, 1, 2, target, DVec3::Y * scale);
+            job.hinge = Hinge::free(DVec3::Z);
+            let (report, pose, global) = solve(&skel, &job);
+            let what = format!("bones {length} x {scale}, target at {distance}");
+            assert!(report.reached, "{what}: {report:?}");
+            let fk = fresh_fk(&skel, &pose);
+            let error = fk.positions[2].distance(target);
+            assert!(error <= 4e-16 * scale, "{what}: error {error:e}");
+            assert_eq!(global.positions[2], fk.positions[2], "{what}");
+        }
+    }
+}

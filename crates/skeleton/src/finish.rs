@@ -37,6 +37,7 @@ use crate::ik::{Chain, EffectorGoal, SolveSettings, StopReason, rotation_angle};
 use crate::limits::{JointLimit, LimitFrame};
 use crate::{GlobalPose, Pose, Skeleton, SkeletonError};
 use sinew_math::{DQuat, DVec3};
+use std::sync::OnceLock;
 
 /// The first damping is the smaller of this times the mean diagonal of `J J^T` and
 /// `COST_DAMPING` times the weighted cost.
@@ -61,6 +62,10 @@ const CLAMPED: f64 = 1e-12;
 /// off its bounds without differencing: a thousand times the difference step, so the
 /// perturbed rotations cannot reach a bound.
 const DEEP_INSIDE: f64 = 1e-4;
+/// The difference step of the outward normals (radians).
+const H: f64 = 1e-7;
+/// The turns by `H` and `-H` about each world axis, for the outward normals.
+static NUDGES: OnceLock<[[DQuat; 2]; 3]> = OnceLock::new();
 /// The dof "joint" index of the translation.
 const TRANSLATION: usize = usize::MAX;
 /// A movable joint without degrees of freedom (a fixed joint).
@@ -657,11 +662,17 @@ impl Finish {
             // hinge on a bound stepping outwards would be clamped back while the others
             // moved as if it had turned. Leave it out and solve the same step again.
             for (m, &j) in movable.iter().enumerate() {
-                if let JointLimit::Hinge(h) = skeleton.limit(j)
+                if let JointLimit::Hinge(_) = skeleton.limit(j)
                     && !self.frozen[m]
                 {
                     let k = self.first_dof[m];
-                    if k != NO_DOF && h.pushes_outwards(pose.rotations[j], self.step[k], AT_BOUND) {
+                    if k != NO_DOF
+                        && skeleton.prepared_limit(j).hinge_pushes_outwards(
+                            pose.rotations[j],
+                            self.step[k],
+                            AT_BOUND,
+                        )
+                    {
                         self.frozen[m] = true;
                         resolving = true;
                     }
@@ -839,7 +850,6 @@ impl Finish {
     /// as a local rotation vector, by one-sided differences of the limit's violation
     /// (0 inside, growing linearly outside): zero for a joint inside its limit.
     fn find_outward(&mut self, skeleton: &Skeleton, movable: &[usize], pose: &Pose) {
-        const H: f64 = 1e-7;
         for (m, &j) in movable.iter().enumerate() {
             self.outward[m] = [DVec3::ZERO; 2];
             if !self.on_bound[m] {
@@ -852,7 +862,10 @@ impl Finish {
             // The swing bound and the twist range are two constraints, which can both
             // be active (a corner): one normal each, from the violation of the limit with
             // the other one opened up (the two parts of one decomposition).
-            let frame = LimitFrame::of(st);
+            let frame = skeleton
+                .prepared_limit(j)
+                .frame()
+                .unwrap_or_else(|| LimitFrame::of(st));
             let local = pose.rotations[j];
             // A joint well inside its limit has both normals exactly zero (every
             // perturbed rotation is inside): one decomposition tells, instead of six.
@@ -861,10 +874,19 @@ impl Finish {
                 self.on_bound[m] = false;
                 continue;
             }
+            // The six small turns are the same every time: made once per process.
+            let nudges = NUDGES.get_or_init(|| {
+                [DVec3::X, DVec3::Y, DVec3::Z].map(|e| {
+                    [
+                        DQuat::from_scaled_axis(e * H),
+                        DQuat::from_scaled_axis(e * -H),
+                    ]
+                })
+            });
             let mut normals = [DVec3::ZERO; 2];
-            for e in [DVec3::X, DVec3::Y, DVec3::Z] {
-                let plus = st.violation_parts_in(&frame, DQuat::from_scaled_axis(e * H) * local);
-                let minus = st.violation_parts_in(&frame, DQuat::from_scaled_axis(e * -H) * local);
+            for (e, [up, down]) in [DVec3::X, DVec3::Y, DVec3::Z].into_iter().zip(nudges) {
+                let plus = st.violation_parts_in(&frame, *up * local);
+                let minus = st.violation_parts_in(&frame, *down * local);
                 normals[0] += e * (plus.0 - minus.0);
                 normals[1] += e * (plus.1 - minus.1);
             }
@@ -1060,15 +1082,14 @@ impl Finish {
                 None => w,
             };
             let turned = (DQuat::from_scaled_axis(local) * pose.rotations[j]).normalize();
-            let limit = skeleton.limit(j);
-            if matches!(limit, JointLimit::Free) {
+            let limit = skeleton.prepared_limit(j);
+            if matches!(limit.limit(), JointLimit::Free) {
                 pose.rotations[j] = turned;
             } else {
                 let projected = limit.project(turned);
                 // A rotation inside its limit comes back unchanged; only one that moved
                 // needs its angle measured.
-                self.clamped[m] =
-                    projected != turned && rotation_angle(turned, projected) > CLAMPED;
+                self.clamped[m] = projected != turned && moved_more_than_clamped(turned, projected);
                 if self.clamped[m] {
                     // The pull-back as a world rotation vector: composed on the left in the
                     // parent's frame, then turned into the world like the step.
@@ -1088,6 +1109,23 @@ impl Finish {
     }
 }
 
+/// `rotation_angle(a, b) > CLAMPED`, the same answer, with the arc tangent only when the
+/// angle is within a factor of ten of `CLAMPED`: the angle is `2 atan2(n, w)` for the
+/// vector and scalar parts of the difference, and `atan x` is between `x (1 - x^2 / 3)`
+/// and `x`, so `n > 10 CLAMPED w` means more than `CLAMPED` and `n < CLAMPED w / 10`
+/// less.
+fn moved_more_than_clamped(a: DQuat, b: DQuat) -> bool {
+    let d = a.normalize().conjugate() * b.normalize();
+    let (n, w) = (d.xyz().length(), d.w.abs());
+    if n > 10.0 * CLAMPED * w {
+        true
+    } else if n < 0.1 * CLAMPED * w {
+        false
+    } else {
+        rotation_angle(a, b) > CLAMPED
+    }
+}
+
 /// Subtracts the outer product of a sparse column (rows increasing) from the lower
 /// triangle of a rows x rows matrix.
 fn subtract_outer(matrix: &mut [f64], rows: usize, column: &[(usize, f64)]) {
@@ -1102,6 +1140,26 @@ fn subtract_outer(matrix: &mut [f64], rows: usize, column: &[(usize, f64)]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_quick_clamp_test_agrees_with_the_angle() {
+        // Pairs of rotations apart by angles from far below to far above the threshold,
+        // about assorted axes.
+        let base = DQuat::from_axis_angle(DVec3::new(1.0, 2.0, -0.5).normalize(), 0.7);
+        for k in 0..200 {
+            let t = f64::from(k);
+            let axis = DVec3::new((t * 0.37).sin(), (t * 0.91).cos(), 0.2).normalize();
+            let angle = CLAMPED * 10f64.powf(-3.0 + 6.0 * t / 199.0);
+            let other = DQuat::from_axis_angle(axis, angle) * base;
+            for (a, b) in [(base, other), (other, base), (base, -other)] {
+                assert_eq!(
+                    moved_more_than_clamped(a, b),
+                    rotation_angle(a, b) > CLAMPED,
+                    "angle {angle:e}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn a_joint_deep_inside_its_limit_has_no_bound_within_the_difference_step() {

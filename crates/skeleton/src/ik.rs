@@ -647,7 +647,7 @@ pub fn measure(
 pub fn chain_limit_violation(skeleton: &Skeleton, chain: &Chain, pose: &Pose) -> f64 {
     chain.joints()[..chain.bone_count()]
         .iter()
-        .map(|&j| skeleton.limit(j).violation(pose.rotations[j]))
+        .map(|&j| skeleton.prepared_limit(j).violation(pose.rotations[j]))
         .fold(0.0, f64::max)
 }
 
@@ -665,8 +665,8 @@ pub fn chain_has_limits(skeleton: &Skeleton, chain: &Chain) -> bool {
 pub fn project_onto_limits(skeleton: &Skeleton, chain: &Chain, pose: &mut Pose) -> bool {
     let mut moved = false;
     for &j in &chain.joints()[..chain.bone_count()] {
-        let limit = skeleton.limit(j);
-        if matches!(limit, JointLimit::Free) {
+        let limit = skeleton.prepared_limit(j);
+        if matches!(limit.limit(), JointLimit::Free) {
             continue;
         }
         let projected = limit.project(pose.rotations[j]);
@@ -807,7 +807,10 @@ pub fn turn_towards_pole(
     };
     skeleton.forward_kinematics_from(state.pose, b, state.global)?;
     let (error, _) = goal.errors(state.global);
-    let inside = skeleton.limit(b).violation(state.pose.rotations[b]) == 0.0;
+    let inside = skeleton
+        .prepared_limit(b)
+        .violation(state.pose.rotations[b])
+        == 0.0;
     if inside && (error <= problem.settings.tolerance || error <= error_before) {
         return Ok(true);
     }

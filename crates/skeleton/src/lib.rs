@@ -50,7 +50,7 @@ pub mod track;
 /// not also have to depend on sinew-math.
 pub use sinew_math::{DQuat, DVec3};
 
-use limits::{JointLimit, LimitError};
+use limits::{JointLimit, LimitError, PreparedLimit};
 use std::fmt;
 
 /// One joint as given to [`Skeleton::new`].
@@ -220,6 +220,8 @@ pub struct Skeleton {
     offsets: Vec<DVec3>,
     names: Vec<Option<String>>,
     limits: Vec<JointLimit>,
+    /// Each limit prepared for its quick inside test (see [`PreparedLimit`]).
+    prepared: Vec<PreparedLimit>,
     /// One past the largest index among each joint's descendants (at least `i + 1`):
     /// every descendant of `i` lies in `i + 1 .. span_end[i]`.
     span_end: Vec<usize>,
@@ -322,11 +324,13 @@ impl Skeleton {
         }
         let contiguous = (0..n).all(|i| span_end[i] - i - 1 == descendants[i]);
         let fingerprint = structure_fingerprint(&parents, &offsets);
+        let prepared = limits.iter().map(JointLimit::prepare).collect();
         Ok(Self {
             parents,
             offsets,
             names,
             limits,
+            prepared,
             span_end,
             contiguous,
             fingerprint,
@@ -382,6 +386,17 @@ impl Skeleton {
         &self.limits[i]
     }
 
+    /// The limit of joint `i` prepared for its quick inside test: its
+    /// [`project`](PreparedLimit::project) and [`violation`](PreparedLimit::violation) give
+    /// exactly the limit's own answers, faster for a rotation inside the limit.
+    ///
+    /// # Panics
+    /// If `i` is out of range.
+    #[must_use]
+    pub fn prepared_limit(&self, i: usize) -> &PreparedLimit {
+        &self.prepared[i]
+    }
+
     /// Sets the limit of joint `i`, validated: an error naming the joint and the field
     /// otherwise (the skeleton is then unchanged).
     pub fn set_limit(&mut self, i: usize, limit: JointLimit) -> Result<(), SkeletonError> {
@@ -393,6 +408,7 @@ impl Skeleton {
                 error,
             })?;
         self.limits[i] = limit;
+        self.prepared[i] = limit.prepare();
         Ok(())
     }
 

@@ -286,41 +286,11 @@ impl JointLimit {
     #[must_use]
     pub fn project(&self, q: DQuat) -> DQuat {
         let q = unit_quat(q).unwrap_or(DQuat::IDENTITY);
-        let projected = match self {
-            Self::Free => return q,
-            Self::Fixed => DQuat::IDENTITY,
-            Self::Hinge(h) => {
-                let axis = unit_or_x(h.axis);
-                let parts = Parts::of(q, axis);
-                if parts.perp == DVec3::ZERO && in_range(parts.twist_angle, h.min, h.max) {
-                    return q;
-                }
-                let angle = clamp_circular(parts.twist_angle, h.min, h.max);
-                DQuat::from_axis_angle(axis, angle)
-            }
-            Self::SwingTwist(st) => {
-                let frame = Frame::of(st);
-                let parts = Parts::of(q, frame.twist);
-                let (ra, rb) = frame.swing_coordinates(&parts);
-                let swing_inside = st.swing_inside(ra, rb);
-                let twist_inside = in_range(parts.twist_angle, st.twist_min, st.twist_max);
-                if swing_inside && twist_inside {
-                    return q;
-                }
-                let swing = if swing_inside {
-                    parts.swing()
-                } else {
-                    let (xa, xb) = closest_on_ellipse(st.swing_a, st.swing_b, ra, rb);
-                    DQuat::from_scaled_axis(frame.a * xa + frame.b * xb)
-                };
-                let angle = clamp_circular(parts.twist_angle, st.twist_min, st.twist_max);
-                (swing * DQuat::from_axis_angle(frame.twist, angle)).normalize()
-            }
-        };
-        if projected.dot(q) < 0.0 {
-            -projected
-        } else {
-            projected
+        match self {
+            Self::Free => q,
+            Self::Fixed => same_sign(DQuat::IDENTITY, q),
+            Self::Hinge(h) => project_hinge(h, unit_or_x(h.axis), q),
+            Self::SwingTwist(st) => project_swing_twist(st, &Frame::of(st), q),
         }
     }
 
@@ -349,17 +319,31 @@ impl JointLimit {
         match self {
             Self::Free => 0.0,
             Self::Fixed => 2.0 * q.xyz().length().atan2(q.w.abs()),
-            Self::Hinge(h) => {
-                let parts = Parts::of(q, unit_or_x(h.axis));
-                parts
-                    .swing_angle()
-                    .max(outside_range(parts.twist_angle, h.min, h.max))
-            }
+            Self::Hinge(h) => hinge_violation(h, unit_or_x(h.axis), q),
             Self::SwingTwist(st) => {
-                let (swing, twist) = st.unit_violation_parts(&Frame::of(st), q);
+                let (swing, twist) = st.unit_violation_parts(&Frame::of(st), None, q);
                 twist.max(swing)
             }
         }
+    }
+
+    /// This limit with the constants of its quick inside test computed once (see
+    /// [`PreparedLimit`]).
+    #[must_use]
+    pub fn prepare(&self) -> PreparedLimit {
+        let fast = match self {
+            Self::Free | Self::Fixed => Fast::None,
+            Self::Hinge(h) => Fast::Hinge {
+                axis: unit_or_x(h.axis),
+                range: HalfRange::of(h.min, h.max),
+                bounds: HalfRange::closed(h.min, h.max),
+            },
+            Self::SwingTwist(st) => Fast::SwingTwist {
+                frame: Frame::of(st),
+                quick: Quick::of(st),
+            },
+        };
+        PreparedLimit { limit: *self, fast }
     }
 
     /// The centre of the limit's range, the seed solvers restart from when a limit holds
@@ -457,7 +441,7 @@ impl SwingTwist {
     /// [`SwingTwist::violation_parts`] with the limit's frame computed once by the caller.
     pub(crate) fn violation_parts_in(&self, frame: &LimitFrame, q: DQuat) -> (f64, f64) {
         match unit_quat(q) {
-            Some(q) => self.unit_violation_parts(&frame.0, q),
+            Some(q) => self.unit_violation_parts(&frame.0, frame.1.as_ref(), q),
             None => (f64::INFINITY, f64::INFINITY),
         }
     }
@@ -475,7 +459,7 @@ impl SwingTwist {
         let parts = Parts::of(q, frame.0.twist);
         let (ra, rb) = frame.0.swing_coordinates(&parts);
         let swing = ra.hypot(rb);
-        let twist = parts.twist_angle;
+        let twist = parts.twist_angle();
         let whole_circle = self.twist_min <= -PI && self.twist_max >= PI;
         swing < 3.0
             && swing <= self.swing_a.min(self.swing_b) - margin
@@ -483,10 +467,19 @@ impl SwingTwist {
                 || (twist >= self.twist_min + margin && twist <= self.twist_max - margin))
     }
 
-    /// The parts for a unit `q`.
-    fn unit_violation_parts(&self, frame: &Frame, q: DQuat) -> (f64, f64) {
+    /// The parts for a unit `q`; with the prepared constants of the quick inside tests,
+    /// a part they show to be inside is 0 without its arc tangent (the exact value is
+    /// then 0 too).
+    fn unit_violation_parts(&self, frame: &Frame, quick: Option<&Quick>, q: DQuat) -> (f64, f64) {
         let parts = Parts::of(q, frame.twist);
-        let twist = outside_range(parts.twist_angle, self.twist_min, self.twist_max);
+        let twist = if quick.is_some_and(|k| k.range.clearly_inside(parts.along, parts.w)) {
+            0.0
+        } else {
+            outside_range(parts.twist_angle(), self.twist_min, self.twist_max)
+        };
+        if quick.is_some_and(|k| k.swing_inside(frame, parts.along, parts.w, parts.perp)) {
+            return (0.0, twist);
+        }
         let (ra, rb) = frame.swing_coordinates(&parts);
         let swing = if self.swing_inside(ra, rb) {
             0.0
@@ -503,6 +496,250 @@ impl SwingTwist {
         (self.swing_a >= PI && self.swing_b >= PI)
             || (ra / self.swing_a).powi(2) + (rb / self.swing_b).powi(2) <= 1.0
     }
+}
+
+/// A [`JointLimit`] with the constants of a quick inside test computed once
+/// ([`JointLimit::prepare`]; a [`Skeleton`](crate::Skeleton) keeps one per joint):
+/// [`PreparedLimit::project`] and [`PreparedLimit::violation`] return exactly what the
+/// limit's own [`JointLimit::project`] and [`JointLimit::violation`] return, bit for bit,
+/// but tell a rotation clearly inside the limit without an arc tangent.
+///
+/// Solvers project every trial pose, and most joints of a trial are inside their limits;
+/// the decomposition behind the exact test costs two arc tangents and a `hypot` per joint.
+/// The quick test compares with the sines and cosines of the half bounds and an upper
+/// bound of the swing angle, squared, so it needs no trigonometry and no square root. It
+/// only says "inside" with a margin (1e-12 on the twist, a relative 1e-9 on the swing)
+/// far above the rounding of the exact test, so the exact test would say the same; every
+/// other rotation takes the exact path. The derivation is in `docs/ik-limits.md`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PreparedLimit {
+    limit: JointLimit,
+    fast: Fast,
+}
+
+/// The precomputed parts of a [`PreparedLimit`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Fast {
+    None,
+    Hinge {
+        axis: DVec3,
+        range: HalfRange,
+        /// The same with both bounds tested even at the ends of the circle, where
+        /// [`Hinge::pushes_outwards`] still sees a bound.
+        bounds: HalfRange,
+    },
+    SwingTwist {
+        frame: Frame,
+        quick: Quick,
+    },
+}
+
+/// The constants of a swing-twist limit's quick inside tests.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Quick {
+    range: HalfRange,
+    /// `1 / swing_a^2` and `1 / swing_b^2`.
+    inv_a2: f64,
+    inv_b2: f64,
+}
+
+impl Quick {
+    fn of(st: &SwingTwist) -> Self {
+        Self {
+            range: HalfRange::of(st.twist_min, st.twist_max),
+            inv_a2: 1.0 / (st.swing_a * st.swing_a),
+            inv_b2: 1.0 / (st.swing_b * st.swing_b),
+        }
+    }
+
+    /// The quick swing test for a unit rotation with components `along` the twist axis,
+    /// `w` (scalar) and `perp` (the vector part across the axis). The
+    /// swing's half-angle `u` has `tan u = n / h` (`n = |perp|`, `h^2 = along^2 + w^2 =
+    /// 1 - n^2`), and `atan x <= x / sqrt(1 + x^2 / 3)` for `x >= 0`, so
+    /// `(2u)^2 <= 4 n^2 / (h^2 + n^2 / 3)`. The exact test is
+    /// `(2u / n)^2 ((s.a / A)^2 + (s.b / B)^2) <= 1` with the swing's vector part
+    /// `s = P / h`, `P = w perp + along (axis x perp)`; with the bound it holds when
+    /// `4 ((P.a / A)^2 + (P.b / B)^2) <= h^2 (h^2 + n^2 / 3)`, tested with a margin.
+    fn swing_inside(&self, frame: &Frame, along: f64, w: f64, perp: DVec3) -> bool {
+        let h2 = along * along + w * w;
+        if h2 < QUICK_SWING_MIN_H2 {
+            return false;
+        }
+        let p = perp * w + frame.twist.cross(perp) * along;
+        let (pa, pb) = (p.dot(frame.a), p.dot(frame.b));
+        let n2 = perp.length_squared();
+        4.0 * (pa * pa * self.inv_a2 + pb * pb * self.inv_b2)
+            <= (1.0 - QUICK_SWING_MARGIN) * h2 * (h2 + n2 / 3.0)
+    }
+}
+
+/// How far inside (in the sine of the half-angle difference) a twist must be for the
+/// quick test to call it inside.
+const QUICK_TWIST_MARGIN: f64 = 1e-12;
+/// The relative margin of the quick swing test.
+const QUICK_SWING_MARGIN: f64 = 1e-9;
+/// Below this squared cosine of half the swing angle (a swing beyond about 169 degrees)
+/// the quick test leaves the answer to the exact one.
+const QUICK_SWING_MIN_H2: f64 = 0.01;
+
+/// The sine and cosine of half of each bound of an angle range in `[-pi, pi]`; `None`
+/// for a bound at the end of the circle (nothing to test).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct HalfRange {
+    lower: Option<(f64, f64)>,
+    upper: Option<(f64, f64)>,
+}
+
+impl HalfRange {
+    fn of(min: f64, max: f64) -> Self {
+        Self {
+            lower: (min > -PI).then(|| (0.5 * min).sin_cos()),
+            upper: (max < PI).then(|| (0.5 * max).sin_cos()),
+        }
+    }
+
+    /// Both bounds, even at the ends of the circle.
+    fn closed(min: f64, max: f64) -> Self {
+        Self {
+            lower: Some((0.5 * min).sin_cos()),
+            upper: Some((0.5 * max).sin_cos()),
+        }
+    }
+
+    /// Whether the twist with quaternion components `(along, w)` about its axis (`along`
+    /// the component of the vector part along the axis, `w` the scalar part, from a unit
+    /// quaternion) is inside the range by the margin. The twist's half-angle `t` has
+    /// `(sin t, cos t) = (a, c) / h` with `(a, c) = +-(along, w)` signed so that `c > 0`
+    /// (`t` in `(-pi/2, pi/2)`, as the decomposition chooses) and `h <= 1`. For a bound
+    /// `m` (a half bound, also in `[-pi/2, pi/2]`), `sin(t - m) = (a cos m - c sin m) / h`,
+    /// and `t - m` is in `(-pi, pi)`, so a value above the margin means `t > m` by more
+    /// than the margin; the same for `sin(M - t)` at the upper bound.
+    fn clearly_inside(&self, along: f64, w: f64) -> bool {
+        let (a, c) = if w > 0.0 {
+            (along, w)
+        } else if w < 0.0 {
+            (-along, -w)
+        } else {
+            return false;
+        };
+        self.lower
+            .is_none_or(|(sin, cos)| a * cos - c * sin > QUICK_TWIST_MARGIN)
+            && self
+                .upper
+                .is_none_or(|(sin, cos)| c * sin - a * cos > QUICK_TWIST_MARGIN)
+    }
+}
+
+impl PreparedLimit {
+    /// The limit this was prepared from.
+    #[must_use]
+    pub fn limit(&self) -> &JointLimit {
+        &self.limit
+    }
+
+    /// Exactly [`JointLimit::project`] of the prepared limit.
+    #[must_use]
+    pub fn project(&self, q: DQuat) -> DQuat {
+        match &self.fast {
+            Fast::None => self.limit.project(q),
+            Fast::Hinge { axis, range, .. } => {
+                let q = unit_quat(q).unwrap_or(DQuat::IDENTITY);
+                if quick_hinge_inside(*axis, range, q) {
+                    return q;
+                }
+                let JointLimit::Hinge(h) = &self.limit else {
+                    unreachable!("a hinge's prepared parts belong to a hinge")
+                };
+                project_hinge(h, *axis, q)
+            }
+            Fast::SwingTwist { frame, .. } => {
+                let q = unit_quat(q).unwrap_or(DQuat::IDENTITY);
+                if self.quick_swing_twist_inside(q) {
+                    return q;
+                }
+                let JointLimit::SwingTwist(st) = &self.limit else {
+                    unreachable!("a swing-twist's prepared parts belong to a swing-twist")
+                };
+                project_swing_twist(st, frame, q)
+            }
+        }
+    }
+
+    /// Exactly [`JointLimit::violation`] of the prepared limit.
+    #[must_use]
+    pub fn violation(&self, q: DQuat) -> f64 {
+        match &self.fast {
+            Fast::None => self.limit.violation(q),
+            Fast::Hinge { axis, range, .. } => {
+                let Some(q) = unit_quat(q) else {
+                    return f64::INFINITY;
+                };
+                if quick_hinge_inside(*axis, range, q) {
+                    return 0.0;
+                }
+                let JointLimit::Hinge(h) = &self.limit else {
+                    unreachable!("a hinge's prepared parts belong to a hinge")
+                };
+                hinge_violation(h, *axis, q)
+            }
+            Fast::SwingTwist { frame, quick } => {
+                let Some(q) = unit_quat(q) else {
+                    return f64::INFINITY;
+                };
+                if self.quick_swing_twist_inside(q) {
+                    return 0.0;
+                }
+                let JointLimit::SwingTwist(st) = &self.limit else {
+                    unreachable!("a swing-twist's prepared parts belong to a swing-twist")
+                };
+                let (swing, twist) = st.unit_violation_parts(frame, Some(quick), q);
+                twist.max(swing)
+            }
+        }
+    }
+
+    /// Exactly [`Hinge::pushes_outwards`] for a prepared hinge (false for any other
+    /// limit), without the arc tangent when `local` is clearly inside the range: its
+    /// half-angle then lies more than 1e-12 inside each bound (the quick twist test, with
+    /// `local`'s component along the hinge's own axis as the exact test takes it, a
+    /// near-unit `local`), so its angle is more than `at_bound <= 1e-12` from both.
+    pub(crate) fn hinge_pushes_outwards(&self, local: DQuat, step: f64, at_bound: f64) -> bool {
+        let (Fast::Hinge { bounds, .. }, JointLimit::Hinge(h)) = (&self.fast, &self.limit) else {
+            return false;
+        };
+        if at_bound <= 1e-12 && bounds.clearly_inside(local.xyz().dot(h.axis), local.w) {
+            return false;
+        }
+        h.pushes_outwards(local, step, at_bound)
+    }
+
+    /// The frame of a swing-twist limit, for the finish's outward normals.
+    pub(crate) fn frame(&self) -> Option<LimitFrame> {
+        match &self.fast {
+            Fast::SwingTwist { frame, quick } => Some(LimitFrame(*frame, Some(*quick))),
+            _ => None,
+        }
+    }
+
+    /// The quick inside test of a swing-twist limit (both constraints) for a unit `q`.
+    fn quick_swing_twist_inside(&self, q: DQuat) -> bool {
+        let Fast::SwingTwist { frame, quick } = &self.fast else {
+            return false;
+        };
+        let v = q.xyz();
+        let along = v.dot(frame.twist);
+        quick.range.clearly_inside(along, q.w)
+            && quick.swing_inside(frame, along, q.w, v - frame.twist * along)
+    }
+}
+
+/// The quick inside test of a hinge for a unit `q`: exactly about the axis (the exact
+/// test's own condition, computed the same way) and the twist inside by the margin.
+fn quick_hinge_inside(axis: DVec3, range: &HalfRange, q: DQuat) -> bool {
+    let v = q.xyz();
+    let along = v.dot(axis);
+    let perp = v - axis * along;
+    perp == DVec3::ZERO && range.clearly_inside(along, q.w)
 }
 
 /// The decomposition `q = swing * twist`, the twist a rotation about `axis`.
@@ -541,8 +778,6 @@ struct Parts {
     /// `q`'s component along the axis, and its scalar part.
     along: f64,
     w: f64,
-    /// The twist angle in `(-pi, pi]`, 0 at the singular swing.
-    twist_angle: f64,
 }
 
 impl Parts {
@@ -561,18 +796,25 @@ impl Parts {
             (1.0, 0.0)
         };
         let swing_vec = perp * c + axis.cross(perp) * s;
-        let mut parts = Self {
+        Self {
             axis,
             perp,
             swing_vec,
             swing_w: h,
             along,
             w: q.w,
-            twist_angle: 0.0,
-        };
-        let (tp, tw, _) = parts.canonical_twist();
-        parts.twist_angle = if h > 0.0 { 2.0 * tp.atan2(tw) } else { 0.0 };
-        parts
+        }
+    }
+
+    /// The twist angle in `(-pi, pi]`, 0 at the singular swing. Computed on demand: a
+    /// caller that knows the twist is inside its range needs no arc tangent.
+    fn twist_angle(&self) -> f64 {
+        let (tp, tw, _) = self.canonical_twist();
+        if self.swing_w > 0.0 {
+            2.0 * tp.atan2(tw)
+        } else {
+            0.0
+        }
     }
 
     /// The twist's `(axis component, scalar part)` with the sign that puts its angle in
@@ -618,16 +860,17 @@ impl Parts {
 }
 
 /// A swing-twist limit's frame, computed once for many evaluations of its violation.
-pub(crate) struct LimitFrame(Frame);
+pub(crate) struct LimitFrame(Frame, Option<Quick>);
 
 impl LimitFrame {
     /// The frame of `st`.
     pub(crate) fn of(st: &SwingTwist) -> Self {
-        Self(Frame::of(st))
+        Self(Frame::of(st), Some(Quick::of(st)))
     }
 }
 
 /// A swing-twist limit's orthonormal frame: the twist axis and the ellipse's two axes.
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct Frame {
     twist: DVec3,
     a: DVec3,
@@ -717,6 +960,57 @@ fn clamp_circular(angle: f64, min: f64, max: f64) -> f64 {
     } else {
         min
     }
+}
+
+/// `projected` with the sign that makes its dot product with `q` non-negative.
+fn same_sign(projected: DQuat, q: DQuat) -> DQuat {
+    if projected.dot(q) < 0.0 {
+        -projected
+    } else {
+        projected
+    }
+}
+
+/// [`JointLimit::project`] for a hinge with unit axis `axis`, `q` unit.
+fn project_hinge(h: &Hinge, axis: DVec3, q: DQuat) -> DQuat {
+    let parts = Parts::of(q, axis);
+    let twist_angle = parts.twist_angle();
+    if parts.perp == DVec3::ZERO && in_range(twist_angle, h.min, h.max) {
+        return q;
+    }
+    let angle = clamp_circular(twist_angle, h.min, h.max);
+    same_sign(DQuat::from_axis_angle(axis, angle), q)
+}
+
+/// [`JointLimit::project`] for a swing-twist limit with frame `frame`, `q` unit.
+fn project_swing_twist(st: &SwingTwist, frame: &Frame, q: DQuat) -> DQuat {
+    let parts = Parts::of(q, frame.twist);
+    let (ra, rb) = frame.swing_coordinates(&parts);
+    let swing_inside = st.swing_inside(ra, rb);
+    let twist_angle = parts.twist_angle();
+    let twist_inside = in_range(twist_angle, st.twist_min, st.twist_max);
+    if swing_inside && twist_inside {
+        return q;
+    }
+    let swing = if swing_inside {
+        parts.swing()
+    } else {
+        let (xa, xb) = closest_on_ellipse(st.swing_a, st.swing_b, ra, rb);
+        DQuat::from_scaled_axis(frame.a * xa + frame.b * xb)
+    };
+    let angle = clamp_circular(twist_angle, st.twist_min, st.twist_max);
+    same_sign(
+        (swing * DQuat::from_axis_angle(frame.twist, angle)).normalize(),
+        q,
+    )
+}
+
+/// [`JointLimit::violation`] for a hinge with unit axis `axis`, `q` unit.
+fn hinge_violation(h: &Hinge, axis: DVec3, q: DQuat) -> f64 {
+    let parts = Parts::of(q, axis);
+    parts
+        .swing_angle()
+        .max(outside_range(parts.twist_angle(), h.min, h.max))
 }
 
 /// The point of the ellipse `(x / ea)^2 + (y / eb)^2 = 1` nearest to `(ya, yb)`.
@@ -835,4 +1129,141 @@ fn check_range(
         });
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The quick test must actually take the rotations well inside (or it saves nothing):
+    /// every sample of the inner part of the W7 shoulder and elbow ranges.
+    #[test]
+    fn the_quick_test_takes_rotations_well_inside() {
+        let shoulder = JointLimit::swing_twist(
+            DVec3::X,
+            DVec3::Z,
+            100f64.to_radians(),
+            70f64.to_radians(),
+            -80f64.to_radians(),
+            80f64.to_radians(),
+        )
+        .unwrap()
+        .prepare();
+        let elbow = JointLimit::hinge(-DVec3::Y, 0.0, 150f64.to_radians())
+            .unwrap()
+            .prepare();
+        for i in 0..=20 {
+            let f = 0.05 + 0.85 * f64::from(i) / 20.0;
+            for k in 0..8 {
+                let u = [f * f, f64::from(k) / 8.0, 0.5 + 0.45 * (f - 0.5)];
+                let q = shoulder.limit().sample(u);
+                assert!(shoulder.quick_swing_twist_inside(q), "shoulder {u:?}");
+            }
+            let q = elbow.limit().sample([f, 0.0, 0.0]);
+            let Fast::Hinge { axis, range, .. } = &elbow.fast else {
+                panic!("a prepared hinge");
+            };
+            assert!(quick_hinge_inside(*axis, range, q), "elbow {f}");
+        }
+    }
+
+    /// The prepared hinge's outward test gives the exact test's answer, at and near the
+    /// bounds (where the quick test must step aside) and well inside.
+    #[test]
+    fn the_prepared_hinge_pushes_outwards_exactly_as_the_hinge() {
+        let axis = DVec3::new(0.3, -0.4, 0.5).normalize();
+        for (min, max) in [
+            (0.0, 150f64.to_radians()),
+            (-1.0, 0.5),
+            (-PI, PI),
+            (-PI, 0.2),
+        ] {
+            let limit = JointLimit::hinge(axis, min, max).unwrap();
+            let JointLimit::Hinge(h) = limit else {
+                panic!("a hinge");
+            };
+            let prepared = limit.prepare();
+            let mut angles = vec![min, max, 0.5 * (min + max)];
+            for d in [1e-15, 1e-13, 1e-12, 2e-12, 1e-11, 1e-6] {
+                angles.extend([min + d, min - d, max + d, max - d]);
+            }
+            for angle in angles {
+                let local = DQuat::from_axis_angle(axis, angle);
+                for q in [local, -local] {
+                    for step in [1.0, -1.0, 0.0] {
+                        for at_bound in [1e-12, 1e-6] {
+                            assert_eq!(
+                                prepared.hinge_pushes_outwards(q, step, at_bound),
+                                h.pushes_outwards(q, step, at_bound),
+                                "range [{min}, {max}], angle {angle}, step {step}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The violation parts with the quick tests are those without, bit for bit, on
+    /// random rotations and rotations on and near the bounds, for round, thin, tilted and
+    /// full-circle limits.
+    #[test]
+    fn the_quick_violation_parts_are_the_exact_ones() {
+        let tilted = DVec3::new(1.0, 2.0, 3.0).normalize();
+        let limits = [
+            SwingTwist {
+                twist_axis: DVec3::X,
+                a_axis: DVec3::Z,
+                swing_a: 100f64.to_radians(),
+                swing_b: 70f64.to_radians(),
+                twist_min: -80f64.to_radians(),
+                twist_max: 80f64.to_radians(),
+            },
+            SwingTwist {
+                twist_axis: tilted,
+                a_axis: tilted.any_orthonormal_vector(),
+                swing_a: PI,
+                swing_b: 0.05,
+                twist_min: 1.0,
+                twist_max: 2.5,
+            },
+            SwingTwist {
+                twist_axis: DVec3::Y,
+                a_axis: DVec3::X,
+                swing_a: 0.3,
+                swing_b: 2.5,
+                twist_min: -PI,
+                twist_max: PI,
+            },
+        ];
+        let mut seed = 0x5EED_0000_0000_00B2_u64;
+        let mut unit = move || {
+            seed = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = seed;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for st in limits {
+            let limit = JointLimit::SwingTwist(st);
+            let (frame, quick) = (Frame::of(&st), Quick::of(&st));
+            let mut zeros = 0;
+            for _ in 0..20_000 {
+                let random = JointLimit::Free.sample([unit(), unit(), unit()]);
+                let on_bound = limit.project(random);
+                let inside = limit.sample([unit(), unit(), unit()]);
+                let nudge = DVec3::new(unit(), unit(), unit()) * 2.0 - DVec3::ONE;
+                let scale = 10f64.powf(-15.0 + 14.0 * unit());
+                for q in [random, on_bound, inside] {
+                    let q = (DQuat::from_scaled_axis(nudge * scale) * q).normalize();
+                    let exact = st.unit_violation_parts(&frame, None, q);
+                    let fast = st.unit_violation_parts(&frame, Some(&quick), q);
+                    assert_eq!(exact.0.to_bits(), fast.0.to_bits(), "{q}");
+                    assert_eq!(exact.1.to_bits(), fast.1.to_bits(), "{q}");
+                    zeros += usize::from(exact == (0.0, 0.0));
+                }
+            }
+            assert!(zeros > 10_000, "{zeros}");
+        }
+    }
 }

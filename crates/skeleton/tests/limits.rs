@@ -845,3 +845,71 @@ fn the_violation_parts_are_the_violations_with_the_other_constraint_opened_up() 
         (f64::INFINITY, f64::INFINITY)
     );
 }
+
+// ---------------------------------------------------------------- prepared limits
+
+/// Bit-for-bit equality of two quaternions (`==` would let `-0.0` pass for `0.0`).
+fn same_bits(a: DQuat, b: DQuat) -> bool {
+    a.to_array()
+        .iter()
+        .zip(b.to_array())
+        .all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+#[test]
+fn a_prepared_limit_answers_exactly_as_the_limit_itself() {
+    // Random rotations, rotations inside each limit (its samples), the same pushed just
+    // across the bounds by tiny turns, hinge rotations a rounding off their axis, and
+    // rotations that are not unit or not rotations at all: the quick inside test may only
+    // ever short-cut to the answer the exact test gives.
+    let mut rng = Rng(0x5EED_0000_0000_00A1);
+    let mut zoo = limit_zoo();
+    zoo.push(("fixed", JointLimit::Fixed));
+    zoo.push((
+        "elbow",
+        JointLimit::hinge(DVec3::new(0.0, -1.0, 0.0), 0.0, deg(150.0)).unwrap(),
+    ));
+    zoo.push((
+        "tilted hinge",
+        JointLimit::hinge(DVec3::new(0.3, -0.4, 0.5), -1.0, 0.5).unwrap(),
+    ));
+    let mut quick_inside = 0;
+    let mut total = 0;
+    for (name, limit) in &zoo {
+        let prepared = limit.prepare();
+        assert_eq!(prepared.limit(), limit);
+        let mut check = |q: DQuat| {
+            let (exact, fast) = (limit.project(q), prepared.project(q));
+            assert!(
+                same_bits(exact, fast),
+                "{name}: project {q}: {exact} vs {fast}"
+            );
+            let (exact, fast) = (limit.violation(q), prepared.violation(q));
+            assert_eq!(exact.to_bits(), fast.to_bits(), "{name}: violation {q}");
+            total += 1;
+            quick_inside += usize::from(exact == 0.0);
+        };
+        for _ in 0..4000 {
+            check(rng.rotation());
+            let inside = limit.sample(rng.unit3());
+            check(inside);
+            check(inside * (1.0 + 1e-14));
+            for scale in [1e-15, 1e-12, 1e-9, 1e-6, 1e-3] {
+                let axis = DVec3::new(rng.next(), rng.next(), rng.next()) * 2.0 - DVec3::ONE;
+                check((DQuat::from_scaled_axis(axis * scale) * inside).normalize());
+            }
+            // The bounds themselves, approached from both sides.
+            let bound = limit.project(rng.rotation());
+            for scale in [0.0, 1e-15, 1e-13, 1e-11] {
+                let axis = DVec3::new(rng.next(), rng.next(), rng.next()) * 2.0 - DVec3::ONE;
+                check((DQuat::from_scaled_axis(axis * scale) * bound).normalize());
+            }
+        }
+        check(DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0));
+        check(DQuat::from_xyzw(f64::NAN, 0.0, 0.0, 1.0));
+        check(DQuat::from_xyzw(0.0, 0.0, 0.0, -1.0));
+        check(DQuat::from_xyzw(1e-300, 0.0, 0.0, 1e-300));
+    }
+    // Inside answers are common, so the comparison covers the quick path.
+    assert!(quick_inside > total / 10, "{quick_inside} of {total}");
+}

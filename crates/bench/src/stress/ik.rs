@@ -3,9 +3,16 @@
 //! targets at the base, 1e-12 from it, 1e12 away, exactly at the reach, on the chain's
 //! own axis, zero-length bones, a cap of 0, a tolerance of 0, and bad input. Each solve
 //! is checked against invariants that hold for any correct solver (docs/stress.md).
+//!
+//! The two-bone limbs of the set also run the analytic two-bone solver (`two-bone`):
+//! the target on the root, the pole on the root-target line or on the root, zero-length
+//! bones, out of reach, a hinge range that cannot fold far enough, and bad input; the
+//! same invariants, plus a bend angle inside the hinge range and a `reached` claim that
+//! forward kinematics confirms.
 
 use serde::Serialize;
 use sinew_ik::{CcdOptions, SolverOptions};
+use sinew_ik_two_bone::{Hinge, TwoBoneIk};
 use sinew_math::{DQuat, DVec3, EulerRot};
 use sinew_skeleton::ik::{Chain, IkSolver, SolveReport, SolveSettings, StopReason};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton};
@@ -74,7 +81,23 @@ pub struct IkCase {
     pub settings: SolveSettings,
     /// What must happen.
     pub expect: Expect,
+    /// For a two-bone limb: also run the two-bone solver with this pole and hinge.
+    pub two_bone: Option<TwoBoneSetup>,
 }
+
+/// The two-bone solver's inputs besides the limb and the target.
+#[derive(Clone, Debug)]
+pub struct TwoBoneSetup {
+    /// The pole the bend plane turns towards.
+    pub pole: DVec3,
+    /// The mid joint's hinge.
+    pub hinge: Hinge,
+    /// What must happen with the two-bone solver.
+    pub expect: Expect,
+}
+
+/// The label of the two-bone solver in the outcomes.
+pub const TWO_BONE: &str = "two-bone";
 
 fn xs(lengths: &[f64]) -> Vec<DVec3> {
     lengths.iter().map(|&l| DVec3::X * l).collect()
@@ -89,7 +112,166 @@ fn case(name: impl Into<String>, offsets: Vec<DVec3>, target: DVec3) -> IkCase {
         target,
         settings: SolveSettings::default(),
         expect: Expect::Solve,
+        two_bone: None,
     }
+}
+
+/// A two-bone case: the limb with upper bone `upper` and lower bone `lower` along +x
+/// (the rest pose straight), the pole and the hinge (about z).
+fn limb(
+    name: &str,
+    upper: f64,
+    lower: f64,
+    target: DVec3,
+    pole: DVec3,
+    hinge: (f64, f64),
+) -> IkCase {
+    let mut c = case(
+        format!("two-bone limb, {name}"),
+        xs(&[upper, lower]),
+        target,
+    );
+    c.two_bone = Some(TwoBoneSetup {
+        pole,
+        hinge: Hinge::new(DVec3::Z, hinge.0, hinge.1),
+        expect: Expect::Solve,
+    });
+    c
+}
+
+/// The two-bone cases (each also runs every chain solver).
+fn two_bone_cases() -> Vec<IkCase> {
+    use std::f64::consts::PI;
+    let free = (-PI, PI);
+    let elbow = (0.0, 150f64.to_radians());
+    let up = DVec3::Y;
+    let mut out = vec![
+        limb("reachable", 0.3, 0.25, DVec3::new(0.2, 0.3, 0.1), up, elbow),
+        limb(
+            "equal bones, target on the root",
+            0.3,
+            0.3,
+            DVec3::ZERO,
+            up,
+            free,
+        ),
+        limb(
+            "unequal bones, target on the root (unreachable)",
+            0.3,
+            0.25,
+            DVec3::ZERO,
+            up,
+            free,
+        ),
+        limb(
+            "pole on the root-target line",
+            0.3,
+            0.25,
+            DVec3::new(0.2, 0.3, 0.1),
+            DVec3::new(0.4, 0.6, 0.2),
+            free,
+        ),
+        limb(
+            "pole on the root",
+            0.3,
+            0.25,
+            DVec3::new(0.2, 0.3, 0.1),
+            DVec3::ZERO,
+            free,
+        ),
+        limb(
+            "target on its axis in front (straight limb)",
+            0.3,
+            0.25,
+            DVec3::new(0.4, 0.0, 0.0),
+            up,
+            free,
+        ),
+        limb(
+            "zero-length upper bone",
+            0.0,
+            0.25,
+            DVec3::new(0.1, 0.2, 0.0),
+            up,
+            free,
+        ),
+        limb(
+            "zero-length lower bone",
+            0.3,
+            0.0,
+            DVec3::new(0.1, 0.2, 0.0),
+            up,
+            free,
+        ),
+        limb(
+            "both bones of length 0",
+            0.0,
+            0.0,
+            DVec3::new(0.1, 0.2, 0.0),
+            up,
+            free,
+        ),
+        limb(
+            "target out of reach",
+            0.3,
+            0.25,
+            DVec3::new(0.0, 2.0, 0.0),
+            up,
+            elbow,
+        ),
+        limb(
+            "target 1e12 away",
+            0.3,
+            0.25,
+            DVec3::new(0.0, 0.0, 1e12),
+            up,
+            elbow,
+        ),
+        limb(
+            "target exactly at the reach",
+            0.3,
+            0.25,
+            DVec3::new(0.0, 0.55, 0.0),
+            up,
+            elbow,
+        ),
+        limb(
+            "hinge 0..150 degrees, target nearer than the fold allows",
+            0.3,
+            0.25,
+            DVec3::new(0.0, 0.1, 0.0),
+            up,
+            elbow,
+        ),
+    ];
+    // Bad input: the two-bone solver's error names the field. The chain solvers take
+    // no pole, so for them only the bad target is bad input.
+    let mut nan_target = limb(
+        "NaN target",
+        0.3,
+        0.25,
+        DVec3::new(f64::NAN, 0.0, 0.0),
+        up,
+        elbow,
+    );
+    nan_target.expect = Expect::Error("goal 0: position");
+    if let Some(setup) = &mut nan_target.two_bone {
+        setup.expect = Expect::Error("`target`");
+    }
+    out.push(nan_target);
+    let mut bad_pole = limb(
+        "infinite pole",
+        0.3,
+        0.25,
+        DVec3::new(0.2, 0.3, 0.1),
+        DVec3::new(0.0, f64::INFINITY, 0.0),
+        elbow,
+    );
+    if let Some(setup) = &mut bad_pole.two_bone {
+        setup.expect = Expect::Error("`pole`");
+    }
+    out.push(bad_pole);
+    out
 }
 
 /// A bent starting pose: joint `i` turned by a fixed, varied set of angles.
@@ -289,6 +471,7 @@ pub fn cases() -> Vec<IkCase> {
         c.expect = Expect::Error("tolerance");
         out.push(c);
     }
+    out.extend(two_bone_cases());
     out
 }
 
@@ -599,6 +782,195 @@ pub fn run_all(cases: &[IkCase]) -> Vec<IkOutcome> {
         for &(s, _) in &solvers {
             out.push(run_case(c, s));
         }
+        if let Some(setup) = &c.two_bone {
+            out.push(run_two_bone_case(c, setup));
+        }
+    }
+    out
+}
+
+/// Runs the two-bone solver on a two-bone case (root joint 0, mid 1, tip 2, from the
+/// rest pose) and checks the invariants: no panic, an `Err` naming the field for bad
+/// input, otherwise a finite pose and report, the global pose forward kinematics of the
+/// pose, the reported error that of forward kinematics, the bone lengths kept, no error
+/// below the geometric bound, the bend angle inside the hinge range, a `reached` claim
+/// confirmed to rounding, and out of reach (the straight limb allowed) the error
+/// `d - reach`. `stop` says what the closed form did: `converged` when it reached the
+/// target, `out_of_reach` beyond the reach, `local_minimum` otherwise (the hinge range or
+/// the geometry stopped it short).
+#[must_use]
+pub fn run_two_bone_case(case: &IkCase, setup: &TwoBoneSetup) -> IkOutcome {
+    let mut out = IkOutcome {
+        case: case.name.clone(),
+        solver: TWO_BONE,
+        bones: case.offsets.len(),
+        distance: 0.0,
+        reach: 0.0,
+        error_bound: 0.0,
+        stop: None,
+        iterations: 0,
+        error: f64::NAN,
+        measured_error: f64::NAN,
+        bone_error_ratio: 0.0,
+        message: None,
+        not_converged: false,
+        seconds: 0.0,
+        failures: Vec::new(),
+    };
+    if case.offsets.len() != 2 {
+        out.failures
+            .push("a two-bone case needs exactly two bones".into());
+        return out;
+    }
+    let skeleton = match Skeleton::chain(case.root, &case.offsets) {
+        Ok(s) => s,
+        Err(e) => {
+            out.failures.push(format!("could not build the limb: {e}"));
+            return out;
+        }
+    };
+    let mut pose = skeleton.rest_pose();
+    if let Some(start) = &case.start {
+        pose.rotations.copy_from_slice(start);
+    }
+    let mut global = GlobalPose::new();
+    if let Err(e) = skeleton.forward_kinematics(&pose, &mut global) {
+        out.failures
+            .push(format!("forward kinematics of the start: {e}"));
+        return out;
+    }
+    let (upper, lower) = (case.offsets[0].length(), case.offsets[1].length());
+    out.distance = case.target.distance(global.positions[0]);
+    out.reach = upper + lower;
+    out.error_bound = if out.distance.is_finite() {
+        (out.distance - out.reach)
+            .max((upper - lower).abs() - out.distance)
+            .max(0.0)
+    } else {
+        f64::NAN
+    };
+    let mut job = TwoBoneIk::new(0, 1, 2, case.target, setup.pole);
+    job.hinge = setup.hinge;
+    let started = Instant::now();
+    let result = catch_unwind(AssertUnwindSafe(|| {
+        job.run(&skeleton, &mut pose, &mut global)
+    }));
+    out.seconds = started.elapsed().as_secs_f64();
+    let report = match (result, &setup.expect) {
+        (Err(_), _) => {
+            out.failures.push("panicked".into());
+            return out;
+        }
+        (Ok(Err(e)), Expect::Error(text)) => {
+            let message = e.to_string();
+            if !message.contains(text) {
+                out.failures
+                    .push(format!("the error does not name the {text}: {message}"));
+            }
+            out.message = Some(message);
+            return out;
+        }
+        (Ok(Err(e)), Expect::Solve) => {
+            out.failures.push(format!("refused a valid input: {e}"));
+            out.message = Some(e.to_string());
+            return out;
+        }
+        (Ok(Ok(report)), Expect::Error(text)) => {
+            out.failures.push(format!(
+                "accepted bad input (expected an error naming the {text})"
+            ));
+            report
+        }
+        (Ok(Ok(report)), Expect::Solve) => report,
+    };
+    out.error = report.error;
+    if !pose.rotations.iter().all(|q| q.is_finite())
+        || !report.error.is_finite()
+        || !report.bend_angle.is_finite()
+    {
+        out.failures.push(format!(
+            "NaN or infinity in the pose or the report: {report:?}"
+        ));
+        return out;
+    }
+    let mut fk = GlobalPose::new();
+    if let Err(e) = skeleton.forward_kinematics(&pose, &mut fk) {
+        out.failures
+            .push(format!("the returned pose is invalid: {e}"));
+        return out;
+    }
+    let scale = fk.positions.iter().map(|p| p.length()).fold(0.0, f64::max)
+        + case.target.length()
+        + out.reach;
+    let allowance = position_allowance(2, scale);
+    let stale = (0..3)
+        .map(|j| fk.positions[j].distance(global.positions[j]))
+        .fold(0.0, f64::max);
+    if stale > allowance {
+        out.failures.push(format!(
+            "the returned global pose is not forward kinematics of the pose (off by {stale:.3e}, allowance {allowance:.3e})"
+        ));
+    }
+    for (c, rest) in [upper, lower].into_iter().enumerate() {
+        let (a, b) = (fk.positions[c], fk.positions[c + 1]);
+        let ratio = ((b - a).length() - rest).abs() / bone_allowance(rest, a, b);
+        out.bone_error_ratio = out.bone_error_ratio.max(ratio);
+    }
+    if out.bone_error_ratio > 1.0 {
+        out.failures.push(format!(
+            "a bone length changed by {:.2} times its allowance 1e-12 L + 4 EPS |P|",
+            out.bone_error_ratio
+        ));
+    }
+    out.measured_error = fk.positions[2].distance(case.target);
+    if (report.error - out.measured_error).abs() > allowance {
+        out.failures.push(format!(
+            "reported error {:.6e} but forward kinematics gives {:.6e}",
+            report.error, out.measured_error
+        ));
+    }
+    if out.measured_error < out.error_bound - allowance {
+        out.failures.push(format!(
+            "error {:.6e} below the least possible {:.6e}",
+            out.measured_error, out.error_bound
+        ));
+    }
+    let (min, max) = (setup.hinge.min, setup.hinge.max);
+    if report.bend_angle < min - 1e-12 || report.bend_angle > max + 1e-12 {
+        out.failures.push(format!(
+            "bend angle {} outside the hinge range [{min}, {max}]",
+            report.bend_angle
+        ));
+    }
+    if report.reached && out.measured_error > allowance {
+        out.failures.push(format!(
+            "claims to have reached the target at error {:.3e} (allowance {allowance:.3e})",
+            out.measured_error
+        ));
+    }
+    let straight_allowed = min <= 0.0 && 0.0 <= max;
+    if out.distance >= out.reach && straight_allowed {
+        let gap = (out.measured_error - (out.distance - out.reach)).abs();
+        if gap > allowance {
+            out.failures.push(format!(
+                "target beyond the reach: error {:.9e} differs from d - reach = {:.9e} by {gap:.3e} (allowance {allowance:.3e})",
+                out.measured_error,
+                out.distance - out.reach
+            ));
+        }
+    }
+    out.stop = Some(if report.reached {
+        StopReason::Converged
+    } else if out.distance >= out.reach {
+        StopReason::OutOfReach
+    } else {
+        StopReason::LocalMinimum
+    });
+    let free = min <= -std::f64::consts::PI && max >= std::f64::consts::PI;
+    if out.error_bound == 0.0 && !report.reached && free {
+        // A free hinge and a target in the reachable shell: the closed form should have
+        // reached it; reported, as for the iterative solvers.
+        out.not_converged = out.measured_error > case.settings.tolerance;
     }
     out
 }
@@ -637,6 +1009,82 @@ mod tests {
             assert_eq!(out.stop, Some(StopReason::Converged), "{s}");
             assert!(!out.not_converged);
         }
+    }
+
+    #[test]
+    fn every_two_bone_case_keeps_the_invariants_with_every_solver() {
+        let cases: Vec<IkCase> = cases()
+            .into_iter()
+            .filter(|c| c.two_bone.is_some())
+            .collect();
+        assert!(cases.len() >= 15, "{}", cases.len());
+        let outcomes = run_all(&cases);
+        let two_bone: Vec<&IkOutcome> = outcomes.iter().filter(|o| o.solver == TWO_BONE).collect();
+        assert_eq!(two_bone.len(), cases.len());
+        for o in &outcomes {
+            assert!(
+                o.failures.is_empty(),
+                "{} {}: {:?}",
+                o.case,
+                o.solver,
+                o.failures
+            );
+        }
+        // What the closed form did, case by case: it reaches every target in its shell
+        // with a free hinge, and both bad inputs are errors naming the field.
+        for o in &two_bone {
+            assert!(!o.not_converged, "{}: {o:?}", o.case);
+        }
+        let stop = |name: &str| {
+            two_bone
+                .iter()
+                .find(|o| o.case.ends_with(name))
+                .unwrap_or_else(|| panic!("no case {name}"))
+                .stop
+        };
+        assert_eq!(
+            stop("equal bones, target on the root"),
+            Some(StopReason::Converged)
+        );
+        assert_eq!(
+            stop("pole on the root-target line"),
+            Some(StopReason::Converged)
+        );
+        assert_eq!(stop("pole on the root"), Some(StopReason::Converged));
+        assert_eq!(stop("target out of reach"), Some(StopReason::OutOfReach));
+        assert_eq!(
+            stop("hinge 0..150 degrees, target nearer than the fold allows"),
+            Some(StopReason::LocalMinimum)
+        );
+        let errors = two_bone.iter().filter(|o| o.message.is_some()).count();
+        assert_eq!(errors, 2);
+    }
+
+    #[test]
+    fn the_two_bone_checks_catch_a_wrong_hinge_range() {
+        // The same case judged against a narrower hinge than the solver ran with: the
+        // bend angle must be reported outside it. Run with the real hinge, then check
+        // the claim against the narrow one by hand.
+        let c = limb(
+            "check",
+            0.3,
+            0.25,
+            DVec3::new(0.2, 0.3, 0.1),
+            DVec3::Y,
+            (0.0, 2.5),
+        );
+        let setup = c.two_bone.clone().expect("a two-bone case");
+        let ok = run_two_bone_case(&c, &setup);
+        assert!(ok.failures.is_empty(), "{:?}", ok.failures);
+        let mut wrong = c.clone();
+        let mut narrow = setup.clone();
+        narrow.hinge.max = 0.1;
+        wrong.two_bone = Some(narrow.clone());
+        // With the narrow hinge the solver cannot reach the target, and says so.
+        let out = run_two_bone_case(&wrong, &narrow);
+        assert!(out.failures.is_empty(), "{:?}", out.failures);
+        assert_eq!(out.stop, Some(StopReason::LocalMinimum));
+        assert!(out.measured_error > 1e-3, "{out:?}");
     }
 
     #[test]
