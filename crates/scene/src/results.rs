@@ -85,6 +85,8 @@ pub enum TaskMetrics {
     Cloth(ClothMetrics),
     /// A `FullBody` task's.
     Body(BodyMetrics),
+    /// A `MeshCloth` task's.
+    MeshCloth(MeshClothMetrics),
     /// None: the task could not run (serialized as `{}`).
     None(NoMetrics),
 }
@@ -236,6 +238,41 @@ pub struct ContactMetrics {
     pub contact_pairs_max: usize,
     /// The barrier stiffness used.
     pub kappa: Option<f64>,
+}
+
+/// A `MeshCloth` task's metrics: the work, the self-contact statistics, and the checks
+/// measured after every step independently of the integrator.
+#[derive(Clone, Debug, Serialize)]
+pub struct MeshClothMetrics {
+    /// Vertices of the cloth (all sheets).
+    pub vertices: usize,
+    /// Triangles of the cloth.
+    pub triangles: usize,
+    /// Steps taken.
+    pub steps: usize,
+    /// Newton iterations over the run.
+    pub newton_iterations_total: usize,
+    /// Most Newton iterations in a step.
+    pub newton_iterations_max: usize,
+    /// Median wall time of a step, ms.
+    pub time_per_step_ms_median: f64,
+    /// The median step time per vertex, microseconds.
+    pub time_per_vertex_step_us_median: f64,
+    /// Most self-contact pairs within `dhat` at a Newton iterate's start, over the run.
+    pub self_contact_pairs_max: usize,
+    /// Pairs of triangles sharing no vertex that meet, summed over the states after
+    /// every step, by an exact check sharing no code with the solver (must be 0).
+    pub intersections: usize,
+    /// Smallest distance between a vertex and a triangle, or two edges, sharing no
+    /// vertex, among the pairs closer than `dhat` plus the thickness, over the states
+    /// after every step (`None` when no pair came that close).
+    pub min_self_distance: Option<f64>,
+    /// Smallest vertex-collider distance over the run (`None` without colliders).
+    pub min_distance: Option<f64>,
+    /// Vertex-collider pairs at distance <= 0 over the run (must be 0).
+    pub penetrations: usize,
+    /// The self-contact barrier stiffness at the end.
+    pub kappa: f64,
 }
 
 /// What a task's pictures need, by kind; `None` when the run kept no frames or the

@@ -36,6 +36,8 @@ pub enum Task {
     Cloth(tasks::cloth::ClothTask),
     /// Full-body IK: several effectors on a skeleton tree solved together over a clip.
     FullBody(tasks::full_body::FullBodyTask),
+    /// Triangle-mesh cloth (grid sheets or an OBJ mesh) with self-contact.
+    MeshCloth(tasks::mesh_cloth::MeshClothTask),
 }
 
 impl Task {
@@ -49,6 +51,7 @@ impl Task {
             Task::Curve(t) => &t.name,
             Task::Cloth(t) => &t.name,
             Task::FullBody(t) => &t.name,
+            Task::MeshCloth(t) => &t.name,
         }
     }
 
@@ -62,6 +65,7 @@ impl Task {
             Task::Curve(_) => "Curve",
             Task::Cloth(_) => "Cloth",
             Task::FullBody(_) => "FullBody",
+            Task::MeshCloth(_) => "MeshCloth",
         }
     }
 
@@ -74,6 +78,7 @@ impl Task {
             Task::Curve(t) => t,
             Task::Cloth(t) => t,
             Task::FullBody(t) => t,
+            Task::MeshCloth(t) => t,
         }
     }
 }
@@ -194,8 +199,10 @@ impl Scene {
         // Files a task reads are named relative to the scene file.
         let dir = path.parent().unwrap_or(Path::new(""));
         for task in &mut file.tasks {
-            if let Task::FullBody(t) = task {
-                t.base_dir = dir.to_path_buf();
+            match task {
+                Task::FullBody(t) => t.base_dir = dir.to_path_buf(),
+                Task::MeshCloth(t) => t.base_dir = dir.to_path_buf(),
+                _ => {}
             }
         }
         for task in &file.tasks {

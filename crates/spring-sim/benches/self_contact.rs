@@ -1,12 +1,13 @@
 //! Self-contact cost: a sheet dropped onto a sheet pinned along its border below it
 //! (both `n x n`, spacing 5 cm and 4 cm, the top one 2 cm up and turned by 0.1 rad;
 //! `dhat` 2 mm, thickness 1 mm, h = 1/60, backward Euler with the default Newton
-//! settings), stepped 45 times (the integrator widens its Hessian pattern after every
+//! settings), stepped 45 times by default (the integrator widens its Hessian pattern after every
 //! step by the pairs contact coupled without slots). Prints, per `n`, the wall time
 //! per step and per vertex per step, the Newton iterations, and the active pairs at the
 //! end. Not a criterion
 //! benchmark: a table for docs/contact.md, run with
-//! `cargo bench -p sinew-spring-sim --bench self_contact [-- n...]`.
+//! `cargo bench -p sinew-spring-sim --bench self_contact [-- n... [steps=N]]` (45 steps
+//! unless `steps=` says otherwise).
 
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
@@ -37,10 +38,13 @@ fn grid(
 }
 
 fn main() {
-    let sizes: Vec<usize> = std::env::args()
-        .skip(1)
-        .filter_map(|a| a.parse().ok())
-        .collect();
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let sizes: Vec<usize> = args.iter().filter_map(|a| a.parse().ok()).collect();
+    // `steps=N` shortens the run (large sheets take seconds per step).
+    let steps = args
+        .iter()
+        .find_map(|a| a.strip_prefix("steps=").and_then(|n| n.parse().ok()))
+        .unwrap_or(45);
     let sizes = if sizes.is_empty() { vec![7, 12] } else { sizes };
     println!(
         "| n | vertices | pairs given slots | steps | Newton iterations | active pairs (end) | ms per step | us per vertex per step |"
@@ -86,7 +90,6 @@ fn main() {
         };
         let stats = model.enable_self_contact(&mut be, settings).unwrap();
         let mut system = model.system.clone();
-        let steps = 45;
         let mut iterations = 0;
         let mut widened = 0;
         let start = Instant::now();

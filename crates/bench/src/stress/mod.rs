@@ -7,6 +7,9 @@
 //!   at Newton's cap far from converged are reported. Contact cases: a sheet thrown onto
 //!   the ground or a sphere at every stiffness, time step and drop speed; penetrations
 //!   (measured independently), NaN, divergence and unconverged steps.
+//! - [`self_contact`]: a free sheet thrown onto a pinned sheet, one mesh with
+//!   self-contact, at every stiffness, time step and drop speed; any pair of triangles
+//!   passing through each other (by an exact check independent of the solver) fails.
 //! - [`ik`]: the degenerate IK set for every solver, with the invariants every solve
 //!   must keep (no NaN, bone lengths, a truthful report, the geometric error bound).
 //! - [`body`]: the full-body degenerate set for every body solver configuration, with
@@ -18,4 +21,5 @@
 pub mod body;
 pub mod cloth;
 pub mod ik;
+pub mod self_contact;
 pub mod soak;

@@ -12,44 +12,14 @@
 //!
 //! The hash's cells are cubes of the mean largest extent of the triangles' boxes; each
 //! triangle (and each edge, in a second table) is listed in the cells its box touches,
-//! and each vertex (edge) box looks up the cells it touches. A box touching more than
+//! and each vertex (edge) box looks up the cells it touches. The table is flat (a
+//! counting sort of the boxes by their cells' buckets), so a rebuild allocates a few
+//! arrays, not a list per cell. A box touching more than
 //! [`MAX_CELLS`] cells (a primitive swept far) is kept in a short list tested against
 //! every query instead. The result is sorted and free of duplicates, and is exactly the
 //! set [`candidates_brute_force`] finds by testing every pair.
 
 use sinew_math::DVec3;
-use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
-
-/// A multiplicative hash of a cell's three integer coordinates. The keys are not chosen
-/// by an adversary, so the standard library's DoS-resistant hasher, which dominated the
-/// broad phase's cost, is not needed.
-#[derive(Default)]
-struct CellHasher(u64);
-
-impl Hasher for CellHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-    fn write(&mut self, bytes: &[u8]) {
-        for chunk in bytes.chunks(8) {
-            let mut word = [0u8; 8];
-            word[..chunk.len()].copy_from_slice(chunk);
-            self.write_u64(u64::from_le_bytes(word));
-        }
-    }
-    fn write_i64(&mut self, i: i64) {
-        self.write_u64(i as u64);
-    }
-    fn write_u64(&mut self, i: u64) {
-        self.0 = (self.0.rotate_left(5) ^ i).wrapping_mul(0x517c_c1b7_2722_0a95);
-    }
-    fn write_usize(&mut self, i: usize) {
-        self.write_u64(i as u64);
-    }
-}
-
-type CellMap = HashMap<[i64; 3], Vec<usize>, BuildHasherDefault<CellHasher>>;
 
 /// A box touching more cells than this is not hashed (see the module documentation).
 pub const MAX_CELLS: usize = 512;
@@ -172,65 +142,115 @@ impl Boxes {
     }
 }
 
-/// A uniform hash of boxes (see the module documentation).
+/// A uniform hash of boxes (see the module documentation), stored flat: the cells are
+/// hashed into a power-of-two table of buckets, and the boxes' indices are laid out bucket
+/// after bucket by a counting sort (`start[k]..start[k + 1]` of `items` is bucket `k`).
+/// Building it costs a few allocations rather than one per cell, which the hash map it
+/// replaces spent most of its time on. Two cells may share a bucket; the queries then see
+/// a few boxes from the other cell, which the exact overlap test of every candidate
+/// removes.
 struct Grid {
     cell: f64,
-    cells: CellMap,
+    /// `64 - log2(buckets)`: the top bits of the multiplied key pick the bucket.
+    shift: u32,
+    start: Vec<usize>,
+    items: Vec<usize>,
     large: Vec<usize>,
 }
 
-impl Grid {
-    fn range(&self, b: &Aabb) -> Option<([i64; 3], [i64; 3])> {
-        let lo = (b.min / self.cell).floor();
-        let hi = (b.max / self.cell).floor();
-        let count = (hi - lo + DVec3::ONE).max(DVec3::ZERO);
-        // A box whose cell range is not finite or too large is not hashed.
-        if !(lo.is_finite() && hi.is_finite()) || count.x * count.y * count.z > MAX_CELLS as f64 {
-            return None;
-        }
-        Some((
-            [lo.x as i64, lo.y as i64, lo.z as i64],
-            [hi.x as i64, hi.y as i64, hi.z as i64],
-        ))
-    }
+/// A cell's bucket: the coordinates mixed by large odd multipliers and the product's top
+/// bits kept (Fibonacci hashing), which spreads neighbouring cells over the table.
+fn bucket_of(c: [i64; 3], shift: u32) -> usize {
+    let h = (c[0] as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+        ^ (c[1] as u64).wrapping_mul(0xc2b2_ae3d_27d4_eb4f)
+        ^ (c[2] as u64).wrapping_mul(0x1656_67b1_9e37_79f9);
+    (h.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> shift) as usize
+}
 
-    fn new(boxes: &[Aabb], cell: f64) -> Self {
-        let mut grid = Self {
-            cell,
-            cells: CellMap::default(),
-            large: Vec::new(),
-        };
-        for (i, b) in boxes.iter().enumerate() {
-            match grid.range(b) {
-                Some((lo, hi)) => {
-                    for cx in lo[0]..=hi[0] {
-                        for cy in lo[1]..=hi[1] {
-                            for cz in lo[2]..=hi[2] {
-                                grid.cells.entry([cx, cy, cz]).or_default().push(i);
-                            }
-                        }
-                    }
-                }
-                None => grid.large.push(i),
+/// Calls `visit` with every cell of the inclusive range `lo..=hi`.
+fn for_cells(lo: [i64; 3], hi: [i64; 3], mut visit: impl FnMut([i64; 3])) {
+    for cx in lo[0]..=hi[0] {
+        for cy in lo[1]..=hi[1] {
+            for cz in lo[2]..=hi[2] {
+                visit([cx, cy, cz]);
             }
         }
-        grid
+    }
+}
+
+fn cell_range(cell: f64, b: &Aabb) -> Option<([i64; 3], [i64; 3])> {
+    let lo = (b.min / cell).floor();
+    let hi = (b.max / cell).floor();
+    let count = (hi - lo + DVec3::ONE).max(DVec3::ZERO);
+    // A box whose cell range is not finite or too large is not hashed.
+    if !(lo.is_finite() && hi.is_finite()) || count.x * count.y * count.z > MAX_CELLS as f64 {
+        return None;
+    }
+    Some((
+        [lo.x as i64, lo.y as i64, lo.z as i64],
+        [hi.x as i64, hi.y as i64, hi.z as i64],
+    ))
+}
+
+impl Grid {
+    fn new(boxes: &[Aabb], cell: f64) -> Self {
+        let ranges: Vec<Option<([i64; 3], [i64; 3])>> =
+            boxes.iter().map(|b| cell_range(cell, b)).collect();
+        let entries: usize = ranges
+            .iter()
+            .flatten()
+            .map(|(lo, hi)| {
+                (0..3)
+                    .map(|k| (hi[k] - lo[k] + 1) as usize)
+                    .product::<usize>()
+            })
+            .sum();
+        // About two buckets per entry keeps the collisions rare.
+        let buckets = (2 * entries).next_power_of_two().max(2);
+        let shift = 64 - buckets.trailing_zeros();
+        let mut start = vec![0usize; buckets + 1];
+        let mut large = Vec::new();
+        for (i, range) in ranges.iter().enumerate() {
+            match range {
+                Some((lo, hi)) => for_cells(*lo, *hi, |c| start[bucket_of(c, shift) + 1] += 1),
+                None => large.push(i),
+            }
+        }
+        for k in 0..buckets {
+            start[k + 1] += start[k];
+        }
+        let mut fill = start.clone();
+        let mut items = vec![0usize; entries];
+        for (i, range) in ranges.iter().enumerate() {
+            if let Some((lo, hi)) = range {
+                for_cells(*lo, *hi, |c| {
+                    let k = bucket_of(c, shift);
+                    items[fill[k]] = i;
+                    fill[k] += 1;
+                });
+            }
+        }
+        Self {
+            cell,
+            shift,
+            start,
+            items,
+            large,
+        }
     }
 
-    /// Calls `found` with every hashed box index sharing a cell with `b` (possibly more
-    /// than once) and every large one; a query box too large to hash visits all `count`.
+    /// Calls `found` with every hashed box index sharing a bucket with a cell of `b`
+    /// (possibly more than once) and every large one; a query box too large to hash
+    /// visits all `count`.
     fn query(&self, b: &Aabb, count: usize, mut found: impl FnMut(usize)) {
-        match self.range(b) {
+        match cell_range(self.cell, b) {
             Some((lo, hi)) => {
-                for cx in lo[0]..=hi[0] {
-                    for cy in lo[1]..=hi[1] {
-                        for cz in lo[2]..=hi[2] {
-                            if let Some(list) = self.cells.get(&[cx, cy, cz]) {
-                                list.iter().for_each(|&i| found(i));
-                            }
-                        }
-                    }
-                }
+                for_cells(lo, hi, |c| {
+                    let k = bucket_of(c, self.shift);
+                    self.items[self.start[k]..self.start[k + 1]]
+                        .iter()
+                        .for_each(|&i| found(i));
+                });
                 self.large.iter().for_each(|&i| found(i));
             }
             None => (0..count).for_each(found),
@@ -267,36 +287,33 @@ pub fn candidates(
     };
     let mut out = Vec::new();
     let triangles = Grid::new(&boxes.triangle, cell);
-    let mut found = Vec::new();
+    // A box is met once per shared cell (and per bucket collision); `seen[i]` holds the
+    // last query that met box `i`, so each pair is tested once without sorting the hits.
+    let mut seen = vec![usize::MAX; prims.triangles.len().max(prims.edges.len())];
     for &v in &prims.vertices {
-        found.clear();
-        triangles.query(&boxes.vertex[v], prims.triangles.len(), |t| found.push(t));
-        found.sort_unstable();
-        found.dedup();
-        for &t in &found {
-            if point_triangle_kept(prims, &boxes, skip, v, t) {
-                out.push(Candidate::PointTriangle {
-                    vertex: v,
-                    triangle: t,
-                });
-            }
-        }
-    }
-    let edges = Grid::new(&boxes.edge, cell);
-    for a in 0..prims.edges.len() {
-        found.clear();
-        edges.query(&boxes.edge[a], prims.edges.len(), |b| {
-            if b > a {
-                found.push(b);
+        triangles.query(&boxes.vertex[v], prims.triangles.len(), |t| {
+            if seen[t] != v {
+                seen[t] = v;
+                if point_triangle_kept(prims, &boxes, skip, v, t) {
+                    out.push(Candidate::PointTriangle {
+                        vertex: v,
+                        triangle: t,
+                    });
+                }
             }
         });
-        found.sort_unstable();
-        found.dedup();
-        for &b in &found {
-            if edge_edge_kept(prims, &boxes, skip, a, b) {
-                out.push(Candidate::EdgeEdge { a, b });
+    }
+    let edges = Grid::new(&boxes.edge, cell);
+    seen.fill(usize::MAX);
+    for a in 0..prims.edges.len() {
+        edges.query(&boxes.edge[a], prims.edges.len(), |b| {
+            if b > a && seen[b] != a {
+                seen[b] = a;
+                if edge_edge_kept(prims, &boxes, skip, a, b) {
+                    out.push(Candidate::EdgeEdge { a, b });
+                }
             }
-        }
+        });
     }
     out.sort_unstable();
     out

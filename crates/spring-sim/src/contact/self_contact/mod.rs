@@ -9,6 +9,8 @@
 //!   differentiated with.
 //! - [`distance`]: point-triangle and edge-edge squared distances, their regions, exact
 //!   gradients and Hessians, and the mollifier for nearly parallel edges.
+//! - [`closed`]: the closed-form gradient and Hessian of the squared distances, and the
+//!   projection of the barrier's Hessian in the few dimensions it spans (the hot path).
 //! - [`broad`]: the broad phase, a spatial hash over the primitives' (swept) boxes.
 //! - [`ccd`]: additive continuous collision detection over a linear step.
 //! - [`psd12`]: the positive semidefinite projection of a pair's 12x12 Hessian.
@@ -19,6 +21,7 @@
 
 pub mod broad;
 pub mod ccd;
+pub mod closed;
 pub mod distance;
 pub mod dual;
 pub mod psd12;
@@ -26,6 +29,7 @@ pub mod term;
 
 pub use broad::{Candidate, Primitives, candidates};
 pub use ccd::additive_ccd;
+pub use closed::RegionForm;
 pub use distance::{Closest, PairKind, squared_distance, squared_distance_derivatives};
 pub use dual::Dual12;
 pub use term::{SelfContactSettings, SelfContactStats, SelfContactTerm, enable_self_contact};

@@ -5,6 +5,11 @@
 //! Jacobi is chosen for the same reason as for the 3x3 blocks ([`crate::contact::psd`]):
 //! it is accurate for repeated and nearly repeated eigenvalues, which a pair's Hessian
 //! has (most of its twelve eigenvalues are zero), and it needs no library.
+//!
+//! The rotations are written once for any size ([`symmetric_eigen_n`]): the closed-form
+//! path ([`super::closed`]) decomposes a pair's Hessian in the at most five dimensions it
+//! spans, and the full 12x12 decomposition remains for mollified edge pairs and as the
+//! test oracle.
 
 use super::dual::VARIABLES;
 
@@ -24,14 +29,30 @@ pub fn symmetric_eigen12(m: &Mat12) -> ([f64; VARIABLES], Mat12) {
     symmetric_eigen_on(m, &all)
 }
 
+/// The eigenvalues and eigenvectors (the columns of the returned matrix) of the symmetric
+/// part of the leading `n x n` block of `m` (`n <= N`; the entries beyond it are
+/// returned as zero).
+#[must_use]
+pub fn symmetric_eigen_n<const N: usize>(m: &[[f64; N]; N], n: usize) -> ([f64; N], [[f64; N]; N]) {
+    let n = n.min(N);
+    let mut index = [0usize; N];
+    for (i, slot) in index.iter_mut().enumerate() {
+        *slot = i;
+    }
+    symmetric_eigen_on(m, &index[..n])
+}
+
 /// The eigen-decomposition of the principal submatrix of `m` on the rows and columns
 /// `index` (the first `index.len()` eigenvalues and eigenvector columns of the result;
 /// eigenvector `k`'s entry for `index[i]` is at row `i`).
 // Index loops over rows and columns read as the matrix formulas they implement.
 #[allow(clippy::needless_range_loop)]
-fn symmetric_eigen_on(m: &Mat12, index: &[usize]) -> ([f64; VARIABLES], Mat12) {
+fn symmetric_eigen_on<const N: usize>(
+    m: &[[f64; N]; N],
+    index: &[usize],
+) -> ([f64; N], [[f64; N]; N]) {
     let n = index.len();
-    let mut a = [[0.0; VARIABLES]; VARIABLES];
+    let mut a = [[0.0; N]; N];
     for i in 0..n {
         for j in 0..=i {
             let s = 0.5 * (m[index[i]][index[j]] + m[index[j]][index[i]]);
@@ -39,7 +60,7 @@ fn symmetric_eigen_on(m: &Mat12, index: &[usize]) -> ([f64; VARIABLES], Mat12) {
             a[j][i] = s;
         }
     }
-    let mut v = [[0.0; VARIABLES]; VARIABLES];
+    let mut v = [[0.0; N]; N];
     for i in 0..n {
         v[i][i] = 1.0;
     }

@@ -35,6 +35,7 @@
 
 use super::broad::{Candidate, Primitives, candidates};
 use super::ccd::additive_ccd;
+use super::closed::RegionForm;
 use super::distance::{
     PairKind, mollifier, mollifier_derivatives, squared_distance, squared_distance_derivatives,
 };
@@ -363,8 +364,20 @@ impl SelfContactTerm {
 
     /// A pair's energy gradient and projected Hessian in the pair's twelve coordinates
     /// (`None` when the pair is beyond `dhat` or not admissible).
+    ///
+    /// Pairs without a mollifier (every vertex-triangle pair, and edge pairs far from
+    /// parallel, where the mollifier is identically 1) take the closed form of
+    /// [`RegionForm`]; mollified edge pairs, and the degenerate pairs the closed form
+    /// declines, take the dual numbers and the full 12x12 projection.
     fn pair_derivatives(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> Option<PairDerivatives> {
         let (kind, v) = self.pair(c);
+        let p = v.map(|i| x[i]);
+        let mollified = self
+            .mollifier_threshold(c)
+            .is_some_and(|eps| mollifier(&p, eps) < 1.0);
+        if !mollified && let Some(d) = self.pair_derivatives_closed(kappa, kind, v, &p) {
+            return d;
+        }
         let e = self.pair_energy_dual(kappa, c, x)?;
         Some(PairDerivatives {
             kind,
@@ -372,6 +385,43 @@ impl SelfContactTerm {
             gradient: e.gradient,
             hessian: project_psd12(&e.hessian),
         })
+    }
+
+    /// The closed-form derivatives of an unmollified pair: `Some(None)` when the pair is
+    /// beyond `dhat` or not admissible, `None` when the closed form declines a degenerate
+    /// pair. With `E(s) = kappa b(sqrt(s) - xi)`, `E' = kappa b' / (2 d)` and
+    /// `E'' = kappa (b'' / (4 s) - b' / (4 s d))`, `d = sqrt(s)`.
+    #[allow(clippy::option_option)]
+    fn pair_derivatives_closed(
+        &self,
+        kappa: f64,
+        kind: PairKind,
+        particles: [usize; 4],
+        p: &[DVec3; 4],
+    ) -> Option<Option<PairDerivatives>> {
+        let form = RegionForm::of(kind, p);
+        let s = form.value();
+        if s.is_nan() || s <= 0.0 {
+            return Some(None);
+        }
+        let d = s.sqrt();
+        let (g, dhat) = (d - self.settings.thickness, self.settings.dhat);
+        if g.is_nan() || g <= 0.0 || g >= dhat {
+            return Some(None);
+        }
+        let (b1, b2) = (
+            barrier_first_derivative(g, dhat),
+            barrier_second_derivative(g, dhat),
+        );
+        let first = kappa * b1 / (2.0 * d);
+        let second = kappa * (b2 / (4.0 * s) - b1 / (4.0 * s * d));
+        let hessian = form.projected_hessian(first, second)?;
+        Some(Some(PairDerivatives {
+            kind,
+            particles,
+            gradient: form.gradient().map(|v| first * v),
+            hessian,
+        }))
     }
 
     /// A pair's energy with its exact gradient and Hessian in the pair's twelve

@@ -1,0 +1,474 @@
+//! The `MeshCloth` task: one or more triangle-mesh sheets (square grids placed in space,
+//! or a mesh read from an OBJ file) built as one cloth, stepped by backward Euler with
+//! self-contact (the IPC barrier between the cloth's own vertices, triangles and edges,
+//! the line search capped by continuous collision detection) and, optionally, rigid
+//! colliders. After every step the mesh is checked for triangles passing through each
+//! other by the exact check of [`crate::intersect`], which shares no code with the
+//! solver; any intersection fails the task.
+
+use super::{RunContext, TaskOutput, TaskSpec};
+use crate::intersect::intersecting_pairs;
+use crate::limits::{MAX_ITERATIONS, MAX_PARTICLE_STEPS, MAX_PARTICLES, MAX_STEPS, at_most};
+use crate::results::{ClothFrame, ClothPictures, Csv, MeshClothMetrics, Pictures, TaskMetrics};
+use serde::Deserialize;
+use sinew_math::DVec3;
+use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
+use sinew_spring_sim::contact::self_contact::{
+    Candidate, Primitives, SelfContactSettings, candidates,
+};
+use sinew_spring_sim::contact::{
+    Collider, ContactPotential, ContactSettings, ContactTerm, signed_distance,
+};
+use sinew_spring_sim::{Bending, ClothGrid, Material, MeshCloth, NewtonSettings, TriangleMesh};
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Scene fields of a `MeshCloth` task.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshClothTask {
+    /// Unique name in the scene.
+    pub name: String,
+    /// The sheets, built as one cloth (vertex indices run sheet after sheet).
+    pub sheets: Vec<SheetSpec>,
+    /// Mass per area, kg/m^2, lumped to the vertices (default 0.2).
+    #[serde(default = "areal_density")]
+    pub areal_density: f64,
+    /// Stiffness of every edge spring, damping, gravity.
+    #[serde(default)]
+    pub material: Material,
+    /// Bending (default none).
+    #[serde(default)]
+    pub bending: Option<Bending>,
+    /// Time step, s.
+    pub dt: f64,
+    /// Number of steps.
+    pub steps: usize,
+    /// Newton's iteration cap per step (default 100).
+    #[serde(default = "max_iterations")]
+    pub max_iterations: usize,
+    /// Self-contact settings (`dhat`, thickness, ...; defaults: sinew-spring-sim's).
+    #[serde(default)]
+    pub self_contact: SelfContactSettings,
+    /// Rigid colliders (default none).
+    #[serde(default)]
+    pub colliders: Vec<Collider>,
+    /// Collider contact settings (defaults: sinew-spring-sim's).
+    #[serde(default)]
+    pub contact: ContactSettings,
+    /// The directory OBJ paths are relative to (the scene file's; set by the reader).
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+}
+
+fn areal_density() -> f64 {
+    0.2
+}
+
+fn max_iterations() -> usize {
+    100
+}
+
+fn x_axis() -> DVec3 {
+    DVec3::X
+}
+
+fn z_axis() -> DVec3 {
+    DVec3::Z
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// One sheet of a `MeshCloth` task.
+#[derive(Debug, Deserialize)]
+pub enum SheetSpec {
+    /// A `size x size` square grid: vertex `(i, j)` (index `i size + j`) at
+    /// `origin + spacing (i u + j w)`, two triangles per cell.
+    Grid {
+        /// Vertices per side.
+        size: usize,
+        /// Distance between neighbouring vertices, m.
+        spacing: f64,
+        /// The position of vertex `(0, 0)`.
+        origin: DVec3,
+        /// The direction of `i` (default +x).
+        #[serde(default = "x_axis")]
+        u: DVec3,
+        /// The direction of `j` (default +z).
+        #[serde(default = "z_axis")]
+        w: DVec3,
+        /// Pin every vertex of the border.
+        #[serde(default)]
+        pin_border: bool,
+        /// Initial velocity of every vertex, m/s.
+        #[serde(default)]
+        velocity: DVec3,
+    },
+    /// A triangle mesh from an OBJ file (quads and polygons fanned into triangles),
+    /// scaled by `scale` about the origin, then moved by `offset`.
+    Obj {
+        /// The file, relative to the scene file.
+        path: String,
+        /// Scale factor (default 1).
+        #[serde(default = "one")]
+        scale: f64,
+        /// Translation, m.
+        #[serde(default)]
+        offset: DVec3,
+        /// Vertices to pin (indices in the file's order).
+        #[serde(default)]
+        fixed: Vec<usize>,
+        /// Initial velocity of every vertex, m/s.
+        #[serde(default)]
+        velocity: DVec3,
+    },
+}
+
+/// The assembled cloth: positions, triangles, pinned vertices, initial velocities.
+struct Assembled {
+    positions: Vec<DVec3>,
+    triangles: Vec<[usize; 3]>,
+    fixed: Vec<usize>,
+    velocities: Vec<DVec3>,
+}
+
+impl MeshClothTask {
+    fn assemble(&self) -> Result<Assembled, String> {
+        let mut a = Assembled {
+            positions: Vec::new(),
+            triangles: Vec::new(),
+            fixed: Vec::new(),
+            velocities: Vec::new(),
+        };
+        if self.sheets.is_empty() {
+            return Err("sheets: at least one sheet is needed".into());
+        }
+        for (k, sheet) in self.sheets.iter().enumerate() {
+            let offset = a.positions.len();
+            match sheet {
+                SheetSpec::Grid {
+                    size,
+                    spacing,
+                    origin,
+                    u,
+                    w,
+                    pin_border,
+                    velocity,
+                } => {
+                    let n = *size;
+                    if n < 2 {
+                        return Err(format!("sheets[{k}]: size = {n}, must be at least 2"));
+                    }
+                    at_most(&format!("sheets[{k}]: size"), n * n, MAX_PARTICLES)?;
+                    if !(spacing.is_finite() && *spacing > 0.0) {
+                        return Err(format!(
+                            "sheets[{k}]: spacing = {spacing}, must be finite and > 0"
+                        ));
+                    }
+                    for i in 0..n {
+                        for j in 0..n {
+                            a.positions
+                                .push(*origin + *spacing * (i as f64 * *u + j as f64 * *w));
+                            a.velocities.push(*velocity);
+                            let border = i == 0 || j == 0 || i == n - 1 || j == n - 1;
+                            if *pin_border && border {
+                                a.fixed.push(offset + i * n + j);
+                            }
+                        }
+                    }
+                    let grid = ClothGrid {
+                        size: n,
+                        ..ClothGrid::lab()
+                    };
+                    a.triangles
+                        .extend(grid.triangles().into_iter().map(|t| t.map(|v| v + offset)));
+                }
+                SheetSpec::Obj {
+                    path,
+                    scale,
+                    offset: shift,
+                    fixed,
+                    velocity,
+                } => {
+                    let file = self.base_dir.join(path);
+                    let text = std::fs::read_to_string(&file)
+                        .map_err(|e| format!("sheets[{k}]: {}: {e}", file.display()))?;
+                    let mesh = sinew_io::obj::parse_obj(&text)
+                        .map_err(|e| format!("sheets[{k}]: {}: {e}", file.display()))?;
+                    let len = mesh.positions.len();
+                    if let Some(&v) = fixed.iter().find(|&&v| v >= len) {
+                        return Err(format!(
+                            "sheets[{k}]: fixed vertex {v} does not exist (the mesh has {len})"
+                        ));
+                    }
+                    a.positions
+                        .extend(mesh.positions.iter().map(|p| *scale * *p + *shift));
+                    a.velocities.extend(std::iter::repeat_n(*velocity, len));
+                    a.fixed.extend(fixed.iter().map(|v| v + offset));
+                    a.triangles
+                        .extend(mesh.triangles.iter().map(|t| t.map(|v| v + offset)));
+                }
+            }
+        }
+        at_most("sheets: vertices", a.positions.len(), MAX_PARTICLES)?;
+        Ok(a)
+    }
+
+    fn check(&self) -> Result<Assembled, String> {
+        let a = self.assemble()?;
+        at_most("steps", self.steps, MAX_STEPS)?;
+        at_most("max_iterations", self.max_iterations, MAX_ITERATIONS)?;
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            return Err(format!("dt = {}, must be finite and > 0", self.dt));
+        }
+        let work = a.positions.len() as f64 * self.steps as f64 * self.max_iterations as f64;
+        if work > MAX_PARTICLE_STEPS {
+            return Err(format!(
+                "steps = {} of {} vertices at up to {} Newton iterations asks for {work:.2e} \
+                 particle steps, above the limit of {MAX_PARTICLE_STEPS:.0e} (docs/scenes.md, \
+                 \"Limits\")",
+                self.steps,
+                a.positions.len(),
+                self.max_iterations
+            ));
+        }
+        self.self_contact
+            .validate()
+            .map_err(|e| format!("self_contact: {e}"))?;
+        Ok(a)
+    }
+}
+
+/// The smallest distance among the vertex-triangle and edge-edge pairs (sharing no
+/// vertex) closer than `reach`, if any.
+fn min_pair_distance(prims: &Primitives, x: &[DVec3], reach: f64, skip: &[bool]) -> Option<f64> {
+    candidates(prims, x, None, reach, skip)
+        .into_iter()
+        .map(|c| {
+            let v = match c {
+                Candidate::PointTriangle { vertex, triangle } => {
+                    let [a, b, t] = prims.triangles[triangle];
+                    (PairKind::PointTriangle, [vertex, a, b, t])
+                }
+                Candidate::EdgeEdge { a, b } => {
+                    let (ea, eb) = (prims.edges[a], prims.edges[b]);
+                    (PairKind::EdgeEdge, [ea[0], ea[1], eb[0], eb[1]])
+                }
+            };
+            squared_distance(v.0, &v.1.map(|i| x[i])).sqrt()
+        })
+        .filter(|&d| d < reach)
+        .reduce(f64::min)
+}
+
+/// The most frames a picture animates.
+const MAX_FRAMES: usize = 100;
+
+impl TaskSpec for MeshClothTask {
+    fn validate(&self) -> Result<(), String> {
+        let a = self.check()?;
+        TriangleMesh::new(a.positions, a.triangles).map_err(|e| format!("sheets: {e}"))?;
+        Ok(())
+    }
+
+    // One run loop: building, stepping, the independent checks and the pictures read
+    // best in order.
+    #[allow(clippy::too_many_lines)]
+    fn run(&self, ctx: &RunContext) -> Result<TaskOutput, String> {
+        let a = self.check()?;
+        let triangles = a.triangles.clone();
+        let mesh =
+            TriangleMesh::new(a.positions, a.triangles).map_err(|e| format!("sheets: {e}"))?;
+        let model = MeshCloth {
+            areal_density: self.areal_density,
+            material: self.material,
+            bending: self.bending.unwrap_or(Bending::None),
+            fixed: a.fixed,
+        }
+        .build(&mesh)
+        .map_err(|e| format!("cloth: {e}"))?;
+        let newton = NewtonSettings {
+            max_iterations: self.max_iterations,
+            ..NewtonSettings::default()
+        };
+        let mut integrator = model
+            .backward_euler(newton)
+            .map_err(|e| format!("integrator: {e}"))?;
+        if !self.colliders.is_empty() {
+            let potential = ContactPotential::new(self.colliders.clone(), self.contact, 0.0)
+                .map_err(|e| format!("contact: {e}"))?;
+            integrator.add_term(Box::new(ContactTerm::new(potential)));
+        }
+        let stats = model
+            .enable_self_contact(&mut integrator, self.self_contact)
+            .map_err(|e| format!("self_contact: {e}"))?;
+        let mut system = model.system.clone();
+        let start = system.positions().to_vec();
+        system
+            .set_state(&start, &a.velocities)
+            .map_err(|e| format!("initial state: {e}"))?;
+        let prims = Primitives::new(&triangles);
+        let reach = self.self_contact.dhat + self.self_contact.thickness;
+        let no_skip = vec![false; system.len()];
+        let springs: Vec<(usize, usize, f64)> = system
+            .springs()
+            .iter()
+            .map(|s| (s.a, s.b, s.rest_length))
+            .collect();
+        let fixed: Vec<usize> = (0..system.len()).filter(|&i| system.fixed()[i]).collect();
+        let frame_every = self.steps.div_ceil(MAX_FRAMES).max(1);
+        let mut frames: Vec<ClothFrame> = Vec::new();
+        let mut frame_steps: Vec<usize> = Vec::new();
+        let shapes = |t: f64| -> Vec<_> { self.colliders.iter().map(|c| c.at(t)).collect() };
+        if ctx.keep_frames {
+            frames.push(ClothFrame {
+                positions: system.positions().to_vec(),
+                colliders: shapes(0.0),
+            });
+            frame_steps.push(0);
+        }
+        let mut csv = String::from(
+            "step,time,iterations,residual,self_contact_pairs,min_gap,intersections\n",
+        );
+        let mut energy = vec![(0.0, system.energies().total())];
+        let mut iteration_series = Vec::with_capacity(self.steps);
+        let mut step_ms = Vec::with_capacity(self.steps);
+        let (mut iterations_total, mut iterations_max) = (0usize, 0usize);
+        let mut pairs_max = 0usize;
+        let mut intersections = 0usize;
+        let mut first_intersection: Option<(usize, (usize, usize))> = None;
+        let mut min_self_distance: Option<f64> = None;
+        let mut min_collider_distance: Option<f64> = None;
+        let mut penetrations = 0usize;
+        let mut progress = ctx.progress(&self.name, self.steps);
+        for step in 0..self.steps {
+            let started = Instant::now();
+            let report = integrator
+                .step(&mut system, self.dt)
+                .map_err(|e| format!("step {step}: {e}"))?;
+            step_ms.push(1e3 * started.elapsed().as_secs_f64());
+            progress.inc();
+            iterations_total += report.iterations;
+            iterations_max = iterations_max.max(report.iterations);
+            pairs_max = pairs_max.max(stats.active_pairs());
+            let x = system.positions();
+            if x.iter().any(|p| !p.is_finite()) {
+                return Err(format!("step {step}: a non-finite position"));
+            }
+            let meeting = intersecting_pairs(x, &triangles);
+            if let Some(&pair) = meeting.first() {
+                first_intersection.get_or_insert((step, pair));
+            }
+            intersections += meeting.len();
+            if let Some(d) = min_pair_distance(&prims, x, reach, &no_skip) {
+                min_self_distance = Some(min_self_distance.map_or(d, |m: f64| m.min(d)));
+            }
+            let time = (step + 1) as f64 * self.dt;
+            for c in &self.colliders {
+                let shape = c.at(time);
+                for (p, pinned) in x.iter().zip(system.fixed()) {
+                    if *pinned {
+                        continue;
+                    }
+                    let d = signed_distance(&shape, *p, self.contact.thickness).distance;
+                    min_collider_distance =
+                        Some(min_collider_distance.map_or(d, |m: f64| m.min(d)));
+                    penetrations += usize::from(d <= 0.0);
+                }
+            }
+            csv.push_str(&format!(
+                "{},{time},{},{},{},{},{}\n",
+                step + 1,
+                report.iterations,
+                report.residual,
+                stats.active_pairs(),
+                stats.min_gap(),
+                meeting.len()
+            ));
+            energy.push((time, report.energy_after.total()));
+            iteration_series.push((time, report.iterations as f64));
+            if ctx.keep_frames && ((step + 1) % frame_every == 0 || step + 1 == self.steps) {
+                frames.push(ClothFrame {
+                    positions: x.to_vec(),
+                    colliders: shapes(time),
+                });
+                frame_steps.push(step + 1);
+            }
+        }
+        drop(progress);
+        let vertices = system.len();
+        let median = {
+            let mut sorted = step_ms.clone();
+            sorted.sort_by(f64::total_cmp);
+            if sorted.is_empty() {
+                0.0
+            } else {
+                sorted[sorted.len() / 2]
+            }
+        };
+        let mut failures = Vec::new();
+        if let Some((step, (p, q))) = first_intersection {
+            failures.push(format!(
+                "{intersections} triangle pair(s) passing through each other over the run (first: triangles {p} and {q} after step {})",
+                step + 1
+            ));
+        }
+        if penetrations > 0 {
+            failures.push(format!(
+                "{penetrations} vertex-collider pairs at distance <= 0 over the run"
+            ));
+        }
+        let metrics = MeshClothMetrics {
+            vertices,
+            triangles: triangles.len(),
+            steps: self.steps,
+            newton_iterations_total: iterations_total,
+            newton_iterations_max: iterations_max,
+            time_per_step_ms_median: median,
+            time_per_vertex_step_us_median: 1e3 * median / vertices as f64,
+            self_contact_pairs_max: pairs_max,
+            intersections,
+            min_self_distance,
+            min_distance: min_collider_distance,
+            penetrations,
+            kappa: stats.kappa(),
+        };
+        let headline = format!(
+            "{} vertices, {} steps: {} Newton iterations (max {}), {} self-contact pairs at most, {} intersections, {:.1} ms/step",
+            vertices,
+            self.steps,
+            iterations_total,
+            iterations_max,
+            pairs_max,
+            intersections,
+            median
+        );
+        let pictures = if ctx.keep_frames {
+            Pictures::Cloth(ClothPictures {
+                integrator: "backward Euler with self-contact".into(),
+                springs,
+                fixed,
+                track: frames.clone(),
+                track_steps: frame_steps,
+                frames,
+                dt: self.dt,
+                energy,
+                iterations: iteration_series,
+            })
+        } else {
+            Pictures::None
+        };
+        Ok(TaskOutput {
+            metrics: TaskMetrics::MeshCloth(metrics),
+            headline,
+            failures,
+            table: Csv {
+                suffix: "steps.csv",
+                text: csv,
+            },
+            pictures,
+        })
+    }
+}

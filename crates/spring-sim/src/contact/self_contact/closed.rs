@@ -1,0 +1,309 @@
+//! Closed-form gradient and Hessian of a pair's squared distance, and the positive
+//! semidefinite projection of a function of it done in the few dimensions its Hessian
+//! spans. This is the hot path of [`super::SelfContactTerm`]; the dual numbers of
+//! [`super::dual`] stay as the test oracle and for mollified edge pairs.
+//!
+//! In every region the closest points are an affine function of at most two free
+//! parameters `w` (the point-edge parameter, the triangle's barycentric pair, the two edge
+//! parameters), and the vector between them is `r = sum_k c_k(w) x_k` with weights `c`
+//! affine in `w`. The region's squared distance is `s(x) = min_w |r(x, w)|^2`, the
+//! minimum taken over the whole affine hull, so at the minimizer the derivative in `w`
+//! vanishes and (the envelope theorem, then implicit differentiation of that condition)
+//!
+//! - `grad s = 2 c (x) r` (vertex `k`'s block is `2 c_k r`);
+//! - `hess s = 2 (c c^T) (x) I_3 - J^T M^-1 J`, where `M = 2 E^T E` with `E`'s columns
+//!   `e_j = dr/dw_j`, and row `j` of `J` has vertex block `2 (a_jk r + c_k e_j)`,
+//!   `a_j = dc/dw_j`.
+//!
+//! A function `phi(s)` (the barrier of the distance minus the thickness) then has the
+//! Hessian `phi'' grad s grad s^T + phi' hess s`, which lies in the span of the three
+//! vectors `c (x) e_i` and the `m` vectors `a_j (x) r` (`m` free parameters): at most five
+//! dimensions. With an orthonormal basis `B` of that span (the normalized `c (x) e_i`,
+//! and `b_l (x) r / |r|` with `b_l` the Gram-Schmidt orthonormalization of the `a_j`
+//! against `c`) the Hessian is `B K B^T` with `K` at most 5x5, and its projection onto
+//! positive semidefinite matrices is `B K_+ B^T`: eigenvalues of a matrix are those of
+//! `K` plus zeros. Derivation in full: docs/contact.md.
+
+use super::distance::{Closest, PairKind};
+use super::psd12::{Mat12, symmetric_eigen_n};
+use sinew_math::DVec3;
+
+/// The largest dimension of the span of a pair's barrier Hessian: three for the
+/// direction between the closest points and its two normals, two for the free parameters.
+const SPAN: usize = 5;
+
+/// A pair's squared distance in one region in the affine form of the module
+/// documentation: `r = sum_k c_k x_k`, with `m` free parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RegionForm {
+    /// The vector between the closest points, `r = sum_k c_k x_k`.
+    pub r: DVec3,
+    /// The weights `c` of the pair's four vertices (zero for a vertex the region does not
+    /// involve).
+    pub c: [f64; 4],
+    /// `a_j = dc / dw_j` for the `m` free parameters.
+    pub a: [[f64; 4]; 2],
+    /// `e_j = dr / dw_j = sum_k a_jk x_k`.
+    pub e: [DVec3; 2],
+    /// The number of free parameters (0 to 2).
+    pub m: usize,
+}
+
+impl RegionForm {
+    /// The form of the pair `v` in region `closest`. The vector `r` of the point-plane and
+    /// line-line regions is computed along the normal, `((x_0 - a) . n / |n|^2) n`, so
+    /// its direction does not carry the round-off of the in-plane parameters.
+    #[must_use]
+    pub fn new(v: &[DVec3; 4], closest: Closest) -> Self {
+        let mut f = Self {
+            r: DVec3::ZERO,
+            c: [0.0; 4],
+            a: [[0.0; 4]; 2],
+            e: [DVec3::ZERO; 2],
+            m: 0,
+        };
+        match closest {
+            Closest::PointPoint([i, j]) => {
+                f.r = v[i] - v[j];
+                f.c[i] = 1.0;
+                f.c[j] = -1.0;
+            }
+            Closest::PointEdge([p, a, b]) => {
+                let d = v[b] - v[a];
+                let t = (v[p] - v[a]).dot(d) / d.length_squared();
+                f.r = v[p] - v[a] - t * d;
+                f.c[p] = 1.0;
+                f.c[a] = -(1.0 - t);
+                f.c[b] = -t;
+                // r = x_p - x_a - t (x_b - x_a).
+                f.m = 1;
+                f.a[0][a] = 1.0;
+                f.a[0][b] = -1.0;
+                f.e[0] = -d;
+            }
+            Closest::PointPlane([p, a, b, c]) => {
+                let (e1, e2, w) = (v[b] - v[a], v[c] - v[a], v[p] - v[a]);
+                let (g11, g12, g22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+                let (h1, h2) = (w.dot(e1), w.dot(e2));
+                let det = g11 * g22 - g12 * g12;
+                let u = (g22 * h1 - g12 * h2) / det;
+                let t = (g11 * h2 - g12 * h1) / det;
+                let n = e1.cross(e2);
+                f.r = (w.dot(n) / n.length_squared()) * n;
+                // r = x_p - x_a - u (x_b - x_a) - t (x_c - x_a).
+                f.c[p] = 1.0;
+                f.c[a] = -(1.0 - u - t);
+                f.c[b] = -u;
+                f.c[c] = -t;
+                f.m = 2;
+                f.a[0][a] = 1.0;
+                f.a[0][b] = -1.0;
+                f.a[1][a] = 1.0;
+                f.a[1][c] = -1.0;
+                f.e = [-e1, -e2];
+            }
+            Closest::LineLine([a0, a1, b0, b1]) => {
+                let (ea, eb, w) = (v[a1] - v[a0], v[b1] - v[b0], v[a0] - v[b0]);
+                let (aa, ab, bb) = (ea.dot(ea), ea.dot(eb), eb.dot(eb));
+                let (d, e) = (ea.dot(w), eb.dot(w));
+                let det = aa * bb - ab * ab;
+                let s = (ab * e - bb * d) / det;
+                let t = (aa * e - ab * d) / det;
+                let n = ea.cross(eb);
+                f.r = (w.dot(n) / n.length_squared()) * n;
+                // r = x_a0 + s (x_a1 - x_a0) - x_b0 - t (x_b1 - x_b0).
+                f.c[a0] = 1.0 - s;
+                f.c[a1] = s;
+                f.c[b0] = -(1.0 - t);
+                f.c[b1] = -t;
+                f.m = 2;
+                f.a[0][a0] = -1.0;
+                f.a[0][a1] = 1.0;
+                f.a[1][b0] = 1.0;
+                f.a[1][b1] = -1.0;
+                f.e = [ea, -eb];
+            }
+        }
+        f
+    }
+
+    /// The form of the pair `v` of kind `kind` in the region of its closest points.
+    #[must_use]
+    pub fn of(kind: PairKind, v: &[DVec3; 4]) -> Self {
+        Self::new(v, kind.closest(v))
+    }
+
+    /// The squared distance `|r|^2`.
+    #[must_use]
+    pub fn value(&self) -> f64 {
+        self.r.length_squared()
+    }
+
+    /// The gradient `2 c (x) r` (vertex `k`'s coordinates at `3k..3k + 3`).
+    #[must_use]
+    pub fn gradient(&self) -> [f64; 12] {
+        std::array::from_fn(|i| 2.0 * self.c[i / 3] * self.r[i % 3])
+    }
+
+    /// `M^-1`, `M = 2 E^T E` (the leading `m x m` block; the rest is zero).
+    fn m_inverse(&self) -> [[f64; 2]; 2] {
+        let [e0, e1] = self.e;
+        match self.m {
+            0 => [[0.0; 2]; 2],
+            1 => [[0.5 / e0.length_squared(), 0.0], [0.0, 0.0]],
+            _ => {
+                let (p, q, s) = (e0.dot(e0), e0.dot(e1), e1.dot(e1));
+                let k = 0.5 / (p * s - q * q);
+                [[k * s, -k * q], [-k * q, k * p]]
+            }
+        }
+    }
+
+    /// The exact Hessian `2 (c c^T) (x) I_3 - J^T M^-1 J` in full.
+    // Index loops over rows and columns read as the matrix formulas they implement.
+    #[allow(clippy::needless_range_loop)]
+    #[must_use]
+    pub fn hessian(&self) -> Mat12 {
+        let minv = self.m_inverse();
+        let j: [[f64; 12]; 2] = std::array::from_fn(|row| {
+            std::array::from_fn(|i| {
+                let (k, x) = (i / 3, i % 3);
+                2.0 * (self.a[row][k] * self.r[x] + self.c[k] * self.e[row][x])
+            })
+        });
+        let mut h = [[0.0; 12]; 12];
+        for i in 0..12 {
+            for l in 0..12 {
+                let mut v = if i % 3 == l % 3 {
+                    2.0 * self.c[i / 3] * self.c[l / 3]
+                } else {
+                    0.0
+                };
+                for p in 0..self.m {
+                    for q in 0..self.m {
+                        v -= j[p][i] * minv[p][q] * j[q][l];
+                    }
+                }
+                h[i][l] = v;
+            }
+        }
+        h
+    }
+
+    /// The positive semidefinite projection of the Hessian of `phi(s)` at this pair,
+    /// `second grad s grad s^T + first hess s` with `first = phi'(s)` and
+    /// `second = phi''(s)`, computed in the span of the module documentation. `None`
+    /// when the pair is degenerate (`r = 0`, or a region's parametrization singular), so
+    /// the caller can fall back to the full decomposition.
+    // Index loops over rows and columns read as the matrix formulas they implement.
+    #[allow(clippy::needless_range_loop)]
+    #[must_use]
+    pub fn projected_hessian(&self, first: f64, second: f64) -> Option<Mat12> {
+        let c_len = self.c.iter().map(|c| c * c).sum::<f64>().sqrt();
+        let r_len = self.r.length();
+        if !(c_len > 0.0 && r_len > 0.0 && c_len.is_finite() && r_len.is_finite()) {
+            return None;
+        }
+        let c_hat = self.c.map(|c| c / c_len);
+        let r_hat = self.r / r_len;
+        // b_l: Gram-Schmidt of the a_j against c_hat and each other.
+        let mut b = [[0.0; 4]; 2];
+        let remove = |v: &mut [f64; 4], u: &[f64; 4]| {
+            let d: f64 = (0..4).map(|k| v[k] * u[k]).sum();
+            (0..4).for_each(|k| v[k] -= d * u[k]);
+        };
+        for j in 0..self.m {
+            let mut v = self.a[j];
+            remove(&mut v, &c_hat);
+            for l in 0..j {
+                let u = b[l];
+                remove(&mut v, &u);
+            }
+            let len = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if !(len > 0.0 && len.is_finite()) {
+                return None;
+            }
+            b[j] = v.map(|x| x / len);
+        }
+        let n = 3 + self.m;
+        // The coordinates in the basis of grad s (U part 2 |c| r) and of the rows of J
+        // (U part 2 ((a_j . c_hat) r + |c| e_j), V part 2 |r| (a_j . b_l)).
+        let mut grad = [0.0; SPAN];
+        for x in 0..3 {
+            grad[x] = 2.0 * c_len * self.r[x];
+        }
+        let mut jrows = [[0.0; SPAN]; 2];
+        for j in 0..self.m {
+            let ac: f64 = (0..4).map(|k| self.a[j][k] * c_hat[k]).sum();
+            for x in 0..3 {
+                jrows[j][x] = 2.0 * (ac * self.r[x] + c_len * self.e[j][x]);
+            }
+            for l in 0..self.m {
+                let ab: f64 = (0..4).map(|k| self.a[j][k] * b[l][k]).sum();
+                jrows[j][3 + l] = 2.0 * r_len * ab;
+            }
+        }
+        let minv = self.m_inverse();
+        let mut k = [[0.0; SPAN]; SPAN];
+        for p in 0..n {
+            for q in 0..n {
+                let mut hess_s = if p == q && p < 3 {
+                    2.0 * c_len * c_len
+                } else {
+                    0.0
+                };
+                for i in 0..self.m {
+                    for j in 0..self.m {
+                        hess_s -= jrows[i][p] * minv[i][j] * jrows[j][q];
+                    }
+                }
+                k[p][q] = second * grad[p] * grad[q] + first * hess_s;
+            }
+        }
+        if !k.iter().flatten().all(|x| x.is_finite()) {
+            return None;
+        }
+        let (values, vectors) = symmetric_eigen_n(&k, n);
+        // K_+ = Q diag(max(lambda, 0)) Q^T in the reduced coordinates.
+        let mut kp = [[0.0; SPAN]; SPAN];
+        for (e, &lambda) in values.iter().take(n).enumerate() {
+            if lambda <= 0.0 {
+                continue;
+            }
+            for p in 0..n {
+                for q in 0..n {
+                    kp[p][q] += lambda * vectors[p][e] * vectors[q][e];
+                }
+            }
+        }
+        // The basis: column p < 3 is c_hat (x) e_p, column 3 + l is b_l (x) r_hat.
+        let basis: [[f64; SPAN]; 12] = std::array::from_fn(|i| {
+            let (vk, x) = (i / 3, i % 3);
+            let mut row = [0.0; SPAN];
+            row[x] = c_hat[vk];
+            for l in 0..self.m {
+                row[3 + l] = b[l][vk] * r_hat[x];
+            }
+            row
+        });
+        // (B K_+) then (B K_+) B^T, skipping the rows of uninvolved vertices.
+        let mut bk = [[0.0; SPAN]; 12];
+        for i in 0..12 {
+            if basis[i].iter().all(|&x| x == 0.0) {
+                continue;
+            }
+            for q in 0..n {
+                bk[i][q] = (0..n).map(|p| basis[i][p] * kp[p][q]).sum();
+            }
+        }
+        let mut out = [[0.0; 12]; 12];
+        for i in 0..12 {
+            for l in 0..=i {
+                let v: f64 = (0..n).map(|q| bk[i][q] * basis[l][q]).sum();
+                out[i][l] = v;
+                out[l][i] = v;
+            }
+        }
+        Some(out)
+    }
+}
