@@ -10,7 +10,7 @@
 //!
 //! It also prints how the solves spent their iterations: the histogram of
 //! `SolveReport::iterations` (for FABRIK one pass plus the finish's trials, both seeds'
-//! when it restarted) and the number of restarts.
+//! when it restarted), the number of restarts and the largest limit violation.
 
 use sinew_ik::SolverOptions;
 use sinew_ik::workloads::{allowed_pose, human_arm};
@@ -55,6 +55,7 @@ fn main() {
     let mut pose = skeleton.rest_pose();
     let mut within = 0;
     let mut restarts = 0;
+    let mut violation: f64 = 0.0;
     let mut histogram = vec![0usize; settings.max_iterations + 1];
     for &target in &targets {
         pose.rotations.fill(DQuat::IDENTITY);
@@ -63,13 +64,14 @@ fn main() {
             .expect("valid workload");
         within += usize::from(report.error <= settings.tolerance);
         restarts += usize::from(report.restarted);
+        violation = violation.max(report.limit_violation);
         histogram[report.iterations.min(settings.max_iterations)] += 1;
         black_box(report);
     }
     println!("{name}: {within} of {solves} within {}", settings.tolerance);
     let total: usize = histogram.iter().enumerate().map(|(i, n)| i * n).sum();
     println!(
-        "iterations per solve: mean {:.2}, restarts {restarts}",
+        "iterations per solve: mean {:.2}, restarts {restarts}, largest limit violation {violation:.3e} rad",
         total as f64 / solves as f64
     );
     for (iterations, n) in histogram.iter().enumerate().filter(|(_, n)| **n > 0) {
