@@ -107,21 +107,30 @@ pub fn limb_seed(
     let aim = rotation_between(tip_dir, goal_dir);
     let limit = skeleton.prepared_limit(root);
     let current = pose.rotations[root];
-    let mut best = (f64::INFINITY, f64::NEG_INFINITY, aim);
-    for i in 0..ROOT_TURNS {
+    // The least violation; on a tie the one closest to the current rotation. The
+    // candidates are asked in order of closeness (the first on equal closeness), so the
+    // first one inside the limit is the answer and the rest need no violation.
+    let mut candidates = [(0.0, DQuat::IDENTITY); ROOT_TURNS];
+    for (i, slot) in candidates.iter_mut().enumerate() {
         let spin = DQuat::from_axis_angle(
             goal_dir,
             std::f64::consts::TAU * i as f64 / ROOT_TURNS as f64,
         );
         let candidate = (spin * aim).normalize();
+        *slot = (candidate.dot(current).abs(), candidate);
+    }
+    candidates.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut best = (f64::INFINITY, aim);
+    for &(_, candidate) in &candidates {
         let violation = limit.violation(candidate);
-        // The least violation; on a tie the one closest to the current rotation.
-        let closeness = candidate.dot(current).abs();
-        if violation < best.0 || (violation == best.0 && closeness > best.1) {
-            best = (violation, closeness, candidate);
+        if violation < best.0 {
+            best = (violation, candidate);
+            if violation == 0.0 {
+                break;
+            }
         }
     }
-    pose.rotations[root] = limit.project(best.2);
+    pose.rotations[root] = limit.project(best.1);
     pose.rotations[hinge_joint] = skeleton.prepared_limit(hinge_joint).project(elbow);
     true
 }
