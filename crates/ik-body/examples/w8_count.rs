@@ -31,6 +31,12 @@ fn main() {
         .map(|f| workload::clip_frame(&rest.global, f))
         .collect();
     let mut within = 0;
+    let mut restarts = 0;
+    let mut histogram = vec![0usize; settings.max_iterations + 1];
+    let mut count_report = |report: &BodyReport| {
+        restarts += usize::from(report.restarted);
+        histogram[report.iterations.min(settings.max_iterations)] += 1;
+    };
     let total;
     match part.as_str() {
         "cold" => {
@@ -43,6 +49,7 @@ fn main() {
                     BodyProblem::new(&skel, &set.effectors, settings).with_root_translation(true);
                 let report = solver.solve(&problem, &mut state).expect("valid");
                 within += usize::from(report.within(&settings));
+                count_report(&report);
                 black_box(report);
             }
         }
@@ -54,6 +61,7 @@ fn main() {
                     .with_root_translation(true);
                 let report = solver.solve(&problem, &mut state).expect("valid");
                 within += usize::from(report.within(&settings));
+                count_report(&report);
                 black_box(report);
             }
         }
@@ -89,4 +97,15 @@ fn main() {
         other => panic!("unknown part {other}: cold, warm or batch"),
     }
     println!("{part} {name}: {within} within of {total}");
+    let solves: usize = histogram.iter().sum();
+    if solves > 0 {
+        let iterations: usize = histogram.iter().enumerate().map(|(i, n)| i * n).sum();
+        println!(
+            "iterations per solve: mean {:.2}, restarts {restarts}",
+            iterations as f64 / solves as f64
+        );
+        for (i, n) in histogram.iter().enumerate().filter(|(_, n)| **n > 0) {
+            println!("  {i:3} iterations: {n}");
+        }
+    }
 }

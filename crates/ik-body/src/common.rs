@@ -10,8 +10,13 @@ use sinew_skeleton::finish::{Finish, FinishJob, Finished, Movers};
 
 use crate::workload::Rng;
 use sinew_math::{DQuat, DVec3};
-use sinew_skeleton::ik::{IkError, StopReason};
+use sinew_skeleton::ik::{Chain, IkError, StopReason};
 use sinew_skeleton::limits::JointLimit;
+use sinew_skeleton::seed::limb_seed;
+
+/// A limb gets its closed-form pose ([`Common::seed_limbs`]) only when its effector is
+/// further from its goal than this fraction of the limb's length.
+const LIMB_SEED_DISTANCE: f64 = 0.25;
 
 /// Buffers and per-solve data every body solver keeps.
 #[derive(Clone, Debug, Default)]
@@ -255,6 +260,95 @@ impl Common {
             &mut state.global,
         )?;
         Ok(())
+    }
+
+    /// A cold start's closed-form limb poses: each position-only effector with a limb
+    /// above it (a hinge whose parent has three degrees of freedom, `sinew_skeleton::seed`)
+    /// that moves no other effector, and that is further from its goal than a quarter of
+    /// the limb's length, gets the limb's closed-form pose for its goal from where the
+    /// limb's base now is. A warm frame, whose effectors are near their goals, keeps its
+    /// pose (and the continuity of the swivel about the base-to-goal line). The seeded
+    /// pose is kept only when it lowers the cost and keeps the pins; returns whether it
+    /// was kept.
+    pub fn seed_limbs(
+        &mut self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+    ) -> Result<bool, IkError> {
+        let skeleton = problem.skeleton;
+        let before = self.cost(state);
+        self.kept.clear();
+        self.kept.extend_from_slice(&state.pose.rotations);
+        let mut seeded = false;
+        for t in &self.targets {
+            if t.rotation.is_some() {
+                continue;
+            }
+            // The nearest hinge above the effector whose parent turns freely or within a
+            // swing-twist limit.
+            let mut limb = None;
+            let mut j = t.joint;
+            while let Some(p) = skeleton.parent(j) {
+                if matches!(skeleton.limit(p), JointLimit::Hinge(_))
+                    && let Some(base) = skeleton.parent(p)
+                    && matches!(
+                        skeleton.limit(base),
+                        JointLimit::SwingTwist(_) | JointLimit::Free
+                    )
+                {
+                    limb = Some(base);
+                    break;
+                }
+                j = p;
+            }
+            let Some(base) = limb else {
+                continue;
+            };
+            let Some(slot) = self.topology.slot(base) else {
+                continue;
+            };
+            if self.topology.below(slot).len() != 1 {
+                continue;
+            }
+            let Ok(chain) = Chain::new(skeleton, base, t.joint) else {
+                continue;
+            };
+            let distance = state.global.positions[t.joint].distance(t.position);
+            if distance <= LIMB_SEED_DISTANCE * chain.reach() {
+                continue;
+            }
+            let base_parent = skeleton
+                .parent(base)
+                .map_or(DQuat::IDENTITY, |p| state.global.rotations[p]);
+            seeded |= limb_seed(
+                skeleton,
+                &chain,
+                &mut state.pose,
+                state.global.positions[base],
+                base_parent,
+                t.position,
+            );
+        }
+        if !seeded {
+            return Ok(false);
+        }
+        forward_kinematics(
+            skeleton,
+            &state.pose,
+            state.root_translation,
+            &mut state.global,
+        )?;
+        if self.cost(state) < before && self.pins_hold(problem, state) {
+            return Ok(true);
+        }
+        state.pose.rotations.copy_from_slice(&self.kept);
+        forward_kinematics(
+            skeleton,
+            &state.pose,
+            state.root_translation,
+            &mut state.global,
+        )?;
+        Ok(false)
     }
 
     /// The weighted cost at `state`.

@@ -224,6 +224,7 @@ impl BodySolver for TreeFabrikSolver {
             return Ok(report);
         }
         self.passes.prepare(problem, &self.common);
+        self.common.seed_limbs(problem, state)?;
         let first_passes = if self.options.finish {
             0
         } else {

@@ -91,6 +91,7 @@ use sinew_skeleton::ik::{
     StopReason, begin_solve, chain_has_limits, measure, turn_towards_pole,
 };
 use sinew_skeleton::limits::JointLimit;
+use sinew_skeleton::seed::limb_seed;
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
 
 /// With the finish on, the sweeps stop once a sweep leaves more than this fraction of the
@@ -379,17 +380,46 @@ impl IkSolver for CcdSolver {
         self.swept.clear();
         self.swept.resize(movable.len(), DQuat::IDENTITY);
         let switch = if self.finish { SWITCH_RATIO } else { 1.0 };
-        let (mut stop, mut error, mut iterations) = self.descend(
-            skeleton,
-            chain,
-            pose,
-            global,
-            target,
-            settings,
-            initial_error,
-            0,
-            switch,
-        )?;
+        // A limb (a three-degree-of-freedom base joint, then a hinge) with a position
+        // goal tries its closed-form pose first, which usually reaches the target
+        // outright. It is kept only when it does: started from the seed, the sweeps and
+        // the finish lost a W7 target that they reach from the pose given.
+        let mut initial_error = initial_error;
+        if self.finish && goal.rotation.is_none() && settings.max_iterations > 0 {
+            self.best.clear();
+            self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
+            let base_parent = skeleton
+                .parent(chain.base())
+                .map_or(DQuat::IDENTITY, |p| global.rotations[p]);
+            let base = global.positions[chain.base()];
+            if limb_seed(skeleton, chain, pose, base, base_parent, target) {
+                skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+                let seeded = global.positions[chain.effector()].distance(target);
+                if seeded <= settings.tolerance {
+                    initial_error = seeded;
+                } else {
+                    for (&kept, &j) in self.best.iter().zip(movable) {
+                        pose.rotations[j] = kept;
+                    }
+                    skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+                }
+            }
+        }
+        let (mut stop, mut error, mut iterations) = if initial_error <= settings.tolerance {
+            (StopReason::Converged, initial_error, 0)
+        } else {
+            self.descend(
+                skeleton,
+                chain,
+                pose,
+                global,
+                target,
+                settings,
+                initial_error,
+                0,
+                switch,
+            )?
+        };
         let mut restarted = false;
         if self.finish {
             // The sweeps stopped at the tolerance, the cap, a local minimum or a slow

@@ -16,7 +16,8 @@
 //!   what takes every reachable target to the tolerance, including those near the base
 //!   where plain FABRIK crawls. [`FabrikMode::Plain`] is FABRIK alone.
 //! - Chains with joint limits, and goals with a rotation, take another path: one FABRIK
-//!   pass, the rotations recovered and projected onto the limits, then a damped
+//!   pass (or, for a limb with a position goal, its closed-form pose:
+//!   [`sinew_skeleton::seed`]), the rotations recovered and projected onto the limits, then a damped
 //!   least-squares finish on the local rotations over a 3- or 6-row residual, each trial
 //!   projected onto the limits, with an active set, and one restart from a second seed
 //!   after a local minimum (`docs/ik-limits.md`).
@@ -72,6 +73,7 @@ use sinew_skeleton::ik::{
     Chain, IkError, IkProblem, IkSolver, IkState, SolveReport, SolveSettings, SolveStart,
     StopReason, begin_solve, chain_has_limits, measure, project_onto_limits, turn_towards_pole,
 };
+use sinew_skeleton::seed::limb_seed;
 use sinew_skeleton::{GlobalPose, Pose, Skeleton};
 
 /// Which algorithm a [`FabrikSolver`] runs.
@@ -406,7 +408,8 @@ impl FabrikSolver {
     }
 
     /// The solve with joint limits or a rotation goal: one FABRIK pass for the large move
-    /// (unconstrained, on positions), the rotations recovered and projected onto the
+    /// (unconstrained, on positions; a limb with a position goal takes its closed-form
+    /// pose instead, [`limb_seed`]), the rotations recovered and projected onto the
     /// limits (kept only if that lowered the weighted residual), then the limited damped
     /// least-squares finish ([`sinew_skeleton::finish`]). When the finish ends in a local minimum of a
     /// chain with limits, it is run once more from a second seed, every limited joint at
@@ -428,16 +431,28 @@ impl FabrikSolver {
             let start_cost = ChainFinish::cost(goal, global);
             self.copy_chain_positions(chain, global);
             let base = self.positions[0];
-            pass::pass_unchecked(
-                &mut self.positions,
-                chain.bone_lengths(),
-                base,
-                goal.position,
-            );
-            passes = 1;
-            self.recover_rotations(skeleton, chain, pose, global)?;
-            if has_limits && project_onto_limits(skeleton, chain, pose) {
+            let base_parent = skeleton
+                .parent(chain.base())
+                .map_or(DQuat::IDENTITY, |p| global.rotations[p]);
+            self.saved.clear();
+            self.saved
+                .extend(movable.iter().map(|&j| pose.rotations[j]));
+            if goal.rotation.is_none()
+                && limb_seed(skeleton, chain, pose, base, base_parent, goal.position)
+            {
                 skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+            } else {
+                pass::pass_unchecked(
+                    &mut self.positions,
+                    chain.bone_lengths(),
+                    base,
+                    goal.position,
+                );
+                passes = 1;
+                self.recover_rotations(skeleton, chain, pose, global)?;
+                if has_limits && project_onto_limits(skeleton, chain, pose) {
+                    skeleton.forward_kinematics_from(pose, chain.base(), global)?;
+                }
             }
             if ChainFinish::cost(goal, global) > start_cost {
                 for (&j, &saved) in movable.iter().zip(&self.saved) {

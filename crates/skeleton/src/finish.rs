@@ -592,6 +592,14 @@ impl Finish {
         self.on_bound.resize(movable.len(), true);
         self.outward.clear();
         self.outward.resize(movable.len(), [DVec3::ZERO; 2]);
+        // A start already within the tolerances (a closed-form seed usually is) needs no
+        // outward normals: the loop below returns before its first step.
+        if all_within(targets, global, settings) {
+            return Ok(Finished {
+                stop: StopReason::Converged,
+                steps: 0,
+            });
+        }
         self.find_outward(skeleton, movable, pose);
         self.normal.resize(rows * rows, 0.0);
         self.normal_full.resize(rows * rows, 0.0);

@@ -44,6 +44,7 @@
 pub mod finish;
 pub mod ik;
 pub mod limits;
+pub mod seed;
 pub mod track;
 
 /// The math types a skeleton is built from, re-exported so a user of this crate does
