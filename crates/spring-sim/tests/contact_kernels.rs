@@ -5,7 +5,7 @@
 use sinew_math::{DMat3, DVec3};
 use sinew_spring_sim::contact::barrier::{
     balanced_kappa, barrier, barrier_first_derivative, barrier_second_derivative, minimum_kappa,
-    point_barrier_exact_hessian,
+    point_barrier_exact_hessian, point_barrier_gradient, point_barrier_projected_hessian,
 };
 use sinew_spring_sim::contact::friction::{f0, f1, f1_derivative};
 use sinew_spring_sim::contact::psd::{project_psd, symmetric_eigen};
@@ -335,6 +335,23 @@ fn point_barrier_derivatives_and_projection() {
                 max_abs(hessian - expected) <= 1e-10 * max_abs(expected),
                 "{shape:?}: projected {hessian} vs {expected}"
             );
+            // The closed form is the general eigen-decomposition projection of the exact
+            // Hessian, and the gradient-only kernel gives the same gradient.
+            let general = project_psd(exact);
+            assert!(
+                max_abs(hessian - general) <= 1e-10 * max_abs(general),
+                "{shape:?}: closed form {hessian} vs projected {general}"
+            );
+            assert_eq!(
+                point_barrier_projected_hessian(kappa, dhat, &sd),
+                hessian,
+                "{shape:?}"
+            );
+            assert_eq!(
+                point_barrier_gradient(kappa, dhat, &sd),
+                Some(g),
+                "{shape:?}"
+            );
         }
     }
     let plane = &shapes()[0];
@@ -475,6 +492,37 @@ fn kappa_rule() {
         a.update(1e-4 * dhat / (i + 1) as f64, dhat);
     }
     assert_eq!(a.kappa, 100.0 * kmin);
+}
+
+#[test]
+fn balancing_start_is_applied_once_and_clamped() {
+    let kmin = 2.0;
+    let s = KappaSettings::default();
+    // Within the bounds: taken as is, once.
+    let mut a = AdaptiveKappa::new(kmin, None, s);
+    assert!(!a.balanced);
+    assert!(!a.start_balanced(-1.0), "no balance: nothing set");
+    assert!(!a.start_balanced(f64::NAN));
+    assert!(!a.balanced && a.kappa == kmin);
+    assert!(a.start_balanced(7.0));
+    assert_eq!(a.kappa, 7.0);
+    assert!(!a.start_balanced(30.0), "only the first balance counts");
+    assert_eq!(a.kappa, 7.0);
+    // Clamped to [kmin, 100 kmin].
+    let mut low = AdaptiveKappa::new(kmin, None, s);
+    assert!(low.start_balanced(1e-6));
+    assert_eq!(low.kappa, kmin);
+    let mut high = AdaptiveKappa::new(kmin, None, s);
+    assert!(high.start_balanced(1e9));
+    assert_eq!(high.kappa, 100.0 * kmin);
+    // A stiffness the growth rule already raised is not lowered.
+    let mut grown = AdaptiveKappa::new(kmin, None, s);
+    assert!(grown.update(1e-6, 1.0));
+    assert_eq!(grown.kappa, 2.0 * kmin);
+    assert!(grown.start_balanced(1.5 * kmin));
+    assert_eq!(grown.kappa, 2.0 * kmin);
+    // A start given at construction counts as the balancing start.
+    assert!(AdaptiveKappa::new(kmin, Some(3.0), s).balanced);
 }
 
 #[test]

@@ -17,7 +17,8 @@
 //! iterate's smallest contact distance is below 1% of `dhat` and still falling.
 
 use super::barrier::{
-    AdaptiveKappa, KappaSettings, PointBarrier, barrier, minimum_kappa, point_barrier,
+    AdaptiveKappa, KappaSettings, balanced_kappa, barrier, barrier_first_derivative, minimum_kappa,
+    point_barrier_gradient, point_barrier_projected_hessian,
 };
 use super::collider::{Collider, Shape, validate_colliders};
 use super::distance::{distance_pair, signed_distance};
@@ -67,6 +68,11 @@ pub struct ContactStep<'a> {
     pub start: f64,
     /// The time at the step's end (the colliders are posed there).
     pub end: f64,
+    /// The gradient at `positions` of the rest of the incremental potential (inertia,
+    /// gravity, elasticity), per particle and in the constrained positions, for IPC's
+    /// balancing start of `kappa` ([`super::barrier::balanced_kappa`], applied on the
+    /// first step that starts in contact); `None` leaves `kappa` to its other rules.
+    pub other_gradient: Option<&'a [DVec3]>,
 }
 
 impl ContactPotential {
@@ -118,6 +124,14 @@ impl ContactPotential {
         self.kappa.map_or(0.0, |k| k.kappa)
     }
 
+    /// Whether the balancing start of `kappa` is still to come (see
+    /// [`ContactStep::other_gradient`]): a caller may skip computing the other gradient
+    /// when it is not.
+    #[must_use]
+    pub fn awaits_balance(&self) -> bool {
+        self.kappa.is_none_or(|k| !k.balanced)
+    }
+
     /// The time the colliders are posed at (the current step's end).
     #[must_use]
     pub fn time(&self) -> f64 {
@@ -157,11 +171,15 @@ impl ContactPotential {
             h,
             start,
             end: start + h,
+            other_gradient: None,
         });
     }
 
-    /// Starts the step `step`: sets `kappa` on the first step (from the mean free mass,
-    /// gravity's magnitude, `step.h` and `dhat`), lags the friction contacts at
+    /// Starts the step `step`: sets `kappa_min` on the first step (from the mean free
+    /// mass, gravity's magnitude, `step.h` and `dhat`), on the first step that starts
+    /// with a free particle within `dhat` of a collider sets `kappa` from IPC's balance
+    /// of the other forces there when `step.other_gradient` is given (see
+    /// [`AdaptiveKappa::start_balanced`]), lags the friction contacts at
     /// `step.positions` and `step.start` with their displacement measured from
     /// `step.anchor` over `step.h`, and poses the colliders at `step.end`. The times are
     /// inputs, so a step redone (in pieces) poses the colliders again from its own start.
@@ -180,6 +198,17 @@ impl ContactPotential {
             AdaptiveKappa::new(kmin, None, self.kappa_settings)
         });
         let start = step.start;
+        let kappa = match step.other_gradient {
+            Some(other) if !kappa.balanced => {
+                let balanced = self.balanced_kappa(positions, fixed, start, other);
+                let k = self.kappa.as_mut().expect("set above");
+                if let Some(b) = balanced {
+                    k.start_balanced(b);
+                }
+                *k
+            }
+            _ => kappa,
+        };
         self.friction.clear();
         if self.settings.mu > 0.0 {
             for collider in &self.colliders {
@@ -207,6 +236,38 @@ impl ContactPotential {
         self.step_start = start;
         self.clock = step.end;
         self.posed = self.colliders.iter().map(|c| c.at(self.clock)).collect();
+    }
+
+    /// IPC's balancing stiffness at `x` (colliders posed at `t`): the `kappa` that
+    /// minimizes `|g_E + kappa g_B|` over the free particles within `dhat` of a collider,
+    /// `g_B` the barrier's gradient at unit stiffness; `None` when no free particle is
+    /// within `dhat` or the other forces pull away from the colliders.
+    fn balanced_kappa(&self, x: &[DVec3], fixed: &[bool], t: f64, other: &[DVec3]) -> Option<f64> {
+        let dhat = self.settings.dhat;
+        let reach = dhat + self.settings.thickness;
+        let bounds = free_box(x, fixed, None);
+        let mut unit = vec![DVec3::ZERO; x.len()];
+        let mut any = false;
+        for collider in &self.colliders {
+            let shape = collider.at(t);
+            if box_distance(&shape, &bounds) >= reach {
+                continue;
+            }
+            for (i, &p) in x.iter().enumerate() {
+                if fixed[i] {
+                    continue;
+                }
+                let sd = signed_distance(&shape, p, self.settings.thickness);
+                if sd.distance > 0.0 && sd.distance < dhat {
+                    unit[i] += barrier_first_derivative(sd.distance, dhat) * sd.normal;
+                    any = true;
+                }
+            }
+        }
+        if !any {
+            return None;
+        }
+        balanced_kappa(other, &unit)
     }
 
     /// Puts `kappa` back to its value before the last [`Self::begin`], for a step that
@@ -375,8 +436,11 @@ impl ContactPotential {
                         continue;
                     }
                     let sd = signed_distance(shape, p, self.settings.thickness);
-                    if let PointBarrier::Active { gradient: g, .. } =
-                        point_barrier(kappa.kappa, self.settings.dhat, &sd)
+                    // A particle touching or inside (never the case at an admissible
+                    // state, whose energy is finite) adds nothing, as before.
+                    if sd.distance < self.settings.dhat
+                        && let Some(g) =
+                            point_barrier_gradient(kappa.kappa, self.settings.dhat, &sd)
                     {
                         gradient[i] += scale * g;
                     }
@@ -407,10 +471,11 @@ impl ContactPotential {
                         continue;
                     }
                     let sd = signed_distance(shape, p, self.settings.thickness);
-                    if let PointBarrier::Active { hessian, .. } =
-                        point_barrier(kappa.kappa, self.settings.dhat, &sd)
-                    {
-                        add(i, hessian);
+                    if sd.distance > 0.0 && sd.distance < self.settings.dhat {
+                        add(
+                            i,
+                            point_barrier_projected_hessian(kappa.kappa, self.settings.dhat, &sd),
+                        );
                     }
                 }
             }

@@ -15,7 +15,7 @@
 //! the Hessian times 4 (the chain rule). Derivation: docs/contact.md.
 
 use super::{ContactPotential, ContactStep};
-use crate::potential::{HessianSink, StepContext, SymBlock, Term};
+use crate::potential::{Gravity, HessianSink, Inertia, Springs, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
 use sinew_math::DVec3;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -59,6 +59,8 @@ pub struct ContactTerm {
     stats: Arc<ContactStats>,
     /// Scratch for the midpoint's end state and its direction (unused otherwise).
     end_state: Mutex<(Vec<DVec3>, Vec<DVec3>)>,
+    /// Scratch for the other terms' gradient at the step's start.
+    other_gradient: Vec<DVec3>,
 }
 
 impl ContactTerm {
@@ -70,6 +72,7 @@ impl ContactTerm {
             potential,
             stats: Arc::new(ContactStats::default()),
             end_state: Mutex::new((Vec::new(), Vec::new())),
+            other_gradient: Vec::new(),
         }
     }
 
@@ -133,6 +136,28 @@ impl Term for ContactTerm {
         } else {
             (step.h, step.x_ref)
         };
+        // IPC's balancing start of kappa needs the gradient of the rest of the
+        // incremental potential at the step's start: inertia, gravity and the springs
+        // (damping vanishes there for backward Euler; bending and other added terms are
+        // left out: the balance only picks a starting stiffness). In the midpoint's
+        // unknowns the barrier's gradient is twice its end-state gradient, so the
+        // other gradient is halved to balance in end-state terms. Once the start is
+        // made it is not needed again.
+        let mut other = std::mem::take(&mut self.other_gradient);
+        let balance = self.potential.awaits_balance();
+        if balance {
+            other.clear();
+            other.resize(s.len(), DVec3::ZERO);
+            let x_n = s.positions();
+            Inertia.add_gradient(step, x_n, &mut other);
+            Gravity.add_gradient(step, x_n, &mut other);
+            Springs.add_gradient(step, x_n, &mut other);
+            if timing.midpoint {
+                for g in &mut other {
+                    *g *= 0.5;
+                }
+            }
+        }
         self.potential.begin(&ContactStep {
             positions: s.positions(),
             anchor,
@@ -142,7 +167,9 @@ impl Term for ContactTerm {
             h,
             start: timing.start,
             end: timing.start + timing.length,
+            other_gradient: balance.then_some(other.as_slice()),
         });
+        self.other_gradient = other;
         self.stats.publish(&self.potential);
     }
 
