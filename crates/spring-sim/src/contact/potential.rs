@@ -525,16 +525,22 @@ impl ContactPotential {
     }
 }
 
-/// Moves a first iterate `x` so that a kinematic collider does not run over it: with the
+/// Moves a first iterate `x` so that the kinematic colliders do not run over it: with the
 /// colliders moving from their poses at `t0` to those at `t1`, a free particle whose
 /// distance at `x` to a collider posed at `t1` is below half of `min(d_0, dhat)` (`d_0`
 /// its distance at the step's start `x_n` to the collider posed at `t0`) is put at its
 /// start position carried by that collider's rigid motion from `t0` to `t1`, which keeps
 /// exactly its distance `d_0 > 0` to that collider. A collider whose motion leaves its
 /// surface in place (a sphere spinning about its centre) never triggers it, since it
-/// does not change the distance. Returns the first free particle still touching or inside
-/// a collider posed at `t1` after that, with the collider's index (two colliders closing
-/// in on one particle within one step).
+/// does not change the distance.
+///
+/// When two colliders close in on a particle within the step, the carry by one may
+/// leave it inside the other. Such a particle is then pushed out of the colliders posed
+/// at `t1` in turn, each push along the collider's normal to a target distance
+/// ([`separate`]), which finds a point outside all of them while they leave room
+/// between them. Returns the first free particle for which no such point was found,
+/// with the index of a collider it is still inside (the colliders overlap where it is,
+/// or leave a gap too thin for the search).
 #[allow(clippy::too_many_arguments)]
 pub fn carry_with_colliders(
     colliders: &[Collider],
@@ -567,15 +573,65 @@ pub fn carry_with_colliders(
             }
         }
     }
-    for (c, collider) in colliders.iter().enumerate() {
-        let shape = collider.at(t1);
-        for i in 0..x.len() {
-            if !fixed[i] && signed_distance(&shape, x[i], tau).distance <= 0.0 {
-                return Err((i, c));
-            }
+    let shapes: Vec<Shape> = colliders.iter().map(|c| c.at(t1)).collect();
+    for i in 0..x.len() {
+        if fixed[i] {
+            continue;
         }
+        if shapes
+            .iter()
+            .all(|s| signed_distance(s, x[i], tau).distance > 0.0)
+        {
+            continue;
+        }
+        x[i] = separate(&shapes, x[i], tau, settings.dhat).map_err(|c| (i, c))?;
     }
     Ok(())
+}
+
+/// Passes of pushes per target distance in [`separate`].
+const SEPARATION_PASSES: usize = 32;
+/// Halvings of the target distance in [`separate`] (from `dhat / 2` down to about
+/// `1e-6 dhat`).
+const SEPARATION_HALVINGS: usize = 20;
+
+/// A point outside every shape (distance minus `thickness` positive to each), found from
+/// `x` by pushes: each pass moves the point, for every shape it is closer to than the
+/// target `m`, along that shape's normal to distance `m`. Between two convex colliders
+/// facing each other across a gap wider than `2 m` (a sphere coming down on the ground,
+/// a press on a table) a pass or two ends outside both. When passes do not settle, the
+/// target is halved (the gap may be narrower than `2 m`) and the pushes restart from
+/// `x`. Returns the index of a shape the point is still inside when every target
+/// fails: the colliders overlap there, or the gap is too thin to be found this way.
+fn separate(shapes: &[Shape], x: DVec3, thickness: f64, dhat: f64) -> Result<DVec3, usize> {
+    let mut target = 0.5 * dhat;
+    for _ in 0..SEPARATION_HALVINGS {
+        let mut p = x;
+        for _ in 0..SEPARATION_PASSES {
+            let mut moved = false;
+            for shape in shapes {
+                let sd = signed_distance(shape, p, thickness);
+                if sd.distance < target {
+                    p += (target - sd.distance) * sd.normal;
+                    moved = true;
+                }
+            }
+            if !moved {
+                break;
+            }
+        }
+        if shapes
+            .iter()
+            .all(|s| signed_distance(s, p, thickness).distance > 0.0)
+        {
+            return Ok(p);
+        }
+        target *= 0.5;
+    }
+    Err(shapes
+        .iter()
+        .position(|s| signed_distance(s, x, thickness).distance <= 0.0)
+        .unwrap_or(0))
 }
 
 /// An axis-aligned box (empty when `min > max`).
