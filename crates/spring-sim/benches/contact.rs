@@ -16,7 +16,8 @@
 //! and the number of steps that ended with a particle inside a collider (recomputed
 //! from the colliders' fields after every step). Not a criterion benchmark: a table for
 //! docs/contact.md, run with
-//! `cargo bench -p sinew-spring-sim --bench contact [-- ground|drape|rotating [steps]]`.
+//! `cargo bench -p sinew-spring-sim --bench contact [-- ground|drape|rotating [steps]
+//! [--trace]]` (`--trace`: a line per step on stderr).
 
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::{Collider, ContactSettings};
@@ -81,6 +82,8 @@ fn main() {
         .map(String::as_str)
         .collect();
     let steps_override = args.iter().find_map(|a| a.parse::<usize>().ok());
+    // `--trace`: one line per step on stderr (iterations, stop reason, kappa, distance).
+    let trace = args.iter().any(|a| a == "--trace");
     println!(
         "| workload | particles | steps | ms per step (median) | ms per step (mean) | Newton iterations | most in a step | PCG iterations | backtracks | kappa (end) | smallest distance (m) | steps with a penetration |"
     );
@@ -127,6 +130,20 @@ fn main() {
             linear += report.linear_iterations;
             backtracks += report.backtracks;
             let (d, _) = sim.contact_distances().expect("contact is set");
+            if trace {
+                eprintln!(
+                    "{} step {}: {} Newton, {} PCG, {} backtracks, {:?}, {} pieces, kappa {:.4}, d {d:.3e}, {:.2} ms",
+                    w.name,
+                    times.len(),
+                    report.iterations,
+                    report.linear_iterations,
+                    report.backtracks,
+                    report.stop,
+                    report.pieces,
+                    sim.contact_kappa().unwrap_or(0.0),
+                    times.last().copied().unwrap_or(0.0),
+                );
+            }
             smallest = smallest.min(d);
             if d <= 0.0 {
                 penetrating += 1;

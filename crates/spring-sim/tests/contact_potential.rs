@@ -353,3 +353,62 @@ fn kappa_starts_at_the_balance_of_the_other_forces_on_the_first_step_in_contact(
     assert!(q.awaits_balance());
     assert_eq!(q.kappa(), kmin);
 }
+
+/// The gradient and the Hessian blocks (in the order given) at `x`.
+fn derivatives(
+    p: &ContactPotential,
+    x: &[DVec3],
+    fixed: &[bool],
+) -> (Vec<DVec3>, Vec<(usize, DMat3)>) {
+    let mut g = vec![DVec3::ZERO; x.len()];
+    p.add_gradient(x, fixed, &mut g);
+    let mut blocks = Vec::new();
+    p.for_each_hessian_block(x, fixed, |i, b| blocks.push((i, b)));
+    (g, blocks)
+}
+
+#[test]
+fn derivatives_from_the_collected_pairs_equal_the_full_pass_and_never_go_stale() {
+    let (mut p, x0, fixed, masses) = setup();
+    let x: Vec<DVec3> = x0
+        .iter()
+        .enumerate()
+        .map(|(i, &q)| q + DVec3::new(1e-4 * (i as f64 + 1.0), -1e-4, 2e-5 * i as f64))
+        .collect();
+    // Without collected pairs: the full pass over every particle and collider.
+    let full = derivatives(&p, &x, &fixed);
+    let kappa = p.kappa();
+    p.update_kappa(&x, &fixed);
+    assert_eq!(p.kappa(), kappa, "no growth at these distances");
+    // From the pairs collected at x: the same numbers, bit for bit.
+    assert_eq!(derivatives(&p, &x, &fixed), full);
+    // At another state the pairs are not used.
+    let other: Vec<DVec3> = x.iter().map(|q| *q + DVec3::new(0.0, 1e-3, 0.0)).collect();
+    let fresh = setup().0;
+    assert_eq!(
+        derivatives(&p, &other, &fixed),
+        derivatives(&fresh, &other, &fixed)
+    );
+    // A new step poses the colliders anew: pairs collected before it are dropped. The
+    // ground rises by 2 mm per step here, so the same state has other distances.
+    let settings = ContactSettings {
+        dhat: 0.01,
+        ..ContactSettings::default()
+    };
+    let rising = vec![Collider::ground(0.0).moving(DVec3::new(0.0, 0.2, 0.0), DVec3::ZERO)];
+    let mut q = ContactPotential::new(rising.clone(), settings, 0.0).unwrap();
+    let low = vec![DVec3::new(0.0, 0.007, 0.0), DVec3::new(1.0, 0.009, 0.0)];
+    let free = vec![false, false];
+    q.begin_step(&low, &free, &masses[..2], 9.81, 0.01);
+    q.update_kappa(&low, &free);
+    q.begin_step(&low, &free, &masses[..2], 9.81, 0.01);
+    let mut r = ContactPotential::new(rising, settings, 0.0).unwrap();
+    r.begin_step(&low, &free, &masses[..2], 9.81, 0.01);
+    r.begin_step(&low, &free, &masses[..2], 9.81, 0.01);
+    assert_eq!(q.kappa(), r.kappa());
+    let (moved, _) = derivatives(&q, &low, &free);
+    assert_eq!(moved, derivatives(&r, &low, &free).0);
+    // And the ground's rise shows: the particle at 7 mm is now 3 mm from it (the pose at
+    // the second step's end, t = 0.02), pushed harder than at 5 mm.
+    assert!(moved[0].y < 0.0 && moved[0].y < moved[1].y, "{moved:?}");
+}

@@ -17,14 +17,16 @@
 //! iterate's smallest contact distance is below 1% of `dhat` and still falling.
 
 use super::barrier::{
-    AdaptiveKappa, KappaSettings, balanced_kappa, barrier, barrier_first_derivative, minimum_kappa,
-    point_barrier_gradient, point_barrier_projected_hessian,
+    AdaptiveKappa, KappaSettings, balanced_kappa, barrier, barrier_first_derivative,
+    barrier_second_derivative, minimum_kappa, point_barrier_gradient,
+    point_barrier_projected_hessian,
 };
 use super::collider::{Collider, Shape, validate_colliders};
 use super::distance::{distance_pair, signed_distance};
 use super::friction::FrictionContact;
 use super::toi::time_of_impact;
 use super::{ContactError, ContactSettings};
+use crate::spring::outer;
 use sinew_math::{DMat3, DVec3};
 
 /// The contact energy of one system (see the module documentation).
@@ -44,6 +46,21 @@ pub struct ContactPotential {
     /// `kappa` before the last start of a step (`None` before the first), for
     /// [`Self::rewind_kappa`].
     kappa_before: Option<AdaptiveKappa>,
+    /// The barrier pairs of the last iterate given to [`Self::update_kappa`].
+    active: ActivePairs,
+}
+
+/// The particle-collider pairs within `dhat` at one iterate, with the barrier's
+/// derivatives at unit stiffness: Newton asks for the gradient and the Hessian at the
+/// iterate it has just given to [`ContactPotential::update_kappa`], and both then come
+/// from this list instead of another pass of distances and logarithms over every
+/// particle. `kappa` is applied when they are read, so its growth at that update counts.
+#[derive(Clone, Debug, Default)]
+struct ActivePairs {
+    /// The iterate (empty when none is cached).
+    x: Vec<DVec3>,
+    /// `(particle, unit normal, b'(d), b''(d))` for every pair with `0 < d < dhat`.
+    pairs: Vec<(usize, DVec3, f64, f64)>,
 }
 
 /// One step as the contact potential sees it: its positions are the ones the barrier
@@ -103,6 +120,7 @@ impl ContactPotential {
             posed,
             friction: Vec::new(),
             kappa_before: None,
+            active: ActivePairs::default(),
         })
     }
 
@@ -186,6 +204,8 @@ impl ContactPotential {
     pub fn begin(&mut self, step: &ContactStep<'_>) {
         let (positions, fixed, h) = (step.positions, step.fixed, step.h);
         self.kappa_before = self.kappa;
+        // The colliders are posed anew: pairs collected in an earlier step are stale.
+        self.active.x.clear();
         let kappa = *self.kappa.get_or_insert_with(|| {
             let (sum, count) = step
                 .masses
@@ -325,12 +345,45 @@ impl ContactPotential {
         }
     }
 
-    /// Adapts `kappa` to the iterate `x` (IPC's rule, see [`AdaptiveKappa::update`]);
-    /// returns whether it grew.
+    /// Adapts `kappa` to the iterate `x` (IPC's rule, see [`AdaptiveKappa::update`]) and
+    /// collects the pairs within `dhat` there, which the gradient and the Hessian at the
+    /// same `x` reuse; returns whether `kappa` grew.
     pub fn update_kappa(&mut self, x: &[DVec3], fixed: &[bool]) -> bool {
-        let d = self.min_distance(x, fixed);
         let dhat = self.settings.dhat;
+        let tau = self.settings.thickness;
+        let mut active = std::mem::take(&mut self.active);
+        active.x.clear();
+        active.x.extend_from_slice(x);
+        active.pairs.clear();
+        let bounds = free_box(x, fixed, None);
+        let mut min = f64::INFINITY;
+        for shape in self.near(&bounds) {
+            for (i, &p) in x.iter().enumerate() {
+                if fixed[i] {
+                    continue;
+                }
+                let sd = signed_distance(shape, p, tau);
+                min = min.min(sd.distance);
+                if sd.distance > 0.0 && sd.distance < dhat {
+                    active.pairs.push((
+                        i,
+                        sd.normal,
+                        barrier_first_derivative(sd.distance, dhat),
+                        barrier_second_derivative(sd.distance, dhat),
+                    ));
+                }
+            }
+        }
+        self.active = active;
+        let d = if min < dhat { min } else { f64::INFINITY };
         self.kappa.as_mut().is_some_and(|k| k.update(d, dhat))
+    }
+
+    /// The pairs collected at `x` by the last [`Self::update_kappa`], if it was given
+    /// this very iterate.
+    fn active_at(&self, x: &[DVec3]) -> Option<&[(usize, DVec3, f64, f64)]> {
+        (!self.active.x.is_empty() && self.active.x.as_slice() == x)
+            .then_some(self.active.pairs.as_slice())
     }
 
     /// The first free particle at distance `<= 0` from a collider (touching or inside)
@@ -428,7 +481,11 @@ impl ContactPotential {
         scale: f64,
         gradient: &mut [DVec3],
     ) {
-        if let Some(kappa) = self.kappa {
+        if let (Some(kappa), Some(pairs)) = (self.kappa, self.active_at(x)) {
+            for &(i, n, b1, _) in pairs {
+                gradient[i] += scale * (kappa.kappa * b1 * n);
+            }
+        } else if let Some(kappa) = self.kappa {
             let bounds = free_box(x, fixed, None);
             for shape in self.near(&bounds) {
                 for (i, &p) in x.iter().enumerate() {
@@ -463,7 +520,11 @@ impl ContactPotential {
         fixed: &[bool],
         mut add: impl FnMut(usize, DMat3),
     ) {
-        if let Some(kappa) = self.kappa {
+        if let (Some(kappa), Some(pairs)) = (self.kappa, self.active_at(x)) {
+            for &(i, n, _, b2) in pairs {
+                add(i, outer(n) * (kappa.kappa * b2));
+            }
+        } else if let Some(kappa) = self.kappa {
             let bounds = free_box(x, fixed, None);
             for shape in self.near(&bounds) {
                 for (i, &p) in x.iter().enumerate() {
