@@ -85,8 +85,9 @@ pub struct ContactStep<'a> {
     pub start: f64,
     /// The time at the step's end (the colliders are posed there).
     pub end: f64,
-    /// The gradient at `positions` of the rest of the incremental potential (inertia,
-    /// gravity, elasticity), per particle and in the constrained positions, for IPC's
+    /// The gradient at `positions` of the forces the barrier is to balance (the
+    /// integrators' contact term gives gravity and the springs), per particle and in the
+    /// constrained positions, for IPC's
     /// balancing start of `kappa` ([`super::barrier::balanced_kappa`], applied on the
     /// first step that starts in contact); `None` leaves `kappa` to its other rules.
     pub other_gradient: Option<&'a [DVec3]>,

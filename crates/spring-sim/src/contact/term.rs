@@ -15,7 +15,7 @@
 //! the Hessian times 4 (the chain rule). Derivation: docs/contact.md.
 
 use super::{ContactPotential, ContactStep};
-use crate::potential::{Gravity, HessianSink, Inertia, Springs, StepContext, SymBlock, Term};
+use crate::potential::{Gravity, HessianSink, Springs, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
 use sinew_math::DVec3;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -136,20 +136,21 @@ impl Term for ContactTerm {
         } else {
             (step.h, step.x_ref)
         };
-        // IPC's balancing start of kappa needs the gradient of the rest of the
-        // incremental potential at the step's start: inertia, gravity and the springs
-        // (damping vanishes there for backward Euler; bending and other added terms are
-        // left out: the balance only picks a starting stiffness). In the midpoint's
-        // unknowns the barrier's gradient is twice its end-state gradient, so the
-        // other gradient is halved to balance in end-state terms. Once the start is
-        // made it is not needed again.
+        // The balancing start of kappa weighs the barrier against the elastic forces at
+        // the step's start: gravity and the springs (bending and other added terms are
+        // left out: the balance only picks a starting stiffness). The inertia term is
+        // left out too: contact usually begins while the sheet lands, where it is the
+        // momentum of the fall, and a stiffness balancing that is kept for the rest of
+        // the run (docs/contact.md measures both). In the midpoint's unknowns the
+        // barrier's gradient is twice its end-state gradient, so the other gradient is
+        // halved to balance in end-state terms. Once the start is made it is not needed
+        // again.
         let mut other = std::mem::take(&mut self.other_gradient);
         let balance = self.potential.awaits_balance();
         if balance {
             other.clear();
             other.resize(s.len(), DVec3::ZERO);
             let x_n = s.positions();
-            Inertia.add_gradient(step, x_n, &mut other);
             Gravity.add_gradient(step, x_n, &mut other);
             Springs.add_gradient(step, x_n, &mut other);
             if timing.midpoint {
