@@ -730,3 +730,48 @@ fn energy_changes_from_differences_match_direct_ones() {
         "{change}"
     );
 }
+
+#[test]
+fn barrier_change_keeps_its_accuracy_for_tiny_changes() {
+    use sinew_spring_sim::contact::barrier::barrier_change;
+    let dhat = 1e-3;
+    for &d0 in &[1e-6, 1e-5, 1.05e-4, 5e-4, 9.9e-4] {
+        // Ordinary changes: the plain difference of the two values, to rounding.
+        for &frac in &[-0.5, -0.1, 0.05, 0.3] {
+            let c = frac * d0;
+            let plain = barrier(d0 + c, dhat) - barrier(d0, dhat);
+            let got = barrier_change(d0, c, dhat);
+            assert!(
+                (got - plain).abs() <= 1e-12 * plain.abs().max(barrier(d0, dhat)),
+                "d0 {d0} change {c}: {got} vs {plain}"
+            );
+        }
+        // Tiny changes: against the Taylor expansion b' c + b'' c^2 / 2 (its error,
+        // of order b''' c^3, is far below the tolerance), where the difference of two
+        // rounded values of b would have no correct digit at all.
+        for &frac in &[1e-15, -3e-14, 2e-11, -1e-9] {
+            let c = frac * d0;
+            let taylor = barrier_first_derivative(d0, dhat) * c
+                + 0.5 * barrier_second_derivative(d0, dhat) * c * c;
+            let got = barrier_change(d0, c, dhat);
+            assert!(
+                (got - taylor).abs() <= 1e-9 * taylor.abs(),
+                "d0 {d0} change {c}: {got} vs {taylor}"
+            );
+        }
+    }
+    let naive_error = {
+        let (d0, c) = (1.05e-4, 1e-15 * 1.05e-4);
+        let taylor = barrier_first_derivative(d0, dhat) * c;
+        ((barrier(d0 + c, dhat) - barrier(d0, dhat)) - taylor).abs() / taylor.abs()
+    };
+    assert!(
+        naive_error > 1e-3,
+        "the naive difference is {naive_error} off"
+    );
+    // Into the collider: +inf; across dhat: the plain difference (one side is 0).
+    assert_eq!(barrier_change(1e-4, -1e-4, dhat), f64::INFINITY);
+    assert_eq!(barrier_change(5e-4, 6e-4, dhat), -barrier(5e-4, dhat));
+    assert_eq!(barrier_change(2e-3, -1.5e-3, dhat), barrier(5e-4, dhat));
+    assert_eq!(barrier_change(2e-3, 1e-3, dhat), 0.0);
+}

@@ -65,6 +65,27 @@ pub fn barrier_second_derivative(d: f64, dhat: f64) -> f64 {
     }
 }
 
+/// `b(d0 + change) - b(d0)`, computed from `change` itself where both distances lie in
+/// `(0, dhat)`, so that it keeps its relative accuracy when the change is far below
+/// `b`: with `e = d - dhat`, `b(d1) - b(d0) = -(change (e0 + e1) ln(d1/dhat) + e0^2
+/// ln(1 + change/d0))` (the difference of `e^2` factored, and of the logarithms taken
+/// as one `ln_1p`). A line search near convergence compares energy changes many orders
+/// of magnitude below a contact's barrier energy, and the difference of the two
+/// rounded values would bury them. `+inf` when `d0 + change <= 0`; the plain
+/// difference where a distance is at or beyond `dhat` (one of the two values is then 0).
+#[must_use]
+pub fn barrier_change(d0: f64, change: f64, dhat: f64) -> f64 {
+    let d1 = d0 + change;
+    if d1 <= 0.0 {
+        return f64::INFINITY;
+    }
+    if d0 <= 0.0 || d0 >= dhat || d1 >= dhat {
+        return barrier(d1, dhat) - barrier(d0, dhat);
+    }
+    let (e0, e1) = (d0 - dhat, d1 - dhat);
+    -(change * (e0 + e1) * (d1 / dhat).ln() + e0 * e0 * (change / d0).ln_1p())
+}
+
 /// The barrier energy of one particle against one collider.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum PointBarrier {

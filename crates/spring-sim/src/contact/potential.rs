@@ -17,12 +17,12 @@
 //! iterate's smallest contact distance is below 1% of `dhat` and still falling.
 
 use super::barrier::{
-    AdaptiveKappa, KappaSettings, balanced_kappa, barrier, barrier_first_derivative,
-    barrier_second_derivative, minimum_kappa, point_barrier_gradient,
+    AdaptiveKappa, KappaSettings, balanced_kappa, barrier, barrier_change,
+    barrier_first_derivative, barrier_second_derivative, minimum_kappa, point_barrier_gradient,
     point_barrier_projected_hessian,
 };
 use super::collider::{Collider, Shape, validate_colliders};
-use super::distance::{distance_pair, signed_distance};
+use super::distance::{distance_change, signed_distance};
 use super::friction::FrictionContact;
 use super::toi::time_of_impact;
 use super::{ContactError, ContactSettings};
@@ -452,12 +452,14 @@ impl ContactPotential {
                     if fixed[i] {
                         continue;
                     }
-                    let (d0, d1) = distance_pair(shape, p, alpha * dx[i], self.settings.thickness);
+                    let (d0, dd) =
+                        distance_change(shape, p, alpha * dx[i], self.settings.thickness);
+                    let d1 = d0 + dd;
                     if d1 <= 0.0 {
                         return f64::INFINITY;
                     }
                     if d0 < dhat || d1 < dhat {
-                        change += kappa.kappa * (barrier(d1, dhat) - barrier(d0, dhat));
+                        change += kappa.kappa * barrier_change(d0, dd, dhat);
                     }
                 }
             }
