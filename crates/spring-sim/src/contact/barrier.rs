@@ -11,7 +11,8 @@
 //! `kappa b'(d) n` and its Hessian `kappa (b''(d) n n^T + b'(d) H_d)`. `b'' > 0`, but
 //! `b' < 0` and the distance Hessian `H_d` is positive semidefinite for the convex
 //! colliders, so the second term is negative semidefinite and the Hessian is indefinite;
-//! it is projected onto positive semidefinite matrices ([`super::psd::project_psd`]).
+//! its projection onto positive semidefinite matrices is `kappa b'' n n^T` in closed
+//! form ([`point_barrier_projected_hessian`]).
 //!
 //! `kappa`'s rule (IPC's, written for distances rather than squared distances):
 //! a minimum from the particles' mass, gravity, the step and `dhat`

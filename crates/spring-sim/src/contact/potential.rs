@@ -13,8 +13,10 @@
 //! no particle near a collider pays one box test per collider per evaluation.
 //!
 //! `kappa` follows IPC's adaptive rule ([`super::barrier`]): it starts at
-//! [`minimum_kappa`] on the first step and doubles (up to 100 times that) when an
-//! iterate's smallest contact distance is below 1% of `dhat` and still falling.
+//! [`minimum_kappa`] on the first step, is set once to the balance of the other forces
+//! at the contacts on the first step that begins in contact (clamped to 100 times the
+//! minimum), and doubles (up to that cap) when an iterate's smallest contact distance is
+//! below 1% of `dhat` and still falling.
 
 use super::barrier::{
     AdaptiveKappa, KappaSettings, balanced_kappa, barrier, barrier_change,
@@ -600,9 +602,9 @@ impl ContactPotential {
 ///
 /// When two colliders close in on a particle within the step, the carry by one may
 /// leave it inside the other. Such a particle is then pushed out of the colliders posed
-/// at `t1` in turn, each push along the collider's normal to a target distance
-/// ([`separate`]), which finds a point outside all of them while they leave room
-/// between them. Returns the first free particle for which no such point was found,
+/// at `t1` in turn, each push along the collider's normal to a target distance (the
+/// target halved when the pushes do not settle), which finds a point outside all of
+/// them while they leave room between them. Returns the first free particle for which no such point was found,
 /// with the index of a collider it is still inside (the colliders overlap where it is,
 /// or leave a gap too thin for the search).
 #[allow(clippy::too_many_arguments)]
