@@ -277,9 +277,10 @@ pub enum StepError {
         dt: f64,
     },
     /// A particle cannot start a step outside every collider posed at the step's end
-    /// time: kinematic colliders closed in on it from two sides within one step (a
-    /// particle one collider runs over is carried along with it, and then found inside
-    /// another). The step was refused.
+    /// time: kinematic colliders closed in on it from two sides within one step and
+    /// leave no room (a particle one collider runs over is carried along with it, then
+    /// pushed out of each collider in turn, and was still inside `collider`). The step
+    /// was refused.
     Contact {
         /// The particle.
         particle: usize,
@@ -303,7 +304,7 @@ impl std::fmt::Display for StepError {
             ),
             Self::Contact { particle, collider } => write!(
                 f,
-                "particle {particle} is inside collider {collider} at the step's end time even when carried along by the moving colliders (they close in on it within one step); the step was refused"
+                "particle {particle} cannot be placed outside every collider at the step's end time: carried along by the moving colliders and pushed out of each in turn, it is still inside collider {collider} (the colliders close in on it within one step and leave no room); the step was refused"
             ),
             Self::BelowStabilityBound {
                 integrator,

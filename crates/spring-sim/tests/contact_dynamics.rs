@@ -338,3 +338,42 @@ fn friction_carries_a_particle_on_a_turntable() {
         x.length()
     );
 }
+
+#[test]
+fn kappa_starts_at_the_balance_of_a_spring_pressing_a_particle_onto_the_ground() {
+    // A particle at rest 0.5 mm above the ground (within dhat = 1 mm), pressed down by a
+    // spring of stiffness 1 N/m compressed from 0.2 m to 0.0995 m against a fixed
+    // particle above it. The forces the barrier must hold: the spring's k (L0 - l) and
+    // the weight m g, so the balancing start is kappa = (k (L0 - l) + m g) / |b'(d)|,
+    // well above kappa_min (the minimum holds m (g + dhat/h^2) at dhat/2).
+    let (m, d, top, rest, k) = (5e-4, 5e-4, 0.1, 0.2, 1.0);
+    let mut anchor = Particle::at_rest(DVec3::new(0.0, top, 0.0), m);
+    anchor.fixed = true;
+    let pressed = Particle::at_rest(DVec3::new(0.0, d, 0.0), m);
+    let spring = sinew_spring_sim::SpringSpec {
+        rest_length: Some(rest),
+        stiffness: Some(k),
+        ..sinew_spring_sim::SpringSpec::between(0, 1)
+    };
+    let system = SpringSystem::new(&[anchor, pressed], &[spring], material()).unwrap();
+    let mut sim = Simulation::new(system, backward_euler()).unwrap();
+    let settings = ContactSettings::default();
+    sim.set_contact(vec![Collider::ground(0.0)], settings)
+        .unwrap();
+    sim.step(H).unwrap();
+    let b1 = sinew_spring_sim::contact::barrier::barrier_first_derivative(d, settings.dhat);
+    let expected = (k * (rest - (top - d)) + m * G) / -b1;
+    let kmin = sinew_spring_sim::contact::barrier::minimum_kappa(settings.dhat, m, G, H);
+    assert!(
+        expected > 2.0 * kmin && expected < 100.0 * kmin,
+        "{expected} vs {kmin}"
+    );
+    let kappa = sim.contact_kappa().unwrap();
+    assert!(
+        (kappa - expected).abs() <= 1e-9 * expected,
+        "kappa {kappa} vs the balance {expected}"
+    );
+    // Balanced at the start, the particle barely moves: it stays near 0.5 mm.
+    let y = sim.system().positions()[1].y;
+    assert!((y - d).abs() < 0.1 * d, "moved to {y}");
+}

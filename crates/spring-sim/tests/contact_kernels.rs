@@ -5,7 +5,7 @@
 use sinew_math::{DMat3, DVec3};
 use sinew_spring_sim::contact::barrier::{
     balanced_kappa, barrier, barrier_first_derivative, barrier_second_derivative, minimum_kappa,
-    point_barrier_exact_hessian,
+    point_barrier_exact_hessian, point_barrier_gradient, point_barrier_projected_hessian,
 };
 use sinew_spring_sim::contact::friction::{f0, f1, f1_derivative};
 use sinew_spring_sim::contact::psd::{project_psd, symmetric_eigen};
@@ -335,6 +335,23 @@ fn point_barrier_derivatives_and_projection() {
                 max_abs(hessian - expected) <= 1e-10 * max_abs(expected),
                 "{shape:?}: projected {hessian} vs {expected}"
             );
+            // The closed form is the general eigen-decomposition projection of the exact
+            // Hessian, and the gradient-only kernel gives the same gradient.
+            let general = project_psd(exact);
+            assert!(
+                max_abs(hessian - general) <= 1e-10 * max_abs(general),
+                "{shape:?}: closed form {hessian} vs projected {general}"
+            );
+            assert_eq!(
+                point_barrier_projected_hessian(kappa, dhat, &sd),
+                hessian,
+                "{shape:?}"
+            );
+            assert_eq!(
+                point_barrier_gradient(kappa, dhat, &sd),
+                Some(g),
+                "{shape:?}"
+            );
         }
     }
     let plane = &shapes()[0];
@@ -475,6 +492,37 @@ fn kappa_rule() {
         a.update(1e-4 * dhat / (i + 1) as f64, dhat);
     }
     assert_eq!(a.kappa, 100.0 * kmin);
+}
+
+#[test]
+fn balancing_start_is_applied_once_and_clamped() {
+    let kmin = 2.0;
+    let s = KappaSettings::default();
+    // Within the bounds: taken as is, once.
+    let mut a = AdaptiveKappa::new(kmin, None, s);
+    assert!(!a.balanced);
+    assert!(!a.start_balanced(-1.0), "no balance: nothing set");
+    assert!(!a.start_balanced(f64::NAN));
+    assert!(!a.balanced && a.kappa == kmin);
+    assert!(a.start_balanced(7.0));
+    assert_eq!(a.kappa, 7.0);
+    assert!(!a.start_balanced(30.0), "only the first balance counts");
+    assert_eq!(a.kappa, 7.0);
+    // Clamped to [kmin, 100 kmin].
+    let mut low = AdaptiveKappa::new(kmin, None, s);
+    assert!(low.start_balanced(1e-6));
+    assert_eq!(low.kappa, kmin);
+    let mut high = AdaptiveKappa::new(kmin, None, s);
+    assert!(high.start_balanced(1e9));
+    assert_eq!(high.kappa, 100.0 * kmin);
+    // A stiffness the growth rule already raised is not lowered.
+    let mut grown = AdaptiveKappa::new(kmin, None, s);
+    assert!(grown.update(1e-6, 1.0));
+    assert_eq!(grown.kappa, 2.0 * kmin);
+    assert!(grown.start_balanced(1.5 * kmin));
+    assert_eq!(grown.kappa, 2.0 * kmin);
+    // A start given at construction counts as the balancing start.
+    assert!(AdaptiveKappa::new(kmin, Some(3.0), s).balanced);
 }
 
 #[test]
@@ -681,4 +729,49 @@ fn energy_changes_from_differences_match_direct_ones() {
         (change - contact.max_force * 1e-14).abs() <= 1e-9 * contact.max_force * 1e-14,
         "{change}"
     );
+}
+
+#[test]
+fn barrier_change_keeps_its_accuracy_for_tiny_changes() {
+    use sinew_spring_sim::contact::barrier::barrier_change;
+    let dhat = 1e-3;
+    for &d0 in &[1e-6, 1e-5, 1.05e-4, 5e-4, 9.9e-4] {
+        // Ordinary changes: the plain difference of the two values, to rounding.
+        for &frac in &[-0.5, -0.1, 0.05, 0.3] {
+            let c = frac * d0;
+            let plain = barrier(d0 + c, dhat) - barrier(d0, dhat);
+            let got = barrier_change(d0, c, dhat);
+            assert!(
+                (got - plain).abs() <= 1e-12 * plain.abs().max(barrier(d0, dhat)),
+                "d0 {d0} change {c}: {got} vs {plain}"
+            );
+        }
+        // Tiny changes: against the Taylor expansion b' c + b'' c^2 / 2 (its error,
+        // of order b''' c^3, is far below the tolerance), where the difference of two
+        // rounded values of b would have no correct digit at all.
+        for &frac in &[1e-15, -3e-14, 2e-11, -1e-9] {
+            let c = frac * d0;
+            let taylor = barrier_first_derivative(d0, dhat) * c
+                + 0.5 * barrier_second_derivative(d0, dhat) * c * c;
+            let got = barrier_change(d0, c, dhat);
+            assert!(
+                (got - taylor).abs() <= 1e-9 * taylor.abs(),
+                "d0 {d0} change {c}: {got} vs {taylor}"
+            );
+        }
+    }
+    let naive_error = {
+        let (d0, c) = (1.05e-4, 1e-15 * 1.05e-4);
+        let taylor = barrier_first_derivative(d0, dhat) * c;
+        ((barrier(d0 + c, dhat) - barrier(d0, dhat)) - taylor).abs() / taylor.abs()
+    };
+    assert!(
+        naive_error > 1e-3,
+        "the naive difference is {naive_error} off"
+    );
+    // Into the collider: +inf; across dhat: the plain difference (one side is 0).
+    assert_eq!(barrier_change(1e-4, -1e-4, dhat), f64::INFINITY);
+    assert_eq!(barrier_change(5e-4, 6e-4, dhat), -barrier(5e-4, dhat));
+    assert_eq!(barrier_change(2e-3, -1.5e-3, dhat), barrier(5e-4, dhat));
+    assert_eq!(barrier_change(2e-3, 1e-3, dhat), 0.0);
 }

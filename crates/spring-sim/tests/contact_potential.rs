@@ -262,3 +262,153 @@ fn the_default_fraction_lets_a_step_close_ninety_percent_of_the_distance() {
     let end = x[0] + a * dx[0];
     assert!((end.y - 0.1).abs() < 1e-15 && end.y > 0.0, "{end}");
 }
+
+/// A backward Euler step of 1/60 s from `positions` at time `t`, three free particles
+/// of 5e-4 kg under gravity 9.81.
+fn three_particle_step<'a>(
+    positions: &'a [DVec3],
+    other: Option<&'a [DVec3]>,
+    t: f64,
+) -> sinew_spring_sim::contact::ContactStep<'a> {
+    sinew_spring_sim::contact::ContactStep {
+        positions,
+        anchor: positions,
+        fixed: &[false, false, false],
+        masses: &[5e-4, 5e-4, 5e-4],
+        gravity: 9.81,
+        h: 1.0 / 60.0,
+        start: t,
+        end: t + 1.0 / 60.0,
+        other_gradient: other,
+    }
+}
+
+#[test]
+fn kappa_starts_at_the_balance_of_the_other_forces_on_the_first_step_in_contact() {
+    let dhat = 1e-3;
+    let settings = ContactSettings {
+        dhat,
+        ..ContactSettings::default()
+    };
+    let (m, g, h) = (5e-4, 9.81, 1.0 / 60.0);
+    let kmin = minimum_kappa(dhat, m, g, h);
+    let mut p = ContactPotential::new(
+        vec![
+            Collider::ground(0.0),
+            Collider::sphere(DVec3::new(5.0, 0.0, 0.0), 0.5),
+        ],
+        settings,
+        0.0,
+    )
+    .unwrap();
+    // Two particles on the ground at 0.3 dhat and 0.5 dhat, one far away. The other
+    // forces press the two onto the ground with 20 times their weight (gradient
+    // +f y), and push the far one sideways, which no barrier can balance.
+    let f = 20.0 * m * g;
+    let rest = [
+        DVec3::new(0.0, 0.3 * dhat, 0.0),
+        DVec3::new(1.0, 0.5 * dhat, 0.0),
+        DVec3::new(2.0, 1.0, 0.0),
+    ];
+    let pressed = [
+        DVec3::new(0.0, f, 0.0),
+        DVec3::new(0.0, f, 0.0),
+        DVec3::new(3.0, f, 0.0),
+    ];
+    // A first step with nothing in contact: kappa_min, and the balance still to come.
+    let high = [rest[0] + DVec3::Y, rest[1] + DVec3::Y, rest[2]];
+    assert!(p.awaits_balance());
+    p.begin(&three_particle_step(&high, Some(&pressed), 0.0));
+    assert_eq!(p.kappa(), kmin);
+    assert!(p.awaits_balance(), "no contact: no balance yet");
+    // The first step in contact: kappa = -(g_E . g_B)/|g_B|^2 with g_B = b'(d_i) y for
+    // the two resting particles (the far one has no barrier gradient):
+    // kappa = f (|b'(d_0)| + |b'(d_1)|) / (b'(d_0)^2 + b'(d_1)^2).
+    let (b0, b1) = (
+        barrier_first_derivative(0.3 * dhat, dhat),
+        barrier_first_derivative(0.5 * dhat, dhat),
+    );
+    let expected = f * (-b0 - b1) / (b0 * b0 + b1 * b1);
+    assert!(
+        expected > kmin && expected < 100.0 * kmin,
+        "{expected} vs {kmin}"
+    );
+    p.begin(&three_particle_step(&rest, Some(&pressed), h));
+    assert!(
+        (p.kappa() - expected).abs() <= 1e-12 * expected,
+        "{} vs {expected}",
+        p.kappa()
+    );
+    assert!(!p.awaits_balance());
+    // Applied once: a later step with another balance leaves kappa alone.
+    let harder = pressed.map(|v| 10.0 * v);
+    p.begin(&three_particle_step(&rest, Some(&harder), 2.0 * h));
+    assert!((p.kappa() - expected).abs() <= 1e-12 * expected);
+    // Rewinding the step that made the start undoes it (a step redone in pieces).
+    let mut q = ContactPotential::new(vec![Collider::ground(0.0)], settings, 0.0).unwrap();
+    q.begin(&three_particle_step(&high, Some(&pressed), 0.0));
+    q.begin(&three_particle_step(&rest, Some(&pressed), h));
+    assert!(!q.awaits_balance());
+    q.rewind_kappa();
+    assert!(q.awaits_balance());
+    assert_eq!(q.kappa(), kmin);
+}
+
+/// The gradient and the Hessian blocks (in the order given) at `x`.
+fn derivatives(
+    p: &ContactPotential,
+    x: &[DVec3],
+    fixed: &[bool],
+) -> (Vec<DVec3>, Vec<(usize, DMat3)>) {
+    let mut g = vec![DVec3::ZERO; x.len()];
+    p.add_gradient(x, fixed, &mut g);
+    let mut blocks = Vec::new();
+    p.for_each_hessian_block(x, fixed, |i, b| blocks.push((i, b)));
+    (g, blocks)
+}
+
+#[test]
+fn derivatives_from_the_collected_pairs_equal_the_full_pass_and_never_go_stale() {
+    let (mut p, x0, fixed, masses) = setup();
+    let x: Vec<DVec3> = x0
+        .iter()
+        .enumerate()
+        .map(|(i, &q)| q + DVec3::new(1e-4 * (i as f64 + 1.0), -1e-4, 2e-5 * i as f64))
+        .collect();
+    // Without collected pairs: the full pass over every particle and collider.
+    let full = derivatives(&p, &x, &fixed);
+    let kappa = p.kappa();
+    p.update_kappa(&x, &fixed);
+    assert_eq!(p.kappa(), kappa, "no growth at these distances");
+    // From the pairs collected at x: the same numbers, bit for bit.
+    assert_eq!(derivatives(&p, &x, &fixed), full);
+    // At another state the pairs are not used.
+    let other: Vec<DVec3> = x.iter().map(|q| *q + DVec3::new(0.0, 1e-3, 0.0)).collect();
+    let fresh = setup().0;
+    assert_eq!(
+        derivatives(&p, &other, &fixed),
+        derivatives(&fresh, &other, &fixed)
+    );
+    // A new step poses the colliders anew: pairs collected before it are dropped. The
+    // ground rises by 2 mm per step here, so the same state has other distances.
+    let settings = ContactSettings {
+        dhat: 0.01,
+        ..ContactSettings::default()
+    };
+    let rising = vec![Collider::ground(0.0).moving(DVec3::new(0.0, 0.2, 0.0), DVec3::ZERO)];
+    let mut q = ContactPotential::new(rising.clone(), settings, 0.0).unwrap();
+    let low = vec![DVec3::new(0.0, 0.007, 0.0), DVec3::new(1.0, 0.009, 0.0)];
+    let free = vec![false, false];
+    q.begin_step(&low, &free, &masses[..2], 9.81, 0.01);
+    q.update_kappa(&low, &free);
+    q.begin_step(&low, &free, &masses[..2], 9.81, 0.01);
+    let mut r = ContactPotential::new(rising, settings, 0.0).unwrap();
+    r.begin_step(&low, &free, &masses[..2], 9.81, 0.01);
+    r.begin_step(&low, &free, &masses[..2], 9.81, 0.01);
+    assert_eq!(q.kappa(), r.kappa());
+    let (moved, _) = derivatives(&q, &low, &free);
+    assert_eq!(moved, derivatives(&r, &low, &free).0);
+    // And the ground's rise shows: the particle at 7 mm is now 3 mm from it (the pose at
+    // the second step's end, t = 0.02), pushed harder than at 5 mm.
+    assert!(moved[0].y < 0.0 && moved[0].y < moved[1].y, "{moved:?}");
+}

@@ -11,7 +11,8 @@
 //! `kappa b'(d) n` and its Hessian `kappa (b''(d) n n^T + b'(d) H_d)`. `b'' > 0`, but
 //! `b' < 0` and the distance Hessian `H_d` is positive semidefinite for the convex
 //! colliders, so the second term is negative semidefinite and the Hessian is indefinite;
-//! it is projected onto positive semidefinite matrices ([`super::psd::project_psd`]).
+//! its projection onto positive semidefinite matrices is `kappa b'' n n^T` in closed
+//! form ([`point_barrier_projected_hessian`]).
 //!
 //! `kappa`'s rule (IPC's, written for distances rather than squared distances):
 //! a minimum from the particles' mass, gravity, the step and `dhat`
@@ -21,7 +22,6 @@
 //! ([`AdaptiveKappa::update`]). Derivations: docs/contact.md.
 
 use super::distance::SignedDistance;
-use super::psd::project_psd;
 use crate::spring::outer;
 use sinew_math::{DMat3, DVec3};
 
@@ -66,6 +66,27 @@ pub fn barrier_second_derivative(d: f64, dhat: f64) -> f64 {
     }
 }
 
+/// `b(d0 + change) - b(d0)`, computed from `change` itself where both distances lie in
+/// `(0, dhat)`, so that it keeps its relative accuracy when the change is far below
+/// `b`: with `e = d - dhat`, `b(d1) - b(d0) = -(change (e0 + e1) ln(d1/dhat) + e0^2
+/// ln(1 + change/d0))` (the difference of `e^2` factored, and of the logarithms taken
+/// as one `ln_1p`). A line search near convergence compares energy changes many orders
+/// of magnitude below a contact's barrier energy, and the difference of the two
+/// rounded values would bury them. `+inf` when `d0 + change <= 0`; the plain
+/// difference where a distance is at or beyond `dhat` (one of the two values is then 0).
+#[must_use]
+pub fn barrier_change(d0: f64, change: f64, dhat: f64) -> f64 {
+    let d1 = d0 + change;
+    if d1 <= 0.0 {
+        return f64::INFINITY;
+    }
+    if d0 <= 0.0 || d0 >= dhat || d1 >= dhat {
+        return barrier(d1, dhat) - barrier(d0, dhat);
+    }
+    let (e0, e1) = (d0 - dhat, d1 - dhat);
+    -(change * (e0 + e1) * (d1 / dhat).ln() + e0 * e0 * (change / d0).ln_1p())
+}
+
 /// The barrier energy of one particle against one collider.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum PointBarrier {
@@ -101,8 +122,39 @@ pub fn point_barrier(kappa: f64, dhat: f64, sd: &SignedDistance) -> PointBarrier
     PointBarrier::Active {
         energy: kappa * barrier(d, dhat),
         gradient: kappa * b1 * sd.normal,
-        hessian: project_psd(point_barrier_exact_hessian(kappa, dhat, sd)),
+        hessian: point_barrier_projected_hessian(kappa, dhat, sd),
     }
+}
+
+/// The barrier's gradient `kappa b'(d) n` alone (zero at and beyond `dhat`; the limit
+/// `-inf` times the normal at and below 0 is not returned: `None` there).
+#[must_use]
+pub fn point_barrier_gradient(kappa: f64, dhat: f64, sd: &SignedDistance) -> Option<DVec3> {
+    let d = sd.distance;
+    if d <= 0.0 {
+        None
+    } else if d >= dhat {
+        Some(DVec3::ZERO)
+    } else {
+        Some(kappa * barrier_first_derivative(d, dhat) * sd.normal)
+    }
+}
+
+/// The exact Hessian projected onto positive semidefinite matrices, in closed form:
+/// `kappa b''(d) n n^T` on `(0, dhat)`, zero elsewhere. The exact Hessian is
+/// `kappa (b'' n n^T + b' H_d)` with `b'' > 0`, `b' < 0`, and for every collider shape
+/// `n` is an eigenvector of `H_d` with eigenvalue 0 while its other eigenvalues are
+/// `>= 0`; so `n` is an eigenvector of the whole with eigenvalue `kappa b'' > 0` and the
+/// others are `kappa b' lambda_k <= 0`, which the projection clamps at 0. This equals
+/// [`super::psd::project_psd`] of [`point_barrier_exact_hessian`] (tested), without its
+/// eigen-decomposition.
+#[must_use]
+pub fn point_barrier_projected_hessian(kappa: f64, dhat: f64, sd: &SignedDistance) -> DMat3 {
+    let d = sd.distance;
+    if d <= 0.0 || d >= dhat {
+        return DMat3::ZERO;
+    }
+    outer(sd.normal) * (kappa * barrier_second_derivative(d, dhat))
 }
 
 /// The exact (unprojected, generally indefinite) Hessian `kappa (b'' n n^T + b' H_d)`;
@@ -189,6 +241,8 @@ pub struct AdaptiveKappa {
     pub previous_min_distance: f64,
     /// The rule's constants.
     pub settings: KappaSettings,
+    /// Whether the balancing start ([`Self::start_balanced`]) has been applied.
+    pub balanced: bool,
 }
 
 impl AdaptiveKappa {
@@ -204,7 +258,28 @@ impl AdaptiveKappa {
             kappa_max,
             previous_min_distance: f64::INFINITY,
             settings,
+            balanced: balanced.is_some(),
         }
+    }
+
+    /// IPC's balancing start, applied once: the first time it is given a balance (see
+    /// [`balanced_kappa`]; the caller computes one at the start of a step that begins
+    /// with particles in contact), `kappa` becomes that balance clamped to `[kappa_min,
+    /// kappa_max]`, or stays if the growth rule already took it higher (contact usually
+    /// begins within a step, where a barrier found too weak has grown). Later calls
+    /// change nothing: from then on only the growth rule acts, so the potential changes
+    /// between steps only where the barrier is losing, and a conservative scheme (the
+    /// midpoint) is not pumped by a stiffness that follows its oscillations. Returns
+    /// whether `kappa` was set.
+    pub fn start_balanced(&mut self, balanced: f64) -> bool {
+        if self.balanced || !(balanced.is_finite() && balanced > 0.0) {
+            return false;
+        }
+        self.balanced = true;
+        self.kappa = self
+            .kappa
+            .max(balanced.clamp(self.kappa_min, self.kappa_max));
+        true
     }
 
     /// After an iterate with smallest contact distance `min_distance` (`+inf` when

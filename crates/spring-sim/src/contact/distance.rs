@@ -130,6 +130,17 @@ fn ball(center: DVec3, radius: f64, x: DVec3, thickness: f64, fallback: DVec3) -
 /// would bury them.
 #[must_use]
 pub fn distance_pair(shape: &Shape, x: DVec3, delta: DVec3, thickness: f64) -> (f64, f64) {
+    let (d0, change) = distance_change(shape, x, delta, thickness);
+    (d0, d0 + change)
+}
+
+/// The signed distance `d0` (minus `thickness`) of `x` to `shape` and its change
+/// `d1 - d0` at `x + delta`, the change evaluated from `delta` itself wherever the
+/// closest feature is the same at both points (see [`distance_pair`]), otherwise as the
+/// difference of the two distances. Kept apart from `d0` so that a change far below
+/// the distance's last digit survives (`d0 + change` would round it to an ulp of `d0`).
+#[must_use]
+pub fn distance_change(shape: &Shape, x: DVec3, delta: DVec3, thickness: f64) -> (f64, f64) {
     let d0 = signed_distance(shape, x, thickness).distance;
     let radial = |p: DVec3, dp: DVec3| {
         let (l0, l1) = (p.length(), (p + dp).length());
@@ -163,9 +174,9 @@ pub fn distance_pair(shape: &Shape, x: DVec3, delta: DVec3, thickness: f64) -> (
             }
         }
     };
-    let d1 = match change {
-        Some(c) => d0 + c,
-        None => signed_distance(shape, x + delta, thickness).distance,
+    let change = match change {
+        Some(c) => c,
+        None => signed_distance(shape, x + delta, thickness).distance - d0,
     };
-    (d0, d1)
+    (d0, change)
 }

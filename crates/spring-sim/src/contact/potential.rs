@@ -13,17 +13,22 @@
 //! no particle near a collider pays one box test per collider per evaluation.
 //!
 //! `kappa` follows IPC's adaptive rule ([`super::barrier`]): it starts at
-//! [`minimum_kappa`] on the first step and doubles (up to 100 times that) when an
-//! iterate's smallest contact distance is below 1% of `dhat` and still falling.
+//! [`minimum_kappa`] on the first step, is set once to the balance of the other forces
+//! at the contacts on the first step that begins in contact (clamped to 100 times the
+//! minimum), and doubles (up to that cap) when an iterate's smallest contact distance is
+//! below 1% of `dhat` and still falling.
 
 use super::barrier::{
-    AdaptiveKappa, KappaSettings, PointBarrier, barrier, minimum_kappa, point_barrier,
+    AdaptiveKappa, KappaSettings, balanced_kappa, barrier, barrier_change,
+    barrier_first_derivative, barrier_second_derivative, minimum_kappa, point_barrier_gradient,
+    point_barrier_projected_hessian,
 };
 use super::collider::{Collider, Shape, validate_colliders};
-use super::distance::{distance_pair, signed_distance};
+use super::distance::{distance_change, signed_distance};
 use super::friction::FrictionContact;
 use super::toi::time_of_impact;
 use super::{ContactError, ContactSettings};
+use crate::spring::outer;
 use sinew_math::{DMat3, DVec3};
 
 /// The contact energy of one system (see the module documentation).
@@ -43,6 +48,21 @@ pub struct ContactPotential {
     /// `kappa` before the last start of a step (`None` before the first), for
     /// [`Self::rewind_kappa`].
     kappa_before: Option<AdaptiveKappa>,
+    /// The barrier pairs of the last iterate given to [`Self::update_kappa`].
+    active: ActivePairs,
+}
+
+/// The particle-collider pairs within `dhat` at one iterate, with the barrier's
+/// derivatives at unit stiffness: Newton asks for the gradient and the Hessian at the
+/// iterate it has just given to [`ContactPotential::update_kappa`], and both then come
+/// from this list instead of another pass of distances and logarithms over every
+/// particle. `kappa` is applied when they are read, so its growth at that update counts.
+#[derive(Clone, Debug, Default)]
+struct ActivePairs {
+    /// The iterate (empty when none is cached).
+    x: Vec<DVec3>,
+    /// `(particle, unit normal, b'(d), b''(d))` for every pair with `0 < d < dhat`.
+    pairs: Vec<(usize, DVec3, f64, f64)>,
 }
 
 /// One step as the contact potential sees it: its positions are the ones the barrier
@@ -67,6 +87,12 @@ pub struct ContactStep<'a> {
     pub start: f64,
     /// The time at the step's end (the colliders are posed there).
     pub end: f64,
+    /// The gradient at `positions` of the forces the barrier is to balance (the
+    /// integrators' contact term gives gravity and the springs), per particle and in the
+    /// constrained positions, for IPC's
+    /// balancing start of `kappa` ([`super::barrier::balanced_kappa`], applied on the
+    /// first step that starts in contact); `None` leaves `kappa` to its other rules.
+    pub other_gradient: Option<&'a [DVec3]>,
 }
 
 impl ContactPotential {
@@ -97,6 +123,7 @@ impl ContactPotential {
             posed,
             friction: Vec::new(),
             kappa_before: None,
+            active: ActivePairs::default(),
         })
     }
 
@@ -116,6 +143,14 @@ impl ContactPotential {
     #[must_use]
     pub fn kappa(&self) -> f64 {
         self.kappa.map_or(0.0, |k| k.kappa)
+    }
+
+    /// Whether the balancing start of `kappa` is still to come (see
+    /// [`ContactStep::other_gradient`]): a caller may skip computing the other gradient
+    /// when it is not.
+    #[must_use]
+    pub fn awaits_balance(&self) -> bool {
+        self.kappa.is_none_or(|k| !k.balanced)
     }
 
     /// The time the colliders are posed at (the current step's end).
@@ -157,17 +192,23 @@ impl ContactPotential {
             h,
             start,
             end: start + h,
+            other_gradient: None,
         });
     }
 
-    /// Starts the step `step`: sets `kappa` on the first step (from the mean free mass,
-    /// gravity's magnitude, `step.h` and `dhat`), lags the friction contacts at
+    /// Starts the step `step`: sets `kappa_min` on the first step (from the mean free
+    /// mass, gravity's magnitude, `step.h` and `dhat`), on the first step that starts
+    /// with a free particle within `dhat` of a collider sets `kappa` from IPC's balance
+    /// of the other forces there when `step.other_gradient` is given (see
+    /// [`AdaptiveKappa::start_balanced`]), lags the friction contacts at
     /// `step.positions` and `step.start` with their displacement measured from
     /// `step.anchor` over `step.h`, and poses the colliders at `step.end`. The times are
     /// inputs, so a step redone (in pieces) poses the colliders again from its own start.
     pub fn begin(&mut self, step: &ContactStep<'_>) {
         let (positions, fixed, h) = (step.positions, step.fixed, step.h);
         self.kappa_before = self.kappa;
+        // The colliders are posed anew: pairs collected in an earlier step are stale.
+        self.active.x.clear();
         let kappa = *self.kappa.get_or_insert_with(|| {
             let (sum, count) = step
                 .masses
@@ -180,6 +221,17 @@ impl ContactPotential {
             AdaptiveKappa::new(kmin, None, self.kappa_settings)
         });
         let start = step.start;
+        let kappa = match step.other_gradient {
+            Some(other) if !kappa.balanced => {
+                let balanced = self.balanced_kappa(positions, fixed, start, other);
+                let k = self.kappa.as_mut().expect("set above");
+                if let Some(b) = balanced {
+                    k.start_balanced(b);
+                }
+                *k
+            }
+            _ => kappa,
+        };
         self.friction.clear();
         if self.settings.mu > 0.0 {
             for collider in &self.colliders {
@@ -207,6 +259,38 @@ impl ContactPotential {
         self.step_start = start;
         self.clock = step.end;
         self.posed = self.colliders.iter().map(|c| c.at(self.clock)).collect();
+    }
+
+    /// IPC's balancing stiffness at `x` (colliders posed at `t`): the `kappa` that
+    /// minimizes `|g_E + kappa g_B|` over the free particles within `dhat` of a collider,
+    /// `g_B` the barrier's gradient at unit stiffness; `None` when no free particle is
+    /// within `dhat` or the other forces pull away from the colliders.
+    fn balanced_kappa(&self, x: &[DVec3], fixed: &[bool], t: f64, other: &[DVec3]) -> Option<f64> {
+        let dhat = self.settings.dhat;
+        let reach = dhat + self.settings.thickness;
+        let bounds = free_box(x, fixed, None);
+        let mut unit = vec![DVec3::ZERO; x.len()];
+        let mut any = false;
+        for collider in &self.colliders {
+            let shape = collider.at(t);
+            if box_distance(&shape, &bounds) >= reach {
+                continue;
+            }
+            for (i, &p) in x.iter().enumerate() {
+                if fixed[i] {
+                    continue;
+                }
+                let sd = signed_distance(&shape, p, self.settings.thickness);
+                if sd.distance > 0.0 && sd.distance < dhat {
+                    unit[i] += barrier_first_derivative(sd.distance, dhat) * sd.normal;
+                    any = true;
+                }
+            }
+        }
+        if !any {
+            return None;
+        }
+        balanced_kappa(other, &unit)
     }
 
     /// Puts `kappa` back to its value before the last [`Self::begin`], for a step that
@@ -264,12 +348,45 @@ impl ContactPotential {
         }
     }
 
-    /// Adapts `kappa` to the iterate `x` (IPC's rule, see [`AdaptiveKappa::update`]);
-    /// returns whether it grew.
+    /// Adapts `kappa` to the iterate `x` (IPC's rule, see [`AdaptiveKappa::update`]) and
+    /// collects the pairs within `dhat` there, which the gradient and the Hessian at the
+    /// same `x` reuse; returns whether `kappa` grew.
     pub fn update_kappa(&mut self, x: &[DVec3], fixed: &[bool]) -> bool {
-        let d = self.min_distance(x, fixed);
         let dhat = self.settings.dhat;
+        let tau = self.settings.thickness;
+        let mut active = std::mem::take(&mut self.active);
+        active.x.clear();
+        active.x.extend_from_slice(x);
+        active.pairs.clear();
+        let bounds = free_box(x, fixed, None);
+        let mut min = f64::INFINITY;
+        for shape in self.near(&bounds) {
+            for (i, &p) in x.iter().enumerate() {
+                if fixed[i] {
+                    continue;
+                }
+                let sd = signed_distance(shape, p, tau);
+                min = min.min(sd.distance);
+                if sd.distance > 0.0 && sd.distance < dhat {
+                    active.pairs.push((
+                        i,
+                        sd.normal,
+                        barrier_first_derivative(sd.distance, dhat),
+                        barrier_second_derivative(sd.distance, dhat),
+                    ));
+                }
+            }
+        }
+        self.active = active;
+        let d = if min < dhat { min } else { f64::INFINITY };
         self.kappa.as_mut().is_some_and(|k| k.update(d, dhat))
+    }
+
+    /// The pairs collected at `x` by the last [`Self::update_kappa`], if it was given
+    /// this very iterate.
+    fn active_at(&self, x: &[DVec3]) -> Option<&[(usize, DVec3, f64, f64)]> {
+        (!self.active.x.is_empty() && self.active.x.as_slice() == x)
+            .then_some(self.active.pairs.as_slice())
     }
 
     /// The first free particle at distance `<= 0` from a collider (touching or inside)
@@ -337,12 +454,14 @@ impl ContactPotential {
                     if fixed[i] {
                         continue;
                     }
-                    let (d0, d1) = distance_pair(shape, p, alpha * dx[i], self.settings.thickness);
+                    let (d0, dd) =
+                        distance_change(shape, p, alpha * dx[i], self.settings.thickness);
+                    let d1 = d0 + dd;
                     if d1 <= 0.0 {
                         return f64::INFINITY;
                     }
                     if d0 < dhat || d1 < dhat {
-                        change += kappa.kappa * (barrier(d1, dhat) - barrier(d0, dhat));
+                        change += kappa.kappa * barrier_change(d0, dd, dhat);
                     }
                 }
             }
@@ -367,7 +486,11 @@ impl ContactPotential {
         scale: f64,
         gradient: &mut [DVec3],
     ) {
-        if let Some(kappa) = self.kappa {
+        if let (Some(kappa), Some(pairs)) = (self.kappa, self.active_at(x)) {
+            for &(i, n, b1, _) in pairs {
+                gradient[i] += scale * (kappa.kappa * b1 * n);
+            }
+        } else if let Some(kappa) = self.kappa {
             let bounds = free_box(x, fixed, None);
             for shape in self.near(&bounds) {
                 for (i, &p) in x.iter().enumerate() {
@@ -375,8 +498,11 @@ impl ContactPotential {
                         continue;
                     }
                     let sd = signed_distance(shape, p, self.settings.thickness);
-                    if let PointBarrier::Active { gradient: g, .. } =
-                        point_barrier(kappa.kappa, self.settings.dhat, &sd)
+                    // A particle touching or inside (never the case at an admissible
+                    // state, whose energy is finite) adds nothing, as before.
+                    if sd.distance < self.settings.dhat
+                        && let Some(g) =
+                            point_barrier_gradient(kappa.kappa, self.settings.dhat, &sd)
                     {
                         gradient[i] += scale * g;
                     }
@@ -399,7 +525,11 @@ impl ContactPotential {
         fixed: &[bool],
         mut add: impl FnMut(usize, DMat3),
     ) {
-        if let Some(kappa) = self.kappa {
+        if let (Some(kappa), Some(pairs)) = (self.kappa, self.active_at(x)) {
+            for &(i, n, _, b2) in pairs {
+                add(i, outer(n) * (kappa.kappa * b2));
+            }
+        } else if let Some(kappa) = self.kappa {
             let bounds = free_box(x, fixed, None);
             for shape in self.near(&bounds) {
                 for (i, &p) in x.iter().enumerate() {
@@ -407,10 +537,11 @@ impl ContactPotential {
                         continue;
                     }
                     let sd = signed_distance(shape, p, self.settings.thickness);
-                    if let PointBarrier::Active { hessian, .. } =
-                        point_barrier(kappa.kappa, self.settings.dhat, &sd)
-                    {
-                        add(i, hessian);
+                    if sd.distance > 0.0 && sd.distance < self.settings.dhat {
+                        add(
+                            i,
+                            point_barrier_projected_hessian(kappa.kappa, self.settings.dhat, &sd),
+                        );
                     }
                 }
             }
@@ -460,16 +591,22 @@ impl ContactPotential {
     }
 }
 
-/// Moves a first iterate `x` so that a kinematic collider does not run over it: with the
+/// Moves a first iterate `x` so that the kinematic colliders do not run over it: with the
 /// colliders moving from their poses at `t0` to those at `t1`, a free particle whose
 /// distance at `x` to a collider posed at `t1` is below half of `min(d_0, dhat)` (`d_0`
 /// its distance at the step's start `x_n` to the collider posed at `t0`) is put at its
 /// start position carried by that collider's rigid motion from `t0` to `t1`, which keeps
 /// exactly its distance `d_0 > 0` to that collider. A collider whose motion leaves its
 /// surface in place (a sphere spinning about its centre) never triggers it, since it
-/// does not change the distance. Returns the first free particle still touching or inside
-/// a collider posed at `t1` after that, with the collider's index (two colliders closing
-/// in on one particle within one step).
+/// does not change the distance.
+///
+/// When two colliders close in on a particle within the step, the carry by one may
+/// leave it inside the other. Such a particle is then pushed out of the colliders posed
+/// at `t1` in turn, each push along the collider's normal to a target distance (the
+/// target halved when the pushes do not settle), which finds a point outside all of
+/// them while they leave room between them. Returns the first free particle for which no such point was found,
+/// with the index of a collider it is still inside (the colliders overlap where it is,
+/// or leave a gap too thin for the search).
 #[allow(clippy::too_many_arguments)]
 pub fn carry_with_colliders(
     colliders: &[Collider],
@@ -502,15 +639,65 @@ pub fn carry_with_colliders(
             }
         }
     }
-    for (c, collider) in colliders.iter().enumerate() {
-        let shape = collider.at(t1);
-        for i in 0..x.len() {
-            if !fixed[i] && signed_distance(&shape, x[i], tau).distance <= 0.0 {
-                return Err((i, c));
-            }
+    let shapes: Vec<Shape> = colliders.iter().map(|c| c.at(t1)).collect();
+    for i in 0..x.len() {
+        if fixed[i] {
+            continue;
         }
+        if shapes
+            .iter()
+            .all(|s| signed_distance(s, x[i], tau).distance > 0.0)
+        {
+            continue;
+        }
+        x[i] = separate(&shapes, x[i], tau, settings.dhat).map_err(|c| (i, c))?;
     }
     Ok(())
+}
+
+/// Passes of pushes per target distance in [`separate`].
+const SEPARATION_PASSES: usize = 32;
+/// Halvings of the target distance in [`separate`] (from `dhat / 2` down to about
+/// `1e-6 dhat`).
+const SEPARATION_HALVINGS: usize = 20;
+
+/// A point outside every shape (distance minus `thickness` positive to each), found from
+/// `x` by pushes: each pass moves the point, for every shape it is closer to than the
+/// target `m`, along that shape's normal to distance `m`. Between two convex colliders
+/// facing each other across a gap wider than `2 m` (a sphere coming down on the ground,
+/// a press on a table) a pass or two ends outside both. When passes do not settle, the
+/// target is halved (the gap may be narrower than `2 m`) and the pushes restart from
+/// `x`. Returns the index of a shape the point is still inside when every target
+/// fails: the colliders overlap there, or the gap is too thin to be found this way.
+fn separate(shapes: &[Shape], x: DVec3, thickness: f64, dhat: f64) -> Result<DVec3, usize> {
+    let mut target = 0.5 * dhat;
+    for _ in 0..SEPARATION_HALVINGS {
+        let mut p = x;
+        for _ in 0..SEPARATION_PASSES {
+            let mut moved = false;
+            for shape in shapes {
+                let sd = signed_distance(shape, p, thickness);
+                if sd.distance < target {
+                    p += (target - sd.distance) * sd.normal;
+                    moved = true;
+                }
+            }
+            if !moved {
+                break;
+            }
+        }
+        if shapes
+            .iter()
+            .all(|s| signed_distance(s, p, thickness).distance > 0.0)
+        {
+            return Ok(p);
+        }
+        target *= 0.5;
+    }
+    Err(shapes
+        .iter()
+        .position(|s| signed_distance(s, x, thickness).distance <= 0.0)
+        .unwrap_or(0))
 }
 
 /// An axis-aligned box (empty when `min > max`).

@@ -15,7 +15,7 @@
 //! the Hessian times 4 (the chain rule). Derivation: docs/contact.md.
 
 use super::{ContactPotential, ContactStep};
-use crate::potential::{HessianSink, StepContext, SymBlock, Term};
+use crate::potential::{Gravity, HessianSink, Springs, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
 use sinew_math::DVec3;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -59,6 +59,8 @@ pub struct ContactTerm {
     stats: Arc<ContactStats>,
     /// Scratch for the midpoint's end state and its direction (unused otherwise).
     end_state: Mutex<(Vec<DVec3>, Vec<DVec3>)>,
+    /// Scratch for the other terms' gradient at the step's start.
+    other_gradient: Vec<DVec3>,
 }
 
 impl ContactTerm {
@@ -70,6 +72,7 @@ impl ContactTerm {
             potential,
             stats: Arc::new(ContactStats::default()),
             end_state: Mutex::new((Vec::new(), Vec::new())),
+            other_gradient: Vec::new(),
         }
     }
 
@@ -133,6 +136,29 @@ impl Term for ContactTerm {
         } else {
             (step.h, step.x_ref)
         };
+        // The balancing start of kappa weighs the barrier against the elastic forces at
+        // the step's start: gravity and the springs (bending and other added terms are
+        // left out: the balance only picks a starting stiffness). The inertia term is
+        // left out too: contact usually begins while the sheet lands, where it is the
+        // momentum of the fall, and a stiffness balancing that is kept for the rest of
+        // the run (docs/contact.md measures both). In the midpoint's unknowns the
+        // barrier's gradient is twice its end-state gradient, so the other gradient is
+        // halved to balance in end-state terms. Once the start is made it is not needed
+        // again.
+        let mut other = std::mem::take(&mut self.other_gradient);
+        let balance = self.potential.awaits_balance();
+        if balance {
+            other.clear();
+            other.resize(s.len(), DVec3::ZERO);
+            let x_n = s.positions();
+            Gravity.add_gradient(step, x_n, &mut other);
+            Springs.add_gradient(step, x_n, &mut other);
+            if timing.midpoint {
+                for g in &mut other {
+                    *g *= 0.5;
+                }
+            }
+        }
         self.potential.begin(&ContactStep {
             positions: s.positions(),
             anchor,
@@ -142,7 +168,9 @@ impl Term for ContactTerm {
             h,
             start: timing.start,
             end: timing.start + timing.length,
+            other_gradient: balance.then_some(other.as_slice()),
         });
+        self.other_gradient = other;
         self.stats.publish(&self.potential);
     }
 
