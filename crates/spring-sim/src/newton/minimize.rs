@@ -119,9 +119,20 @@ impl BackwardEuler {
             softening |= report.iterations > 1 && residual > 0.25 * previous_residual;
             previous_residual = residual;
             // Inexact Newton for PCG: the forcing term tightens as the gradient falls,
-            // and never asks for more than what ends the step.
+            // and never asks for more than what ends the step. The exception is the
+            // iteration the rule above asks for from a residual already below the
+            // tolerance: there "what ends the step" is nothing at all, PCG would return
+            // the zero direction from its zero start, and the iteration would correct
+            // nothing while its line search halved a steepest-descent fallback down to
+            // round-off (a dozen evaluations of the potential). Its relative tolerance is
+            // held at or below one half, so PCG takes at least one step and the correction
+            // still scales with the tolerance.
             let forcing = (residual_l2 / first_residual_l2).min(self.settings.pcg_forcing);
-            let floor = 0.1 * tol_abs / residual_l2;
+            let floor = if residual <= tol_abs {
+                (0.1 * tol_abs / residual_l2).min(0.5)
+            } else {
+                0.1 * tol_abs / residual_l2
+            };
             let rtol = forcing.max(floor).max(1e-13);
             if softening {
                 while theta <= SOFTENING_MAX_THETA {
