@@ -1,8 +1,8 @@
 //! Self-contact cost: a sheet dropped onto a sheet pinned along its border below it
 //! (both `n x n`, spacing 5 cm and 4 cm, the top one 2 cm up and turned by 0.1 rad;
 //! `dhat` 2 mm, thickness 1 mm, h = 1/60, backward Euler with the default Newton
-//! settings), stepped 45 times by default (the integrator widens its Hessian pattern after every
-//! step by the pairs contact coupled without slots). Prints, per `n`, the wall time
+//! settings), stepped 45 times by default (the integrator widens its Hessian pattern at
+//! every Newton iteration by the pairs contact coupled without slots). Prints, per `n`, the wall time
 //! per step and per vertex per step, the Newton iterations, and the active pairs at the
 //! end. Not a criterion
 //! benchmark: a table for docs/contact.md, run with

@@ -37,8 +37,9 @@
 //! positive semidefinite matrix is positive semidefinite, so the Newton matrix stays
 //! positive definite and the step a descent direction; only the convergence rate pays.
 //! The particle pairs left without slots are recorded, and the integrator takes them
-//! after every step ([`crate::potential::Term::take_missing_pairs`]) and widens its
-//! pattern, so later steps get the pairs' full blocks.
+//! at the start of the next Newton iteration
+//! ([`crate::potential::Term::take_missing_pairs`]) and widens its pattern, so from that
+//! iteration on the Newton matrix has the pairs' full blocks.
 
 use super::broad::{Candidate, CandidateCache, Primitives, candidates};
 use super::ccd::additive_ccd;
@@ -175,7 +176,8 @@ impl SelfContactStats {
 
     /// Takes the particle pairs (`[low, high]`, sorted) that contact pairs coupled since
     /// the last call but the Hessian pattern had no slots for (the integrator takes them
-    /// after every step through the term; this is for a caller that runs the term alone).
+    /// at every Newton iteration through the term; this is for a caller that runs the
+    /// term alone).
     #[must_use]
     pub fn take_missing_pairs(&self) -> Vec<[usize; 2]> {
         let mut set = self.missing.lock().unwrap_or_else(PoisonError::into_inner);
