@@ -198,8 +198,9 @@ pub struct StepReport {
     /// 1/2 |v' - v_n|_M^2 <= E_total` at the start); the abandoned unsplit iterate is
     /// then the step, counted in `unconverged_pieces`.
     pub rejected_splits: usize,
-    /// Particle pairs given Hessian slots after this step because a term (self-contact)
-    /// coupled them without one; the next steps' Newton matrices have their full blocks.
+    /// Particle pairs given Hessian slots during or after this step because a term
+    /// (self-contact) coupled them without one; the Newton matrices from the next
+    /// iteration on have their full blocks.
     pub pattern_pairs_added: usize,
 }
 

@@ -1,12 +1,13 @@
 //! The self-contact broad phase: the spatial hash finds exactly the pairs brute force
 //! finds on random crumpled meshes (at a state and over a step, with a primitive swept
 //! far, with fixed vertices), never a pair sharing a vertex, and every pair closer than
-//! the margin.
+//! the margin; the list kept for a line-search segment answers every query inside the
+//! segment with exactly the broad phase's set and declines every query outside it.
 
 use sinew_math::DVec3;
 use sinew_spring_sim::ClothGrid;
 use sinew_spring_sim::contact::self_contact::broad::{
-    Candidate, Primitives, candidates, candidates_brute_force,
+    Candidate, CandidateCache, Primitives, candidates, candidates_brute_force,
 };
 use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
 
@@ -81,6 +82,47 @@ fn the_hash_finds_the_brute_force_pairs_on_random_meshes() {
             }
         }
     }
+    // The cases are not vacuous.
+    assert!(total > 1000, "{total} candidates in all");
+}
+
+#[test]
+fn the_segment_list_gives_the_broad_phase_set_inside_the_segment_and_declines_outside() {
+    let mut rng = Rng(777);
+    let (mut answered, mut declined, mut total) = (0, 0, 0);
+    for case in 0..12 {
+        let n = 5 + case % 4;
+        let (x, triangles) = crumpled(n, 0.03 + 0.02 * (case % 3) as f64, &mut rng);
+        let prims = Primitives::new(&triangles);
+        let dx: Vec<DVec3> = x.iter().map(|_| rng.vec(0.04)).collect();
+        let mut skip = vec![false; x.len()];
+        if case % 2 == 1 {
+            skip.iter_mut().take(n).for_each(|s| *s = true);
+        }
+        let margin = 0.015;
+        // The segment x + [0, 8] dx, as the line search's cap collects it.
+        let long: Vec<DVec3> = dx.iter().map(|d| 8.0 * *d).collect();
+        let kept = CandidateCache::new(&prims, &x, Some(&long), margin, &skip);
+        for alpha in [0.0, 0.25, 1.0, 3.0, 8.0] {
+            let end: Vec<DVec3> = x.iter().zip(&dx).map(|(p, d)| *p + alpha * *d).collect();
+            let sweep: Vec<DVec3> = dx.iter().map(|d| alpha * *d).collect();
+            for (state, step) in [(&x, Some(sweep.as_slice())), (&end, None)] {
+                let exact = candidates(&prims, state, step, margin, &skip);
+                let got = kept.query(&prims, state, step, margin, &skip);
+                assert_eq!(got.as_ref(), Some(&exact), "case {case}, alpha {alpha}");
+                total += exact.len();
+                answered += 1;
+            }
+        }
+        // Past the segment's end, or with another margin or skip, it declines.
+        let past: Vec<DVec3> = dx.iter().map(|d| 9.0 * *d).collect();
+        assert!(kept.query(&prims, &x, Some(&past), margin, &skip).is_none());
+        assert!(kept.query(&prims, &x, None, 2.0 * margin, &skip).is_none());
+        let other: Vec<bool> = skip.iter().map(|s| !s).collect();
+        assert!(kept.query(&prims, &x, None, margin, &other).is_none());
+        declined += 3;
+    }
+    assert_eq!((answered, declined), (120, 36));
     // The cases are not vacuous.
     assert!(total > 1000, "{total} candidates in all");
 }

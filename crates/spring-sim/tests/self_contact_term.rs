@@ -177,3 +177,75 @@ fn max_step_stops_a_step_through_the_other_sheet() {
         .collect();
     assert!(term.max_step(&step, &x, &apart) >= 1.0);
 }
+
+#[test]
+fn one_broad_phase_serves_the_whole_line_search_segment_with_unchanged_answers() {
+    let (system, triangles) = two_sheets();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 5e-4,
+        ..SelfContactSettings::default()
+    };
+    let mut term = SelfContactTerm::new(&system, &triangles, settings).unwrap();
+    let x = system.positions().to_vec();
+    let step = StepContext::new(&system, 1.0 / 60.0, &x, &x);
+    term.begin_step(&step);
+    // A fresh term for every reference answer: it has no list kept, so it hashes the
+    // mesh for every query.
+    let fresh = || {
+        let mut t = SelfContactTerm::new(&system, &triangles, settings).unwrap();
+        t.begin_step(&step);
+        t
+    };
+    let mut rng = Rng(31);
+    // The top sheet drifts down and sideways by random amounts (at most 0.1 mm per unit
+    // step, so the whole segment up to 8 steps stays clear of the bottom sheet).
+    let dx: Vec<DVec3> = (0..x.len())
+        .map(|i| {
+            if i >= 9 {
+                DVec3::new(
+                    2e-5 * rng.next(),
+                    -8e-5 + 2e-5 * rng.next(),
+                    2e-5 * rng.next(),
+                )
+            } else {
+                DVec3::ZERO
+            }
+        })
+        .collect();
+    let stats = term.stats();
+    let before = stats.broad_phases();
+    let cap = term.max_step(&step, &x, &dx);
+    assert_eq!(cap, fresh().max_step(&step, &x, &dx));
+    assert!(cap >= 1.0, "{cap}");
+    // The cap hashed the mesh once for the whole segment.
+    assert_eq!(stats.broad_phases(), before + 1);
+    let mut nonzero = 0;
+    for alpha in [0.125, 0.5, 1.0, 2.0, 4.0, 8.0_f64.min(cap)] {
+        let end: Vec<DVec3> = x.iter().zip(&dx).map(|(p, d)| *p + alpha * *d).collect();
+        let change = term.energy_change(&step, &x, &dx, alpha);
+        assert_eq!(
+            change.to_bits(),
+            fresh().energy_change(&step, &x, &dx, alpha).to_bits()
+        );
+        let energy = term.energy(&step, &end);
+        assert_eq!(energy.to_bits(), fresh().energy(&step, &end).to_bits());
+        nonzero += usize::from(change != 0.0);
+        term.update_active_set(&step, &end);
+        let mut g = vec![DVec3::ZERO; x.len()];
+        let mut g_fresh = g.clone();
+        term.add_gradient(&step, &end, &mut g);
+        let mut reference = fresh();
+        reference.update_active_set(&step, &end);
+        reference.add_gradient(&step, &end, &mut g_fresh);
+        assert_eq!(g, g_fresh);
+    }
+    // Every query above lay inside the segment: no further hashing.
+    assert_eq!(stats.broad_phases(), before + 1);
+    // The pairs act (the changes are not all zero).
+    assert!(nonzero > 0);
+    // A state outside the segment is hashed again.
+    let far: Vec<DVec3> = x.iter().zip(&dx).map(|(p, d)| *p + 20.0 * *d).collect();
+    let _ = term.energy(&step, &far);
+    assert_eq!(stats.broad_phases(), before + 2);
+}

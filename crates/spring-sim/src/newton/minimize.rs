@@ -68,6 +68,15 @@ impl BackwardEuler {
         let mut softening = false;
         let mut theta = 0.0f64;
         loop {
+            // Pairs a term coupled without Hessian slots in the last iteration (self-contact
+            // meeting particles no spring joins) get slots now rather than after the step:
+            // without their off-diagonal blocks the Newton matrix misses the contact's
+            // coupling and Newton converges only linearly, typically to the iteration cap.
+            let missing = self.potential.take_missing_pairs();
+            if !missing.is_empty() {
+                self.add_coupled_pairs(system, &missing)?;
+                report.pattern_pairs_added += missing.len();
+            }
             self.potential.update_active_set(&step, &self.x);
             if self.settings.record_objective {
                 self.objective_trace

@@ -391,7 +391,7 @@ impl BackwardEuler {
         let missing = self.potential.take_missing_pairs();
         if !missing.is_empty() {
             self.add_coupled_pairs(system, &missing)?;
-            report.pattern_pairs_added = missing.len();
+            report.pattern_pairs_added += missing.len();
         }
         Ok(report)
     }
@@ -767,6 +767,7 @@ fn combine_pieces(attempt: &StepReport, first: &StepReport, second: &StepReport)
         report.direct_failures += part.direct_failures;
         report.descent_fallbacks += part.descent_fallbacks;
         report.exact_hessian_iterations += part.exact_hessian_iterations;
+        report.pattern_pairs_added += part.pattern_pairs_added;
     }
     report.pieces = first.pieces + second.pieces;
     report.split_depth = 1 + first.split_depth.max(second.split_depth);

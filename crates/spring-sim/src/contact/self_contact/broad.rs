@@ -370,3 +370,90 @@ pub fn candidates_brute_force(
     out.sort_unstable();
     out
 }
+
+/// The broad phase's pairs over one region of state space, kept so later queries inside
+/// it filter the list instead of hashing the mesh again.
+///
+/// Built like [`candidates`] (`x`, an optional step `dx`, `margin`, `skip`), it keeps the
+/// grown box of every vertex and the pairs found. A later query (`x'`, `dx'`, the same
+/// `margin` and `skip`) is covered when every vertex's grown box for the query lies
+/// inside the kept one. Then every edge and triangle box of the query (a union of its
+/// vertices' boxes) lies inside the kept box of the same primitive, so two primitives
+/// whose query boxes overlap also had overlapping kept boxes: every pair the query would
+/// find is in the list, and testing the listed pairs' query boxes for overlap gives
+/// exactly [`candidates`]'s answer for the query (the same set, in the same sorted order).
+#[derive(Clone, Debug, Default)]
+pub struct CandidateCache {
+    vertex: Vec<Aabb>,
+    margin: f64,
+    skip: Vec<bool>,
+    list: Vec<Candidate>,
+}
+
+impl CandidateCache {
+    /// The pairs of [`candidates`] for `x`, `dx`, `margin` and `skip`, kept with their
+    /// region.
+    #[must_use]
+    pub fn new(
+        prims: &Primitives,
+        x: &[DVec3],
+        dx: Option<&[DVec3]>,
+        margin: f64,
+        skip: &[bool],
+    ) -> Self {
+        Self {
+            vertex: Boxes::new(prims, x, dx, margin).vertex,
+            margin,
+            skip: skip.to_vec(),
+            list: candidates(prims, x, dx, margin, skip),
+        }
+    }
+
+    /// The number of pairs kept.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.list.len()
+    }
+
+    /// Whether no pair is kept.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.list.is_empty()
+    }
+
+    /// Exactly [`candidates`]`(prims, x, dx, margin, skip)` when the query is covered
+    /// (see the type's documentation), by filtering the kept list; `None` when it is not.
+    #[must_use]
+    pub fn query(
+        &self,
+        prims: &Primitives,
+        x: &[DVec3],
+        dx: Option<&[DVec3]>,
+        margin: f64,
+        skip: &[bool],
+    ) -> Option<Vec<Candidate>> {
+        if margin != self.margin || skip != self.skip.as_slice() || x.len() != self.vertex.len() {
+            return None;
+        }
+        let boxes = Boxes::new(prims, x, dx, margin);
+        let inside = prims.vertices.iter().all(|&v| {
+            let (q, k) = (&boxes.vertex[v], &self.vertex[v]);
+            q.min.cmpge(k.min).all() && q.max.cmple(k.max).all()
+        });
+        if !inside {
+            return None;
+        }
+        Some(
+            self.list
+                .iter()
+                .copied()
+                .filter(|&c| match c {
+                    Candidate::PointTriangle { vertex, triangle } => {
+                        point_triangle_kept(prims, &boxes, skip, vertex, triangle)
+                    }
+                    Candidate::EdgeEdge { a, b } => edge_edge_kept(prims, &boxes, skip, a, b),
+                })
+                .collect(),
+        )
+    }
+}

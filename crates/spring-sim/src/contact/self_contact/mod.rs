@@ -27,7 +27,7 @@ pub mod dual;
 pub mod psd12;
 pub mod term;
 
-pub use broad::{Candidate, Primitives, candidates};
+pub use broad::{Candidate, CandidateCache, Primitives, candidates};
 pub use ccd::additive_ccd;
 pub use closed::RegionForm;
 pub use distance::{Closest, PairKind, squared_distance, squared_distance_derivatives};

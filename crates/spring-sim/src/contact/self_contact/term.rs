@@ -6,10 +6,17 @@
 //! thickness, `b` IPC's log barrier with reach `dhat` ([`crate::contact::barrier`]) and
 //! `m_k` IPC's mollifier for edge-edge pairs (1 for vertex-triangle pairs). It is `+inf`
 //! where a pair's gap `d_k - xi` is zero or negative. Every evaluation (energy, change,
-//! gradient, Hessian) finds its pairs with the broad phase at the state it is given, so
+//! gradient, Hessian) uses exactly the broad phase's pairs for the state it is given, so
 //! the energy, its gradient and its Hessian are those of one function; the active set
 //! collected at the start of each Newton iteration (the pairs within `dhat`) is reused by
 //! the gradient and Hessian at that same state and feeds the statistics.
+//!
+//! The mesh is hashed once per Newton iteration: the line-search cap collects the pairs
+//! over the whole segment the line search may try (`x + [0, 8] dx`, boxes grown by
+//! `dhat + thickness`), and every later query inside that segment (the cap's own sweeps,
+//! each trial's energy change, the next iterate's active set and energy) filters the
+//! list by the query's boxes, which gives the broad phase's set exactly
+//! ([`CandidateCache`]); a query outside it hashes the mesh again.
 //!
 //! The line search is capped by additive CCD over the Newton step, so no state it tries
 //! is reached through a crossing; backward Euler also asks the cap whether the straight
@@ -30,10 +37,11 @@
 //! positive semidefinite matrix is positive semidefinite, so the Newton matrix stays
 //! positive definite and the step a descent direction; only the convergence rate pays.
 //! The particle pairs left without slots are recorded, and the integrator takes them
-//! after every step ([`crate::potential::Term::take_missing_pairs`]) and widens its
-//! pattern, so later steps get the pairs' full blocks.
+//! at the start of the next Newton iteration
+//! ([`crate::potential::Term::take_missing_pairs`]) and widens its pattern, so from that
+//! iteration on the Newton matrix has the pairs' full blocks.
 
-use super::broad::{Candidate, Primitives, candidates};
+use super::broad::{Candidate, CandidateCache, Primitives, candidates};
 use super::ccd::additive_ccd;
 use super::closed::RegionForm;
 use super::distance::{
@@ -134,6 +142,7 @@ pub struct SelfContactStats {
     kappa: AtomicU64,
     active_pairs: AtomicU64,
     min_gap: AtomicU64,
+    broad_phases: AtomicU64,
     /// Particle pairs a contact pair coupled that the Hessian pattern had no slots for.
     missing: Mutex<BTreeSet<[usize; 2]>>,
 }
@@ -157,9 +166,18 @@ impl SelfContactStats {
         f64::from_bits(self.min_gap.load(Ordering::Relaxed))
     }
 
+    /// How many times the term has hashed the mesh (run the broad phase) since it was
+    /// made; queries answered from the list kept for the current line-search segment
+    /// are not counted.
+    #[must_use]
+    pub fn broad_phases(&self) -> u64 {
+        self.broad_phases.load(Ordering::Relaxed)
+    }
+
     /// Takes the particle pairs (`[low, high]`, sorted) that contact pairs coupled since
     /// the last call but the Hessian pattern had no slots for (the integrator takes them
-    /// after every step through the term; this is for a caller that runs the term alone).
+    /// at every Newton iteration through the term; this is for a caller that runs the
+    /// term alone).
     #[must_use]
     pub fn take_missing_pairs(&self) -> Vec<[usize; 2]> {
         let mut set = self.missing.lock().unwrap_or_else(PoisonError::into_inner);
@@ -188,6 +206,10 @@ pub struct SelfContactTerm {
     /// projected Hessian (computed once per iteration for both the gradient and the
     /// Hessian, which Newton asks for at the iterate the set was collected at).
     cache: Vec<PairDerivatives>,
+    /// The broad phase's pairs over the last Newton step's whole line-search segment
+    /// (collected by [`Term::max_step`]); every query it covers filters it instead of
+    /// hashing the mesh again.
+    segment: Mutex<CandidateCache>,
     stats: Arc<SelfContactStats>,
 }
 
@@ -234,6 +256,7 @@ impl SelfContactTerm {
             active: Vec::new(),
             active_at: Vec::new(),
             cache: Vec::new(),
+            segment: Mutex::new(CandidateCache::default()),
             stats: Arc::new(SelfContactStats::default()),
         };
         term.check_state(x, system.fixed())?;
@@ -301,10 +324,34 @@ impl SelfContactTerm {
         squared_distance(kind, &v.map(|i| x[i])).sqrt() - self.settings.thickness
     }
 
+    /// The broad phase's pairs within `dhat + thickness` at `x` or along `x -> x + dx`:
+    /// filtered from the segment's list when it covers the query (the same set, see
+    /// [`CandidateCache`]), else found by hashing the mesh.
+    fn pairs(&self, x: &[DVec3], dx: Option<&[DVec3]>, fixed: &[bool]) -> Vec<Candidate> {
+        let margin = self.settings.dhat + self.settings.thickness;
+        let kept = self
+            .segment
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .query(&self.prims, x, dx, margin, fixed);
+        kept.unwrap_or_else(|| {
+            self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
+            candidates(&self.prims, x, dx, margin, fixed)
+        })
+    }
+
+    /// Collects the broad phase's pairs over the segment `x -> x + dx` and keeps them
+    /// for the queries it covers.
+    fn collect_segment(&self, x: &[DVec3], dx: &[DVec3], fixed: &[bool]) {
+        let margin = self.settings.dhat + self.settings.thickness;
+        self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
+        let kept = CandidateCache::new(&self.prims, x, Some(dx), margin, fixed);
+        *self.segment.lock().unwrap_or_else(PoisonError::into_inner) = kept;
+    }
+
     /// The pairs whose gap may be below `dhat` at `x` (broad phase).
     fn near(&self, x: &[DVec3], fixed: &[bool]) -> Vec<Candidate> {
-        let margin = self.settings.dhat + self.settings.thickness;
-        candidates(&self.prims, x, None, margin, fixed)
+        self.pairs(x, None, fixed)
     }
 
     /// The smallest gap at `x` over the pairs within `dhat` (`+inf` when none).
@@ -474,10 +521,9 @@ impl SelfContactTerm {
     /// The largest safe fraction of the step `x -> x + dx` (see [`additive_ccd`]) over
     /// every pair the swept broad phase finds, 1 when none comes close.
     fn ccd_fraction(&self, x: &[DVec3], dx: &[DVec3], fixed: &[bool]) -> f64 {
-        let margin = self.settings.dhat + self.settings.thickness;
         let keep = 1.0 - self.settings.toi_fraction;
         let mut t: f64 = 1.0;
-        for c in candidates(&self.prims, x, Some(dx), margin, fixed) {
+        for c in self.pairs(x, Some(dx), fixed) {
             let (kind, v) = self.pair(c);
             let (p, d) = (v.map(|i| x[i]), v.map(|i| dx[i]));
             t = t.min(additive_ccd(kind, &p, &d, self.settings.thickness, keep));
@@ -570,10 +616,9 @@ impl Term for SelfContactTerm {
         }
         let moved: Vec<DVec3> = x.iter().zip(dx).map(|(p, d)| *p + alpha * *d).collect();
         let sweep: Vec<DVec3> = dx.iter().map(|d| alpha * *d).collect();
-        let margin = self.settings.dhat + self.settings.thickness;
         // Every pair within dhat at either end: the swept boxes contain both ends.
         let mut change = 0.0;
-        for c in candidates(&self.prims, x, Some(&sweep), margin, step.system.fixed()) {
+        for c in self.pairs(x, Some(&sweep), step.system.fixed()) {
             let after = self.pair_energy(kappa, c, &moved);
             if after == f64::INFINITY {
                 return f64::INFINITY;
@@ -621,13 +666,18 @@ impl Term for SelfContactTerm {
 
     fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
         let fixed = step.system.fixed();
+        // One broad phase for the whole segment the line search may try, `x + [0,
+        // LONG_STEP] dx`: the cap's two sweeps, every trial's energy change and the next
+        // iterate's active set are queries inside it (docs/contact.md, "One broad phase
+        // per Newton iteration").
+        let long: Vec<DVec3> = dx.iter().map(|d| LONG_STEP * *d).collect();
+        self.collect_segment(x, &long, fixed);
         let t = self.ccd_fraction(x, dx, fixed);
         if t < 1.0 {
             return t;
         }
         // The full step is known to be safe; ACCD along the longer path stops at its own
         // conservative times, which may fall short of it, so never return less.
-        let long: Vec<DVec3> = dx.iter().map(|d| LONG_STEP * *d).collect();
         (LONG_STEP * self.ccd_fraction(x, &long, fixed)).max(1.0)
     }
 }
