@@ -177,8 +177,8 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
 
     /// The particle pairs (`[low, high]`) this term coupled since the last call without a
     /// slot in the Hessian pattern (it then wrote only the blocks the pattern has). The
-    /// integrator takes them after every step and widens its pattern, so later steps get
-    /// the pairs' full blocks; none by default.
+    /// Newton loop takes them at the start of every iteration and widens its pattern, so
+    /// the next iteration's matrix has the pairs' full blocks; none by default.
     fn take_missing_pairs(&mut self) -> Vec<[usize; 2]> {
         Vec::new()
     }
