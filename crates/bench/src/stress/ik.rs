@@ -600,37 +600,8 @@ pub fn run_case(case: &IkCase, solver_name: &'static str) -> IkOutcome {
         )
     }));
     out.seconds = started.elapsed().as_secs_f64();
-    let report = match (result, &case.expect) {
-        (Err(panic), _) => {
-            let what = panic
-                .downcast_ref::<&str>()
-                .map(|s| (*s).to_string())
-                .or_else(|| panic.downcast_ref::<String>().cloned())
-                .unwrap_or_default();
-            out.failures.push(format!("panicked: {what}"));
-            return out;
-        }
-        (Ok(Err(e)), Expect::Error(text)) => {
-            let message = e.to_string();
-            if !message.contains(text) {
-                out.failures
-                    .push(format!("the error does not name the {text}: {message}"));
-            }
-            out.message = Some(message);
-            return out;
-        }
-        (Ok(Err(e)), Expect::Solve) => {
-            out.failures.push(format!("refused a valid input: {e}"));
-            out.message = Some(e.to_string());
-            return out;
-        }
-        (Ok(Ok(report)), Expect::Error(text)) => {
-            out.failures.push(format!(
-                "accepted bad input (expected an error naming the {text})"
-            ));
-            report
-        }
-        (Ok(Ok(report)), Expect::Solve) => report,
+    let Some(report) = judge(result, &case.expect, &mut out) else {
+        return out;
     };
     check_solve(
         &mut out,
@@ -789,6 +760,48 @@ pub fn run_all(cases: &[IkCase]) -> Vec<IkOutcome> {
     out
 }
 
+/// A solve's result judged against what the case expects, for every solver of the set:
+/// a panic, a refused valid input, an error that does not name the bad item, or bad input
+/// accepted is a failure in `out`. The report, when there is one to check further.
+fn judge<R, E: std::fmt::Display>(
+    result: std::thread::Result<Result<R, E>>,
+    expect: &Expect,
+    out: &mut IkOutcome,
+) -> Option<R> {
+    match (result, expect) {
+        (Err(panic), _) => {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| (*s).to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            out.failures.push(format!("panicked: {what}"));
+            None
+        }
+        (Ok(Err(e)), Expect::Error(text)) => {
+            let message = e.to_string();
+            if !message.contains(text) {
+                out.failures
+                    .push(format!("the error does not name the {text}: {message}"));
+            }
+            out.message = Some(message);
+            None
+        }
+        (Ok(Err(e)), Expect::Solve) => {
+            out.failures.push(format!("refused a valid input: {e}"));
+            out.message = Some(e.to_string());
+            None
+        }
+        (Ok(Ok(report)), Expect::Error(text)) => {
+            out.failures.push(format!(
+                "accepted bad input (expected an error naming the {text})"
+            ));
+            Some(report)
+        }
+        (Ok(Ok(report)), Expect::Solve) => Some(report),
+    }
+}
+
 /// Runs the two-bone solver on a two-bone case (root joint 0, mid 1, tip 2, from the
 /// rest pose) and checks the invariants: no panic, an `Err` naming the field for bad
 /// input, otherwise a finite pose and report, the global pose forward kinematics of the
@@ -856,32 +869,8 @@ pub fn run_two_bone_case(case: &IkCase, setup: &TwoBoneSetup) -> IkOutcome {
         job.run(&skeleton, &mut pose, &mut global)
     }));
     out.seconds = started.elapsed().as_secs_f64();
-    let report = match (result, &setup.expect) {
-        (Err(_), _) => {
-            out.failures.push("panicked".into());
-            return out;
-        }
-        (Ok(Err(e)), Expect::Error(text)) => {
-            let message = e.to_string();
-            if !message.contains(text) {
-                out.failures
-                    .push(format!("the error does not name the {text}: {message}"));
-            }
-            out.message = Some(message);
-            return out;
-        }
-        (Ok(Err(e)), Expect::Solve) => {
-            out.failures.push(format!("refused a valid input: {e}"));
-            out.message = Some(e.to_string());
-            return out;
-        }
-        (Ok(Ok(report)), Expect::Error(text)) => {
-            out.failures.push(format!(
-                "accepted bad input (expected an error naming the {text})"
-            ));
-            report
-        }
-        (Ok(Ok(report)), Expect::Solve) => report,
+    let Some(report) = judge(result, &setup.expect, &mut out) else {
+        return out;
     };
     out.error = report.error;
     if !pose.rotations.iter().all(|q| q.is_finite())
