@@ -3,6 +3,7 @@
 //! plot per workload) and `plots/*.svg`.
 
 use super::Results;
+use sinew_bench::sweep::cloth::tolerance_knobs;
 use sinew_bench::sweep::{Metric, Record, Section, Timing};
 use sinew_viz::render::plot::{Point, pareto_front, time_error_svg};
 use std::collections::BTreeMap;
@@ -514,11 +515,88 @@ pub fn write(results: &Results, sections: &[Section], out: &Path) -> Result<Stri
                 table(*section, records, &front)
             );
         }
+        if *section == Section::Cloth {
+            md.push_str(&tolerance_table(&results.records));
+        }
         md.push_str(section_notes(*section));
     }
     let md_path = out.join("README.md");
     std::fs::write(&md_path, md).map_err(|e| format!("{}: {e}", md_path.display()))?;
     Ok(head)
+}
+
+/// Backward Euler (linear solver `auto`) at every Newton tolerance the run has: the distance
+/// from backward Euler solved to 1e-12 at the same steps (after 1 s, or at the end for runs
+/// shorter than 1 s), one column per workload, and whether that distance never grows as the
+/// tolerance tightens. Empty when the run has fewer than two tolerances.
+fn tolerance_table(records: &[Record]) -> String {
+    let decades: Vec<f64> = (3..=12).map(|e| 10f64.powi(-e)).collect();
+    let mut workloads: Vec<&str> = Vec::new();
+    for r in records.iter().filter(|r| r.section == Section::Cloth) {
+        if !workloads.contains(&r.workload.as_str()) {
+            workloads.push(&r.workload);
+        }
+    }
+    // (tolerance, per workload: the record if it ran at that tolerance).
+    let rows: Vec<(f64, Vec<Option<&Record>>)> = decades
+        .iter()
+        .map(|&tol| {
+            let knobs = tolerance_knobs(tol);
+            let cells = workloads
+                .iter()
+                .map(|w| find(records, w, "backward_euler", &knobs))
+                .collect();
+            (tol, cells)
+        })
+        .filter(|(_, cells): &(f64, Vec<Option<&Record>>)| cells.iter().any(Option::is_some))
+        .collect();
+    if rows.len() < 2 {
+        return String::new();
+    }
+    let error = |r: &Record| {
+        metric(r, Metric::SolverError1s)
+            .or_else(|| metric(r, Metric::SolverErrorEnd))
+            .unwrap_or(f64::NAN)
+    };
+    let mut s = String::from(
+        "\n### Backward Euler: tolerance against error\n\nThe distance from backward Euler \
+         solved to 1e-12 at the same steps (after 1 s; W6, which runs 0.5 s, at its end), and \
+         the median time per step, for every Newton tolerance (`|grad g|_inf <= tol m/h^2`, \
+         linear solver `auto`). The last row says whether the distance never grows as the \
+         tolerance tightens.\n\n| tolerance |",
+    );
+    for w in &workloads {
+        let _ = write!(s, " {w} |");
+    }
+    s.push_str("\n|---|");
+    s.push_str(&"---|".repeat(workloads.len()));
+    s.push('\n');
+    for (tol, cells) in &rows {
+        let _ = write!(s, "| {} |", sinew_bench::sweep::sci(*tol));
+        for cell in cells {
+            match cell {
+                Some(r) => {
+                    let _ = write!(s, " {} ({}) |", fmt_err(error(r)), fmt_time(r.time.median));
+                }
+                None => s.push_str(" - |"),
+            }
+        }
+        s.push('\n');
+    }
+    s.push_str("| non-increasing |");
+    for (i, _) in workloads.iter().enumerate() {
+        let errors: Vec<f64> = rows.iter().filter_map(|(_, c)| c[i]).map(error).collect();
+        let verdict = if errors.len() < 2 {
+            "-"
+        } else if errors.windows(2).all(|p| p[1] <= p[0]) {
+            "yes"
+        } else {
+            "NO"
+        };
+        let _ = write!(s, " {verdict} |");
+    }
+    s.push('\n');
+    s
 }
 
 fn section_notes(section: Section) -> &'static str {
@@ -620,6 +698,51 @@ mod tests {
             );
             assert!(text.lines().nth(2).unwrap().contains("| - |"), "{text}");
         }
+    }
+
+    #[test]
+    fn the_tolerance_table_judges_each_workload_apart() {
+        // W4 shrinks with every tolerance; W6 (no 1 s figure: its end is used) grows once.
+        let record = |workload: &str, tol: f64, key: Metric, error: f64| {
+            let mut metrics = sinew_bench::sweep::Metrics::new();
+            metrics.insert(key, serde_json::json!(error));
+            Record {
+                section: Section::Cloth,
+                workload: workload.into(),
+                method: "backward_euler".into(),
+                knobs: tolerance_knobs(tol),
+                unit: "step",
+                time: Timing {
+                    median: 1e-3,
+                    min: 1e-3,
+                    max: 1e-3,
+                    repeats: 3,
+                },
+                error: 0.0,
+                error_name: "e",
+                metrics,
+                note: String::new(),
+            }
+        };
+        let records = vec![
+            record("W4 d=0", 1e-3, Metric::SolverError1s, 1e-2),
+            record("W4 d=0", 1e-6, Metric::SolverError1s, 1e-5),
+            record("W4 d=0", 1e-9, Metric::SolverError1s, 1e-8),
+            record("W6", 1e-3, Metric::SolverErrorEnd, 1e-4),
+            record("W6", 1e-6, Metric::SolverErrorEnd, 2e-4),
+            record("W6", 1e-9, Metric::SolverErrorEnd, 1e-9),
+        ];
+        let text = tolerance_table(&records);
+        let rows: Vec<&str> = text.lines().filter(|l| l.starts_with("| ")).collect();
+        assert_eq!(rows.len(), 5, "{text}");
+        assert_eq!(rows[0], "| tolerance | W4 d=0 | W6 |", "{text}");
+        assert_eq!(
+            rows[1], "| 1e-3 | 1.0e-2 (1.00 ms) | 1.0e-4 (1.00 ms) |",
+            "{text}"
+        );
+        assert_eq!(rows[4], "| non-increasing | yes | NO |", "{text}");
+        // One tolerance is not a table.
+        assert_eq!(tolerance_table(&records[..1]), "");
     }
 
     #[test]

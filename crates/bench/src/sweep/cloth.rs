@@ -36,20 +36,34 @@ fn newton(tolerance: f64, linear_solver: LinearSolverChoice) -> NewtonSettings {
     }
 }
 
+/// Backward Euler's Newton tolerances (`|grad g|_inf <= tol m/h^2`), linear solver `auto`:
+/// every decade from 1e-3 to 1e-12 in the full run, so the table shows the error from the
+/// exact step shrinking with the tolerance; the quick run keeps the two ends' neighbours.
+pub fn tolerances(plan: &Plan) -> &'static [f64] {
+    if plan.quick {
+        &[1e-3, 1e-9]
+    } else {
+        &[
+            1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12,
+        ]
+    }
+}
+
+/// The knobs label of backward Euler at tolerance `tol` with the linear solver `auto`.
+#[must_use]
+pub fn tolerance_knobs(tol: f64) -> String {
+    format!("tol {}, linear auto", sci(tol))
+}
+
 /// The integrators and knobs run on a workload whose stability bound asks for `bound`
 /// substeps per step.
 fn integrators(plan: &Plan, bound: usize) -> Vec<(&'static str, String, Integrator)> {
     use LinearSolverChoice::{Auto, Direct, Pcg};
     let mut out = Vec::new();
-    let tolerances: &[f64] = if plan.quick {
-        &[1e-9]
-    } else {
-        &[1e-3, 1e-6, 1e-9]
-    };
-    for &tol in tolerances {
+    for &tol in tolerances(plan) {
         out.push((
             "backward_euler",
-            format!("tol {}, linear auto", sci(tol)),
+            tolerance_knobs(tol),
             Integrator::BackwardEuler(newton(tol, Auto)),
         ));
     }
