@@ -17,11 +17,15 @@
 //! from the colliders' fields after every step). Not a criterion benchmark: a table for
 //! docs/contact.md, run with
 //! `cargo bench -p sinew-spring-sim --bench contact [-- ground|drape|rotating [steps]
-//! [--trace]]` (`--trace`: a line per step on stderr).
+//! [--trace] [mu=..] [eps_v=..] [solver=direct|pcg|auto]]` (`--trace`: a line per step
+//! on stderr; `mu`, `eps_v`: the friction settings instead of the workload's;
+//! `solver`: the linear solver, `auto` by default).
 
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::{Collider, ContactSettings};
-use sinew_spring_sim::{ClothGrid, Integrator, Material, NewtonSettings, Simulation};
+use sinew_spring_sim::{
+    ClothGrid, Integrator, LinearSolverChoice, Material, NewtonSettings, Simulation,
+};
 use std::time::Instant;
 
 struct Workload {
@@ -78,12 +82,30 @@ fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let chosen: Vec<&str> = args
         .iter()
-        .filter(|a| a.parse::<usize>().is_err() && !a.starts_with('-'))
+        .filter(|a| a.parse::<usize>().is_err() && !a.starts_with('-') && !a.contains('='))
         .map(String::as_str)
         .collect();
     let steps_override = args.iter().find_map(|a| a.parse::<usize>().ok());
     // `--trace`: one line per step on stderr (iterations, stop reason, kappa, distance).
     let trace = args.iter().any(|a| a == "--trace");
+    // `key=value` overrides of the workloads' settings, for experiments: `mu=`, `eps_v=`
+    // (friction), `solver=direct|pcg|auto` (the linear solver).
+    let value = |key: &str| {
+        args.iter()
+            .find_map(|a| a.strip_prefix(key).and_then(|v| v.strip_prefix('=')))
+    };
+    let number = |key: &str| {
+        value(key).map(|v| {
+            v.parse::<f64>()
+                .unwrap_or_else(|_| panic!("{key}={v}: not a number"))
+        })
+    };
+    let solver = match value("solver") {
+        None | Some("auto") => LinearSolverChoice::Auto,
+        Some("direct") => LinearSolverChoice::Direct,
+        Some("pcg") => LinearSolverChoice::Pcg,
+        Some(other) => panic!("solver={other}: expected direct, pcg or auto"),
+    };
     println!(
         "| workload | particles | steps | ms per step (median) | ms per step (mean) | Newton iterations | most in a step | PCG iterations | backtracks | kappa (end) | smallest distance (m) | steps with a penetration |"
     );
@@ -104,6 +126,7 @@ fn main() {
         let system = grid.build().expect("the grid is valid");
         let settings = NewtonSettings {
             max_iterations: 100,
+            linear_solver: solver,
             ..NewtonSettings::default()
         };
         let mut sim = Simulation::new(system, Integrator::BackwardEuler(settings))
@@ -112,7 +135,8 @@ fn main() {
             w.colliders.clone(),
             ContactSettings {
                 dhat: 1e-3,
-                mu: w.mu,
+                mu: number("mu").unwrap_or(w.mu),
+                eps_v: number("eps_v").unwrap_or(ContactSettings::default().eps_v),
                 ..ContactSettings::default()
             },
         )

@@ -193,6 +193,12 @@ impl HessianPattern {
     }
 
     /// `y = A x` for the symmetric matrix whose lower triangle has `values`.
+    ///
+    /// Column `3 p + c` holds its diagonal entry, the `2 - c` entries below it in `p`'s
+    /// diagonal block, then three consecutive rows per neighbour block (the structure
+    /// [`HessianPattern::with_pairs`] builds). The loop reads one row index per
+    /// neighbour block instead of one per entry; the additions are those of the
+    /// entry-by-entry product, in the same order, so the result is the same bit for bit.
     pub(crate) fn sym_matvec(&self, values: &[f64], x: &[f64], y: &mut [f64]) {
         y.fill(0.0);
         let col_ptr = self.symbolic.col_ptr();
@@ -202,11 +208,25 @@ impl HessianPattern {
             let (start, end) = (col_ptr[j], col_ptr[j + 1]);
             // The first entry of every column is its diagonal entry.
             let mut acc = values[start] * xj;
-            for k in start + 1..end {
+            let blocks = start + 3 - j % 3;
+            for k in start + 1..blocks {
                 let i = row_idx[k];
                 let v = values[k];
                 y[i] += v * xj;
                 acc += v * x[i];
+            }
+            debug_assert_eq!((end - blocks) % 3, 0);
+            for (v, &i) in values[blocks..end]
+                .chunks_exact(3)
+                .zip(row_idx[blocks..end].iter().step_by(3))
+            {
+                let (yi, xi) = (&mut y[i..i + 3], &x[i..i + 3]);
+                yi[0] += v[0] * xj;
+                acc += v[0] * xi[0];
+                yi[1] += v[1] * xj;
+                acc += v[1] * xi[1];
+                yi[2] += v[2] * xj;
+                acc += v[2] * xi[2];
             }
             y[j] += acc;
         }

@@ -24,7 +24,7 @@ use super::barrier::{
     point_barrier_projected_hessian,
 };
 use super::collider::{Collider, Shape, validate_colliders};
-use super::distance::{distance_change, signed_distance};
+use super::distance::{distance_change, distance_to, signed_distance};
 use super::friction::FrictionContact;
 use super::toi::time_of_impact;
 use super::{ContactError, ContactSettings};
@@ -337,7 +337,7 @@ impl ContactPotential {
         for shape in self.near(&bounds) {
             for (i, &p) in x.iter().enumerate() {
                 if !fixed[i] {
-                    min = min.min(signed_distance(shape, p, self.settings.thickness).distance);
+                    min = min.min(distance_to(shape, p, self.settings.thickness));
                 }
             }
         }
@@ -400,7 +400,7 @@ impl ContactPotential {
                 continue;
             }
             for (i, &p) in x.iter().enumerate() {
-                if !fixed[i] && signed_distance(shape, p, self.settings.thickness).distance <= 0.0 {
+                if !fixed[i] && distance_to(shape, p, self.settings.thickness) <= 0.0 {
                     return Some((i, c));
                 }
             }
@@ -420,7 +420,7 @@ impl ContactPotential {
         for shape in self.near(&bounds) {
             for (i, &p) in x.iter().enumerate() {
                 if !fixed[i] {
-                    let d = signed_distance(shape, p, self.settings.thickness).distance;
+                    let d = distance_to(shape, p, self.settings.thickness);
                     e += kappa.kappa * barrier(d, self.settings.dhat);
                 }
             }
@@ -629,11 +629,11 @@ pub fn carry_with_colliders(
             if fixed[i] {
                 continue;
             }
-            let d_end = signed_distance(&end, x[i], tau).distance;
+            let d_end = distance_to(&end, x[i], tau);
             if d_end >= settings.dhat {
                 continue;
             }
-            let d_start = signed_distance(&start, x_n[i], tau).distance;
+            let d_start = distance_to(&start, x_n[i], tau);
             if d_start > 0.0 && d_end < 0.5 * d_start.min(settings.dhat) {
                 x[i] = r1 + turn * (x_n[i] - r0);
             }
@@ -644,10 +644,7 @@ pub fn carry_with_colliders(
         if fixed[i] {
             continue;
         }
-        if shapes
-            .iter()
-            .all(|s| signed_distance(s, x[i], tau).distance > 0.0)
-        {
+        if shapes.iter().all(|s| distance_to(s, x[i], tau) > 0.0) {
             continue;
         }
         x[i] = separate(&shapes, x[i], tau, settings.dhat).map_err(|c| (i, c))?;
@@ -686,17 +683,14 @@ fn separate(shapes: &[Shape], x: DVec3, thickness: f64, dhat: f64) -> Result<DVe
                 break;
             }
         }
-        if shapes
-            .iter()
-            .all(|s| signed_distance(s, p, thickness).distance > 0.0)
-        {
+        if shapes.iter().all(|s| distance_to(s, p, thickness) > 0.0) {
             return Ok(p);
         }
         target *= 0.5;
     }
     Err(shapes
         .iter()
-        .position(|s| signed_distance(s, x, thickness).distance <= 0.0)
+        .position(|s| distance_to(s, x, thickness) <= 0.0)
         .unwrap_or(0))
 }
 

@@ -25,7 +25,7 @@
 //! Derivations and the guarantee's argument: docs/contact.md.
 
 use super::collider::{Collider, Shape};
-use super::distance::signed_distance;
+use super::distance::distance_to;
 use sinew_math::DVec3;
 
 /// Largest number of conservative-advancement iterations. Each returns a safe `alpha`,
@@ -55,7 +55,7 @@ pub fn time_of_impact(
     fraction: f64,
 ) -> f64 {
     let start = collider.at(t0);
-    let d0 = signed_distance(&start, x, thickness).distance;
+    let d0 = distance_to(&start, x, thickness);
     if d0 <= 0.0 || d0.is_nan() {
         return 0.0;
     }
@@ -188,7 +188,7 @@ fn advance(
         }
         alpha = next;
         let shape = collider.at(t0 + alpha * dt);
-        d = signed_distance(&shape, x + alpha * dx, thickness).distance;
+        d = distance_to(&shape, x + alpha * dx, thickness);
     }
     alpha
 }

@@ -25,7 +25,7 @@ pub(super) struct Outcome {
 
 /// Searches along `dx` from `x` with slope `grad g . dx = slope < 0`, the changes of `g`
 /// summed in fixed chunks (on the current thread pool when `par`; `partials` holds the
-/// chunks' sums).
+/// chunks' sums). An accepted full step is lengthened only when `expand`.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn search(
     potential: &Potential,
@@ -34,6 +34,7 @@ pub(super) fn search(
     dx: &[DVec3],
     slope: f64,
     settings: &NewtonSettings,
+    expand: bool,
     par: bool,
     partials: &mut Vec<f64>,
 ) -> Outcome {
@@ -59,7 +60,7 @@ pub(super) fn search(
             backtracks,
         };
     };
-    if alpha == 1.0 {
+    if expand && alpha == 1.0 {
         // The full step was accepted: where compressed springs make g non-convex, the
         // projected Hessian overstates the curvature and its step is too short, so Newton
         // crawls (hundreds of iterations on a sheet compressed to half size,

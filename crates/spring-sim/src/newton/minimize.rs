@@ -214,7 +214,14 @@ impl BackwardEuler {
                 self.dx_particles[p] =
                     DVec3::new(self.dx[3 * f], self.dx[3 * f + 1], self.dx[3 * f + 2]);
             }
-            let outcome = self.line_search(&step, slope);
+            // An iteration that starts within the tolerance only polishes a step that is
+            // already acceptable (the forced iteration above): its full Newton step is
+            // taken without the doubling trials, which exist for the crawl through
+            // non-convex regions far from the solution and would cost one more energy
+            // change for nothing here (on a resting sheet, the only line search of the
+            // step).
+            let expand = residual > tol_abs;
+            let outcome = self.line_search(&step, slope, expand);
             report.backtracks += outcome.backtracks;
             let Some(alpha) = outcome.alpha else {
                 // Below the tolerance already (an iteration the rule above asked for from
@@ -329,7 +336,12 @@ impl BackwardEuler {
     }
 
     /// The line search along `dx_particles`, on the thread pool when there is one.
-    fn line_search(&mut self, step: &StepContext<'_>, slope: f64) -> line_search::Outcome {
+    fn line_search(
+        &mut self,
+        step: &StepContext<'_>,
+        slope: f64,
+        expand: bool,
+    ) -> line_search::Outcome {
         let (potential, x, dx, settings, partials) = (
             &self.potential,
             &self.x,
@@ -340,9 +352,13 @@ impl BackwardEuler {
         #[cfg(feature = "parallel")]
         if let Some(pool) = self.pcg.pool() {
             return pool.install(|| {
-                line_search::search(potential, step, x, dx, slope, settings, true, partials)
+                line_search::search(
+                    potential, step, x, dx, slope, settings, expand, true, partials,
+                )
             });
         }
-        line_search::search(potential, step, x, dx, slope, settings, false, partials)
+        line_search::search(
+            potential, step, x, dx, slope, settings, expand, false, partials,
+        )
     }
 }

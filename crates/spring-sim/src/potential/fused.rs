@@ -71,31 +71,6 @@ impl PerSpring<'_> {
         }
     }
 
-    /// [`Self::energy`] over the springs `range` only, with the same per-spring
-    /// expressions and the same order of additions within the range; the spring term
-    /// must be present.
-    pub(super) fn energy_over(
-        &self,
-        step: &StepContext<'_>,
-        x: &[DVec3],
-        range: std::ops::Range<usize>,
-    ) -> f64 {
-        debug_assert!(self.springs);
-        let springs = &step.system.springs()[range.clone()];
-        match self.damping {
-            Some((term, c)) => {
-                let mut e = 0.0;
-                for (s, &w) in springs.iter().zip(&term.directions()[range]) {
-                    let d = x[s.a] - x[s.b];
-                    let d_ref = step.x_ref[s.a] - step.x_ref[s.b];
-                    e += springs::energy(s, x) + damping::energy(c, w, d, d_ref);
-                }
-                e
-            }
-            None => springs.iter().map(|s| springs::energy(s, x)).sum(),
-        }
-    }
-
     /// [`Self::energy_change`] over the springs `range` only, with the same per-spring
     /// expressions and the same order of additions within the range; the spring term
     /// must be present (the caller falls back to the whole sum otherwise).

@@ -186,8 +186,7 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
 
 /// The terms of one minimization, evaluated in order and summed.
 ///
-/// Springs per chunk of [`Potential::energy_change_chunked`]'s and
-/// [`Potential::energy_chunked`]'s sums: fixed, so the sums' order does not depend on
+/// Springs per chunk of [`Potential::energy_change_chunked`]'s sums: fixed, so the sums' order does not depend on
 /// the threads.
 pub(crate) const CHANGE_CHUNK: usize = 4096;
 
@@ -384,31 +383,6 @@ impl Potential {
             .sum();
         let springs = chunked_sum(step.system.springs().len(), par, partials, |range| {
             per.energy_change_over(step, x, dx, alpha, range)
-        });
-        others + springs
-    }
-
-    /// [`Self::energy`] with the springs' part summed in fixed chunks, as
-    /// [`Self::energy_change_chunked`]: the same bits for any number of threads, and
-    /// exactly [`Self::energy`]'s on a system of at most one chunk.
-    pub(crate) fn energy_chunked(
-        &self,
-        step: &StepContext<'_>,
-        x: &[DVec3],
-        par: bool,
-        partials: &mut Vec<f64>,
-    ) -> f64 {
-        let per = self.per_spring(step);
-        if !per.springs {
-            return self.energy(step, x);
-        }
-        let others: f64 = self
-            .other_terms
-            .iter()
-            .map(|&t| self.terms[t].energy(step, x))
-            .sum();
-        let springs = chunked_sum(step.system.springs().len(), par, partials, |range| {
-            per.energy_over(step, x, range)
         });
         others + springs
     }

@@ -318,6 +318,13 @@ impl<'a> HessianSink<'a> {
 }
 
 /// Adds `[[K, -K], [-K, K]]` on edge `(a, b)` to the pattern's values.
+///
+/// The pattern's rows are sorted within each column, so the slots of one column of a
+/// block are consecutive: `(0,0), (1,0), (2,0)`, then `(1,1), (2,1)`, then `(2,2)` of a
+/// diagonal block, and three rows per column of an off-diagonal one. Writing each
+/// column as one slice reads a third of the slot indices and checks a third of the
+/// bounds; every slot still gets the same single addition, so the values are the same
+/// bit for bit.
 #[inline]
 fn edge_values(
     pattern: &HessianPattern,
@@ -327,19 +334,31 @@ fn edge_values(
     b: usize,
     k: SymBlock,
 ) {
+    let [xx, yx, zx, yy, zy, zz] = k.0;
     for f in [pattern.free_index[a], pattern.free_index[b]] {
         if f != FIXED {
-            for (slot, v) in pattern.diag_slots[f].iter().zip(k.0) {
-                values[*slot] += v;
-            }
+            let s = &pattern.diag_slots[f];
+            debug_assert!(s[1] == s[0] + 1 && s[2] == s[0] + 2 && s[4] == s[3] + 1);
+            let first = &mut values[s[0]..s[0] + 3];
+            first[0] += xx;
+            first[1] += yx;
+            first[2] += zx;
+            let second = &mut values[s[3]..s[3] + 2];
+            second[0] += yy;
+            second[1] += zy;
+            values[s[5]] += zz;
         }
     }
     if let Some(slots) = &pattern.off_slots[edge] {
         // Entry (r, c) at slot 3c + r; the block is symmetric.
-        let [xx, yx, zx, yy, zy, zz] = k.0;
-        let full = [xx, yx, zx, yx, yy, zy, zx, zy, zz];
-        for (slot, v) in slots.iter().zip(full) {
-            values[*slot] -= v;
+        let full = [[xx, yx, zx], [yx, yy, zy], [zx, zy, zz]];
+        for (c, column) in full.into_iter().enumerate() {
+            let start = slots[3 * c];
+            debug_assert!(slots[3 * c + 1] == start + 1 && slots[3 * c + 2] == start + 2);
+            let target = &mut values[start..start + 3];
+            target[0] -= column[0];
+            target[1] -= column[1];
+            target[2] -= column[2];
         }
     }
 }
