@@ -708,25 +708,44 @@ impl PreparedTwoBone {
             }
             .into());
         }
+        // The global pose of every joint the solve reads must be usable. A bare limb
+        // reads the root's position and rotation, the mid joint's position and the root
+        // parent's rotation (the mid joint's parent is the root, the lower bone is the
+        // tip's offset, and the mid joint's and the tip's global rotations are rewritten
+        // by the inline forward kinematics without being read).
         let usable_global =
             |j: usize| global.positions[j].is_finite() && usable_rotation(global.rotations[j]);
-        if !(usable_global(root)
-            && usable_global(mid)
-            && usable_global(tip)
-            && usable_global(mid_parent)
-            && root_parent.is_none_or(usable_global))
-        {
-            let bad = [
-                Some(root),
-                Some(mid),
-                Some(tip),
-                Some(mid_parent),
-                root_parent,
-            ]
-            .into_iter()
-            .flatten()
-            .find(|&j| !usable_global(j))
-            .unwrap_or(root);
+        let fine = if self.limb_only.is_some() {
+            usable_global(root)
+                && global.positions[mid].is_finite()
+                && root_parent.is_none_or(usable_global)
+        } else {
+            usable_global(root)
+                && usable_global(mid)
+                && usable_global(tip)
+                && usable_global(mid_parent)
+                && root_parent.is_none_or(usable_global)
+        };
+        if !fine {
+            let bad = if self.limb_only.is_some() {
+                [Some(root), root_parent]
+                    .into_iter()
+                    .flatten()
+                    .find(|&j| !usable_global(j))
+                    .unwrap_or(mid)
+            } else {
+                [
+                    Some(root),
+                    Some(mid),
+                    Some(tip),
+                    Some(mid_parent),
+                    root_parent,
+                ]
+                .into_iter()
+                .flatten()
+                .find(|&j| !usable_global(j))
+                .unwrap_or(root)
+            };
             return Err(TwoBoneError::InvalidGlobalPose {
                 joint: skeleton.label(bad),
             });

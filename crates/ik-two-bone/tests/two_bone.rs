@@ -1029,17 +1029,31 @@ fn a_prepared_job_refuses_what_validate_refuses_with_the_same_error() {
             "joint {joint}: nothing changes"
         );
     }
-    // A NaN in the global pose of a joint the solve reads.
+    // A NaN in the global pose of a joint the solve reads (a bare limb reads the mid
+    // joint's position, not its rotation): refused, nothing changed.
     let mut p = pose.clone();
     let mut g = fresh_fk(&skel, &pose);
-    g.rotations[1].x = nan;
+    g.positions[1].x = nan;
+    let err = prepared.run(&skel, &mut p, &mut g).unwrap_err();
     assert_eq!(
-        prepared.run(&skel, &mut p, &mut g).unwrap_err(),
+        err,
         TwoBoneError::InvalidGlobalPose {
             joint: "joint 1".into()
         }
     );
+    assert_eq!(
+        err,
+        base.run(&skel, &mut p.clone(), &mut g.clone()).unwrap_err()
+    );
     assert_eq!(p, pose);
+    // A NaN where the solve writes without reading (the global rotations of the mid
+    // joint and the tip of a bare limb) is overwritten by forward kinematics.
+    let mut g = fresh_fk(&skel, &pose);
+    g.rotations[1].x = nan;
+    g.rotations[2].y = nan;
+    let report = prepared.run(&skel, &mut p, &mut g).unwrap();
+    assert!(report.reached);
+    assert_eq!(g, fresh_fk(&skel, &p));
 }
 
 #[test]
