@@ -36,7 +36,14 @@ pub(crate) struct Common {
     /// Per target: how far from its goal a pinned effector may end (the tolerance, or
     /// its distance at the start if that is larger).
     pin_allowed: Vec<f64>,
+    /// The limbs [`Common::seed_limbs`] has built, kept from solve to solve so that a
+    /// solve on the same skeleton builds (allocates) none.
+    limbs: Vec<Chain>,
 }
+
+/// More cached limbs than this (many skeletons through one solver) and the cache starts
+/// over.
+const MAX_CACHED_LIMBS: usize = 64;
 
 /// The outcome of [`Common::begin`].
 pub(crate) enum Begin {
@@ -310,8 +317,21 @@ impl Common {
             if self.topology.below(slot).len() != 1 {
                 continue;
             }
-            let Ok(chain) = Chain::new(skeleton, base, t.joint) else {
-                continue;
+            let cached = self.limbs.iter().position(|c| {
+                c.base() == base && c.effector() == t.joint && c.check_skeleton(skeleton).is_ok()
+            });
+            let chain = match cached {
+                Some(k) => &self.limbs[k],
+                None => {
+                    let Ok(chain) = Chain::new(skeleton, base, t.joint) else {
+                        continue;
+                    };
+                    if self.limbs.len() >= MAX_CACHED_LIMBS {
+                        self.limbs.clear();
+                    }
+                    self.limbs.push(chain);
+                    &self.limbs[self.limbs.len() - 1]
+                }
             };
             let distance = state.global.positions[t.joint].distance(t.position);
             if distance <= LIMB_SEED_DISTANCE * chain.reach() {
@@ -322,7 +342,7 @@ impl Common {
                 .map_or(DQuat::IDENTITY, |p| state.global.rotations[p]);
             seeded |= limb_seed(
                 skeleton,
-                &chain,
+                chain,
                 &mut state.pose,
                 state.global.positions[base],
                 base_parent,

@@ -6,6 +6,8 @@
 //!
 //! - `two_bone/solve`: weight 1, no softening;
 //! - `two_bone/solve_soft_blend`: soften 0.9 and weight 0.7 (two slerps more);
+//! - `two_bone/prepared`: the `solve` case through a job prepared once
+//!   (`TwoBoneIk::prepare`), which checks only the per-call inputs on each run;
 //! - `two_bone/fk_only`: forward kinematics of the same three joints alone (what every
 //!   solve includes), as the yardstick for the machine the numbers come from.
 
@@ -72,6 +74,34 @@ fn bench_solve(c: &mut Criterion) {
     }
 }
 
+fn bench_prepared(c: &mut Criterion) {
+    let skeleton = Skeleton::chain(
+        DVec3::ZERO,
+        &[DVec3::new(0.30, 0.0, 0.0), DVec3::new(0.25, 0.0, 0.0)],
+    )
+    .expect("valid limb");
+    let targets = targets(256);
+    let mut job = TwoBoneIk::new(0, 1, 2, DVec3::ZERO, DVec3::new(0.0, -1.0, -1.0));
+    job.hinge = Hinge::new(DVec3::Z, 0.0, 150f64.to_radians());
+    let mut prepared = job.prepare(&skeleton).expect("valid job");
+    let mut pose = skeleton.rest_pose();
+    let mut global = GlobalPose::new();
+    skeleton
+        .forward_kinematics(&pose, &mut global)
+        .expect("valid pose");
+    let mut i = 0;
+    c.bench_function("two_bone/prepared", |b| {
+        b.iter(|| {
+            prepared.target = targets[i];
+            i = (i + 1) % targets.len();
+            let report = prepared
+                .run(black_box(&skeleton), &mut pose, &mut global)
+                .expect("valid job");
+            black_box(report)
+        })
+    });
+}
+
 fn bench_fk_only(c: &mut Criterion) {
     let skeleton = Skeleton::chain(
         DVec3::ZERO,
@@ -93,5 +123,5 @@ fn bench_fk_only(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench_solve, bench_fk_only);
+criterion_group!(benches, bench_solve, bench_prepared, bench_fk_only);
 criterion_main!(benches);

@@ -5,7 +5,8 @@
 //! forearm 0.25 along +x, elbow hinge 0..150 degrees about z, pole (0, -1, -1)), the same
 //! 256 fixed-seed targets in a ball of radius 0.6 (about a fifth out of reach), cycled,
 //! warm-started from the previous solve's pose. PART is `solve` (weight 1, no softening,
-//! forward kinematics of the three joints included), `fk` (forward kinematics of the
+//! forward kinematics of the three joints included), `prepared` (the same through a job
+//! prepared once, `TwoBoneIk::prepare`), `fk` (forward kinematics of the
 //! three joints alone, the part of a solve the closed form cannot avoid) or `none` (the
 //! setup only). The difference of two counts divided by SOLVES is the cost of one
 //! operation, a figure that does not depend on the load of the machine.
@@ -63,6 +64,17 @@ fn main() {
                 black_box(report);
             }
         }
+        "prepared" => {
+            let mut prepared = job.prepare(&skeleton).expect("valid job");
+            for i in 0..solves {
+                prepared.target = targets[i % targets.len()];
+                let report = prepared
+                    .run(black_box(&skeleton), &mut pose, &mut global)
+                    .expect("valid job");
+                reached += usize::from(report.reached);
+                black_box(report);
+            }
+        }
         "fk" => {
             for _ in 0..solves {
                 skeleton
@@ -72,7 +84,7 @@ fn main() {
             }
         }
         "none" => {}
-        other => panic!("unknown part {other}: solve, fk or none"),
+        other => panic!("unknown part {other}: solve, prepared, fk or none"),
     }
     println!("{part}: {solves} runs, {reached} reached");
 }

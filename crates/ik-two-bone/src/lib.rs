@@ -232,6 +232,14 @@ pub enum TwoBoneError {
         /// The joint, with its name when it has one.
         joint: String,
     },
+    /// A [`PreparedTwoBone`] was run on a skeleton other than the one it was prepared
+    /// for (another size, or other parents or offsets).
+    OtherSkeleton {
+        /// The number of joints of the skeleton given.
+        joints: usize,
+        /// The number of joints of the skeleton prepared for.
+        prepared_joints: usize,
+    },
 }
 
 impl fmt::Display for TwoBoneError {
@@ -265,6 +273,13 @@ impl fmt::Display for TwoBoneError {
             Self::InvalidGlobalPose { joint } => write!(
                 f,
                 "two-bone IK: the global pose of {joint} is not finite (run forward kinematics of a valid pose first)"
+            ),
+            Self::OtherSkeleton {
+                joints,
+                prepared_joints,
+            } => write!(
+                f,
+                "two-bone IK `skeleton`: the job was prepared for another skeleton ({prepared_joints} joints; this one has {joints}, or other parents or offsets)"
             ),
         }
     }
@@ -315,16 +330,34 @@ fn length(v: DVec3) -> f64 {
 /// `a = from / |from|` that needs one division. The `w` term cancels as the angle nears a
 /// half turn, so beyond 120 degrees `rotation_between` (exact there, and slower, and
 /// normalized) takes over.
+///
+/// Beyond 120 degrees the answer is a rotation taking `from` onto `to` that is not the
+/// minimal one (the second value is then `false`): a half turn about an axis
+/// perpendicular to `from`, which takes it to its opposite, followed by the minimal
+/// rotation from the opposite onto `to`, an angle below 60 degrees where the formula above
+/// has no cancellation. That costs a fraction of `rotation_between`, which is exact at a
+/// half turn too; a caller that needs the minimal rotation there calls it instead.
 #[inline]
-fn turn_onto(from: DVec3, to: DVec3) -> DQuat {
+fn turn_onto(from: DVec3, to: DVec3) -> (DQuat, bool) {
     let size = from.length();
     let dot = from.dot(to);
-    if size > 1e-100 && size < 1e100 && dot > -0.5 * size {
-        let inverse = 1.0 / size;
+    if !(size > 1e-100 && size < 1e100) {
+        return (rotation_between(from, to), true);
+    }
+    let inverse = 1.0 / size;
+    if dot > -0.5 * size {
         let axis = from.cross(to) * inverse;
-        DQuat::from_xyzw(axis.x, axis.y, axis.z, 1.0 + dot * inverse)
+        (
+            DQuat::from_xyzw(axis.x, axis.y, axis.z, 1.0 + dot * inverse),
+            true,
+        )
     } else {
-        rotation_between(from, to)
+        let opposite = from * -inverse;
+        let half_turn_axis = opposite.any_orthonormal_vector();
+        let axis = opposite.cross(to);
+        let acute = DQuat::from_xyzw(axis.x, axis.y, axis.z, 1.0 - dot * inverse);
+        let half_turn = DQuat::from_xyzw(half_turn_axis.x, half_turn_axis.y, half_turn_axis.z, 0.0);
+        (acute * half_turn, false)
     }
 }
 
@@ -376,6 +409,14 @@ impl TwoBoneIk {
     /// `hinge.min <= hinge.max`, the pose the skeleton's size with usable rotations at
     /// `root` and `mid`. The error names the field.
     pub fn validate(&self, skeleton: &Skeleton, pose: &Pose) -> Result<(), TwoBoneError> {
+        self.check_structure(skeleton)?;
+        check_inputs(self.target, self.pole, self.twist, self.soften, self.weight)?;
+        check_hinge(&self.hinge)?;
+        check_pose(skeleton, pose, [self.root, self.mid])
+    }
+
+    /// The joint indices: in range and in ancestor order.
+    fn check_structure(&self, skeleton: &Skeleton) -> Result<(), TwoBoneError> {
         let len = skeleton.len();
         for (field, index) in [("root", self.root), ("mid", self.mid), ("tip", self.tip)] {
             if index >= len {
@@ -395,58 +436,54 @@ impl TwoBoneIk {
                 });
             }
         }
-        let vectors = [
-            ("target", self.target),
-            ("pole", self.pole),
-            ("hinge.axis", self.hinge.axis),
-        ];
-        for (field, v) in vectors {
-            if !v.is_finite() {
-                return Err(TwoBoneError::NonFinite { field });
-            }
-        }
-        let numbers = [
-            ("twist", self.twist),
-            ("soften", self.soften),
-            ("weight", self.weight),
-            ("hinge.min", self.hinge.min),
-            ("hinge.max", self.hinge.max),
-        ];
-        for (field, x) in numbers {
-            if !x.is_finite() {
-                return Err(TwoBoneError::NonFinite { field });
-            }
-        }
-        for (field, value) in [("soften", self.soften), ("weight", self.weight)] {
-            if !(0.0..=1.0).contains(&value) {
-                return Err(TwoBoneError::OutOfUnitInterval { field, value });
-            }
-        }
-        if self.hinge.axis == DVec3::ZERO {
-            return Err(TwoBoneError::ZeroHingeAxis);
-        }
-        if self.hinge.min > self.hinge.max {
-            return Err(TwoBoneError::HingeRange {
-                min: self.hinge.min,
-                max: self.hinge.max,
-            });
-        }
-        if pose.rotations.len() != len {
-            return Err(SkeletonError::PoseLength {
-                expected: len,
-                got: pose.rotations.len(),
-            }
-            .into());
-        }
-        for joint in [self.root, self.mid] {
-            if !usable_rotation(pose.rotations[joint]) {
-                return Err(SkeletonError::InvalidRotation {
-                    joint: skeleton.label(joint),
-                }
-                .into());
-            }
-        }
         Ok(())
+    }
+
+    /// This job checked once against `skeleton`, for solving many times: everything that
+    /// does not depend on the target, the pole, the twist, the soften ratio or the weight
+    /// (the joint indices and their ancestry, the hinge) is checked here, and what the
+    /// solve derives from the skeleton alone is kept. The per-call inputs are copied into
+    /// the prepared job's public fields and checked by each [`PreparedTwoBone::run`].
+    /// The error names the field, as [`TwoBoneIk::validate`] does.
+    pub fn prepare(&self, skeleton: &Skeleton) -> Result<PreparedTwoBone, TwoBoneError> {
+        self.check_structure(skeleton)?;
+        check_hinge(&self.hinge)?;
+        Ok(self.prepare_checked(skeleton))
+    }
+
+    /// [`TwoBoneIk::prepare`] after the structure and the hinge were checked.
+    fn prepare_checked(&self, skeleton: &Skeleton) -> PreparedTwoBone {
+        let (root, mid, tip) = (self.root, self.mid, self.tip);
+        // `mid` is a strict descendant of `root`, so it has a parent.
+        let mid_parent = skeleton.parent(mid).unwrap_or(root);
+        // The root's subtree is exactly root, mid, tip in a row when the tip is the mid
+        // joint's child, the mid joint the root's, and no index past the tip descends from
+        // the root (descendants come after their ancestors). Forward kinematics after a
+        // solve then touches those three joints only, and the solve does it inline.
+        let limb_only = (mid_parent == root
+            && skeleton.parent(tip) == Some(mid)
+            && mid == root + 1
+            && tip == root + 2
+            && skeleton.subtree_end(root) == root + 3)
+            .then(|| (skeleton.offset(mid), skeleton.offset(tip)));
+        PreparedTwoBone {
+            target: self.target,
+            pole: self.pole,
+            twist: self.twist,
+            soften: self.soften,
+            weight: self.weight,
+            root,
+            mid,
+            tip,
+            hinge: self.hinge,
+            // The hinge was checked: finite and non-zero.
+            axis: unit(self.hinge.axis).unwrap_or(DVec3::Z),
+            mid_parent,
+            root_parent: skeleton.parent(root),
+            joints: skeleton.len(),
+            fingerprint: skeleton.fingerprint(),
+            limb_only,
+        }
     }
 
     /// Solves: validates, turns the root's and the mid joint's local rotations in `pose`
@@ -459,6 +496,10 @@ impl TwoBoneIk {
     /// result fails (an unusable rotation elsewhere in the root's subtree, so `global` was
     /// not forward kinematics of `pose`), the two rotations are restored in `pose` and the
     /// error returned; `global` must then be recomputed.
+    ///
+    /// To solve the same limb many times, [`TwoBoneIk::prepare`] it once and call
+    /// [`PreparedTwoBone::run`]: the same answer, bit for bit, without the checks that
+    /// depend on the skeleton alone.
     pub fn run(
         &self,
         skeleton: &Skeleton,
@@ -466,28 +507,248 @@ impl TwoBoneIk {
         global: &mut GlobalPose,
     ) -> Result<TwoBoneReport, TwoBoneError> {
         self.validate(skeleton, pose)?;
+        self.prepare_checked(skeleton)
+            .solve_checked(skeleton, pose, global)
+    }
+}
+
+/// The inputs that change from call to call: vectors finite, numbers finite, `soften` and
+/// `weight` in `[0, 1]`. One test on the usual path, the located error otherwise.
+#[inline]
+fn check_inputs(
+    target: DVec3,
+    pole: DVec3,
+    twist: f64,
+    soften: f64,
+    weight: f64,
+) -> Result<(), TwoBoneError> {
+    // A NaN is in no interval, so this also refuses NaN soften and weight.
+    if target.is_finite()
+        && pole.is_finite()
+        && twist.is_finite()
+        && (0.0..=1.0).contains(&soften)
+        && (0.0..=1.0).contains(&weight)
+    {
+        return Ok(());
+    }
+    for (field, v) in [("target", target), ("pole", pole)] {
+        if !v.is_finite() {
+            return Err(TwoBoneError::NonFinite { field });
+        }
+    }
+    for (field, x) in [("twist", twist), ("soften", soften), ("weight", weight)] {
+        if !x.is_finite() {
+            return Err(TwoBoneError::NonFinite { field });
+        }
+    }
+    for (field, value) in [("soften", soften), ("weight", weight)] {
+        if !(0.0..=1.0).contains(&value) {
+            return Err(TwoBoneError::OutOfUnitInterval { field, value });
+        }
+    }
+    Ok(())
+}
+
+/// The hinge: a finite non-zero axis, finite bounds, `min <= max`.
+fn check_hinge(hinge: &Hinge) -> Result<(), TwoBoneError> {
+    if !hinge.axis.is_finite() {
+        return Err(TwoBoneError::NonFinite {
+            field: "hinge.axis",
+        });
+    }
+    for (field, x) in [("hinge.min", hinge.min), ("hinge.max", hinge.max)] {
+        if !x.is_finite() {
+            return Err(TwoBoneError::NonFinite { field });
+        }
+    }
+    if hinge.axis == DVec3::ZERO {
+        return Err(TwoBoneError::ZeroHingeAxis);
+    }
+    if hinge.min > hinge.max {
+        return Err(TwoBoneError::HingeRange {
+            min: hinge.min,
+            max: hinge.max,
+        });
+    }
+    Ok(())
+}
+
+/// The pose: the skeleton's size, and usable local rotations at `joints`.
+#[inline]
+fn check_pose<const N: usize>(
+    skeleton: &Skeleton,
+    pose: &Pose,
+    joints: [usize; N],
+) -> Result<(), TwoBoneError> {
+    if pose.rotations.len() != skeleton.len() {
+        return Err(SkeletonError::PoseLength {
+            expected: skeleton.len(),
+            got: pose.rotations.len(),
+        }
+        .into());
+    }
+    for joint in joints {
+        if !usable_rotation(pose.rotations[joint]) {
+            return Err(SkeletonError::InvalidRotation {
+                joint: skeleton.label(joint),
+            }
+            .into());
+        }
+    }
+    Ok(())
+}
+
+/// A [`TwoBoneIk`] prepared for one skeleton by [`TwoBoneIk::prepare`]: the joints and the
+/// hinge are fixed and checked, the inputs that change per call are public fields.
+///
+/// ```
+/// use sinew_ik_two_bone::{DVec3, Hinge, TwoBoneIk};
+/// use sinew_skeleton::{GlobalPose, Skeleton};
+///
+/// let arm = Skeleton::chain(DVec3::ZERO, &[DVec3::X, DVec3::X]).unwrap();
+/// let (mut pose, mut global) = (arm.rest_pose(), GlobalPose::new());
+/// arm.forward_kinematics(&pose, &mut global).unwrap();
+/// let mut job = TwoBoneIk::new(0, 1, 2, DVec3::ZERO, DVec3::new(0.5, -1.0, 0.0));
+/// job.hinge = Hinge::new(DVec3::Z, 0.0, 150f64.to_radians());
+/// let mut prepared = job.prepare(&arm).unwrap();
+/// for k in 4..=12 {
+///     prepared.target = DVec3::new(0.15 * k as f64, 0.3, 0.0);
+///     let report = prepared.run(&arm, &mut pose, &mut global).unwrap();
+///     assert!(report.reached && report.error < 1e-12);
+/// }
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PreparedTwoBone {
+    /// Where the tip should go, in world coordinates ([`TwoBoneIk::target`]).
+    pub target: DVec3,
+    /// The point the bend plane turns towards ([`TwoBoneIk::pole`]).
+    pub pole: DVec3,
+    /// The turn about the root-target line, radians ([`TwoBoneIk::twist`]).
+    pub twist: f64,
+    /// The soften ratio in `[0, 1]` ([`TwoBoneIk::soften`]).
+    pub soften: f64,
+    /// The blend weight in `[0, 1]` ([`TwoBoneIk::weight`]).
+    pub weight: f64,
+    root: usize,
+    mid: usize,
+    tip: usize,
+    hinge: Hinge,
+    /// `hinge.axis` normalized.
+    axis: DVec3,
+    /// The mid joint's parent (the root itself for a bare limb).
+    mid_parent: usize,
+    root_parent: Option<usize>,
+    /// The size and the structure's fingerprint of the skeleton it was prepared for.
+    joints: usize,
+    fingerprint: u64,
+    /// The offsets of the mid joint and the tip when the root's subtree is exactly the
+    /// root, the mid joint and the tip in a row: forward kinematics is then done inline.
+    limb_only: Option<(DVec3, DVec3)>,
+}
+
+impl PreparedTwoBone {
+    /// The joints `(root, mid, tip)`.
+    #[must_use]
+    pub fn joints(&self) -> (usize, usize, usize) {
+        (self.root, self.mid, self.tip)
+    }
+
+    /// The mid joint's hinge.
+    #[must_use]
+    pub fn hinge(&self) -> Hinge {
+        self.hinge
+    }
+
+    /// Solves as [`TwoBoneIk::run`] does, with the same answer bit for bit, checking only
+    /// what can change between calls: the skeleton is the one prepared for (its size and
+    /// structure), the per-call fields (target, pole and twist finite, soften and weight
+    /// in `[0, 1]`), the pose's size and the local rotations the solve reads, and the
+    /// global pose of the joints it reads. Each error names the field or the joint, and
+    /// nothing is changed then.
+    pub fn run(
+        &self,
+        skeleton: &Skeleton,
+        pose: &mut Pose,
+        global: &mut GlobalPose,
+    ) -> Result<TwoBoneReport, TwoBoneError> {
+        if skeleton.len() != self.joints || skeleton.fingerprint() != self.fingerprint {
+            return Err(TwoBoneError::OtherSkeleton {
+                joints: skeleton.len(),
+                prepared_joints: self.joints,
+            });
+        }
+        check_inputs(self.target, self.pole, self.twist, self.soften, self.weight)?;
+        check_pose(skeleton, pose, [self.root, self.mid])?;
+        self.solve_checked(skeleton, pose, global)
+    }
+
+    /// The solve, once the job, the skeleton and the pose's size and the root's and the
+    /// mid joint's rotations were checked.
+    fn solve_checked(
+        &self,
+        skeleton: &Skeleton,
+        pose: &mut Pose,
+        global: &mut GlobalPose,
+    ) -> Result<TwoBoneReport, TwoBoneError> {
         if global.positions.len() != skeleton.len() || global.rotations.len() != skeleton.len() {
             skeleton.forward_kinematics(pose, global)?;
         }
-        let (root, mid, tip) = (self.root, self.mid, self.tip);
-        // `mid` is a strict descendant of `root`, so it has a parent.
-        let mid_parent = skeleton.parent(mid).unwrap_or(root);
-        let root_parent = skeleton.parent(root);
-        for joint in [
-            Some(root),
-            Some(mid),
-            Some(tip),
-            Some(mid_parent),
-            root_parent,
-        ]
-        .into_iter()
-        .flatten()
-        {
-            if !global.positions[joint].is_finite() || !usable_rotation(global.rotations[joint]) {
-                return Err(TwoBoneError::InvalidGlobalPose {
-                    joint: skeleton.label(joint),
-                });
+        let (root, mid, tip, mid_parent, root_parent) = (
+            self.root,
+            self.mid,
+            self.tip,
+            self.mid_parent,
+            self.root_parent,
+        );
+        // Forward kinematics of the result reads the tip's local rotation when it is done
+        // inline: refuse an unusable one before anything changes.
+        if self.limb_only.is_some() && !usable_rotation(pose.rotations[tip]) {
+            return Err(SkeletonError::InvalidRotation {
+                joint: skeleton.label(tip),
             }
+            .into());
+        }
+        // The global pose of every joint the solve reads must be usable. A bare limb
+        // reads the root's position and rotation, the mid joint's position and the root
+        // parent's rotation (the mid joint's parent is the root, the lower bone is the
+        // tip's offset, and the mid joint's and the tip's global rotations are rewritten
+        // by the inline forward kinematics without being read).
+        let usable_global =
+            |j: usize| global.positions[j].is_finite() && usable_rotation(global.rotations[j]);
+        let fine = if self.limb_only.is_some() {
+            usable_global(root)
+                && global.positions[mid].is_finite()
+                && root_parent.is_none_or(usable_global)
+        } else {
+            usable_global(root)
+                && usable_global(mid)
+                && usable_global(tip)
+                && usable_global(mid_parent)
+                && root_parent.is_none_or(usable_global)
+        };
+        if !fine {
+            let bad = if self.limb_only.is_some() {
+                [Some(root), root_parent]
+                    .into_iter()
+                    .flatten()
+                    .find(|&j| !usable_global(j))
+                    .unwrap_or(mid)
+            } else {
+                [
+                    Some(root),
+                    Some(mid),
+                    Some(tip),
+                    Some(mid_parent),
+                    root_parent,
+                ]
+                .into_iter()
+                .flatten()
+                .find(|&j| !usable_global(j))
+                .unwrap_or(root)
+            };
+            return Err(TwoBoneError::InvalidGlobalPose {
+                joint: skeleton.label(bad),
+            });
         }
 
         let root_position = global.positions[root];
@@ -495,9 +756,14 @@ impl TwoBoneIk {
         let mid_parent_rotation = global.rotations[mid_parent];
         // The hinge axis and the lower bone as they would be with the mid joint at rest,
         // in world axes (the mid joint's rest frame is its parent's frame).
-        let axis = unit(self.hinge.axis).unwrap_or(DVec3::Z);
+        let axis = self.axis;
         let world_axis = mid_parent_rotation * axis;
-        let lower_in_mid = global.rotations[mid].inverse() * (global.positions[tip] - mid_position);
+        // For a bare limb the lower bone in the mid joint's frame is the tip's offset
+        // (forward kinematics put the tip there); otherwise joints in between may turn it.
+        let lower_in_mid = match self.limb_only {
+            Some((_, tip_offset)) => tip_offset,
+            None => global.rotations[mid].inverse() * (global.positions[tip] - mid_position),
+        };
         let lower_rest = mid_parent_rotation * lower_in_mid;
         let upper = mid_position - root_position;
         let to_target = self.target - root_position;
@@ -566,10 +832,32 @@ impl TwoBoneIk {
                 pose.rotations[root] = solved_root;
                 pose.rotations[mid] = solved_mid;
             }
-            if let Err(e) = skeleton.forward_kinematics_from(pose, root, global) {
-                pose.rotations[root] = incoming.0;
-                pose.rotations[mid] = incoming.1;
-                return Err(e.into());
+            match self.limb_only {
+                Some((mid_offset, tip_offset)) => {
+                    // Forward kinematics of the three joints, the same operations in the
+                    // same order as `Skeleton::forward_kinematics_from` (so the same bits);
+                    // the root's position does not depend on its own rotation. Every
+                    // rotation read is usable: the solved ones are unit, the tip's and the
+                    // root parent's were checked.
+                    let root_rotation = match root_parent {
+                        Some(p) => (global.rotations[p] * pose.rotations[root]).normalize(),
+                        None => pose.rotations[root].normalize(),
+                    };
+                    let mid_rotation = (root_rotation * pose.rotations[mid]).normalize();
+                    let mid_position = global.positions[root] + root_rotation * mid_offset;
+                    global.rotations[root] = root_rotation;
+                    global.rotations[mid] = mid_rotation;
+                    global.positions[mid] = mid_position;
+                    global.rotations[tip] = (mid_rotation * pose.rotations[tip]).normalize();
+                    global.positions[tip] = mid_position + mid_rotation * tip_offset;
+                }
+                None => {
+                    if let Err(e) = skeleton.forward_kinematics_from(pose, root, global) {
+                        pose.rotations[root] = incoming.0;
+                        pose.rotations[mid] = incoming.1;
+                        return Err(e.into());
+                    }
+                }
             }
         }
         Ok(TwoBoneReport {
@@ -578,7 +866,6 @@ impl TwoBoneIk {
             bend_angle: bend.angle,
         })
     }
-
     /// The world rotation of the root, up to a non-zero factor of order 1 (the caller
     /// normalizes), that takes the solved limb (tip at `tip_offset`,
     /// mid joint at `upper`, both relative to the root with the root's current rotation)
@@ -596,10 +883,15 @@ impl TwoBoneIk {
     ) -> DQuat {
         // The line the tip must lie on. A target on the root has no direction; the tip's
         // own direction is then kept (the solve folded the limb as far as it goes).
-        let (aim, minimal) = match aim {
-            Some(aim) => (aim, turn_onto(tip_offset, aim)),
+        // `onto` takes the tip onto the line; it is the minimal such rotation unless
+        // `is_minimal` says otherwise (see `turn_onto`).
+        let (aim, onto, is_minimal) = match aim {
+            Some(aim) => {
+                let (onto, is_minimal) = turn_onto(tip_offset, aim);
+                (aim, onto, is_minimal)
+            }
             None => match unit(tip_offset).filter(|_| tip_offset.length() > negligible) {
-                Some(aim) => (aim, DQuat::IDENTITY),
+                Some(aim) => (aim, DQuat::IDENTITY, true),
                 None => {
                     // The tip is on the root too: there is no line, only the mid
                     // joint's direction left to turn towards the pole.
@@ -610,14 +902,16 @@ impl TwoBoneIk {
         // Turn about the aim line so the mid joint's offset from the line points the way
         // the pole's does. A straight limb (mid on the line) or a pole on the line has no
         // such direction: that turn is skipped, the twist still applies.
-        let mid = minimal * upper;
+        // Any rotation taking the tip onto the line serves here: the turn about the line
+        // that follows is measured from where it leaves the mid joint, and the two
+        // together are the one rotation that puts the tip on the line and the mid joint
+        // towards the pole. The perpendicular distance of the mid joint from the line
+        // does not depend on which rotation it was, so neither does the test for a
+        // straight limb.
+        let mid = onto * upper;
         let mid_across = mid - aim * aim.dot(mid);
         let pole_across = to_pole - aim * aim.dot(to_pole);
-        let twist = if self.twist == 0.0 {
-            DQuat::IDENTITY
-        } else {
-            DQuat::from_axis_angle(aim, self.twist)
-        };
+        let twist = (self.twist != 0.0).then(|| DQuat::from_axis_angle(aim, self.twist));
         // The turn between two directions perpendicular to the aim line is about that
         // line: their cosine and sine give its quaternion directly (no atan2; and a half
         // turn is about the aim line, where a generic minimal rotation could pick any
@@ -644,9 +938,16 @@ impl TwoBoneIk {
                 _ => None,
             }
         };
-        match spin {
-            Some((cos, sin)) => twist * turn_about(aim, cos, sin) * minimal,
-            None => twist * minimal,
+        let turn = match spin {
+            Some((cos, sin)) => turn_about(aim, cos, sin) * onto,
+            // Without a turn towards the pole, the bend plane is where the minimal
+            // rotation onto the line leaves it.
+            None if is_minimal => onto,
+            None => rotation_between(tip_offset, aim),
+        };
+        match twist {
+            Some(twist) => twist * turn,
+            None => turn,
         }
     }
 }

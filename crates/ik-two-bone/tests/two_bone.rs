@@ -1,7 +1,7 @@
 //! Two-bone IK against hand-computed poses, degenerate inputs, soften and weight, invalid
 //! input, and fixed-seed random limbs checked by an independent forward kinematics.
 
-use sinew_ik_two_bone::{Hinge, TwoBoneError, TwoBoneIk, TwoBoneReport};
+use sinew_ik_two_bone::{Hinge, PreparedTwoBone, TwoBoneError, TwoBoneIk, TwoBoneReport};
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::{GlobalPose, JointDef, Pose, Skeleton};
 use std::f64::consts::{FRAC_1_SQRT_2, FRAC_PI_2, PI, SQRT_2};
@@ -827,5 +827,285 @@ fn a_limb_folded_onto_its_root_or_near_it_lands_to_rounding() {
             assert!(error <= 4e-16 * scale, "{what}: error {error:e}");
             assert_eq!(global.positions[2], fk.positions[2], "{what}");
         }
+    }
+}
+
+/// A prepared job with the per-call fields of `job`.
+fn prepared_for(skel: &Skeleton, job: &TwoBoneIk) -> PreparedTwoBone {
+    let mut prepared = job.prepare(skel).unwrap();
+    prepared.target = job.target;
+    prepared.pole = job.pole;
+    prepared.twist = job.twist;
+    prepared.soften = job.soften;
+    prepared.weight = job.weight;
+    prepared
+}
+
+#[test]
+fn a_prepared_job_gives_the_same_bits_as_run_and_fk_of_its_pose() {
+    // Bare limbs (the three joints alone, forward kinematics inline), a bare limb under a
+    // turned parent, and the limb inside the larger skeleton with joints in between,
+    // warm-started over many targets, with and without twist, soften and weight.
+    let mut rng = Rng(0x0b0e_5eed);
+    let bare = Skeleton::chain(
+        DVec3::ZERO,
+        &[DVec3::new(0.3, 0.05, 0.0), DVec3::new(0.25, 0.0, 0.02)],
+    )
+    .unwrap();
+    let under_parent = Skeleton::chain(
+        DVec3::new(0.1, 1.0, 0.0),
+        &[DVec3::Y, DVec3::X * 0.4, DVec3::X * 0.35],
+    )
+    .unwrap();
+    let cases: [(Skeleton, usize, usize, usize); 3] = [
+        (bare, 0, 1, 2),
+        (under_parent, 1, 2, 3),
+        (random_skeleton(&mut rng), ROOT, MID, TIP),
+    ];
+    for (skel, root, mid, tip) in cases {
+        let mut pose_a = random_pose(&mut rng, skel.len());
+        let mut pose_b = pose_a.clone();
+        let mut global_a = fresh_fk(&skel, &pose_a);
+        let mut global_b = global_a.clone();
+        let mut job = TwoBoneIk::new(root, mid, tip, DVec3::ZERO, DVec3::Y);
+        job.hinge = Hinge::new(rng.vector(1.0) + DVec3::Z, -0.5, 2.5);
+        let mut prepared = job.prepare(&skel).unwrap();
+        assert_eq!(prepared.joints(), (root, mid, tip));
+        assert_eq!(prepared.hinge(), job.hinge);
+        for k in 0..400 {
+            job.target = skel.offset(0) + rng.vector(1.2);
+            job.pole = rng.vector(2.0);
+            job.twist = if k % 3 == 0 {
+                rng.uniform(-PI, PI)
+            } else {
+                0.0
+            };
+            job.soften = if k % 4 == 0 {
+                rng.uniform(0.0, 1.0)
+            } else {
+                1.0
+            };
+            job.weight = if k % 5 == 0 {
+                rng.uniform(0.0, 1.0)
+            } else {
+                1.0
+            };
+            prepared.target = job.target;
+            prepared.pole = job.pole;
+            prepared.twist = job.twist;
+            prepared.soften = job.soften;
+            prepared.weight = job.weight;
+            let a = job.run(&skel, &mut pose_a, &mut global_a).unwrap();
+            let b = prepared.run(&skel, &mut pose_b, &mut global_b).unwrap();
+            assert_eq!(a, b, "joints {root} {mid} {tip}, target {k}");
+            assert_eq!(pose_a, pose_b);
+            assert_eq!(global_a, global_b);
+            // The inline forward kinematics is the skeleton's, bit for bit.
+            assert_eq!(global_b, fresh_fk(&skel, &pose_b), "target {k}");
+            assert!(a.error.is_finite() && a.bend_angle.is_finite());
+        }
+    }
+}
+
+#[test]
+fn a_prepared_job_refuses_what_validate_refuses_with_the_same_error() {
+    let skel = unit_limb();
+    let pose = skel.rest_pose();
+    let base = TwoBoneIk::new(0, 1, 2, DVec3::X, DVec3::Y);
+    let nan = f64::NAN;
+    // Structure and hinge: refused by `prepare`.
+    for job in [
+        TwoBoneIk { tip: 3, ..base },
+        TwoBoneIk { mid: 0, ..base },
+        TwoBoneIk {
+            root: 2,
+            mid: 1,
+            tip: 0,
+            ..base
+        },
+        TwoBoneIk {
+            hinge: Hinge::new(DVec3::ZERO, 0.0, 1.0),
+            ..base
+        },
+        TwoBoneIk {
+            hinge: Hinge::new(DVec3::new(nan, 0.0, 1.0), 0.0, 1.0),
+            ..base
+        },
+        TwoBoneIk {
+            hinge: Hinge::new(DVec3::Z, 0.0, f64::INFINITY),
+            ..base
+        },
+        TwoBoneIk {
+            hinge: Hinge::new(DVec3::Z, 1.0, 0.5),
+            ..base
+        },
+    ] {
+        let expected = job.validate(&skel, &pose).unwrap_err();
+        assert_eq!(job.prepare(&skel).unwrap_err(), expected);
+    }
+    // Per-call inputs: refused by each run, with nothing changed.
+    for (job, field) in [
+        (
+            TwoBoneIk {
+                target: DVec3::new(0.0, nan, 0.0),
+                ..base
+            },
+            "`target`",
+        ),
+        (
+            TwoBoneIk {
+                pole: DVec3::new(f64::INFINITY, 0.0, 0.0),
+                ..base
+            },
+            "`pole`",
+        ),
+        (TwoBoneIk { twist: nan, ..base }, "`twist`"),
+        (
+            TwoBoneIk {
+                soften: nan,
+                ..base
+            },
+            "`soften`",
+        ),
+        (
+            TwoBoneIk {
+                soften: 1.5,
+                ..base
+            },
+            "`soften`",
+        ),
+        (
+            TwoBoneIk {
+                weight: -0.1,
+                ..base
+            },
+            "`weight`",
+        ),
+        (
+            TwoBoneIk {
+                weight: nan,
+                ..base
+            },
+            "`weight`",
+        ),
+    ] {
+        let expected = job.validate(&skel, &pose).unwrap_err();
+        assert!(expected.to_string().contains(field), "{field}: {expected}");
+        let prepared = prepared_for(&skel, &job);
+        let mut p = pose.clone();
+        let mut g = fresh_fk(&skel, &pose);
+        let g0 = g.clone();
+        assert_eq!(prepared.run(&skel, &mut p, &mut g).unwrap_err(), expected);
+        assert_eq!((p.clone(), g.clone()), (pose.clone(), g0), "{field}");
+    }
+    // The pose: wrong size, unusable rotation at the root or the mid joint, and (forward
+    // kinematics being inline for a bare limb) at the tip.
+    let prepared = base.prepare(&skel).unwrap();
+    let mut short = Pose {
+        rotations: vec![DQuat::IDENTITY; 2],
+    };
+    let mut g = fresh_fk(&skel, &pose);
+    assert_eq!(
+        prepared.run(&skel, &mut short, &mut g).unwrap_err(),
+        base.validate(&skel, &short).unwrap_err()
+    );
+    for joint in 0..3 {
+        let mut bad = skel.rest_pose();
+        bad.rotations[joint] = DQuat::from_xyzw(0.0, nan, 0.0, 1.0);
+        let before = bad.clone();
+        let mut g = fresh_fk(&skel, &pose);
+        let g0 = g.clone();
+        let err = prepared.run(&skel, &mut bad, &mut g).unwrap_err();
+        assert!(err.to_string().contains(&format!("joint {joint}")), "{err}");
+        assert_eq!(
+            err,
+            base.run(&skel, &mut bad.clone(), &mut g0.clone())
+                .unwrap_err()
+        );
+        // NaN is not equal to itself: compare what is printed.
+        assert_eq!(
+            format!("{:?}", (bad, g)),
+            format!("{:?}", (before, g0)),
+            "joint {joint}: nothing changes"
+        );
+    }
+    // A NaN in the global pose of a joint the solve reads (a bare limb reads the mid
+    // joint's position, not its rotation): refused, nothing changed.
+    let mut p = pose.clone();
+    let mut g = fresh_fk(&skel, &pose);
+    g.positions[1].x = nan;
+    let err = prepared.run(&skel, &mut p, &mut g).unwrap_err();
+    assert_eq!(
+        err,
+        TwoBoneError::InvalidGlobalPose {
+            joint: "joint 1".into()
+        }
+    );
+    assert_eq!(
+        err,
+        base.run(&skel, &mut p.clone(), &mut g.clone()).unwrap_err()
+    );
+    assert_eq!(p, pose);
+    // A NaN where the solve writes without reading (the global rotations of the mid
+    // joint and the tip of a bare limb) is overwritten by forward kinematics.
+    let mut g = fresh_fk(&skel, &pose);
+    g.rotations[1].x = nan;
+    g.rotations[2].y = nan;
+    let report = prepared.run(&skel, &mut p, &mut g).unwrap();
+    assert!(report.reached);
+    assert_eq!(g, fresh_fk(&skel, &p));
+}
+
+#[test]
+fn a_prepared_job_refuses_another_skeleton() {
+    let skel = unit_limb();
+    let prepared = TwoBoneIk::new(0, 1, 2, DVec3::X, DVec3::Y)
+        .prepare(&skel)
+        .unwrap();
+    // Same size, another bone; and another size.
+    for other in [
+        limb(DVec3::X, DVec3::Y),
+        Skeleton::chain(DVec3::ZERO, &[DVec3::X; 3]).unwrap(),
+    ] {
+        let mut pose = other.rest_pose();
+        let mut global = fresh_fk(&other, &pose);
+        let before = (pose.clone(), global.clone());
+        let err = prepared.run(&other, &mut pose, &mut global).unwrap_err();
+        assert_eq!(
+            err,
+            TwoBoneError::OtherSkeleton {
+                joints: other.len(),
+                prepared_joints: 3
+            }
+        );
+        assert!(err.to_string().contains("`skeleton`"), "{err}");
+        assert_eq!((pose, global), before);
+    }
+    // The skeleton it was prepared for, or an equal copy, is accepted.
+    let copy = skel.clone();
+    let mut pose = copy.rest_pose();
+    let mut global = fresh_fk(&copy, &pose);
+    assert!(prepared.run(&copy, &mut pose, &mut global).unwrap().reached);
+}
+
+#[test]
+fn a_turn_of_more_than_120_degrees_onto_the_line_without_a_pole_plane_is_minimal() {
+    // The limb lies in the xy plane and bends about z; the target is behind the root, so
+    // the tip turns by about 140 degrees onto the target line, and the pole is on that
+    // line, so no pole plane fixes the turn about it. The minimal rotation between two
+    // directions in the xy plane is about z: the limb stays in the xy plane.
+    let skel = unit_limb();
+    let target = DVec3::new(-1.4, -0.1, 0.0);
+    for pole in [target * 3.0, DVec3::ZERO] {
+        let job = TwoBoneIk::new(0, 1, 2, target, pole);
+        let (report, _, g) = solve(&skel, &job);
+        assert!(report.reached);
+        assert_close(g.positions[2], target, 1e-15);
+        assert!(g.positions[1].z.abs() < 1e-15, "{}", g.positions[1]);
+        let prepared = job.prepare(&skel).unwrap();
+        let mut pose = skel.rest_pose();
+        let mut global = fresh_fk(&skel, &pose);
+        assert_eq!(prepared.run(&skel, &mut pose, &mut global).unwrap(), report);
+        assert_eq!(global, g);
     }
 }

@@ -62,10 +62,14 @@ impl Chain {
         let mut j = effector;
         while j != base {
             // `base` is an ancestor, so the walk reaches it before running out of parents.
-            j = skeleton.parent(j).ok_or(SkeletonError::NotAnAncestor {
-                base: skeleton.label(base),
-                effector: skeleton.label(effector),
-            })?;
+            // The error's labels are formatted only if it happens (a formatted label per
+            // joint was most of the cost of building a chain).
+            j = skeleton
+                .parent(j)
+                .ok_or_else(|| SkeletonError::NotAnAncestor {
+                    base: skeleton.label(base),
+                    effector: skeleton.label(effector),
+                })?;
             joints.push(j);
         }
         joints.reverse();

@@ -457,10 +457,26 @@ impl Skeleton {
         }
     }
 
-    /// What identifies this skeleton's structure (parents and offsets) to a chain built
-    /// on it.
-    pub(crate) fn fingerprint(&self) -> u64 {
+    /// A 64-bit hash of this skeleton's structure (parents and offsets), deterministic
+    /// across runs. Names and limits are left out. A solver that caches anything derived
+    /// from the structure (a chain, a prepared two-bone job) keeps it to refuse a skeleton
+    /// it was not built for: two skeletons with different structures have different
+    /// fingerprints except by a hash collision.
+    #[must_use]
+    pub fn fingerprint(&self) -> u64 {
         self.fingerprint
+    }
+
+    /// One past the largest index among the descendants of `i` (`i + 1` for a leaf):
+    /// every descendant of `i` lies in `i + 1 .. subtree_end(i)`, since a parent's index
+    /// is smaller than its child's. When the span holds exactly the descendants (as in a
+    /// chain or any depth-first order), its length is their number.
+    ///
+    /// # Panics
+    /// If `i` is out of range.
+    #[must_use]
+    pub fn subtree_end(&self, i: usize) -> usize {
+        self.span_end[i]
     }
 
     /// "joint 3" or `joint 3 "elbow"`, for messages.
@@ -674,6 +690,33 @@ mod tests {
 
     fn close(a: DVec3, b: DVec3, tol: f64) -> bool {
         (a - b).length() <= tol
+    }
+
+    #[test]
+    fn subtree_end_bounds_the_descendants_and_fingerprint_the_structure() {
+        // 0 -> 1 -> 2, 0 -> 3, 1 -> 4: joint 1's descendants are 2 and 4, not in a row.
+        let skel = Skeleton::new([
+            joint(None, DVec3::ZERO),
+            joint(Some(0), DVec3::X),
+            joint(Some(1), DVec3::X),
+            joint(Some(0), DVec3::Y),
+            joint(Some(1), DVec3::Z),
+        ])
+        .unwrap();
+        let ends: Vec<usize> = (0..skel.len()).map(|i| skel.subtree_end(i)).collect();
+        assert_eq!(ends, [5, 5, 3, 4, 5]);
+        for i in 0..skel.len() {
+            for j in 0..skel.len() {
+                if i != j && skel.is_ancestor_or_self(i, j) {
+                    assert!((i + 1..skel.subtree_end(i)).contains(&j), "{i} {j}");
+                }
+            }
+        }
+        let chain = Skeleton::chain(DVec3::ZERO, &[DVec3::X, DVec3::X]).unwrap();
+        assert_eq!(chain.subtree_end(0), 3);
+        assert_eq!(chain.fingerprint(), chain.clone().fingerprint());
+        let other = Skeleton::chain(DVec3::ZERO, &[DVec3::X, DVec3::Y]).unwrap();
+        assert_ne!(chain.fingerprint(), other.fingerprint());
     }
 
     #[test]
