@@ -15,6 +15,7 @@ use crate::explicit::{SymplecticEuler, VelocityVerlet};
 use crate::implicit::{Bdf2, ImplicitMidpoint};
 use crate::model::{ModelError, SettingsError, SpringSystem};
 use crate::newton::{BackwardEuler, NewtonSettings};
+use crate::pins::{PIN_SPLIT_DEPTH, PinDriver, PinnedMotion, PinnedStepper, step_to_targets};
 use crate::reference::flawed_report_method::FlawedReportMethod;
 use crate::report::{AutoReason, IntegratorKind, StepError, StepReport};
 use crate::stability::{StabilityBound, StabilityMonitor};
@@ -610,6 +611,8 @@ pub struct Simulation {
     /// allows replacing the whole system, and `auto` builds BDF2 lazily on whatever
     /// system it is given, so the check is made here once per step as well.
     topology: crate::model::Topology,
+    /// Rigid motions of pinned groups, when set ([`Simulation::set_pinned_motion`]).
+    pins: Option<PinDriver>,
 }
 
 /// The colliders of a simulation and how they act (see [`Simulation::set_contact`]).
@@ -657,7 +660,64 @@ impl Simulation {
             stepper,
             time: 0.0,
             contact: None,
+            pins: None,
         })
+    }
+
+    /// The implicit stepper, for moving pins (`None` for the explicit integrators and
+    /// `auto`).
+    fn pinned_stepper(&mut self) -> Option<&mut dyn PinnedStepper> {
+        match &mut self.stepper {
+            Stepper::BackwardEuler(be) => Some(&mut **be),
+            Stepper::Bdf2(b) => Some(&mut **b),
+            Stepper::Midpoint(m) => Some(&mut **m),
+            _ => None,
+        }
+    }
+
+    /// Moves groups of pinned particles along rigid motions from now on (their current
+    /// positions are the motions' time 0), replacing motions set before: every step puts
+    /// them where their motion has them at the step's end, with the velocity of that
+    /// move, after checking that the move (free particles held) is safe for self-contact
+    /// and cutting the step into pieces when it is not (`crate::pins`). Needs backward
+    /// Euler, BDF2 or implicit midpoint: the explicit integrators and `auto` are an
+    /// error, as is a particle that is not pinned, out of range or in two groups, or a
+    /// non-finite field (the error names the particle).
+    pub fn set_pinned_motion(&mut self, motions: Vec<PinnedMotion>) -> Result<(), ModelError> {
+        if self.pinned_stepper().is_none() {
+            return Err(ModelError::BadParameter {
+                name: "integrator",
+                reason: "moving pins need an implicit integrator (backward Euler, BDF2 or implicit midpoint)",
+            });
+        }
+        self.pins = Some(PinDriver::new(&self.system, motions)?);
+        Ok(())
+    }
+
+    /// The rigid motions of the pinned groups, if set.
+    #[must_use]
+    pub fn pinned_motion(&self) -> Option<&PinDriver> {
+        self.pins.as_ref()
+    }
+
+    /// Advances by `dt` with the pinned particles of `targets` moved to the given
+    /// positions at the step's end (other pinned particles follow their motion, if one
+    /// is set, or stay still), in pieces of the move when the whole move is not safe
+    /// for self-contact. Needs backward Euler, BDF2 or implicit midpoint. On error the
+    /// system is unchanged.
+    pub fn step_to(
+        &mut self,
+        dt: f64,
+        targets: &[(usize, DVec3)],
+    ) -> Result<StepReport, StepError> {
+        if self.pinned_stepper().is_none() {
+            return Err(ModelError::BadParameter {
+                name: "integrator",
+                reason: "moving pins need an implicit integrator (backward Euler, BDF2 or implicit midpoint)",
+            }
+            .into());
+        }
+        self.step_inner(dt, Some(targets))
     }
 
     /// Adds contact with `colliders` (validated; the error names the collider or the
@@ -790,8 +850,17 @@ impl Simulation {
         self.time
     }
 
-    /// Advances by `dt`. On error the system is unchanged.
+    /// Advances by `dt` (moving the pinned groups along their motions, if set). On error
+    /// the system is unchanged.
     pub fn step(&mut self, dt: f64) -> Result<StepReport, StepError> {
+        self.step_inner(dt, None)
+    }
+
+    fn step_inner(
+        &mut self,
+        dt: f64,
+        targets: Option<&[(usize, DVec3)]>,
+    ) -> Result<StepReport, StepError> {
         crate::model::check_time_step(dt)?;
         self.topology.check(&self.system.topology())?;
         // The implicit integrators' step starts at the simulation's time (their terms
@@ -823,7 +892,7 @@ impl Simulation {
             )
             .map_err(|(particle, collider)| StepError::Contact { particle, collider })?;
         }
-        let report = self.step_integrator(dt)?;
+        let report = self.step_integrator(dt, targets)?;
         self.time += dt;
         if let Some(contact) = &mut self.contact
             && contact.stats.is_none()
@@ -861,7 +930,51 @@ impl Simulation {
         Ok(report)
     }
 
-    fn step_integrator(&mut self, dt: f64) -> Result<StepReport, StepError> {
+    fn step_integrator(
+        &mut self,
+        dt: f64,
+        targets: Option<&[(usize, DVec3)]>,
+    ) -> Result<StepReport, StepError> {
+        if targets.is_some() || self.pins.is_some() {
+            let mut all: Vec<(usize, DVec3)> = match &self.pins {
+                Some(driver) => driver.targets_at(driver.time() + dt),
+                None => Vec::new(),
+            };
+            if let Some(given) = targets {
+                // Given positions win over a motion's for the same particle.
+                all.retain(|(i, _)| !given.iter().any(|(j, _)| j == i));
+                all.extend_from_slice(given);
+            }
+            let depth = self
+                .pins
+                .as_ref()
+                .map_or(PIN_SPLIT_DEPTH, |p| p.max_split_depth);
+            let (system, stepper) = (&mut self.system, &mut self.stepper);
+            let stepper: &mut dyn PinnedStepper = match stepper {
+                Stepper::BackwardEuler(be) => &mut **be,
+                Stepper::Bdf2(b) => &mut **b,
+                Stepper::Midpoint(m) => &mut **m,
+                _ => {
+                    return Err(ModelError::BadParameter {
+                        name: "integrator",
+                        reason: "moving pins need an implicit integrator (backward Euler, BDF2 or implicit midpoint)",
+                    }
+                    .into());
+                }
+            };
+            let report = if targets.is_none()
+                && let Some(driver) = &mut self.pins
+            {
+                driver.step(stepper, system, dt)?
+            } else {
+                let report = step_to_targets(stepper, system, dt, &all, depth)?;
+                if let Some(driver) = &mut self.pins {
+                    driver.advance_time(dt);
+                }
+                report
+            };
+            return Ok(report);
+        }
         match &mut self.stepper {
             Stepper::BackwardEuler(be) => be.step(&mut self.system, dt),
             Stepper::SymplecticEuler(se) => se.step(&mut self.system, dt),

@@ -54,6 +54,7 @@ mod metrics;
 mod model;
 mod newton;
 mod pattern;
+mod pins;
 pub mod potential;
 pub mod reference;
 mod report;
@@ -74,6 +75,9 @@ pub use model::{
 };
 pub use newton::{BackwardEuler, InitialGuess, NewtonSettings, newton_matrix_triplets};
 pub use pattern::HessianPattern;
+pub use pins::{
+    PIN_SPLIT_DEPTH, PinDriver, PinnedMotion, PinnedStepper, pinned_move_fraction, step_to_targets,
+};
 pub use report::{AutoReason, IntegratorKind, StepError, StepReport, StepStop};
 /// The vector type positions, velocities and forces are given in, re-exported so a user
 /// of this crate does not also have to depend on sinew-math.

@@ -246,6 +246,15 @@ pub enum ModelError {
         /// What is wrong with it.
         reason: &'static str,
     },
+    /// A prescribed position or motion of a pinned particle is invalid (the particle
+    /// does not exist or is not pinned, the position is not finite, a motion's field is
+    /// not finite or its axis is zero, a particle given twice).
+    BadPin {
+        /// The particle.
+        particle: usize,
+        /// What is wrong.
+        reason: &'static str,
+    },
     /// A system given to a stepper built for another topology (see [`Topology`]).
     TopologyMismatch {
         /// What differs: "particle count", "spring count", "fixed set", "spring pairs"
@@ -307,6 +316,9 @@ impl fmt::Display for ModelError {
             Self::Settings(e) => write!(f, "{e}"),
             Self::Solver(e) => write!(f, "{e}"),
             Self::BadParameter { name, reason } => write!(f, "parameter {name}: {reason}"),
+            Self::BadPin { particle, reason } => {
+                write!(f, "pinned particle {particle}: {reason}")
+            }
             Self::TopologyMismatch { what } => write!(
                 f,
                 "topology: the system's {what} differ from those the integrator was built for"
@@ -710,6 +722,33 @@ impl SpringSystem {
             self.velocities[i] = if self.fixed[i] { DVec3::ZERO } else { *v };
         }
         Ok(())
+    }
+
+    /// Moves the pinned particles of `targets` (validated by the caller) to their
+    /// positions at the end of a step of length `h` and gives them the velocity of that
+    /// move, `(target - position) / h`; every other pinned particle is held still (zero
+    /// velocity). The implicit integrators read a pinned particle's velocity as the
+    /// prescribed motion over the step (docs/self-contact.md, "Moving pins").
+    pub(crate) fn move_pinned(&mut self, targets: &[(usize, DVec3)], h: f64) {
+        for (v, f) in self.velocities.iter_mut().zip(&self.fixed) {
+            if *f {
+                *v = DVec3::ZERO;
+            }
+        }
+        for &(i, target) in targets {
+            self.velocities[i] = (target - self.positions[i]) / h;
+            self.positions[i] = target;
+        }
+    }
+
+    /// Puts pinned particles back at `positions` with velocities `velocities` (undoing
+    /// [`SpringSystem::move_pinned`] after a refused step, or restoring the velocities
+    /// of a kept one).
+    pub(crate) fn restore_pinned(&mut self, particles: &[(usize, DVec3, DVec3)]) {
+        for &(i, x, v) in particles {
+            self.positions[i] = x;
+            self.velocities[i] = v;
+        }
     }
 
     /// Mutable access to positions and velocities together, for integrators in this crate.

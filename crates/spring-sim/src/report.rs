@@ -277,6 +277,18 @@ pub enum StepError {
         /// The step.
         dt: f64,
     },
+    /// The prescribed move of the pinned particles (the free ones held) would bring two
+    /// parts of the cloth within a tenth of their gap of crossing even when the step is
+    /// cut into `pieces` equal pieces of the motion; the step was refused.
+    PinnedMove {
+        /// The pinned particle that moves farthest over the first piece that could not
+        /// be made safe.
+        particle: usize,
+        /// The pieces the step was cut into at most.
+        pieces: usize,
+        /// The fraction of that piece's move that is safe.
+        safe_fraction: f64,
+    },
     /// A particle cannot start a step outside every collider posed at the step's end
     /// time: kinematic colliders closed in on it from two sides within one step and
     /// leave no room (a particle one collider runs over is carried along with it, then
@@ -302,6 +314,14 @@ impl std::fmt::Display for StepError {
                 f,
                 "{}: particle {particle} became non-finite; the step was undone",
                 integrator.name()
+            ),
+            Self::PinnedMove {
+                particle,
+                pieces,
+                safe_fraction,
+            } => write!(
+                f,
+                "the prescribed move of the pinned particles (pinned particle {particle} moves farthest) would make the cloth cross itself even with the step cut into {pieces} pieces (only {safe_fraction:.3} of a piece's move is safe); the step was refused"
             ),
             Self::Contact { particle, collider } => write!(
                 f,

@@ -19,7 +19,9 @@ use sinew_spring_sim::contact::self_contact::{
 use sinew_spring_sim::contact::{
     Collider, ContactPotential, ContactSettings, ContactTerm, signed_distance,
 };
-use sinew_spring_sim::{Bending, ClothGrid, Material, MeshCloth, NewtonSettings, TriangleMesh};
+use sinew_spring_sim::{
+    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinDriver, PinnedMotion, TriangleMesh,
+};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -56,6 +58,11 @@ pub struct MeshClothTask {
     /// Collider contact settings (defaults: sinew-spring-sim's).
     #[serde(default)]
     pub contact: ContactSettings,
+    /// Rows of grid sheets held and moved along rigid motions (default none): their
+    /// vertices are pinned and follow the motion, the step cut into pieces of it when the
+    /// whole move would bring the cloth too close to crossing itself.
+    #[serde(default)]
+    pub moving_pins: Vec<MovingPins>,
     /// The directory OBJ paths are relative to (the scene file's; set by the reader).
     #[serde(skip)]
     pub base_dir: PathBuf,
@@ -126,12 +133,38 @@ pub enum SheetSpec {
     },
 }
 
+/// Rows of a grid sheet held and moved rigidly: at time `t` a vertex that started at `r`
+/// is at `point + R(axis, angular_speed t) (r - point) + velocity t`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MovingPins {
+    /// The sheet (index in `sheets`; a `Grid`).
+    pub sheet: usize,
+    /// The rows `i` of the grid whose vertices move (each row is the `size` vertices
+    /// `(i, 0..size)`).
+    pub rows: Vec<usize>,
+    /// A point on the rotation axis (default the origin).
+    #[serde(default)]
+    pub point: DVec3,
+    /// The rotation axis (default +x), counterclockwise for a positive rate.
+    #[serde(default = "x_axis")]
+    pub axis: DVec3,
+    /// Rotation rate, rad/s (default 0).
+    #[serde(default)]
+    pub angular_speed: f64,
+    /// Translation velocity, m/s (default zero).
+    #[serde(default)]
+    pub velocity: DVec3,
+}
+
 /// The assembled cloth: positions, triangles, pinned vertices, initial velocities.
 struct Assembled {
     positions: Vec<DVec3>,
     triangles: Vec<[usize; 3]>,
     fixed: Vec<usize>,
     velocities: Vec<DVec3>,
+    /// The moving pins' motions (their vertices are in `fixed` too).
+    motions: Vec<PinnedMotion>,
 }
 
 impl MeshClothTask {
@@ -141,12 +174,22 @@ impl MeshClothTask {
             triangles: Vec::new(),
             fixed: Vec::new(),
             velocities: Vec::new(),
+            motions: Vec::new(),
         };
+        // Per sheet: its first vertex and, for a grid, its size.
+        let mut sheets: Vec<(usize, Option<usize>)> = Vec::new();
         if self.sheets.is_empty() {
             return Err("sheets: at least one sheet is needed".into());
         }
         for (k, sheet) in self.sheets.iter().enumerate() {
             let offset = a.positions.len();
+            sheets.push((
+                offset,
+                match sheet {
+                    SheetSpec::Grid { size, .. } => Some(*size),
+                    SheetSpec::Obj { .. } => None,
+                },
+            ));
             match sheet {
                 SheetSpec::Grid {
                     size,
@@ -213,6 +256,47 @@ impl MeshClothTask {
             }
         }
         at_most("sheets: vertices", a.positions.len(), MAX_PARTICLES)?;
+        for (k, m) in self.moving_pins.iter().enumerate() {
+            let Some(&(offset, size)) = sheets.get(m.sheet) else {
+                return Err(format!(
+                    "moving_pins[{k}]: sheet {} does not exist (there are {})",
+                    m.sheet,
+                    sheets.len()
+                ));
+            };
+            let Some(n) = size else {
+                return Err(format!(
+                    "moving_pins[{k}]: sheet {} is not a Grid (rows are a grid's)",
+                    m.sheet
+                ));
+            };
+            if let Some(&row) = m.rows.iter().find(|&&r| r >= n) {
+                return Err(format!(
+                    "moving_pins[{k}]: row {row} does not exist (the grid has {n} rows)"
+                ));
+            }
+            let particles: Vec<usize> = m
+                .rows
+                .iter()
+                .flat_map(|&i| (0..n).map(move |j| offset + i * n + j))
+                .collect();
+            for &p in &particles {
+                if !a.fixed.contains(&p) {
+                    a.fixed.push(p);
+                }
+            }
+            let motion = PinnedMotion {
+                particles,
+                point: m.point,
+                axis: m.axis,
+                angular_speed: m.angular_speed,
+                velocity: m.velocity,
+            };
+            motion
+                .validate()
+                .map_err(|e| format!("moving_pins[{k}]: {e}"))?;
+            a.motions.push(motion);
+        }
         Ok(a)
     }
 
@@ -309,6 +393,11 @@ impl TaskSpec for MeshClothTask {
         system
             .set_state(&start, &a.velocities)
             .map_err(|e| format!("initial state: {e}"))?;
+        let mut pins = if a.motions.is_empty() {
+            None
+        } else {
+            Some(PinDriver::new(&system, a.motions).map_err(|e| format!("moving_pins: {e}"))?)
+        };
         let prims = Primitives::new(&triangles);
         let reach = self.self_contact.dhat + self.self_contact.thickness;
         let no_skip = vec![false; system.len()];
@@ -345,9 +434,11 @@ impl TaskSpec for MeshClothTask {
         let mut progress = ctx.progress(&self.name, self.steps);
         for step in 0..self.steps {
             let started = Instant::now();
-            let report = integrator
-                .step(&mut system, self.dt)
-                .map_err(|e| format!("step {step}: {e}"))?;
+            let report = match &mut pins {
+                Some(driver) => driver.step(&mut integrator, &mut system, self.dt),
+                None => integrator.step(&mut system, self.dt),
+            }
+            .map_err(|e| format!("step {step}: {e}"))?;
             step_ms.push(1e3 * started.elapsed().as_secs_f64());
             progress.inc();
             iterations_total += report.iterations;

@@ -556,9 +556,18 @@ impl BackwardEuler {
             .enumerate()
         {
             if fixed[i] {
-                self.x_ref[i] = x;
-                self.y[i] = x;
-                self.x[i] = x;
+                // A pinned particle sits at its end-of-step position `x` and moved with
+                // the prescribed velocity `v` over the step (zero for a particle held
+                // still): it enters the potential at the scheme's evaluation point
+                // (the midpoint's `z` is halfway along its move), and its reference
+                // point is where that velocity started it, so damping sees its motion.
+                let (at, x_ref) = match scheme {
+                    Scheme::Midpoint => (x - h_eff * v, x - 2.0 * h_eff * v),
+                    Scheme::BackwardEuler | Scheme::Bdf2 { .. } => (x, x - h_eff * v),
+                };
+                self.x_ref[i] = x_ref;
+                self.y[i] = at;
+                self.x[i] = at;
                 continue;
             }
             // x_ref: the point the new velocity is measured from, v' = (x' - x_ref)/h_eff
@@ -620,8 +629,22 @@ impl BackwardEuler {
             self.potential
                 .max_step(&step, system.positions(), &self.dx_particles)
                 >= 1.0;
+        // The Newton direction is written at the free particles only: a moving pin's
+        // entry (nonzero in the midpoint scheme) must not stay behind.
+        for (d, f) in self.dx_particles.iter_mut().zip(fixed) {
+            if *f {
+                *d = DVec3::ZERO;
+            }
+        }
         if !(guess_is_no_worse && path_is_admissible) {
             self.x.copy_from_slice(system.positions());
+            // Pinned particles stay at their evaluation point (it differs from the
+            // system's position only for a moving pin in the midpoint scheme).
+            for (i, f) in fixed.iter().enumerate() {
+                if *f {
+                    self.x[i] = self.y[i];
+                }
+            }
         }
         self.potential.prepare_start(&step, &mut self.x);
         let mut report = self.minimize(system, h_eff)?;
