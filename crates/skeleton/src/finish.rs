@@ -54,6 +54,10 @@ const PIN_SLACK: f64 = 1e4;
 /// before the finish declares a local minimum.
 const CRAWL_STEPS: usize = 4;
 const CRAWL_GAIN: f64 = 0.02;
+/// An accepted step that leaves at most this fraction of the cost makes the next trial a
+/// chord step (the same factor, the new residual), at most `MAX_CHORDS` in a row.
+const CHORD_GAIN: f64 = 0.01;
+const MAX_CHORDS: usize = 3;
 /// A hinge angle this close to a bound (radians) counts as on it.
 const AT_BOUND: f64 = 1e-12;
 /// A projection that turns a joint by more than this (radians) counts as a clamp.
@@ -618,6 +622,12 @@ impl Finish {
         // trial or a change of the active set keeps them, only an accepted step moves
         // the linearization point.
         let mut fresh = false;
+        // Whether the next trial is a chord step, how many chord steps the current
+        // factor has served, and whether the outward normals are those of an earlier
+        // pose (they are found when a full step needs them).
+        let mut chord = false;
+        let mut chords = 0;
+        let mut outward_stale = false;
         loop {
             if all_within(targets, global, settings) {
                 return Ok(Finished {
@@ -637,82 +647,103 @@ impl Finish {
                     steps,
                 });
             }
-            if !fresh {
-                self.linearize(job, global);
-                self.accumulate_normal(rows);
-                fresh = true;
-            }
-            if !self.reduce(skeleton, movable, rows) {
-                return Ok(Finished {
-                    stop: StopReason::LocalMinimum,
-                    steps,
-                });
-            }
-            if damping.is_nan() {
-                let trace: f64 = (0..rows).map(|a| self.normal[a * rows + a]).sum();
-                // Far from the goals (a cold start) a cautious first step, near them (a warm
-                // frame) a nearly Gauss-Newton one: the damping follows the cost, as in
-                // Yamashita and Fukushima's choice `lambda = |r|^2`, capped by the scale
-                // of `J J^T`.
-                damping = (INITIAL_DAMPING * trace / rows as f64).min(COST_DAMPING * cost);
-            }
-            if !resolving {
+            let shift = if chord {
+                // A chord step: the factor of the last linearization, the residual of
+                // the pose it led to (see the module docs). No active-set checks: the
+                // factor is of the reduced matrix they left, and a trial that a bound
+                // spoils is rejected like any other.
+                self.residual_at(targets, global);
                 steps += 1;
-            }
-            resolving = false;
-            if !self.solve(rows, damping) {
-                damping = damping.max(f64::MIN_POSITIVE) * 10.0;
-                rejections += 1;
-                continue;
-            }
-            let shift = self.turns(movable);
-            // A hinge is a box on its angle, so this part of the active set is exact: a
-            // hinge on a bound stepping outwards would be clamped back while the others
-            // moved as if it had turned. Leave it out and solve the same step again.
-            for (m, &j) in movable.iter().enumerate() {
-                if let JointLimit::Hinge(_) = skeleton.limit(j)
-                    && !self.frozen[m]
-                {
-                    let k = self.first_dof[m];
-                    if k != NO_DOF
-                        && skeleton.prepared_limit(j).hinge_pushes_outwards(
-                            pose.rotations[j],
-                            self.step[k],
-                            AT_BOUND,
-                        )
-                    {
-                        self.frozen[m] = true;
-                        resolving = true;
-                    }
-                }
-            }
-            // The same for a swing-twist joint on its bound: the step's component along
-            // the bound's outward normal would be projected away; block that direction
-            // (the joint keeps sliding along the bound) and solve again.
-            for (m, &j) in movable.iter().enumerate() {
-                let w = self.turn[m];
-                if self.outward[m] == [DVec3::ZERO; 2] || w == DVec3::ZERO {
+                if !self.substitute(rows) {
+                    chord = false;
+                    self.frozen.fill(false);
+                    self.blocked_count.fill(0);
                     continue;
                 }
-                let parent = skeleton
-                    .parent(j)
-                    .map_or(DQuat::IDENTITY, |p| global.rotations[p]);
-                let local = parent.conjugate() * w;
-                for g in 0..2 {
-                    let n = self.outward[m][g];
-                    if n != DVec3::ZERO && local.dot(n) > 0.0 && !self.frozen[m] {
-                        self.pulled_back[m] = parent * n;
-                        self.block(skeleton.limit(j), m);
-                        // Blocked once per linearization: the normal is not asked again.
-                        self.outward[m][g] = DVec3::ZERO;
-                        resolving = true;
-                        break;
+                self.turns(movable)
+            } else {
+                if !fresh {
+                    self.linearize(job, global);
+                    self.accumulate_normal(rows);
+                    fresh = true;
+                }
+                if outward_stale {
+                    self.find_outward(skeleton, movable, pose);
+                    outward_stale = false;
+                }
+                if !self.reduce(skeleton, movable, rows) {
+                    return Ok(Finished {
+                        stop: StopReason::LocalMinimum,
+                        steps,
+                    });
+                }
+                if damping.is_nan() {
+                    let trace: f64 = (0..rows).map(|a| self.normal[a * rows + a]).sum();
+                    // Far from the goals (a cold start) a cautious first step, near them (a warm
+                    // frame) a nearly Gauss-Newton one: the damping follows the cost, as in
+                    // Yamashita and Fukushima's choice `lambda = |r|^2`, capped by the scale
+                    // of `J J^T`.
+                    damping = (INITIAL_DAMPING * trace / rows as f64).min(COST_DAMPING * cost);
+                }
+                if !resolving {
+                    steps += 1;
+                }
+                resolving = false;
+                if !self.solve(rows, damping) {
+                    damping = damping.max(f64::MIN_POSITIVE) * 10.0;
+                    rejections += 1;
+                    continue;
+                }
+                let shift = self.turns(movable);
+                // A hinge is a box on its angle, so this part of the active set is exact: a
+                // hinge on a bound stepping outwards would be clamped back while the others
+                // moved as if it had turned. Leave it out and solve the same step again.
+                for (m, &j) in movable.iter().enumerate() {
+                    if let JointLimit::Hinge(_) = skeleton.limit(j)
+                        && !self.frozen[m]
+                    {
+                        let k = self.first_dof[m];
+                        if k != NO_DOF
+                            && skeleton.prepared_limit(j).hinge_pushes_outwards(
+                                pose.rotations[j],
+                                self.step[k],
+                                AT_BOUND,
+                            )
+                        {
+                            self.frozen[m] = true;
+                            resolving = true;
+                        }
                     }
                 }
-            }
-            if resolving {
-                continue;
-            }
+                // The same for a swing-twist joint on its bound: the step's component along
+                // the bound's outward normal would be projected away; block that direction
+                // (the joint keeps sliding along the bound) and solve again.
+                for (m, &j) in movable.iter().enumerate() {
+                    let w = self.turn[m];
+                    if self.outward[m] == [DVec3::ZERO; 2] || w == DVec3::ZERO {
+                        continue;
+                    }
+                    let parent = skeleton
+                        .parent(j)
+                        .map_or(DQuat::IDENTITY, |p| global.rotations[p]);
+                    let local = parent.conjugate() * w;
+                    for g in 0..2 {
+                        let n = self.outward[m][g];
+                        if n != DVec3::ZERO && local.dot(n) > 0.0 && !self.frozen[m] {
+                            self.pulled_back[m] = parent * n;
+                            self.block(skeleton.limit(j), m);
+                            // Blocked once per linearization: the normal is not asked again.
+                            self.outward[m][g] = DVec3::ZERO;
+                            resolving = true;
+                            break;
+                        }
+                    }
+                }
+                if resolving {
+                    continue;
+                }
+                shift
+            };
             self.saved.clear();
             self.saved
                 .extend(movable.iter().map(|&j| pose.rotations[j]));
@@ -741,6 +772,7 @@ impl Finish {
                 } else {
                     crawl = 0;
                 }
+                let gain = trial_cost / cost;
                 cost = trial_cost;
                 if crawl >= CRAWL_STEPS {
                     return Ok(Finished {
@@ -751,12 +783,22 @@ impl Finish {
                 damping /= 3.0;
                 rejections = 0;
                 fresh = false;
-                self.frozen.fill(false);
-                self.blocked_count.fill(0);
                 for (on, &clamped) in self.on_bound.iter_mut().zip(&self.clamped) {
                     *on |= clamped;
                 }
-                self.find_outward(skeleton, movable, pose);
+                outward_stale = true;
+                // A step that gained this much is in the quadratic range of Gauss-Newton:
+                // the next one may reuse the factor (a chord step), keeping the active set
+                // it was made with.
+                if gain <= CHORD_GAIN && chords < MAX_CHORDS {
+                    chord = true;
+                    chords += 1;
+                } else {
+                    chord = false;
+                    chords = 0;
+                    self.frozen.fill(false);
+                    self.blocked_count.fill(0);
+                }
                 continue;
             }
             for (&saved, &j) in self.saved.iter().zip(movable) {
@@ -765,6 +807,14 @@ impl Finish {
             *translation = saved_translation;
             global.rotations.clone_from(&self.saved_global.rotations);
             global.positions.clone_from(&self.saved_global.positions);
+            if chord {
+                // The chord step did not pay: linearize here, as after any accepted step.
+                chord = false;
+                chords = 0;
+                self.frozen.fill(false);
+                self.blocked_count.fill(0);
+                continue;
+            }
             // A rejected trial means the step was too long for the linearization or for
             // the bounds: shorten the next one too, whether or not a joint was frozen;
             // left out, the finish crawls along the bounds (`docs/ik-finish.md` has the
@@ -786,15 +836,9 @@ impl Finish {
 
     /// The residual and the sparse columns of the weighted Jacobian at `state`.
     fn linearize(&mut self, job: &FinishJob<'_>, global: &GlobalPose) {
-        let (skeleton, targets) = (job.skeleton, job.targets);
-        for (t, &row) in targets.iter().zip(&self.first_row) {
-            let p = (t.position - global.positions[t.joint]) * t.position_weight;
-            self.residual[row..row + 3].copy_from_slice(&[p.x, p.y, p.z]);
-            if t.has_rotation() {
-                let r = t.rotation_residual(global) * t.rotation_weight;
-                self.residual[row + 3..row + 6].copy_from_slice(&[r.x, r.y, r.z]);
-            }
-        }
+        let skeleton = job.skeleton;
+        let targets = job.targets;
+        self.residual_at(targets, global);
         self.dofs.clear();
         self.col_start.clear();
         self.entries.clear();
@@ -852,6 +896,18 @@ impl Finish {
             }
         }
         self.col_start.push(self.entries.len());
+    }
+
+    /// The weighted residual at `global` into `residual`.
+    fn residual_at(&mut self, targets: &[Target], global: &GlobalPose) {
+        for (t, &row) in targets.iter().zip(&self.first_row) {
+            let p = (t.position - global.positions[t.joint]) * t.position_weight;
+            self.residual[row..row + 3].copy_from_slice(&[p.x, p.y, p.z]);
+            if t.has_rotation() {
+                let r = t.rotation_residual(global) * t.rotation_weight;
+                self.residual[row + 3..row + 6].copy_from_slice(&[r.x, r.y, r.z]);
+            }
+        }
     }
 
     /// The outward normal of the bound of every swing-twist joint that may sit on it,
@@ -1026,6 +1082,12 @@ impl Finish {
     /// Solves `(J J^T + damping I) y = residual` by Cholesky into `self.y`; false when a
     /// pivot is not a positive finite number.
     fn solve(&mut self, rows: usize, damping: f64) -> bool {
+        self.factorize(rows, damping) && self.substitute(rows)
+    }
+
+    /// The Cholesky factor of `normal + damping I` into `factor`; false when a pivot is
+    /// not a positive finite number.
+    fn factorize(&mut self, rows: usize, damping: f64) -> bool {
         // Row slices rather than indexing, so the inner products carry no bounds checks;
         // the sums run in the same order as the textbook loops.
         let n = &self.normal[..rows * rows];
@@ -1050,6 +1112,13 @@ impl Finish {
             }
             row_a[a] = sum.sqrt();
         }
+        true
+    }
+
+    /// `y` from the factor of the last [`Finish::factorize`] and the current residual
+    /// (forward and back substitution); false when an entry is not finite.
+    fn substitute(&mut self, rows: usize) -> bool {
+        let l = &self.factor[..rows * rows];
         let y = &mut self.y[..rows];
         for a in 0..rows {
             let row_a = &l[a * rows..=a * rows + a];
