@@ -8,6 +8,7 @@ use crate::problem::{
 };
 use sinew_skeleton::finish::{Finish, FinishJob, Finished, Movers};
 
+use crate::carry::Carried;
 use crate::workload::Rng;
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{Chain, IkError, StopReason};
@@ -362,6 +363,71 @@ impl Common {
             return Ok(true);
         }
         state.pose.rotations.copy_from_slice(&self.kept);
+        forward_kinematics(
+            skeleton,
+            &state.pose,
+            state.root_translation,
+            &mut state.global,
+        )?;
+        Ok(false)
+    }
+
+    /// The start of a warm frame that continues a sequence ([`Carried`]), extrapolated
+    /// from the last two answers: every movable joint turned once more by its turn
+    /// between them (`d = q1 q0^-1`, then `d q1`, projected onto its limit) and the
+    /// translation moved once more by its step. Kept only when it lowers the cost; returns
+    /// whether it was kept. For goals moving smoothly the extrapolation is off by the
+    /// second difference of the motion instead of the first, so one Gauss-Newton step
+    /// from it usually reaches the tolerance.
+    pub fn predict(
+        &mut self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+        carried: &Carried,
+    ) -> Result<bool, IkError> {
+        let skeleton = problem.skeleton;
+        let before = self.cost(state);
+        self.kept.clear();
+        self.kept.extend_from_slice(&state.pose.rotations);
+        let kept_translation = state.root_translation;
+        let mut moved = false;
+        for &j in self.topology.movable() {
+            let (now, then) = (carried.last[j], carried.before[j]);
+            if now == then {
+                continue;
+            }
+            let mut d = now * then.conjugate();
+            if d.w < 0.0 {
+                d = -d;
+            }
+            let next = (d * now).normalize();
+            let limit = skeleton.prepared_limit(j);
+            // A joint whose extrapolation leaves its limit keeps its rotation: projected,
+            // it would start the frame on a bound it did not reach by itself.
+            if matches!(limit.limit(), JointLimit::Free) || limit.project(next) == next {
+                state.pose.rotations[j] = next;
+                moved = true;
+            }
+        }
+        if problem.root_translates {
+            let step = carried.last_translation - carried.before_translation;
+            moved |= step != DVec3::ZERO;
+            state.root_translation += step;
+        }
+        if !moved {
+            return Ok(false);
+        }
+        forward_kinematics(
+            skeleton,
+            &state.pose,
+            state.root_translation,
+            &mut state.global,
+        )?;
+        if self.cost(state) < before {
+            return Ok(true);
+        }
+        state.pose.rotations.copy_from_slice(&self.kept);
+        state.root_translation = kept_translation;
         forward_kinematics(
             skeleton,
             &state.pose,

@@ -26,6 +26,7 @@
 //! once from the centre of the joint limits; the better of the two answers is returned.
 
 use crate::BodySolver;
+use crate::carry::Carried;
 use crate::common::{Begin, Common};
 use crate::horn::BestRotation;
 use crate::problem::{BodyProblem, BodyReport, BodyState, forward_kinematics};
@@ -121,6 +122,8 @@ pub struct TreeFabrikSolver {
     options: TreeFabrikOptions,
     common: Common,
     passes: Passes,
+    /// The last answers, for the next warm frame's start.
+    carried: Carried,
 }
 
 /// Buffers of the FABRIK passes.
@@ -220,17 +223,51 @@ impl BodySolver for TreeFabrikSolver {
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
     ) -> Result<BodyReport, IkError> {
+        let continued = self.carried.continues(problem, state);
+        let result = self.solve_from(problem, state, continued);
+        match &result {
+            Ok(_) => self.carried.record(problem, state, continued),
+            Err(_) => self.carried.invalidate(),
+        }
+        result
+    }
+}
+
+impl TreeFabrikSolver {
+    /// [`BodySolver::solve`], `continued` saying whether `state` is the answer of the
+    /// last solve of the same problem (then the frame starts from the extrapolation of
+    /// the last two answers, when that is better).
+    fn solve_from(
+        &mut self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+        continued: bool,
+    ) -> Result<BodyReport, IkError> {
         if let Begin::Done(report) = self.common.begin(problem, state)? {
             return Ok(report);
         }
         self.passes.prepare(problem, &self.common);
-        self.common.seed_limbs(problem, state)?;
         let first_passes = if self.options.finish {
             0
         } else {
             self.options.max_passes
         };
-        let (mut iterations, mut stop) = self.attempt(problem, state, 0, first_passes)?;
+        let mut spent = 0;
+        if continued
+            && self.carried.has_before
+            && self.common.predict(problem, state, &self.carried)?
+        {
+            // From the extrapolated start; kept only when it reaches every goal with the
+            // pins where they may be, else the frame is solved from the pose given.
+            let (used, stop) = self.attempt(problem, state, 0, first_passes)?;
+            if stop == StopReason::Converged && self.common.pins_hold(problem, state) {
+                return self.common.report(problem, state, used, stop, false);
+            }
+            spent = used;
+            self.common.seed(problem, state, 0)?;
+        }
+        self.common.seed_limbs(problem, state)?;
+        let (mut iterations, mut stop) = self.attempt(problem, state, spent, first_passes)?;
         let mut restarted = false;
         let mut seed = 0;
         while seed < self.options.restarts

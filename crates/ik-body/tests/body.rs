@@ -10,6 +10,7 @@ use sinew_ik_body::{
 };
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{EffectorGoal, IkError, SolveSettings, StopReason};
+use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::{GlobalPose, JointDef, Pose, Skeleton};
 
 fn joint(parent: Option<usize>, offset: DVec3) -> JointDef {
@@ -383,4 +384,131 @@ fn the_batch_matches_one_solver_per_character_on_any_thread_count() {
                 .is_err()
         );
     }
+}
+
+/// Solves the first `frames` frames of the squat in turn with one solver, from rest.
+fn squat_up_to(frames: usize) -> (Skeleton, TreeFabrikSolver, BodyState) {
+    let skel = workload::humanoid().unwrap();
+    let settings = SolveSettings::default();
+    let mut solver = TreeFabrikSolver::new();
+    let mut state = BodyState::rest(&skel);
+    let rest = state.global.clone();
+    for frame in 0..frames {
+        let effectors = workload::clip_frame(&rest, frame);
+        let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
+        solver.solve(&problem, &mut state).unwrap();
+    }
+    (skel, solver, state)
+}
+
+#[test]
+fn warm_frames_from_the_last_two_answers_take_fewer_iterations_and_keep_the_contract() {
+    // Every frame of part of the squat solved twice from the same state: by the solver
+    // that solved the frames before (which starts from the extrapolation of its last two
+    // answers) and by a fresh one (which starts from the pose given).
+    let (skel, mut carried, mut state) = squat_up_to(20);
+    let settings = SolveSettings::default();
+    let rest = BodyState::rest(&skel).global;
+    let (mut with, mut without) = (0, 0);
+    for frame in 20..80 {
+        let effectors = workload::clip_frame(&rest, frame);
+        let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
+        let mut fresh_state = state.clone();
+        let fresh = TreeFabrikSolver::new()
+            .solve(&problem, &mut fresh_state)
+            .unwrap();
+        let report = carried.solve(&problem, &mut state).unwrap();
+        check_contract(&skel, &effectors, &state, &report);
+        assert!(report.within(&settings), "frame {frame}: {report:?}");
+        for k in [2, 3] {
+            let j = workload::EFFECTORS[k];
+            let drift = state.global.positions[j].distance(rest.positions[j]);
+            assert!(drift <= settings.tolerance, "frame {frame}: drift {drift}");
+        }
+        with += report.iterations;
+        without += fresh.iterations;
+        // Both continue from the carried answer, so the sequence stays the carried one.
+        assert!(fresh.within(&settings));
+    }
+    assert!(
+        2 * with < without + 60,
+        "{with} iterations against {without}"
+    );
+    assert!(with < without, "{with} iterations against {without}");
+}
+
+/// An altered frame: what is altered, the skeleton, the effectors, the settings, whether
+/// the body translates, and the state it starts from.
+type Case<'a> = (
+    &'a str,
+    &'a Skeleton,
+    &'a [BodyEffector],
+    SolveSettings,
+    bool,
+    &'a BodyState,
+);
+
+#[test]
+fn the_carried_answers_are_dropped_when_the_problem_the_state_or_the_skeleton_changes() {
+    // After 12 frames, frame 12 in altered forms: each must come out exactly as a fresh
+    // solver solves it from the same state (bit for bit), since the carried answers no
+    // longer describe the sequence.
+    let (skel, carried, state) = squat_up_to(12);
+    let settings = SolveSettings::default();
+    let rest = BodyState::rest(&skel).global;
+    let frame = workload::clip_frame(&rest, 12);
+    let mut reweighted = frame;
+    reweighted[0].goal.position_weight = 2.0;
+    let mut unpinned = frame;
+    unpinned[2].pinned = false;
+    let mut rotated = frame;
+    rotated[4].goal.rotation = Some(DQuat::IDENTITY);
+    rotated[4].goal.rotation_weight = 0.5;
+    let mut other_limits = skel.clone();
+    let elbow = skel.parent(workload::EFFECTORS[0]).unwrap();
+    let mut limit = *skel.limit(elbow);
+    if let JointLimit::Hinge(h) = &mut limit {
+        h.min -= 0.01;
+    }
+    assert_ne!(&limit, skel.limit(elbow), "the elbow is a hinge");
+    other_limits.set_limit(elbow, limit).unwrap();
+    let tighter = SolveSettings {
+        tolerance: 1e-7,
+        ..settings
+    };
+    let mut moved = state.clone();
+    moved.pose.rotations[1] = (DQuat::from_rotation_x(1e-9) * moved.pose.rotations[1]).normalize();
+    let cases: [Case<'_>; 7] = [
+        ("weights", &skel, &reweighted, settings, true, &state),
+        ("pins", &skel, &unpinned, settings, true, &state),
+        ("rotation goal", &skel, &rotated, settings, true, &state),
+        ("limits", &other_limits, &frame, settings, true, &state),
+        ("settings", &skel, &frame, tighter, true, &state),
+        ("translation", &skel, &frame, settings, false, &state),
+        ("pose", &skel, &frame, settings, true, &moved),
+    ];
+    for (what, skeleton, effectors, settings, translates, start) in cases {
+        let problem =
+            BodyProblem::new(skeleton, effectors, settings).with_root_translation(translates);
+        let mut a = start.clone();
+        let ra = carried.clone().solve(&problem, &mut a).unwrap();
+        let mut b = start.clone();
+        let rb = TreeFabrikSolver::new().solve(&problem, &mut b).unwrap();
+        assert_eq!(a, b, "{what}");
+        assert_eq!(ra, rb, "{what}");
+    }
+    // Unchanged, the carried answers are used: the frame comes out otherwise than from a
+    // fresh solver (the extrapolated start reaches the goals in fewer iterations).
+    let problem = BodyProblem::new(&skel, &frame, settings).with_root_translation(true);
+    let mut a = state.clone();
+    let ra = carried.clone().solve(&problem, &mut a).unwrap();
+    let mut b = state.clone();
+    let rb = TreeFabrikSolver::new().solve(&problem, &mut b).unwrap();
+    assert!(ra.within(&settings) && rb.within(&settings));
+    assert_ne!(a.pose, b.pose);
+    assert!(ra.iterations < rb.iterations, "{ra:?} {rb:?}");
+    // The same sequence through two solvers gives the same bits.
+    let (_, mut again, mut again_state) = squat_up_to(12);
+    again.solve(&problem, &mut again_state).unwrap();
+    assert_eq!(again_state, a);
 }

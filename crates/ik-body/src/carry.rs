@@ -1,0 +1,109 @@
+//! What a solver carries from one warm frame to the next: the answers of its last two
+//! solves, so that the next frame starts from their extrapolation (see
+//! [`Common::predict`](crate::common::Common::predict) and `docs/ik-body.md`, "One
+//! linearization per warm frame").
+//!
+//! The carried answers count only while the frames form one sequence: the state handed to
+//! a solve is exactly (to the bit) the pose and translation the last solve returned, on
+//! the same skeleton (structure and limits), with the same effectors (joints, pins,
+//! weights, which have rotation goals), settings and translation freedom. Anything else
+//! (another character through the same solver, a pose the caller changed, an edited
+//! problem) drops them, and the solve is exactly the one a fresh solver would do.
+
+use crate::problem::BodyProblem;
+use crate::problem::BodyState;
+use sinew_math::{DQuat, DVec3};
+use sinew_skeleton::ik::SolveSettings;
+use sinew_skeleton::limits::JointLimit;
+
+/// One effector as far as the carried answers are concerned: joint, pinned, position
+/// weight, rotation weight, whether it has a rotation goal. The goal positions and
+/// rotations are what moves from frame to frame and are not compared.
+type EffectorKey = (usize, bool, f64, f64, bool);
+
+/// The carried answers and what they were solved for. No allocation once the buffers have
+/// grown to the skeleton's size.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Carried {
+    /// Whether `last` holds the answer of the last solve, of the problem below.
+    valid: bool,
+    fingerprint: u64,
+    limits: Vec<JointLimit>,
+    effectors: Vec<EffectorKey>,
+    settings: Option<SolveSettings>,
+    root_translates: bool,
+    /// The pose and translation the last solve returned.
+    pub last: Vec<DQuat>,
+    pub last_translation: DVec3,
+    /// The answer of the solve before it, when the last solve started from it
+    /// (`has_before`): the two make a velocity.
+    pub before: Vec<DQuat>,
+    pub before_translation: DVec3,
+    pub has_before: bool,
+}
+
+fn key<'a>(problem: &BodyProblem<'a>) -> impl Iterator<Item = EffectorKey> + 'a {
+    problem.effectors.iter().map(|e| {
+        (
+            e.goal.joint,
+            e.pinned,
+            e.goal.position_weight,
+            e.goal.rotation_weight,
+            e.goal.rotation.is_some(),
+        )
+    })
+}
+
+impl Carried {
+    /// Whether a solve of `problem` from `state` continues the sequence of the carried
+    /// answers (call before anything changes `state`).
+    pub fn continues(&self, problem: &BodyProblem<'_>, state: &BodyState) -> bool {
+        let skeleton = problem.skeleton;
+        self.valid
+            && self.settings == Some(problem.settings)
+            && self.root_translates == problem.root_translates
+            && self.fingerprint == skeleton.fingerprint()
+            && self.limits.len() == skeleton.len()
+            && self
+                .limits
+                .iter()
+                .enumerate()
+                .all(|(j, limit)| limit == skeleton.limit(j))
+            && self.effectors.len() == problem.effectors.len()
+            && self.effectors.iter().copied().eq(key(problem))
+            && state.root_translation == self.last_translation
+            && state.pose.rotations == self.last
+    }
+
+    /// Forgets the carried answers (after an error).
+    pub fn invalidate(&mut self) {
+        self.valid = false;
+        self.has_before = false;
+    }
+
+    /// Records the answer in `state` of a solve of `problem`; `continued` says whether it
+    /// started from the last answer ([`Carried::continues`]), which then becomes the one
+    /// before.
+    pub fn record(&mut self, problem: &BodyProblem<'_>, state: &BodyState, continued: bool) {
+        let skeleton = problem.skeleton;
+        if continued {
+            std::mem::swap(&mut self.before, &mut self.last);
+            self.before_translation = self.last_translation;
+            self.has_before = true;
+        } else {
+            self.has_before = false;
+            self.fingerprint = skeleton.fingerprint();
+            self.limits.clear();
+            self.limits
+                .extend((0..skeleton.len()).map(|j| *skeleton.limit(j)));
+            self.effectors.clear();
+            self.effectors.extend(key(problem));
+            self.settings = Some(problem.settings);
+            self.root_translates = problem.root_translates;
+        }
+        self.last.clear();
+        self.last.extend_from_slice(&state.pose.rotations);
+        self.last_translation = state.root_translation;
+        self.valid = true;
+    }
+}
