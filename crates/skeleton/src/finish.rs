@@ -1130,9 +1130,11 @@ impl Finish {
         }
         for a in (0..rows).rev() {
             let mut sum = y[a];
-            let column = l[a * rows + a..].iter().step_by(rows).skip(1);
-            for (x, v) in column.zip(&y[a + 1..]) {
-                sum -= x * v;
+            // Column `a` below the diagonal, row by row (a strided iterator costs several
+            // times the arithmetic here); the same sums in the same order.
+            let below = l[(a + 1) * rows..].chunks_exact(rows);
+            for (row_b, v) in below.zip(&y[a + 1..]) {
+                sum -= row_b[a] * v;
             }
             y[a] = sum / l[a * rows + a];
         }
