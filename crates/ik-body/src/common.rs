@@ -374,9 +374,9 @@ impl Common {
 
     /// The start of a warm frame that continues a sequence ([`Carried`]), extrapolated
     /// from the last two answers: every movable joint turned once more by its turn
-    /// between them (`d = q1 q0^-1`, then `d q1`, projected onto its limit) and the
-    /// translation moved once more by its step. Kept only when it lowers the cost; returns
-    /// whether it was kept. For goals moving smoothly the extrapolation is off by the
+    /// between them (`d = q1 q0^-1`, then `d q1`, where that stays inside the joint's
+    /// limit) and the translation moved once more by its step. Kept only when it lowers
+    /// the cost; returns whether it was kept. For goals moving smoothly the extrapolation is off by the
     /// second difference of the motion instead of the first, so one Gauss-Newton step
     /// from it usually reaches the tolerance.
     pub fn predict(
