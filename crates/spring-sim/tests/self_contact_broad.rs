@@ -128,6 +128,54 @@ fn the_segment_list_gives_the_broad_phase_set_inside_the_segment_and_declines_ou
 }
 
 #[test]
+fn a_region_kept_with_slack_gives_the_broad_phase_set_beyond_its_segment() {
+    let mut rng = Rng(4242);
+    let (mut beyond, mut total) = (0, 0);
+    for case in 0..8 {
+        let n = 5 + case % 4;
+        let (x, triangles) = crumpled(n, 0.03 + 0.02 * (case % 3) as f64, &mut rng);
+        let prims = Primitives::new(&triangles);
+        let dx: Vec<DVec3> = x.iter().map(|_| rng.vec(0.04)).collect();
+        let skip = vec![false; x.len()];
+        let margin = 0.015;
+        let slack = margin;
+        let long: Vec<DVec3> = dx.iter().map(|d| 8.0 * *d).collect();
+        let kept = CandidateCache::with_slack(&prims, &x, Some(&long), margin, slack, &skip);
+        let plain = CandidateCache::new(&prims, &x, Some(&long), margin, &skip);
+        assert!(kept.len() >= plain.len());
+        // Iterates on the segment sweeping on along a shorter or a sideways direction,
+        // some of them past the segment's own boxes but inside the slack.
+        for alpha in [0.0, 0.5, 2.0, 8.0] {
+            let start: Vec<DVec3> = x.iter().zip(&dx).map(|(p, d)| *p + alpha * *d).collect();
+            let next: Vec<DVec3> = dx.iter().map(|d| 0.5 * *d + rng.vec(0.2 * slack)).collect();
+            for state_sweep in [None, Some(next.as_slice())] {
+                let exact = candidates(&prims, &start, state_sweep, margin, &skip);
+                let covered = kept.covers(&prims, &start, state_sweep, margin, &skip);
+                let got = kept.query(&prims, &start, state_sweep, margin, &skip);
+                assert_eq!(covered, got.is_some());
+                if let Some(got) = got {
+                    assert_eq!(got, exact, "case {case}, alpha {alpha}");
+                    let at = kept
+                        .query_indices(&prims, &start, state_sweep, margin, &skip)
+                        .unwrap();
+                    let listed: Vec<_> = at.iter().map(|&k| kept.list()[k]).collect();
+                    assert_eq!(listed, exact);
+                    total += exact.len();
+                    let without = plain.covers(&prims, &start, state_sweep, margin, &skip);
+                    beyond += usize::from(!without);
+                }
+            }
+        }
+        // Far beyond the slack it declines.
+        let far: Vec<DVec3> = x.iter().zip(&dx).map(|(p, d)| *p + 20.0 * *d).collect();
+        assert!(!kept.covers(&prims, &far, None, margin, &skip));
+    }
+    // Some queries were answered only thanks to the slack, and the cases are not vacuous.
+    assert!(beyond > 0, "no query needed the slack");
+    assert!(total > 500, "{total} candidates in all");
+}
+
+#[test]
 fn a_primitive_swept_far_is_still_found() {
     let mut rng = Rng(99);
     let (x, triangles) = crumpled(6, 0.01, &mut rng);

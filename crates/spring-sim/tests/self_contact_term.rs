@@ -249,3 +249,67 @@ fn one_broad_phase_serves_the_whole_line_search_segment_with_unchanged_answers()
     let _ = term.energy(&step, &far);
     assert_eq!(stats.broad_phases(), before + 2);
 }
+
+#[test]
+fn the_next_iterations_segment_inside_the_kept_region_is_not_hashed_and_answers_unchanged() {
+    let (system, triangles) = two_sheets();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 5e-4,
+        ..SelfContactSettings::default()
+    };
+    let mut term = SelfContactTerm::new(&system, &triangles, settings).unwrap();
+    let x = system.positions().to_vec();
+    let step = StepContext::new(&system, 1.0 / 60.0, &x, &x);
+    term.begin_step(&step);
+    let fresh = || {
+        let mut t = SelfContactTerm::new(&system, &triangles, settings).unwrap();
+        t.begin_step(&step);
+        t
+    };
+    let mut rng = Rng(57);
+    let dx: Vec<DVec3> = (0..x.len())
+        .map(|i| {
+            if i >= 9 {
+                DVec3::new(
+                    2e-5 * rng.next(),
+                    -8e-5 + 2e-5 * rng.next(),
+                    2e-5 * rng.next(),
+                )
+            } else {
+                DVec3::ZERO
+            }
+        })
+        .collect();
+    let stats = term.stats();
+    let before = stats.broad_phases();
+    let _ = term.max_step(&step, &x, &dx);
+    assert_eq!(stats.broad_phases(), before + 1);
+    // Newton's next iterates: on the segment, each with a shorter direction along it, as
+    // when Newton converges. Their segments lie inside the first one's region.
+    let mut at = x.clone();
+    let mut nonzero = 0;
+    for (alpha, shrink) in [(1.0, 0.5), (1.0, 0.5), (0.5, 0.25)] {
+        at = at.iter().zip(&dx).map(|(p, d)| *p + alpha * *d).collect();
+        let next: Vec<DVec3> = dx.iter().map(|d| shrink * *d).collect();
+        term.update_active_set(&step, &at);
+        let cap = term.max_step(&step, &at, &next);
+        assert_eq!(cap.to_bits(), fresh().max_step(&step, &at, &next).to_bits());
+        for trial in [0.25, 1.0, 2.0] {
+            let change = term.energy_change(&step, &at, &next, trial);
+            let reference = fresh().energy_change(&step, &at, &next, trial);
+            assert_eq!(change.to_bits(), reference.to_bits());
+            nonzero += usize::from(change != 0.0);
+        }
+        let mut g = vec![DVec3::ZERO; x.len()];
+        let mut g_fresh = g.clone();
+        term.add_gradient(&step, &at, &mut g);
+        let mut reference = fresh();
+        reference.update_active_set(&step, &at);
+        reference.add_gradient(&step, &at, &mut g_fresh);
+        assert_eq!(g, g_fresh);
+    }
+    // No iteration after the first hashed the mesh, and the pairs act.
+    assert_eq!(stats.broad_phases(), before + 1);
+    assert!(nonzero > 0);
+}

@@ -401,12 +401,64 @@ impl CandidateCache {
         margin: f64,
         skip: &[bool],
     ) -> Self {
+        Self::with_slack(prims, x, dx, margin, 0.0, skip)
+    }
+
+    /// As [`Self::new`], with every kept box grown by a further `slack / 2` (`slack >=
+    /// 0`): the list is [`candidates`] with the margin `margin + slack`, so it holds
+    /// every pair whose grown boxes overlap, and the region covers queries (with
+    /// `margin`) that reach up to that much farther. The argument of the type's
+    /// documentation holds as it is: the list is exactly the set of pairs whose kept
+    /// boxes overlap, and a covered query's boxes lie inside the kept ones.
+    #[must_use]
+    pub fn with_slack(
+        prims: &Primitives,
+        x: &[DVec3],
+        dx: Option<&[DVec3]>,
+        margin: f64,
+        slack: f64,
+        skip: &[bool],
+    ) -> Self {
+        let reach = margin + slack;
         Self {
-            vertex: Boxes::new(prims, x, dx, margin).vertex,
+            vertex: Boxes::new(prims, x, dx, reach).vertex,
             margin,
             skip: skip.to_vec(),
-            list: candidates(prims, x, dx, margin, skip),
+            list: candidates(prims, x, dx, reach, skip),
         }
+    }
+
+    /// Whether a query (see [`Self::query`]) is covered by the kept region.
+    #[must_use]
+    pub fn covers(
+        &self,
+        prims: &Primitives,
+        x: &[DVec3],
+        dx: Option<&[DVec3]>,
+        margin: f64,
+        skip: &[bool],
+    ) -> bool {
+        self.covering_boxes(prims, x, dx, margin, skip).is_some()
+    }
+
+    /// The query's boxes when the kept region covers it.
+    fn covering_boxes(
+        &self,
+        prims: &Primitives,
+        x: &[DVec3],
+        dx: Option<&[DVec3]>,
+        margin: f64,
+        skip: &[bool],
+    ) -> Option<Boxes> {
+        if margin != self.margin || skip != self.skip.as_slice() || x.len() != self.vertex.len() {
+            return None;
+        }
+        let boxes = Boxes::new(prims, x, dx, margin);
+        let inside = prims.vertices.iter().all(|&v| {
+            let (q, k) = (&boxes.vertex[v], &self.vertex[v]);
+            q.min.cmpge(k.min).all() && q.max.cmple(k.max).all()
+        });
+        inside.then_some(boxes)
     }
 
     /// The number of pairs kept.
@@ -421,6 +473,12 @@ impl CandidateCache {
         self.list.is_empty()
     }
 
+    /// The kept pairs, in [`candidates`]'s order.
+    #[must_use]
+    pub fn list(&self) -> &[Candidate] {
+        &self.list
+    }
+
     /// Exactly [`candidates`]`(prims, x, dx, margin, skip)` when the query is covered
     /// (see the type's documentation), by filtering the kept list; `None` when it is not.
     #[must_use]
@@ -432,27 +490,35 @@ impl CandidateCache {
         margin: f64,
         skip: &[bool],
     ) -> Option<Vec<Candidate>> {
-        if margin != self.margin || skip != self.skip.as_slice() || x.len() != self.vertex.len() {
-            return None;
-        }
-        let boxes = Boxes::new(prims, x, dx, margin);
-        let inside = prims.vertices.iter().all(|&v| {
-            let (q, k) = (&boxes.vertex[v], &self.vertex[v]);
-            q.min.cmpge(k.min).all() && q.max.cmple(k.max).all()
-        });
-        if !inside {
-            return None;
-        }
+        self.query_indices(prims, x, dx, margin, skip)
+            .map(|found| found.into_iter().map(|i| self.list[i]).collect())
+    }
+
+    /// The positions in [`Self::list`] of the pairs [`Self::query`] answers (ascending,
+    /// so the pairs come in the same order); `None` when the query is not covered. A
+    /// caller keeping values per kept pair (each pair's gap at the state the list was
+    /// built at) looks them up by these positions.
+    #[must_use]
+    pub fn query_indices(
+        &self,
+        prims: &Primitives,
+        x: &[DVec3],
+        dx: Option<&[DVec3]>,
+        margin: f64,
+        skip: &[bool],
+    ) -> Option<Vec<usize>> {
+        let boxes = self.covering_boxes(prims, x, dx, margin, skip)?;
         Some(
             self.list
                 .iter()
-                .copied()
-                .filter(|&c| match c {
+                .enumerate()
+                .filter(|&(_, &c)| match c {
                     Candidate::PointTriangle { vertex, triangle } => {
                         point_triangle_kept(prims, &boxes, skip, vertex, triangle)
                     }
                     Candidate::EdgeEdge { a, b } => edge_edge_kept(prims, &boxes, skip, a, b),
                 })
+                .map(|(i, _)| i)
                 .collect(),
         )
     }

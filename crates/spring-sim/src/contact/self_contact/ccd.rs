@@ -36,6 +36,23 @@ pub fn additive_ccd(
     thickness: f64,
     keep: f64,
 ) -> f64 {
+    let gap0 = squared_distance(kind, x).sqrt() - thickness;
+    additive_ccd_from_gap(kind, x, dx, thickness, keep, gap0)
+}
+
+/// [`additive_ccd`] with the pair's gap at `t = 0` given: `gap0` must be
+/// `squared_distance(kind, x).sqrt() - thickness`, as [`additive_ccd`] computes it, so
+/// the answer is the same; a caller that already has it (the term evaluates every pair's
+/// gap at the Newton iterate once and sweeps it twice) saves that distance.
+#[must_use]
+pub fn additive_ccd_from_gap(
+    kind: PairKind,
+    x: &[DVec3; 4],
+    dx: &[DVec3; 4],
+    thickness: f64,
+    keep: f64,
+    gap0: f64,
+) -> f64 {
     let mean = (dx[0] + dx[1] + dx[2] + dx[3]) / 4.0;
     let p = dx.map(|d| d - mean);
     let lp = match kind {
@@ -48,7 +65,6 @@ pub fn additive_ccd(
         let xt: [DVec3; 4] = std::array::from_fn(|k| x[k] + t * dx[k]);
         squared_distance(kind, &xt).sqrt() - thickness
     };
-    let gap0 = gap_at(0.0);
     if gap0.is_nan() || gap0 <= 0.0 {
         return 0.0;
     }

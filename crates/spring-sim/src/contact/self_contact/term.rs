@@ -11,12 +11,16 @@
 //! collected at the start of each Newton iteration (the pairs within `dhat`) is reused by
 //! the gradient and Hessian at that same state and feeds the statistics.
 //!
-//! The mesh is hashed once per Newton iteration: the line-search cap collects the pairs
-//! over the whole segment the line search may try (`x + [0, 8] dx`, boxes grown by
-//! `dhat + thickness`), and every later query inside that segment (the cap's own sweeps,
-//! each trial's energy change, the next iterate's active set and energy) filters the
-//! list by the query's boxes, which gives the broad phase's set exactly
-//! ([`CandidateCache`]); a query outside it hashes the mesh again.
+//! The mesh is hashed at most once per Newton iteration: the line-search cap collects the
+//! pairs over the whole segment the line search may try (`x + [0, 8] dx`, boxes grown by
+//! `dhat + thickness`, and kept grown by a further slack of up to the segment's length,
+//! at most `dhat + thickness`), and every later query inside that region (the cap's own
+//! sweeps, each trial's energy change, the next iterate's active set and energy, and the
+//! next iterations' segments while they stay inside it) filters the list by the query's
+//! boxes, which gives the broad phase's set exactly ([`CandidateCache`]); a query
+//! outside it hashes the mesh again. Each listed pair's gap and energy at the segment's
+//! start are kept once computed, for the cap's two sweeps and every trial's energy
+//! change.
 //!
 //! The line search is capped by additive CCD over the Newton step, so no state it tries
 //! is reached through a crossing; backward Euler also asks the cap whether the straight
@@ -42,7 +46,7 @@
 //! iteration on the Newton matrix has the pairs' full blocks.
 
 use super::broad::{Candidate, CandidateCache, Primitives, candidates};
-use super::ccd::additive_ccd;
+use super::ccd::additive_ccd_from_gap;
 use super::closed::RegionForm;
 use super::distance::{
     PairKind, mollifier, mollifier_derivatives, squared_distance, squared_distance_derivatives,
@@ -208,8 +212,9 @@ pub struct SelfContactTerm {
     cache: Vec<PairDerivatives>,
     /// The broad phase's pairs over the last Newton step's whole line-search segment
     /// (collected by [`Term::max_step`]); every query it covers filters it instead of
-    /// hashing the mesh again.
-    segment: Mutex<CandidateCache>,
+    /// hashing the mesh again. It also keeps each listed pair's gap and energy at the
+    /// segment's start, which the cap's two sweeps and every trial's energy change need.
+    segment: Mutex<Segment>,
     stats: Arc<SelfContactStats>,
 }
 
@@ -256,7 +261,7 @@ impl SelfContactTerm {
             active: Vec::new(),
             active_at: Vec::new(),
             cache: Vec::new(),
-            segment: Mutex::new(CandidateCache::default()),
+            segment: Mutex::new(Segment::default()),
             stats: Arc::new(SelfContactStats::default()),
         };
         term.check_state(x, system.fixed())?;
@@ -333,6 +338,7 @@ impl SelfContactTerm {
             .segment
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
+            .pairs
             .query(&self.prims, x, dx, margin, fixed);
         kept.unwrap_or_else(|| {
             self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
@@ -344,9 +350,27 @@ impl SelfContactTerm {
     /// for the queries it covers.
     fn collect_segment(&self, x: &[DVec3], dx: &[DVec3], fixed: &[bool]) {
         let margin = self.settings.dhat + self.settings.thickness;
+        let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
+        if segment
+            .pairs
+            .covers(&self.prims, x, Some(dx), margin, fixed)
+        {
+            // A later Newton iteration's segment usually lies inside the last one's
+            // region (the steps shrink as Newton converges): its list serves as it is.
+            let pairs = std::mem::take(&mut segment.pairs);
+            segment.reset(pairs, x, self.kappa());
+            return;
+        }
+        // The region is kept wider than the segment by up to the segment's own length
+        // (at most `margin`), so the next iterations' segments fall inside it.
+        let slack = dx
+            .iter()
+            .map(|d| d.length())
+            .fold(0.0, f64::max)
+            .min(margin);
         self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
-        let kept = CandidateCache::new(&self.prims, x, Some(dx), margin, fixed);
-        *self.segment.lock().unwrap_or_else(PoisonError::into_inner) = kept;
+        let pairs = CandidateCache::with_slack(&self.prims, x, Some(dx), margin, slack, fixed);
+        segment.reset(pairs, x, self.kappa());
     }
 
     /// The pairs whose gap may be below `dhat` at `x` (broad phase).
@@ -522,16 +546,101 @@ impl SelfContactTerm {
     /// every pair the swept broad phase finds, 1 when none comes close.
     fn ccd_fraction(&self, x: &[DVec3], dx: &[DVec3], fixed: &[bool]) -> f64 {
         let keep = 1.0 - self.settings.toi_fraction;
-        let mut t: f64 = 1.0;
-        for c in self.pairs(x, Some(dx), fixed) {
+        let thickness = self.settings.thickness;
+        let margin = self.settings.dhat + thickness;
+        let sweep = |c: Candidate, gap0: f64| {
             let (kind, v) = self.pair(c);
             let (p, d) = (v.map(|i| x[i]), v.map(|i| dx[i]));
-            t = t.min(additive_ccd(kind, &p, &d, self.settings.thickness, keep));
+            additive_ccd_from_gap(kind, &p, &d, thickness, keep, gap0)
+        };
+        let mut t: f64 = 1.0;
+        let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(found) = segment
+            .pairs
+            .query_indices(&self.prims, x, Some(dx), margin, fixed)
+        {
+            let at_start = segment.starts_at(x);
+            for k in found {
+                let c = segment.pairs.list()[k];
+                let gap0 = if at_start {
+                    segment.gap(k, || self.gap(c, x))
+                } else {
+                    self.gap(c, x)
+                };
+                t = t.min(sweep(c, gap0));
+                if t <= 0.0 {
+                    break;
+                }
+            }
+            return t;
+        }
+        drop(segment);
+        self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
+        for c in candidates(&self.prims, x, Some(dx), margin, fixed) {
+            t = t.min(sweep(c, self.gap(c, x)));
             if t <= 0.0 {
                 break;
             }
         }
         t
+    }
+}
+
+/// The line-search segment's kept pairs ([`CandidateCache`]) and, per kept pair, its gap
+/// and its energy at the segment's start `x` (the Newton iterate), filled as they are
+/// first asked for: the cap sweeps `x -> x + dx` and `x -> x + 8 dx` from it and every
+/// trial's energy change subtracts the energy at it, so without these each pair's
+/// distance at `x` was computed two to five times per Newton iteration. A value is the
+/// one the same call computes from scratch (the same function of the same numbers), so
+/// every answer is unchanged bit for bit.
+#[derive(Debug, Default)]
+struct Segment {
+    pairs: CandidateCache,
+    start: Vec<DVec3>,
+    /// The barrier stiffness the energies were computed with.
+    kappa: f64,
+    /// NaN where not computed yet (a NaN gap is recomputed every time, as before).
+    gap: Vec<f64>,
+    energy: Vec<f64>,
+}
+
+impl Segment {
+    /// Keeps `pairs`, collected from `start`, with no values yet; the arrays' storage is
+    /// reused.
+    fn reset(&mut self, pairs: CandidateCache, start: &[DVec3], kappa: f64) {
+        let n = pairs.len();
+        self.pairs = pairs;
+        self.start.clear();
+        self.start.extend_from_slice(start);
+        self.kappa = kappa;
+        self.gap.clear();
+        self.gap.resize(n, f64::NAN);
+        self.energy.clear();
+        self.energy.resize(n, f64::NAN);
+    }
+
+    fn starts_at(&self, x: &[DVec3]) -> bool {
+        self.start.as_slice() == x
+    }
+
+    /// Kept pair `k`'s gap at the start, computed by `compute` the first time.
+    fn gap(&mut self, k: usize, compute: impl FnOnce() -> f64) -> f64 {
+        if self.gap[k].is_nan() {
+            self.gap[k] = compute();
+        }
+        self.gap[k]
+    }
+
+    /// Kept pair `k`'s energy at the start with stiffness `kappa` (recomputed whenever
+    /// `kappa` is not the one the values were kept for).
+    fn energy(&mut self, k: usize, kappa: f64, compute: impl FnOnce() -> f64) -> f64 {
+        if kappa.to_bits() != self.kappa.to_bits() {
+            return compute();
+        }
+        if self.energy[k].is_nan() {
+            self.energy[k] = compute();
+        }
+        self.energy[k]
     }
 }
 
@@ -575,7 +684,11 @@ impl Term for SelfContactTerm {
         let fixed = step.system.fixed();
         let dhat = self.settings.dhat;
         let mut min = f64::INFINITY;
-        let mut active = Vec::new();
+        // The lists' storage is reused from iteration to iteration: the derivatives of a
+        // few ten thousand pairs are tens of megabytes, and fresh pages cost more to
+        // fault in than to fill.
+        let mut active = std::mem::take(&mut self.active);
+        active.clear();
         for c in self.near(x, fixed) {
             let gap = self.gap(c, x);
             if gap < dhat {
@@ -584,14 +697,16 @@ impl Term for SelfContactTerm {
             }
         }
         let kappa = self.kappa();
-        self.cache = if kappa > 0.0 {
-            active
-                .iter()
-                .filter_map(|&c| self.pair_derivatives(kappa, c, x))
-                .collect()
-        } else {
-            Vec::new()
-        };
+        let mut cache = std::mem::take(&mut self.cache);
+        cache.clear();
+        if kappa > 0.0 {
+            cache.extend(
+                active
+                    .iter()
+                    .filter_map(|&c| self.pair_derivatives(kappa, c, x)),
+            );
+        }
+        self.cache = cache;
         self.active = active;
         self.active_at.clear();
         self.active_at.extend_from_slice(x);
@@ -617,8 +732,35 @@ impl Term for SelfContactTerm {
         let moved: Vec<DVec3> = x.iter().zip(dx).map(|(p, d)| *p + alpha * *d).collect();
         let sweep: Vec<DVec3> = dx.iter().map(|d| alpha * *d).collect();
         // Every pair within dhat at either end: the swept boxes contain both ends.
+        let fixed = step.system.fixed();
+        let margin = self.settings.dhat + self.settings.thickness;
         let mut change = 0.0;
-        for c in self.pairs(x, Some(&sweep), step.system.fixed()) {
+        let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(found) =
+            segment
+                .pairs
+                .query_indices(&self.prims, x, Some(&sweep), margin, fixed)
+        {
+            // The energy at `x` is the same for every trial of the line search: kept.
+            let at_start = segment.starts_at(x);
+            for k in found {
+                let c = segment.pairs.list()[k];
+                let after = self.pair_energy(kappa, c, &moved);
+                if after == f64::INFINITY {
+                    return f64::INFINITY;
+                }
+                let before = if at_start {
+                    segment.energy(k, kappa, || self.pair_energy(kappa, c, x))
+                } else {
+                    self.pair_energy(kappa, c, x)
+                };
+                change += after - before;
+            }
+            return change;
+        }
+        drop(segment);
+        self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
+        for c in candidates(&self.prims, x, Some(&sweep), margin, fixed) {
             let after = self.pair_energy(kappa, c, &moved);
             if after == f64::INFINITY {
                 return f64::INFINITY;
