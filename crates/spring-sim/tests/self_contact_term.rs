@@ -57,6 +57,54 @@ impl Rng {
     }
 }
 
+/// The reuse tests' setting: the two sheets with `dhat` 2 mm and thickness 0.5 mm, and a
+/// direction that drifts the top sheet down and sideways by random amounts (at most
+/// 0.1 mm per unit step, so the whole segment up to 8 steps stays clear of the bottom
+/// sheet).
+fn drifting_sheets(
+    seed: u64,
+) -> (
+    SpringSystem,
+    Vec<[usize; 3]>,
+    SelfContactSettings,
+    Vec<DVec3>,
+) {
+    let (system, triangles) = two_sheets();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 5e-4,
+        ..SelfContactSettings::default()
+    };
+    let mut rng = Rng(seed);
+    let dx = (0..system.positions().len())
+        .map(|i| {
+            if i >= 9 {
+                DVec3::new(
+                    2e-5 * rng.next(),
+                    -8e-5 + 2e-5 * rng.next(),
+                    2e-5 * rng.next(),
+                )
+            } else {
+                DVec3::ZERO
+            }
+        })
+        .collect();
+    (system, triangles, settings, dx)
+}
+
+/// A term for `system` that has begun `step`. A fresh one has no list kept, so it hashes
+/// the mesh for every query: the reference answer for a term that reuses its list.
+fn begun(
+    system: &SpringSystem,
+    triangles: &[[usize; 3]],
+    settings: SelfContactSettings,
+    step: &StepContext,
+) -> SelfContactTerm {
+    let mut t = SelfContactTerm::new(system, triangles, settings).unwrap();
+    t.begin_step(step);
+    t
+}
+
 #[test]
 fn the_term_is_one_consistent_function() {
     let (system, triangles) = two_sheets();
@@ -180,39 +228,11 @@ fn max_step_stops_a_step_through_the_other_sheet() {
 
 #[test]
 fn one_broad_phase_serves_the_whole_line_search_segment_with_unchanged_answers() {
-    let (system, triangles) = two_sheets();
-    let settings = SelfContactSettings {
-        dhat: 2e-3,
-        thickness: 5e-4,
-        ..SelfContactSettings::default()
-    };
-    let mut term = SelfContactTerm::new(&system, &triangles, settings).unwrap();
+    let (system, triangles, settings, dx) = drifting_sheets(31);
     let x = system.positions().to_vec();
     let step = StepContext::new(&system, 1.0 / 60.0, &x, &x);
-    term.begin_step(&step);
-    // A fresh term for every reference answer: it has no list kept, so it hashes the
-    // mesh for every query.
-    let fresh = || {
-        let mut t = SelfContactTerm::new(&system, &triangles, settings).unwrap();
-        t.begin_step(&step);
-        t
-    };
-    let mut rng = Rng(31);
-    // The top sheet drifts down and sideways by random amounts (at most 0.1 mm per unit
-    // step, so the whole segment up to 8 steps stays clear of the bottom sheet).
-    let dx: Vec<DVec3> = (0..x.len())
-        .map(|i| {
-            if i >= 9 {
-                DVec3::new(
-                    2e-5 * rng.next(),
-                    -8e-5 + 2e-5 * rng.next(),
-                    2e-5 * rng.next(),
-                )
-            } else {
-                DVec3::ZERO
-            }
-        })
-        .collect();
+    let mut term = begun(&system, &triangles, settings, &step);
+    let fresh = || begun(&system, &triangles, settings, &step);
     let stats = term.stats();
     let before = stats.broad_phases();
     let cap = term.max_step(&step, &x, &dx);
@@ -252,35 +272,11 @@ fn one_broad_phase_serves_the_whole_line_search_segment_with_unchanged_answers()
 
 #[test]
 fn the_next_iterations_segment_inside_the_kept_region_is_not_hashed_and_answers_unchanged() {
-    let (system, triangles) = two_sheets();
-    let settings = SelfContactSettings {
-        dhat: 2e-3,
-        thickness: 5e-4,
-        ..SelfContactSettings::default()
-    };
-    let mut term = SelfContactTerm::new(&system, &triangles, settings).unwrap();
+    let (system, triangles, settings, dx) = drifting_sheets(57);
     let x = system.positions().to_vec();
     let step = StepContext::new(&system, 1.0 / 60.0, &x, &x);
-    term.begin_step(&step);
-    let fresh = || {
-        let mut t = SelfContactTerm::new(&system, &triangles, settings).unwrap();
-        t.begin_step(&step);
-        t
-    };
-    let mut rng = Rng(57);
-    let dx: Vec<DVec3> = (0..x.len())
-        .map(|i| {
-            if i >= 9 {
-                DVec3::new(
-                    2e-5 * rng.next(),
-                    -8e-5 + 2e-5 * rng.next(),
-                    2e-5 * rng.next(),
-                )
-            } else {
-                DVec3::ZERO
-            }
-        })
-        .collect();
+    let mut term = begun(&system, &triangles, settings, &step);
+    let fresh = || begun(&system, &triangles, settings, &step);
     let stats = term.stats();
     let before = stats.broad_phases();
     let _ = term.max_step(&step, &x, &dx);
