@@ -1,7 +1,7 @@
 //! The self-contact guarantee of sinew-spring-sim's backward Euler, checked
 //! independently on random crumpled sheets dropped onto the ground with large steps: no
 //! two triangles that share no vertex ever meet (the exact check of
-//! `sinew_scene::intersect`, robust's orientation predicates, no code shared with the
+//! `sinew_exact`, robust's orientation predicates, no code shared with the
 //! solver), the incremental potential never increases over a step's Newton iterates
 //! while the barrier stiffnesses stay put (the self-contact one changes only between
 //! steps; the ground's may double between iterates, and those steps are counted, not
@@ -14,9 +14,9 @@
 //! self-contact acts.
 
 use proptest::prelude::*;
+use sinew_exact::intersecting_pairs;
 use sinew_labcheck::config;
 use sinew_math::DVec3;
-use sinew_scene::intersect::intersecting_pairs;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::contact::{Collider, ContactPotential, ContactSettings, ContactTerm};
 use sinew_spring_sim::{

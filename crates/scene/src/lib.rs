@@ -23,10 +23,9 @@
 //! the loop that runs them. [`workloads`] builds the reference workloads that are fixed
 //! numbers alone (the chains, the lab flower's targets, the cloths), shared with the
 //! benchmark sweeps and the stress grid of the unpublished sinew-bench crate.
-//! [`intersect`] is the exact self-intersection check of triangle meshes the self-contact
-//! scenes, the stress grid and the property tests count intersections with.
+//! The self-contact scenes count intersections with sinew-exact's exact check, which
+//! shares no code with the solver.
 
-pub mod intersect;
 pub mod limits;
 pub mod results;
 pub mod run;

@@ -4,11 +4,9 @@
 //! translating rigidly and dragging a free sheet along exactly, located errors for bad
 //! targets and motions, and a pinned sheet pushed through a free one: every accepted
 //! state is checked for triangles passing through each other by an exact test on top of
-//! Shewchuk's predicates (the `robust` crate, in `tests/exact`), independent of the solver.
+//! Shewchuk's predicates (sinew-exact, on the `robust` crate), independent of the solver.
 
-mod exact;
-
-use exact::*;
+use sinew_exact::intersecting_pairs;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::{

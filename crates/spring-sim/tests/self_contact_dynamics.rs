@@ -1,14 +1,12 @@
 //! Self-contact in backward Euler: a sheet dropped onto a sheet pinned below it, and a
 //! hanging sheet collapsing onto the ground and folding onto itself. At every accepted
 //! state an independent exact check (Shewchuk's orientation predicates from the `robust`
-//! crate, with the triangle-triangle test in `tests/exact` on top of them) finds no two
+//! crate, with sinew-exact's triangle-triangle test on top of them) finds no two
 //! triangles that share no vertex intersecting; the incremental potential recorded at
 //! every Newton iterate never increases within a step; and the smallest gap over all
 //! such pairs, by brute force, stays positive.
 
-mod exact;
-
-use exact::*;
+use sinew_exact::{intersecting_pairs, triangles_meet};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
 use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactStats};

@@ -3,12 +3,12 @@
 //! vertices, triangles and edges, the line search capped by continuous collision
 //! detection), at every stiffness x time step x drop speed. After every accepted step the
 //! mesh is checked for triangles passing through each other by the exact check of
-//! [`sinew_scene::intersect`], which shares no code with the solver; any intersection,
+//! [`sinew_exact`], which shares no code with the solver; any intersection,
 //! a non-finite value or a refused step fails the case.
 
 use serde::Serialize;
+use sinew_exact::intersecting_pairs;
 use sinew_math::DVec3;
-use sinew_scene::intersect::intersecting_pairs;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::{
     Bending, ClothGrid, Material, MeshCloth, NewtonSettings, StepStop, TriangleMesh,

@@ -3,14 +3,14 @@
 //! self-contact (the IPC barrier between the cloth's own vertices, triangles and edges,
 //! the line search capped by continuous collision detection) and, optionally, rigid
 //! colliders. After every step the mesh is checked for triangles passing through each
-//! other by the exact check of [`crate::intersect`], which shares no code with the
+//! other by the exact check of [`sinew_exact`], which shares no code with the
 //! solver; any intersection fails the task.
 
 use super::{RunContext, TaskOutput, TaskSpec};
-use crate::intersect::intersecting_pairs;
 use crate::limits::{MAX_ITERATIONS, MAX_PARTICLE_STEPS, MAX_PARTICLES, MAX_STEPS, at_most};
 use crate::results::{ClothFrame, ClothPictures, Csv, MeshClothMetrics, Pictures, TaskMetrics};
 use serde::Deserialize;
+use sinew_exact::intersecting_pairs;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
 use sinew_spring_sim::contact::self_contact::{

@@ -1,5 +1,5 @@
-//! An exact check that a triangle mesh does not pass through itself, sharing no code with
-//! the self-contact solver (its distances, broad phase and continuous collision
+//! sinew-exact: an exact check that a triangle mesh does not pass through itself, sharing
+//! no code with the self-contact solver (its distances, broad phase and continuous collision
 //! detection): Shewchuk's exact orientation predicates (the `robust` crate) and a
 //! triangle-triangle test written on them, with its own sweep over the triangles' boxes.
 //!
@@ -12,6 +12,25 @@
 //! crossing or touching an edge), projected along the normal's largest component.
 //! Touching counts as meeting, so the check is strict. Pairs of triangles that share a
 //! vertex are not compared (they always touch).
+//!
+//! The self-contact scenes' `intersections` metric, the stress grid, the property tests
+//! and spring-sim's own integration tests all count intersections with this one check, so
+//! the guarantee "no intersecting triangles" is judged by code the solver never runs.
+//!
+//! ```
+//! use sinew_exact::{intersecting_pairs, triangles_meet};
+//! use sinew_math::DVec3;
+//!
+//! let flat = [DVec3::ZERO, DVec3::X, DVec3::Y];
+//! let piercing = [
+//!     DVec3::new(0.2, 0.2, -1.0),
+//!     DVec3::new(0.2, 0.2, 1.0),
+//!     DVec3::new(3.0, 3.0, 0.5),
+//! ];
+//! assert!(triangles_meet(flat, piercing));
+//! let x = [flat, piercing].concat();
+//! assert_eq!(intersecting_pairs(&x, &[[0, 1, 2], [3, 4, 5]]), vec![(0, 1)]);
+//! ```
 
 use robust::{Coord, Coord3D, orient2d, orient3d};
 use sinew_math::DVec3;
