@@ -1,10 +1,11 @@
 //! A fixed amount of W8 work for an instruction counter: run with
-//! `valgrind --tool=callgrind target/release/examples/w8_count PART [COUNT] [SOLVER]`.
+//! `valgrind --tool=callgrind target/release/examples/w8_count PART [COUNT] [SOLVER] [THREADS]`.
 //!
 //! PART is `cold` (COUNT goal sets, default 100, solved from the rest pose, as the `body`
 //! criterion bench's cold solves), `warm` (COUNT frames of the squat clip, default 600,
 //! warm-started) or `batch` (1 000 characters each solving one warm frame, COUNT times,
-//! default 1). SOLVER is a body solver name (default `fabrik`, the default solver). With
+//! default 1, on THREADS threads, default 1). SOLVER is a body solver name (default
+//! `fabrik`; the batch always runs the default options, `dls`). With
 //! a fixed amount of work, the instructions counted divided by COUNT are the cost of one
 //! solve, a figure that does not depend on the load of the machine the way a clock does.
 
@@ -21,6 +22,9 @@ fn main() {
     let part = args.next().unwrap_or_else(|| "cold".into());
     let count: Option<usize> = args.next().map(|s| s.parse().expect("a count"));
     let name = args.next().unwrap_or_else(|| "fabrik".into());
+    let threads: usize = args
+        .next()
+        .map_or(1, |s| s.parse().expect("a thread count"));
     let skel = workload::humanoid().expect("valid");
     let settings = SolveSettings::default();
     let rest = BodyState::rest(&skel);
@@ -89,7 +93,7 @@ fn main() {
                     })
                     .collect();
                 batch
-                    .solve(&problems, &mut states, &mut reports, 1)
+                    .solve(&problems, &mut states, &mut reports, threads)
                     .expect("valid");
                 within += reports.iter().filter(|r| r.within(&settings)).count();
             }

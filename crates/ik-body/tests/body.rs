@@ -386,6 +386,141 @@ fn the_batch_matches_one_solver_per_character_on_any_thread_count() {
     }
 }
 
+/// Every bit of a state's answer: the pose, the translation, forward kinematics and the
+/// per-effector errors.
+fn state_bits(state: &BodyState) -> Vec<u64> {
+    let mut bits = Vec::new();
+    for q in state.pose.rotations.iter().chain(&state.global.rotations) {
+        bits.extend(q.to_array().map(f64::to_bits));
+    }
+    for p in std::iter::once(&state.root_translation).chain(&state.global.positions) {
+        bits.extend(p.to_array().map(f64::to_bits));
+    }
+    for e in &state.effectors {
+        bits.extend(
+            [
+                e.initial_position,
+                e.position,
+                e.initial_rotation,
+                e.rotation,
+            ]
+            .map(f64::to_bits),
+        );
+    }
+    bits
+}
+
+fn report_bits(r: &BodyReport) -> [u64; 8] {
+    [
+        r.iterations as u64,
+        r.stop as u64,
+        r.initial_cost.to_bits(),
+        r.cost.to_bits(),
+        r.max_error.to_bits(),
+        r.max_rotation_error.to_bits(),
+        r.limit_violation.to_bits(),
+        u64::from(r.restarted),
+    ]
+}
+
+#[test]
+fn warm_batches_on_one_and_two_threads_agree_to_the_bit() {
+    let skel = workload::humanoid().unwrap();
+    let settings = SolveSettings::default();
+    let rest = BodyState::rest(&skel);
+    let frames: Vec<[BodyEffector; 5]> = (0..workload::CLIP_FRAMES)
+        .map(|f| workload::clip_frame(&rest.global, f))
+        .collect();
+    let characters = 41;
+    let empty = BodyReport {
+        iterations: 0,
+        stop: StopReason::Stalled,
+        initial_cost: 0.0,
+        cost: 0.0,
+        max_error: 0.0,
+        max_rotation_error: 0.0,
+        limit_violation: 0.0,
+        restarted: false,
+    };
+    let thread_counts = [1, 2, 3];
+    let mut batches: Vec<BodyBatch> = thread_counts
+        .iter()
+        .map(|_| BodyBatch::new(TreeFabrikOptions::default()).unwrap())
+        .collect();
+    let mut states = vec![vec![rest.clone(); characters]; thread_counts.len()];
+    let mut reports = vec![vec![empty; characters]; thread_counts.len()];
+    // Six warm frames per character (from the third on, each starts from the carried
+    // answers' extrapolation), each character at its own place in the clip.
+    for step in 0..6 {
+        let problems: Vec<BodyProblem<'_>> = (0..characters)
+            .map(|c| {
+                BodyProblem::new(&skel, &frames[(c * 13 + step) % frames.len()], settings)
+                    .with_root_translation(true)
+            })
+            .collect();
+        for (k, &threads) in thread_counts.iter().enumerate() {
+            batches[k]
+                .solve(&problems, &mut states[k], &mut reports[k], threads)
+                .unwrap();
+        }
+        for k in 1..thread_counts.len() {
+            for c in 0..characters {
+                assert_eq!(
+                    state_bits(&states[k][c]),
+                    state_bits(&states[0][c]),
+                    "step {step}, character {c}, {} threads",
+                    thread_counts[k]
+                );
+                assert_eq!(
+                    report_bits(&reports[k][c]),
+                    report_bits(&reports[0][c]),
+                    "step {step}, character {c}, {} threads",
+                    thread_counts[k]
+                );
+            }
+        }
+        assert!(
+            reports[0].iter().all(|r| r.within(&settings)),
+            "step {step}"
+        );
+    }
+    // Two bad characters in different groups: every thread count returns the first one's
+    // error, and solves the good characters all the same.
+    let mut bad_weight = frames[3];
+    bad_weight[1].goal.position_weight = f64::NAN;
+    let mut bad_joint = frames[4];
+    bad_joint[0].goal.joint = 99;
+    let problems: Vec<BodyProblem<'_>> = (0..characters)
+        .map(|c| {
+            let effectors = match c {
+                5 => &bad_weight,
+                30 => &bad_joint,
+                _ => &frames[(c * 13 + 6) % frames.len()],
+            };
+            BodyProblem::new(&skel, effectors, settings).with_root_translation(true)
+        })
+        .collect();
+    let mut errors = Vec::new();
+    for (k, &threads) in thread_counts.iter().enumerate() {
+        let error = batches[k]
+            .solve(&problems, &mut states[k], &mut reports[k], threads)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.contains("goal 1") && error.contains("weight"),
+            "{error}"
+        );
+        errors.push(error);
+    }
+    assert!(errors.iter().all(|e| *e == errors[0]), "{errors:?}");
+    for k in 1..thread_counts.len() {
+        for c in (0..characters).filter(|c| ![5, 30].contains(c)) {
+            assert_eq!(state_bits(&states[k][c]), state_bits(&states[0][c]));
+            assert_eq!(report_bits(&reports[k][c]), report_bits(&reports[0][c]));
+        }
+    }
+}
+
 /// Solves the first `frames` frames of the squat in turn with one solver, from rest.
 fn squat_up_to(frames: usize) -> (Skeleton, TreeFabrikSolver, BodyState) {
     let skel = workload::humanoid().unwrap();
