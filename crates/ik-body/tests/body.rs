@@ -245,6 +245,54 @@ fn the_humanoid_reaches_feasible_goal_sets_from_rest() {
 }
 
 #[test]
+fn a_body_moved_as_a_whole_is_placed_back_before_any_iteration() {
+    // Goals on the rest pose turned about the hips and moved: the rigid motion that best
+    // fits the goals is that motion, so the cold start places the body exactly (to
+    // rounding and the 1e-9 bias of Horn's step; the limbs' closed-form seeds then re-pose the limbs for the same goals,
+    // also to rounding) and the finish has nothing left to do. Weighted differently per
+    // effector, the best rigid fit is still exact.
+    let skel = workload::humanoid().unwrap();
+    let settings = SolveSettings::default();
+    let rest = BodyState::rest(&skel);
+    let hips = rest.global.positions[0];
+    for (k, (axis, angle, shift)) in [
+        (DVec3::Y, 0.5, DVec3::new(0.3, -0.1, 0.2)),
+        (
+            DVec3::new(1.0, 2.0, -0.5).normalize(),
+            0.4,
+            DVec3::new(-0.2, 0.15, 0.1),
+        ),
+        (DVec3::X, -0.3, DVec3::ZERO),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let turn = DQuat::from_axis_angle(axis, angle);
+        let effectors: Vec<BodyEffector> = workload::EFFECTORS
+            .iter()
+            .enumerate()
+            .map(|(e, &j)| {
+                let goal = hips + shift + turn * (rest.global.positions[j] - hips);
+                let mut effector = BodyEffector::at(j, goal);
+                effector.goal.position_weight = 1.0 + e as f64;
+                effector
+            })
+            .collect();
+        let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
+        let mut state = rest.clone();
+        let report = TreeFabrikSolver::new().solve(&problem, &mut state).unwrap();
+        check_contract(&skel, &effectors, &state, &report);
+        assert_eq!(report.iterations, 0, "case {k}: {report:?}");
+        assert!(report.max_error <= 1e-9, "case {k}: {report:?}");
+        assert!(
+            (state.root_translation - shift).length() <= 1e-9,
+            "case {k}: {}",
+            state.root_translation
+        );
+    }
+}
+
+#[test]
 fn ccd_turns_each_joint_by_its_best_rotation() {
     // A free tree: CCD alone lowers the cost every sweep; with the finish it converges.
     let skel = Skeleton::new([
