@@ -263,9 +263,12 @@ impl BodySolver for TreeCcdSolver {
         };
         let (iterations, stop) = if self.options.finish && stop != StopReason::Converged {
             // The finish's steps share the cap with the sweeps.
-            let finished =
-                self.common
-                    .finish(problem, state, iterations.min(settings.max_iterations))?;
+            let finished = self.common.finish(
+                problem,
+                state,
+                iterations.min(settings.max_iterations),
+                false,
+            )?;
             (iterations + finished.steps, finished.stop)
         } else {
             (iterations, stop)

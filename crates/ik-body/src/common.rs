@@ -125,12 +125,15 @@ impl Common {
     }
 
     /// The damped least-squares finish over every effector from `state` (see
-    /// [`sinew_skeleton::finish`]), `iterations` already spent of the cap.
+    /// [`sinew_skeleton::finish`]), `iterations` already spent of the cap; with
+    /// `chord_start` (a warm frame continuing a sequence, see [`Carried`]) its first trial
+    /// may be a chord step on the factor of the last linearization.
     pub fn finish(
         &mut self,
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
         iterations: usize,
+        chord_start: bool,
     ) -> Result<Finished, IkError> {
         let job = FinishJob {
             skeleton: problem.skeleton,
@@ -140,6 +143,7 @@ impl Common {
             base: None,
             settings: problem.settings,
             iterations,
+            chord_start,
         };
         Ok(self.dls.run(
             &job,

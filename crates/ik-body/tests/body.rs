@@ -593,13 +593,14 @@ fn warm_frames_from_the_last_two_answers_take_fewer_iterations_and_keep_the_cont
     let settings = SolveSettings::default();
     let rest = BodyState::rest(&skel).global;
     let (mut with, mut without) = (0, 0);
+    let (mut linearized, mut fresh_linearized) = (carried.linearizations(), 0);
     for frame in 20..80 {
         let effectors = workload::clip_frame(&rest, frame);
         let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
         let mut fresh_state = state.clone();
-        let fresh = TreeFabrikSolver::new()
-            .solve(&problem, &mut fresh_state)
-            .unwrap();
+        let mut fresh_solver = TreeFabrikSolver::new();
+        let fresh = fresh_solver.solve(&problem, &mut fresh_state).unwrap();
+        fresh_linearized += fresh_solver.linearizations();
         let report = carried.solve(&problem, &mut state).unwrap();
         check_contract(&skel, &effectors, &state, &report);
         assert!(report.within(&settings), "frame {frame}: {report:?}");
@@ -613,9 +614,12 @@ fn warm_frames_from_the_last_two_answers_take_fewer_iterations_and_keep_the_cont
         // Both continue from the carried answer, so the sequence stays the carried one.
         assert!(fresh.within(&settings));
     }
+    linearized = carried.linearizations() - linearized;
+    // A warm frame starts with a chord step on the last frame's factor: most frames
+    // need no linearization at all (measured: 7 against 72).
     assert!(
-        2 * with < without + 60,
-        "{with} iterations against {without}"
+        4 * linearized < fresh_linearized,
+        "{linearized} linearizations against {fresh_linearized}"
     );
     assert!(with < without, "{with} iterations against {without}");
 }
