@@ -60,11 +60,16 @@ pub(crate) enum Begin {
 impl Common {
     /// Validates the problem and the state, projects the starting pose onto the limits,
     /// resolves the targets and the topology, and exits early when every effector is
-    /// already within tolerance.
+    /// already within tolerance. With `continued` (the state is, to the bit, the answer of
+    /// this solver's last solve, of a problem of the same structure: [`Carried`]) the
+    /// topology is the last one and is not rebuilt. (The pose is still projected: the
+    /// last answer is inside its limits, but not always to the bit a fixed point of the
+    /// projection, and skipping it changed the clip's path; see `docs/ik-body.md`.)
     pub fn begin(
         &mut self,
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
+        continued: bool,
     ) -> Result<Begin, IkError> {
         problem.validate()?;
         let skeleton = problem.skeleton;
@@ -103,7 +108,9 @@ impl Common {
         self.start.extend_from_slice(&state.pose.rotations);
         self.start_translation = state.root_translation;
         resolve_targets(problem, &mut self.targets);
-        self.topology.build(skeleton, &self.targets);
+        if !continued {
+            self.topology.build(skeleton, &self.targets);
+        }
         self.initial.clear();
         self.initial
             .extend(self.targets.iter().map(|t| t.errors(&state.global)));
@@ -180,6 +187,45 @@ impl Common {
             stop,
             restarted,
         ))
+    }
+
+    /// [`Common::report`] for a solver whose every step leaves `state.global` exactly
+    /// [`forward_kinematics`] of the pose and translation (the finish's trials and the
+    /// poses it restores, the FABRIK passes, the seeds and the extrapolated start all
+    /// compute it from the root), so it is not computed again.
+    pub fn report_exact(
+        &self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+        iterations: usize,
+        stop: StopReason,
+        restarted: bool,
+    ) -> BodyReport {
+        #[cfg(debug_assertions)]
+        {
+            let mut check = state.global.clone();
+            let _ = forward_kinematics(
+                problem.skeleton,
+                &state.pose,
+                state.root_translation,
+                &mut check,
+            );
+            debug_assert!(
+                check.rotations == state.global.rotations
+                    && check.positions == state.global.positions,
+                "the global pose is not forward kinematics of the pose"
+            );
+        }
+        finish_report(
+            problem,
+            &self.targets,
+            state,
+            &self.initial,
+            self.initial_cost,
+            iterations,
+            stop,
+            restarted,
+        )
     }
 
     /// Whether every pinned effector is within the tolerance of its goal at `state`, or

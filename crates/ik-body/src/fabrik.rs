@@ -259,7 +259,7 @@ impl TreeFabrikSolver {
             // The finish's last factor belongs to another problem (or to none).
             self.common.dls.forget();
         }
-        if let Begin::Done(report) = self.common.begin(problem, state)? {
+        if let Begin::Done(report) = self.common.begin(problem, state, continued)? {
             return Ok(report);
         }
         self.passes.prepare(problem, &self.common);
@@ -277,7 +277,7 @@ impl TreeFabrikSolver {
             // pins where they may be, else the frame is solved from the pose given.
             let (used, stop) = self.attempt(problem, state, 0, first_passes, true)?;
             if stop == StopReason::Converged && self.common.pins_hold(problem, state) {
-                return self.common.report(problem, state, used, stop, false);
+                return Ok(self.common.report_exact(problem, state, used, stop, false));
             }
             spent = used;
             self.common.seed(problem, state, 0)?;
@@ -311,8 +311,9 @@ impl TreeFabrikSolver {
                 self.common.restore_best(problem, state, best_translation)?;
             }
         }
-        self.common
-            .report(problem, state, iterations, stop, restarted)
+        Ok(self
+            .common
+            .report_exact(problem, state, iterations, stop, restarted))
     }
 }
 
