@@ -36,6 +36,20 @@ fn main() {
         .collect();
     let mut within = 0;
     let mut restarts = 0;
+    // A digest of every answer's bits (pose and translation), so that two builds can be
+    // told to return the same bits or not.
+    let mut digest = 0xcbf2_9ce4_8422_2325_u64;
+    let mut absorb = |state: &BodyState| {
+        let words = state
+            .pose
+            .rotations
+            .iter()
+            .flat_map(|q| q.to_array())
+            .chain(state.root_translation.to_array());
+        for w in words {
+            digest = (digest ^ w.to_bits()).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    };
     let mut histogram = vec![0usize; settings.max_iterations + 1];
     let mut count_report = |report: &BodyReport| {
         restarts += usize::from(report.restarted);
@@ -54,6 +68,7 @@ fn main() {
                 let report = solver.solve(&problem, &mut state).expect("valid");
                 within += usize::from(report.within(&settings));
                 count_report(&report);
+                absorb(&state);
                 black_box(report);
             }
         }
@@ -66,6 +81,7 @@ fn main() {
                 let report = solver.solve(&problem, &mut state).expect("valid");
                 within += usize::from(report.within(&settings));
                 count_report(&report);
+                absorb(&state);
                 black_box(report);
             }
         }
@@ -97,10 +113,11 @@ fn main() {
                     .expect("valid");
                 within += reports.iter().filter(|r| r.within(&settings)).count();
             }
+            states.iter().for_each(&mut absorb);
         }
         other => panic!("unknown part {other}: cold, warm or batch"),
     }
-    println!("{part} {name}: {within} within of {total}");
+    println!("{part} {name}: {within} within of {total}; digest of the answers {digest:016x}");
     let solves: usize = histogram.iter().sum();
     if solves > 0 {
         let iterations: usize = histogram.iter().enumerate().map(|(i, n)| i * n).sum();
