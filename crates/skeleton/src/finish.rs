@@ -1034,17 +1034,53 @@ impl Finish {
         }
     }
 
-    /// `J J^T` (lower triangle) from the sparse columns.
+    /// Whether dofs `k`, `k + 1`, `k + 2` are the three world axes of one joint (or of
+    /// the translation): their columns then have the same rows, in the same order.
+    fn is_triple(&self, k: usize) -> bool {
+        k + 2 < self.dofs.len()
+            && self.dofs[k].0 == self.dofs[k + 1].0
+            && self.dofs[k].0 == self.dofs[k + 2].0
+    }
+
+    /// `J J^T` (lower triangle) from the sparse columns. The three columns of a joint's
+    /// world axes share their rows, so they are summed in one pass, each entry of the
+    /// normal matrix taking the three products in the order the columns come (the same
+    /// additions, in the same order, as one column after another).
     fn accumulate_normal(&mut self, rows: usize) {
         self.normal_full[..rows * rows].fill(0.0);
-        for k in 0..self.dofs.len() {
-            let col = &self.entries[self.col_start[k]..self.col_start[k + 1]];
+        let mut k = 0;
+        while k < self.dofs.len() {
+            let (a0, a1) = (self.col_start[k], self.col_start[k + 1]);
+            if self.is_triple(k) {
+                let (a2, a3) = (self.col_start[k + 2], self.col_start[k + 3]);
+                let (cx, cy, cz) = (
+                    &self.entries[a0..a1],
+                    &self.entries[a1..a2],
+                    &self.entries[a2..a3],
+                );
+                for (i, ((&(a, xa), &(_, ya)), &(_, za))) in cx.iter().zip(cy).zip(cz).enumerate() {
+                    let line = &mut self.normal_full[a * rows..a * rows + a + 1];
+                    for ((&(b, xb), &(_, yb)), &(_, zb)) in
+                        cx[..=i].iter().zip(&cy[..=i]).zip(&cz[..=i])
+                    {
+                        let mut e = line[b];
+                        e += xa * xb;
+                        e += ya * yb;
+                        e += za * zb;
+                        line[b] = e;
+                    }
+                }
+                k += 3;
+                continue;
+            }
+            let col = &self.entries[a0..a1];
             for (i, &(a, va)) in col.iter().enumerate() {
                 let line = &mut self.normal_full[a * rows..a * rows + a + 1];
                 for &(b, vb) in &col[..=i] {
                     line[b] += va * vb;
                 }
             }
+            k += 1;
         }
     }
 
@@ -1103,13 +1139,36 @@ impl Finish {
     /// returns the translation's step.
     fn turns(&mut self, movable: &[usize]) -> DVec3 {
         self.step.clear();
-        let (entries, y) = (&self.entries, &self.y);
-        self.step.extend(self.col_start.windows(2).map(|w| {
-            entries[w[0]..w[1]]
-                .iter()
-                .map(|&(row, v)| v * y[row])
-                .sum::<f64>()
-        }));
+        // The three columns of a joint's world axes share their rows: one pass reads each
+        // entry of `y` once for the three sums (each summed in the column's order from
+        // -0.0, as `Iterator::sum` does, so the same bits).
+        let mut k = 0;
+        while k < self.dofs.len() {
+            let (a0, a1) = (self.col_start[k], self.col_start[k + 1]);
+            if self.is_triple(k) {
+                let (a2, a3) = (self.col_start[k + 2], self.col_start[k + 3]);
+                let (mut sx, mut sy, mut sz) = (-0.0, -0.0, -0.0);
+                for ((&(row, x), &(_, y)), &(_, z)) in self.entries[a0..a1]
+                    .iter()
+                    .zip(&self.entries[a1..a2])
+                    .zip(&self.entries[a2..a3])
+                {
+                    let v = self.y[row];
+                    sx += x * v;
+                    sy += y * v;
+                    sz += z * v;
+                }
+                self.step.extend([sx, sy, sz]);
+                k += 3;
+                continue;
+            }
+            let mut sum = -0.0;
+            for &(row, v) in &self.entries[a0..a1] {
+                sum += v * self.y[row];
+            }
+            self.step.push(sum);
+            k += 1;
+        }
         let mut shift = DVec3::ZERO;
         self.turn.fill(DVec3::ZERO);
         for (&(m, u), &s) in self.dofs.iter().zip(&self.step) {
