@@ -236,10 +236,12 @@ impl BodyBatch {
     }
 
     /// Solves `problems[i]` on `states[i]` for every character, writing `reports[i]`, on
-    /// up to `threads` threads (the characters split into contiguous groups; 1 runs on
-    /// the calling thread and allocates nothing once warm). All three slices must have the
-    /// same length; the first error (in character order) is returned, the other
-    /// characters being solved all the same.
+    /// up to `threads` threads: the characters split into contiguous groups, the last
+    /// solved on the calling thread and each other one on a scoped thread spawned for
+    /// this call (its only allocations); 1 spawns none and allocates nothing once warm.
+    /// Each character keeps its own solver, so the answers are the same, to the bit, on
+    /// any number of threads. All three slices must have the same length; the first error
+    /// (in character order) is returned, the other characters being solved all the same.
     pub fn solve(
         &mut self,
         problems: &[BodyProblem<'_>],
