@@ -62,9 +62,12 @@ impl Common {
     /// resolves the targets and the topology, and exits early when every effector is
     /// already within tolerance. With `continued` (the state is, to the bit, the answer of
     /// this solver's last solve, of a problem of the same structure: [`Carried`]) the
-    /// topology is the last one and is not rebuilt. (The pose is still projected: the
-    /// last answer is inside its limits, but not always to the bit a fixed point of the
-    /// projection, and skipping it changed the clip's path; see `docs/ik-body.md`.)
+    /// topology is the last one and is not rebuilt, and only the movable joints are
+    /// projected: the others are as the last solve left them, projected by its start or
+    /// by a FABRIK pass (the finish does not turn them). (The movable ones are still
+    /// projected: the last answer is inside its limits, but not always to the bit a
+    /// fixed point of the projection, and skipping them changed the clip's path; see
+    /// `docs/ik-body.md`.)
     pub fn begin(
         &mut self,
         problem: &BodyProblem<'_>,
@@ -89,7 +92,9 @@ impl Common {
         let mut moved = false;
         for j in 0..skeleton.len() {
             let limit = skeleton.prepared_limit(j);
-            if matches!(limit.limit(), JointLimit::Free) {
+            if matches!(limit.limit(), JointLimit::Free)
+                || (continued && self.topology.slot(j).is_none())
+            {
                 continue;
             }
             let projected = limit.project(state.pose.rotations[j]);
