@@ -60,7 +60,9 @@ pub(crate) enum Begin {
 impl Common {
     /// Validates the problem and the state, projects the starting pose onto the limits,
     /// resolves the targets and the topology, and exits early when every effector is
-    /// already within tolerance. With `continued` (the state is, to the bit, the answer of
+    /// already within tolerance. With `global_exact` (only with `continued`: the state's
+    /// global pose is, to the bit, the one the last solve returned) forward kinematics is
+    /// not computed again. With `continued` (the state is, to the bit, the answer of
     /// this solver's last solve, of a problem of the same structure: [`Carried`]) the
     /// topology is the last one and is not rebuilt, and only the movable joints are
     /// projected: the others are as the last solve left them, projected by its start or
@@ -73,6 +75,7 @@ impl Common {
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
         continued: bool,
+        global_exact: bool,
     ) -> Result<Begin, IkError> {
         problem.validate()?;
         let skeleton = problem.skeleton;
@@ -82,13 +85,17 @@ impl Common {
                 state.root_translation
             )));
         }
-        // Checks the pose (its length, every rotation) before anything reads it.
-        forward_kinematics(
-            skeleton,
-            &state.pose,
-            state.root_translation,
-            &mut state.global,
-        )?;
+        // Checks the pose (its length, every rotation) before anything reads it; a
+        // continued state whose global pose is the one the last solve returned has both
+        // checked and exact already.
+        if !global_exact {
+            forward_kinematics(
+                skeleton,
+                &state.pose,
+                state.root_translation,
+                &mut state.global,
+            )?;
+        }
         let mut moved = false;
         for j in 0..skeleton.len() {
             let limit = skeleton.prepared_limit(j);

@@ -236,7 +236,8 @@ impl BodySolver for TreeFabrikSolver {
         state: &mut BodyState,
     ) -> Result<BodyReport, IkError> {
         let continued = self.carried.continues(problem, state);
-        let result = self.solve_from(problem, state, continued);
+        let global_exact = continued && self.carried.global_unchanged(state);
+        let result = self.solve_from(problem, state, continued, global_exact);
         match &result {
             Ok(_) => self.carried.record(problem, state, continued),
             Err(_) => self.carried.invalidate(),
@@ -248,18 +249,20 @@ impl BodySolver for TreeFabrikSolver {
 impl TreeFabrikSolver {
     /// [`BodySolver::solve`], `continued` saying whether `state` is the answer of the
     /// last solve of the same problem (then the frame starts from the extrapolation of
-    /// the last two answers, when that is better).
+    /// the last two answers, when that is better) and `global_exact` whether its global
+    /// pose is the one that solve returned.
     fn solve_from(
         &mut self,
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
         continued: bool,
+        global_exact: bool,
     ) -> Result<BodyReport, IkError> {
         if !continued {
             // The finish's last factor belongs to another problem (or to none).
             self.common.dls.forget();
         }
-        if let Begin::Done(report) = self.common.begin(problem, state, continued)? {
+        if let Begin::Done(report) = self.common.begin(problem, state, continued, global_exact)? {
             return Ok(report);
         }
         self.passes.prepare(problem, &self.common);

@@ -624,6 +624,32 @@ fn warm_frames_from_the_last_two_answers_take_fewer_iterations_and_keep_the_cont
     assert!(with < without, "{with} iterations against {without}");
 }
 
+#[test]
+fn a_global_pose_the_caller_changed_is_computed_again() {
+    // Two solvers with the same history; before the next frame one caller scribbles on
+    // the global pose it was given back (not on the pose). The solver must not trust it:
+    // both frames end with the same bits, and the global pose is forward kinematics.
+    let (skel, mut a, mut state_a) = squat_up_to(12);
+    let (_, mut b, mut state_b) = squat_up_to(12);
+    let settings = SolveSettings::default();
+    let rest = BodyState::rest(&skel).global;
+    state_b.global.positions[7] += DVec3::new(0.5, -0.25, 1.0);
+    state_b.global.rotations[3] = DQuat::from_rotation_z(1.0);
+    for frame in 12..16 {
+        let effectors = workload::clip_frame(&rest, frame);
+        let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
+        let report_a = a.solve(&problem, &mut state_a).unwrap();
+        let report_b = b.solve(&problem, &mut state_b).unwrap();
+        check_contract(&skel, &effectors, &state_b, &report_b);
+        assert_eq!(state_bits(&state_a), state_bits(&state_b), "frame {frame}");
+        assert_eq!(
+            report_bits(&report_a),
+            report_bits(&report_b),
+            "frame {frame}"
+        );
+    }
+}
+
 /// An altered frame: what is altered, the skeleton, the effectors, the settings, whether
 /// the body translates, and the state it starts from.
 type Case<'a> = (
