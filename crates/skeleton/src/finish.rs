@@ -669,9 +669,8 @@ impl Finish {
         let mut fresh = false;
         // Whether the next trial is a chord step, how many chord steps the current
         // factor has served, and whether the outward normals are those of an earlier
-        // pose (they are found when a full step needs them).
-        // The outward normals of the start are found before the first full step (none
-        // for a chord step that ends the finish).
+        // pose (they are found when a full step needs them: those of the start just
+        // before the first full step, none if chord steps end the finish).
         let mut chord = chord_start;
         let mut chords = 0;
         let mut outward_stale = true;
