@@ -2,7 +2,7 @@
 //! five effectors, the hips translating): one cold solve from the rest pose per iteration
 //! (cycling through 200 feasible goal sets), one warm frame of the 600-frame squat clip per
 //! iteration (cycling through the clip), and 1 000 characters each solving one warm frame
-//! through the batch API on one thread. `cargo bench -p sinew-ik-body`.
+//! through the batch API on one and on two threads. `cargo bench -p sinew-ik-body`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use sinew_ik_body::workload::{self, CLIP_FRAMES};
@@ -70,7 +70,6 @@ fn batch(c: &mut Criterion) {
         .map(|f| workload::clip_frame(&rest.global, f))
         .collect();
     let characters = 1000;
-    let mut states = vec![rest.clone(); characters];
     let empty = BodyReport {
         iterations: 0,
         stop: StopReason::Stalled,
@@ -81,26 +80,30 @@ fn batch(c: &mut Criterion) {
         limit_violation: 0.0,
         restarted: false,
     };
-    let mut reports = vec![empty; characters];
-    let mut batch = BodyBatch::new(TreeFabrikOptions::default()).expect("valid");
-    let mut step = 0;
     let mut group = c.benchmark_group("w8-batch");
     group.sample_size(10);
-    group.bench_function("1000-characters/1-thread", |b| {
-        b.iter(|| {
-            let problems: Vec<BodyProblem<'_>> = (0..characters)
-                .map(|c| {
-                    BodyProblem::new(&skel, &frames[(c * 7 + step) % CLIP_FRAMES], settings)
-                        .with_root_translation(true)
-                })
-                .collect();
-            batch
-                .solve(&problems, &mut states, &mut reports, 1)
-                .expect("valid");
-            step += 1;
-            black_box(&reports);
+    for threads in [1, 2] {
+        let mut states = vec![rest.clone(); characters];
+        let mut reports = vec![empty; characters];
+        let mut batch = BodyBatch::new(TreeFabrikOptions::default()).expect("valid");
+        let mut step = 0;
+        let label = if threads == 1 { "thread" } else { "threads" };
+        group.bench_function(format!("1000-characters/{threads}-{label}"), |b| {
+            b.iter(|| {
+                let problems: Vec<BodyProblem<'_>> = (0..characters)
+                    .map(|c| {
+                        BodyProblem::new(&skel, &frames[(c * 7 + step) % CLIP_FRAMES], settings)
+                            .with_root_translation(true)
+                    })
+                    .collect();
+                batch
+                    .solve(&problems, &mut states, &mut reports, threads)
+                    .expect("valid");
+                step += 1;
+                black_box(&reports);
+            });
         });
-    });
+    }
     group.finish();
 }
 

@@ -8,7 +8,8 @@
 //! rotation goals on the wrists; the 600-frame squat clip warm-started (median time per
 //! frame, frames within tolerance, worst pinned-foot drift, the largest joint rotation
 //! change between frames, frames that restarted); and 1 000 characters each
-//! solving one warm frame through the batch API on one thread (median time per batch).
+//! solving one warm frame through the batch API on one and on two threads (median time per
+//! batch, and whether the answers agree to the bit).
 
 use sinew_ik_body::workload::{self, CLIP_FRAMES, EFFECTORS};
 use sinew_ik_body::{
@@ -129,29 +130,35 @@ fn batch(skeleton: &Skeleton) {
     let characters = 1000;
     let rest = BodyState::rest(skeleton);
     let rest_global = rest.global.clone();
-    let mut states = vec![rest.clone(); characters];
-    let mut reports = vec![
-        BodyReport {
-            iterations: 0,
-            stop: StopReason::Converged,
-            initial_cost: 0.0,
-            cost: 0.0,
-            max_error: 0.0,
-            max_rotation_error: 0.0,
-            limit_violation: 0.0,
-            restarted: false,
-        };
-        characters
-    ];
-    let mut batch = BodyBatch::new(TreeFabrikOptions::default()).expect("default options");
+    let empty = BodyReport {
+        iterations: 0,
+        stop: StopReason::Converged,
+        initial_cost: 0.0,
+        cost: 0.0,
+        max_error: 0.0,
+        max_rotation_error: 0.0,
+        limit_violation: 0.0,
+        restarted: false,
+    };
+    // The same batches on one and on two threads, taken in turn (so a change in the
+    // machine's load touches both alike), each with its own solvers and states; their
+    // answers must agree to the bit.
+    let thread_counts = [1, 2];
+    let mut states = vec![vec![rest.clone(); characters]; thread_counts.len()];
+    let mut reports = vec![vec![empty; characters]; thread_counts.len()];
+    let mut batches: Vec<BodyBatch> = thread_counts
+        .iter()
+        .map(|_| BodyBatch::new(TreeFabrikOptions::default()).expect("default options"))
+        .collect();
     // Each character is at its own frame of the clip, so the batch is not 1 000 copies of
     // one solve; every character warm-starts from its previous frame.
     let frames: Vec<[sinew_ik_body::BodyEffector; 5]> = (0..CLIP_FRAMES)
         .map(|f| workload::clip_frame(&rest_global, f))
         .collect();
-    let mut times = Vec::new();
+    let mut times = vec![Vec::new(); thread_counts.len()];
     let mut within = 0;
     let mut solved = 0;
+    let mut identical = true;
     for step in 0..20 {
         let problems: Vec<BodyProblem<'_>> = (0..characters)
             .map(|c| {
@@ -159,22 +166,71 @@ fn batch(skeleton: &Skeleton) {
                     .with_root_translation(true)
             })
             .collect();
-        let start = Instant::now();
-        batch
-            .solve(&problems, &mut states, &mut reports, 1)
-            .expect("valid workload");
-        let elapsed = start.elapsed().as_secs_f64() * 1e3;
-        // The first two steps warm the buffers and bring every character onto its clip.
+        for (k, &threads) in thread_counts.iter().enumerate() {
+            let start = Instant::now();
+            batches[k]
+                .solve(&problems, &mut states[k], &mut reports[k], threads)
+                .expect("valid workload");
+            let elapsed = start.elapsed().as_secs_f64() * 1e3;
+            // The first two steps warm the buffers and bring every character onto its
+            // clip.
+            if step >= 2 {
+                times[k].push(elapsed);
+            }
+        }
+        identical &= states[0] == states[1] && reports[0] == reports[1];
         if step >= 2 {
-            times.push(elapsed);
-            within += reports.iter().filter(|r| r.within(&settings)).count();
+            within += reports[0].iter().filter(|r| r.within(&settings)).count();
             solved += characters;
         }
     }
+    let [one, two] = [0, 1].map(|k| median(times[k].clone()));
     println!(
-        "batch: 1000 characters, one warm frame each, one thread: median {:.2} ms per batch ({} of {solved} solves within 1e-6)",
-        median(times),
-        within
+        "batch: 1000 characters, one warm frame each: median {one:.2} ms per batch on one thread, {two:.2} ms on two (ratio {:.2}); {within} of {solved} solves within 1e-6; answers on one and two threads {}",
+        one / two,
+        if identical { "identical" } else { "DIFFERENT" }
+    );
+}
+
+/// What a batch's threads cost: two characters already at their goals (each solve is the
+/// validation and the early exit), solved as one batch on one thread and on two, many
+/// times; the difference of the medians is the spawn and join of one scoped thread.
+fn spawn_cost(skeleton: &Skeleton) {
+    let settings = SolveSettings::default();
+    let rest = BodyState::rest(skeleton);
+    let effectors = workload::clip_frame(&rest.global, 0);
+    let problems =
+        vec![BodyProblem::new(skeleton, &effectors, settings).with_root_translation(true); 2];
+    let empty = BodyReport {
+        iterations: 0,
+        stop: StopReason::Converged,
+        initial_cost: 0.0,
+        cost: 0.0,
+        max_error: 0.0,
+        max_rotation_error: 0.0,
+        limit_violation: 0.0,
+        restarted: false,
+    };
+    let mut medians = [0.0; 2];
+    for (k, threads) in [1, 2].into_iter().enumerate() {
+        let mut batch = BodyBatch::new(TreeFabrikOptions::default()).expect("default options");
+        let mut states = vec![rest.clone(); 2];
+        let mut reports = vec![empty; 2];
+        let mut times = Vec::with_capacity(2000);
+        for _ in 0..2000 {
+            let start = Instant::now();
+            batch
+                .solve(&problems, &mut states, &mut reports, threads)
+                .expect("valid workload");
+            times.push(start.elapsed().as_secs_f64() * 1e6);
+        }
+        medians[k] = median(times);
+    }
+    println!(
+        "threads: a batch of two characters already at their goals: median {:.2} us on one thread, {:.2} us on two (one scoped thread spawned and joined: {:.2} us)",
+        medians[0],
+        medians[1],
+        medians[1] - medians[0]
     );
 }
 
@@ -188,5 +244,6 @@ fn main() {
     clip(&skeleton, &solver);
     if solver == "dls" {
         batch(&skeleton);
+        spawn_cost(&skeleton);
     }
 }

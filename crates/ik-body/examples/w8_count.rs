@@ -1,12 +1,15 @@
 //! A fixed amount of W8 work for an instruction counter: run with
-//! `valgrind --tool=callgrind target/release/examples/w8_count PART [COUNT] [SOLVER]`.
+//! `valgrind --tool=callgrind target/release/examples/w8_count PART [COUNT] [SOLVER] [THREADS]`.
 //!
 //! PART is `cold` (COUNT goal sets, default 100, solved from the rest pose, as the `body`
 //! criterion bench's cold solves), `warm` (COUNT frames of the squat clip, default 600,
 //! warm-started) or `batch` (1 000 characters each solving one warm frame, COUNT times,
-//! default 1). SOLVER is a body solver name (default `fabrik`, the default solver). With
+//! default 1, on THREADS threads, default 1). SOLVER is a body solver name (default
+//! `fabrik`; the batch always runs the default options, `dls`). With
 //! a fixed amount of work, the instructions counted divided by COUNT are the cost of one
 //! solve, a figure that does not depend on the load of the machine the way a clock does.
+//! With the environment variable `W8_DIGEST` set it also prints a digest of the bits of
+//! every answer, to check that a change returns the same bits.
 
 use sinew_ik_body::workload::{self, CLIP_FRAMES};
 use sinew_ik_body::{
@@ -21,6 +24,9 @@ fn main() {
     let part = args.next().unwrap_or_else(|| "cold".into());
     let count: Option<usize> = args.next().map(|s| s.parse().expect("a count"));
     let name = args.next().unwrap_or_else(|| "fabrik".into());
+    let threads: usize = args
+        .next()
+        .map_or(1, |s| s.parse().expect("a thread count"));
     let skel = workload::humanoid().expect("valid");
     let settings = SolveSettings::default();
     let rest = BodyState::rest(&skel);
@@ -32,6 +38,25 @@ fn main() {
         .collect();
     let mut within = 0;
     let mut restarts = 0;
+    // With `W8_DIGEST` set, a digest of every answer's bits (pose and translation), so
+    // that two builds can be told to return the same bits or not (off by default, so that
+    // it does not count in the instructions).
+    let digesting = std::env::var_os("W8_DIGEST").is_some();
+    let mut digest = 0xcbf2_9ce4_8422_2325_u64;
+    let mut absorb = |state: &BodyState| {
+        if !digesting {
+            return;
+        }
+        let words = state
+            .pose
+            .rotations
+            .iter()
+            .flat_map(|q| q.to_array())
+            .chain(state.root_translation.to_array());
+        for w in words {
+            digest = (digest ^ w.to_bits()).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    };
     let mut histogram = vec![0usize; settings.max_iterations + 1];
     let mut count_report = |report: &BodyReport| {
         restarts += usize::from(report.restarted);
@@ -50,6 +75,7 @@ fn main() {
                 let report = solver.solve(&problem, &mut state).expect("valid");
                 within += usize::from(report.within(&settings));
                 count_report(&report);
+                absorb(&state);
                 black_box(report);
             }
         }
@@ -62,6 +88,7 @@ fn main() {
                 let report = solver.solve(&problem, &mut state).expect("valid");
                 within += usize::from(report.within(&settings));
                 count_report(&report);
+                absorb(&state);
                 black_box(report);
             }
         }
@@ -89,14 +116,19 @@ fn main() {
                     })
                     .collect();
                 batch
-                    .solve(&problems, &mut states, &mut reports, 1)
+                    .solve(&problems, &mut states, &mut reports, threads)
                     .expect("valid");
                 within += reports.iter().filter(|r| r.within(&settings)).count();
             }
+            states.iter().for_each(&mut absorb);
         }
         other => panic!("unknown part {other}: cold, warm or batch"),
     }
-    println!("{part} {name}: {within} within of {total}");
+    if digesting {
+        println!("{part} {name}: {within} within of {total}; digest of the answers {digest:016x}");
+    } else {
+        println!("{part} {name}: {within} within of {total}");
+    }
     let solves: usize = histogram.iter().sum();
     if solves > 0 {
         let iterations: usize = histogram.iter().enumerate().map(|(i, n)| i * n).sum();

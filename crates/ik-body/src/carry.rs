@@ -35,6 +35,9 @@ pub(crate) struct Carried {
     /// The pose and translation the last solve returned.
     pub last: Vec<DQuat>,
     pub last_translation: DVec3,
+    /// The global pose the last solve returned (forward kinematics of `last`).
+    last_global_rotations: Vec<DQuat>,
+    last_global_positions: Vec<DVec3>,
     /// The answer of the solve before it, when the last solve started from it
     /// (`has_before`): the two make a velocity.
     pub before: Vec<DQuat>,
@@ -75,6 +78,29 @@ impl Carried {
             && state.pose.rotations == self.last
     }
 
+    /// Whether `state.global` is, to the bit, the global pose the last solve returned, so
+    /// that for a state that [`Carried::continues`] it is exactly forward kinematics of
+    /// the pose and need not be computed again.
+    pub fn global_unchanged(&self, state: &BodyState) -> bool {
+        let bits = |q: &DQuat| q.to_array().map(f64::to_bits);
+        let vbits = |p: &DVec3| p.to_array().map(f64::to_bits);
+        self.valid
+            && state.global.rotations.len() == self.last_global_rotations.len()
+            && state.global.positions.len() == self.last_global_positions.len()
+            && state
+                .global
+                .rotations
+                .iter()
+                .zip(&self.last_global_rotations)
+                .all(|(a, b)| bits(a) == bits(b))
+            && state
+                .global
+                .positions
+                .iter()
+                .zip(&self.last_global_positions)
+                .all(|(a, b)| vbits(a) == vbits(b))
+    }
+
     /// Forgets the carried answers (after an error).
     pub fn invalidate(&mut self) {
         self.valid = false;
@@ -104,6 +130,12 @@ impl Carried {
         self.last.clear();
         self.last.extend_from_slice(&state.pose.rotations);
         self.last_translation = state.root_translation;
+        self.last_global_rotations.clear();
+        self.last_global_rotations
+            .extend_from_slice(&state.global.rotations);
+        self.last_global_positions.clear();
+        self.last_global_positions
+            .extend_from_slice(&state.global.positions);
         self.valid = true;
     }
 }

@@ -233,7 +233,7 @@ impl BodySolver for TreeCcdSolver {
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
     ) -> Result<BodyReport, IkError> {
-        if let Begin::Done(report) = self.common.begin(problem, state)? {
+        if let Begin::Done(report) = self.common.begin(problem, state, false, false)? {
             return Ok(report);
         }
         let settings = &problem.settings;
@@ -263,9 +263,12 @@ impl BodySolver for TreeCcdSolver {
         };
         let (iterations, stop) = if self.options.finish && stop != StopReason::Converged {
             // The finish's steps share the cap with the sweeps.
-            let finished =
-                self.common
-                    .finish(problem, state, iterations.min(settings.max_iterations))?;
+            let finished = self.common.finish(
+                problem,
+                state,
+                iterations.min(settings.max_iterations),
+                false,
+            )?;
             (iterations + finished.steps, finished.stop)
         } else {
             (iterations, stop)

@@ -9,6 +9,7 @@ use crate::problem::{
 use sinew_skeleton::finish::{Finish, FinishJob, Finished, Movers};
 
 use crate::carry::Carried;
+use crate::horn::BestRotation;
 use crate::workload::Rng;
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{Chain, IkError, StopReason};
@@ -40,6 +41,8 @@ pub(crate) struct Common {
     /// The limbs [`Common::seed_limbs`] has built, kept from solve to solve so that a
     /// solve on the same skeleton builds (allocates) none.
     limbs: Vec<Chain>,
+    /// The limbs a cold start seeds: (target, index into `limbs`).
+    seedable: Vec<(usize, usize)>,
 }
 
 /// More cached limbs than this (many skeletons through one solver) and the cache starts
@@ -57,11 +60,22 @@ pub(crate) enum Begin {
 impl Common {
     /// Validates the problem and the state, projects the starting pose onto the limits,
     /// resolves the targets and the topology, and exits early when every effector is
-    /// already within tolerance.
+    /// already within tolerance. With `global_exact` (only with `continued`: the state's
+    /// global pose is, to the bit, the one the last solve returned) forward kinematics is
+    /// not computed again. With `continued` (the state is, to the bit, the answer of
+    /// this solver's last solve, of a problem of the same structure: [`Carried`]) the
+    /// topology is the last one and is not rebuilt, and only the movable joints are
+    /// projected: the others are as the last solve left them, projected by its start or
+    /// by a FABRIK pass (the finish does not turn them). (The movable ones are still
+    /// projected: the last answer is inside its limits, but not always to the bit a
+    /// fixed point of the projection, and skipping them changed the clip's path; see
+    /// `docs/ik-body.md`.)
     pub fn begin(
         &mut self,
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
+        continued: bool,
+        global_exact: bool,
     ) -> Result<Begin, IkError> {
         problem.validate()?;
         let skeleton = problem.skeleton;
@@ -71,17 +85,23 @@ impl Common {
                 state.root_translation
             )));
         }
-        // Checks the pose (its length, every rotation) before anything reads it.
-        forward_kinematics(
-            skeleton,
-            &state.pose,
-            state.root_translation,
-            &mut state.global,
-        )?;
+        // Checks the pose (its length, every rotation) before anything reads it; a
+        // continued state whose global pose is the one the last solve returned has both
+        // checked and exact already.
+        if !global_exact {
+            forward_kinematics(
+                skeleton,
+                &state.pose,
+                state.root_translation,
+                &mut state.global,
+            )?;
+        }
         let mut moved = false;
         for j in 0..skeleton.len() {
             let limit = skeleton.prepared_limit(j);
-            if matches!(limit.limit(), JointLimit::Free) {
+            if matches!(limit.limit(), JointLimit::Free)
+                || (continued && self.topology.slot(j).is_none())
+            {
                 continue;
             }
             let projected = limit.project(state.pose.rotations[j]);
@@ -100,7 +120,9 @@ impl Common {
         self.start.extend_from_slice(&state.pose.rotations);
         self.start_translation = state.root_translation;
         resolve_targets(problem, &mut self.targets);
-        self.topology.build(skeleton, &self.targets);
+        if !continued {
+            self.topology.build(skeleton, &self.targets);
+        }
         self.initial.clear();
         self.initial
             .extend(self.targets.iter().map(|t| t.errors(&state.global)));
@@ -122,12 +144,15 @@ impl Common {
     }
 
     /// The damped least-squares finish over every effector from `state` (see
-    /// [`sinew_skeleton::finish`]), `iterations` already spent of the cap.
+    /// [`sinew_skeleton::finish`]), `iterations` already spent of the cap; with
+    /// `chord_start` (a warm frame continuing a sequence, see [`Carried`]) its first trial
+    /// may be a chord step on the factor of the last linearization.
     pub fn finish(
         &mut self,
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
         iterations: usize,
+        chord_start: bool,
     ) -> Result<Finished, IkError> {
         let job = FinishJob {
             skeleton: problem.skeleton,
@@ -137,6 +162,7 @@ impl Common {
             base: None,
             settings: problem.settings,
             iterations,
+            chord_start,
         };
         Ok(self.dls.run(
             &job,
@@ -173,6 +199,45 @@ impl Common {
             stop,
             restarted,
         ))
+    }
+
+    /// [`Common::report`] for a solver whose every step leaves `state.global` exactly
+    /// [`forward_kinematics`] of the pose and translation (the finish's trials and the
+    /// poses it restores, the FABRIK passes, the seeds and the extrapolated start all
+    /// compute it from the root), so it is not computed again.
+    pub fn report_exact(
+        &self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+        iterations: usize,
+        stop: StopReason,
+        restarted: bool,
+    ) -> BodyReport {
+        #[cfg(debug_assertions)]
+        {
+            let mut check = state.global.clone();
+            let _ = forward_kinematics(
+                problem.skeleton,
+                &state.pose,
+                state.root_translation,
+                &mut check,
+            );
+            debug_assert!(
+                check.rotations == state.global.rotations
+                    && check.positions == state.global.positions,
+                "the global pose is not forward kinematics of the pose"
+            );
+        }
+        finish_report(
+            problem,
+            &self.targets,
+            state,
+            &self.initial,
+            self.initial_cost,
+            iterations,
+            stop,
+            restarted,
+        )
     }
 
     /// Whether every pinned effector is within the tolerance of its goal at `state`, or
@@ -274,10 +339,12 @@ impl Common {
     /// above it (a hinge whose parent has three degrees of freedom, `sinew_skeleton::seed`)
     /// that moves no other effector, and that is further from its goal than a quarter of
     /// the limb's length, gets the limb's closed-form pose for its goal from where the
-    /// limb's base now is. A warm frame, whose effectors are near their goals, keeps its
-    /// pose (and the continuity of the swivel about the base-to-goal line). The seeded
-    /// pose is kept only when it lowers the cost and keeps the pins; returns whether it
-    /// was kept.
+    /// limb's base now is. When some limb is that far and no effector is pinned, the body
+    /// is first placed as a whole ([`Common::place_body`]), so that the limbs are seeded
+    /// from where their bases will roughly be. A warm frame, whose effectors are near
+    /// their goals, keeps its pose (and the continuity of the swivel about the
+    /// base-to-goal line). The seeded pose is kept only when it lowers the cost and keeps
+    /// the pins; returns whether it was kept.
     pub fn seed_limbs(
         &mut self,
         problem: &BodyProblem<'_>,
@@ -287,8 +354,9 @@ impl Common {
         let before = self.cost(state);
         self.kept.clear();
         self.kept.extend_from_slice(&state.pose.rotations);
-        let mut seeded = false;
-        for t in &self.targets {
+        let kept_translation = state.root_translation;
+        self.seedable.clear();
+        for (e, t) in self.targets.iter().enumerate() {
             if t.rotation.is_some() {
                 continue;
             }
@@ -321,27 +389,41 @@ impl Common {
             let cached = self.limbs.iter().position(|c| {
                 c.base() == base && c.effector() == t.joint && c.check_skeleton(skeleton).is_ok()
             });
-            let chain = match cached {
-                Some(k) => &self.limbs[k],
+            let k = match cached {
+                Some(k) => k,
                 None => {
                     let Ok(chain) = Chain::new(skeleton, base, t.joint) else {
                         continue;
                     };
                     if self.limbs.len() >= MAX_CACHED_LIMBS {
+                        // Entries found earlier in this loop index into the cache.
                         self.limbs.clear();
+                        self.seedable.clear();
                     }
                     self.limbs.push(chain);
-                    &self.limbs[self.limbs.len() - 1]
+                    self.limbs.len() - 1
                 }
             };
             let distance = state.global.positions[t.joint].distance(t.position);
-            if distance <= LIMB_SEED_DISTANCE * chain.reach() {
-                continue;
+            if distance > LIMB_SEED_DISTANCE * self.limbs[k].reach() {
+                self.seedable.push((e, k));
             }
+        }
+        if self.seedable.is_empty() {
+            return Ok(false);
+        }
+        let mut moved = false;
+        if !self.targets.iter().any(|t| t.pinned) {
+            moved = self.place_body(problem, state)?;
+        }
+        for &(e, k) in &self.seedable {
+            let t = &self.targets[e];
+            let chain = &self.limbs[k];
+            let base = chain.base();
             let base_parent = skeleton
                 .parent(base)
                 .map_or(DQuat::IDENTITY, |p| state.global.rotations[p]);
-            seeded |= limb_seed(
+            moved |= limb_seed(
                 skeleton,
                 chain,
                 &mut state.pose,
@@ -350,7 +432,7 @@ impl Common {
                 t.position,
             );
         }
-        if !seeded {
+        if !moved {
             return Ok(false);
         }
         forward_kinematics(
@@ -363,6 +445,7 @@ impl Common {
             return Ok(true);
         }
         state.pose.rotations.copy_from_slice(&self.kept);
+        state.root_translation = kept_translation;
         forward_kinematics(
             skeleton,
             &state.pose,
@@ -370,6 +453,85 @@ impl Common {
             &mut state.global,
         )?;
         Ok(false)
+    }
+
+    /// Places the body as a whole before its limbs are seeded: the rigid motion that best
+    /// fits the effectors' positions to their goals (weighted least squares, the weights
+    /// squared as in the cost). With a free root that may translate, that is the rotation
+    /// of the centred positions onto the centred goals (Horn's closed form,
+    /// [`BestRotation`](crate::BestRotation)), taken about the root, and the translation
+    /// that then brings the weighted centroid of the positions onto that of the goals;
+    /// without the translation, the best rotation about the root; with a root that is not
+    /// free, the translation alone. On a cold start from the rest pose the hips are then
+    /// roughly where the goals put them, the limbs' bases with them, so the finish starts
+    /// nearer (measured in `docs/ik-body.md`). `state.global` is forward kinematics of
+    /// the result; returns whether anything moved.
+    fn place_body(
+        &mut self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+    ) -> Result<bool, IkError> {
+        let skeleton = problem.skeleton;
+        let root = 0;
+        let turns = skeleton.parent(root).is_none()
+            && matches!(skeleton.limit(root), JointLimit::Free)
+            && self.topology.slot(root).is_some();
+        if !turns && !problem.root_translates {
+            return Ok(false);
+        }
+        // The effectors the root moves are every effector below it; an effector on the
+        // root itself turns with it about its own position, which changes nothing.
+        let mut weight = 0.0;
+        let mut centre = DVec3::ZERO;
+        let mut goal_centre = DVec3::ZERO;
+        for t in &self.targets {
+            let w = t.position_weight * t.position_weight;
+            weight += w;
+            centre += state.global.positions[t.joint] * w;
+            goal_centre += t.position * w;
+        }
+        if weight <= 0.0 {
+            return Ok(false);
+        }
+        centre /= weight;
+        goal_centre /= weight;
+        let at = state.global.positions[root];
+        let (from, to) = if problem.root_translates {
+            (centre, goal_centre)
+        } else {
+            (at, at)
+        };
+        let mut turn = DQuat::IDENTITY;
+        if turns {
+            let mut best = BestRotation::new();
+            for t in &self.targets {
+                best.add(
+                    state.global.positions[t.joint] - from,
+                    t.position - to,
+                    t.position_weight * t.position_weight,
+                );
+            }
+            turn = best.rotation();
+        }
+        let shift = if problem.root_translates {
+            // The root turns about its own position: the centroid goes to
+            // `at + turn (centre - at)`, and the translation takes it to the goals'.
+            goal_centre - (at + turn * (centre - at))
+        } else {
+            DVec3::ZERO
+        };
+        if turn == DQuat::IDENTITY && shift == DVec3::ZERO {
+            return Ok(false);
+        }
+        state.pose.rotations[root] = (turn * state.pose.rotations[root]).normalize();
+        state.root_translation += shift;
+        forward_kinematics(
+            skeleton,
+            &state.pose,
+            state.root_translation,
+            &mut state.global,
+        )?;
+        Ok(true)
     }
 
     /// The start of a warm frame that continues a sequence ([`Carried`]), extrapolated

@@ -166,14 +166,24 @@ impl TreeFabrikSolver {
         self.options
     }
 
+    /// How many times the damped least-squares finish has linearized over this solver's
+    /// life ([`Finish::linearizations`](sinew_skeleton::finish::Finish::linearizations)):
+    /// with chord steps, the number of trials no longer tells the work.
+    #[must_use]
+    pub fn linearizations(&self) -> usize {
+        self.common.dls.linearizations()
+    }
+
     /// Passes then the finish, from the pose in `state`; returns the iterations used and
-    /// the stop reason.
+    /// the stop reason. With `chord_start` the finish's first trial may reuse the factor
+    /// of its last linearization ([`Common::finish`]).
     fn attempt(
         &mut self,
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
         mut iterations: usize,
         max_passes: usize,
+        chord_start: bool,
     ) -> Result<(usize, StopReason), IkError> {
         let settings = &problem.settings;
         let mut cost = self.common.cost(state);
@@ -203,7 +213,9 @@ impl TreeFabrikSolver {
             }
         }
         if self.options.finish {
-            let finished = self.common.finish(problem, state, iterations)?;
+            let finished =
+                self.common
+                    .finish(problem, state, iterations, chord_start && passes == 0)?;
             return Ok((iterations + finished.steps, finished.stop));
         }
         if crate::problem::all_within(&self.common.targets, &state.global, settings) {
@@ -224,7 +236,8 @@ impl BodySolver for TreeFabrikSolver {
         state: &mut BodyState,
     ) -> Result<BodyReport, IkError> {
         let continued = self.carried.continues(problem, state);
-        let result = self.solve_from(problem, state, continued);
+        let global_exact = continued && self.carried.global_unchanged(state);
+        let result = self.solve_from(problem, state, continued, global_exact);
         match &result {
             Ok(_) => self.carried.record(problem, state, continued),
             Err(_) => self.carried.invalidate(),
@@ -236,14 +249,20 @@ impl BodySolver for TreeFabrikSolver {
 impl TreeFabrikSolver {
     /// [`BodySolver::solve`], `continued` saying whether `state` is the answer of the
     /// last solve of the same problem (then the frame starts from the extrapolation of
-    /// the last two answers, when that is better).
+    /// the last two answers, when that is better) and `global_exact` whether its global
+    /// pose is the one that solve returned.
     fn solve_from(
         &mut self,
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
         continued: bool,
+        global_exact: bool,
     ) -> Result<BodyReport, IkError> {
-        if let Begin::Done(report) = self.common.begin(problem, state)? {
+        if !continued {
+            // The finish's last factor belongs to another problem (or to none).
+            self.common.dls.forget();
+        }
+        if let Begin::Done(report) = self.common.begin(problem, state, continued, global_exact)? {
             return Ok(report);
         }
         self.passes.prepare(problem, &self.common);
@@ -259,15 +278,16 @@ impl TreeFabrikSolver {
         {
             // From the extrapolated start; kept only when it reaches every goal with the
             // pins where they may be, else the frame is solved from the pose given.
-            let (used, stop) = self.attempt(problem, state, 0, first_passes)?;
+            let (used, stop) = self.attempt(problem, state, 0, first_passes, true)?;
             if stop == StopReason::Converged && self.common.pins_hold(problem, state) {
-                return self.common.report(problem, state, used, stop, false);
+                return Ok(self.common.report_exact(problem, state, used, stop, false));
             }
             spent = used;
             self.common.seed(problem, state, 0)?;
         }
         self.common.seed_limbs(problem, state)?;
-        let (mut iterations, mut stop) = self.attempt(problem, state, spent, first_passes)?;
+        let (mut iterations, mut stop) =
+            self.attempt(problem, state, spent, first_passes, false)?;
         let mut restarted = false;
         let mut seed = 0;
         while seed < self.options.restarts
@@ -285,7 +305,7 @@ impl TreeFabrikSolver {
             self.common.seed(problem, state, seed)?;
             let passes = self.options.max_passes;
             seed += 1;
-            let (used, next_stop) = self.attempt(problem, state, iterations, passes)?;
+            let (used, next_stop) = self.attempt(problem, state, iterations, passes, false)?;
             iterations = used;
             if self.common.cost(state) < best_cost && self.common.pins_hold(problem, state) {
                 stop = next_stop;
@@ -294,8 +314,9 @@ impl TreeFabrikSolver {
                 self.common.restore_best(problem, state, best_translation)?;
             }
         }
-        self.common
-            .report(problem, state, iterations, stop, restarted)
+        Ok(self
+            .common
+            .report_exact(problem, state, iterations, stop, restarted))
     }
 }
 

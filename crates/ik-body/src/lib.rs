@@ -236,10 +236,12 @@ impl BodyBatch {
     }
 
     /// Solves `problems[i]` on `states[i]` for every character, writing `reports[i]`, on
-    /// up to `threads` threads (the characters split into contiguous groups; 1 runs on
-    /// the calling thread and allocates nothing once warm). All three slices must have the
-    /// same length; the first error (in character order) is returned, the other
-    /// characters being solved all the same.
+    /// up to `threads` threads: the characters split into contiguous groups, the last
+    /// solved on the calling thread and each other one on a scoped thread spawned for
+    /// this call (its only allocations); 1 spawns none and allocates nothing once warm.
+    /// Each character keeps its own solver, so the answers are the same, to the bit, on
+    /// any number of threads. All three slices must have the same length; the first error
+    /// (in character order) is returned, the other characters being solved all the same.
     pub fn solve(
         &mut self,
         problems: &[BodyProblem<'_>],
@@ -265,28 +267,44 @@ impl BodyBatch {
             return solve_group(solvers, problems, states, reports);
         }
         let per = problems.len().div_ceil(threads);
-        std::thread::scope(|scope| {
-            let handles: Vec<_> = solvers
-                .chunks_mut(per)
-                .zip(problems.chunks(per))
-                .zip(states.chunks_mut(per))
-                .zip(reports.chunks_mut(per))
-                .map(|(((s, p), st), r)| scope.spawn(move || solve_group(s, p, st, r)))
-                .collect();
-            let mut first = Ok(());
-            for handle in handles {
-                let result = handle.join().unwrap_or_else(|_| {
-                    Err(IkError::InvalidSettings(
-                        "batch: a solver thread panicked".into(),
-                    ))
-                });
-                if first.is_ok() {
-                    first = result;
-                }
-            }
-            first
-        })
+        std::thread::scope(|scope| solve_split(scope, solvers, problems, states, reports, per))
     }
+}
+
+/// Solves the characters in groups of `per`: the first group on a new scoped thread, the
+/// rest by recursion on this one, so the calling thread solves the last group and the
+/// only allocations are the spawns themselves (no list of handles). The first error in
+/// character order is returned, every group being solved all the same.
+fn solve_split<'scope>(
+    scope: &'scope std::thread::Scope<'scope, '_>,
+    solvers: &'scope mut [TreeFabrikSolver],
+    problems: &'scope [BodyProblem<'_>],
+    states: &'scope mut [BodyState],
+    reports: &'scope mut [BodyReport],
+    per: usize,
+) -> Result<(), IkError> {
+    if problems.len() <= per {
+        return solve_group(solvers, problems, states, reports);
+    }
+    let (solvers, other_solvers) = solvers.split_at_mut(per);
+    let (problems, other_problems) = problems.split_at(per);
+    let (states, other_states) = states.split_at_mut(per);
+    let (reports, other_reports) = reports.split_at_mut(per);
+    let first = scope.spawn(move || solve_group(solvers, problems, states, reports));
+    let rest = solve_split(
+        scope,
+        other_solvers,
+        other_problems,
+        other_states,
+        other_reports,
+        per,
+    );
+    let first = first.join().unwrap_or_else(|_| {
+        Err(IkError::InvalidSettings(
+            "batch: a solver thread panicked".into(),
+        ))
+    });
+    first.and(rest)
 }
 
 fn solve_group(

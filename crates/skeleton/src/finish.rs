@@ -330,6 +330,13 @@ pub struct FinishJob<'a> {
     pub settings: SolveSettings,
     /// Iterations the caller already spent.
     pub iterations: usize,
+    /// Whether the first trial may be a chord step with the factor and columns of this
+    /// [`Finish`]'s last linearization (see `docs/ik-finish.md`, "A warm frame starts
+    /// with a chord step"). The caller vouches that the skeleton, the movers and the
+    /// targets (joints, weights, which have rotation goals) are those of that
+    /// linearization, only the goals having moved; the step is a trial like any other,
+    /// kept only when it lowers the cost and keeps the pins.
+    pub chord_start: bool,
 }
 
 /// What a finish did.
@@ -396,6 +403,13 @@ pub struct Finish {
     best: Vec<DQuat>,
     best_translation: DVec3,
     best_cost: f64,
+    /// Whether `factor` (of `factor_rows` rows), the columns and the active set
+    /// (`frozen`, `blocked`) belong together: set by a successful factorization, cleared
+    /// by any change of the active set and by [`Finish::forget`].
+    factor_ok: bool,
+    factor_rows: usize,
+    /// Linearizations over this finish's life (see [`Finish::linearizations`]).
+    linearizations: usize,
 }
 
 /// The finish of a chain solver: the chain's one effector, turned by the chain's movable
@@ -447,6 +461,7 @@ impl ChainFinish {
             base: Some(chain.base()),
             settings: *settings,
             iterations,
+            chord_start: false,
         };
         let mut translation = DVec3::ZERO;
         let mut finished = self.finish.run(&job, pose, &mut translation, global)?;
@@ -518,6 +533,27 @@ impl ChainFinish {
 }
 
 impl Finish {
+    /// Drops the factor of the last linearization, so that no later run starts with a
+    /// chord step on it (for a caller whose problem changed).
+    pub fn forget(&mut self) {
+        self.factor_ok = false;
+    }
+
+    /// How many times this finish has linearized (computed the columns and `J J^T`) over
+    /// its life: the measure of its work that the number of trials is not, a chord step
+    /// being a trial without a linearization.
+    #[must_use]
+    pub fn linearizations(&self) -> usize {
+        self.linearizations
+    }
+
+    /// Frees every joint of the active set (which then no longer matches the factor).
+    fn free_active_set(&mut self) {
+        self.frozen.fill(false);
+        self.blocked_count.fill(0);
+        self.factor_ok = false;
+    }
+
     /// Runs the finish from `pose` moved by `translation` (inside the limits, `global`
     /// its exact forward kinematics) until every effector is within the tolerances,
     /// `job.iterations + steps` reaches the cap, or steps stop helping. `translation`
@@ -582,14 +618,24 @@ impl Finish {
     ) -> Result<Finished, SkeletonError> {
         let (skeleton, targets, settings) = (job.skeleton, job.targets, &job.settings);
         let movable = job.movers.movable();
-        self.frozen.clear();
-        self.frozen.resize(movable.len(), false);
+        // A chord step first needs the last factor with the active set it was made with.
+        let chord_start = job.chord_start
+            && self.factor_ok
+            && self.factor_rows == rows
+            && self.first_dof.len() == movable.len()
+            && self.frozen.len() == movable.len()
+            && self.blocked_count.len() == movable.len();
+        if !chord_start {
+            self.factor_ok = false;
+            self.frozen.clear();
+            self.frozen.resize(movable.len(), false);
+            self.blocked.clear();
+            self.blocked.resize(movable.len(), [DVec3::ZERO; 2]);
+            self.blocked_count.clear();
+            self.blocked_count.resize(movable.len(), 0);
+        }
         self.clamped.clear();
         self.clamped.resize(movable.len(), false);
-        self.blocked.clear();
-        self.blocked.resize(movable.len(), [DVec3::ZERO; 2]);
-        self.blocked_count.clear();
-        self.blocked_count.resize(movable.len(), 0);
         self.pulled_back.clear();
         self.pulled_back.resize(movable.len(), DVec3::ZERO);
         self.on_bound.clear();
@@ -604,7 +650,6 @@ impl Finish {
                 steps: 0,
             });
         }
-        self.find_outward(skeleton, movable, pose);
         self.normal.resize(rows * rows, 0.0);
         self.normal_full.resize(rows * rows, 0.0);
         self.factor.resize(rows * rows, 0.0);
@@ -624,10 +669,11 @@ impl Finish {
         let mut fresh = false;
         // Whether the next trial is a chord step, how many chord steps the current
         // factor has served, and whether the outward normals are those of an earlier
-        // pose (they are found when a full step needs them).
-        let mut chord = false;
+        // pose (they are found when a full step needs them: those of the start just
+        // before the first full step, none if chord steps end the finish).
+        let mut chord = chord_start;
         let mut chords = 0;
-        let mut outward_stale = false;
+        let mut outward_stale = true;
         loop {
             if all_within(targets, global, settings) {
                 return Ok(Finished {
@@ -656,8 +702,7 @@ impl Finish {
                 steps += 1;
                 if !self.substitute(rows) {
                     chord = false;
-                    self.frozen.fill(false);
-                    self.blocked_count.fill(0);
+                    self.free_active_set();
                     continue;
                 }
                 self.turns(movable)
@@ -690,10 +735,13 @@ impl Finish {
                 }
                 resolving = false;
                 if !self.solve(rows, damping) {
+                    self.factor_ok = false;
                     damping = damping.max(f64::MIN_POSITIVE) * 10.0;
                     rejections += 1;
                     continue;
                 }
+                self.factor_ok = true;
+                self.factor_rows = rows;
                 let shift = self.turns(movable);
                 // A hinge is a box on its angle, so this part of the active set is exact: a
                 // hinge on a bound stepping outwards would be clamped back while the others
@@ -711,6 +759,7 @@ impl Finish {
                             )
                         {
                             self.frozen[m] = true;
+                            self.factor_ok = false;
                             resolving = true;
                         }
                     }
@@ -796,8 +845,7 @@ impl Finish {
                 } else {
                     chord = false;
                     chords = 0;
-                    self.frozen.fill(false);
-                    self.blocked_count.fill(0);
+                    self.free_active_set();
                 }
                 continue;
             }
@@ -811,8 +859,7 @@ impl Finish {
                 // The chord step did not pay: linearize here, as after any accepted step.
                 chord = false;
                 chords = 0;
-                self.frozen.fill(false);
-                self.blocked_count.fill(0);
+                self.free_active_set();
                 continue;
             }
             // A rejected trial means the step was too long for the linearization or for
@@ -838,6 +885,7 @@ impl Finish {
     fn linearize(&mut self, job: &FinishJob<'_>, global: &GlobalPose) {
         let skeleton = job.skeleton;
         let targets = job.targets;
+        self.linearizations += 1;
         self.residual_at(targets, global);
         self.dofs.clear();
         self.col_start.clear();
@@ -965,6 +1013,7 @@ impl Finish {
     /// swing-twist joint loses that one direction of rotation and keeps sliding along
     /// its bound in the others, until a third direction would be blocked.
     fn block(&mut self, limit: &JointLimit, m: usize) {
+        self.factor_ok = false;
         if !matches!(limit, JointLimit::SwingTwist(_)) {
             self.frozen[m] = true;
             return;
@@ -984,17 +1033,53 @@ impl Finish {
         }
     }
 
-    /// `J J^T` (lower triangle) from the sparse columns.
+    /// Whether dofs `k`, `k + 1`, `k + 2` are the three world axes of one joint (or of
+    /// the translation): their columns then have the same rows, in the same order.
+    fn is_triple(&self, k: usize) -> bool {
+        k + 2 < self.dofs.len()
+            && self.dofs[k].0 == self.dofs[k + 1].0
+            && self.dofs[k].0 == self.dofs[k + 2].0
+    }
+
+    /// `J J^T` (lower triangle) from the sparse columns. The three columns of a joint's
+    /// world axes share their rows, so they are summed in one pass, each entry of the
+    /// normal matrix taking the three products in the order the columns come (the same
+    /// additions, in the same order, as one column after another).
     fn accumulate_normal(&mut self, rows: usize) {
         self.normal_full[..rows * rows].fill(0.0);
-        for k in 0..self.dofs.len() {
-            let col = &self.entries[self.col_start[k]..self.col_start[k + 1]];
+        let mut k = 0;
+        while k < self.dofs.len() {
+            let (a0, a1) = (self.col_start[k], self.col_start[k + 1]);
+            if self.is_triple(k) {
+                let (a2, a3) = (self.col_start[k + 2], self.col_start[k + 3]);
+                let (cx, cy, cz) = (
+                    &self.entries[a0..a1],
+                    &self.entries[a1..a2],
+                    &self.entries[a2..a3],
+                );
+                for (i, ((&(a, xa), &(_, ya)), &(_, za))) in cx.iter().zip(cy).zip(cz).enumerate() {
+                    let line = &mut self.normal_full[a * rows..a * rows + a + 1];
+                    for ((&(b, xb), &(_, yb)), &(_, zb)) in
+                        cx[..=i].iter().zip(&cy[..=i]).zip(&cz[..=i])
+                    {
+                        let mut e = line[b];
+                        e += xa * xb;
+                        e += ya * yb;
+                        e += za * zb;
+                        line[b] = e;
+                    }
+                }
+                k += 3;
+                continue;
+            }
+            let col = &self.entries[a0..a1];
             for (i, &(a, va)) in col.iter().enumerate() {
                 let line = &mut self.normal_full[a * rows..a * rows + a + 1];
                 for &(b, vb) in &col[..=i] {
                     line[b] += va * vb;
                 }
             }
+            k += 1;
         }
     }
 
@@ -1053,13 +1138,36 @@ impl Finish {
     /// returns the translation's step.
     fn turns(&mut self, movable: &[usize]) -> DVec3 {
         self.step.clear();
-        let (entries, y) = (&self.entries, &self.y);
-        self.step.extend(self.col_start.windows(2).map(|w| {
-            entries[w[0]..w[1]]
-                .iter()
-                .map(|&(row, v)| v * y[row])
-                .sum::<f64>()
-        }));
+        // The three columns of a joint's world axes share their rows: one pass reads each
+        // entry of `y` once for the three sums (each summed in the column's order from
+        // -0.0, as `Iterator::sum` does, so the same bits).
+        let mut k = 0;
+        while k < self.dofs.len() {
+            let (a0, a1) = (self.col_start[k], self.col_start[k + 1]);
+            if self.is_triple(k) {
+                let (a2, a3) = (self.col_start[k + 2], self.col_start[k + 3]);
+                let (mut sx, mut sy, mut sz) = (-0.0, -0.0, -0.0);
+                for ((&(row, x), &(_, y)), &(_, z)) in self.entries[a0..a1]
+                    .iter()
+                    .zip(&self.entries[a1..a2])
+                    .zip(&self.entries[a2..a3])
+                {
+                    let v = self.y[row];
+                    sx += x * v;
+                    sy += y * v;
+                    sz += z * v;
+                }
+                self.step.extend([sx, sy, sz]);
+                k += 3;
+                continue;
+            }
+            let mut sum = -0.0;
+            for &(row, v) in &self.entries[a0..a1] {
+                sum += v * self.y[row];
+            }
+            self.step.push(sum);
+            k += 1;
+        }
         let mut shift = DVec3::ZERO;
         self.turn.fill(DVec3::ZERO);
         for (&(m, u), &s) in self.dofs.iter().zip(&self.step) {
