@@ -46,11 +46,25 @@ const SOFTENING_EXACT_BELOW: f64 = 0.05;
 
 impl BackwardEuler {
     /// Minimizes `g` from `self.x` in place.
+    ///
+    /// With a thread pool the whole minimization runs inside it, so the calling thread
+    /// hands the step over once: the parallel passes inside (assembly, PCG, the line
+    /// search) are then started from one of the pool's own threads, without a hand-off
+    /// between threads and a wait to be woken at every one of them.
     pub(super) fn minimize(
         &mut self,
         system: &SpringSystem,
         h: f64,
     ) -> Result<StepReport, ModelError> {
+        #[cfg(feature = "parallel")]
+        if let Some(pool) = self.pcg.pool().cloned() {
+            return pool.install(|| self.minimize_here(system, h));
+        }
+        self.minimize_here(system, h)
+    }
+
+    /// [`Self::minimize`] on the current thread.
+    fn minimize_here(&mut self, system: &SpringSystem, h: f64) -> Result<StepReport, ModelError> {
         let dim = self.pattern.dim();
         let kind = self.choose_solver(dim)?;
         let tol_abs = self.settings.tolerance * system.min_free_mass() / (h * h);
