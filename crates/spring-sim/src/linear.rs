@@ -810,8 +810,8 @@ impl PcgSolver {
                 if cold {
                     r.copy_from_slice(b);
                 } else {
-                    for (i, r) in r.iter_mut().enumerate() {
-                        *r = b[i] - ap[first + i];
+                    for ((r, b), ap) in r.iter_mut().zip(b).zip(&ap[first..first + b.len()]) {
+                        *r = b - ap;
                     }
                 }
                 precondition(inverse, first, r, z);
@@ -838,9 +838,15 @@ impl PcgSolver {
                 [&mut *x, &mut self.r, &mut self.z],
                 &mut self.partials2,
                 |first, [x, r, z]| {
-                    for i in 0..x.len() {
-                        x[i] += alpha * p[first + i];
-                        r[i] -= alpha * ap[first + i];
+                    let range = first..first + x.len();
+                    for (((x, r), p), ap) in x
+                        .iter_mut()
+                        .zip(r.iter_mut())
+                        .zip(&p[range.clone()])
+                        .zip(&ap[range])
+                    {
+                        *x += alpha * p;
+                        *r -= alpha * ap;
                     }
                     precondition(inverse, first, r, z);
                     [dot(r, r), dot(r, z)]
@@ -857,8 +863,9 @@ impl PcgSolver {
             rz = rz_new;
             let z = &self.z;
             chunks_mut(par, &mut self.p, size, |first, p| {
-                for (i, p) in p.iter_mut().enumerate() {
-                    *p = z[first + i] + beta * *p;
+                let z = &z[first..first + p.len()];
+                for (p, z) in p.iter_mut().zip(z) {
+                    *p = z + beta * *p;
                 }
             });
         }
@@ -906,9 +913,12 @@ impl PcgSolver {
 
 /// `z = P^-1 r` on the chunk of unknowns starting at `first`, block by block.
 fn precondition(inverse: &[DMat3], first: usize, r: &[f64], z: &mut [f64]) {
-    for (i, (z, r)) in z.chunks_exact_mut(3).zip(r.chunks_exact(3)).enumerate() {
-        let v = inverse[first / 3 + i].mul_vec3(DVec3::new(r[0], r[1], r[2]));
-        z.copy_from_slice(&[v.x, v.y, v.z]);
+    let inverse = &inverse[first / 3..first / 3 + r.len() / 3];
+    for ((z, r), inv) in z.chunks_exact_mut(3).zip(r.chunks_exact(3)).zip(inverse) {
+        let v = inv.mul_vec3(DVec3::new(r[0], r[1], r[2]));
+        z[0] = v.x;
+        z[1] = v.y;
+        z[2] = v.z;
     }
 }
 
