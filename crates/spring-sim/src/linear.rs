@@ -816,7 +816,7 @@ impl PcgSolver {
                 }
                 precondition(inverse, first, r, z);
                 p.copy_from_slice(z);
-                [dot(r, r), dot(r, z)]
+                dot2(r, z)
             },
         );
         let [rr, mut rz] = ordered_sum2(&self.partials2);
@@ -849,7 +849,7 @@ impl PcgSolver {
                         *r -= alpha * ap;
                     }
                     precondition(inverse, first, r, z);
-                    [dot(r, r), dot(r, z)]
+                    dot2(r, z)
                 },
             );
             iterations += 1;
@@ -1013,6 +1013,15 @@ fn chunks_mut<T: Send>(
     for (c, chunk) in data.chunks_mut(size).enumerate() {
         f(c * size, chunk);
     }
+}
+
+/// `[r . r, r . z]` in one pass: each the in-order sum [`dot`] makes (from the same
+/// starting value), as two independent chains of additions the processor overlaps.
+fn dot2(r: &[f64], z: &[f64]) -> [f64; 2] {
+    let start: f64 = std::iter::empty::<f64>().sum();
+    r.iter()
+        .zip(z)
+        .fold([start, start], |[rr, rz], (r, z)| [rr + r * r, rz + r * z])
 }
 
 /// Euclidean dot product.
