@@ -516,17 +516,23 @@ pub struct PcgOutcome {
     pub negative_curvature: bool,
 }
 
-/// Unknowns per chunk of PCG's vector work (a multiple of 3, so a chunk holds whole
-/// particles). The chunks are fixed by the dimension alone, never by the thread count:
-/// each dot product is the sum, in chunk order, of the chunks' sums (each summed in
-/// order), and every other operation is per entry, so one thread, many, or the
-/// `parallel` feature off give bitwise the same result. A system of at most one chunk
-/// (the 11 x 11 lab cloths: 357 unknowns) is summed exactly as one sequential sum.
-pub const CHUNK: usize = 3 * 2048;
+/// Unknowns per chunk of PCG's vector work on systems above [`PARALLEL_MIN`] (a
+/// multiple of 3, so a chunk holds whole particles). The chunks are fixed by the
+/// dimension alone, never by the thread count: each dot product is the sum, in chunk
+/// order, of the chunks' sums (each summed in order), and every other operation is per
+/// entry, so one thread, many, or the `parallel` feature off give bitwise the same
+/// result. Small enough that two threads share W6's 30 603 unknowns evenly (20 chunks,
+/// where 5 chunks of 6 144 left one thread a fifth of the work idle), large enough that a
+/// chunk's dot product (1 536 multiply-adds) is far above the cost of handing it out.
+pub const CHUNK: usize = 3 * 512;
+
+/// Systems of at most this many unknowns (the 11 x 11 lab cloths: 357) are one chunk:
+/// the column-ordered product, one sequential sum per dot product, the calling thread.
+pub const PARALLEL_MIN: usize = 3 * 2048;
 
 /// Block-Jacobi preconditioned conjugate gradients with owned buffers.
 ///
-/// Systems above one [`CHUNK`] of unknowns use a row-ordered product (each particle's
+/// Systems above [`PARALLEL_MIN`] unknowns use a row-ordered product (each particle's
 /// rows summed by that particle, so chunks of rows can be computed by different threads
 /// with a fixed order of additions), and with the `parallel` feature their vector work
 /// runs on a thread pool of [`PcgSolver::set_threads`] threads; smaller systems use the
@@ -538,9 +544,13 @@ pub struct PcgSolver {
     z: Vec<f64>,
     p: Vec<f64>,
     ap: Vec<f64>,
+    /// Unknowns per chunk: [`CHUNK`], or the whole system up to [`PARALLEL_MIN`].
+    chunk: usize,
     /// Per-chunk partial sums of a dot product.
     partials: Vec<f64>,
-    /// The row-ordered product's index, for systems above one chunk.
+    /// Per-chunk partial sums of two dot products computed in one pass.
+    partials2: Vec<[f64; 2]>,
+    /// The row-ordered product's index, for systems above [`PARALLEL_MIN`].
     rows: Option<RowProduct>,
     /// The threads (none: the calling thread only).
     #[cfg(feature = "parallel")]
@@ -662,15 +672,17 @@ impl PcgSolver {
             z: vec![0.0; n],
             p: vec![0.0; n],
             ap: vec![0.0; n],
+            chunk: if n > PARALLEL_MIN { CHUNK } else { n.max(3) },
             partials: Vec::new(),
-            rows: (n > CHUNK).then(|| RowProduct::new(pattern)),
+            partials2: Vec::new(),
+            rows: (n > PARALLEL_MIN).then(|| RowProduct::new(pattern)),
             #[cfg(feature = "parallel")]
             pool: None,
         }
     }
 
-    /// Spreads the work of systems above one [`CHUNK`] over `threads` threads (0: one
-    /// per core). The result does not depend on it (see [`CHUNK`]). Without the
+    /// Spreads the work of systems above [`PARALLEL_MIN`] unknowns over `threads`
+    /// threads (0: one per core). The result does not depend on it (see [`CHUNK`]). Without the
     /// `parallel` feature everything runs on the calling thread. An error if the thread
     /// pool cannot be built.
     pub fn set_threads(&mut self, threads: usize) -> Result<(), SolverError> {
@@ -731,6 +743,14 @@ impl PcgSolver {
         self.solve_on(false, pattern, values, b, x, rtol, max_iterations)
     }
 
+    /// PCG's iterations with the vector work fused into three passes over the chunks
+    /// per iteration (the product with its dot product; the updates of `x` and `r` with
+    /// the preconditioner and both dot products of `r`; the update of `p`), each a
+    /// single parallel region when `par`: every region costs a hand-off to the pool and
+    /// a wait for its slowest chunk, which on W6 weighed as much as the work itself
+    /// when there were seven per iteration. The arithmetic is entry for entry the
+    /// unfused loop's, and each dot product is still the in-order sum of the chunks'
+    /// in-order sums.
     #[allow(clippy::too_many_arguments)]
     fn solve_on(
         &mut self,
@@ -742,72 +762,110 @@ impl PcgSolver {
         rtol: f64,
         max_iterations: usize,
     ) -> PcgOutcome {
-        chunks_mut(par, &mut self.inverse_blocks, CHUNK / 3, |first, blocks| {
-            for (i, inv) in blocks.iter_mut().enumerate() {
-                let block = pattern.diag_block(values, first + i);
-                // The diagonal blocks of an SPD matrix are SPD; the guard keeps a NaN
-                // out if a caller passes something else.
-                let d = block.determinant();
-                *inv = if d.is_finite() && d > 0.0 {
-                    block.inverse()
-                } else {
-                    DMat3::IDENTITY
-                };
-            }
-        });
-        let b_norm = chunked_dot(par, b, b, &mut self.partials).sqrt();
+        let size = self.chunk;
+        // The block inverses, with |b|^2 (chunks of `size / 3` blocks are the chunks of
+        // `size` unknowns).
+        chunks1(
+            par,
+            size / 3,
+            &mut self.inverse_blocks,
+            &mut self.partials,
+            |first, blocks| {
+                for (i, inv) in blocks.iter_mut().enumerate() {
+                    let block = pattern.diag_block(values, first + i);
+                    // The diagonal blocks of an SPD matrix are SPD; the guard keeps a NaN
+                    // out if a caller passes something else.
+                    let d = block.determinant();
+                    *inv = if d.is_finite() && d > 0.0 {
+                        block.inverse()
+                    } else {
+                        DMat3::IDENTITY
+                    };
+                }
+                let piece = &b[3 * first..3 * (first + blocks.len())];
+                dot(piece, piece)
+            },
+        );
+        let b_norm = ordered_sum(&self.partials).sqrt();
         if b_norm == 0.0 {
             x.fill(0.0);
             return PcgOutcome::default();
         }
-        if x.iter().all(|v| *v == 0.0) {
-            // The usual cold start (every Newton direction starts from zero): `A 0 = 0`,
-            // so the residual is `b` itself and the product, a fifth to a third of the
-            // products of a solve that ends in a few iterations, is skipped. `b - 0`
-            // is `b` bit for bit, so the iterates are the same as with it.
-            self.r.copy_from_slice(b);
-        } else {
+        // The usual cold start (every Newton direction starts from zero): `A 0 = 0`, so
+        // the residual is `b` itself and the product, a fifth to a third of the products
+        // of a solve that ends in a few iterations, is skipped. `b - 0` is `b` bit for
+        // bit, so the iterates are the same as with it.
+        let cold = x.iter().all(|v| *v == 0.0);
+        if !cold {
             self.product(par, pattern, values, x);
-            chunks_mut(par, &mut self.r, CHUNK, |first, r| {
-                for (i, r) in r.iter_mut().enumerate() {
-                    *r = b[first + i] - self.ap[first + i];
-                }
-            });
         }
-        let mut r_norm = chunked_dot(par, &self.r, &self.r, &mut self.partials).sqrt();
-        self.precondition(par);
-        self.p.copy_from_slice(&self.z);
-        let mut rz = chunked_dot(par, &self.r, &self.z, &mut self.partials);
+        let (inverse, ap) = (&self.inverse_blocks, &self.ap);
+        chunks3(
+            par,
+            size,
+            [&mut self.r, &mut self.z, &mut self.p],
+            &mut self.partials2,
+            |first, [r, z, p]| {
+                let b = &b[first..first + r.len()];
+                if cold {
+                    r.copy_from_slice(b);
+                } else {
+                    for ((r, b), ap) in r.iter_mut().zip(b).zip(&ap[first..first + b.len()]) {
+                        *r = b - ap;
+                    }
+                }
+                precondition(inverse, first, r, z);
+                p.copy_from_slice(z);
+                dot2(r, z)
+            },
+        );
+        let [rr, mut rz] = ordered_sum2(&self.partials2);
+        let mut r_norm = rr.sqrt();
         let mut iterations = 0;
         let mut negative_curvature = false;
         while r_norm > rtol * b_norm && iterations < max_iterations {
-            let p = std::mem::take(&mut self.p);
-            self.product(par, pattern, values, &p);
-            self.p = p;
-            let pap = chunked_dot(par, &self.p, &self.ap, &mut self.partials);
+            let pap = self.product_dot(par, pattern, values);
             // NaN counts as non-positive curvature too.
             if pap.is_nan() || pap <= 0.0 {
                 negative_curvature = true;
                 break;
             }
             let alpha = rz / pap;
-            let (p, ap) = (&self.p, &self.ap);
-            chunks_mut2(par, x, &mut self.r, CHUNK, |first, x, r| {
-                for i in 0..x.len() {
-                    x[i] += alpha * p[first + i];
-                    r[i] -= alpha * ap[first + i];
-                }
-            });
+            let (p, ap, inverse) = (&self.p, &self.ap, &self.inverse_blocks);
+            chunks3(
+                par,
+                size,
+                [&mut *x, &mut self.r, &mut self.z],
+                &mut self.partials2,
+                |first, [x, r, z]| {
+                    let range = first..first + x.len();
+                    for (((x, r), p), ap) in x
+                        .iter_mut()
+                        .zip(r.iter_mut())
+                        .zip(&p[range.clone()])
+                        .zip(&ap[range])
+                    {
+                        *x += alpha * p;
+                        *r -= alpha * ap;
+                    }
+                    precondition(inverse, first, r, z);
+                    dot2(r, z)
+                },
+            );
             iterations += 1;
-            r_norm = chunked_dot(par, &self.r, &self.r, &mut self.partials).sqrt();
-            self.precondition(par);
-            let rz_new = chunked_dot(par, &self.r, &self.z, &mut self.partials);
+            let [rr, rz_new] = ordered_sum2(&self.partials2);
+            r_norm = rr.sqrt();
+            if r_norm <= rtol * b_norm || iterations >= max_iterations {
+                // The loop ends here: the next direction would never be used.
+                break;
+            }
             let beta = rz_new / rz;
             rz = rz_new;
             let z = &self.z;
-            chunks_mut(par, &mut self.p, CHUNK, |first, p| {
-                for (i, p) in p.iter_mut().enumerate() {
-                    *p = z[first + i] + beta * *p;
+            chunks_mut(par, &mut self.p, size, |first, p| {
+                let z = &z[first..first + p.len()];
+                for (p, z) in p.iter_mut().zip(z) {
+                    *p = z + beta * *p;
                 }
             });
         }
@@ -821,24 +879,118 @@ impl PcgSolver {
     /// `ap = A x`.
     fn product(&mut self, par: bool, pattern: &HessianPattern, values: &[f64], x: &[f64]) {
         match &self.rows {
-            Some(rows) => chunks_mut(par, &mut self.ap, CHUNK, |first, y| {
+            Some(rows) => chunks_mut(par, &mut self.ap, self.chunk, |first, y| {
                 rows.apply_rows(pattern, values, x, first / 3, y);
             }),
             None => pattern.sym_matvec(values, x, &mut self.ap),
         }
     }
 
-    /// `z = P^-1 r`, block by block.
-    fn precondition(&mut self, par: bool) {
-        let (r, inverse) = (&self.r, &self.inverse_blocks);
-        chunks_mut(par, &mut self.z, CHUNK, |first, z| {
-            for (i, z) in z.chunks_exact_mut(3).enumerate() {
-                let f = first / 3 + i;
-                let v = inverse[f].mul_vec3(DVec3::new(r[3 * f], r[3 * f + 1], r[3 * f + 2]));
-                z.copy_from_slice(&[v.x, v.y, v.z]);
+    /// `ap = A p`, returning `p . ap` (each chunk's rows and their share of the dot
+    /// product in one pass).
+    fn product_dot(&mut self, par: bool, pattern: &HessianPattern, values: &[f64]) -> f64 {
+        let p = &self.p;
+        match &self.rows {
+            Some(rows) => chunks1(
+                par,
+                self.chunk,
+                &mut self.ap,
+                &mut self.partials,
+                |first, y| {
+                    rows.apply_rows(pattern, values, p, first / 3, y);
+                    dot(&p[first..first + y.len()], y)
+                },
+            ),
+            None => {
+                pattern.sym_matvec(values, p, &mut self.ap);
+                self.partials.clear();
+                self.partials.push(dot(p, &self.ap));
             }
-        });
+        }
+        ordered_sum(&self.partials)
     }
+}
+
+/// `z = P^-1 r` on the chunk of unknowns starting at `first`, block by block.
+fn precondition(inverse: &[DMat3], first: usize, r: &[f64], z: &mut [f64]) {
+    let inverse = &inverse[first / 3..first / 3 + r.len() / 3];
+    for ((z, r), inv) in z.chunks_exact_mut(3).zip(r.chunks_exact(3)).zip(inverse) {
+        let v = inv.mul_vec3(DVec3::new(r[0], r[1], r[2]));
+        z[0] = v.x;
+        z[1] = v.y;
+        z[2] = v.z;
+    }
+}
+
+/// The sum of per-chunk partial sums, in chunk order.
+fn ordered_sum(partials: &[f64]) -> f64 {
+    partials.iter().sum()
+}
+
+/// [`ordered_sum`] of two dot products' partial sums at once.
+fn ordered_sum2(partials: &[[f64; 2]]) -> [f64; 2] {
+    [
+        partials.iter().map(|p| p[0]).sum(),
+        partials.iter().map(|p| p[1]).sum(),
+    ]
+}
+
+/// Calls `f(first, chunk)` on `data` cut in chunks of `size` (`first`: the index of the
+/// chunk's first element), on the current thread pool when `par`, and collects the
+/// results in chunk order into `out`.
+fn chunks1<T: Send, S: Send>(
+    par: bool,
+    size: usize,
+    data: &mut [T],
+    out: &mut Vec<S>,
+    f: impl Fn(usize, &mut [T]) -> S + Sync + Send,
+) {
+    #[cfg(feature = "parallel")]
+    if par {
+        use rayon::prelude::*;
+        data.par_chunks_mut(size)
+            .enumerate()
+            .map(|(c, chunk)| f(c * size, chunk))
+            .collect_into_vec(out);
+        return;
+    }
+    let _ = par;
+    out.clear();
+    out.extend(
+        data.chunks_mut(size)
+            .enumerate()
+            .map(|(c, chunk)| f(c * size, chunk)),
+    );
+}
+
+/// [`chunks1`] over three slices of the same length at once.
+fn chunks3<S: Send>(
+    par: bool,
+    size: usize,
+    [a, b, c]: [&mut [f64]; 3],
+    out: &mut Vec<S>,
+    f: impl Fn(usize, [&mut [f64]; 3]) -> S + Sync + Send,
+) {
+    #[cfg(feature = "parallel")]
+    if par {
+        use rayon::prelude::*;
+        a.par_chunks_mut(size)
+            .zip(b.par_chunks_mut(size))
+            .zip(c.par_chunks_mut(size))
+            .enumerate()
+            .map(|(k, ((a, b), c))| f(k * size, [a, b, c]))
+            .collect_into_vec(out);
+        return;
+    }
+    let _ = par;
+    out.clear();
+    out.extend(
+        a.chunks_mut(size)
+            .zip(b.chunks_mut(size))
+            .zip(c.chunks_mut(size))
+            .enumerate()
+            .map(|(k, ((a, b), c))| f(k * size, [a, b, c])),
+    );
 }
 
 /// Calls `f(first, chunk)` on `data` cut in chunks of `size` (`first`: the index of the
@@ -863,45 +1015,13 @@ fn chunks_mut<T: Send>(
     }
 }
 
-/// [`chunks_mut`] over two slices of the same length at once.
-fn chunks_mut2(
-    par: bool,
-    a: &mut [f64],
-    b: &mut [f64],
-    size: usize,
-    f: impl Fn(usize, &mut [f64], &mut [f64]) + Sync + Send,
-) {
-    #[cfg(feature = "parallel")]
-    if par {
-        use rayon::prelude::*;
-        a.par_chunks_mut(size)
-            .zip(b.par_chunks_mut(size))
-            .enumerate()
-            .for_each(|(c, (a, b))| f(c * size, a, b));
-        return;
-    }
-    let _ = par;
-    for (c, (a, b)) in a.chunks_mut(size).zip(b.chunks_mut(size)).enumerate() {
-        f(c * size, a, b);
-    }
-}
-
-/// `a . b` as the in-order sum of the in-order sums of [`CHUNK`]-long pieces: the same
-/// bits whether the pieces are summed on one thread or many.
-fn chunked_dot(par: bool, a: &[f64], b: &[f64], partials: &mut Vec<f64>) -> f64 {
-    #[cfg(feature = "parallel")]
-    if par {
-        use rayon::prelude::*;
-        a.par_chunks(CHUNK)
-            .zip(b.par_chunks(CHUNK))
-            .map(|(a, b)| dot(a, b))
-            .collect_into_vec(partials);
-        return partials.iter().sum();
-    }
-    let _ = par;
-    partials.clear();
-    partials.extend(a.chunks(CHUNK).zip(b.chunks(CHUNK)).map(|(a, b)| dot(a, b)));
-    partials.iter().sum()
+/// `[r . r, r . z]` in one pass: each the in-order sum [`dot`] makes (from the same
+/// starting value), as two independent chains of additions the processor overlaps.
+fn dot2(r: &[f64], z: &[f64]) -> [f64; 2] {
+    let start: f64 = std::iter::empty::<f64>().sum();
+    r.iter()
+        .zip(z)
+        .fold([start, start], |[rr, rz], (r, z)| [rr + r * r, rz + r * z])
 }
 
 /// Euclidean dot product.
@@ -915,6 +1035,83 @@ mod tests {
     use super::*;
     use crate::model::{ClothGrid, SpringSystem};
     use crate::newton::newton_matrix_triplets;
+
+    /// The Newton matrix of a stretched `n x n` lab-pattern cloth (spacing `spacing`)
+    /// at step 1/60: its pattern, values and dense lower-triangle triplets.
+    fn stretched(n: usize, spacing: f64) -> (HessianPattern, Vec<f64>, Vec<(usize, usize, f64)>) {
+        let mut system =
+            SpringSystem::cloth(&ClothGrid::lab_sized(n, spacing).with_damping(0.2)).unwrap();
+        let x: Vec<sinew_math::DVec3> = system
+            .positions()
+            .iter()
+            .enumerate()
+            .map(|(i, p)| *p * 1.2 + sinew_math::DVec3::new(0.0, 0.01 * (i as f64).sin(), 0.0))
+            .collect();
+        let v = vec![sinew_math::DVec3::ZERO; x.len()];
+        system.set_state(&x, &v).unwrap();
+        let pattern = HessianPattern::new(&system);
+        let triplets = newton_matrix_triplets(&system, 1.0 / 60.0);
+        let values: Vec<f64> = triplets.iter().map(|t| t.2).collect();
+        assert_eq!(pattern.symbolic.col_ptr()[pattern.dim()], triplets.len());
+        (pattern, values, triplets)
+    }
+
+    /// `|b - A x| / |b|` from the dense triplets.
+    fn relative_residual(triplets: &[(usize, usize, f64)], b: &[f64], x: &[f64]) -> f64 {
+        let mut r = b.to_vec();
+        for &(i, j, value) in triplets {
+            r[i] -= value * x[j];
+            if i != j {
+                r[j] -= value * x[i];
+            }
+        }
+        (dot(&r, &r) / dot(b, b)).sqrt()
+    }
+
+    /// PCG's fused passes give bitwise the same iterates on one thread and on two or
+    /// three (chunks of [`CHUNK`] unknowns, the last one short), from a cold and from a
+    /// warm start, and the answer meets the asked residual by an independent check.
+    #[test]
+    fn pcg_is_bitwise_the_same_on_one_two_and_three_threads() {
+        // 46 x 46: 6 342 unknowns, just above `PARALLEL_MIN`, chunks of 1 536 and a last
+        // one of 198; 61 x 61: 11 157 unknowns, 8 chunks.
+        for (n, spacing) in [(46, 0.04), (61, 0.03)] {
+            let (pattern, values, triplets) = stretched(n, spacing);
+            let dim = pattern.dim();
+            assert!(dim > PARALLEL_MIN && dim % CHUNK != 0, "{dim}");
+            let b: Vec<f64> = (0..dim)
+                .map(|i| ((i * 7919) % 1000) as f64 / 500.0 - 1.0)
+                .collect();
+            let warm: Vec<f64> = (0..dim).map(|i| 1e-3 * ((i * 31) % 17) as f64).collect();
+            for start in [vec![0.0; dim], warm] {
+                let mut answers = Vec::new();
+                for threads in [1, 2, 3] {
+                    let mut solver = PcgSolver::new(&pattern);
+                    solver.set_threads(threads).unwrap();
+                    assert_eq!(solver.threads(), threads);
+                    let mut x = start.clone();
+                    let outcome = solver.solve(&pattern, &values, &b, &mut x, 1e-10, 500);
+                    assert!(!outcome.negative_curvature);
+                    assert!(outcome.relative_residual <= 1e-10, "{outcome:?}");
+                    let check = relative_residual(&triplets, &b, &x);
+                    assert!(check <= 2e-10, "{n}: independent residual {check}");
+                    answers.push((outcome.iterations, x));
+                }
+                assert!(answers[0].0 > 5, "{n}: {} iterations", answers[0].0);
+                for (threads, answer) in [2, 3].iter().zip(&answers[1..]) {
+                    assert_eq!(answer.0, answers[0].0, "{n}, {threads} threads: iterations");
+                    assert!(
+                        answer
+                            .1
+                            .iter()
+                            .zip(&answers[0].1)
+                            .all(|(a, b)| a.to_bits() == b.to_bits()),
+                        "{n}, {threads} threads: the solution differs"
+                    );
+                }
+            }
+        }
+    }
 
     /// The row-ordered product of a system above one chunk equals the column-ordered one
     /// (on the stored lower triangle) and a product with the dense triplets, to round-off.
@@ -933,7 +1130,7 @@ mod tests {
         system.set_state(&x, &v).unwrap();
         let pattern = HessianPattern::new(&system);
         let n = pattern.dim();
-        assert!(n > CHUNK);
+        assert!(n > PARALLEL_MIN);
         let triplets = newton_matrix_triplets(&system, 1.0 / 60.0);
         let mut values = vec![0.0; pattern.nnz()];
         let col_ptr = pattern.symbolic.col_ptr();

@@ -46,11 +46,25 @@ const SOFTENING_EXACT_BELOW: f64 = 0.05;
 
 impl BackwardEuler {
     /// Minimizes `g` from `self.x` in place.
+    ///
+    /// With a thread pool the whole minimization runs inside it, so the calling thread
+    /// hands the step over once: the parallel passes inside (assembly, PCG, the line
+    /// search) are then started from one of the pool's own threads, without a hand-off
+    /// between threads and a wait to be woken at every one of them.
     pub(super) fn minimize(
         &mut self,
         system: &SpringSystem,
         h: f64,
     ) -> Result<StepReport, ModelError> {
+        #[cfg(feature = "parallel")]
+        if let Some(pool) = self.pcg.pool().cloned() {
+            return pool.install(|| self.minimize_here(system, h));
+        }
+        self.minimize_here(system, h)
+    }
+
+    /// [`Self::minimize`] on the current thread.
+    fn minimize_here(&mut self, system: &SpringSystem, h: f64) -> Result<StepReport, ModelError> {
         let dim = self.pattern.dim();
         let kind = self.choose_solver(dim)?;
         let tol_abs = self.settings.tolerance * system.min_free_mass() / (h * h);
@@ -82,8 +96,7 @@ impl BackwardEuler {
                 self.objective_trace
                     .push(self.potential.energy(&step, &self.x));
             }
-            self.assemble_gradient(&step);
-            let residual = self.grad.iter().fold(0.0f64, |m, g| m.max(g.abs()));
+            let (residual, residual_l2_squared) = self.assemble_gradient(&step);
             report.residual = residual;
             if !residual.is_finite() {
                 report.stop = StepStop::NonFinite;
@@ -106,10 +119,7 @@ impl BackwardEuler {
                 break;
             }
             report.iterations += 1;
-            for (r, g) in self.rhs.iter_mut().zip(&self.grad) {
-                *r = -g;
-            }
-            let residual_l2 = dot(&self.grad, &self.grad).sqrt();
+            let residual_l2 = residual_l2_squared.sqrt();
             if report.iterations == 1 {
                 first_residual_l2 = residual_l2;
             }
@@ -244,7 +254,6 @@ impl BackwardEuler {
         Ok(report)
     }
 
-    /// Writes `grad g` at `self.x` over the free unknowns into `self.grad`.
     /// The Newton direction by PCG from zero, solving the assembled matrix against the
     /// right-hand side to the relative residual `rtol`, into `dx`.
     fn pcg_direction(&mut self, rtol: f64) -> PcgOutcome {
@@ -259,17 +268,35 @@ impl BackwardEuler {
         )
     }
 
-    fn assemble_gradient(&mut self, step: &StepContext<'_>) {
+    /// Writes `grad g` at `self.x` over the free unknowns into `self.grad` and its
+    /// negative into `self.rhs`, and returns `(|grad g|_inf, |grad g|_2^2)`.
+    ///
+    /// One pass for the four: these run on one thread between the parallel regions, so
+    /// on two threads each pass over the unknowns is time the other thread waits. The
+    /// maximum and the sum are taken in the order of the unknowns, from the starting
+    /// values of the separate passes they replace, so they are the same bits.
+    fn assemble_gradient(&mut self, step: &StepContext<'_>) -> (f64, f64) {
         if !self.gradient_on_pool(step) {
             self.potential
                 .gradient(step, &self.x, &mut self.grad_particles);
         }
-        for (f, &p) in self.pattern.free_particles.iter().enumerate() {
+        let mut max = 0.0f64;
+        let mut sum: f64 = std::iter::empty::<f64>().sum();
+        for ((grad, rhs), &p) in self
+            .grad
+            .chunks_exact_mut(3)
+            .zip(self.rhs.chunks_exact_mut(3))
+            .zip(&self.pattern.free_particles)
+        {
             let g = self.grad_particles[p];
-            self.grad[3 * f] = g.x;
-            self.grad[3 * f + 1] = g.y;
-            self.grad[3 * f + 2] = g.z;
+            for (c, v) in [g.x, g.y, g.z].into_iter().enumerate() {
+                grad[c] = v;
+                rhs[c] = -v;
+                max = max.max(v.abs());
+                sum += v * v;
+            }
         }
+        (max, sum)
     }
 
     /// Writes the Newton matrix at `self.x` in the form `curvature` asks for into

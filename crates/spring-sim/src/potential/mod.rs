@@ -376,15 +376,25 @@ impl Potential {
         if !per.springs {
             return self.energy_change(step, x, dx, alpha);
         }
-        let others: f64 = self
-            .other_terms
-            .iter()
-            .map(|&t| self.terms[t].energy_change(step, x, dx, alpha))
-            .sum();
-        let springs = chunked_sum(step.system.springs().len(), par, partials, |range| {
-            per.energy_change_over(step, x, dx, alpha, range)
-        });
-        others + springs
+        let others = || -> f64 {
+            self.other_terms
+                .iter()
+                .map(|&t| self.terms[t].energy_change(step, x, dx, alpha))
+                .sum()
+        };
+        let springs = |partials: &mut Vec<f64>| {
+            chunked_sum(step.system.springs().len(), par, partials, |range| {
+                per.energy_change_over(step, x, dx, alpha, range)
+            })
+        };
+        // On the pool the other terms (a pass over the particles) run beside the
+        // springs' chunks instead of before them; the two totals are added as before.
+        #[cfg(feature = "parallel")]
+        if par {
+            let (others, springs) = rayon::join(others, || springs(partials));
+            return others + springs;
+        }
+        others() + springs(partials)
     }
 
     /// Writes `grad g(x)` into `gradient` (one entry per particle; overwritten).

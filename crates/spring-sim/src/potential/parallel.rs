@@ -21,10 +21,12 @@ use crate::spring::Curvature;
 use rayon::prelude::*;
 use sinew_math::DVec3;
 
-/// Springs per task of the first pass.
-const SPRING_CHUNK: usize = 4096;
-/// Particles per task of the second pass.
-const PARTICLE_CHUNK: usize = 2048;
+/// Springs per task of the first pass (W6's 60 198 springs: 59 tasks).
+const SPRING_CHUNK: usize = 1024;
+/// Particles per task of the second pass (W6's 10 199 free particles: 20 tasks, so two
+/// threads end within a twentieth of the pass of each other; neither size changes a
+/// bit of the result).
+const PARTICLE_CHUNK: usize = 512;
 
 /// The gather index of one topology and the per-spring buffers.
 #[derive(Debug, Default)]
@@ -91,19 +93,28 @@ impl SpringGather {
             potential.gradient(step, x, gradient);
             return;
         }
-        gradient.fill(DVec3::ZERO);
-        for &t in &potential.other_terms {
-            potential.terms[t].add_gradient(step, x, gradient);
-        }
-        self.gradients
-            .par_chunks_mut(SPRING_CHUNK)
-            .enumerate()
-            .for_each(|(c, chunk)| {
-                let first = c * SPRING_CHUNK;
-                for (i, g) in chunk.iter_mut().enumerate() {
-                    *g = per.spring_gradient(step, x, first + i);
+        // The other terms (inertia, gravity, ...) on one thread while the pool's others
+        // start on the springs: they write `gradient`, the springs their own buffer.
+        let springs = &mut self.gradients;
+        rayon::join(
+            || {
+                gradient.fill(DVec3::ZERO);
+                for &t in &potential.other_terms {
+                    potential.terms[t].add_gradient(step, x, gradient);
                 }
-            });
+            },
+            || {
+                springs
+                    .par_chunks_mut(SPRING_CHUNK)
+                    .enumerate()
+                    .for_each(|(c, chunk)| {
+                        let first = c * SPRING_CHUNK;
+                        for (i, g) in chunk.iter_mut().enumerate() {
+                            *g = per.spring_gradient(step, x, first + i);
+                        }
+                    });
+            },
+        );
         let (ptr, incident, gradients) = (&self.incident_ptr, &self.incident, &self.gradients);
         gradient
             .par_chunks_mut(PARTICLE_CHUNK)
@@ -136,28 +147,38 @@ impl SpringGather {
         pattern: &HessianPattern,
         values: &mut [f64],
     ) {
-        values.fill(0.0);
         if !potential.per_spring(step).springs {
+            values.fill(0.0);
             let mut sink = super::HessianSink::values(pattern, values);
             potential.add_hessian(step, x, curvature, &mut sink);
             return;
         }
-        {
-            let mut sink = super::HessianSink::values(pattern, values);
-            for &t in &potential.other_terms {
-                potential.terms[t].add_hessian(step, x, curvature, &mut sink);
-            }
-        }
+        let potential: &Potential = potential;
         let per = potential.per_spring(step);
-        self.blocks
-            .par_chunks_mut(SPRING_CHUNK)
-            .enumerate()
-            .for_each(|(c, chunk)| {
-                let first = c * SPRING_CHUNK;
-                for (i, k) in chunk.iter_mut().enumerate() {
-                    *k = per.spring_block(step, x, curvature, first + i);
+        // Zeroing the values and the other terms' blocks (a pass over every stored
+        // entry, then the inertia's diagonal) on one thread while the pool's others start
+        // on the springs' blocks, which are written to their own buffer.
+        let blocks = &mut self.blocks;
+        rayon::join(
+            || {
+                values.fill(0.0);
+                let mut sink = super::HessianSink::values(pattern, values);
+                for &t in &potential.other_terms {
+                    potential.terms[t].add_hessian(step, x, curvature, &mut sink);
                 }
-            });
+            },
+            || {
+                blocks
+                    .par_chunks_mut(SPRING_CHUNK)
+                    .enumerate()
+                    .for_each(|(c, chunk)| {
+                        let first = c * SPRING_CHUNK;
+                        for (i, k) in chunk.iter_mut().enumerate() {
+                            *k = per.spring_block(step, x, curvature, first + i);
+                        }
+                    });
+            },
+        );
         let chunks = pattern.free_particles.len().div_ceil(PARTICLE_CHUNK);
         let gather = Gather {
             pattern,
