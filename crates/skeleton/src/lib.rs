@@ -586,7 +586,7 @@ impl Skeleton {
     }
 
     /// The lab's FK rule for one joint, given that its parent is up to date.
-    #[inline]
+    #[inline(always)]
     fn update_joint(
         &self,
         pose: &Pose,

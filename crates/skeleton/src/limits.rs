@@ -553,23 +553,35 @@ impl Quick {
     }
 
     /// The quick swing test for a unit rotation with components `along` the twist axis,
-    /// `w` (scalar) and `perp` (the vector part across the axis). The
-    /// swing's half-angle `u` has `tan u = n / h` (`n = |perp|`, `h^2 = along^2 + w^2 =
-    /// 1 - n^2`), and `atan x <= x / sqrt(1 + x^2 / 3)` for `x >= 0`, so
-    /// `(2u)^2 <= 4 n^2 / (h^2 + n^2 / 3)`. The exact test is
+    /// `w` (scalar) and vector part `v`. The swing's half-angle `u` has `tan u = x = n / h`
+    /// (`n = |perp|`, `perp` the part of `v` across the axis, `h^2 = along^2 + w^2 =
+    /// 1 - n^2`), and `atan x <= x (945 + 735 x^2 + 64 x^4) / (945 + 1050 x^2 + 225 x^4)`
+    /// for `x >= 0` (the [5/4] Pade approximant; see `docs/ik-limits.md`), so
+    /// `u <= n N / (h D)` with `N = 945 h^4 + 735 h^2 n^2 + 64 n^4` and
+    /// `D = 945 h^4 + 1050 h^2 n^2 + 225 n^4`. The exact test is
     /// `(2u / n)^2 ((s.a / A)^2 + (s.b / B)^2) <= 1` with the swing's vector part
     /// `s = P / h`, `P = w perp + along (axis x perp)`; with the bound it holds when
-    /// `4 ((P.a / A)^2 + (P.b / B)^2) <= h^2 (h^2 + n^2 / 3)`, tested with a margin.
-    fn swing_inside(&self, frame: &Frame, along: f64, w: f64, perp: DVec3) -> bool {
+    /// `4 ((P.a / A)^2 + (P.b / B)^2) N^2 <= h^4 D^2`, tested with a margin.
+    ///
+    /// Only the components `(v.a, v.b) = (perp.a, perp.b)` of `v` enter (so `v` may be
+    /// `perp` itself). With `b = axis x a`, `(axis x perp).a = -perp.b` and
+    /// `(axis x perp).b = perp.a`, so `P.a = w perp.a - along perp.b`,
+    /// `P.b = w perp.b + along perp.a` and `n^2 = perp.a^2 + perp.b^2`: no cross product
+    /// and no `perp`. The rounding of these forms (relative 1e-14 for `h >= 0.1`) is far
+    /// below the margin.
+    fn swing_inside(&self, frame: &Frame, along: f64, w: f64, v: DVec3) -> bool {
         let h2 = along * along + w * w;
         if h2 < QUICK_SWING_MIN_H2 {
             return false;
         }
-        let p = perp * w + frame.twist.cross(perp) * along;
-        let (pa, pb) = (p.dot(frame.a), p.dot(frame.b));
-        let n2 = perp.length_squared();
-        4.0 * (pa * pa * self.inv_a2 + pb * pb * self.inv_b2)
-            <= (1.0 - QUICK_SWING_MARGIN) * h2 * (h2 + n2 / 3.0)
+        let (va, vb) = (v.dot(frame.a), v.dot(frame.b));
+        let (pa, pb) = (w * va - along * vb, w * vb + along * va);
+        let n2 = va * va + vb * vb;
+        let (h4, hn, n4) = (h2 * h2, h2 * n2, n2 * n2);
+        let num = 945.0 * h4 + 735.0 * hn + 64.0 * n4;
+        let den = 945.0 * h4 + 1050.0 * hn + 225.0 * n4;
+        4.0 * (pa * pa * self.inv_a2 + pb * pb * self.inv_b2) * (num * num)
+            <= (1.0 - QUICK_SWING_MARGIN) * h4 * (den * den)
     }
 }
 
@@ -728,8 +740,7 @@ impl PreparedLimit {
         };
         let v = q.xyz();
         let along = v.dot(frame.twist);
-        quick.range.clearly_inside(along, q.w)
-            && quick.swing_inside(frame, along, q.w, v - frame.twist * along)
+        quick.range.clearly_inside(along, q.w) && quick.swing_inside(frame, along, q.w, v)
     }
 }
 
@@ -1134,6 +1145,56 @@ fn check_range(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The [5/4] Pade bound the quick swing test rests on is above the arc tangent
+    /// (checked on a grid where the exact `atan` is accurate to an ulp, far below the
+    /// bound's gap except near 0, where both agree to rounding and the gap is
+    /// `64 x^11 / 43659`).
+    #[test]
+    fn the_pade_bound_is_above_the_arc_tangent() {
+        for i in 0..=4000 {
+            let x = f64::from(i) * 0.0025;
+            let x2 = x * x;
+            let bound =
+                x * (945.0 + 735.0 * x2 + 64.0 * x2 * x2) / (945.0 + 1050.0 * x2 + 225.0 * x2 * x2);
+            assert!(bound >= x.atan() * (1.0 - 4.0 * f64::EPSILON), "{x}");
+        }
+    }
+
+    /// The quick swing test takes a swing a relative 1e-4 (in the squared ellipse level)
+    /// inside an ellipse of up to 60 degrees, and never one outside it; the twist is kept
+    /// well inside its range so that only the swing decides.
+    #[test]
+    fn the_quick_swing_test_is_tight_and_never_takes_an_outside_swing() {
+        let st = SwingTwist {
+            twist_axis: DVec3::new(0.2, 1.0, -0.1).normalize(),
+            a_axis: DVec3::X,
+            swing_a: 60f64.to_radians(),
+            swing_b: 35f64.to_radians(),
+            twist_min: -1.0,
+            twist_max: 1.0,
+        };
+        let limit = JointLimit::SwingTwist(st).prepare();
+        let Fast::SwingTwist { frame, .. } = limit.fast else {
+            panic!("a prepared swing-twist");
+        };
+        let twist = DQuat::from_axis_angle(frame.twist, 0.3);
+        for k in 0..360 {
+            let phi = f64::from(k).to_radians();
+            let (xa, xb) = (st.swing_a * phi.cos(), st.swing_b * phi.sin());
+            for (level, inside) in [(1.0_f64 - 1e-4, true), (1.0 + 1e-9, false), (1.2, false)] {
+                let r = (frame.a * xa + frame.b * xb) * level.sqrt();
+                let q = (DQuat::from_scaled_axis(r) * twist).normalize();
+                if inside {
+                    assert!(limit.quick_swing_twist_inside(q), "{phi} {level}");
+                    assert_eq!(limit.project(q), q);
+                } else {
+                    assert!(!limit.quick_swing_twist_inside(q), "{phi} {level}");
+                    assert!(limit.violation(q) > 0.0, "{phi} {level}");
+                }
+            }
+        }
+    }
 
     /// The quick test must actually take the rotations well inside (or it saves nothing):
     /// every sample of the inner part of the W7 shoulder and elbow ranges.
