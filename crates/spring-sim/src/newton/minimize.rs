@@ -52,7 +52,7 @@ impl BackwardEuler {
         h: f64,
     ) -> Result<StepReport, ModelError> {
         let dim = self.pattern.dim();
-        let kind = self.choose_solver(dim)?;
+        let mut kind = self.choose_solver(dim)?;
         let tol_abs = self.settings.tolerance * system.min_free_mass() / (h * h);
         let mut report = StepReport::new(IntegratorKind::BackwardEuler);
         report.linear_solver = Some(kind);
@@ -105,6 +105,10 @@ impl BackwardEuler {
                 report.stop = StepStop::IterationCap;
                 break;
             }
+            // PCG far above the cost model's crossover finishes the step on the direct
+            // solve (solver_choice).
+            kind = self.reconsider_solver(kind, report.iterations, report.linear_iterations)?;
+            report.linear_solver = Some(kind);
             report.iterations += 1;
             for (r, g) in self.rhs.iter_mut().zip(&self.grad) {
                 *r = -g;
