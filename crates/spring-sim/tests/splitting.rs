@@ -337,3 +337,42 @@ fn a_split_step_with_a_moving_collider_is_its_pieces_taken_by_hand() {
     let (min, pairs) = split.contact_distances().unwrap();
     assert!(min > 0.0 && pairs > 0, "min {min}, pairs {pairs}");
 }
+
+/// `Auto` runs PCG on a run's first step to observe its count, but a step whose PCG count
+/// per Newton iteration is above the cost model's crossover finishes on the direct solve
+/// after the probe iterations: the stretched stiff sheet's first step (hundreds of Newton
+/// iterations) runs PCG for its first three only, and the next step starts on the direct
+/// solve.
+#[test]
+fn a_step_far_above_the_pcg_crossover_finishes_on_the_direct_solve() {
+    let (k, h) = (1e7, 1.0 / 4.0);
+    let mut system = cloth(11, k, State::Stretched);
+    let settings = NewtonSettings {
+        max_split_depth: 0,
+        max_iterations: 200,
+        ..NewtonSettings::default()
+    };
+    assert_eq!(settings.linear_solver, LinearSolverChoice::Auto);
+    let mut be = BackwardEuler::new(&system, settings).unwrap();
+    let first = be.step(&mut system, h).unwrap();
+    assert_eq!(
+        first.linear_solver,
+        Some(LinearSolverKind::Direct),
+        "{first:?}"
+    );
+    assert!(first.iterations > 3, "{first:?}");
+    // Three Newton iterations on PCG, each above the crossover (about 23 here) and at
+    // most PCG's cap.
+    assert!(first.linear_iterations > 3 * 23, "{first:?}");
+    assert!(
+        first.linear_iterations <= 3 * settings.pcg_max_iterations,
+        "{first:?}"
+    );
+    let second = be.step(&mut system, h).unwrap();
+    assert_eq!(
+        second.linear_solver,
+        Some(LinearSolverKind::Direct),
+        "{second:?}"
+    );
+    assert_eq!(second.linear_iterations, 0, "{second:?}");
+}
