@@ -219,14 +219,19 @@ fn steps_that_converge_are_unchanged() {
     }
 }
 
-/// When even the deepest split allowed does not converge, the report says so: the stop
-/// of the worst piece, its residual above its tolerance, and the pieces kept unconverged.
+/// When even the deepest split allowed does not converge (its pieces' solves continued
+/// for their extra caps, here of 2 iterations each), the report says so: the stop of the
+/// worst piece, its residual above its tolerance, and the pieces kept unconverged.
 #[test]
 fn a_split_too_shallow_says_so() {
     let (k, h) = (1e7, 1.0 / 4.0);
     let mut system = cloth(11, k, State::Compressed);
     let before = system.clone();
-    let mut be = BackwardEuler::new(&system, settings(1)).unwrap();
+    let tight = NewtonSettings {
+        max_iterations: 2,
+        ..settings(1)
+    };
+    let mut be = BackwardEuler::new(&system, tight).unwrap();
     let report = be.step(&mut system, h).unwrap();
     assert_ne!(report.stop, StepStop::Converged, "{report:?}");
     assert!(report.residual > report.tolerance);
@@ -321,15 +326,18 @@ fn a_split_step_with_a_moving_collider_is_its_pieces_taken_by_hand() {
             .unwrap();
         sim
     };
-    let mut split = run(1);
-    let mut by_hand = run(0);
+    // The halves by hand may split once more, as the split step's halves may: the
+    // deepest pieces of both (whose solves are continued past the cap, which a step with
+    // splitting off is not) are then alike.
+    let mut split = run(2);
+    let mut by_hand = run(1);
     let report = split.step(h).unwrap();
-    assert_eq!(report.pieces, 2, "{report:?}");
+    assert!(report.pieces >= 2, "{report:?}");
     let mut pieces = 0;
     for _ in 0..2 {
         pieces += by_hand.step(0.5 * h).unwrap().pieces;
     }
-    assert_eq!(pieces, 2);
+    assert_eq!(pieces, report.pieces);
     assert_eq!(split.system().positions(), by_hand.system().positions());
     assert_eq!(split.system().velocities(), by_hand.system().velocities());
     assert_eq!(split.contact_kappa(), by_hand.contact_kappa());

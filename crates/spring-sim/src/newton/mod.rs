@@ -120,6 +120,8 @@ pub struct BackwardEuler {
     /// The remaining split depth of the last piece the current step kept (the step's
     /// whole depth before it kept any).
     last_piece_depth: usize,
+    /// The iterate a continued solve starts from (see `CONTINUED_CAPS`).
+    continue_from: Vec<DVec3>,
     /// The time the next step starts at (kinematic colliders are posed from it).
     time: f64,
     /// The current solve's times and unknowns, handed to the terms.
@@ -167,6 +169,7 @@ impl BackwardEuler {
             coupled_pairs: Vec::new(),
             split_saves: Vec::new(),
             last_piece_depth: 0,
+            continue_from: Vec::new(),
             time: 0.0,
             timing: StepTiming {
                 start: 0.0,
@@ -423,8 +426,26 @@ impl BackwardEuler {
         if !whole_step && depth > 0 && self.last_piece_depth + 1 < depth {
             return self.split_without_attempt(system, h, scheme, depth, start);
         }
-        let (attempt, h_eff) = self.solve(system, h, scheme, start, None)?;
-        let far = self.far_from_converged(system, &attempt, h_eff);
+        let (mut attempt, h_eff) = self.solve(system, h, scheme, start, None)?;
+        let mut far = self.far_from_converged(system, &attempt, h_eff);
+        if far && depth == 0 && self.settings.max_split_depth > 0 {
+            // A piece at the deepest split allowed cannot be halved again: its solve,
+            // which was still lowering `g`, is continued from its iterate one iteration
+            // cap at a time (at most `CONTINUED_CAPS` more) before it is kept.
+            let mut from = std::mem::take(&mut self.continue_from);
+            for _ in 0..CONTINUED_CAPS {
+                if !far || attempt.stop != StepStop::IterationCap {
+                    break;
+                }
+                from.clear();
+                from.extend_from_slice(&self.x);
+                let previous = attempt;
+                attempt = self.solve(system, h, scheme, start, Some(&from))?.0;
+                add_work(&mut attempt, &previous);
+                far = self.far_from_converged(system, &attempt, h_eff);
+            }
+            self.continue_from = from;
+        }
         if !far || depth == 0 {
             self.commit(system, h_eff, scheme, attempt.integrator)?;
             self.last_piece_depth = depth;
@@ -474,7 +495,7 @@ impl BackwardEuler {
             // below the energy of one step of h). The abandoned solve of h, whose every
             // iterate keeps the inequality (`g` never rises from the start state), is
             // continued from its iterate, one iteration cap at a time (at most
-            // `REJECTED_SPLIT_RESUMES` more), and is the step after all; only if it is
+            // `CONTINUED_CAPS` more), and is the step after all; only if it is
             // still far from converged then, or its line search stalled, is it reported
             // so.
             system.set_state(&saved.x_n, &saved.v_n)?;
@@ -484,7 +505,7 @@ impl BackwardEuler {
             }
             let (mut report, _) = self.solve(system, h, scheme, start, Some(&saved.attempt))?;
             let mut far = self.far_from_converged(system, &report, h_eff);
-            for _ in 1..REJECTED_SPLIT_RESUMES {
+            for _ in 1..CONTINUED_CAPS {
                 if !far || report.stop != StepStop::IterationCap {
                     break;
                 }
@@ -857,9 +878,10 @@ fn keeps_energy_inequality(system: &SpringSystem, save: &SplitSave) -> bool {
     lhs <= rhs + 64.0 * f64::EPSILON * scale
 }
 
-/// How many more iteration caps the whole step's solve is given after its split was
-/// rejected (see `BackwardEuler::step_in_pieces`).
-const REJECTED_SPLIT_RESUMES: usize = 16;
+/// How many more iteration caps a solve that cannot be split further is given, from its
+/// last iterate: the whole step's after its split was rejected, and a piece at the
+/// deepest split allowed (see `BackwardEuler::step_in_pieces`).
+const CONTINUED_CAPS: usize = 16;
 
 /// Adds the work counters of `part` to `report`.
 fn add_work(report: &mut StepReport, part: &StepReport) {

@@ -73,7 +73,9 @@ pub struct NewtonSettings {
     /// is always tried first. Backward Euler checks its energy inequality for the whole
     /// step: when the pieces together break it, they are discarded and the whole step's
     /// solve is continued from its last iterate, one iteration cap at a time (at most 16
-    /// more), which keeps the inequality at every iterate.
+    /// more), which keeps the inequality at every iterate. A piece at the deepest split
+    /// that stops at the cap far from converged is continued the same way before it is
+    /// kept (only when splitting is on: with 0 the cap is the cap).
     /// [`crate::StepReport::pieces`] says how many pieces a step took and
     /// [`crate::StepReport::unconverged_pieces`] how many pieces at the deepest split
     /// still stopped far from converged (their stop is the step's `stop`). A step that
