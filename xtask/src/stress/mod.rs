@@ -68,6 +68,10 @@ pub struct StressArgs {
     /// running two cases side by side changes nothing but the wall time).
     #[arg(long, default_value_t = 2)]
     jobs: usize,
+    /// Cloth: skip the contact and self-contact cases (for a shard of the cloth grid
+    /// whose contact cases another shard runs).
+    #[arg(long)]
+    no_contact: bool,
     /// Also fail on cloth steps left at Newton's cap far from converged (reported either
     /// way; see docs/stress.md).
     #[arg(long)]
@@ -102,7 +106,8 @@ impl StressArgs {
             && self.state.is_empty()
             && self.integrator.is_empty()
             && self.steps.is_none()
-            && self.only.is_none())
+            && self.only.is_none()
+            && !self.no_contact)
     }
 
     fn cloth_cases(&self) -> Vec<cloth::ClothCase> {
@@ -339,18 +344,20 @@ pub fn run(args: &StressArgs) -> ExitCode {
         results.cloth_seconds = started.elapsed().as_secs_f64();
         // The contact cases are not narrowed by the cloth filters (they have their own
         // grid); a filtered run still runs them unless `--only ik`.
-        let started = Instant::now();
-        results.contact = cloth::contact_cases(args.quick)
-            .iter()
-            .map(cloth::run_contact_case)
-            .collect();
-        results.contact_seconds = started.elapsed().as_secs_f64();
-        let started = Instant::now();
-        results.self_contact = self_contact::self_contact_cases(args.quick)
-            .iter()
-            .map(self_contact::run_self_contact_case)
-            .collect();
-        results.self_contact_seconds = started.elapsed().as_secs_f64();
+        if !args.no_contact {
+            let started = Instant::now();
+            results.contact = cloth::contact_cases(args.quick)
+                .iter()
+                .map(cloth::run_contact_case)
+                .collect();
+            results.contact_seconds = started.elapsed().as_secs_f64();
+            let started = Instant::now();
+            results.self_contact = self_contact::self_contact_cases(args.quick)
+                .iter()
+                .map(self_contact::run_self_contact_case)
+                .collect();
+            results.self_contact_seconds = started.elapsed().as_secs_f64();
+        }
     }
     if runs(Part::Ik) {
         let started = Instant::now();

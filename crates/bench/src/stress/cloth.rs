@@ -11,8 +11,8 @@ use sinew_labcheck::reference::springs::{
 };
 use sinew_math::DVec3;
 use sinew_spring_sim::{
-    AutoSettings, ClothGrid, DIVERGENCE_RADIUS, Integrator, IntegratorKind, NewtonSettings,
-    Simulation, SpringSystem, StepError, StepReport, StepStop,
+    AutoSettings, ClothGrid, DIVERGENCE_RADIUS, Integrator, IntegratorKind, LinearSolverKind,
+    NewtonSettings, Simulation, SpringSystem, StepError, StepReport, StepStop,
 };
 use std::time::Instant;
 
@@ -426,6 +426,17 @@ pub struct ClothOutcome {
     pub iterations_mean: f64,
     /// Line-search step halvings, summed over the run.
     pub backtracks: usize,
+    /// Newton iterations summed over the run (abandoned attempts of split steps too).
+    pub iterations_total: usize,
+    /// PCG iterations summed over the run.
+    pub linear_iterations_total: usize,
+    /// Steps whose last piece used the direct solver (the others used PCG, or, for
+    /// `auto`'s velocity Verlet steps, no linear solver).
+    pub direct_steps: usize,
+    /// Pieces summed over the run (a step not split is one piece).
+    pub pieces_total: usize,
+    /// Splits computed and discarded because their union broke the energy inequality.
+    pub rejected_splits: usize,
     /// Largest final `residual / tolerance` of a step.
     pub residual_ratio_max: f64,
     /// Steps that stopped at the iteration cap.
@@ -461,6 +472,11 @@ impl ClothOutcome {
             iterations_max: 0,
             iterations_mean: 0.0,
             backtracks: 0,
+            iterations_total: 0,
+            linear_iterations_total: 0,
+            direct_steps: 0,
+            pieces_total: 0,
+            rejected_splits: 0,
             residual_ratio_max: 0.0,
             cap_steps: 0,
             stalled_steps: 0,
@@ -542,6 +558,12 @@ pub fn run_case(case: &ClothCase) -> ClothOutcome {
         iterations_total += report.iterations;
         out.iterations_max = out.iterations_max.max(report.iterations);
         out.backtracks += report.backtracks;
+        out.linear_iterations_total += report.linear_iterations;
+        out.pieces_total += report.pieces;
+        out.rejected_splits += report.rejected_splits;
+        if report.linear_solver == Some(LinearSolverKind::Direct) {
+            out.direct_steps += 1;
+        }
         let ratio = report.residual / report.tolerance;
         out.residual_ratio_max = out.residual_ratio_max.max(ratio);
         let rise = (report.energy_after.total() - report.energy_before.total()) / energy_scale;
@@ -622,6 +644,7 @@ pub fn run_case(case: &ClothCase) -> ClothOutcome {
     if out.steps_run > 0 {
         out.iterations_mean = iterations_total as f64 / out.steps_run as f64;
     }
+    out.iterations_total = iterations_total;
     out.seconds = started.elapsed().as_secs_f64();
     out
 }

@@ -66,7 +66,7 @@ impl BackwardEuler {
     /// [`Self::minimize`] on the current thread.
     fn minimize_here(&mut self, system: &SpringSystem, h: f64) -> Result<StepReport, ModelError> {
         let dim = self.pattern.dim();
-        let kind = self.choose_solver(dim)?;
+        let mut kind = self.choose_solver(dim)?;
         let tol_abs = self.settings.tolerance * system.min_free_mass() / (h * h);
         let mut report = StepReport::new(IntegratorKind::BackwardEuler);
         report.linear_solver = Some(kind);
@@ -118,6 +118,10 @@ impl BackwardEuler {
                 report.stop = StepStop::IterationCap;
                 break;
             }
+            // PCG far above the cost model's crossover finishes the step on the direct
+            // solve (solver_choice).
+            kind = self.reconsider_solver(kind, report.iterations, report.linear_iterations)?;
+            report.linear_solver = Some(kind);
             report.iterations += 1;
             let residual_l2 = residual_l2_squared.sqrt();
             if report.iterations == 1 {

@@ -117,6 +117,11 @@ pub struct BackwardEuler {
     coupled_pairs: Vec<[usize; 2]>,
     /// Per split depth, what a split step falls back on (allocated at the first split).
     split_saves: Vec<SplitSave>,
+    /// The remaining split depth of the last piece the current step kept (the step's
+    /// whole depth before it kept any).
+    last_piece_depth: usize,
+    /// The iterate a continued solve starts from (see `CONTINUED_CAPS`).
+    continue_from: Vec<DVec3>,
     /// The time the next step starts at (kinematic colliders are posed from it).
     time: f64,
     /// The current solve's times and unknowns, handed to the terms.
@@ -163,6 +168,8 @@ impl BackwardEuler {
             topology: system.topology(),
             coupled_pairs: Vec::new(),
             split_saves: Vec::new(),
+            last_piece_depth: 0,
+            continue_from: Vec::new(),
             time: 0.0,
             timing: StepTiming {
                 start: 0.0,
@@ -381,6 +388,7 @@ impl BackwardEuler {
         // redone in pieces, moving colliders included.
         let depth = self.settings.max_split_depth;
         let start = self.time;
+        self.last_piece_depth = depth;
         let mut report = self.step_in_pieces(system, h, scheme, depth, true, start)?;
         self.time = start + h;
         report.energy_before = energy_before;
@@ -410,10 +418,37 @@ impl BackwardEuler {
         whole_step: bool,
         start: f64,
     ) -> Result<StepReport, StepError> {
-        let (attempt, h_eff) = self.solve(system, h, scheme, start)?;
-        let far = self.far_from_converged(system, &attempt, h_eff);
+        // A piece more than one level coarser than the last piece the step kept is not
+        // attempted: that piece needed two or more halvings more than this one has, so
+        // a solve of this length would almost surely stop far from converged again, and
+        // it costs the whole iteration cap to find out. It is split at once. The whole
+        // step is always attempted (its iterate is what a rejected split falls back on).
+        if !whole_step && depth > 0 && self.last_piece_depth + 1 < depth {
+            return self.split_without_attempt(system, h, scheme, depth, start);
+        }
+        let (mut attempt, h_eff) = self.solve(system, h, scheme, start, None)?;
+        let mut far = self.far_from_converged(system, &attempt, h_eff);
+        if far && depth == 0 && self.settings.max_split_depth > 0 {
+            // A piece at the deepest split allowed cannot be halved again: its solve,
+            // which was still lowering `g`, is continued from its iterate one iteration
+            // cap at a time (at most `CONTINUED_CAPS` more) before it is kept.
+            let mut from = std::mem::take(&mut self.continue_from);
+            for _ in 0..CONTINUED_CAPS {
+                if !far || attempt.stop != StepStop::IterationCap {
+                    break;
+                }
+                from.clear();
+                from.extend_from_slice(&self.x);
+                let previous = attempt;
+                attempt = self.solve(system, h, scheme, start, Some(&from))?.0;
+                add_work(&mut attempt, &previous);
+                far = self.far_from_converged(system, &attempt, h_eff);
+            }
+            self.continue_from = from;
+        }
         if !far || depth == 0 {
             self.commit(system, h_eff, scheme, attempt.integrator)?;
+            self.last_piece_depth = depth;
             let mut report = attempt;
             report.unconverged_pieces = usize::from(far);
             return Ok(report);
@@ -457,28 +492,64 @@ impl BackwardEuler {
         } else {
             // The pieces together broke the inequality a backward Euler step of h keeps
             // (a shorter step dissipates less, and a split trajectory need not stay
-            // below the energy of one step of h): the abandoned iterate, which keeps it,
-            // is the step after all, reported as stopped far from converged.
+            // below the energy of one step of h). The abandoned solve of h, whose every
+            // iterate keeps the inequality (`g` never rises from the start state), is
+            // continued from its iterate, one iteration cap at a time (at most
+            // `CONTINUED_CAPS` more), and is the step after all; only if it is
+            // still far from converged then, or its line search stalled, is it reported
+            // so.
             system.set_state(&saved.x_n, &saved.v_n)?;
-            self.x.copy_from_slice(&saved.attempt);
-            self.x_ref.copy_from_slice(&saved.x_n);
-            self.commit(system, h_eff, scheme, attempt.integrator)?;
-            let mut report = attempt;
+            let mut spent = attempt;
             for part in [&first, &second] {
-                report.iterations += part.iterations;
-                report.backtracks += part.backtracks;
-                report.linear_iterations += part.linear_iterations;
-                report.shifted_factorizations += part.shifted_factorizations;
-                report.direct_failures += part.direct_failures;
-                report.descent_fallbacks += part.descent_fallbacks;
-                report.exact_hessian_iterations += part.exact_hessian_iterations;
+                add_work(&mut spent, part);
             }
-            report.unconverged_pieces = 1;
+            let (mut report, _) = self.solve(system, h, scheme, start, Some(&saved.attempt))?;
+            let mut far = self.far_from_converged(system, &report, h_eff);
+            for _ in 1..CONTINUED_CAPS {
+                if !far || report.stop != StepStop::IterationCap {
+                    break;
+                }
+                saved.attempt.copy_from_slice(&self.x);
+                add_work(&mut spent, &report);
+                report = self
+                    .solve(system, h, scheme, start, Some(&saved.attempt))?
+                    .0;
+                far = self.far_from_converged(system, &report, h_eff);
+            }
+            self.commit(system, h_eff, scheme, attempt.integrator)?;
+            add_work(&mut report, &spent);
+            report.unconverged_pieces = usize::from(far);
             report.rejected_splits = 1 + first.rejected_splits + second.rejected_splits;
             report
         };
         self.split_saves[depth - 1] = save.take().expect("guarded");
         Ok(report)
+    }
+
+    /// A piece of a split step taken as its two halves without a solve of its own
+    /// length (see [`Self::step_in_pieces`]); never the whole step, so there is no
+    /// energy inequality to guard here.
+    fn split_without_attempt(
+        &mut self,
+        system: &mut SpringSystem,
+        h: f64,
+        scheme: Scheme<'_>,
+        depth: usize,
+        start: f64,
+    ) -> Result<StepReport, StepError> {
+        let piece = match scheme {
+            Scheme::BackwardEuler => Scheme::BackwardEuler,
+            Scheme::Midpoint | Scheme::Bdf2 { .. } => Scheme::Midpoint,
+        };
+        let skipped = StepReport::new(match scheme {
+            Scheme::BackwardEuler => IntegratorKind::BackwardEuler,
+            Scheme::Midpoint => IntegratorKind::ImplicitMidpoint,
+            Scheme::Bdf2 { .. } => IntegratorKind::Bdf2,
+        });
+        let first = self.step_in_pieces(system, 0.5 * h, piece, depth - 1, false, start)?;
+        let second =
+            self.step_in_pieces(system, 0.5 * h, piece, depth - 1, false, start + 0.5 * h)?;
+        Ok(combine_pieces(&skipped, &first, &second))
     }
 
     /// The buffers of the split at remaining depth `depth` (at least 1), grown the
@@ -531,12 +602,16 @@ impl BackwardEuler {
     /// Sets up and runs the minimization of one step of `scheme` from `system`'s state,
     /// leaving the minimizer in `self.x` and the system untouched; returns the report and
     /// the effective step.
+    /// With `resume_from`, the minimization starts from that iterate instead (an
+    /// earlier solve of the same step, abandoned; it has `g` no larger than at the start
+    /// state, so continuing from it keeps backward Euler's energy inequality).
     fn solve(
         &mut self,
         system: &SpringSystem,
         h: f64,
         scheme: Scheme<'_>,
         start: f64,
+        resume_from: Option<&[DVec3]>,
     ) -> Result<(StepReport, f64), StepError> {
         self.timing = StepTiming {
             start,
@@ -646,6 +721,9 @@ impl BackwardEuler {
                 }
             }
         }
+        if let Some(resume) = resume_from {
+            self.x.copy_from_slice(resume);
+        }
         self.potential.prepare_start(&step, &mut self.x);
         let mut report = self.minimize(system, h_eff)?;
         report.integrator = kind;
@@ -735,6 +813,39 @@ impl BackwardEuler {
         }
         Ok(kind)
     }
+
+    /// The solver for the rest of a step that has run `newton_iterations` Newton
+    /// iterations on `kind` with `linear_iterations` PCG iterations: the direct solve
+    /// once PCG's count shows it costs more (solver_choice), else `kind`.
+    pub(super) fn reconsider_solver(
+        &mut self,
+        kind: LinearSolverKind,
+        newton_iterations: usize,
+        linear_iterations: usize,
+    ) -> Result<LinearSolverKind, ModelError> {
+        let choice = self.settings.linear_solver;
+        if kind != LinearSolverKind::Pcg
+            || choice != LinearSolverChoice::Auto
+            || newton_iterations < solver_choice::PCG_PROBE_NEWTON_ITERATIONS
+            || self.pattern.dim() == 0
+        {
+            return Ok(kind);
+        }
+        let costs = self.solver_costs()?;
+        if !self
+            .chooser
+            .switch_mid_step(choice, newton_iterations, linear_iterations, &costs)
+        {
+            return Ok(kind);
+        }
+        if self.direct.is_none() {
+            self.direct = Some(Self::build_direct(
+                &self.pattern,
+                self.settings.factor_structure,
+            )?);
+        }
+        Ok(LinearSolverKind::Direct)
+    }
 }
 
 /// What a split backward Euler step keeps to fall back on: the start state, the
@@ -765,6 +876,22 @@ fn keeps_energy_inequality(system: &SpringSystem, save: &SplitSave) -> bool {
     let rhs = save.energy.total();
     let scale = save.energy.scale() + after.scale() + velocity_change;
     lhs <= rhs + 64.0 * f64::EPSILON * scale
+}
+
+/// How many more iteration caps a solve that cannot be split further is given, from its
+/// last iterate: the whole step's after its split was rejected, and a piece at the
+/// deepest split allowed (see `BackwardEuler::step_in_pieces`).
+const CONTINUED_CAPS: usize = 16;
+
+/// Adds the work counters of `part` to `report`.
+fn add_work(report: &mut StepReport, part: &StepReport) {
+    report.iterations += part.iterations;
+    report.backtracks += part.backtracks;
+    report.linear_iterations += part.linear_iterations;
+    report.shifted_factorizations += part.shifted_factorizations;
+    report.direct_failures += part.direct_failures;
+    report.descent_fallbacks += part.descent_fallbacks;
+    report.exact_hessian_iterations += part.exact_hessian_iterations;
 }
 
 /// The report of a step split into `first` and `second` after the solve `attempt` was

@@ -67,7 +67,16 @@ pub struct NewtonSettings {
     /// redone from its start state as two steps of `h/2` (each of which may be split
     /// again, down to `h / 2^max_split_depth`). Each piece is an ordinary step of its
     /// own length, so a split step is bitwise the same as those smaller steps taken one
-    /// by one. [`crate::StepReport::pieces`] says how many pieces a step took and
+    /// by one. Within a split step, a piece more than one level coarser than the last
+    /// piece kept is split at once without a solve of its own length (that solve would
+    /// almost surely fail again, at the price of a whole iteration cap); the whole step
+    /// is always tried first. Backward Euler checks its energy inequality for the whole
+    /// step: when the pieces together break it, they are discarded and the whole step's
+    /// solve is continued from its last iterate, one iteration cap at a time (at most 16
+    /// more), which keeps the inequality at every iterate. A piece at the deepest split
+    /// that stops at the cap far from converged is continued the same way before it is
+    /// kept (only when splitting is on: with 0 the cap is the cap).
+    /// [`crate::StepReport::pieces`] says how many pieces a step took and
     /// [`crate::StepReport::unconverged_pieces`] how many pieces at the deepest split
     /// still stopped far from converged (their stop is the step's `stop`). A step that
     /// converges at once is never split and costs nothing more. Implicit midpoint is

@@ -8,8 +8,19 @@
 //! the direct solve, PCG is used again once every `reprobe_interval` steps to observe its
 //! iteration count afresh, so a system that softens goes back to PCG. Nothing here reads
 //! a clock: two identical runs make the same choices.
+//!
+//! Within a step, a solve that started on PCG moves to the direct solve for the rest of
+//! its Newton iterations once PCG has needed more iterations per Newton iteration than
+//! the crossover over the step's first [`PCG_PROBE_NEWTON_ITERATIONS`] Newton iterations
+//! or more: a stiff sheet far from rest needs hundreds of Newton iterations, each of
+//! which would otherwise run PCG to its cap.
 
 use crate::linear::{LinearSolverChoice, LinearSolverKind, SolverCosts};
+
+/// Newton iterations a step runs on PCG before its PCG count may send the rest of the
+/// step to the direct solve (the first iteration's count alone is a poor guide: its
+/// right-hand side is the largest of the step).
+pub(super) const PCG_PROBE_NEWTON_ITERATIONS: usize = 3;
 
 /// The observations and counts the automatic choice is made from.
 #[derive(Clone, Copy, Debug, Default)]
@@ -52,6 +63,31 @@ impl SolverChooser {
                 }
             }
         }
+    }
+
+    /// Whether a step under `choice` that has run `newton_iterations` Newton iterations
+    /// on PCG, needing `linear_iterations` PCG iterations in all, should finish on the
+    /// direct solve: only under `Auto`, after at least [`PCG_PROBE_NEWTON_ITERATIONS`],
+    /// and when the count per Newton iteration is above the crossover of `costs`. When
+    /// it says yes the count is recorded as the last PCG observation, so the next steps
+    /// start on the direct solve.
+    pub(super) fn switch_mid_step(
+        &mut self,
+        choice: LinearSolverChoice,
+        newton_iterations: usize,
+        linear_iterations: usize,
+        costs: &SolverCosts,
+    ) -> bool {
+        if choice != LinearSolverChoice::Auto || newton_iterations < PCG_PROBE_NEWTON_ITERATIONS {
+            return false;
+        }
+        let observed = linear_iterations as f64 / newton_iterations as f64;
+        if observed <= costs.crossover_iterations() {
+            return false;
+        }
+        self.pcg_iterations_per_newton = Some(observed);
+        self.steps_since_pcg = 0;
+        true
     }
 
     /// Records a step taken with `kind`: `newton_iterations` Newton iterations needing
@@ -119,6 +155,19 @@ mod tests {
         // The system softened: back to PCG for good.
         chooser.record(LinearSolverKind::Pcg, 1, 4);
         assert_eq!(chooser.choose(auto, 4, Some(&c)), LinearSolverKind::Pcg);
+        // Mid-step: not before the probe iterations, not at or below the crossover, and
+        // never for a fixed choice.
+        let mut fresh = SolverChooser::default();
+        let probe = PCG_PROBE_NEWTON_ITERATIONS;
+        assert!(!fresh.switch_mid_step(auto, probe - 1, 1000 * probe, &c));
+        assert!(!fresh.switch_mid_step(auto, probe, 10 * probe, &c));
+        assert!(!fresh.switch_mid_step(LinearSolverChoice::Pcg, probe, 1000 * probe, &c));
+        assert!(!fresh.needs_costs(auto));
+        assert!(fresh.switch_mid_step(auto, probe, 10 * probe + 1, &c));
+        // The switch counts as an observation: the next step starts on the direct
+        // solve, even after the switched step is recorded as a direct one.
+        fresh.record(LinearSolverKind::Direct, 50, 0);
+        assert_eq!(fresh.choose(auto, 64, Some(&c)), LinearSolverKind::Direct);
         // The fixed choices ignore everything.
         assert_eq!(
             chooser.choose(LinearSolverChoice::Direct, 4, None),
