@@ -10,7 +10,7 @@ use sinew_ik_body::{
     BodyBatch, BodyEffector, BodyProblem, BodyReport, BodySolverOptions, BodyState,
     TreeFabrikOptions,
 };
-use sinew_skeleton::ik::{SolveSettings, StopReason};
+use sinew_skeleton::ik::SolveSettings;
 use std::hint::black_box;
 
 fn cold(c: &mut Criterion) {
@@ -70,16 +70,7 @@ fn batch(c: &mut Criterion) {
         .map(|f| workload::clip_frame(&rest.global, f))
         .collect();
     let characters = 1000;
-    let empty = BodyReport {
-        iterations: 0,
-        stop: StopReason::Stalled,
-        initial_cost: 0.0,
-        cost: 0.0,
-        max_error: 0.0,
-        max_rotation_error: 0.0,
-        limit_violation: 0.0,
-        restarted: false,
-    };
+    let empty = BodyReport::UNSOLVED;
     let mut group = c.benchmark_group("w8-batch");
     group.sample_size(10);
     for threads in [1, 2] {

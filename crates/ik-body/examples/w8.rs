@@ -16,7 +16,7 @@ use sinew_ik_body::{
     BodyBatch, BodyProblem, BodyReport, BodySolverOptions, BodyState, TreeFabrikOptions,
 };
 use sinew_skeleton::Skeleton;
-use sinew_skeleton::ik::{SolveSettings, StopReason, largest_rotation_change};
+use sinew_skeleton::ik::{SolveSettings, largest_rotation_change};
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -130,16 +130,7 @@ fn batch(skeleton: &Skeleton) {
     let characters = 1000;
     let rest = BodyState::rest(skeleton);
     let rest_global = rest.global.clone();
-    let empty = BodyReport {
-        iterations: 0,
-        stop: StopReason::Converged,
-        initial_cost: 0.0,
-        cost: 0.0,
-        max_error: 0.0,
-        max_rotation_error: 0.0,
-        limit_violation: 0.0,
-        restarted: false,
-    };
+    let empty = BodyReport::UNSOLVED;
     // The same batches on one and on two threads, taken in turn (so a change in the
     // machine's load touches both alike), each with its own solvers and states; their
     // answers must agree to the bit.
@@ -201,16 +192,7 @@ fn spawn_cost(skeleton: &Skeleton) {
     let effectors = workload::clip_frame(&rest.global, 0);
     let problems =
         vec![BodyProblem::new(skeleton, &effectors, settings).with_root_translation(true); 2];
-    let empty = BodyReport {
-        iterations: 0,
-        stop: StopReason::Converged,
-        initial_cost: 0.0,
-        cost: 0.0,
-        max_error: 0.0,
-        max_rotation_error: 0.0,
-        limit_violation: 0.0,
-        restarted: false,
-    };
+    let empty = BodyReport::UNSOLVED;
     let mut medians = [0.0; 2];
     for (k, threads) in [1, 2].into_iter().enumerate() {
         let mut batch = BodyBatch::new(TreeFabrikOptions::default()).expect("default options");

@@ -16,7 +16,7 @@ use sinew_ik_body::{
     BodyBatch, BodyEffector, BodyProblem, BodyReport, BodySolverOptions, BodyState,
     TreeFabrikOptions,
 };
-use sinew_skeleton::ik::{SolveSettings, StopReason};
+use sinew_skeleton::ik::SolveSettings;
 use std::hint::black_box;
 
 fn main() {
@@ -96,16 +96,7 @@ fn main() {
             total = count.unwrap_or(1);
             let characters = 1000;
             let mut states = vec![rest.clone(); characters];
-            let empty = BodyReport {
-                iterations: 0,
-                stop: StopReason::Stalled,
-                initial_cost: 0.0,
-                cost: 0.0,
-                max_error: 0.0,
-                max_rotation_error: 0.0,
-                limit_violation: 0.0,
-                restarted: false,
-            };
+            let empty = BodyReport::UNSOLVED;
             let mut reports = vec![empty; characters];
             let mut batch = BodyBatch::new(TreeFabrikOptions::default()).expect("valid");
             for step in 0..total {

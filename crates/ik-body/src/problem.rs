@@ -207,6 +207,20 @@ pub struct BodyReport {
 }
 
 impl BodyReport {
+    /// A report of no solve (0 iterations, every figure 0, stop [`StopReason::Stalled`]):
+    /// what a caller fills a [`BodyBatch`](crate::BodyBatch)'s report buffer with before
+    /// the first batch, which overwrites every entry.
+    pub const UNSOLVED: Self = Self {
+        iterations: 0,
+        stop: StopReason::Stalled,
+        initial_cost: 0.0,
+        cost: 0.0,
+        max_error: 0.0,
+        max_rotation_error: 0.0,
+        limit_violation: 0.0,
+        restarted: false,
+    };
+
     /// Whether every effector met both tolerances of `settings`.
     #[must_use]
     pub fn within(&self, settings: &SolveSettings) -> bool {

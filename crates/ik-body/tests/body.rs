@@ -406,19 +406,7 @@ fn the_batch_matches_one_solver_per_character_on_any_thread_count() {
     for threads in [1, 3] {
         let mut batch = BodyBatch::new(TreeFabrikOptions::default()).unwrap();
         let mut states = vec![rest.clone(); problems.len()];
-        let mut reports = vec![
-            BodyReport {
-                iterations: 0,
-                stop: StopReason::Stalled,
-                initial_cost: 0.0,
-                cost: 0.0,
-                max_error: 0.0,
-                max_rotation_error: 0.0,
-                limit_violation: 0.0,
-                restarted: false,
-            };
-            problems.len()
-        ];
+        let mut reports = vec![BodyReport::UNSOLVED; problems.len()];
         batch
             .solve(&problems, &mut states, &mut reports, threads)
             .unwrap();
@@ -480,16 +468,7 @@ fn warm_batches_on_one_and_two_threads_agree_to_the_bit() {
         .map(|f| workload::clip_frame(&rest.global, f))
         .collect();
     let characters = 41;
-    let empty = BodyReport {
-        iterations: 0,
-        stop: StopReason::Stalled,
-        initial_cost: 0.0,
-        cost: 0.0,
-        max_error: 0.0,
-        max_rotation_error: 0.0,
-        limit_violation: 0.0,
-        restarted: false,
-    };
+    let empty = BodyReport::UNSOLVED;
     let thread_counts = [1, 2, 3];
     let mut batches: Vec<BodyBatch> = thread_counts
         .iter()
