@@ -883,7 +883,8 @@ fn keeps_energy_inequality(system: &SpringSystem, save: &SplitSave) -> bool {
 /// deepest split allowed (see `BackwardEuler::step_in_pieces`).
 const CONTINUED_CAPS: usize = 16;
 
-/// Adds the work counters of `part` to `report`.
+/// Adds the work counters of `part` to `report`, with the Hessian slots `part` added
+/// (they stay in the pattern whether or not `part`'s solve was kept).
 fn add_work(report: &mut StepReport, part: &StepReport) {
     report.iterations += part.iterations;
     report.backtracks += part.backtracks;
@@ -892,6 +893,7 @@ fn add_work(report: &mut StepReport, part: &StepReport) {
     report.direct_failures += part.direct_failures;
     report.descent_fallbacks += part.descent_fallbacks;
     report.exact_hessian_iterations += part.exact_hessian_iterations;
+    report.pattern_pairs_added += part.pattern_pairs_added;
 }
 
 /// The report of a step split into `first` and `second` after the solve `attempt` was
@@ -915,14 +917,7 @@ fn combine_pieces(attempt: &StepReport, first: &StepReport, second: &StepReport)
         if std::ptr::eq(part, worst) {
             continue;
         }
-        report.iterations += part.iterations;
-        report.backtracks += part.backtracks;
-        report.linear_iterations += part.linear_iterations;
-        report.shifted_factorizations += part.shifted_factorizations;
-        report.direct_failures += part.direct_failures;
-        report.descent_fallbacks += part.descent_fallbacks;
-        report.exact_hessian_iterations += part.exact_hessian_iterations;
-        report.pattern_pairs_added += part.pattern_pairs_added;
+        add_work(&mut report, part);
     }
     report.pieces = first.pieces + second.pieces;
     report.split_depth = 1 + first.split_depth.max(second.split_depth);
