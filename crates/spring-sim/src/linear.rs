@@ -1118,26 +1118,9 @@ mod tests {
     #[test]
     fn the_row_ordered_product_matches_the_column_ordered_one() {
         // 61 x 61, stretched and bent so every block is full: 11 157 unknowns.
-        let mut system =
-            SpringSystem::cloth(&ClothGrid::lab_sized(61, 0.03).with_damping(0.2)).unwrap();
-        let x: Vec<sinew_math::DVec3> = system
-            .positions()
-            .iter()
-            .enumerate()
-            .map(|(i, p)| *p * 1.2 + sinew_math::DVec3::new(0.0, 0.01 * (i as f64).sin(), 0.0))
-            .collect();
-        let v = vec![sinew_math::DVec3::ZERO; x.len()];
-        system.set_state(&x, &v).unwrap();
-        let pattern = HessianPattern::new(&system);
+        let (pattern, values, triplets) = stretched(61, 0.03);
         let n = pattern.dim();
         assert!(n > PARALLEL_MIN);
-        let triplets = newton_matrix_triplets(&system, 1.0 / 60.0);
-        let mut values = vec![0.0; pattern.nnz()];
-        let col_ptr = pattern.symbolic.col_ptr();
-        for (k, (_, _, value)) in triplets.iter().enumerate() {
-            values[k] = *value;
-        }
-        assert_eq!(col_ptr[n], triplets.len());
         let input: Vec<f64> = (0..n)
             .map(|i| ((i * 7919) % 1000) as f64 / 500.0 - 1.0)
             .collect();

@@ -441,14 +441,7 @@ fn advance<S: PinnedStepper + ?Sized>(
 /// work of both.
 fn merge(first: &StepReport, second: &StepReport) -> StepReport {
     let mut r = *second;
-    r.iterations += first.iterations;
-    r.backtracks += first.backtracks;
-    r.linear_iterations += first.linear_iterations;
-    r.shifted_factorizations += first.shifted_factorizations;
-    r.direct_failures += first.direct_failures;
-    r.descent_fallbacks += first.descent_fallbacks;
-    r.exact_hessian_iterations += first.exact_hessian_iterations;
-    r.pattern_pairs_added += first.pattern_pairs_added;
+    r.add_work(first);
     r.pieces += first.pieces;
     r.split_depth = 1 + first.split_depth.max(second.split_depth);
     r.unconverged_pieces += first.unconverged_pieces;

@@ -206,6 +206,20 @@ pub struct StepReport {
 }
 
 impl StepReport {
+    /// Adds the work counters of `part` (iterations, backtracks, linear iterations,
+    /// factorizations, fallbacks and the Hessian slots it added, which stay in the
+    /// pattern whether or not `part`'s solve was kept).
+    pub(crate) fn add_work(&mut self, part: &StepReport) {
+        self.iterations += part.iterations;
+        self.backtracks += part.backtracks;
+        self.linear_iterations += part.linear_iterations;
+        self.shifted_factorizations += part.shifted_factorizations;
+        self.direct_failures += part.direct_failures;
+        self.descent_fallbacks += part.descent_fallbacks;
+        self.exact_hessian_iterations += part.exact_hessian_iterations;
+        self.pattern_pairs_added += part.pattern_pairs_added;
+    }
+
     /// An empty report for `integrator`.
     #[must_use]
     pub fn new(integrator: IntegratorKind) -> Self {

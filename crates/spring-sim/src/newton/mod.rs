@@ -441,7 +441,7 @@ impl BackwardEuler {
                 from.extend_from_slice(&self.x);
                 let previous = attempt;
                 attempt = self.solve(system, h, scheme, start, Some(&from))?.0;
-                add_work(&mut attempt, &previous);
+                attempt.add_work(&previous);
                 far = self.far_from_converged(system, &attempt, h_eff);
             }
             self.continue_from = from;
@@ -501,7 +501,7 @@ impl BackwardEuler {
             system.set_state(&saved.x_n, &saved.v_n)?;
             let mut spent = attempt;
             for part in [&first, &second] {
-                add_work(&mut spent, part);
+                spent.add_work(part);
             }
             let (mut report, _) = self.solve(system, h, scheme, start, Some(&saved.attempt))?;
             let mut far = self.far_from_converged(system, &report, h_eff);
@@ -510,14 +510,14 @@ impl BackwardEuler {
                     break;
                 }
                 saved.attempt.copy_from_slice(&self.x);
-                add_work(&mut spent, &report);
+                spent.add_work(&report);
                 report = self
                     .solve(system, h, scheme, start, Some(&saved.attempt))?
                     .0;
                 far = self.far_from_converged(system, &report, h_eff);
             }
             self.commit(system, h_eff, scheme, attempt.integrator)?;
-            add_work(&mut report, &spent);
+            report.add_work(&spent);
             report.unconverged_pieces = usize::from(far);
             report.rejected_splits = 1 + first.rejected_splits + second.rejected_splits;
             report
@@ -883,19 +883,6 @@ fn keeps_energy_inequality(system: &SpringSystem, save: &SplitSave) -> bool {
 /// deepest split allowed (see `BackwardEuler::step_in_pieces`).
 const CONTINUED_CAPS: usize = 16;
 
-/// Adds the work counters of `part` to `report`, with the Hessian slots `part` added
-/// (they stay in the pattern whether or not `part`'s solve was kept).
-fn add_work(report: &mut StepReport, part: &StepReport) {
-    report.iterations += part.iterations;
-    report.backtracks += part.backtracks;
-    report.linear_iterations += part.linear_iterations;
-    report.shifted_factorizations += part.shifted_factorizations;
-    report.direct_failures += part.direct_failures;
-    report.descent_fallbacks += part.descent_fallbacks;
-    report.exact_hessian_iterations += part.exact_hessian_iterations;
-    report.pattern_pairs_added += part.pattern_pairs_added;
-}
-
 /// The report of a step split into `first` and `second` after the solve `attempt` was
 /// abandoned: the work of all three, the pieces of both halves, and the residual,
 /// tolerance and stop of the piece furthest from its tolerance.
@@ -917,7 +904,7 @@ fn combine_pieces(attempt: &StepReport, first: &StepReport, second: &StepReport)
         if std::ptr::eq(part, worst) {
             continue;
         }
-        add_work(&mut report, part);
+        report.add_work(part);
     }
     report.pieces = first.pieces + second.pieces;
     report.split_depth = 1 + first.split_depth.max(second.split_depth);
