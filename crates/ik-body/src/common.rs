@@ -189,16 +189,7 @@ impl Common {
             state.root_translation,
             &mut state.global,
         )?;
-        Ok(finish_report(
-            problem,
-            &self.targets,
-            state,
-            &self.initial,
-            self.initial_cost,
-            iterations,
-            stop,
-            restarted,
-        ))
+        Ok(self.report_exact(problem, state, iterations, stop, restarted))
     }
 
     /// [`Common::report`] for a solver whose every step leaves `state.global` exactly
