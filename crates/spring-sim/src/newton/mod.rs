@@ -145,8 +145,7 @@ impl BackwardEuler {
         } else {
             None
         };
-        let mut pcg = PcgSolver::new(&pattern);
-        pcg.set_threads(settings.threads)?;
+        let pcg = Self::build_pcg(&pattern, settings.threads)?;
         Ok(Self {
             settings,
             pcg,
@@ -182,6 +181,15 @@ impl BackwardEuler {
             direct,
             pattern,
         })
+    }
+
+    /// PCG on `pattern` with its thread pool: rebuilt with every widened pattern, which
+    /// must keep the threads the settings ask for (a rebuilt solver without them ran
+    /// every later step of a term with coupled pairs on one thread).
+    fn build_pcg(pattern: &HessianPattern, threads: usize) -> Result<PcgSolver, ModelError> {
+        let mut pcg = PcgSolver::new(pattern);
+        pcg.set_threads(threads)?;
+        Ok(pcg)
     }
 
     fn build_direct(
@@ -269,15 +277,23 @@ impl BackwardEuler {
                 reason: "a coupled particle index is out of range",
             });
         }
-        self.coupled_pairs.extend_from_slice(pairs);
-        let pattern = HessianPattern::with_pairs(system, &self.coupled_pairs);
-        if self.direct.is_some() {
-            self.direct = Some(Self::build_direct(
+        let mut coupled = self.coupled_pairs.clone();
+        coupled.extend_from_slice(pairs);
+        let pattern = HessianPattern::with_pairs(system, &coupled);
+        // Both solvers are built before either is replaced, so an error leaves the
+        // integrator as it was.
+        let direct = match self.direct {
+            Some(_) => Some(Self::build_direct(
                 &pattern,
                 self.settings.factor_structure,
-            )?);
+            )?),
+            None => None,
+        };
+        self.pcg = Self::build_pcg(&pattern, self.settings.threads)?;
+        if direct.is_some() {
+            self.direct = direct;
         }
-        self.pcg = PcgSolver::new(&pattern);
+        self.coupled_pairs = coupled;
         self.values = vec![0.0; pattern.nnz()];
         self.pattern = pattern;
         self.potential.push(term);
@@ -304,14 +320,20 @@ impl BackwardEuler {
         let mut coupled = self.coupled_pairs.clone();
         coupled.extend_from_slice(pairs);
         let pattern = HessianPattern::with_pairs(system, &coupled);
-        if self.direct.is_some() {
-            self.direct = Some(Self::build_direct(
+        // Both solvers are built before either is replaced, so an error leaves the
+        // integrator as it was.
+        let direct = match self.direct {
+            Some(_) => Some(Self::build_direct(
                 &pattern,
                 self.settings.factor_structure,
-            )?);
+            )?),
+            None => None,
+        };
+        self.pcg = Self::build_pcg(&pattern, self.settings.threads)?;
+        if direct.is_some() {
+            self.direct = direct;
         }
         self.coupled_pairs = coupled;
-        self.pcg = PcgSolver::new(&pattern);
         self.values = vec![0.0; pattern.nnz()];
         self.pattern = pattern;
         Ok(())
@@ -913,8 +935,6 @@ fn combine_pieces(attempt: &StepReport, first: &StepReport, second: &StepReport)
     report
 }
 
-/// `g` at `x`, its springs summed in fixed chunks on `pcg`'s thread pool when it has one
-/// (the same bits for any number of threads).
 /// `g(x + dx) - g(x)` on the solver's thread pool when it has one (the same bits for
 /// any number of threads).
 fn change_on_pool(

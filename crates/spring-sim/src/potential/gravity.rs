@@ -42,7 +42,7 @@ impl Term for Gravity {
     fn add_gradient(&self, step: &StepContext<'_>, _x: &[DVec3], gradient: &mut [DVec3]) {
         let gravity = step.system.material().gravity;
         for (g, &m) in gradient.iter_mut().zip(step.system.masses()) {
-            *g -= m * gravity;
+            add_gradient_at(g, m, gravity);
         }
     }
 
@@ -55,4 +55,11 @@ impl Term for Gravity {
     ) {
         // A linear term has no curvature.
     }
+}
+
+/// Adds a particle's gradient `-m g` to `grad` (the term's loop and the threaded
+/// gradient's gather both call it).
+#[inline]
+pub(super) fn add_gradient_at(grad: &mut DVec3, m: f64, gravity: DVec3) {
+    *grad -= m * gravity;
 }

@@ -44,7 +44,7 @@ impl Term for Inertia {
     fn add_gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
         let inv_h2 = 1.0 / (step.h * step.h);
         for (p, (g, &m)) in gradient.iter_mut().zip(step.system.masses()).enumerate() {
-            *g += m * (inv_h2 * (x[p] - step.y[p]));
+            add_gradient_at(g, m, inv_h2, x[p], step.y[p]);
         }
     }
 
@@ -57,7 +57,22 @@ impl Term for Inertia {
     ) {
         let inv_h2 = 1.0 / (step.h * step.h);
         for (p, &m) in step.system.masses().iter().enumerate() {
-            sink.add_diagonal(p, SymBlock::scaled_identity(m * inv_h2));
+            sink.add_diagonal(p, block(m, inv_h2));
         }
     }
+}
+
+// The per-particle kernels, written once for the term's loops and for the threaded
+// assembly's gather, which folds them into its pass over the particles.
+
+/// Adds particle gradient `m (x - y) / h^2` to `g` (`inv_h2 = 1/h^2`).
+#[inline]
+pub(super) fn add_gradient_at(g: &mut DVec3, m: f64, inv_h2: f64, x: DVec3, y: DVec3) {
+    *g += m * (inv_h2 * (x - y));
+}
+
+/// A particle's diagonal block `m/h^2 I` (`inv_h2 = 1/h^2`).
+#[inline]
+pub(super) fn block(m: f64, inv_h2: f64) -> SymBlock {
+    SymBlock::scaled_identity(m * inv_h2)
 }

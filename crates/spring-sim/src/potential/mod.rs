@@ -222,7 +222,7 @@ fn chunked_sum(
 /// module; the loop calls both on the same spring), and a damping term is skipped when
 /// the material has no damping. Every other term is evaluated on its own, in order. Only
 /// the order of the floating-point sums differs from evaluating every term separately.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct Potential {
     terms: Vec<Box<dyn Term>>,
     /// Index of the spring term evaluated in the fused loop.
@@ -231,6 +231,32 @@ pub struct Potential {
     damping: Option<usize>,
     /// Indices of the other terms.
     other_terms: Vec<usize>,
+    /// The other terms in order, when every one of them is an [`Inertia`] or a
+    /// [`Gravity`] (per particle and known here, so the threaded assembly folds them
+    /// into its pass over the particles); `None` when another term is among them.
+    pointwise_others: Option<Vec<Pointwise>>,
+}
+
+impl Default for Potential {
+    fn default() -> Self {
+        Self {
+            terms: Vec::new(),
+            springs: None,
+            damping: None,
+            other_terms: Vec::new(),
+            pointwise_others: Some(Vec::new()),
+        }
+    }
+}
+
+/// A term whose gradient and Hessian act on each particle alone, with a kernel the
+/// threaded assembly calls per particle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Pointwise {
+    /// [`Inertia`].
+    Inertia,
+    /// [`Gravity`].
+    Gravity,
 }
 
 impl Potential {
@@ -267,6 +293,17 @@ impl Potential {
             self.damping = Some(index);
         } else {
             self.other_terms.push(index);
+            let kind = if any.is::<Inertia>() {
+                Some(Pointwise::Inertia)
+            } else if any.is::<Gravity>() {
+                Some(Pointwise::Gravity)
+            } else {
+                None
+            };
+            match (kind, self.pointwise_others.as_mut()) {
+                (Some(kind), Some(list)) => list.push(kind),
+                _ => self.pointwise_others = None,
+            }
         }
         self.terms.push(term);
     }

@@ -14,7 +14,7 @@
 //!    the pattern's storage, so chunks of particles own disjoint ranges of the values.
 
 use super::fused::PerSpring;
-use super::{Potential, StepContext, SymBlock};
+use super::{Pointwise, Potential, StepContext, SymBlock, gravity, inertia};
 use crate::model::SpringSystem;
 use crate::pattern::{FIXED, HessianPattern};
 use crate::spring::Curvature;
@@ -27,27 +27,104 @@ const SPRING_CHUNK: usize = 1024;
 /// threads end within a twentieth of the pass of each other; neither size changes a
 /// bit of the result).
 const PARTICLE_CHUNK: usize = 512;
+/// Marks a spring whose coupling block is not in the gathering particle's columns.
+const NO_COUPLING: u32 = u32::MAX;
 
 /// The gather index of one topology and the per-spring buffers.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub(crate) struct SpringGather {
+    /// The particle and spring counts the index was built for.
+    size: (usize, usize),
+    /// Whether an index does not fit the index's 32 bits (a system of 2^31 springs or
+    /// more): the assembly then runs the sequential loops, which give the same bits.
+    oversized: bool,
     /// Particle `p`'s springs are `incident[incident_ptr[p]..incident_ptr[p + 1]]`, as
     /// `2 e` when `p` is spring `e`'s first particle and `2 e + 1` when its second, in
     /// increasing `e`.
     incident_ptr: Vec<usize>,
-    incident: Vec<usize>,
+    incident: Vec<u32>,
+    /// The Hessian's index on the pattern it was last used with.
+    coupling: Option<CouplingIndex>,
     /// Per spring, its gradient on its first particle.
     gradients: Vec<DVec3>,
     /// Per spring, its block `K`.
     blocks: Vec<SymBlock>,
 }
 
+/// Free particle `f`'s springs for the Hessian, `entries[ptr[f]..ptr[f + 1]]` in
+/// increasing spring index: `[e, k]` with `k` the position of the spring's coupling
+/// block among the neighbour blocks of `f`'s columns when `f` holds it (the other end is
+/// free with a larger free index), else [`NO_COUPLING`]. Everything the gather needs of
+/// the pattern besides `col_ptr`, in 8 bytes per spring end, instead of the spring, the
+/// other end's free index and the spring's nine slots.
+#[derive(Debug)]
+struct CouplingIndex {
+    /// The dimension and stored entries of the pattern it was built for (a pattern is
+    /// only ever widened, which adds entries).
+    pattern_size: (usize, usize),
+    ptr: Vec<usize>,
+    entries: Vec<[u32; 2]>,
+}
+
+impl CouplingIndex {
+    /// The index for `system`'s springs on `pattern`, from the springs' incidence lists.
+    fn new(
+        system: &SpringSystem,
+        pattern: &HessianPattern,
+        incident_ptr: &[usize],
+        incident: &[u32],
+    ) -> Self {
+        let springs = system.springs();
+        let col_ptr = pattern.symbolic.col_ptr();
+        let mut ptr = Vec::with_capacity(pattern.free_particles.len() + 1);
+        ptr.push(0);
+        let mut entries = Vec::with_capacity(incident.len());
+        for (f, &p) in pattern.free_particles.iter().enumerate() {
+            for &code in &incident[incident_ptr[p]..incident_ptr[p + 1]] {
+                let e = (code / 2) as usize;
+                let s = &springs[e];
+                let other = if code % 2 == 0 { s.b } else { s.a };
+                let g = pattern.free_index[other];
+                // The coupling block sits in the columns of the end with the smaller
+                // free index; column `3 f` holds three diagonal entries, then three
+                // rows per neighbour block. `k` is below the particle count, which
+                // fits 32 bits (checked when the incidence lists were built).
+                let k = match &pattern.off_slots[e] {
+                    Some(slots) if g != FIXED && g > f => (slots[0] - col_ptr[3 * f] - 3) / 3,
+                    _ => NO_COUPLING as usize,
+                };
+                entries.push([code / 2, k as u32]);
+            }
+            ptr.push(entries.len());
+        }
+        Self {
+            pattern_size: (pattern.dim(), pattern.nnz()),
+            ptr,
+            entries,
+        }
+    }
+}
+
 impl SpringGather {
     /// The index for `system`'s springs.
     pub(crate) fn new(system: &SpringSystem) -> Self {
         let n = system.len();
+        let springs = system.springs();
+        let size = (n, springs.len());
+        // Codes `2 e + 1` and neighbour positions below `NO_COUPLING`.
+        if springs.len() >= (u32::MAX / 2) as usize || n >= u32::MAX as usize {
+            return Self {
+                size,
+                oversized: true,
+                incident_ptr: Vec::new(),
+                incident: Vec::new(),
+                coupling: None,
+                gradients: Vec::new(),
+                blocks: Vec::new(),
+            };
+        }
         let mut counts = vec![0usize; n + 1];
-        for s in system.springs() {
+        for s in springs {
             counts[s.a + 1] += 1;
             counts[s.b + 1] += 1;
         }
@@ -56,27 +133,30 @@ impl SpringGather {
         }
         let incident_ptr = counts.clone();
         let mut next = counts;
-        let mut incident = vec![0usize; incident_ptr[n]];
+        let mut incident = vec![0u32; incident_ptr[n]];
         // Springs in increasing index, each end in the order the sequential loop treats
-        // them (first particle, then second).
-        for (e, s) in system.springs().iter().enumerate() {
-            incident[next[s.a]] = 2 * e;
+        // them (first particle, then second). The casts fit: checked above.
+        for (e, s) in springs.iter().enumerate() {
+            incident[next[s.a]] = (2 * e) as u32;
             next[s.a] += 1;
-            incident[next[s.b]] = 2 * e + 1;
+            incident[next[s.b]] = (2 * e + 1) as u32;
             next[s.b] += 1;
         }
         Self {
+            size,
+            oversized: false,
             incident_ptr,
             incident,
-            gradients: vec![DVec3::ZERO; system.springs().len()],
-            blocks: vec![SymBlock([0.0; 6]); system.springs().len()],
+            coupling: None,
+            gradients: vec![DVec3::ZERO; springs.len()],
+            blocks: vec![SymBlock([0.0; 6]); springs.len()],
         }
     }
 
     /// Whether this index was built for `system`'s particle and spring counts (the
     /// integrator checks the rest of the topology on every step).
     pub(crate) fn fits(&self, system: &SpringSystem) -> bool {
-        self.incident_ptr.len() == system.len() + 1 && self.blocks.len() == system.springs().len()
+        self.size == (system.len(), system.springs().len())
     }
 
     /// [`Potential::gradient`] with the springs' part on the current thread pool; the
@@ -89,33 +169,45 @@ impl SpringGather {
         gradient: &mut [DVec3],
     ) {
         let per = potential.per_spring(step);
-        if !per.springs {
+        if !per.springs || self.oversized {
             potential.gradient(step, x, gradient);
             return;
         }
-        // The other terms (inertia, gravity, ...) on one thread while the pool's others
-        // start on the springs: they write `gradient`, the springs their own buffer.
         let springs = &mut self.gradients;
-        rayon::join(
-            || {
-                gradient.fill(DVec3::ZERO);
-                for &t in &potential.other_terms {
-                    potential.terms[t].add_gradient(step, x, gradient);
-                }
-            },
-            || {
-                springs
-                    .par_chunks_mut(SPRING_CHUNK)
-                    .enumerate()
-                    .for_each(|(c, chunk)| {
-                        let first = c * SPRING_CHUNK;
-                        for (i, g) in chunk.iter_mut().enumerate() {
-                            *g = per.spring_gradient(step, x, first + i);
-                        }
-                    });
-            },
-        );
+        let mut spring_pass = move || {
+            springs
+                .par_chunks_mut(SPRING_CHUNK)
+                .enumerate()
+                .for_each(|(c, chunk)| {
+                    let first = c * SPRING_CHUNK;
+                    for (i, g) in chunk.iter_mut().enumerate() {
+                        *g = per.spring_gradient(step, x, first + i);
+                    }
+                });
+        };
+        // With only inertia and gravity besides the springs, each particle's gather
+        // starts from their terms, added in the terms' order as the sequential loop
+        // does after zeroing: one pass over the gradient instead of three.
+        let pointwise = potential.pointwise_others.as_deref();
+        if pointwise.is_some() {
+            spring_pass();
+        } else {
+            // The other terms on one thread while the pool's others start on the
+            // springs: they write `gradient`, the springs their own buffer.
+            rayon::join(
+                || {
+                    gradient.fill(DVec3::ZERO);
+                    for &t in &potential.other_terms {
+                        potential.terms[t].add_gradient(step, x, gradient);
+                    }
+                },
+                spring_pass,
+            );
+        }
         let (ptr, incident, gradients) = (&self.incident_ptr, &self.incident, &self.gradients);
+        let masses = step.system.masses();
+        let inv_h2 = 1.0 / (step.h * step.h);
+        let g_vec = step.system.material().gravity;
         gradient
             .par_chunks_mut(PARTICLE_CHUNK)
             .enumerate()
@@ -123,8 +215,21 @@ impl SpringGather {
                 let first = c * PARTICLE_CHUNK;
                 for (i, g) in chunk.iter_mut().enumerate() {
                     let p = first + i;
+                    if let Some(kinds) = pointwise {
+                        *g = DVec3::ZERO;
+                        for kind in kinds {
+                            match kind {
+                                Pointwise::Inertia => {
+                                    inertia::add_gradient_at(g, masses[p], inv_h2, x[p], step.y[p])
+                                }
+                                Pointwise::Gravity => {
+                                    gravity::add_gradient_at(g, masses[p], g_vec);
+                                }
+                            }
+                        }
+                    }
                     for &code in &incident[ptr[p]..ptr[p + 1]] {
-                        let spring = gradients[code / 2];
+                        let spring = gradients[(code / 2) as usize];
                         if code % 2 == 0 {
                             *g += spring;
                         } else {
@@ -136,8 +241,7 @@ impl SpringGather {
     }
 
     /// Writes the Newton matrix's values like zeroing `values` and calling
-    /// [`Potential::add_hessian`] with a values sink on `pattern`, with the springs' part
-    /// on the current thread pool; the same bits.
+    /// [`Potential::add_hessian`] with a values sink on `pattern`, with the springs' part on the current thread pool; the same bits.
     pub(crate) fn hessian(
         &mut self,
         potential: &mut Potential,
@@ -147,7 +251,7 @@ impl SpringGather {
         pattern: &HessianPattern,
         values: &mut [f64],
     ) {
-        if !potential.per_spring(step).springs {
+        if !potential.per_spring(step).springs || self.oversized {
             values.fill(0.0);
             let mut sink = super::HessianSink::values(pattern, values);
             potential.add_hessian(step, x, curvature, &mut sink);
@@ -155,9 +259,51 @@ impl SpringGather {
         }
         let potential: &Potential = potential;
         let per = potential.per_spring(step);
+        let size = (pattern.dim(), pattern.nnz());
+        if self
+            .coupling
+            .as_ref()
+            .is_some_and(|c| c.pattern_size != size)
+        {
+            self.coupling = None;
+        }
+        let (incident_ptr, incident) = (&self.incident_ptr, &self.incident);
+        let index = self.coupling.get_or_insert_with(|| {
+            CouplingIndex::new(step.system, pattern, incident_ptr, incident)
+        });
+        let chunks = pattern.free_particles.len().div_ceil(PARTICLE_CHUNK);
+        let inertia_terms = potential.pointwise_others.as_deref().map(|kinds| {
+            kinds
+                .iter()
+                .filter(|k| matches!(k, Pointwise::Inertia))
+                .count()
+        });
+        if let Some(count) = inertia_terms {
+            // Only inertia and gravity besides the springs (gravity has no curvature):
+            // each particle's gather zeroes its own columns and adds the inertia's
+            // diagonal block before its springs' blocks, the sequential loop's order, so
+            // no pass zeroes every stored entry and none adds the inertia. The gather
+            // also computes each spring's block where it needs it, at both ends: twice
+            // the blocks' arithmetic, but no buffer of 48 bytes per spring written in a
+            // pass of its own and read back (on 317 x 317, 29 MB each way, where the
+            // step is bound by memory traffic).
+            let gather = Gather {
+                pattern,
+                coupling_ptr: &index.ptr,
+                coupling: &index.entries,
+                blocks: |e| per.spring_block(step, x, curvature, e),
+                inertia: Some(Fold {
+                    count,
+                    inv_h2: 1.0 / (step.h * step.h),
+                    masses: step.system.masses(),
+                }),
+            };
+            gather.run(0, chunks, values, 0);
+            return;
+        }
         // Zeroing the values and the other terms' blocks (a pass over every stored
-        // entry, then the inertia's diagonal) on one thread while the pool's others start
-        // on the springs' blocks, which are written to their own buffer.
+        // entry, then the inertia's diagonal) on one thread while the pool's others
+        // start on the springs' blocks, which are written to their own buffer.
         let blocks = &mut self.blocks;
         rayon::join(
             || {
@@ -179,28 +325,37 @@ impl SpringGather {
                     });
             },
         );
-        let chunks = pattern.free_particles.len().div_ceil(PARTICLE_CHUNK);
+        let blocks = &self.blocks;
         let gather = Gather {
             pattern,
-            incident_ptr: &self.incident_ptr,
-            incident: &self.incident,
-            blocks: &self.blocks,
-            springs: step.system.springs(),
+            coupling_ptr: &index.ptr,
+            coupling: &index.entries,
+            blocks: |e| blocks[e],
+            inertia: None,
         };
         gather.run(0, chunks, values, 0);
     }
 }
 
-/// What the second pass of the Hessian reads.
-struct Gather<'a> {
-    pattern: &'a HessianPattern,
-    incident_ptr: &'a [usize],
-    incident: &'a [usize],
-    blocks: &'a [SymBlock],
-    springs: &'a [crate::model::Spring],
+/// The inertia folded into the Hessian's gather: how many inertia terms, `1/h^2` and
+/// the masses.
+struct Fold<'a> {
+    count: usize,
+    inv_h2: f64,
+    masses: &'a [f64],
 }
 
-impl Gather<'_> {
+/// What the second pass of the Hessian reads.
+struct Gather<'a, B> {
+    pattern: &'a HessianPattern,
+    coupling_ptr: &'a [usize],
+    coupling: &'a [[u32; 2]],
+    blocks: B,
+    /// When set, each particle zeroes its columns and adds the inertia first.
+    inertia: Option<Fold<'a>>,
+}
+
+impl<B: Fn(usize) -> SymBlock + Sync> Gather<'_, B> {
     /// The first value slot of free particle `f`'s columns (`f` may be one past the
     /// last, giving the end of the values).
     fn first_slot(&self, f: usize) -> usize {
@@ -232,29 +387,52 @@ impl Gather<'_> {
     }
 
     /// Adds free particle `f`'s springs to its diagonal block and writes their coupling
-    /// blocks stored in its columns, in increasing spring index.
+    /// blocks stored in its columns, in increasing spring index (first zeroing its
+    /// columns and adding the inertia, when folded).
+    ///
+    /// The slots follow from the structure [`HessianPattern::with_pairs`] builds: column
+    /// `3 f + c` holds the `3 - c` lower entries of the diagonal block's column `c`, then
+    /// three rows per neighbour block, so the diagonal entries sit at the columns' starts
+    /// and neighbour block `k`'s column `c` at `3 - c + 3 k` past them.
     fn particle(&self, f: usize, values: &mut [f64], offset: usize) {
-        let p = self.pattern.free_particles[f];
-        let diag = &self.pattern.diag_slots[f];
-        for &code in &self.incident[self.incident_ptr[p]..self.incident_ptr[p + 1]] {
-            let e = code / 2;
-            let k = self.blocks[e];
-            for (slot, v) in diag.iter().zip(k.0) {
-                values[slot - offset] += v;
+        let col_ptr = self.pattern.symbolic.col_ptr();
+        let c0 = col_ptr[3 * f] - offset;
+        let c1 = col_ptr[3 * f + 1] - offset;
+        let c2 = col_ptr[3 * f + 2] - offset;
+        let end = col_ptr[3 * f + 3] - offset;
+        let cols = &mut values[c0..end];
+        let (c1, c2) = (c1 - c0, c2 - c0);
+        let diag = [0, 1, 2, c1, c1 + 1, c2];
+        if let Some(fold) = &self.inertia {
+            cols.fill(0.0);
+            let m = fold.masses[self.pattern.free_particles[f]];
+            for _ in 0..fold.count {
+                for (&slot, v) in diag.iter().zip(inertia::block(m, fold.inv_h2).0) {
+                    cols[slot] += v;
+                }
             }
-            // The coupling block sits in the columns of the end with the smaller free
-            // index; the other end's pass skips it.
-            let s = &self.springs[e];
-            let other = if code % 2 == 0 { s.b } else { s.a };
-            let g = self.pattern.free_index[other];
-            if g != FIXED
-                && g > f
-                && let Some(slots) = &self.pattern.off_slots[e]
-            {
-                let [xx, yx, zx, yy, zy, zz] = k.0;
-                let full = [xx, yx, zx, yx, yy, zy, zx, zy, zz];
-                for (slot, v) in slots.iter().zip(full) {
-                    values[slot - offset] -= v;
+        }
+        for &[e, k] in &self.coupling[self.coupling_ptr[f]..self.coupling_ptr[f + 1]] {
+            let block = (self.blocks)(e as usize);
+            for (&slot, v) in diag.iter().zip(block.0) {
+                cols[slot] += v;
+            }
+            if k != NO_COUPLING {
+                let k = 3 * k as usize;
+                let [xx, yx, zx, yy, zy, zz] = block.0;
+                let (s0, s1, s2) = (3 + k, c1 + 2 + k, c2 + 1 + k);
+                for (slot, v) in [
+                    (s0, xx),
+                    (s0 + 1, yx),
+                    (s0 + 2, zx),
+                    (s1, yx),
+                    (s1 + 1, yy),
+                    (s1 + 2, zy),
+                    (s2, zx),
+                    (s2 + 1, zy),
+                    (s2 + 2, zz),
+                ] {
+                    cols[slot] -= v;
                 }
             }
         }
