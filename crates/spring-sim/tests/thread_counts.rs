@@ -1,9 +1,15 @@
 //! Whole backward Euler steps are bitwise the same on one, two and three threads on a
 //! sheet just above the size from which the work goes to a thread pool (its chunks of
 //! unknowns, of particles and of springs all end in a short one), with the line search,
-//! the assembly and PCG on the pool.
+//! the assembly and PCG on the pool; a step's reported energies are the system's own, bit
+//! for bit.
 
 use sinew_spring_sim::*;
+
+fn assert_same_energies(a: &Energies, b: &Energies, threads: usize) {
+    let bits = |e: &Energies| [e.kinetic, e.spring, e.gravity].map(f64::to_bits);
+    assert_eq!(bits(a), bits(b), "{threads} threads: {a:?} against {b:?}");
+}
 
 #[test]
 fn a_sheet_just_above_the_pool_size_steps_alike_on_one_two_and_three_threads() {
@@ -20,7 +26,11 @@ fn a_sheet_just_above_the_pool_size_steps_alike_on_one_two_and_three_threads() {
         let mut s = system.clone();
         let (mut newton, mut linear) = (0, 0);
         for _ in 0..3 {
+            let before = s.energies();
             let r = be.step(&mut s, 1.0 / 60.0).unwrap();
+            // The report's energies are computed on the pool, as the system's own.
+            assert_same_energies(&r.energy_before, &before, threads);
+            assert_same_energies(&r.energy_after, &s.energies(), threads);
             newton += r.iterations;
             linear += r.linear_iterations;
         }
