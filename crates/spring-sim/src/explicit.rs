@@ -48,7 +48,8 @@ use sinew_math::DVec3;
 #[derive(Clone, Debug)]
 pub struct SymplecticEuler {
     substeps: usize,
-    forces: Vec<DVec3>,
+    /// Minus the forces of the last evaluation ([`negated_forces`]).
+    neg_forces: Vec<DVec3>,
     threaded: ThreadedForces,
     work_x: Vec<DVec3>,
     work_v: Vec<DVec3>,
@@ -69,7 +70,7 @@ impl SymplecticEuler {
         }
         Ok(Self {
             substeps,
-            forces: vec![DVec3::ZERO; system.len()],
+            neg_forces: vec![DVec3::ZERO; system.len()],
             threaded: ThreadedForces::new(system, 0)?,
             work_x: system.positions().to_vec(),
             work_v: system.velocities().to_vec(),
@@ -124,10 +125,11 @@ impl SymplecticEuler {
         let (x, v) = (&mut self.work_x, &mut self.work_v);
         let (masses, fixed) = (system.masses(), system.fixed());
         for _ in 0..self.substeps {
-            self.threaded.forces(system, x, v, &mut self.forces);
+            self.threaded
+                .negated_forces(system, x, v, &mut self.neg_forces);
             for i in 0..x.len() {
                 if !fixed[i] {
-                    v[i] += dt / masses[i] * self.forces[i];
+                    v[i] -= dt / masses[i] * self.neg_forces[i];
                     x[i] += dt * v[i];
                 }
             }
@@ -157,14 +159,15 @@ fn inverse_masses(system: &SpringSystem) -> Vec<f64> {
         .collect()
 }
 
-/// Total force on every particle at positions `x` and velocities `v` (`out` is
-/// overwritten): minus the gradient of the potential's conservative terms ([`Gravity`],
-/// and the springs through their kernel [`spring::gradient`]) and of the axial damping
-/// along the current spring directions ([`AxialDamping::rate_gradient`]). The hot
-/// loop of the explicit integrators: one square root and one division per spring, and a
-/// division per damped spring.
+/// Minus the total force on every particle at positions `x` and velocities `v` (`out`
+/// is overwritten): the gradient of the potential's conservative terms ([`Gravity`], and
+/// the springs through their kernel [`spring::gradient`]) and of the axial damping along
+/// the current spring directions ([`AxialDamping::rate_gradient`]). The hot loop of the
+/// explicit integrators: one square root and one division per spring, and a division per
+/// damped spring. The integrators subtract it (`v - c s` is the floating-point operation
+/// `v + c (-s)`, and negation is exact), so no pass over the particles negates it.
 #[inline]
-pub(crate) fn forces(system: &SpringSystem, x: &[DVec3], v: &[DVec3], out: &mut [DVec3]) {
+pub(crate) fn negated_forces(system: &SpringSystem, x: &[DVec3], v: &[DVec3], out: &mut [DVec3]) {
     // Zero, minus gravity's gradient: `Gravity::add_gradient` on a zeroed buffer, in
     // one pass (as the threaded gather below does). Zeroing the buffer first was a
     // `memset` call, 5% of a substep on the lab cloth; `0 - m g` is the same operation
@@ -175,7 +178,11 @@ pub(crate) fn forces(system: &SpringSystem, x: &[DVec3], v: &[DVec3], out: &mut 
         *f -= m * gravity;
     }
     // The spring term's and the damping's per-spring kernels in one pass over the
-    // springs (two passes cost a quarter more per substep on the lab cloth).
+    // springs (two passes cost a quarter more per substep on the lab cloth). The
+    // buffers are cut to one length, so a spring's end is checked against it once for
+    // all of them rather than once per buffer (the same bits).
+    let n = out.len();
+    let (x, v) = (&x[..n], &v[..n]);
     let c = system.material().damping;
     for s in system.springs() {
         let mut g = spring::gradient(x[s.a], x[s.b], s.rest_length, s.stiffness);
@@ -184,9 +191,6 @@ pub(crate) fn forces(system: &SpringSystem, x: &[DVec3], v: &[DVec3], out: &mut 
         }
         out[s.a] += g;
         out[s.b] -= g;
-    }
-    for f in out.iter_mut() {
-        *f = -*f;
     }
 }
 
@@ -200,8 +204,8 @@ pub const PARALLEL_MIN_PARTICLES: usize = 2048;
 /// The sequential loop scatters each spring's force onto its two particles in spring
 /// order, which two threads cannot share. Here each spring's force is computed first
 /// (springs in chunks, any thread), then each particle gathers its springs' forces in
-/// spring order, starting from its gravity, and negates: the same additions in the same
-/// order on every particle as the scatter makes (`f - g` and `f + (-g)` are the same
+/// spring order, starting from its gravity: the same additions in the same order on
+/// every particle as the scatter makes (`f - g` and `f + (-g)` are the same
 /// floating-point operation), so the result does not depend on the thread count.
 #[derive(Clone, Debug, Default)]
 pub struct ThreadedForces {
@@ -269,8 +273,15 @@ impl ThreadedForces {
         1
     }
 
-    /// The forces at `x`, `v` into `out`, on the threads when there are any.
-    fn forces(&mut self, system: &SpringSystem, x: &[DVec3], v: &[DVec3], out: &mut [DVec3]) {
+    /// Minus the forces at `x`, `v` into `out` ([`negated_forces`]), on the threads
+    /// when there are any.
+    fn negated_forces(
+        &mut self,
+        system: &SpringSystem,
+        x: &[DVec3],
+        v: &[DVec3],
+        out: &mut [DVec3],
+    ) {
         #[cfg(feature = "parallel")]
         if let Some(pool) = &self.pool {
             use rayon::prelude::*;
@@ -304,7 +315,7 @@ impl ThreadedForces {
                         for (k, f) in out.iter_mut().enumerate() {
                             let i = chunk * PARTICLES_PER_TASK + k;
                             // As the sequential loop: zero, minus gravity's gradient,
-                            // then the springs in order, then negated.
+                            // then the springs in order.
                             let mut sum = DVec3::ZERO;
                             sum -= masses[i] * gravity;
                             for &(s, first) in &entries[ptr[i]..ptr[i + 1]] {
@@ -314,13 +325,13 @@ impl ThreadedForces {
                                     sum -= per_spring[s];
                                 }
                             }
-                            *f = -sum;
+                            *f = sum;
                         }
                     });
             });
             return;
         }
-        forces(system, x, v, out);
+        negated_forces(system, x, v, out);
     }
 }
 
@@ -357,7 +368,8 @@ impl ThreadedForces {
 #[derive(Clone, Debug)]
 pub struct VelocityVerlet {
     substeps: usize,
-    forces: Vec<DVec3>,
+    /// Minus the forces of the last evaluation ([`negated_forces`]).
+    neg_forces: Vec<DVec3>,
     threaded: ThreadedForces,
     work_x: Vec<DVec3>,
     work_v: Vec<DVec3>,
@@ -403,7 +415,7 @@ impl VelocityVerlet {
         }
         Ok(Self {
             substeps,
-            forces: vec![DVec3::ZERO; system.len()],
+            neg_forces: vec![DVec3::ZERO; system.len()],
             threaded: ThreadedForces::new(system, 0)?,
             work_x: system.positions().to_vec(),
             work_v: system.velocities().to_vec(),
@@ -468,24 +480,34 @@ impl VelocityVerlet {
         let dt = h / self.substeps as f64;
         let (x, v) = (&mut self.work_x, &mut self.work_v);
         if !unchanged {
-            self.threaded.forces(system, x, v, &mut self.forces);
+            self.threaded
+                .negated_forces(system, x, v, &mut self.neg_forces);
         }
         let half = 0.5 * dt;
         let inv_mass = &self.inv_mass;
-        for _ in 0..self.substeps {
+        // A substep's closing kick and the next one's opening kick and drift read the
+        // same force and nothing between them reads the state, so they run in one pass
+        // over the particles: the same operations on every particle in the same order,
+        // one pass fewer per substep.
+        for substep in 0..self.substeps {
+            let closing = substep > 0;
             for (((xi, vi), f), w) in x
                 .iter_mut()
                 .zip(v.iter_mut())
-                .zip(&self.forces)
+                .zip(&self.neg_forces)
                 .zip(inv_mass)
             {
-                *vi += (half * w) * *f;
+                if closing {
+                    *vi -= (half * w) * *f;
+                }
+                *vi -= (half * w) * *f;
                 *xi += dt * *vi;
             }
-            self.threaded.forces(system, x, v, &mut self.forces);
-            for ((vi, f), w) in v.iter_mut().zip(&self.forces).zip(inv_mass) {
-                *vi += (half * w) * *f;
-            }
+            self.threaded
+                .negated_forces(system, x, v, &mut self.neg_forces);
+        }
+        for ((vi, f), w) in v.iter_mut().zip(&self.neg_forces).zip(inv_mass) {
+            *vi -= (half * w) * *f;
         }
         let finite = (0..x.len()).find(|&i| !(x[i].is_finite() && v[i].is_finite()));
         // The end state's energies, computed before anything is written when the step is
