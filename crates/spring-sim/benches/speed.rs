@@ -8,7 +8,8 @@
 //!   model's and the measured crossover;
 //! - `steps <workload> <integrator> [steps] [repeats]`: the median time per step of a
 //!   run (restarted `repeats` times from the same state), with the Newton and PCG
-//!   iterations. Workloads: `w4`, `w4d` (damping 0.2), `w5k4`, `w5k6`, `w6`, `w6d`,
+//!   iterations, the last particle and a hash of the final positions' and velocities'
+//!   bits (to compare two builds' results). Workloads: `w4`, `w4d` (damping 0.2), `w5k4`, `w5k6`, `w6`, `w6d`,
 //!   `g<N>` (an N x N lab-pattern cloth 2 wide, like W6); integrators: `be-auto`,
 //!   `be-pcg`, `be-direct`, `verlet`, `se1` (symplectic Euler, 1 substep), `se<N>`,
 //!   `auto`, the backward Euler ones with a `-t<N>` suffix for N threads and then a
@@ -166,6 +167,7 @@ fn steps(args: &[String]) {
     let mut cpu = Vec::new();
     let (mut newton, mut linear, mut direct_steps) = (0, 0, 0);
     let mut last = DVec3Like::default();
+    let mut hash = 0;
     for _ in 0..repeats {
         let mut sim = Simulation::new(system.clone(), integ).unwrap();
         for _ in 0..steps {
@@ -181,10 +183,11 @@ fn steps(args: &[String]) {
         }
         let p = sim.system().positions().last().copied().unwrap();
         last = DVec3Like([p.x, p.y, p.z]);
+        hash = state_hash(sim.system());
     }
     let mean = cpu.iter().sum::<f64>() / cpu.len() as f64;
     println!(
-        "{} {}: wall median {:.1} us/step; CPU (this thread) median {:.1}, mean {:.1} us/step over {} steps; iterations/step {:.2}, linear/step {:.1}, direct steps {}; last particle {:?}",
+        "{} {}: wall median {:.1} us/step; CPU (this thread) median {:.1}, mean {:.1} us/step over {} steps; iterations/step {:.2}, linear/step {:.1}, direct steps {}; last particle {:?}; state hash {:016x}",
         args[0],
         args[1],
         median(times.clone()) * 1e6,
@@ -194,8 +197,23 @@ fn steps(args: &[String]) {
         newton as f64 / times.len() as f64,
         linear as f64 / times.len() as f64,
         direct_steps,
-        last.0
+        last.0,
+        hash
     );
+}
+
+/// FNV-1a over the bits of every position and velocity: two runs ended in the same
+/// state exactly when their hashes agree (up to a collision).
+fn state_hash(system: &SpringSystem) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for p in system.positions().iter().chain(system.velocities()) {
+        for c in [p.x, p.y, p.z] {
+            for byte in c.to_bits().to_le_bytes() {
+                h = (h ^ u64::from(byte)).wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        }
+    }
+    h
 }
 
 #[derive(Default, Debug, Clone, Copy)]
