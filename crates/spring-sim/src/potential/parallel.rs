@@ -441,7 +441,7 @@ impl<B: Fn(usize) -> SymBlock + Sync> Gather<'_, B> {
 
 impl PerSpring<'_> {
     /// Spring `e`'s gradient on its first particle: the sequential loop's expression.
-    #[inline]
+    #[inline(always)]
     pub(super) fn spring_gradient(&self, step: &StepContext<'_>, x: &[DVec3], e: usize) -> DVec3 {
         let s = &step.system.springs()[e];
         match self.damping {
@@ -456,7 +456,7 @@ impl PerSpring<'_> {
     }
 
     /// Spring `e`'s block: the sequential loop's expression.
-    #[inline]
+    #[inline(always)]
     pub(super) fn spring_block(
         &self,
         step: &StepContext<'_>,
