@@ -12,6 +12,13 @@
 //!    thread computes it and however many there are. The values of a particle's three
 //!    columns (its diagonal block and the coupling blocks below it) are contiguous in
 //!    the pattern's storage, so chunks of particles own disjoint ranges of the values.
+//!
+//! When the potential's other terms are only inertia and gravity, the gather also
+//! starts each particle from their per-particle kernels (the sequential loop's first
+//! additions), and the Hessian's gather computes each spring's block itself where it
+//! needs it, at both ends, instead of reading it from the first pass's buffer: one pass
+//! over the values and no pass over a buffer of blocks, for twice the blocks'
+//! arithmetic (docs/spring-sim.md, "Fewer passes over memory").
 
 use super::fused::PerSpring;
 use super::{Pointwise, Potential, StepContext, SymBlock, gravity, inertia};
