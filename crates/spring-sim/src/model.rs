@@ -777,16 +777,28 @@ impl SpringSystem {
 
     /// The energies of the state `(x, v)` of this system (same lengths as its own).
     pub(crate) fn energies_of(&self, x: &[DVec3], v: &[DVec3]) -> Energies {
+        let spring = self
+            .springs
+            .iter()
+            .map(|s| crate::spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness))
+            .sum();
+        let (kinetic, gravity) = self.particle_energies_of(x, v);
+        Energies {
+            kinetic,
+            spring,
+            gravity,
+        }
+    }
+
+    /// The kinetic and gravitational energies of the state `(x, v)`, each summed over the
+    /// particles in order: the part of [`Self::energies_of`] that has no springs (the
+    /// Newton stepper sums the springs' part on its thread pool and adds this).
+    pub(crate) fn particle_energies_of(&self, x: &[DVec3], v: &[DVec3]) -> (f64, f64) {
         let kinetic = self
             .masses
             .iter()
             .zip(v)
             .map(|(m, v)| 0.5 * m * v.length_squared())
-            .sum();
-        let spring = self
-            .springs
-            .iter()
-            .map(|s| crate::spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness))
             .sum();
         let gravity = self
             .masses
@@ -794,11 +806,7 @@ impl SpringSystem {
             .zip(x)
             .map(|(m, x)| -m * self.material.gravity.dot(*x))
             .sum();
-        Energies {
-            kinetic,
-            spring,
-            gravity,
-        }
+        (kinetic, gravity)
     }
 
     /// The fingerprint of the topology, computed when the system was built (O(1)).

@@ -819,7 +819,7 @@ impl BackwardEuler {
                 let buffer = &*buffer;
                 rayon::join(
                     || buffer.iter().copied().sum::<f64>(),
-                    || particle_energies(system),
+                    || system.particle_energies_of(system.positions(), system.velocities()),
                 )
             });
             return crate::model::Energies {
@@ -1000,25 +1000,6 @@ fn change_on_pool(
 /// Springs per task of the report's energies on the pool.
 #[cfg(feature = "parallel")]
 const ENERGY_CHUNK: usize = 4096;
-
-/// The kinetic and gravitational energies of `system`'s state, summed as
-/// [`SpringSystem::energies`] sums them (the same expressions in the same order).
-#[cfg(feature = "parallel")]
-fn particle_energies(system: &SpringSystem) -> (f64, f64) {
-    let kinetic = system
-        .masses()
-        .iter()
-        .zip(system.velocities())
-        .map(|(m, v)| 0.5 * m * v.length_squared())
-        .sum();
-    let gravity = system
-        .masses()
-        .iter()
-        .zip(system.positions())
-        .map(|(m, x)| -m * system.material().gravity.dot(*x))
-        .sum();
-    (kinetic, gravity)
-}
 
 fn fixed_at(pattern: &HessianPattern, particle: usize) -> bool {
     pattern.free_index[particle] == FIXED
