@@ -369,6 +369,8 @@ pub struct Finish {
     /// joint), and the world rotation vector of the current step.
     first_dof: Vec<usize>,
     turn: Vec<DVec3>,
+    /// The groups of three rows of one triple of columns (see `accumulate_normal`).
+    groups: Vec<Group>,
     /// The column of one blocked direction of a joint (see `reduce`).
     combined: Vec<(usize, f64)>,
     factor: Vec<f64>,
@@ -1046,6 +1048,16 @@ impl Finish {
     /// world axes share their rows, so they are summed in one pass, each entry of the
     /// normal matrix taking the three products in the order the columns come (the same
     /// additions, in the same order, as one column after another).
+    ///
+    /// A triple's rows come in groups of three consecutive rows (an effector's position
+    /// or rotation rows), and most of a group's nine values are structurally zero: a
+    /// position group of a joint (`u x d`) has a zero where the axis meets its own row,
+    /// a rotation group (`u w`) and the translation's groups only there. The groups are
+    /// added block by block, leaving out the products with a factor that is zero (told
+    /// from the values, so any columns are summed right). Adding a zero product leaves an
+    /// entry that is not `-0` unchanged, and no entry is ever `-0` (each starts at `+0`,
+    /// and a sum is `-0` only when both terms are), so the bits are those of every
+    /// product added.
     fn accumulate_normal(&mut self, rows: usize) {
         self.normal_full[..rows * rows].fill(0.0);
         let mut k = 0;
@@ -1058,6 +1070,17 @@ impl Finish {
                     &self.entries[a1..a2],
                     &self.entries[a2..a3],
                 );
+                if gather_groups(cx, cy, cz, &mut self.groups) {
+                    let normal = &mut self.normal_full[..rows * rows];
+                    for (g, group) in self.groups.iter().enumerate() {
+                        for other in &self.groups[..g] {
+                            add_group_pair::<false>(normal, rows, group, other);
+                        }
+                        add_group_pair::<true>(normal, rows, group, group);
+                    }
+                    k += 3;
+                    continue;
+                }
                 for (i, ((&(a, xa), &(_, ya)), &(_, za))) in cx.iter().zip(cy).zip(cz).enumerate() {
                     let line = &mut self.normal_full[a * rows..a * rows + a + 1];
                     for ((&(b, xb), &(_, yb)), &(_, zb)) in
@@ -1354,6 +1377,133 @@ fn moved_more_than_clamped(a: DQuat, b: DQuat) -> bool {
     }
 }
 
+/// Three consecutive rows of a triple of world-axis columns: the first row, the values
+/// `v[k][i]` of column `k` at row `row + i`, and which of them may be non-zero.
+#[derive(Clone, Copy, Debug)]
+struct Group {
+    row: usize,
+    v: [[f64; 3]; 3],
+    kind: GroupKind,
+}
+
+/// Which values of a [`Group`] may be non-zero (the others are exactly zero).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum GroupKind {
+    /// `v[k][k] == 0`: a position group of a joint's columns, `u_k x d`.
+    Cross,
+    /// `v[k][i] == 0` for `i != k`: a rotation group, or the translation's, `u_k w`.
+    Axis,
+    /// Any values.
+    Dense,
+}
+
+impl GroupKind {
+    /// Whether `v[k][i]` may be non-zero.
+    #[inline(always)]
+    const fn may_be_nonzero(self, k: usize, i: usize) -> bool {
+        match self {
+            GroupKind::Cross => k != i,
+            GroupKind::Axis => k == i,
+            GroupKind::Dense => true,
+        }
+    }
+}
+
+/// Splits the three columns of a triple (the same rows in the same order) into groups of
+/// three consecutive rows; false (and the groups cleared) when they do not split so.
+fn gather_groups(
+    cx: &[(usize, f64)],
+    cy: &[(usize, f64)],
+    cz: &[(usize, f64)],
+    groups: &mut Vec<Group>,
+) -> bool {
+    groups.clear();
+    if !cx.len().is_multiple_of(3) || cy.len() != cx.len() || cz.len() != cx.len() {
+        return false;
+    }
+    for ((x, y), z) in cx
+        .chunks_exact(3)
+        .zip(cy.chunks_exact(3))
+        .zip(cz.chunks_exact(3))
+    {
+        let row = x[0].0;
+        if x[1].0 != row + 1 || x[2].0 != row + 2 {
+            groups.clear();
+            return false;
+        }
+        let v = [
+            [x[0].1, x[1].1, x[2].1],
+            [y[0].1, y[1].1, y[2].1],
+            [z[0].1, z[1].1, z[2].1],
+        ];
+        let kind = if v[0][0] == 0.0 && v[1][1] == 0.0 && v[2][2] == 0.0 {
+            GroupKind::Cross
+        } else if v[0][1] == 0.0
+            && v[0][2] == 0.0
+            && v[1][0] == 0.0
+            && v[1][2] == 0.0
+            && v[2][0] == 0.0
+            && v[2][1] == 0.0
+        {
+            GroupKind::Axis
+        } else {
+            GroupKind::Dense
+        };
+        groups.push(Group { row, v, kind });
+    }
+    true
+}
+
+/// Adds the products of group `g` (the later rows) and group `h` to the lower triangle
+/// of `normal` (`rows` x `rows`), each entry taking the three columns' products in order,
+/// those with a zero factor left out; with `DIAGONAL` (`g` is `h`) only the entries on
+/// and below the diagonal.
+#[inline(always)]
+fn add_group_pair<const DIAGONAL: bool>(normal: &mut [f64], rows: usize, g: &Group, h: &Group) {
+    match (g.kind, h.kind) {
+        (GroupKind::Cross, GroupKind::Cross) => {
+            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Cross, GroupKind::Cross);
+        }
+        (GroupKind::Cross, GroupKind::Axis) => {
+            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Cross, GroupKind::Axis);
+        }
+        (GroupKind::Axis, GroupKind::Cross) => {
+            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Axis, GroupKind::Cross);
+        }
+        (GroupKind::Axis, GroupKind::Axis) => {
+            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Axis, GroupKind::Axis);
+        }
+        _ => add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Dense, GroupKind::Dense),
+    }
+}
+
+/// The block of [`add_group_pair`] for the kinds `kg` and `kh` (constants once inlined, so
+/// the loops unroll and the zero products drop out).
+#[inline(always)]
+fn add_block<const DIAGONAL: bool>(
+    normal: &mut [f64],
+    rows: usize,
+    g: &Group,
+    h: &Group,
+    kg: GroupKind,
+    kh: GroupKind,
+) {
+    for i in 0..3 {
+        let start = (g.row + i) * rows + h.row;
+        let line = &mut normal[start..start + 3];
+        let last = if DIAGONAL { i } else { 2 };
+        for (j, entry) in line[..=last].iter_mut().enumerate() {
+            let mut e = *entry;
+            for k in 0..3 {
+                if kg.may_be_nonzero(k, i) && kh.may_be_nonzero(k, j) {
+                    e += g.v[k][i] * h.v[k][j];
+                }
+            }
+            *entry = e;
+        }
+    }
+}
+
 /// Subtracts the outer product of a sparse column (rows increasing) from the lower
 /// triangle of a rows x rows matrix.
 fn subtract_outer(matrix: &mut [f64], rows: usize, column: &[(usize, f64)]) {
@@ -1612,6 +1762,76 @@ mod tests {
             fin.normal[(rows - 1) * rows + rows - 1] = -1.0;
             assert!(textbook_solve(&fin.normal, &fin.residual, rows, 0.01).is_none());
             assert!(!fin.solve(rows, 0.01));
+        }
+    }
+
+    #[test]
+    #[allow(clippy::field_reassign_with_default)]
+    fn the_normal_matrix_by_groups_has_the_bits_of_every_product_added() {
+        // A joint's triple over two effectors (one with a rotation goal, one its own
+        // joint's rotation only), the translation's triple and a hinge column, as
+        // `linearize` makes them (with exact zeros, some components of `d` zero too),
+        // against the products of every pair of entries added in column order.
+        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let rows = 12;
+        for round in 0..20 {
+            let mut fin = Finish::default();
+            let mut d = [
+                DVec3::new(next(), next(), next()),
+                DVec3::new(next(), 0.0, next()),
+            ];
+            if round % 2 == 1 {
+                d[0].x = -0.0;
+            }
+            let (w0, w1, wr) = (1.0 + next().abs(), 0.5, 2.0);
+            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
+                fin.col_start.push(fin.entries.len());
+                fin.dofs.push((0, u));
+                for (row, v) in [
+                    (0, u.cross(d[0]) * w0),
+                    (6, u.cross(d[1]) * w1),
+                    (9, u * wr),
+                ] {
+                    fin.entries
+                        .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
+                }
+            }
+            fin.col_start.push(fin.entries.len());
+            fin.dofs.push((1, DVec3::Y));
+            fin.entries.extend([(0, next()), (2, next()), (7, next())]);
+            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
+                fin.col_start.push(fin.entries.len());
+                fin.dofs.push((TRANSLATION, u));
+                for (row, w) in [(0, w0), (3, 1.5), (6, w1)] {
+                    let v = u * w;
+                    fin.entries
+                        .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
+                }
+            }
+            fin.col_start.push(fin.entries.len());
+            fin.normal_full.resize(rows * rows, 0.0);
+            fin.accumulate_normal(rows);
+            let mut expected = vec![0.0f64; rows * rows];
+            for k in 0..fin.dofs.len() {
+                let col = &fin.entries[fin.col_start[k]..fin.col_start[k + 1]];
+                for &(a, va) in col {
+                    for &(b, vb) in col.iter().filter(|(b, _)| *b <= a) {
+                        expected[a * rows + b] += va * vb;
+                    }
+                }
+            }
+            for a in 0..rows {
+                for b in 0..=a {
+                    let (got, want) = (fin.normal_full[a * rows + b], expected[a * rows + b]);
+                    assert_eq!(got.to_bits(), want.to_bits(), "round {round}: {a} {b}");
+                }
+            }
         }
     }
 }
