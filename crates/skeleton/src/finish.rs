@@ -369,8 +369,11 @@ pub struct Finish {
     /// joint), and the world rotation vector of the current step.
     first_dof: Vec<usize>,
     turn: Vec<DVec3>,
-    /// The groups of three rows of one triple of columns (see `accumulate_normal`).
+    /// The groups of three rows of the triples of columns (see `accumulate_normal`), and
+    /// per degree of freedom that starts a triple the range of its groups (`None` when
+    /// its columns do not split into groups).
     groups: Vec<Group>,
+    groups_of: Vec<Option<(usize, usize)>>,
     /// The column of one blocked direction of a joint (see `reduce`).
     combined: Vec<(usize, f64)>,
     factor: Vec<f64>,
@@ -890,6 +893,7 @@ impl Finish {
         let targets = job.targets;
         self.linearizations += 1;
         self.residual_at(targets, global);
+        self.groups_of.clear();
         self.dofs.clear();
         self.col_start.clear();
         self.entries.clear();
@@ -1060,6 +1064,9 @@ impl Finish {
     /// product added.
     fn accumulate_normal(&mut self, rows: usize) {
         self.normal_full[..rows * rows].fill(0.0);
+        self.groups.clear();
+        self.groups_of.clear();
+        self.groups_of.resize(self.dofs.len(), None);
         let mut k = 0;
         while k < self.dofs.len() {
             let (a0, a1) = (self.col_start[k], self.col_start[k + 1]);
@@ -1070,10 +1077,13 @@ impl Finish {
                     &self.entries[a1..a2],
                     &self.entries[a2..a3],
                 );
+                let first = self.groups.len();
                 if gather_groups(cx, cy, cz, &mut self.groups) {
+                    self.groups_of[k] = Some((first, self.groups.len()));
                     let normal = &mut self.normal_full[..rows * rows];
-                    for (g, group) in self.groups.iter().enumerate() {
-                        for other in &self.groups[..g] {
+                    let groups = &self.groups[first..];
+                    for (g, group) in groups.iter().enumerate() {
+                        for other in &groups[..g] {
                             add_group_pair::<false>(normal, rows, group, other);
                         }
                         add_group_pair::<true>(normal, rows, group, group);
@@ -1162,26 +1172,76 @@ impl Finish {
     /// returns the translation's step.
     fn turns(&mut self, movable: &[usize]) -> DVec3 {
         self.step.clear();
+        let mut shift = DVec3::ZERO;
+        self.turn.fill(DVec3::ZERO);
+        let grouped = self.groups_of.len() == self.dofs.len();
         // The three columns of a joint's world axes share their rows: one pass reads each
         // entry of `y` once for the three sums (each summed in the column's order from
-        // -0.0, as `Iterator::sum` does, so the same bits).
+        // -0.0, as `Iterator::sum` does). Over the groups of three rows the products with
+        // a zero factor are left out: adding a zero changes a sum only from -0.0 to
+        // +0.0, and a step that is zero either way turns nothing and points neither way.
         let mut k = 0;
         while k < self.dofs.len() {
             let (a0, a1) = (self.col_start[k], self.col_start[k + 1]);
             if self.is_triple(k) {
-                let (a2, a3) = (self.col_start[k + 2], self.col_start[k + 3]);
                 let (mut sx, mut sy, mut sz) = (-0.0, -0.0, -0.0);
-                for ((&(row, x), &(_, y)), &(_, z)) in self.entries[a0..a1]
-                    .iter()
-                    .zip(&self.entries[a1..a2])
-                    .zip(&self.entries[a2..a3])
+                if let Some((g0, g1)) = self.groups_of.get(k).copied().flatten().filter(|_| grouped)
                 {
-                    let v = self.y[row];
-                    sx += x * v;
-                    sy += y * v;
-                    sz += z * v;
+                    for g in &self.groups[g0..g1] {
+                        let [y0, y1, y2] = self.y[g.row..g.row + 3] else {
+                            unreachable!("a group has three rows")
+                        };
+                        let v = &g.v;
+                        match g.kind {
+                            GroupKind::Cross => {
+                                sx += v[0][1] * y1;
+                                sx += v[0][2] * y2;
+                                sy += v[1][0] * y0;
+                                sy += v[1][2] * y2;
+                                sz += v[2][0] * y0;
+                                sz += v[2][1] * y1;
+                            }
+                            GroupKind::Axis => {
+                                sx += v[0][0] * y0;
+                                sy += v[1][1] * y1;
+                                sz += v[2][2] * y2;
+                            }
+                            GroupKind::Dense => {
+                                for (i, yi) in [y0, y1, y2].into_iter().enumerate() {
+                                    sx += v[0][i] * yi;
+                                    sy += v[1][i] * yi;
+                                    sz += v[2][i] * yi;
+                                }
+                            }
+                        }
+                    }
+                } else {
+                    let (a2, a3) = (self.col_start[k + 2], self.col_start[k + 3]);
+                    for ((&(row, x), &(_, y)), &(_, z)) in self.entries[a0..a1]
+                        .iter()
+                        .zip(&self.entries[a1..a2])
+                        .zip(&self.entries[a2..a3])
+                    {
+                        let v = self.y[row];
+                        sx += x * v;
+                        sy += y * v;
+                        sz += z * v;
+                    }
                 }
                 self.step.extend([sx, sy, sz]);
+                // The turn (or the translation's shift) from the three steps, axis by
+                // axis as for single columns.
+                let m = self.dofs[k].0;
+                let axes = [self.dofs[k].1, self.dofs[k + 1].1, self.dofs[k + 2].1];
+                if m == TRANSLATION {
+                    for (u, s) in axes.into_iter().zip([sx, sy, sz]) {
+                        shift += u * s;
+                    }
+                } else if !self.frozen[m] {
+                    for (u, s) in axes.into_iter().zip([sx, sy, sz]) {
+                        self.turn[m] += u * s;
+                    }
+                }
                 k += 3;
                 continue;
             }
@@ -1190,16 +1250,13 @@ impl Finish {
                 sum += v * self.y[row];
             }
             self.step.push(sum);
-            k += 1;
-        }
-        let mut shift = DVec3::ZERO;
-        self.turn.fill(DVec3::ZERO);
-        for (&(m, u), &s) in self.dofs.iter().zip(&self.step) {
+            let (m, u) = self.dofs[k];
             if m == TRANSLATION {
-                shift += u * s;
+                shift += u * sum;
             } else if !self.frozen[m] {
-                self.turn[m] += u * s;
+                self.turn[m] += u * sum;
             }
+            k += 1;
         }
         for m in 0..movable.len() {
             for i in 0..self.blocked_count[m] {
@@ -1410,14 +1467,15 @@ impl GroupKind {
 }
 
 /// Splits the three columns of a triple (the same rows in the same order) into groups of
-/// three consecutive rows; false (and the groups cleared) when they do not split so.
+/// three consecutive rows, appended to `groups`; false (and nothing appended) when they
+/// do not split so.
 fn gather_groups(
     cx: &[(usize, f64)],
     cy: &[(usize, f64)],
     cz: &[(usize, f64)],
     groups: &mut Vec<Group>,
 ) -> bool {
-    groups.clear();
+    let before = groups.len();
     if !cx.len().is_multiple_of(3) || cy.len() != cx.len() || cz.len() != cx.len() {
         return false;
     }
@@ -1428,7 +1486,7 @@ fn gather_groups(
     {
         let row = x[0].0;
         if x[1].0 != row + 1 || x[2].0 != row + 2 {
-            groups.clear();
+            groups.truncate(before);
             return false;
         }
         let v = [
