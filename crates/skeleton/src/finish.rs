@@ -65,7 +65,7 @@ const CLAMPED: f64 = 1e-12;
 /// How far inside both constraints of its limit (radians) a swing-twist joint counts as
 /// off its bounds without differencing: a thousand times the difference step, so the
 /// perturbed rotations cannot reach a bound.
-const DEEP_INSIDE: f64 = 1e-4;
+const DEEP_INSIDE: f64 = crate::limits::DEEP_MARGIN;
 /// The difference step of the outward normals (radians).
 const H: f64 = 1e-7;
 /// The turns by `H` and `-H` about each world axis, for the outward normals.
