@@ -1308,35 +1308,54 @@ impl Finish {
             // of the factor below it.
             let column = &mut lt[b * rows + b..(b + 1) * rows];
             column[0] = pivot;
-            let mut below = column[1..].iter_mut();
-            let mut pairs = lower.chunks_exact_mut(2 * rows);
+            let below = &mut column[1..];
+            // The rows below, four, then two, then one at a time, each sum in its own
+            // register in the order of `k`.
+            let mut rest = lower;
             let mut a = b + 1;
-            for two in &mut pairs {
-                let (r0, r1) = two.split_at_mut(rows);
-                let (mut s0, mut s1) = (n[a * rows + b], n[(a + 1) * rows + b]);
-                for ((x0, x1), y) in r0[..b].iter().zip(&r1[..b]).zip(left_b) {
-                    s0 -= x0 * y;
-                    s1 -= x1 * y;
+            while rest.len() >= 4 * rows {
+                let (four, tail) = rest.split_at_mut(4 * rows);
+                let (r0, four) = four.split_at_mut(rows);
+                let (r1, four) = four.split_at_mut(rows);
+                let (r2, r3) = four.split_at_mut(rows);
+                let mut s = [
+                    n[a * rows + b],
+                    n[(a + 1) * rows + b],
+                    n[(a + 2) * rows + b],
+                    n[(a + 3) * rows + b],
+                ];
+                for ((((x0, x1), x2), x3), y) in r0[..b]
+                    .iter()
+                    .zip(&r1[..b])
+                    .zip(&r2[..b])
+                    .zip(&r3[..b])
+                    .zip(left_b)
+                {
+                    s[0] -= x0 * y;
+                    s[1] -= x1 * y;
+                    s[2] -= x2 * y;
+                    s[3] -= x3 * y;
                 }
-                let (v0, v1) = (s0 / pivot, s1 / pivot);
-                r0[b] = v0;
-                r1[b] = v1;
-                if let (Some(t0), Some(t1)) = (below.next(), below.next()) {
-                    *t0 = v0;
-                    *t1 = v1;
-                }
-                a += 2;
+                let v = s.map(|s| s / pivot);
+                r0[b] = v[0];
+                r1[b] = v[1];
+                r2[b] = v[2];
+                r3[b] = v[3];
+                below[a - b - 1..a - b + 3].copy_from_slice(&v);
+                rest = tail;
+                a += 4;
             }
-            if let Some(r0) = pairs.into_remainder().get_mut(..rows) {
+            while rest.len() >= rows {
+                let (r0, tail) = rest.split_at_mut(rows);
                 let mut s0 = n[a * rows + b];
                 for (x0, y) in r0[..b].iter().zip(left_b) {
                     s0 -= x0 * y;
                 }
                 let v0 = s0 / pivot;
                 r0[b] = v0;
-                if let Some(t0) = below.next() {
-                    *t0 = v0;
-                }
+                below[a - b - 1] = v0;
+                rest = tail;
+                a += 1;
             }
         }
         true
