@@ -54,6 +54,8 @@ const PIN_SLACK: f64 = 1e4;
 /// before the finish declares a local minimum.
 const CRAWL_STEPS: usize = 4;
 const CRAWL_GAIN: f64 = 0.02;
+/// See [`FinishJob::stall_window`].
+const STALL_FACTOR: f64 = 10.0;
 /// An accepted step that leaves at most this fraction of the cost makes the next trial a
 /// chord step (the same factor, the new residual), at most `MAX_CHORDS` in a row.
 const CHORD_GAIN: f64 = 0.01;
@@ -337,6 +339,9 @@ pub struct FinishJob<'a> {
     /// linearization, only the goals having moved; the step is a trial like any other,
     /// kept only when it lowers the cost and keeps the pins.
     pub chord_start: bool,
+    /// A finish whose cost has not fallen by `STALL_FACTOR` over this many steps stops in
+    /// a local minimum (so that its caller may restart), however it got there; 0 never.
+    pub stall_window: usize,
 }
 
 /// What a finish did.
@@ -417,6 +422,8 @@ pub struct Finish {
     factor_rows: usize,
     /// Linearizations over this finish's life (see [`Finish::linearizations`]).
     linearizations: usize,
+    /// The cost before each step of the current run (for [`FinishJob::stall_window`]).
+    history: Vec<f64>,
 }
 
 /// The finish of a chain solver: the chain's one effector, turned by the chain's movable
@@ -469,6 +476,7 @@ impl ChainFinish {
             settings: *settings,
             iterations,
             chord_start: false,
+            stall_window: 0,
         };
         let mut translation = DVec3::ZERO;
         let mut finished = self.finish.run(&job, pose, &mut translation, global)?;
@@ -680,10 +688,23 @@ impl Finish {
         let mut chord = chord_start;
         let mut chords = 0;
         let mut outward_stale = true;
+        self.history.clear();
         loop {
             if all_within(targets, global, settings) {
                 return Ok(Finished {
                     stop: StopReason::Converged,
+                    steps,
+                });
+            }
+            while self.history.len() <= steps {
+                self.history.push(cost);
+            }
+            if job.stall_window > 0
+                && steps >= job.stall_window
+                && cost * STALL_FACTOR > self.history[steps - job.stall_window]
+            {
+                return Ok(Finished {
+                    stop: StopReason::LocalMinimum,
                     steps,
                 });
             }
