@@ -1389,7 +1389,27 @@ impl Finish {
         let l = &self.factor[..rows * rows];
         let lt = &self.factor_t[..rows * rows];
         let y = &mut self.y[..rows];
-        for a in 0..rows {
+        // Two rows at a time: the sums over the entries both rows have share the loads of
+        // `y`; the second row then takes the first's new entry. Each sum runs in the
+        // same order as row by row, so the same bits.
+        let mut a = 0;
+        while a + 1 < rows {
+            let (row0, row1) = (
+                &l[a * rows..=a * rows + a],
+                &l[(a + 1) * rows..=(a + 1) * rows + a + 1],
+            );
+            let (mut s0, mut s1) = (self.residual[a], self.residual[a + 1]);
+            for ((x0, x1), v) in row0[..a].iter().zip(&row1[..a]).zip(&y[..a]) {
+                s0 -= x0 * v;
+                s1 -= x1 * v;
+            }
+            let y0 = s0 / row0[a];
+            s1 -= row1[a] * y0;
+            y[a] = y0;
+            y[a + 1] = s1 / row1[a + 1];
+            a += 2;
+        }
+        if a < rows {
             let row_a = &l[a * rows..=a * rows + a];
             let mut sum = self.residual[a];
             for (x, v) in row_a[..a].iter().zip(&y[..a]) {
@@ -1399,6 +1419,8 @@ impl Finish {
         }
         for a in (0..rows).rev() {
             // Column `a` of the factor from the diagonal down is row `a` of the transpose.
+            // (Its sum runs over the rows below in increasing order, the newest entry of
+            // `y` first, so two rows cannot share a pass here.)
             let column = &lt[a * rows + a..(a + 1) * rows];
             let (head, tail) = y.split_at_mut(a + 1);
             let mut sum = head[a];
