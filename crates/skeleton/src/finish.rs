@@ -54,6 +54,9 @@ const PIN_SLACK: f64 = 1e4;
 /// before the finish declares a local minimum.
 const CRAWL_STEPS: usize = 4;
 const CRAWL_GAIN: f64 = 0.02;
+/// Up to this many rows the Cholesky factor is made row by row, without its transpose
+/// (see [`Finish::factorize`]).
+const SMALL_ROWS: usize = 6;
 /// See [`FinishJob::stall_window`].
 const STALL_FACTOR: f64 = 10.0;
 /// An accepted step that leaves at most this fraction of the cost makes the next trial a
@@ -696,17 +699,18 @@ impl Finish {
                     steps,
                 });
             }
-            while self.history.len() <= steps {
-                self.history.push(cost);
-            }
-            if job.stall_window > 0
-                && steps >= job.stall_window
-                && cost * STALL_FACTOR > self.history[steps - job.stall_window]
-            {
-                return Ok(Finished {
-                    stop: StopReason::LocalMinimum,
-                    steps,
-                });
+            if job.stall_window > 0 {
+                while self.history.len() <= steps {
+                    self.history.push(cost);
+                }
+                if steps >= job.stall_window
+                    && cost * STALL_FACTOR > self.history[steps - job.stall_window]
+                {
+                    return Ok(Finished {
+                        stop: StopReason::LocalMinimum,
+                        steps,
+                    });
+                }
             }
             if job.iterations + steps >= settings.max_iterations {
                 return Ok(Finished {
@@ -1307,8 +1311,13 @@ impl Finish {
     /// reads.
     fn factorize(&mut self, rows: usize, damping: f64) -> bool {
         let size = rows * rows;
-        self.factor.resize(size, 0.0);
-        self.factor_t.resize(size, 0.0);
+        if self.factor.len() < size || self.factor_t.len() < size {
+            self.factor.resize(size, 0.0);
+            self.factor_t.resize(size, 0.0);
+        }
+        if rows <= SMALL_ROWS {
+            return self.factorize_small(rows, damping);
+        }
         let n = &self.normal[..size];
         let l = &mut self.factor[..size];
         let lt = &mut self.factor_t[..size];
@@ -1382,6 +1391,35 @@ impl Finish {
         true
     }
 
+    /// [`Finish::factorize`] for a few rows (a chain's 3 or 6), row by row into `factor`
+    /// only: there the column order's bookkeeping costs more than it saves, and
+    /// [`Finish::substitute`] reads the columns of so small a factor in place.
+    fn factorize_small(&mut self, rows: usize, damping: f64) -> bool {
+        let n = &self.normal[..rows * rows];
+        let l = &mut self.factor[..rows * rows];
+        for a in 0..rows {
+            let (above, from_a) = l.split_at_mut(a * rows);
+            let row_a = &mut from_a[..rows];
+            for b in 0..a {
+                let row_b = &above[b * rows..b * rows + b + 1];
+                let mut sum = n[a * rows + b];
+                for (x, y) in row_a[..b].iter().zip(&row_b[..b]) {
+                    sum -= x * y;
+                }
+                row_a[b] = sum / row_b[b];
+            }
+            let mut sum = n[a * rows + a] + damping;
+            for x in &row_a[..a] {
+                sum -= x * x;
+            }
+            if !(sum.is_finite() && sum > 0.0) {
+                return false;
+            }
+            row_a[a] = sum.sqrt();
+        }
+        true
+    }
+
     /// `y` from the factor of the last [`Finish::factorize`] and the current residual
     /// (forward substitution on the rows of the factor, back substitution on the rows of
     /// its transpose); false when an entry is not finite.
@@ -1416,6 +1454,17 @@ impl Finish {
                 sum -= x * v;
             }
             y[a] = sum / row_a[a];
+        }
+        if rows <= SMALL_ROWS {
+            for a in (0..rows).rev() {
+                let mut sum = y[a];
+                let below = l[(a + 1) * rows..].chunks_exact(rows);
+                for (row_b, v) in below.zip(&y[a + 1..]) {
+                    sum -= row_b[a] * v;
+                }
+                y[a] = sum / l[a * rows + a];
+            }
+            return y.iter().all(|v| v.is_finite());
         }
         for a in (0..rows).rev() {
             // Column `a` of the factor from the diagonal down is row `a` of the transpose.
@@ -1846,9 +1895,9 @@ mod tests {
     #[test]
     #[allow(clippy::field_reassign_with_default)]
     fn the_column_by_column_factor_solves_to_the_bits_of_the_textbook_loops() {
-        // Random J J^T of every size from 1 to 9 rows (odd and even, so the rows taken
-        // two at a time end both ways), solved both ways with the same bits; a matrix
-        // with a negative pivot is refused by both.
+        // Random J J^T of every size from 1 to 12 rows (row by row up to `SMALL_ROWS`,
+        // then by columns, the rows below taken four at a time ending every way), solved
+        // both ways with the same bits; a matrix with a negative pivot is refused by both.
         let mut seed = 0x2545_f491_4f6c_dd1d_u64;
         let mut next = move || {
             seed ^= seed << 13;
@@ -1856,7 +1905,7 @@ mod tests {
             seed ^= seed << 17;
             (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
         };
-        for rows in 1..=9 {
+        for rows in 1..=12 {
             let cols = rows + 2;
             let j: Vec<f64> = (0..rows * cols).map(|_| next()).collect();
             let mut fin = Finish::default();
@@ -1874,7 +1923,7 @@ mod tests {
             for (a, (got, want)) in fin.y.iter().zip(&expected).enumerate() {
                 assert_eq!(got.to_bits(), want.to_bits(), "{rows} rows, entry {a}");
             }
-            for a in 0..rows {
+            for a in (0..rows).filter(|_| rows > SMALL_ROWS) {
                 for b in 0..=a {
                     assert_eq!(fin.factor[a * rows + b], fin.factor_t[b * rows + a]);
                 }
