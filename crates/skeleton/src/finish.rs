@@ -1197,6 +1197,7 @@ impl Finish {
     /// returns the translation's step.
     fn turns(&mut self, movable: &[usize]) -> DVec3 {
         self.step.clear();
+        self.step.resize(self.dofs.len(), 0.0);
         let mut shift = DVec3::ZERO;
         self.turn.fill(DVec3::ZERO);
         let grouped = self.groups_of.len() == self.dofs.len();
@@ -1253,7 +1254,7 @@ impl Finish {
                         sz += z * v;
                     }
                 }
-                self.step.extend([sx, sy, sz]);
+                self.step[k..k + 3].copy_from_slice(&[sx, sy, sz]);
                 // The turn (or the translation's shift) from the three steps, axis by
                 // axis as for single columns.
                 let m = self.dofs[k].0;
@@ -1274,7 +1275,7 @@ impl Finish {
             for &(row, v) in &self.entries[a0..a1] {
                 sum += v * self.y[row];
             }
-            self.step.push(sum);
+            self.step[k] = sum;
             let (m, u) = self.dofs[k];
             if m == TRANSLATION {
                 shift += u * sum;
