@@ -31,7 +31,9 @@
 //! It stops when every effector is within both tolerances, at the iteration cap, after
 //! `MAX_REJECTIONS` consecutive rejections, or after `CRAWL_STEPS` accepted steps that
 //! each gain almost nothing: a local minimum of the cost over the allowed set, which for
-//! conflicting goals is the weighted least-squares best.
+//! conflicting goals is the weighted least-squares best. A caller may also ask it to stop
+//! in a local minimum when the cost has not fallen tenfold over a window of steps
+//! ([`FinishJob::stall_window`]), so that it restarts rather than crawls.
 
 use crate::ik::{Chain, EffectorGoal, SolveSettings, StopReason, rotation_angle};
 use crate::limits::{JointLimit, LimitFrame};
