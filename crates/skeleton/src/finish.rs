@@ -1321,6 +1321,17 @@ impl Finish {
         if rows <= SMALL_ROWS {
             return self.factorize_small(rows, damping);
         }
+        // Rows come three per position goal and six per position and rotation goal; up to
+        // 24 the loops' bounds are made constants.
+        match rows {
+            9 => return self.factorize_rows::<9>(damping),
+            12 => return self.factorize_rows::<12>(damping),
+            15 => return self.factorize_rows::<15>(damping),
+            18 => return self.factorize_rows::<18>(damping),
+            21 => return self.factorize_rows::<21>(damping),
+            24 => return self.factorize_rows::<24>(damping),
+            _ => {}
+        }
         let n = &self.normal[..size];
         let l = &mut self.factor[..size];
         let lt = &mut self.factor_t[..size];
@@ -1392,6 +1403,17 @@ impl Finish {
             }
         }
         true
+    }
+
+    /// [`Finish::factorize`] for `N` rows, with the buffers seen as rows of `N`.
+    fn factorize_rows<const N: usize>(&mut self, damping: f64) -> bool {
+        let size = N * N;
+        factorize_fixed::<N>(
+            self.normal[..size].as_chunks::<N>().0,
+            self.factor[..size].as_chunks_mut::<N>().0,
+            self.factor_t[..size].as_chunks_mut::<N>().0,
+            damping,
+        )
     }
 
     /// [`Finish::factorize`] for a few rows (a chain's 3 or 6), row by row into `factor`
@@ -1546,6 +1568,74 @@ fn moved_more_than_clamped(a: DQuat, b: DQuat) -> bool {
     } else {
         rotation_angle(a, b) > CLAMPED
     }
+}
+
+/// [`Finish::factorize`] for `N` rows known at compile time: the same sums in the same
+/// order, column by column, the rows below four (then two, then one) at a time; with the
+/// bounds constants the compiler drops the index checks and unrolls.
+// Indices rather than iterators: over rows of constant length the checks drop out, and
+// each sum reads two rows at the same index.
+#[allow(clippy::needless_range_loop)]
+fn factorize_fixed<const N: usize>(
+    n: &[[f64; N]],
+    l: &mut [[f64; N]],
+    lt: &mut [[f64; N]],
+    damping: f64,
+) -> bool {
+    let (n, l, lt) = (&n[..N], &mut l[..N], &mut lt[..N]);
+    for b in 0..N {
+        let mut sum = n[b][b] + damping;
+        for k in 0..b {
+            sum -= l[b][k] * l[b][k];
+        }
+        if !(sum.is_finite() && sum > 0.0) {
+            return false;
+        }
+        let pivot = sum.sqrt();
+        l[b][b] = pivot;
+        lt[b][b] = pivot;
+        let mut a = b + 1;
+        while a + 3 < N {
+            let mut s = [n[a][b], n[a + 1][b], n[a + 2][b], n[a + 3][b]];
+            for k in 0..b {
+                let y = l[b][k];
+                s[0] -= l[a][k] * y;
+                s[1] -= l[a + 1][k] * y;
+                s[2] -= l[a + 2][k] * y;
+                s[3] -= l[a + 3][k] * y;
+            }
+            for (i, s) in s.into_iter().enumerate() {
+                let v = s / pivot;
+                l[a + i][b] = v;
+                lt[b][a + i] = v;
+            }
+            a += 4;
+        }
+        while a + 1 < N {
+            let (mut s0, mut s1) = (n[a][b], n[a + 1][b]);
+            for k in 0..b {
+                let y = l[b][k];
+                s0 -= l[a][k] * y;
+                s1 -= l[a + 1][k] * y;
+            }
+            let (v0, v1) = (s0 / pivot, s1 / pivot);
+            l[a][b] = v0;
+            l[a + 1][b] = v1;
+            lt[b][a] = v0;
+            lt[b][a + 1] = v1;
+            a += 2;
+        }
+        if a < N {
+            let mut s = n[a][b];
+            for k in 0..b {
+                s -= l[a][k] * l[b][k];
+            }
+            let v = s / pivot;
+            l[a][b] = v;
+            lt[b][a] = v;
+        }
+    }
+    true
 }
 
 /// Three consecutive rows of a triple of world-axis columns: the first row, the values
@@ -1898,9 +1988,10 @@ mod tests {
     #[test]
     #[allow(clippy::field_reassign_with_default)]
     fn the_column_by_column_factor_solves_to_the_bits_of_the_textbook_loops() {
-        // Random J J^T of every size from 1 to 12 rows (row by row up to `SMALL_ROWS`,
-        // then by columns, the rows below taken four at a time ending every way), solved
-        // both ways with the same bits; a matrix with a negative pivot is refused by both.
+        // Random J J^T of every size from 1 to 27 rows (row by row up to `SMALL_ROWS`,
+        // then by columns, the sizes that are multiples of three up to 24 with constant
+        // bounds, the rows below taken four at a time ending every way), solved both ways
+        // with the same bits; a matrix with a negative pivot is refused by both.
         let mut seed = 0x2545_f491_4f6c_dd1d_u64;
         let mut next = move || {
             seed ^= seed << 13;
@@ -1908,7 +1999,7 @@ mod tests {
             seed ^= seed << 17;
             (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
         };
-        for rows in 1..=12 {
+        for rows in 1..=27 {
             let cols = rows + 2;
             let j: Vec<f64> = (0..rows * cols).map(|_| next()).collect();
             let mut fin = Finish::default();
