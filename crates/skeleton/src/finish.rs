@@ -1416,6 +1416,46 @@ impl Finish {
         )
     }
 
+    /// [`Finish::substitute`] for `N` rows (the same sums in the same order), with the
+    /// bounds of the loops constants.
+    // Indices rather than iterators: over rows of constant length the checks drop out.
+    #[allow(clippy::needless_range_loop)]
+    fn substitute_rows<const N: usize>(&mut self) -> bool {
+        let size = N * N;
+        let l = &self.factor[..size].as_chunks::<N>().0[..N];
+        let lt = &self.factor_t[..size].as_chunks::<N>().0[..N];
+        let r = &self.residual[..N];
+        let y = &mut self.y[..N];
+        let mut a = 0;
+        while a + 1 < N {
+            let (mut s0, mut s1) = (r[a], r[a + 1]);
+            for k in 0..a {
+                s0 -= l[a][k] * y[k];
+                s1 -= l[a + 1][k] * y[k];
+            }
+            let y0 = s0 / l[a][a];
+            s1 -= l[a + 1][a] * y0;
+            y[a] = y0;
+            y[a + 1] = s1 / l[a + 1][a + 1];
+            a += 2;
+        }
+        if a < N {
+            let mut sum = r[a];
+            for k in 0..a {
+                sum -= l[a][k] * y[k];
+            }
+            y[a] = sum / l[a][a];
+        }
+        for a in (0..N).rev() {
+            let mut sum = y[a];
+            for b in a + 1..N {
+                sum -= lt[a][b] * y[b];
+            }
+            y[a] = sum / lt[a][a];
+        }
+        y.iter().all(|v| v.is_finite())
+    }
+
     /// [`Finish::factorize`] for a few rows (a chain's 3 or 6), row by row into `factor`
     /// only: there the column order's bookkeeping costs more than it saves, and
     /// [`Finish::substitute`] reads the columns of so small a factor in place.
@@ -1449,6 +1489,15 @@ impl Finish {
     /// (forward substitution on the rows of the factor, back substitution on the rows of
     /// its transpose); false when an entry is not finite.
     fn substitute(&mut self, rows: usize) -> bool {
+        match rows {
+            9 => return self.substitute_rows::<9>(),
+            12 => return self.substitute_rows::<12>(),
+            15 => return self.substitute_rows::<15>(),
+            18 => return self.substitute_rows::<18>(),
+            21 => return self.substitute_rows::<21>(),
+            24 => return self.substitute_rows::<24>(),
+            _ => {}
+        }
         let l = &self.factor[..rows * rows];
         let lt = &self.factor_t[..rows * rows];
         let y = &mut self.y[..rows];
