@@ -429,6 +429,10 @@ pub struct Finish {
     linearizations: usize,
     /// The cost before each step of the current run (for [`FinishJob::stall_window`]).
     history: Vec<f64>,
+    /// Whether `dofs`, `col_start`, `first_dof` and the rows of `entries` were built for
+    /// the current run (its movers and targets do not change), so that a linearization
+    /// only writes the values.
+    columns_built: bool,
 }
 
 /// The finish of a chain solver: the chain's one effector, turned by the chain's movable
@@ -609,6 +613,7 @@ impl Finish {
         self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
         self.best_translation = *translation;
         self.best_cost = total_cost(targets, global);
+        self.columns_built = false;
         let finished = self.iterate(job, pose, translation, global, rows)?;
         // A step may move a pin by up to the slack, so that one step can fix the other
         // goals and the next bring the pin back; an ending that has not brought it back
@@ -921,6 +926,11 @@ impl Finish {
         self.linearizations += 1;
         self.residual_at(targets, global);
         self.groups_of.clear();
+        if self.columns_built {
+            self.relinearize(job, global);
+            return;
+        }
+        self.columns_built = true;
         self.dofs.clear();
         self.col_start.clear();
         self.entries.clear();
@@ -978,6 +988,60 @@ impl Finish {
             }
         }
         self.col_start.push(self.entries.len());
+    }
+
+    /// [`Finish::linearize`] once the columns' structure is built for this run: the same
+    /// loops, the same values, written over the old ones (the rows, the degrees of
+    /// freedom and the column starts stay; a hinge's axis is written anew).
+    fn relinearize(&mut self, job: &FinishJob<'_>, global: &GlobalPose) {
+        let skeleton = job.skeleton;
+        let targets = job.targets;
+        let mut at_entry = 0;
+        for (m, &j) in job.movers.movable().iter().enumerate() {
+            let k0 = self.first_dof[m];
+            let axes: [DVec3; 3];
+            let axes: &[DVec3] = match skeleton.limit(j) {
+                JointLimit::Fixed => &[],
+                JointLimit::Hinge(h) => {
+                    let parent = skeleton
+                        .parent(j)
+                        .map_or(DQuat::IDENTITY, |p| global.rotations[p]);
+                    axes = [(parent * h.axis).normalize(), DVec3::ZERO, DVec3::ZERO];
+                    self.dofs[k0].1 = axes[0];
+                    &axes[..1]
+                }
+                JointLimit::Free | JointLimit::SwingTwist(_) => &[DVec3::X, DVec3::Y, DVec3::Z],
+            };
+            let at = global.positions[j];
+            for &u in axes {
+                for &e in job.movers.below(m) {
+                    let t = &targets[e];
+                    if t.joint != j {
+                        let v = u.cross(global.positions[t.joint] - at) * t.position_weight;
+                        let slots = &mut self.entries[at_entry..at_entry + 3];
+                        slots[0].1 = v.x;
+                        slots[1].1 = v.y;
+                        slots[2].1 = v.z;
+                        at_entry += 3;
+                    }
+                    if t.has_rotation() {
+                        let w = u * t.rotation_weight;
+                        let slots = &mut self.entries[at_entry..at_entry + 3];
+                        slots[0].1 = w.x;
+                        slots[1].1 = w.y;
+                        slots[2].1 = w.z;
+                        at_entry += 3;
+                    }
+                }
+            }
+        }
+        // The translation's columns are constant (the weights along the axes): as built.
+        let translation_entries = if job.translates { 9 * targets.len() } else { 0 };
+        debug_assert_eq!(
+            at_entry + translation_entries,
+            self.entries.len(),
+            "the columns' structure is the run's"
+        );
     }
 
     /// The weighted residual at `global` into `residual`.
