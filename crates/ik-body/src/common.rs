@@ -20,6 +20,10 @@ use sinew_skeleton::seed::limb_seed;
 /// further from its goal than this fraction of the limb's length.
 const LIMB_SEED_DISTANCE: f64 = 0.25;
 
+/// A finish whose cost has not fallen tenfold over this many steps ends in a local
+/// minimum, so that the solver restarts (see `docs/ik-body.md`).
+const STALL_WINDOW: usize = 10;
+
 /// Buffers and per-solve data every body solver keeps.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Common {
@@ -163,6 +167,13 @@ impl Common {
             settings: problem.settings,
             iterations,
             chord_start,
+            // A pinned problem (the clip, a batch of characters) restarts only from poses
+            // that keep its pins; it is left to converge, however slowly.
+            stall_window: if self.targets.iter().any(|t| t.pinned) {
+                0
+            } else {
+                STALL_WINDOW
+            },
         };
         Ok(self.dls.run(
             &job,

@@ -245,6 +245,27 @@ fn the_humanoid_reaches_feasible_goal_sets_from_rest() {
 }
 
 #[test]
+fn a_finish_that_stalls_along_the_bounds_restarts_instead_of_crawling_to_the_cap() {
+    // Goal set 2647 of the W8 cold workload (seed 8): from the limb seed the finish crawls
+    // along curved bounds, a rejected step and a blocked direction for every step kept,
+    // its cost falling about twofold every three steps, and used to reach the iteration
+    // cap 2.6e-6 off its goals without restarting. A finish whose cost has not fallen
+    // tenfold in ten steps now ends in a local minimum, and the restart reaches the goals.
+    let skel = workload::humanoid().unwrap();
+    let settings = SolveSettings::default();
+    let sets = workload::goal_sets(&skel, 2648, 8, false);
+    let set = &sets[2647];
+    let mut solver = TreeFabrikSolver::new();
+    let mut state = BodyState::rest(&skel);
+    let problem = BodyProblem::new(&skel, &set.effectors, settings).with_root_translation(true);
+    let report = solver.solve(&problem, &mut state).unwrap();
+    check_contract(&skel, &set.effectors, &state, &report);
+    assert!(report.within(&settings), "{report:?}");
+    assert!(report.restarted, "{report:?}");
+    assert!(report.iterations < 60, "{report:?}");
+}
+
+#[test]
 fn a_body_moved_as_a_whole_is_placed_back_before_any_iteration() {
     // Goals on the rest pose turned about the hips and moved: the rigid motion that best
     // fits the goals is that motion, so the cold start places the body exactly (to

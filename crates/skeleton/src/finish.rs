@@ -31,7 +31,9 @@
 //! It stops when every effector is within both tolerances, at the iteration cap, after
 //! `MAX_REJECTIONS` consecutive rejections, or after `CRAWL_STEPS` accepted steps that
 //! each gain almost nothing: a local minimum of the cost over the allowed set, which for
-//! conflicting goals is the weighted least-squares best.
+//! conflicting goals is the weighted least-squares best. A caller may also ask it to stop
+//! in a local minimum when the cost has not fallen tenfold over a window of steps
+//! ([`FinishJob::stall_window`]), so that it restarts rather than crawls.
 
 use crate::ik::{Chain, EffectorGoal, SolveSettings, StopReason, rotation_angle};
 use crate::limits::{JointLimit, LimitFrame};
@@ -54,6 +56,11 @@ const PIN_SLACK: f64 = 1e4;
 /// before the finish declares a local minimum.
 const CRAWL_STEPS: usize = 4;
 const CRAWL_GAIN: f64 = 0.02;
+/// Up to this many rows the Cholesky factor is made row by row, without its transpose
+/// (see [`Finish::factorize`]).
+const SMALL_ROWS: usize = 6;
+/// See [`FinishJob::stall_window`].
+const STALL_FACTOR: f64 = 10.0;
 /// An accepted step that leaves at most this fraction of the cost makes the next trial a
 /// chord step (the same factor, the new residual), at most `MAX_CHORDS` in a row.
 const CHORD_GAIN: f64 = 0.01;
@@ -65,7 +72,7 @@ const CLAMPED: f64 = 1e-12;
 /// How far inside both constraints of its limit (radians) a swing-twist joint counts as
 /// off its bounds without differencing: a thousand times the difference step, so the
 /// perturbed rotations cannot reach a bound.
-const DEEP_INSIDE: f64 = 1e-4;
+const DEEP_INSIDE: f64 = crate::limits::DEEP_MARGIN;
 /// The difference step of the outward normals (radians).
 const H: f64 = 1e-7;
 /// The turns by `H` and `-H` about each world axis, for the outward normals.
@@ -337,6 +344,9 @@ pub struct FinishJob<'a> {
     /// linearization, only the goals having moved; the step is a trial like any other,
     /// kept only when it lowers the cost and keeps the pins.
     pub chord_start: bool,
+    /// A finish whose cost has not fallen by `STALL_FACTOR` over this many steps stops in
+    /// a local minimum (so that its caller may restart), however it got there; 0 never.
+    pub stall_window: usize,
 }
 
 /// What a finish did.
@@ -369,9 +379,16 @@ pub struct Finish {
     /// joint), and the world rotation vector of the current step.
     first_dof: Vec<usize>,
     turn: Vec<DVec3>,
+    /// The groups of three rows of the triples of columns (see `accumulate_normal`), and
+    /// per degree of freedom that starts a triple the range of its groups (`None` when
+    /// its columns do not split into groups).
+    groups: Vec<Group>,
+    groups_of: Vec<Option<(usize, usize)>>,
     /// The column of one blocked direction of a joint (see `reduce`).
     combined: Vec<(usize, f64)>,
     factor: Vec<f64>,
+    /// The transpose of `factor` (its columns as rows, for the back substitution).
+    factor_t: Vec<f64>,
     residual: Vec<f64>,
     y: Vec<f64>,
     step: Vec<f64>,
@@ -410,6 +427,12 @@ pub struct Finish {
     factor_rows: usize,
     /// Linearizations over this finish's life (see [`Finish::linearizations`]).
     linearizations: usize,
+    /// The cost before each step of the current run (for [`FinishJob::stall_window`]).
+    history: Vec<f64>,
+    /// Whether `dofs`, `col_start`, `first_dof` and the rows of `entries` were built for
+    /// the current run (its movers and targets do not change), so that a linearization
+    /// only writes the values.
+    columns_built: bool,
 }
 
 /// The finish of a chain solver: the chain's one effector, turned by the chain's movable
@@ -462,6 +485,7 @@ impl ChainFinish {
             settings: *settings,
             iterations,
             chord_start: false,
+            stall_window: 0,
         };
         let mut translation = DVec3::ZERO;
         let mut finished = self.finish.run(&job, pose, &mut translation, global)?;
@@ -589,6 +613,7 @@ impl Finish {
         self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
         self.best_translation = *translation;
         self.best_cost = total_cost(targets, global);
+        self.columns_built = false;
         let finished = self.iterate(job, pose, translation, global, rows)?;
         // A step may move a pin by up to the slack, so that one step can fix the other
         // goals and the next bring the pin back; an ending that has not brought it back
@@ -652,7 +677,6 @@ impl Finish {
         }
         self.normal.resize(rows * rows, 0.0);
         self.normal_full.resize(rows * rows, 0.0);
-        self.factor.resize(rows * rows, 0.0);
         self.turn.clear();
         self.turn.resize(movable.len(), DVec3::ZERO);
         self.residual.resize(rows, 0.0);
@@ -674,12 +698,26 @@ impl Finish {
         let mut chord = chord_start;
         let mut chords = 0;
         let mut outward_stale = true;
+        self.history.clear();
         loop {
             if all_within(targets, global, settings) {
                 return Ok(Finished {
                     stop: StopReason::Converged,
                     steps,
                 });
+            }
+            if job.stall_window > 0 {
+                while self.history.len() <= steps {
+                    self.history.push(cost);
+                }
+                if steps >= job.stall_window
+                    && cost * STALL_FACTOR > self.history[steps - job.stall_window]
+                {
+                    return Ok(Finished {
+                        stop: StopReason::LocalMinimum,
+                        steps,
+                    });
+                }
             }
             if job.iterations + steps >= settings.max_iterations {
                 return Ok(Finished {
@@ -887,6 +925,12 @@ impl Finish {
         let targets = job.targets;
         self.linearizations += 1;
         self.residual_at(targets, global);
+        self.groups_of.clear();
+        if self.columns_built {
+            self.relinearize(job, global);
+            return;
+        }
+        self.columns_built = true;
         self.dofs.clear();
         self.col_start.clear();
         self.entries.clear();
@@ -944,6 +988,60 @@ impl Finish {
             }
         }
         self.col_start.push(self.entries.len());
+    }
+
+    /// [`Finish::linearize`] once the columns' structure is built for this run: the same
+    /// loops, the same values, written over the old ones (the rows, the degrees of
+    /// freedom and the column starts stay; a hinge's axis is written anew).
+    fn relinearize(&mut self, job: &FinishJob<'_>, global: &GlobalPose) {
+        let skeleton = job.skeleton;
+        let targets = job.targets;
+        let mut at_entry = 0;
+        for (m, &j) in job.movers.movable().iter().enumerate() {
+            let k0 = self.first_dof[m];
+            let axes: [DVec3; 3];
+            let axes: &[DVec3] = match skeleton.limit(j) {
+                JointLimit::Fixed => &[],
+                JointLimit::Hinge(h) => {
+                    let parent = skeleton
+                        .parent(j)
+                        .map_or(DQuat::IDENTITY, |p| global.rotations[p]);
+                    axes = [(parent * h.axis).normalize(), DVec3::ZERO, DVec3::ZERO];
+                    self.dofs[k0].1 = axes[0];
+                    &axes[..1]
+                }
+                JointLimit::Free | JointLimit::SwingTwist(_) => &[DVec3::X, DVec3::Y, DVec3::Z],
+            };
+            let at = global.positions[j];
+            for &u in axes {
+                for &e in job.movers.below(m) {
+                    let t = &targets[e];
+                    if t.joint != j {
+                        let v = u.cross(global.positions[t.joint] - at) * t.position_weight;
+                        let slots = &mut self.entries[at_entry..at_entry + 3];
+                        slots[0].1 = v.x;
+                        slots[1].1 = v.y;
+                        slots[2].1 = v.z;
+                        at_entry += 3;
+                    }
+                    if t.has_rotation() {
+                        let w = u * t.rotation_weight;
+                        let slots = &mut self.entries[at_entry..at_entry + 3];
+                        slots[0].1 = w.x;
+                        slots[1].1 = w.y;
+                        slots[2].1 = w.z;
+                        at_entry += 3;
+                    }
+                }
+            }
+        }
+        // The translation's columns are constant (the weights along the axes): as built.
+        let translation_entries = if job.translates { 9 * targets.len() } else { 0 };
+        debug_assert_eq!(
+            at_entry + translation_entries,
+            self.entries.len(),
+            "the columns' structure is the run's"
+        );
     }
 
     /// The weighted residual at `global` into `residual`.
@@ -1045,8 +1143,21 @@ impl Finish {
     /// world axes share their rows, so they are summed in one pass, each entry of the
     /// normal matrix taking the three products in the order the columns come (the same
     /// additions, in the same order, as one column after another).
+    ///
+    /// A triple's rows come in groups of three consecutive rows (an effector's position
+    /// or rotation rows), and most of a group's nine values are structurally zero: a
+    /// position group of a joint (`u x d`) has a zero where the axis meets its own row,
+    /// a rotation group (`u w`) and the translation's groups only there. The groups are
+    /// added block by block, leaving out the products with a factor that is zero (told
+    /// from the values, so any columns are summed right). Adding a zero product leaves an
+    /// entry that is not `-0` unchanged, and no entry is ever `-0` (each starts at `+0`,
+    /// and a sum is `-0` only when both terms are), so the bits are those of every
+    /// product added.
     fn accumulate_normal(&mut self, rows: usize) {
         self.normal_full[..rows * rows].fill(0.0);
+        self.groups.clear();
+        self.groups_of.clear();
+        self.groups_of.resize(self.dofs.len(), None);
         let mut k = 0;
         while k < self.dofs.len() {
             let (a0, a1) = (self.col_start[k], self.col_start[k + 1]);
@@ -1057,6 +1168,20 @@ impl Finish {
                     &self.entries[a1..a2],
                     &self.entries[a2..a3],
                 );
+                let first = self.groups.len();
+                if gather_groups(cx, cy, cz, &mut self.groups) {
+                    self.groups_of[k] = Some((first, self.groups.len()));
+                    let normal = &mut self.normal_full[..rows * rows];
+                    let groups = &self.groups[first..];
+                    for (g, group) in groups.iter().enumerate() {
+                        for other in &groups[..g] {
+                            add_group_pair::<false>(normal, rows, group, other);
+                        }
+                        add_group_pair::<true>(normal, rows, group, group);
+                    }
+                    k += 3;
+                    continue;
+                }
                 for (i, ((&(a, xa), &(_, ya)), &(_, za))) in cx.iter().zip(cy).zip(cz).enumerate() {
                     let line = &mut self.normal_full[a * rows..a * rows + a + 1];
                     for ((&(b, xb), &(_, yb)), &(_, zb)) in
@@ -1138,26 +1263,77 @@ impl Finish {
     /// returns the translation's step.
     fn turns(&mut self, movable: &[usize]) -> DVec3 {
         self.step.clear();
+        self.step.resize(self.dofs.len(), 0.0);
+        let mut shift = DVec3::ZERO;
+        self.turn.fill(DVec3::ZERO);
+        let grouped = self.groups_of.len() == self.dofs.len();
         // The three columns of a joint's world axes share their rows: one pass reads each
         // entry of `y` once for the three sums (each summed in the column's order from
-        // -0.0, as `Iterator::sum` does, so the same bits).
+        // -0.0, as `Iterator::sum` does). Over the groups of three rows the products with
+        // a zero factor are left out: adding a zero changes a sum only from -0.0 to
+        // +0.0, and a step that is zero either way turns nothing and points neither way.
         let mut k = 0;
         while k < self.dofs.len() {
             let (a0, a1) = (self.col_start[k], self.col_start[k + 1]);
             if self.is_triple(k) {
-                let (a2, a3) = (self.col_start[k + 2], self.col_start[k + 3]);
                 let (mut sx, mut sy, mut sz) = (-0.0, -0.0, -0.0);
-                for ((&(row, x), &(_, y)), &(_, z)) in self.entries[a0..a1]
-                    .iter()
-                    .zip(&self.entries[a1..a2])
-                    .zip(&self.entries[a2..a3])
+                if let Some((g0, g1)) = self.groups_of.get(k).copied().flatten().filter(|_| grouped)
                 {
-                    let v = self.y[row];
-                    sx += x * v;
-                    sy += y * v;
-                    sz += z * v;
+                    for g in &self.groups[g0..g1] {
+                        let [y0, y1, y2] = self.y[g.row..g.row + 3] else {
+                            unreachable!("a group has three rows")
+                        };
+                        let v = &g.v;
+                        match g.kind {
+                            GroupKind::Cross => {
+                                sx += v[0][1] * y1;
+                                sx += v[0][2] * y2;
+                                sy += v[1][0] * y0;
+                                sy += v[1][2] * y2;
+                                sz += v[2][0] * y0;
+                                sz += v[2][1] * y1;
+                            }
+                            GroupKind::Axis => {
+                                sx += v[0][0] * y0;
+                                sy += v[1][1] * y1;
+                                sz += v[2][2] * y2;
+                            }
+                            GroupKind::Dense => {
+                                for (i, yi) in [y0, y1, y2].into_iter().enumerate() {
+                                    sx += v[0][i] * yi;
+                                    sy += v[1][i] * yi;
+                                    sz += v[2][i] * yi;
+                                }
+                            }
+                        }
+                    }
+                } else {
+                    let (a2, a3) = (self.col_start[k + 2], self.col_start[k + 3]);
+                    for ((&(row, x), &(_, y)), &(_, z)) in self.entries[a0..a1]
+                        .iter()
+                        .zip(&self.entries[a1..a2])
+                        .zip(&self.entries[a2..a3])
+                    {
+                        let v = self.y[row];
+                        sx += x * v;
+                        sy += y * v;
+                        sz += z * v;
+                    }
                 }
-                self.step.extend([sx, sy, sz]);
+                self.step[k..k + 3].copy_from_slice(&[sx, sy, sz]);
+                // The turn (or the translation's shift) from the three steps, axis by
+                // axis as for single columns.
+                let m = self.dofs[k].0;
+                let axes = [self.dofs[k].1, self.dofs[k + 1].1, self.dofs[k + 2].1];
+                if m == TRANSLATION {
+                    for (u, s) in axes.into_iter().zip([sx, sy, sz]) {
+                        shift += u * s;
+                    }
+                } else if !self.frozen[m] {
+                    for (u, s) in axes.into_iter().zip([sx, sy, sz]) {
+                        self.turn[m] += u * s;
+                    }
+                }
                 k += 3;
                 continue;
             }
@@ -1165,17 +1341,14 @@ impl Finish {
             for &(row, v) in &self.entries[a0..a1] {
                 sum += v * self.y[row];
             }
-            self.step.push(sum);
-            k += 1;
-        }
-        let mut shift = DVec3::ZERO;
-        self.turn.fill(DVec3::ZERO);
-        for (&(m, u), &s) in self.dofs.iter().zip(&self.step) {
+            self.step[k] = sum;
+            let (m, u) = self.dofs[k];
             if m == TRANSLATION {
-                shift += u * s;
+                shift += u * sum;
             } else if !self.frozen[m] {
-                self.turn[m] += u * s;
+                self.turn[m] += u * sum;
             }
+            k += 1;
         }
         for m in 0..movable.len() {
             for i in 0..self.blocked_count[m] {
@@ -1193,11 +1366,164 @@ impl Finish {
         self.factorize(rows, damping) && self.substitute(rows)
     }
 
-    /// The Cholesky factor of `normal + damping I` into `factor`; false when a pivot is
-    /// not a positive finite number.
+    /// The Cholesky factor of `normal + damping I` into `factor` (row-major) and its
+    /// transpose into `factor_t`; false when a pivot is not a positive finite number.
+    ///
+    /// Column by column: the pivot of column `b`, then every entry below it,
+    /// `L[a][b] = (N[a][b] - sum_k L[a][k] L[b][k]) / L[b][b]` with the sum over `k < b`
+    /// in increasing order, two rows at once sharing the loads of row `b`. Every entry is
+    /// the same sum in the same order as the row-by-row textbook loop, and the pivots are
+    /// checked in the same order, so the factor is the same to the bit; the column order
+    /// lets each entry also be stored in the transpose, whose rows the back substitution
+    /// reads.
     fn factorize(&mut self, rows: usize, damping: f64) -> bool {
-        // Row slices rather than indexing, so the inner products carry no bounds checks;
-        // the sums run in the same order as the textbook loops.
+        let size = rows * rows;
+        if self.factor.len() < size || self.factor_t.len() < size {
+            self.factor.resize(size, 0.0);
+            self.factor_t.resize(size, 0.0);
+        }
+        if rows <= SMALL_ROWS {
+            return self.factorize_small(rows, damping);
+        }
+        // Rows come three per position goal and six per position and rotation goal; up to
+        // 24 the loops' bounds are made constants.
+        match rows {
+            9 => return self.factorize_rows::<9>(damping),
+            12 => return self.factorize_rows::<12>(damping),
+            15 => return self.factorize_rows::<15>(damping),
+            18 => return self.factorize_rows::<18>(damping),
+            21 => return self.factorize_rows::<21>(damping),
+            24 => return self.factorize_rows::<24>(damping),
+            _ => {}
+        }
+        let n = &self.normal[..size];
+        let l = &mut self.factor[..size];
+        let lt = &mut self.factor_t[..size];
+        for b in 0..rows {
+            let (upper, lower) = l.split_at_mut((b + 1) * rows);
+            let (left_b, diagonal) = upper[b * rows..].split_at_mut(b);
+            let left_b: &[f64] = left_b;
+            let mut sum = n[b * rows + b] + damping;
+            for x in left_b {
+                sum -= x * x;
+            }
+            if !(sum.is_finite() && sum > 0.0) {
+                return false;
+            }
+            let pivot = sum.sqrt();
+            diagonal[0] = pivot;
+            // Row `b` of the transpose from the diagonal on: the pivot, then column `b`
+            // of the factor below it.
+            let column = &mut lt[b * rows + b..(b + 1) * rows];
+            column[0] = pivot;
+            let below = &mut column[1..];
+            // The rows below, four, then two, then one at a time, each sum in its own
+            // register in the order of `k`.
+            let mut rest = lower;
+            let mut a = b + 1;
+            while rest.len() >= 4 * rows {
+                let (four, tail) = rest.split_at_mut(4 * rows);
+                let (r0, four) = four.split_at_mut(rows);
+                let (r1, four) = four.split_at_mut(rows);
+                let (r2, r3) = four.split_at_mut(rows);
+                let mut s = [
+                    n[a * rows + b],
+                    n[(a + 1) * rows + b],
+                    n[(a + 2) * rows + b],
+                    n[(a + 3) * rows + b],
+                ];
+                for ((((x0, x1), x2), x3), y) in r0[..b]
+                    .iter()
+                    .zip(&r1[..b])
+                    .zip(&r2[..b])
+                    .zip(&r3[..b])
+                    .zip(left_b)
+                {
+                    s[0] -= x0 * y;
+                    s[1] -= x1 * y;
+                    s[2] -= x2 * y;
+                    s[3] -= x3 * y;
+                }
+                let v = s.map(|s| s / pivot);
+                r0[b] = v[0];
+                r1[b] = v[1];
+                r2[b] = v[2];
+                r3[b] = v[3];
+                below[a - b - 1..a - b + 3].copy_from_slice(&v);
+                rest = tail;
+                a += 4;
+            }
+            while rest.len() >= rows {
+                let (r0, tail) = rest.split_at_mut(rows);
+                let mut s0 = n[a * rows + b];
+                for (x0, y) in r0[..b].iter().zip(left_b) {
+                    s0 -= x0 * y;
+                }
+                let v0 = s0 / pivot;
+                r0[b] = v0;
+                below[a - b - 1] = v0;
+                rest = tail;
+                a += 1;
+            }
+        }
+        true
+    }
+
+    /// [`Finish::factorize`] for `N` rows, with the buffers seen as rows of `N`.
+    fn factorize_rows<const N: usize>(&mut self, damping: f64) -> bool {
+        let size = N * N;
+        factorize_fixed::<N>(
+            self.normal[..size].as_chunks::<N>().0,
+            self.factor[..size].as_chunks_mut::<N>().0,
+            self.factor_t[..size].as_chunks_mut::<N>().0,
+            damping,
+        )
+    }
+
+    /// [`Finish::substitute`] for `N` rows (the same sums in the same order), with the
+    /// bounds of the loops constants.
+    // Indices rather than iterators: over rows of constant length the checks drop out.
+    #[allow(clippy::needless_range_loop)]
+    fn substitute_rows<const N: usize>(&mut self) -> bool {
+        let size = N * N;
+        let l = &self.factor[..size].as_chunks::<N>().0[..N];
+        let lt = &self.factor_t[..size].as_chunks::<N>().0[..N];
+        let r = &self.residual[..N];
+        let y = &mut self.y[..N];
+        let mut a = 0;
+        while a + 1 < N {
+            let (mut s0, mut s1) = (r[a], r[a + 1]);
+            for k in 0..a {
+                s0 -= l[a][k] * y[k];
+                s1 -= l[a + 1][k] * y[k];
+            }
+            let y0 = s0 / l[a][a];
+            s1 -= l[a + 1][a] * y0;
+            y[a] = y0;
+            y[a + 1] = s1 / l[a + 1][a + 1];
+            a += 2;
+        }
+        if a < N {
+            let mut sum = r[a];
+            for k in 0..a {
+                sum -= l[a][k] * y[k];
+            }
+            y[a] = sum / l[a][a];
+        }
+        for a in (0..N).rev() {
+            let mut sum = y[a];
+            for b in a + 1..N {
+                sum -= lt[a][b] * y[b];
+            }
+            y[a] = sum / lt[a][a];
+        }
+        y.iter().all(|v| v.is_finite())
+    }
+
+    /// [`Finish::factorize`] for a few rows (a chain's 3 or 6), row by row into `factor`
+    /// only: there the column order's bookkeeping costs more than it saves, and
+    /// [`Finish::substitute`] reads the columns of so small a factor in place.
+    fn factorize_small(&mut self, rows: usize, damping: f64) -> bool {
         let n = &self.normal[..rows * rows];
         let l = &mut self.factor[..rows * rows];
         for a in 0..rows {
@@ -1224,11 +1550,42 @@ impl Finish {
     }
 
     /// `y` from the factor of the last [`Finish::factorize`] and the current residual
-    /// (forward and back substitution); false when an entry is not finite.
+    /// (forward substitution on the rows of the factor, back substitution on the rows of
+    /// its transpose); false when an entry is not finite.
     fn substitute(&mut self, rows: usize) -> bool {
+        match rows {
+            9 => return self.substitute_rows::<9>(),
+            12 => return self.substitute_rows::<12>(),
+            15 => return self.substitute_rows::<15>(),
+            18 => return self.substitute_rows::<18>(),
+            21 => return self.substitute_rows::<21>(),
+            24 => return self.substitute_rows::<24>(),
+            _ => {}
+        }
         let l = &self.factor[..rows * rows];
+        let lt = &self.factor_t[..rows * rows];
         let y = &mut self.y[..rows];
-        for a in 0..rows {
+        // Two rows at a time: the sums over the entries both rows have share the loads of
+        // `y`; the second row then takes the first's new entry. Each sum runs in the
+        // same order as row by row, so the same bits.
+        let mut a = 0;
+        while a + 1 < rows {
+            let (row0, row1) = (
+                &l[a * rows..=a * rows + a],
+                &l[(a + 1) * rows..=(a + 1) * rows + a + 1],
+            );
+            let (mut s0, mut s1) = (self.residual[a], self.residual[a + 1]);
+            for ((x0, x1), v) in row0[..a].iter().zip(&row1[..a]).zip(&y[..a]) {
+                s0 -= x0 * v;
+                s1 -= x1 * v;
+            }
+            let y0 = s0 / row0[a];
+            s1 -= row1[a] * y0;
+            y[a] = y0;
+            y[a + 1] = s1 / row1[a + 1];
+            a += 2;
+        }
+        if a < rows {
             let row_a = &l[a * rows..=a * rows + a];
             let mut sum = self.residual[a];
             for (x, v) in row_a[..a].iter().zip(&y[..a]) {
@@ -1236,15 +1593,28 @@ impl Finish {
             }
             y[a] = sum / row_a[a];
         }
-        for a in (0..rows).rev() {
-            let mut sum = y[a];
-            // Column `a` below the diagonal, row by row (a strided iterator costs several
-            // times the arithmetic here); the same sums in the same order.
-            let below = l[(a + 1) * rows..].chunks_exact(rows);
-            for (row_b, v) in below.zip(&y[a + 1..]) {
-                sum -= row_b[a] * v;
+        if rows <= SMALL_ROWS {
+            for a in (0..rows).rev() {
+                let mut sum = y[a];
+                let below = l[(a + 1) * rows..].chunks_exact(rows);
+                for (row_b, v) in below.zip(&y[a + 1..]) {
+                    sum -= row_b[a] * v;
+                }
+                y[a] = sum / l[a * rows + a];
             }
-            y[a] = sum / l[a * rows + a];
+            return y.iter().all(|v| v.is_finite());
+        }
+        for a in (0..rows).rev() {
+            // Column `a` of the factor from the diagonal down is row `a` of the transpose.
+            // (Its sum runs over the rows below in increasing order, the newest entry of
+            // `y` first, so two rows cannot share a pass here.)
+            let column = &lt[a * rows + a..(a + 1) * rows];
+            let (head, tail) = y.split_at_mut(a + 1);
+            let mut sum = head[a];
+            for (x, v) in column[1..].iter().zip(&*tail) {
+                sum -= x * v;
+            }
+            head[a] = sum / column[0];
         }
         y.iter().all(|v| v.is_finite())
     }
@@ -1310,6 +1680,202 @@ fn moved_more_than_clamped(a: DQuat, b: DQuat) -> bool {
         false
     } else {
         rotation_angle(a, b) > CLAMPED
+    }
+}
+
+/// [`Finish::factorize`] for `N` rows known at compile time: the same sums in the same
+/// order, column by column, the rows below four (then two, then one) at a time; with the
+/// bounds constants the compiler drops the index checks and unrolls.
+// Indices rather than iterators: over rows of constant length the checks drop out, and
+// each sum reads two rows at the same index.
+#[allow(clippy::needless_range_loop)]
+fn factorize_fixed<const N: usize>(
+    n: &[[f64; N]],
+    l: &mut [[f64; N]],
+    lt: &mut [[f64; N]],
+    damping: f64,
+) -> bool {
+    let (n, l, lt) = (&n[..N], &mut l[..N], &mut lt[..N]);
+    for b in 0..N {
+        let mut sum = n[b][b] + damping;
+        for k in 0..b {
+            sum -= l[b][k] * l[b][k];
+        }
+        if !(sum.is_finite() && sum > 0.0) {
+            return false;
+        }
+        let pivot = sum.sqrt();
+        l[b][b] = pivot;
+        lt[b][b] = pivot;
+        let mut a = b + 1;
+        while a + 3 < N {
+            let mut s = [n[a][b], n[a + 1][b], n[a + 2][b], n[a + 3][b]];
+            for k in 0..b {
+                let y = l[b][k];
+                s[0] -= l[a][k] * y;
+                s[1] -= l[a + 1][k] * y;
+                s[2] -= l[a + 2][k] * y;
+                s[3] -= l[a + 3][k] * y;
+            }
+            for (i, s) in s.into_iter().enumerate() {
+                let v = s / pivot;
+                l[a + i][b] = v;
+                lt[b][a + i] = v;
+            }
+            a += 4;
+        }
+        while a + 1 < N {
+            let (mut s0, mut s1) = (n[a][b], n[a + 1][b]);
+            for k in 0..b {
+                let y = l[b][k];
+                s0 -= l[a][k] * y;
+                s1 -= l[a + 1][k] * y;
+            }
+            let (v0, v1) = (s0 / pivot, s1 / pivot);
+            l[a][b] = v0;
+            l[a + 1][b] = v1;
+            lt[b][a] = v0;
+            lt[b][a + 1] = v1;
+            a += 2;
+        }
+        if a < N {
+            let mut s = n[a][b];
+            for k in 0..b {
+                s -= l[a][k] * l[b][k];
+            }
+            let v = s / pivot;
+            l[a][b] = v;
+            lt[b][a] = v;
+        }
+    }
+    true
+}
+
+/// Three consecutive rows of a triple of world-axis columns: the first row, the values
+/// `v[k][i]` of column `k` at row `row + i`, and which of them may be non-zero.
+#[derive(Clone, Copy, Debug)]
+struct Group {
+    row: usize,
+    v: [[f64; 3]; 3],
+    kind: GroupKind,
+}
+
+/// Which values of a [`Group`] may be non-zero (the others are exactly zero).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum GroupKind {
+    /// `v[k][k] == 0`: a position group of a joint's columns, `u_k x d`.
+    Cross,
+    /// `v[k][i] == 0` for `i != k`: a rotation group, or the translation's, `u_k w`.
+    Axis,
+    /// Any values.
+    Dense,
+}
+
+impl GroupKind {
+    /// Whether `v[k][i]` may be non-zero.
+    #[inline(always)]
+    const fn may_be_nonzero(self, k: usize, i: usize) -> bool {
+        match self {
+            GroupKind::Cross => k != i,
+            GroupKind::Axis => k == i,
+            GroupKind::Dense => true,
+        }
+    }
+}
+
+/// Splits the three columns of a triple (the same rows in the same order) into groups of
+/// three consecutive rows, appended to `groups`; false (and nothing appended) when they
+/// do not split so.
+fn gather_groups(
+    cx: &[(usize, f64)],
+    cy: &[(usize, f64)],
+    cz: &[(usize, f64)],
+    groups: &mut Vec<Group>,
+) -> bool {
+    let before = groups.len();
+    if !cx.len().is_multiple_of(3) || cy.len() != cx.len() || cz.len() != cx.len() {
+        return false;
+    }
+    for ((x, y), z) in cx
+        .chunks_exact(3)
+        .zip(cy.chunks_exact(3))
+        .zip(cz.chunks_exact(3))
+    {
+        let row = x[0].0;
+        if x[1].0 != row + 1 || x[2].0 != row + 2 {
+            groups.truncate(before);
+            return false;
+        }
+        let v = [
+            [x[0].1, x[1].1, x[2].1],
+            [y[0].1, y[1].1, y[2].1],
+            [z[0].1, z[1].1, z[2].1],
+        ];
+        let kind = if v[0][0] == 0.0 && v[1][1] == 0.0 && v[2][2] == 0.0 {
+            GroupKind::Cross
+        } else if v[0][1] == 0.0
+            && v[0][2] == 0.0
+            && v[1][0] == 0.0
+            && v[1][2] == 0.0
+            && v[2][0] == 0.0
+            && v[2][1] == 0.0
+        {
+            GroupKind::Axis
+        } else {
+            GroupKind::Dense
+        };
+        groups.push(Group { row, v, kind });
+    }
+    true
+}
+
+/// Adds the products of group `g` (the later rows) and group `h` to the lower triangle
+/// of `normal` (`rows` x `rows`), each entry taking the three columns' products in order,
+/// those with a zero factor left out; with `DIAGONAL` (`g` is `h`) only the entries on
+/// and below the diagonal.
+#[inline(always)]
+fn add_group_pair<const DIAGONAL: bool>(normal: &mut [f64], rows: usize, g: &Group, h: &Group) {
+    match (g.kind, h.kind) {
+        (GroupKind::Cross, GroupKind::Cross) => {
+            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Cross, GroupKind::Cross);
+        }
+        (GroupKind::Cross, GroupKind::Axis) => {
+            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Cross, GroupKind::Axis);
+        }
+        (GroupKind::Axis, GroupKind::Cross) => {
+            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Axis, GroupKind::Cross);
+        }
+        (GroupKind::Axis, GroupKind::Axis) => {
+            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Axis, GroupKind::Axis);
+        }
+        _ => add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Dense, GroupKind::Dense),
+    }
+}
+
+/// The block of [`add_group_pair`] for the kinds `kg` and `kh` (constants once inlined, so
+/// the loops unroll and the zero products drop out).
+#[inline(always)]
+fn add_block<const DIAGONAL: bool>(
+    normal: &mut [f64],
+    rows: usize,
+    g: &Group,
+    h: &Group,
+    kg: GroupKind,
+    kh: GroupKind,
+) {
+    for i in 0..3 {
+        let start = (g.row + i) * rows + h.row;
+        let line = &mut normal[start..start + 3];
+        let last = if DIAGONAL { i } else { 2 };
+        for (j, entry) in line[..=last].iter_mut().enumerate() {
+            let mut e = *entry;
+            for k in 0..3 {
+                if kg.may_be_nonzero(k, i) && kh.may_be_nonzero(k, j) {
+                    e += g.v[k][i] * h.v[k][j];
+                }
+            }
+            *entry = e;
+        }
     }
 }
 
@@ -1490,5 +2056,158 @@ mod tests {
         fin.frozen = vec![true];
         assert!(!fin.reduce(&skel, &[0], rows));
         assert!(fin.normal.iter().all(|x| x.abs() < 1e-14));
+    }
+
+    /// The row-by-row textbook Cholesky factor and substitutions, for the bits of the
+    /// column-by-column ones.
+    #[allow(clippy::needless_range_loop)]
+    fn textbook_solve(n: &[f64], r: &[f64], rows: usize, damping: f64) -> Option<Vec<f64>> {
+        let mut l = vec![0.0; rows * rows];
+        for a in 0..rows {
+            for b in 0..a {
+                let mut sum = n[a * rows + b];
+                for k in 0..b {
+                    sum -= l[a * rows + k] * l[b * rows + k];
+                }
+                l[a * rows + b] = sum / l[b * rows + b];
+            }
+            let mut sum = n[a * rows + a] + damping;
+            for k in 0..a {
+                sum -= l[a * rows + k] * l[a * rows + k];
+            }
+            if !(sum.is_finite() && sum > 0.0) {
+                return None;
+            }
+            l[a * rows + a] = sum.sqrt();
+        }
+        let mut y = vec![0.0; rows];
+        for a in 0..rows {
+            let mut sum = r[a];
+            for k in 0..a {
+                sum -= l[a * rows + k] * y[k];
+            }
+            y[a] = sum / l[a * rows + a];
+        }
+        for a in (0..rows).rev() {
+            let mut sum = y[a];
+            for b in a + 1..rows {
+                sum -= l[b * rows + a] * y[b];
+            }
+            y[a] = sum / l[a * rows + a];
+        }
+        Some(y)
+    }
+
+    #[test]
+    #[allow(clippy::field_reassign_with_default)]
+    fn the_column_by_column_factor_solves_to_the_bits_of_the_textbook_loops() {
+        // Random J J^T of every size from 1 to 27 rows (row by row up to `SMALL_ROWS`,
+        // then by columns, the sizes that are multiples of three up to 24 with constant
+        // bounds, the rows below taken four at a time ending every way), solved both ways
+        // with the same bits; a matrix with a negative pivot is refused by both.
+        let mut seed = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        for rows in 1..=27 {
+            let cols = rows + 2;
+            let j: Vec<f64> = (0..rows * cols).map(|_| next()).collect();
+            let mut fin = Finish::default();
+            fin.normal = vec![0.0; rows * rows];
+            for a in 0..rows {
+                for b in 0..=a {
+                    fin.normal[a * rows + b] =
+                        (0..cols).map(|k| j[a * cols + k] * j[b * cols + k]).sum();
+                }
+            }
+            fin.residual = (0..rows).map(|_| next()).collect();
+            fin.y = vec![0.0; rows];
+            let expected = textbook_solve(&fin.normal, &fin.residual, rows, 0.01).expect("SPD");
+            assert!(fin.solve(rows, 0.01));
+            for (a, (got, want)) in fin.y.iter().zip(&expected).enumerate() {
+                assert_eq!(got.to_bits(), want.to_bits(), "{rows} rows, entry {a}");
+            }
+            for a in (0..rows).filter(|_| rows > SMALL_ROWS) {
+                for b in 0..=a {
+                    assert_eq!(fin.factor[a * rows + b], fin.factor_t[b * rows + a]);
+                }
+            }
+            fin.normal[(rows - 1) * rows + rows - 1] = -1.0;
+            assert!(textbook_solve(&fin.normal, &fin.residual, rows, 0.01).is_none());
+            assert!(!fin.solve(rows, 0.01));
+        }
+    }
+
+    #[test]
+    #[allow(clippy::field_reassign_with_default)]
+    fn the_normal_matrix_by_groups_has_the_bits_of_every_product_added() {
+        // A joint's triple over two effectors (one with a rotation goal, one its own
+        // joint's rotation only), the translation's triple and a hinge column, as
+        // `linearize` makes them (with exact zeros, some components of `d` zero too),
+        // against the products of every pair of entries added in column order.
+        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let rows = 12;
+        for round in 0..20 {
+            let mut fin = Finish::default();
+            let mut d = [
+                DVec3::new(next(), next(), next()),
+                DVec3::new(next(), 0.0, next()),
+            ];
+            if round % 2 == 1 {
+                d[0].x = -0.0;
+            }
+            let (w0, w1, wr) = (1.0 + next().abs(), 0.5, 2.0);
+            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
+                fin.col_start.push(fin.entries.len());
+                fin.dofs.push((0, u));
+                for (row, v) in [
+                    (0, u.cross(d[0]) * w0),
+                    (6, u.cross(d[1]) * w1),
+                    (9, u * wr),
+                ] {
+                    fin.entries
+                        .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
+                }
+            }
+            fin.col_start.push(fin.entries.len());
+            fin.dofs.push((1, DVec3::Y));
+            fin.entries.extend([(0, next()), (2, next()), (7, next())]);
+            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
+                fin.col_start.push(fin.entries.len());
+                fin.dofs.push((TRANSLATION, u));
+                for (row, w) in [(0, w0), (3, 1.5), (6, w1)] {
+                    let v = u * w;
+                    fin.entries
+                        .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
+                }
+            }
+            fin.col_start.push(fin.entries.len());
+            fin.normal_full.resize(rows * rows, 0.0);
+            fin.accumulate_normal(rows);
+            let mut expected = vec![0.0f64; rows * rows];
+            for k in 0..fin.dofs.len() {
+                let col = &fin.entries[fin.col_start[k]..fin.col_start[k + 1]];
+                for &(a, va) in col {
+                    for &(b, vb) in col.iter().filter(|(b, _)| *b <= a) {
+                        expected[a * rows + b] += va * vb;
+                    }
+                }
+            }
+            for a in 0..rows {
+                for b in 0..=a {
+                    let (got, want) = (fin.normal_full[a * rows + b], expected[a * rows + b]);
+                    assert_eq!(got.to_bits(), want.to_bits(), "round {round}: {a} {b}");
+                }
+            }
+        }
     }
 }

@@ -456,6 +456,15 @@ impl SwingTwist {
         let Some(q) = unit_quat(q) else {
             return false;
         };
+        // The prepared sufficient test first (the same answer when it says yes).
+        if margin == DEEP_MARGIN
+            && let Some(quick) = &frame.1
+        {
+            let v = q.xyz();
+            if quick.deep_inside(&frame.0, v.dot(frame.0.twist), q.w, v) {
+                return true;
+            }
+        }
         let parts = Parts::of(q, frame.0.twist);
         let (ra, rb) = frame.0.swing_coordinates(&parts);
         let swing = ra.hypot(rb);
@@ -541,15 +550,60 @@ struct Quick {
     /// `1 / swing_a^2` and `1 / swing_b^2`.
     inv_a2: f64,
     inv_b2: f64,
+    /// For the quick deep-inside test ([`SwingTwist::deep_inside`] with
+    /// [`DEEP_MARGIN`]): the twist range narrowed by the margin at both ends (no bound
+    /// when the range is the whole circle), and the square of the swing bound
+    /// `min(swing_a, swing_b) - DEEP_MARGIN` less a relative margin (`None` when that
+    /// bound is not in `(0, 3)`, where the exact test's `swing < 3` would also need
+    /// checking).
+    deep_range: HalfRange,
+    deep_swing2: Option<f64>,
 }
 
 impl Quick {
     fn of(st: &SwingTwist) -> Self {
+        let whole_circle = st.twist_min <= -PI && st.twist_max >= PI;
+        let deep_range = if whole_circle {
+            HalfRange {
+                lower: None,
+                upper: None,
+            }
+        } else {
+            HalfRange::of(st.twist_min + DEEP_MARGIN, st.twist_max - DEEP_MARGIN)
+        };
+        let bound = st.swing_a.min(st.swing_b) - DEEP_MARGIN;
+        let deep_swing2 =
+            (bound > 0.0 && bound < 3.0).then(|| ((1.0 - QUICK_SWING_MARGIN) * bound).powi(2));
         Self {
             range: HalfRange::of(st.twist_min, st.twist_max),
             inv_a2: 1.0 / (st.swing_a * st.swing_a),
             inv_b2: 1.0 / (st.swing_b * st.swing_b),
+            deep_range,
+            deep_swing2,
         }
+    }
+
+    /// A sufficient test, without trigonometry or square roots, for
+    /// [`SwingTwist::deep_inside`] with [`DEEP_MARGIN`] of a unit rotation with
+    /// components `along` the twist axis, `w` (scalar) and vector part `v`: the twist is
+    /// inside the narrowed range (by the margin of the quick twist test), and the swing
+    /// angle `2u` is under the bound, with `u <= n N / (h D)` as in
+    /// [`Quick::swing_inside`], tested squared: `4 n^2 N^2 <= bound^2 h^2 D^2` with a
+    /// relative margin far above the rounding of either side.
+    fn deep_inside(&self, frame: &Frame, along: f64, w: f64, v: DVec3) -> bool {
+        let Some(bound2) = self.deep_swing2 else {
+            return false;
+        };
+        let h2 = along * along + w * w;
+        if h2 < QUICK_SWING_MIN_H2 || !self.deep_range.clearly_inside(along, w) {
+            return false;
+        }
+        let (va, vb) = (v.dot(frame.a), v.dot(frame.b));
+        let n2 = va * va + vb * vb;
+        let (h4, hn, n4) = (h2 * h2, h2 * n2, n2 * n2);
+        let num = 945.0 * h4 + 735.0 * hn + 64.0 * n4;
+        let den = 945.0 * h4 + 1050.0 * hn + 225.0 * n4;
+        4.0 * n2 * (num * num) <= bound2 * h2 * (den * den)
     }
 
     /// The quick swing test for a unit rotation with components `along` the twist axis,
@@ -590,6 +644,9 @@ impl Quick {
 const QUICK_TWIST_MARGIN: f64 = 1e-12;
 /// The relative margin of the quick swing test.
 const QUICK_SWING_MARGIN: f64 = 1e-9;
+/// The margin (radians) of the finish's test for a joint deep inside its limit
+/// ([`SwingTwist::deep_inside`]), for which the quick test is prepared.
+pub(crate) const DEEP_MARGIN: f64 = 1e-4;
 /// Below this squared cosine of half the swing angle (a swing beyond about 169 degrees)
 /// the quick test leaves the answer to the exact one.
 const QUICK_SWING_MIN_H2: f64 = 0.01;
@@ -1325,6 +1382,58 @@ mod tests {
                 }
             }
             assert!(zeros > 10_000, "{zeros}");
+        }
+    }
+
+    #[test]
+    fn the_quick_deep_inside_test_never_says_yes_where_the_exact_one_says_no() {
+        // Rotations sampled over each limit and nudged towards and past its bounds (a
+        // thin and a wide ellipse, a full twist circle, and a range at the end of the
+        // circle): the quick test says "deep inside" only where the exact test does, and
+        // says it for most rotations well inside.
+        let limits = [
+            JointLimit::swing_twist(DVec3::X, DVec3::Z, 1.745, 1.222, -1.396, 1.396),
+            JointLimit::swing_twist(DVec3::Y, DVec3::X, 0.6, 0.6, -0.35, 0.35),
+            JointLimit::swing_twist(DVec3::Z, DVec3::X, 0.05, 1.5, -PI, PI),
+            JointLimit::swing_twist(DVec3::NEG_Y, DVec3::X, 1.745, 0.873, -PI, 0.2),
+        ];
+        for limit in limits {
+            let limit = limit.unwrap();
+            let JointLimit::SwingTwist(st) = limit else {
+                unreachable!("swing-twist limits")
+            };
+            let frame = LimitFrame::of(&st);
+            let (mut quick_yes, mut exact_yes) = (0, 0);
+            for i in 0..40 {
+                for k in 0..40 {
+                    let u = [
+                        (f64::from(i) + 0.5) / 40.0,
+                        f64::from(k) / 40.0,
+                        (f64::from(i * 7 + k * 3) % 40.0 + 0.5) / 40.0,
+                    ];
+                    let sample = limit.sample(u);
+                    for scale in [0.5, 0.99, 0.9999, 1.0, 1.0001, 1.5] {
+                        let q = DQuat::from_scaled_axis(sample.to_scaled_axis() * scale);
+                        let exact = {
+                            let no_quick = LimitFrame(frame.0, None);
+                            st.deep_inside(&no_quick, q, DEEP_MARGIN)
+                        };
+                        let v = q.xyz();
+                        let Some(quick) = &frame.1 else {
+                            unreachable!("a prepared frame")
+                        };
+                        let fast = quick.deep_inside(&frame.0, v.dot(frame.0.twist), q.w, v);
+                        assert!(!fast || exact, "{st:?} {q:?}");
+                        assert_eq!(st.deep_inside(&frame, q, DEEP_MARGIN), exact);
+                        quick_yes += usize::from(fast);
+                        exact_yes += usize::from(exact);
+                    }
+                }
+            }
+            assert!(
+                quick_yes * 10 >= exact_yes * 9,
+                "{quick_yes} of {exact_yes}"
+            );
         }
     }
 }
