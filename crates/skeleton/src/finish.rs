@@ -1776,11 +1776,12 @@ fn factorize_fixed<const N: usize>(
                 s[2] -= l[a + 2][k] * y;
                 s[3] -= l[a + 3][k] * y;
             }
-            for (i, s) in s.into_iter().enumerate() {
-                let v = s / pivot;
-                l[a + i][b] = v;
-                lt[b][a + i] = v;
-            }
+            let v = s.map(|s| s / pivot);
+            l[a][b] = v[0];
+            l[a + 1][b] = v[1];
+            l[a + 2][b] = v[2];
+            l[a + 3][b] = v[3];
+            lt[b][a..a + 4].copy_from_slice(&v);
             a += 4;
         }
         while a + 1 < N {
