@@ -968,6 +968,35 @@ mod tests {
     }
 
     #[test]
+    fn fk_from_a_joint_stops_at_the_first_invalid_rotation_of_its_subtree() {
+        // On a tree whose subtrees are not contiguous (the dirty marks are used) and on a
+        // chain: the first invalid rotation below the joint is the error, and the global
+        // pose can be updated again afterwards.
+        let chain =
+            Skeleton::chain(DVec3::new(0.0, 0.5, 0.0), &[DVec3::new(0.15, 0.0, 0.0); 4]).unwrap();
+        for (skel, bad) in [(three_level_tree(), [3, 4]), (chain, [2, 3])] {
+            let n = skel.len();
+            let mut g = GlobalPose::new();
+            skel.forward_kinematics(&skel.rest_pose(), &mut g).unwrap();
+            let mut pose = wobbly_pose(n, 3);
+            pose.rotations[bad[0]] = DQuat::from_xyzw(f64::NAN, 0.0, 0.0, 1.0);
+            pose.rotations[bad[1]] = DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0);
+            assert_eq!(
+                skel.forward_kinematics_from(&pose, 0, &mut g),
+                Err(SkeletonError::InvalidRotation {
+                    joint: format!("joint {}", bad[0])
+                })
+            );
+            let good = wobbly_pose(n, 5);
+            skel.forward_kinematics_from(&good, 0, &mut g).unwrap();
+            let mut full = GlobalPose::new();
+            skel.forward_kinematics(&good, &mut full).unwrap();
+            assert_eq!(g.positions, full.positions);
+            assert_eq!(g.rotations, full.rotations);
+        }
+    }
+
+    #[test]
     fn fk_preserves_bone_lengths() {
         let offsets: Vec<DVec3> = (0..200)
             .map(|i| DVec3::new(1.0 + i as f64, -0.5, 0.25 * i as f64) * 10f64.powi(i % 7 - 3))
