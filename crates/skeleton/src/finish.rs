@@ -1171,14 +1171,11 @@ impl Finish {
                 let first = self.groups.len();
                 if gather_groups(cx, cy, cz, &mut self.groups) {
                     self.groups_of[k] = Some((first, self.groups.len()));
-                    let normal = &mut self.normal_full[..rows * rows];
-                    let groups = &self.groups[first..];
-                    for (g, group) in groups.iter().enumerate() {
-                        for other in &groups[..g] {
-                            add_group_pair::<false>(normal, rows, group, other);
-                        }
-                        add_group_pair::<true>(normal, rows, group, group);
-                    }
+                    add_groups(
+                        &mut self.normal_full[..rows * rows],
+                        rows,
+                        &self.groups[first..],
+                    );
                     k += 3;
                     continue;
                 }
@@ -1262,94 +1259,28 @@ impl Finish {
     /// world rotation vector (zero when frozen, its blocked directions projected out);
     /// returns the translation's step.
     fn turns(&mut self, movable: &[usize]) -> DVec3 {
+        let dofs = self.dofs.len();
         self.step.clear();
-        self.step.resize(self.dofs.len(), 0.0);
-        let mut shift = DVec3::ZERO;
+        self.step.resize(dofs, 0.0);
         self.turn.fill(DVec3::ZERO);
-        let grouped = self.groups_of.len() == self.dofs.len();
-        // The three columns of a joint's world axes share their rows: one pass reads each
-        // entry of `y` once for the three sums (each summed in the column's order from
-        // -0.0, as `Iterator::sum` does). Over the groups of three rows the products with
-        // a zero factor are left out: adding a zero changes a sum only from -0.0 to
-        // +0.0, and a step that is zero either way turns nothing and points neither way.
-        let mut k = 0;
-        while k < self.dofs.len() {
-            let (a0, a1) = (self.col_start[k], self.col_start[k + 1]);
-            if self.is_triple(k) {
-                let (mut sx, mut sy, mut sz) = (-0.0, -0.0, -0.0);
-                if let Some((g0, g1)) = self.groups_of.get(k).copied().flatten().filter(|_| grouped)
-                {
-                    for g in &self.groups[g0..g1] {
-                        let [y0, y1, y2] = self.y[g.row..g.row + 3] else {
-                            unreachable!("a group has three rows")
-                        };
-                        let v = &g.v;
-                        match g.kind {
-                            GroupKind::Cross => {
-                                sx += v[0][1] * y1;
-                                sx += v[0][2] * y2;
-                                sy += v[1][0] * y0;
-                                sy += v[1][2] * y2;
-                                sz += v[2][0] * y0;
-                                sz += v[2][1] * y1;
-                            }
-                            GroupKind::Axis => {
-                                sx += v[0][0] * y0;
-                                sy += v[1][1] * y1;
-                                sz += v[2][2] * y2;
-                            }
-                            GroupKind::Dense => {
-                                for (i, yi) in [y0, y1, y2].into_iter().enumerate() {
-                                    sx += v[0][i] * yi;
-                                    sy += v[1][i] * yi;
-                                    sz += v[2][i] * yi;
-                                }
-                            }
-                        }
-                    }
-                } else {
-                    let (a2, a3) = (self.col_start[k + 2], self.col_start[k + 3]);
-                    for ((&(row, x), &(_, y)), &(_, z)) in self.entries[a0..a1]
-                        .iter()
-                        .zip(&self.entries[a1..a2])
-                        .zip(&self.entries[a2..a3])
-                    {
-                        let v = self.y[row];
-                        sx += x * v;
-                        sy += y * v;
-                        sz += z * v;
-                    }
-                }
-                self.step[k..k + 3].copy_from_slice(&[sx, sy, sz]);
-                // The turn (or the translation's shift) from the three steps, axis by
-                // axis as for single columns.
-                let m = self.dofs[k].0;
-                let axes = [self.dofs[k].1, self.dofs[k + 1].1, self.dofs[k + 2].1];
-                if m == TRANSLATION {
-                    for (u, s) in axes.into_iter().zip([sx, sy, sz]) {
-                        shift += u * s;
-                    }
-                } else if !self.frozen[m] {
-                    for (u, s) in axes.into_iter().zip([sx, sy, sz]) {
-                        self.turn[m] += u * s;
-                    }
-                }
-                k += 3;
-                continue;
-            }
-            let mut sum = -0.0;
-            for &(row, v) in &self.entries[a0..a1] {
-                sum += v * self.y[row];
-            }
-            self.step[k] = sum;
-            let (m, u) = self.dofs[k];
-            if m == TRANSLATION {
-                shift += u * sum;
-            } else if !self.frozen[m] {
-                self.turn[m] += u * sum;
-            }
-            k += 1;
-        }
+        let columns = Columns {
+            dofs: &self.dofs,
+            col_start: &self.col_start,
+            entries: &self.entries,
+            groups: &self.groups,
+            groups_of: if self.groups_of.len() == dofs {
+                &self.groups_of
+            } else {
+                &[]
+            },
+        };
+        let shift = steps_and_turns(
+            &columns,
+            &self.y,
+            &self.frozen,
+            &mut self.step,
+            &mut self.turn,
+        );
         for m in 0..movable.len() {
             for i in 0..self.blocked_count[m] {
                 let b = self.blocked[m][i];
@@ -1683,6 +1614,134 @@ fn moved_more_than_clamped(a: DQuat, b: DQuat) -> bool {
     }
 }
 
+/// The sparse columns of a linearization, read by [`steps_and_turns`].
+struct Columns<'a> {
+    dofs: &'a [(usize, DVec3)],
+    col_start: &'a [usize],
+    entries: &'a [(usize, f64)],
+    groups: &'a [Group],
+    /// Per degree of freedom that starts a triple, its groups; empty when the groups are
+    /// not those of these columns.
+    groups_of: &'a [Option<(usize, usize)>],
+}
+
+/// [`Finish::turns`] before the blocked directions: the step of every degree of freedom
+/// (`J_k . y`) into `step` (zeroed, one per degree of freedom), each unfrozen joint's sum
+/// of its axes times their steps into `turn` (zeroed), and the translation's shift
+/// returned. The outputs are parameters of their own, so the compiler knows that writing
+/// them changes none of the columns or `y`, and keeps those in registers.
+///
+/// The three columns of a joint's world axes share their rows: one pass reads each entry
+/// of `y` once for the three sums (each summed in the column's order from -0.0, as
+/// `Iterator::sum` does). Over the groups of three rows the products with a zero factor
+/// are left out: adding a zero changes a sum only from -0.0 to +0.0, and a step that is
+/// zero either way turns nothing and points neither way. A joint's turn is summed axis by
+/// axis from its entry in `turn`, as for single columns.
+fn steps_and_turns(
+    columns: &Columns<'_>,
+    y: &[f64],
+    frozen: &[bool],
+    step: &mut [f64],
+    turn: &mut [DVec3],
+) -> DVec3 {
+    let Columns {
+        dofs,
+        col_start,
+        entries,
+        groups,
+        groups_of,
+    } = *columns;
+    let mut shift = DVec3::ZERO;
+    let mut k = 0;
+    while k < dofs.len() {
+        let (m, u) = dofs[k];
+        // Groups are gathered only for triples of these columns (see `accumulate_normal`).
+        let grouped = groups_of.get(k).copied().flatten();
+        let triple =
+            grouped.is_some() || (k + 2 < dofs.len() && dofs[k + 1].0 == m && dofs[k + 2].0 == m);
+        debug_assert!(
+            grouped.is_none() || (k + 2 < dofs.len() && dofs[k + 1].0 == m && dofs[k + 2].0 == m)
+        );
+        if !triple {
+            let mut sum = -0.0;
+            for &(row, v) in &entries[col_start[k]..col_start[k + 1]] {
+                sum += v * y[row];
+            }
+            step[k] = sum;
+            if m == TRANSLATION {
+                shift += u * sum;
+            } else if !frozen[m] {
+                turn[m] += u * sum;
+            }
+            k += 1;
+            continue;
+        }
+        let (mut sx, mut sy, mut sz) = (-0.0, -0.0, -0.0);
+        if let Some((g0, g1)) = grouped {
+            for g in &groups[g0..g1] {
+                let [y0, y1, y2] = y[g.row..g.row + 3] else {
+                    unreachable!("a group has three rows")
+                };
+                let v = &g.v;
+                match g.kind {
+                    GroupKind::Cross => {
+                        sx += v[0][1] * y1;
+                        sx += v[0][2] * y2;
+                        sy += v[1][0] * y0;
+                        sy += v[1][2] * y2;
+                        sz += v[2][0] * y0;
+                        sz += v[2][1] * y1;
+                    }
+                    GroupKind::Axis => {
+                        sx += v[0][0] * y0;
+                        sy += v[1][1] * y1;
+                        sz += v[2][2] * y2;
+                    }
+                    GroupKind::Dense => {
+                        for (i, yi) in [y0, y1, y2].into_iter().enumerate() {
+                            sx += v[0][i] * yi;
+                            sy += v[1][i] * yi;
+                            sz += v[2][i] * yi;
+                        }
+                    }
+                }
+            }
+        } else {
+            let (a0, a1, a2, a3) = (
+                col_start[k],
+                col_start[k + 1],
+                col_start[k + 2],
+                col_start[k + 3],
+            );
+            for ((&(row, x), &(_, yv)), &(_, z)) in entries[a0..a1]
+                .iter()
+                .zip(&entries[a1..a2])
+                .zip(&entries[a2..a3])
+            {
+                let v = y[row];
+                sx += x * v;
+                sy += yv * v;
+                sz += z * v;
+            }
+        }
+        step[k..k + 3].copy_from_slice(&[sx, sy, sz]);
+        let axes = [u, dofs[k + 1].1, dofs[k + 2].1];
+        if m == TRANSLATION {
+            for (u, s) in axes.into_iter().zip([sx, sy, sz]) {
+                shift += u * s;
+            }
+        } else if !frozen[m] {
+            let mut w = turn[m];
+            for (u, s) in axes.into_iter().zip([sx, sy, sz]) {
+                w += u * s;
+            }
+            turn[m] = w;
+        }
+        k += 3;
+    }
+    shift
+}
+
 /// [`Finish::factorize`] for `N` rows known at compile time: the same sums in the same
 /// order, column by column, the rows below four (then two, then one) at a time; with the
 /// bounds constants the compiler drops the index checks and unrolls.
@@ -1717,11 +1776,12 @@ fn factorize_fixed<const N: usize>(
                 s[2] -= l[a + 2][k] * y;
                 s[3] -= l[a + 3][k] * y;
             }
-            for (i, s) in s.into_iter().enumerate() {
-                let v = s / pivot;
-                l[a + i][b] = v;
-                lt[b][a + i] = v;
-            }
+            let v = s.map(|s| s / pivot);
+            l[a][b] = v[0];
+            l[a + 1][b] = v[1];
+            l[a + 2][b] = v[2];
+            l[a + 3][b] = v[3];
+            lt[b][a..a + 4].copy_from_slice(&v);
             a += 4;
         }
         while a + 1 < N {
@@ -1829,26 +1889,105 @@ fn gather_groups(
     true
 }
 
-/// Adds the products of group `g` (the later rows) and group `h` to the lower triangle
-/// of `normal` (`rows` x `rows`), each entry taking the three columns' products in order,
-/// those with a zero factor left out; with `DIAGONAL` (`g` is `h`) only the entries on
-/// and below the diagonal.
+/// Adds the products of every pair of `groups` (one triple's) to the lower triangle of
+/// `normal` (`rows` x `rows`), each later group with every earlier one, then with itself.
+/// For the usual sizes (three rows per position goal, six with a rotation goal) the
+/// matrix is seen as rows of a length known at compile time, so that a block's three
+/// lines take one bounds check each way instead of one each and the index products fold.
+fn add_groups(normal: &mut [f64], rows: usize, groups: &[Group]) {
+    match rows {
+        9 => add_groups_fixed::<9>(normal.as_chunks_mut::<9>().0, groups),
+        12 => add_groups_fixed::<12>(normal.as_chunks_mut::<12>().0, groups),
+        15 => add_groups_fixed::<15>(normal.as_chunks_mut::<15>().0, groups),
+        18 => add_groups_fixed::<18>(normal.as_chunks_mut::<18>().0, groups),
+        21 => add_groups_fixed::<21>(normal.as_chunks_mut::<21>().0, groups),
+        24 => add_groups_fixed::<24>(normal.as_chunks_mut::<24>().0, groups),
+        _ => {
+            for (g, group) in groups.iter().enumerate() {
+                for other in &groups[..g] {
+                    let mut block = load_block(normal, rows, group, other);
+                    add_group_pair::<false>(&mut block, group, other);
+                    store_block(normal, rows, group, other, &block);
+                }
+                let mut block = load_block(normal, rows, group, group);
+                add_group_pair::<true>(&mut block, group, group);
+                store_block(normal, rows, group, group, &block);
+            }
+        }
+    }
+}
+
+/// [`add_groups`] over rows of `N`.
+fn add_groups_fixed<const N: usize>(normal: &mut [[f64; N]], groups: &[Group]) {
+    for (g, group) in groups.iter().enumerate() {
+        let lines: &mut [[f64; N]; 3] = (&mut normal[group.row..group.row + 3])
+            .try_into()
+            .expect("three lines");
+        for other in &groups[..g] {
+            add_group_pair_fixed::<false, N>(lines, group, other);
+        }
+        add_group_pair_fixed::<true, N>(lines, group, group);
+    }
+}
+
+/// [`add_group_pair`] on the block of the three `lines` of `g` at the columns of `h`.
 #[inline(always)]
-fn add_group_pair<const DIAGONAL: bool>(normal: &mut [f64], rows: usize, g: &Group, h: &Group) {
+fn add_group_pair_fixed<const DIAGONAL: bool, const N: usize>(
+    lines: &mut [[f64; N]; 3],
+    g: &Group,
+    h: &Group,
+) {
+    let mut block = [[0.0; 3]; 3];
+    for (b, line) in block.iter_mut().zip(lines.iter()) {
+        b.copy_from_slice(&line[h.row..h.row + 3]);
+    }
+    add_group_pair::<DIAGONAL>(&mut block, g, h);
+    for (b, line) in block.iter().zip(lines.iter_mut()) {
+        line[h.row..h.row + 3].copy_from_slice(b);
+    }
+}
+
+/// The block of `normal` (`rows` x `rows`) at the rows of `g` and the columns of `h`.
+#[inline(always)]
+fn load_block(normal: &[f64], rows: usize, g: &Group, h: &Group) -> [[f64; 3]; 3] {
+    let mut block = [[0.0; 3]; 3];
+    for (i, b) in block.iter_mut().enumerate() {
+        let start = (g.row + i) * rows + h.row;
+        b.copy_from_slice(&normal[start..start + 3]);
+    }
+    block
+}
+
+/// Writes back a block read by [`load_block`].
+#[inline(always)]
+fn store_block(normal: &mut [f64], rows: usize, g: &Group, h: &Group, block: &[[f64; 3]; 3]) {
+    for (i, b) in block.iter().enumerate() {
+        let start = (g.row + i) * rows + h.row;
+        normal[start..start + 3].copy_from_slice(b);
+    }
+}
+
+/// Adds the products of group `g` (the later rows) and group `h` to `block`, the
+/// entries of the normal matrix at the rows of `g` and the columns of `h`, each entry
+/// taking the three columns' products in order, those with a zero factor left out; with
+/// `DIAGONAL` (`g` is `h`) only the entries on and below the diagonal (the others are
+/// left as they are).
+#[inline(always)]
+fn add_group_pair<const DIAGONAL: bool>(block: &mut [[f64; 3]; 3], g: &Group, h: &Group) {
     match (g.kind, h.kind) {
         (GroupKind::Cross, GroupKind::Cross) => {
-            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Cross, GroupKind::Cross);
+            add_block::<DIAGONAL>(block, g, h, GroupKind::Cross, GroupKind::Cross);
         }
         (GroupKind::Cross, GroupKind::Axis) => {
-            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Cross, GroupKind::Axis);
+            add_block::<DIAGONAL>(block, g, h, GroupKind::Cross, GroupKind::Axis);
         }
         (GroupKind::Axis, GroupKind::Cross) => {
-            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Axis, GroupKind::Cross);
+            add_block::<DIAGONAL>(block, g, h, GroupKind::Axis, GroupKind::Cross);
         }
         (GroupKind::Axis, GroupKind::Axis) => {
-            add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Axis, GroupKind::Axis);
+            add_block::<DIAGONAL>(block, g, h, GroupKind::Axis, GroupKind::Axis);
         }
-        _ => add_block::<DIAGONAL>(normal, rows, g, h, GroupKind::Dense, GroupKind::Dense),
+        _ => add_block::<DIAGONAL>(block, g, h, GroupKind::Dense, GroupKind::Dense),
     }
 }
 
@@ -1856,16 +1995,13 @@ fn add_group_pair<const DIAGONAL: bool>(normal: &mut [f64], rows: usize, g: &Gro
 /// the loops unroll and the zero products drop out).
 #[inline(always)]
 fn add_block<const DIAGONAL: bool>(
-    normal: &mut [f64],
-    rows: usize,
+    block: &mut [[f64; 3]; 3],
     g: &Group,
     h: &Group,
     kg: GroupKind,
     kh: GroupKind,
 ) {
-    for i in 0..3 {
-        let start = (g.row + i) * rows + h.row;
-        let line = &mut normal[start..start + 3];
+    for (i, line) in block.iter_mut().enumerate() {
         let last = if DIAGONAL { i } else { 2 };
         for (j, entry) in line[..=last].iter_mut().enumerate() {
             let mut e = *entry;
@@ -2147,7 +2283,9 @@ mod tests {
         // A joint's triple over two effectors (one with a rotation goal, one its own
         // joint's rotation only), the translation's triple and a hinge column, as
         // `linearize` makes them (with exact zeros, some components of `d` zero too),
-        // against the products of every pair of entries added in column order.
+        // against the products of every pair of entries added in column order; in a
+        // matrix of the rows the columns reach (12), and in larger ones, of a size with
+        // the rows' length a constant (15, 24) and of others (13, 27).
         let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
         let mut next = move || {
             seed ^= seed << 13;
@@ -2155,8 +2293,7 @@ mod tests {
             seed ^= seed << 17;
             (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
         };
-        let rows = 12;
-        for round in 0..20 {
+        for (round, rows) in (0..40).zip([12, 13, 15, 24, 27].into_iter().cycle()) {
             let mut fin = Finish::default();
             let mut d = [
                 DVec3::new(next(), next(), next()),
@@ -2205,8 +2342,113 @@ mod tests {
             for a in 0..rows {
                 for b in 0..=a {
                     let (got, want) = (fin.normal_full[a * rows + b], expected[a * rows + b]);
-                    assert_eq!(got.to_bits(), want.to_bits(), "round {round}: {a} {b}");
+                    assert_eq!(
+                        got.to_bits(),
+                        want.to_bits(),
+                        "round {round}, {rows} rows: {a} {b}"
+                    );
                 }
+            }
+        }
+    }
+
+    #[test]
+    #[allow(clippy::field_reassign_with_default)]
+    fn the_steps_and_turns_by_groups_have_the_bits_of_the_column_sums() {
+        // Two joints' triples (one over groups of three rows, one over rows that do not
+        // split so), a hinge column, the translation's triple; some joints frozen or with
+        // a blocked direction; against each column's sum over all its entries in order
+        // and the turns summed axis by axis from them. Leaving out the zero products may
+        // change a zero sum's sign only.
+        let mut seed = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let same =
+            |got: f64, want: f64| got.to_bits() == want.to_bits() || (got == 0.0 && want == 0.0);
+        for round in 0..24 {
+            let rows = [12, 15][round % 2];
+            let mut fin = Finish::default();
+            let d = [
+                DVec3::new(next(), next(), next()),
+                DVec3::new(next(), 0.0, next()),
+            ];
+            let (w0, w1, wr) = (1.0 + next().abs(), 0.5, 2.0);
+            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
+                fin.col_start.push(fin.entries.len());
+                fin.dofs.push((0, u));
+                for (row, v) in [
+                    (0, u.cross(d[0]) * w0),
+                    (6, u.cross(d[1]) * w1),
+                    (9, u * wr),
+                ] {
+                    fin.entries
+                        .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
+                }
+            }
+            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
+                fin.col_start.push(fin.entries.len());
+                fin.dofs.push((1, u));
+                fin.entries.extend([(1, next()), (4, u.x), (8, next())]);
+            }
+            fin.col_start.push(fin.entries.len());
+            fin.dofs
+                .push((2, DVec3::new(next(), next(), next()).normalize()));
+            fin.entries.extend([(0, next()), (2, next()), (7, next())]);
+            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
+                fin.col_start.push(fin.entries.len());
+                fin.dofs.push((TRANSLATION, u));
+                for (row, w) in [(0, w0), (3, 1.5), (6, w1)] {
+                    let v = u * w;
+                    fin.entries
+                        .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
+                }
+            }
+            fin.col_start.push(fin.entries.len());
+            fin.normal_full.resize(rows * rows, 0.0);
+            fin.accumulate_normal(rows);
+            assert!(fin.groups_of[0].is_some() && fin.groups_of[3].is_none());
+            fin.y = (0..rows).map(|_| next()).collect();
+            if round % 3 == 0 {
+                fin.y[1] = 0.0;
+                fin.y[2] = -0.0;
+            }
+            fin.frozen = vec![round % 4 == 1, round % 4 == 2, round % 5 == 3];
+            fin.blocked = vec![[DVec3::ZERO; 2]; 3];
+            fin.blocked_count = vec![0; 3];
+            if round % 3 == 2 {
+                fin.blocked[0][0] = DVec3::new(next(), next(), next()).normalize();
+                fin.blocked_count[0] = 1;
+            }
+            fin.turn = vec![DVec3::ZERO; 3];
+            let shift = fin.turns(&[10, 11, 12]);
+
+            let mut want_turn = [DVec3::ZERO; 3];
+            let mut want_shift = DVec3::ZERO;
+            for (k, &(m, u)) in fin.dofs.iter().enumerate() {
+                let col = &fin.entries[fin.col_start[k]..fin.col_start[k + 1]];
+                let step: f64 = col.iter().map(|&(row, v)| v * fin.y[row]).sum();
+                assert!(same(fin.step[k], step), "round {round}: dof {k}");
+                if m == TRANSLATION {
+                    want_shift += u * step;
+                } else if !fin.frozen[m] {
+                    want_turn[m] += u * step;
+                }
+            }
+            if fin.blocked_count[0] == 1 {
+                let b = fin.blocked[0][0];
+                want_turn[0] -= b * b.dot(want_turn[0]);
+            }
+            for (m, (got, want)) in fin.turn.iter().zip(&want_turn).enumerate() {
+                for (got, want) in got.to_array().into_iter().zip(want.to_array()) {
+                    assert!(same(got, want), "round {round}: joint {m}");
+                }
+            }
+            for (got, want) in shift.to_array().into_iter().zip(want_shift.to_array()) {
+                assert!(same(got, want), "round {round}: shift");
             }
         }
     }

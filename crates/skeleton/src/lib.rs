@@ -530,8 +530,9 @@ impl Skeleton {
     ) -> Result<(), SkeletonError> {
         self.check_pose(pose)?;
         out.resize(self.len());
+        let mut fk = self.fk_slices(pose, out);
         for i in 0..self.len() {
-            self.update_joint(pose, out, i)?;
+            self.update_joint(&mut fk, i)?;
         }
         Ok(())
     }
@@ -553,23 +554,32 @@ impl Skeleton {
             // Nothing valid to start from: compute everything.
             return self.forward_kinematics(pose, out);
         }
-        self.update_joint(pose, out, joint)?;
         let span = joint + 1..self.span_end[joint];
         if self.contiguous {
+            let mut fk = self.fk_slices(pose, out);
+            self.update_joint(&mut fk, joint)?;
             for i in span {
-                self.update_joint(pose, out, i)?;
+                self.update_joint(&mut fk, i)?;
             }
         } else {
             out.dirty.fill(false);
             out.dirty[joint] = true;
+            let mut dirty = std::mem::take(&mut out.dirty);
+            let mut fk = self.fk_slices(pose, out);
+            let mut result = self.update_joint(&mut fk, joint);
             for i in span {
+                if result.is_err() {
+                    break;
+                }
                 if let Some(p) = self.parents[i]
-                    && out.dirty[p]
+                    && dirty[p]
                 {
-                    out.dirty[i] = true;
-                    self.update_joint(pose, out, i)?;
+                    dirty[i] = true;
+                    result = self.update_joint(&mut fk, i);
                 }
             }
+            out.dirty = dirty;
+            result?;
         }
         Ok(())
     }
@@ -585,33 +595,53 @@ impl Skeleton {
         }
     }
 
+    /// The slices forward kinematics reads and writes, each cut to the skeleton's length
+    /// (`pose` checked and `out` sized by the caller), so that a loop over the joints
+    /// indexes them without a bounds check.
+    #[inline(always)]
+    fn fk_slices<'a>(&'a self, pose: &'a Pose, out: &'a mut GlobalPose) -> FkSlices<'a> {
+        let n = self.len();
+        FkSlices {
+            locals: &pose.rotations[..n],
+            parents: &self.parents[..n],
+            offsets: &self.offsets[..n],
+            rotations: &mut out.rotations[..n],
+            positions: &mut out.positions[..n],
+        }
+    }
+
     /// The lab's FK rule for one joint, given that its parent is up to date.
     #[inline(always)]
-    fn update_joint(
-        &self,
-        pose: &Pose,
-        out: &mut GlobalPose,
-        i: usize,
-    ) -> Result<(), SkeletonError> {
-        let local = pose.rotations[i];
+    fn update_joint(&self, fk: &mut FkSlices<'_>, i: usize) -> Result<(), SkeletonError> {
+        let local = fk.locals[i];
         if !local.is_finite() || local.length_squared() == 0.0 {
             return Err(SkeletonError::InvalidRotation {
                 joint: self.label(i),
             });
         }
-        match self.parents[i] {
+        match fk.parents[i] {
             None => {
-                out.rotations[i] = local.normalize();
-                out.positions[i] = self.offsets[i];
+                fk.rotations[i] = local.normalize();
+                fk.positions[i] = fk.offsets[i];
             }
             Some(p) => {
-                let parent_rotation = out.rotations[p];
-                out.rotations[i] = (parent_rotation * local).normalize();
-                out.positions[i] = out.positions[p] + parent_rotation * self.offsets[i];
+                let parent_rotation = fk.rotations[p];
+                fk.rotations[i] = (parent_rotation * local).normalize();
+                fk.positions[i] = fk.positions[p] + parent_rotation * fk.offsets[i];
             }
         }
         Ok(())
     }
+}
+
+/// What forward kinematics reads (the local rotations, the parents and offsets) and
+/// writes (the global rotations and positions), one entry per joint.
+struct FkSlices<'a> {
+    locals: &'a [DQuat],
+    parents: &'a [Option<usize>],
+    offsets: &'a [DVec3],
+    rotations: &'a mut [DQuat],
+    positions: &'a mut [DVec3],
 }
 
 /// A 64-bit hash of a skeleton's parents and offsets (each mixed in by the splitmix64
@@ -934,6 +964,35 @@ mod tests {
                 assert_eq!(g.positions, full.positions, "from joint {joint}");
                 assert_eq!(g.rotations, full.rotations, "from joint {joint}");
             }
+        }
+    }
+
+    #[test]
+    fn fk_from_a_joint_stops_at_the_first_invalid_rotation_of_its_subtree() {
+        // On a tree whose subtrees are not contiguous (the dirty marks are used) and on a
+        // chain: the first invalid rotation below the joint is the error, and the global
+        // pose can be updated again afterwards.
+        let chain =
+            Skeleton::chain(DVec3::new(0.0, 0.5, 0.0), &[DVec3::new(0.15, 0.0, 0.0); 4]).unwrap();
+        for (skel, bad) in [(three_level_tree(), [3, 4]), (chain, [2, 3])] {
+            let n = skel.len();
+            let mut g = GlobalPose::new();
+            skel.forward_kinematics(&skel.rest_pose(), &mut g).unwrap();
+            let mut pose = wobbly_pose(n, 3);
+            pose.rotations[bad[0]] = DQuat::from_xyzw(f64::NAN, 0.0, 0.0, 1.0);
+            pose.rotations[bad[1]] = DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0);
+            assert_eq!(
+                skel.forward_kinematics_from(&pose, 0, &mut g),
+                Err(SkeletonError::InvalidRotation {
+                    joint: format!("joint {}", bad[0])
+                })
+            );
+            let good = wobbly_pose(n, 5);
+            skel.forward_kinematics_from(&good, 0, &mut g).unwrap();
+            let mut full = GlobalPose::new();
+            skel.forward_kinematics(&good, &mut full).unwrap();
+            assert_eq!(g.positions, full.positions);
+            assert_eq!(g.rotations, full.rotations);
         }
     }
 
