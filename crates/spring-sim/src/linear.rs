@@ -4,7 +4,9 @@
 //!   symbolic factorization (AMD ordering, simplicial or supernodal structure) computed
 //!   once per topology and the factor values and workspaces allocated once and reused.
 //!   A failed factorization is retried on `H + sigma I` with a growing shift; the shifts
-//!   are counted for the step report.
+//!   are counted for the step report. The supernodal path writes the matrix straight
+//!   into the ordering's positions through a slot map built once, and the last factor
+//!   can precondition conjugate gradients on a later matrix instead of a factorization.
 //! - [`PcgSolver`]: conjugate gradients preconditioned by the inverse 3x3 diagonal blocks
 //!   (block Jacobi), to a relative residual, on the same assembled matrix.
 //!
