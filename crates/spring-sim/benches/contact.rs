@@ -17,9 +17,12 @@
 //! from the colliders' fields after every step). Not a criterion benchmark: a table for
 //! docs/contact.md, run with
 //! `cargo bench -p sinew-spring-sim --bench contact [-- ground|drape|rotating [steps]
-//! [--trace] [mu=..] [eps_v=..] [solver=direct|pcg|auto]]` (`--trace`: a line per step
-//! on stderr; `mu`, `eps_v`: the friction settings instead of the workload's;
-//! `solver`: the linear solver, `auto` by default).
+//! [--trace] [mu=..] [eps_v=..] [solver=direct|pcg|auto] [reuse=..]]` (`--trace`: a line
+//! per step on stderr; `mu`, `eps_v`: the friction settings instead of the workload's;
+//! `solver`: the linear solver, `auto` by default; `reuse`: the direct solver's
+//! `factor_reuse_iterations`, 0 for a factorization every Newton iteration). The last
+//! line gives the direct solver's numeric factorizations and its solves and iterations
+//! preconditioned by a kept factor over the run.
 
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::{Collider, ContactSettings};
@@ -89,7 +92,8 @@ fn main() {
     // `--trace`: one line per step on stderr (iterations, stop reason, kappa, distance).
     let trace = args.iter().any(|a| a == "--trace");
     // `key=value` overrides of the workloads' settings, for experiments: `mu=`, `eps_v=`
-    // (friction), `solver=direct|pcg|auto` (the linear solver).
+    // (friction), `solver=direct|pcg|auto` (the linear solver), `reuse=` (the iterations
+    // preconditioned by a kept factor before a factorization).
     let value = |key: &str| {
         args.iter()
             .find_map(|a| a.strip_prefix(key).and_then(|v| v.strip_prefix('=')))
@@ -124,10 +128,13 @@ fn main() {
             fixed: Vec::new(),
         };
         let system = grid.build().expect("the grid is valid");
+        let defaults = NewtonSettings::default();
         let settings = NewtonSettings {
             max_iterations: 100,
             linear_solver: solver,
-            ..NewtonSettings::default()
+            factor_reuse_iterations: number("reuse")
+                .map_or(defaults.factor_reuse_iterations, |r| r as usize),
+            ..defaults
         };
         let mut sim = Simulation::new(system, Integrator::BackwardEuler(settings))
             .expect("the integrator is valid");
@@ -145,6 +152,7 @@ fn main() {
         let mut times = Vec::with_capacity(steps);
         let (mut newton, mut most, mut linear, mut backtracks) = (0, 0, 0, 0);
         let (mut smallest, mut penetrating) = (f64::INFINITY, 0);
+        let (mut factorizations, mut kept_solves, mut kept_iterations) = (0, 0, 0);
         for _ in 0..steps {
             let start = Instant::now();
             let report = sim.step(h).expect("the step succeeds");
@@ -153,14 +161,20 @@ fn main() {
             most = most.max(report.iterations);
             linear += report.linear_iterations;
             backtracks += report.backtracks;
+            factorizations += report.factorizations;
+            kept_solves += report.kept_factor_solves;
+            kept_iterations += report.kept_factor_iterations;
             let (d, _) = sim.contact_distances().expect("contact is set");
             if trace {
                 eprintln!(
-                    "{} step {}: {} Newton, {} PCG, {} backtracks, {:?}, {} pieces, kappa {:.4}, d {d:.3e}, {:.2} ms",
+                    "{} step {}: {} Newton, {} PCG, {} factorizations, {} kept-factor solves ({} iterations), {} backtracks, {:?}, {} pieces, kappa {:.4}, d {d:.3e}, {:.2} ms",
                     w.name,
                     times.len(),
                     report.iterations,
                     report.linear_iterations,
+                    report.factorizations,
+                    report.kept_factor_solves,
+                    report.kept_factor_iterations,
                     report.backtracks,
                     report.stop,
                     report.pieces,
@@ -181,6 +195,10 @@ fn main() {
             w.name,
             w.size * w.size,
             sim.contact_kappa().unwrap_or(0.0),
+        );
+        println!(
+            "{}: {factorizations} factorizations, {kept_solves} kept-factor solves, {kept_iterations} kept-factor iterations",
+            w.name
         );
     }
 }

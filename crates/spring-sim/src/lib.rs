@@ -65,7 +65,8 @@ pub use explicit::{PARALLEL_MIN_PARTICLES, SymplecticEuler, VelocityVerlet};
 pub use implicit::{Bdf2, ImplicitMidpoint};
 pub use integrator::{AutoCosts, AutoSettings, Integrator, Simulation};
 pub use linear::{
-    DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, SolverCosts, SolverError,
+    DirectSolver, FactorStructure, KeptFactorOutcome, KeptFactorStatus, LinearSolverChoice,
+    LinearSolverKind, SolverCosts, SolverError,
 };
 pub use mesh::{Bending, EdgeHinge, MeshCloth, MeshClothModel, MeshError, TriangleMesh};
 pub use metrics::{DIVERGENCE_RADIUS, RunMetrics, run, run_observed};

@@ -153,6 +153,21 @@ pub struct StepReport {
     pub linear_iterations: usize,
     /// Factorizations retried on a shifted matrix.
     pub shifted_factorizations: usize,
+    /// Numeric Cholesky factorizations of the direct solver, the failed and the shifted
+    /// ones included.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub factorizations: usize,
+    /// Newton iterations of the direct solver whose system was solved by conjugate
+    /// gradients preconditioned with the last factor, without a factorization of their
+    /// own (`NewtonSettings::factor_reuse_iterations`).
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub kept_factor_solves: usize,
+    /// Conjugate-gradient iterations preconditioned with the last factor (each a product
+    /// with the matrix and a pair of triangular solves), those of attempts that ran out
+    /// of their budget and ended in a factorization included; not in
+    /// `linear_iterations`.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub kept_factor_iterations: usize,
     /// Iterations where every factorization failed and PCG solved instead.
     pub direct_failures: usize,
     /// Iterations where the solve gave no descent direction and the mass-scaled
@@ -214,6 +229,9 @@ impl StepReport {
         self.backtracks += part.backtracks;
         self.linear_iterations += part.linear_iterations;
         self.shifted_factorizations += part.shifted_factorizations;
+        self.factorizations += part.factorizations;
+        self.kept_factor_solves += part.kept_factor_solves;
+        self.kept_factor_iterations += part.kept_factor_iterations;
         self.direct_failures += part.direct_failures;
         self.descent_fallbacks += part.descent_fallbacks;
         self.exact_hessian_iterations += part.exact_hessian_iterations;
@@ -233,6 +251,9 @@ impl StepReport {
             linear_solver: None,
             linear_iterations: 0,
             shifted_factorizations: 0,
+            factorizations: 0,
+            kept_factor_solves: 0,
+            kept_factor_iterations: 0,
             direct_failures: 0,
             descent_fallbacks: 0,
             exact_hessian_iterations: 0,

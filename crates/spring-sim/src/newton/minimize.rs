@@ -4,7 +4,7 @@
 //! ([`super::line_search`]).
 
 use super::{BackwardEuler, line_search};
-use crate::linear::{LinearSolverKind, PcgOutcome, dot};
+use crate::linear::{KeptFactorStatus, LinearSolverKind, PcgOutcome, dot};
 use crate::model::{ModelError, SpringSystem};
 use crate::potential::{HessianSink, StepContext};
 use crate::report::{IntegratorKind, StepReport, StepStop};
@@ -33,6 +33,12 @@ fn roundoff_floor(system: &SpringSystem, step: &StepContext<'_>, h: f64) -> f64 
         .fold(0.0f64, f64::max);
     ROUNDOFF_FLOOR_ULPS * f64::EPSILON * largest
 }
+
+/// The relative residual a solve preconditioned by the kept factor is taken to: tight
+/// enough that its direction stands for the exact one the factorization gives (the
+/// Newton iterations are then those of the direct solve), yet a few iterations away
+/// with a factor of a nearby matrix.
+const KEPT_FACTOR_RTOL: f64 = 1e-10;
 
 /// The softened Hessian (see [`Curvature::Softened`]): after a failed attempt `theta`
 /// moves to `1 - SOFTENING_RAISE (1 - theta)` (0, 0.3, 0.51, 0.66, ...).
@@ -75,6 +81,11 @@ impl BackwardEuler {
         let y = std::mem::take(&mut self.y);
         let x_ref = std::mem::take(&mut self.x_ref);
         let step = StepContext::new(system, h, &y, &x_ref).with_timing(self.timing);
+        // Each step starts from a factorization of its own first matrix, so a step does
+        // not depend on the solves of the step (or abandoned attempt) before it.
+        if let Some(direct) = self.direct.as_mut() {
+            direct.forget_factor();
+        }
         let mut first_residual_l2 = 0.0;
         let mut previous_residual = f64::INFINITY;
         // Once an iteration is slow, every later one of the step tries the softened
@@ -161,10 +172,8 @@ impl BackwardEuler {
                 while theta <= SOFTENING_MAX_THETA {
                     self.assemble_hessian(&step, Curvature::Softened(theta));
                     if kind == LinearSolverKind::Direct {
-                        if let Some(direct) = self.direct.as_mut() {
-                            self.dx.copy_from_slice(&self.rhs);
-                            solved =
-                                direct.solve_unshifted(&self.pattern, &self.values, &mut self.dx);
+                        if self.direct.is_some() {
+                            solved = self.direct_direction(false, &mut report);
                         }
                     } else {
                         // CG meets a direction of non-positive curvature exactly when the
@@ -194,18 +203,8 @@ impl BackwardEuler {
             } else {
                 self.assemble_hessian(&step, Curvature::Clamped);
             }
-            if !solved
-                && kind == LinearSolverKind::Direct
-                && let Some(direct) = self.direct.as_mut()
-            {
-                self.dx.copy_from_slice(&self.rhs);
-                let outcome = direct.solve(&self.pattern, &self.values, &mut self.dx);
-                report.shifted_factorizations += outcome.shifts;
-                if outcome.failed {
-                    report.direct_failures += 1;
-                } else {
-                    solved = true;
-                }
+            if !solved && kind == LinearSolverKind::Direct && self.direct.is_some() {
+                solved = self.direct_direction(true, &mut report);
             }
             if !solved {
                 let outcome = self.pcg_direction(rtol);
@@ -256,6 +255,51 @@ impl BackwardEuler {
         self.chooser
             .record(kind, report.iterations, report.linear_iterations);
         Ok(report)
+    }
+
+    /// The Newton direction of the assembled matrix on the direct solver, into `dx`:
+    /// first by conjugate gradients preconditioned with the kept factor, within
+    /// `factor_reuse_iterations` iterations, else by a factorization of the matrix
+    /// itself (with the shifted retries when `shifted`). Returns whether a direction was
+    /// found. Without `shifted` (the softened Hessian, used only when positive definite)
+    /// it is false when the matrix is shown not to be positive definite: by a direction
+    /// of non-positive curvature, or by a failed factorization.
+    fn direct_direction(&mut self, shifted: bool, report: &mut StepReport) -> bool {
+        let Some(direct) = self.direct.as_mut() else {
+            return false;
+        };
+        self.dx.copy_from_slice(&self.rhs);
+        let budget = self.settings.factor_reuse_iterations;
+        if budget > 0 {
+            let outcome = direct.solve_with_kept_factor(
+                &self.pattern,
+                &self.values,
+                &mut self.dx,
+                KEPT_FACTOR_RTOL,
+                budget,
+            );
+            report.kept_factor_iterations += outcome.iterations;
+            match outcome.status {
+                KeptFactorStatus::Converged => {
+                    report.kept_factor_solves += 1;
+                    return true;
+                }
+                KeptFactorStatus::NonPositiveCurvature if !shifted => return false,
+                _ => {}
+            }
+        }
+        if shifted {
+            let outcome = direct.solve(&self.pattern, &self.values, &mut self.dx);
+            report.factorizations += 1 + outcome.shifts;
+            report.shifted_factorizations += outcome.shifts;
+            if outcome.failed {
+                report.direct_failures += 1;
+            }
+            !outcome.failed
+        } else {
+            report.factorizations += 1;
+            direct.solve_unshifted(&self.pattern, &self.values, &mut self.dx)
+        }
     }
 
     /// The Newton direction by PCG from zero, solving the assembled matrix against the

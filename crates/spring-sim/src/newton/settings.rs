@@ -47,6 +47,11 @@ pub struct NewtonSettings {
     /// they save PCG iterations on the lab cloths and W6, measured in
     /// docs/spring-sim.md ("Inexact Newton").
     pub pcg_forcing: f64,
+    /// On the direct solve, the conjugate-gradient iterations a Newton iteration may
+    /// spend preconditioned by the last numeric factor before it factors its own matrix
+    /// (default 8; 0: a new factorization every Newton iteration). The factor is kept
+    /// within a step only; see docs/spring-sim.md ("Linear solvers").
+    pub factor_reuse_iterations: usize,
     /// With `Auto`, how many steps may pass on the direct solve before PCG runs a step
     /// again to observe its iteration count (default 64).
     pub reprobe_interval: usize,
@@ -99,6 +104,7 @@ impl Default for NewtonSettings {
             max_backtracks: 40,
             pcg_max_iterations: 2000,
             pcg_forcing: 1e-3,
+            factor_reuse_iterations: 0,
             reprobe_interval: 64,
             record_objective: false,
             threads: 0,
