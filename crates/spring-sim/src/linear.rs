@@ -364,13 +364,18 @@ pub struct KeptFactorOutcome {
 ///
 /// The last successful numeric factor is kept: a later, nearby matrix can be solved by
 /// conjugate gradients preconditioned with it ([`DirectSolver::solve_with_kept_factor`])
-/// instead of a new factorization. A failed factorization never overwrites the kept
-/// factor (it is computed into a second buffer, swapped in on success).
+/// instead of a new factorization. Once [`DirectSolver::set_keep_factor`] asks for it, a
+/// failed factorization never overwrites the kept factor (it is computed into a second
+/// buffer, swapped in on success); without it the factor has one buffer, no larger than
+/// the solver needs for its own solves.
 pub struct DirectSolver {
     symbolic: SymbolicCholesky<usize>,
     factor_values: Vec<f64>,
-    /// Where a factorization is computed before it replaces `factor_values`.
+    /// Where a factorization is computed before it replaces `factor_values`, when the
+    /// factor is kept (empty otherwise).
     trial_values: Vec<f64>,
+    /// Whether a failed factorization must leave the kept factor as it was.
+    keep: bool,
     /// Whether `factor_values` holds the factor of a positive definite matrix.
     has_factor: bool,
     shifted_values: Vec<f64>,
@@ -474,7 +479,8 @@ impl DirectSolver {
         let permuted = PermutedMatrix::new(pattern, &symbolic);
         Ok(Self {
             symbolic,
-            trial_values: factor_values.clone(),
+            trial_values: Vec::new(),
+            keep: false,
             factor_values,
             has_factor: false,
             shifted_values: vec![0.0; pattern.nnz()],
@@ -503,6 +509,17 @@ impl DirectSolver {
         self.has_factor
     }
 
+    /// Whether a failed factorization leaves the last good factor in place for
+    /// [`DirectSolver::solve_with_kept_factor`] (off by default): on, factorizations are
+    /// computed into a second factor-sized buffer and swapped in when they succeed, so
+    /// the solver holds two factors' worth of memory.
+    pub fn set_keep_factor(&mut self, keep: bool) {
+        self.keep = keep;
+        if !keep {
+            self.trial_values = Vec::new();
+        }
+    }
+
     /// Drops the kept factor: the next solve preconditioned by it reports
     /// [`KeptFactorStatus::NoFactor`].
     pub fn forget_factor(&mut self) {
@@ -513,13 +530,21 @@ impl DirectSolver {
     /// and, on success, makes it the kept factor. Returns whether it succeeded.
     fn factor(&mut self, pattern: &HessianPattern, values: &[f64]) -> bool {
         let stack = MemStack::new(&mut self.factor_work);
+        // Without `keep` the factor is computed in place: a failure then leaves no factor.
+        let target = if self.keep {
+            self.trial_values.resize(self.factor_values.len(), 0.0);
+            &mut self.trial_values
+        } else {
+            self.has_factor = false;
+            &mut self.factor_values
+        };
         let factored = match (&mut self.permuted, self.symbolic.raw()) {
             (Some(permuted), SymbolicCholeskyRaw::Supernodal(supernodal)) => {
                 for (v, &k) in permuted.values.iter_mut().zip(&permuted.slots) {
                     *v = values[k];
                 }
                 supernodal::factorize_supernodal_numeric_llt(
-                    &mut self.trial_values,
+                    target,
                     SparseColMatRef::new(permuted.symbolic.as_ref(), &permuted.values),
                     LltRegularization::default(),
                     supernodal,
@@ -532,7 +557,7 @@ impl DirectSolver {
             _ => self
                 .symbolic
                 .factorize_numeric_llt(
-                    &mut self.trial_values,
+                    target,
                     pattern.matrix(values),
                     Side::Lower,
                     LltRegularization::default(),
@@ -543,7 +568,9 @@ impl DirectSolver {
                 .is_ok(),
         };
         if factored {
-            std::mem::swap(&mut self.factor_values, &mut self.trial_values);
+            if self.keep {
+                std::mem::swap(&mut self.factor_values, &mut self.trial_values);
+            }
             self.has_factor = true;
         }
         factored
@@ -1389,6 +1416,7 @@ mod tests {
         let dim = pattern.dim();
         let b = rhs(dim);
         let mut solver = DirectSolver::new(&pattern, FactorStructure::Supernodal).unwrap();
+        solver.set_keep_factor(true);
         let mut x = b.clone();
         let none = solver.solve_with_kept_factor(&pattern, &new, &mut x, 1e-12, 100);
         assert_eq!(none.status, KeptFactorStatus::NoFactor);

@@ -33,8 +33,7 @@ mod solver_choice;
 pub use settings::{InitialGuess, NewtonSettings};
 
 use crate::linear::{
-    DirectSolver, FactorStructure, LinearSolverChoice, LinearSolverKind, PcgOutcome, PcgSolver,
-    SolverCosts,
+    DirectSolver, LinearSolverChoice, LinearSolverKind, PcgOutcome, PcgSolver, SolverCosts,
 };
 use crate::model::{ModelError, SpringSystem, Topology, check_time_step};
 use crate::pattern::{FIXED, HessianPattern};
@@ -143,7 +142,7 @@ impl BackwardEuler {
         let pattern = HessianPattern::new(system);
         let n = pattern.dim();
         let direct = if settings.linear_solver == LinearSolverChoice::Direct {
-            Some(Self::build_direct(&pattern, settings.factor_structure)?)
+            Some(Self::build_direct(&pattern, &settings)?)
         } else {
             None
         };
@@ -197,9 +196,12 @@ impl BackwardEuler {
 
     fn build_direct(
         pattern: &HessianPattern,
-        structure: FactorStructure,
+        settings: &NewtonSettings,
     ) -> Result<DirectSolver, ModelError> {
-        Ok(DirectSolver::new(pattern, structure)?)
+        let mut direct = DirectSolver::new(pattern, settings.factor_structure)?;
+        // A second factor's memory only where the kept factor is used.
+        direct.set_keep_factor(settings.factor_reuse_iterations > 0);
+        Ok(direct)
     }
 
     /// The threads PCG's work, the springs' part of the assembly and the line search run
@@ -286,10 +288,7 @@ impl BackwardEuler {
         // Both solvers are built before either is replaced, so an error leaves the
         // integrator as it was.
         let direct = match self.direct {
-            Some(_) => Some(Self::build_direct(
-                &pattern,
-                self.settings.factor_structure,
-            )?),
+            Some(_) => Some(Self::build_direct(&pattern, &self.settings)?),
             None => None,
         };
         self.pcg = Self::build_pcg(&pattern, self.settings.threads)?;
@@ -326,10 +325,7 @@ impl BackwardEuler {
         // Both solvers are built before either is replaced, so an error leaves the
         // integrator as it was.
         let direct = match self.direct {
-            Some(_) => Some(Self::build_direct(
-                &pattern,
-                self.settings.factor_structure,
-            )?),
+            Some(_) => Some(Self::build_direct(&pattern, &self.settings)?),
             None => None,
         };
         self.pcg = Self::build_pcg(&pattern, self.settings.threads)?;
@@ -347,10 +343,7 @@ impl BackwardEuler {
     /// benchmarks).
     pub fn factor_newton_matrix(&mut self) -> Result<bool, ModelError> {
         if self.direct.is_none() {
-            self.direct = Some(Self::build_direct(
-                &self.pattern,
-                self.settings.factor_structure,
-            )?);
+            self.direct = Some(Self::build_direct(&self.pattern, &self.settings)?);
         }
         Ok(self
             .direct
@@ -871,10 +864,7 @@ impl BackwardEuler {
             .chooser
             .choose(choice, self.settings.reprobe_interval, costs.as_ref());
         if kind == LinearSolverKind::Direct && self.direct.is_none() && dim > 0 {
-            self.direct = Some(Self::build_direct(
-                &self.pattern,
-                self.settings.factor_structure,
-            )?);
+            self.direct = Some(Self::build_direct(&self.pattern, &self.settings)?);
         }
         Ok(kind)
     }
@@ -904,10 +894,7 @@ impl BackwardEuler {
             return Ok(kind);
         }
         if self.direct.is_none() {
-            self.direct = Some(Self::build_direct(
-                &self.pattern,
-                self.settings.factor_structure,
-            )?);
+            self.direct = Some(Self::build_direct(&self.pattern, &self.settings)?);
         }
         Ok(LinearSolverKind::Direct)
     }
