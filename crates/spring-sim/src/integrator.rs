@@ -61,8 +61,8 @@ pub enum Integrator {
         substeps: Option<usize>,
     },
     /// The cheapest integrator stable at the step (velocity Verlet at the bound's
-    /// substep count, or BDF2), or backward Euler when asked to settle; see
-    /// [`AutoSettings`].
+    /// substep count, or BDF2), or backward Euler when asked to settle or when a Verlet
+    /// step ran away and is redone; see [`AutoSettings`].
     Auto(AutoSettings),
 }
 
@@ -319,7 +319,7 @@ pub struct AutoCosts {
 
 /// The `auto` integrator: velocity Verlet at the bound's substep count or BDF2, whichever
 /// costs less per step (by the count model, or measured when asked), or backward Euler
-/// when asked to settle.
+/// when asked to settle or to redo a Verlet step that ran away.
 #[derive(Debug)]
 struct AutoStepper {
     settings: AutoSettings,
@@ -341,6 +341,9 @@ struct AutoStepper {
     pending_contact: Option<ContactTerm>,
     /// The time the next step starts at, for the implicit integrators' terms.
     time: f64,
+    /// Backward Euler, which redoes a step whose Verlet attempt ran away (built at the
+    /// first such step).
+    fallback: Option<Box<BackwardEuler>>,
 }
 
 impl AutoStepper {
@@ -368,6 +371,7 @@ impl AutoStepper {
             contact: false,
             pending_contact: None,
             time: 0.0,
+            fallback: None,
         })
     }
 
@@ -395,6 +399,9 @@ impl AutoStepper {
         if let Some(b) = &mut self.bdf2 {
             b.newton_mut().set_time(time);
         }
+        if let Some(be) = &mut self.fallback {
+            be.set_time(time);
+        }
     }
 
     fn reset_history(&mut self) {
@@ -402,6 +409,9 @@ impl AutoStepper {
             b.reset_history();
         }
         if let Some(b) = &mut self.settle {
+            b.reset_history();
+        }
+        if let Some(b) = &mut self.fallback {
             b.reset_history();
         }
     }
@@ -483,15 +493,15 @@ impl AutoStepper {
     }
 
     /// The count model's cost of the implicit step `report` (Newton iterations, PCG
-    /// iterations, the direct solve's modelled cost when it ran) on `bdf2`'s pattern.
+    /// iterations, the direct solve's modelled cost when it ran) on `newton`'s pattern.
     fn implicit_step_cost(
         system: &SpringSystem,
-        bdf2: &mut Bdf2,
+        newton: &mut BackwardEuler,
         report: &StepReport,
     ) -> Result<f64, ModelError> {
         let springs = system.springs().len() as f64;
         let particles = system.len() as f64;
-        let pattern = bdf2.newton().pattern();
+        let pattern = newton.pattern();
         let cg_iteration = 2.0 * pattern.nnz() as f64 + 9.0 * pattern.dim() as f64;
         let direct_solves = if report.linear_solver == Some(crate::linear::LinearSolverKind::Direct)
         {
@@ -500,7 +510,7 @@ impl AutoStepper {
             0.0
         };
         let direct = if direct_solves > 0.0 {
-            direct_solves * bdf2.newton_mut().solver_costs()?.direct_cost()
+            direct_solves * newton.solver_costs()?.direct_cost()
         } else {
             0.0
         };
@@ -546,6 +556,28 @@ impl AutoStepper {
             }
             self.current = Some(IntegratorKind::VelocityVerlet);
             report
+        } else if reason == AutoReason::ExplicitUnstable {
+            // Backward Euler, not BDF2: after Verlet the BDF2 history is stale and BDF2
+            // restarts with an undamped midpoint step, which from a state this far from
+            // equilibrium took Newton hundreds of iterations and split pieces where
+            // backward Euler's damped step takes tens (docs/integrators.md, `auto`).
+            if self.fallback.is_none() {
+                let mut be = Box::new(BackwardEuler::new(system, self.settings.newton)?);
+                be.set_time(self.time);
+                self.fallback = Some(be);
+            }
+            let be = self.fallback.as_mut().expect("built above");
+            if self.current != Some(IntegratorKind::BackwardEuler) {
+                // Coming from another integrator: the first guess's history is stale.
+                be.reset_history();
+            }
+            let report = be.step(system, h)?;
+            if let Some(started) = started {
+                self.implicit_time.record(started.elapsed().as_secs_f64());
+            }
+            self.implicit_counted = Some(Self::implicit_step_cost(system, be, &report)?);
+            self.current = Some(IntegratorKind::BackwardEuler);
+            report
         } else {
             if self.bdf2.is_none() {
                 let mut bdf2 = Box::new(Bdf2::new(system, self.settings.newton)?);
@@ -557,14 +589,18 @@ impl AutoStepper {
             }
             let bdf2 = self.bdf2.as_mut().expect("built above");
             if self.current != Some(IntegratorKind::Bdf2) {
-                // Coming from Verlet: the BDF2 history is stale.
+                // Coming from Verlet or a backward Euler redo: the BDF2 history is stale.
                 bdf2.reset_history();
             }
             let report = bdf2.step(system, h)?;
             if let Some(started) = started {
                 self.implicit_time.record(started.elapsed().as_secs_f64());
             }
-            self.implicit_counted = Some(Self::implicit_step_cost(system, bdf2, &report)?);
+            self.implicit_counted = Some(Self::implicit_step_cost(
+                system,
+                bdf2.newton_mut(),
+                &report,
+            )?);
             self.current = Some(IntegratorKind::Bdf2);
             report
         };

@@ -46,7 +46,9 @@ pub enum AutoReason {
     /// Velocity Verlet was tried at the bound's substep count and its energy rose by more
     /// than half the energy scale in one step (the bound, taken at the step's start, no
     /// longer held as springs shortened within the step): the step was redone from its
-    /// start by BDF2.
+    /// start by backward Euler (first order and damping, but a descent on the step's
+    /// incremental potential that Newton solves in a few iterations from such a state;
+    /// BDF2 would restart with an undamped midpoint step).
     ExplicitUnstable,
 }
 
@@ -91,7 +93,7 @@ impl std::fmt::Display for AutoReason {
                 "contact with colliders: BDF2, whose barrier keeps every particle outside (the explicit projection is not guaranteed)"
             }
             Self::ExplicitUnstable => {
-                "velocity Verlet's energy rose by more than half the energy scale in one step: redone by BDF2"
+                "velocity Verlet's energy rose by more than half the energy scale in one step: redone by backward Euler"
             }
         })
     }

@@ -428,6 +428,9 @@ pub struct ClothOutcome {
     pub backtracks: usize,
     /// Newton iterations summed over the run (abandoned attempts of split steps too).
     pub iterations_total: usize,
+    /// Newton iterations summed over the run's implicit steps (`iterations_total`
+    /// without `auto`'s velocity Verlet substeps).
+    pub newton_iterations_total: usize,
     /// PCG iterations summed over the run.
     pub linear_iterations_total: usize,
     /// Steps whose last piece used the direct solver (the others used PCG, or, for
@@ -473,6 +476,7 @@ impl ClothOutcome {
             iterations_mean: 0.0,
             backtracks: 0,
             iterations_total: 0,
+            newton_iterations_total: 0,
             linear_iterations_total: 0,
             direct_steps: 0,
             pieces_total: 0,
@@ -558,6 +562,9 @@ pub fn run_case(case: &ClothCase) -> ClothOutcome {
         iterations_total += report.iterations;
         out.iterations_max = out.iterations_max.max(report.iterations);
         out.backtracks += report.backtracks;
+        if report.integrator != IntegratorKind::VelocityVerlet {
+            out.newton_iterations_total += report.iterations;
+        }
         out.linear_iterations_total += report.linear_iterations;
         out.pieces_total += report.pieces;
         out.rejected_splits += report.rejected_splits;
