@@ -277,7 +277,10 @@ impl BackwardEuler {
                 self.settings.factor_structure,
             )?);
         }
-        self.pcg = PcgSolver::new(&pattern);
+        // The rebuilt solver keeps the thread setting (a new one has no pool).
+        let mut pcg = PcgSolver::new(&pattern);
+        pcg.set_threads(self.settings.threads)?;
+        self.pcg = pcg;
         self.values = vec![0.0; pattern.nnz()];
         self.pattern = pattern;
         self.potential.push(term);
@@ -304,6 +307,9 @@ impl BackwardEuler {
         let mut coupled = self.coupled_pairs.clone();
         coupled.extend_from_slice(pairs);
         let pattern = HessianPattern::with_pairs(system, &coupled);
+        // The rebuilt solver keeps the thread setting (a new one has no pool).
+        let mut pcg = PcgSolver::new(&pattern);
+        pcg.set_threads(self.settings.threads)?;
         if self.direct.is_some() {
             self.direct = Some(Self::build_direct(
                 &pattern,
@@ -311,7 +317,7 @@ impl BackwardEuler {
             )?);
         }
         self.coupled_pairs = coupled;
-        self.pcg = PcgSolver::new(&pattern);
+        self.pcg = pcg;
         self.values = vec![0.0; pattern.nnz()];
         self.pattern = pattern;
         Ok(())
