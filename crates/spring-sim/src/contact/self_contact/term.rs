@@ -210,8 +210,9 @@ pub struct SelfContactTerm {
     active_at: Vec<DVec3>,
     /// Per active pair, with a barrier at `active_at`: its particles, energy gradient
     /// and projected Hessian (computed once per iteration for both the gradient and the
-    /// Hessian, which Newton asks for at the iterate the set was collected at); `None`
-    /// for a pair with none (the slots are filled on the thread pool, one per pair).
+    /// Hessian, which Newton asks for at the iterate the set was collected at), marked
+    /// not present for a pair with none (the slots are filled on the thread pool, one
+    /// per pair).
     /// Only the first `cache_len` slots are this iteration's; the storage is kept.
     cache: Vec<PairDerivatives>,
     cache_len: usize,
