@@ -1,7 +1,9 @@
 //! The closed-form squared distances of self-contact ([`RegionForm`]) against the dual
 //! numbers (value, gradient, Hessian) and against central differences, in every region of
 //! both pair kinds; and the projection in the Hessian's span against the full 12x12
-//! Jacobi projection of the same matrix, with its eigenvalues checked non-negative.
+//! Jacobi projection of the same matrix, with its eigenvalues checked non-negative; and
+//! the Jacobi rotations (which update the two rows a rotation changes and mirror them)
+//! against the textbook update of the whole matrix, bit for bit.
 
 // Index loops over rows and columns read as the matrix comparisons they are.
 #![allow(clippy::needless_range_loop)]
@@ -11,7 +13,9 @@ use sinew_spring_sim::contact::self_contact::RegionForm;
 use sinew_spring_sim::contact::self_contact::distance::{
     Closest, PairKind, squared_distance_derivatives,
 };
-use sinew_spring_sim::contact::self_contact::psd12::{Mat12, project_psd12, symmetric_eigen12};
+use sinew_spring_sim::contact::self_contact::psd12::{
+    Mat12, project_psd12, symmetric_eigen_n, symmetric_eigen12,
+};
 
 /// A small deterministic generator (xorshift), so the random cases are reproducible.
 struct Rng(u64);
@@ -237,4 +241,148 @@ fn the_closed_form_declines_a_pair_at_zero_distance() {
     let form = RegionForm::of(PairKind::PointTriangle, &pair);
     assert_eq!(form.value(), 0.0);
     assert!(form.projected_hessian(-1.0, 1.0).is_none());
+}
+
+/// Cyclic Jacobi as first written: every rotation rotates the columns `p` and `q` of the
+/// whole matrix, then its rows `p` and `q`. The reference for the bitwise test below.
+fn jacobi_full_update<const N: usize>(m: &[[f64; N]; N], n: usize) -> ([f64; N], [[f64; N]; N]) {
+    let mut a = [[0.0; N]; N];
+    for i in 0..n {
+        for j in 0..=i {
+            let s = 0.5 * (m[i][j] + m[j][i]);
+            a[i][j] = s;
+            a[j][i] = s;
+        }
+    }
+    let mut v = [[0.0; N]; N];
+    for i in 0..n {
+        v[i][i] = 1.0;
+    }
+    let scale: f64 = a.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
+    let tol = (1e-14 * scale).powi(2);
+    for _ in 0..50 {
+        let mut off = 0.0;
+        for i in 0..n {
+            for j in 0..i {
+                off += a[i][j] * a[i][j];
+            }
+        }
+        if !(off.is_finite() && off > tol) {
+            break;
+        }
+        for p in 0..n {
+            for q in p + 1..n {
+                let apq = a[p][q];
+                if apq * apq <= 1e-4 * tol / (n * n) as f64 {
+                    continue;
+                }
+                let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
+                let t = if theta.abs() > 1e150 {
+                    0.5 / theta
+                } else {
+                    theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt())
+                };
+                let c = 1.0 / (t * t + 1.0).sqrt();
+                let s = t * c;
+                for row in a.iter_mut().take(n) {
+                    let (rp, rq) = (row[p], row[q]);
+                    row[p] = c * rp - s * rq;
+                    row[q] = s * rp + c * rq;
+                }
+                for k in 0..n {
+                    let (rp, rq) = (a[p][k], a[q][k]);
+                    a[p][k] = c * rp - s * rq;
+                    a[q][k] = s * rp + c * rq;
+                }
+                a[p][q] = 0.0;
+                a[q][p] = 0.0;
+                for row in v.iter_mut().take(n) {
+                    let (vp, vq) = (row[p], row[q]);
+                    row[p] = c * vp - s * vq;
+                    row[q] = s * vp + c * vq;
+                }
+            }
+        }
+    }
+    (
+        std::array::from_fn(|i| if i < n { a[i][i] } else { 0.0 }),
+        v,
+    )
+}
+
+/// A random symmetric `n x n` matrix (in an `N x N` array) of the kinds a pair's Hessian
+/// gives: full rank, low rank (zero and repeated eigenvalues), with exact zero entries,
+/// and entries over many decades.
+fn random_symmetric<const N: usize>(rng: &mut Rng, n: usize, kind: usize) -> [[f64; N]; N] {
+    let mut m = [[0.0; N]; N];
+    match kind % 3 {
+        0 => {
+            for i in 0..n {
+                for j in 0..=i {
+                    let x = (2.0 * rng.next() - 1.0) * (10f64).powf(6.0 * rng.next() - 3.0);
+                    m[i][j] = x;
+                    m[j][i] = x;
+                }
+            }
+        }
+        1 => {
+            // A sum of two outer products: rank two, the rest of the eigenvalues zero.
+            for _ in 0..2 {
+                let u: Vec<f64> = (0..n).map(|_| 2.0 * rng.next() - 1.0).collect();
+                let w = 2.0 * rng.next() - 1.0;
+                for i in 0..n {
+                    for j in 0..n {
+                        m[i][j] += w * u[i] * u[j];
+                    }
+                }
+            }
+        }
+        _ => {
+            // Sparse: about half the entries exactly zero.
+            for i in 0..n {
+                for j in 0..=i {
+                    if rng.next() < 0.5 {
+                        let x = 2.0 * rng.next() - 1.0;
+                        m[i][j] = x;
+                        m[j][i] = x;
+                    }
+                }
+            }
+        }
+    }
+    m
+}
+
+#[test]
+fn the_jacobi_rotations_equal_the_full_update_bit_for_bit() {
+    let mut rng = Rng(2024);
+    let bits = |x: f64| x.to_bits();
+    for case in 0..600 {
+        let kind = case / 200;
+        // The closed form's sizes (3 to 5) on 5x5 arrays, the 12x12 projection's on 12x12.
+        let n5 = 3 + case % 3;
+        let m5 = random_symmetric::<5>(&mut rng, n5, kind);
+        let (values, vectors) = symmetric_eigen_n(&m5, n5);
+        let (want_values, want_vectors) = jacobi_full_update(&m5, n5);
+        assert_eq!(values.map(bits), want_values.map(bits), "5x5 case {case}");
+        assert_eq!(
+            vectors.map(|r| r.map(bits)),
+            want_vectors.map(|r| r.map(bits)),
+            "5x5 case {case}"
+        );
+        let n12 = 6 + case % 7;
+        let m12 = random_symmetric::<12>(&mut rng, n12, kind);
+        let (values, vectors) = symmetric_eigen_n(&m12, n12);
+        let (want_values, want_vectors) = jacobi_full_update(&m12, n12);
+        assert_eq!(values.map(bits), want_values.map(bits), "12x12 case {case}");
+        assert_eq!(
+            vectors.map(|r| r.map(bits)),
+            want_vectors.map(|r| r.map(bits)),
+            "12x12 case {case}"
+        );
+        if n12 == 12 {
+            let (values, _) = symmetric_eigen12(&m12);
+            assert_eq!(values.map(bits), want_values.map(bits), "12x12 case {case}");
+        }
+    }
 }

@@ -507,19 +507,35 @@ impl CandidateCache {
         margin: f64,
         skip: &[bool],
     ) -> Option<Vec<usize>> {
-        let boxes = self.covering_boxes(prims, x, dx, margin, skip)?;
-        Some(
-            self.list
-                .iter()
-                .enumerate()
-                .filter(|&(_, &c)| match c {
-                    Candidate::PointTriangle { vertex, triangle } => {
-                        point_triangle_kept(prims, &boxes, skip, vertex, triangle)
-                    }
-                    Candidate::EdgeEdge { a, b } => edge_edge_kept(prims, &boxes, skip, a, b),
-                })
-                .map(|(i, _)| i)
-                .collect(),
-        )
+        let mut out = Vec::new();
+        self.query_indices_into(prims, x, dx, margin, skip, &mut out)
+            .then_some(out)
+    }
+
+    /// [`Self::query_indices`] into `out` (cleared first, its storage reused): true when
+    /// the query is covered and `out` holds the answer. The box tests run on the
+    /// caller's thread pool when it has one (each test is independent and the positions
+    /// are gathered in order, so the answer does not depend on the threads).
+    pub fn query_indices_into(
+        &self,
+        prims: &Primitives,
+        x: &[DVec3],
+        dx: Option<&[DVec3]>,
+        margin: f64,
+        skip: &[bool],
+        out: &mut Vec<usize>,
+    ) -> bool {
+        out.clear();
+        let Some(boxes) = self.covering_boxes(prims, x, dx, margin, skip) else {
+            return false;
+        };
+        let list = &self.list;
+        super::spread::filter_indices(list.len(), out, |i| match list[i] {
+            Candidate::PointTriangle { vertex, triangle } => {
+                point_triangle_kept(prims, &boxes, skip, vertex, triangle)
+            }
+            Candidate::EdgeEdge { a, b } => edge_edge_kept(prims, &boxes, skip, a, b),
+        });
+        true
     }
 }

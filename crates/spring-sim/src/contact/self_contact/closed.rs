@@ -195,14 +195,22 @@ impl RegionForm {
     /// `second = phi''(s)`, computed in the span of the module documentation. `None`
     /// when the pair is degenerate (`r = 0`, or a region's parametrization singular), so
     /// the caller can fall back to the full decomposition.
-    // Index loops over rows and columns read as the matrix formulas they implement.
-    #[allow(clippy::needless_range_loop)]
     #[must_use]
     pub fn projected_hessian(&self, first: f64, second: f64) -> Option<Mat12> {
+        let mut out = [[0.0; 12]; 12];
+        self.projected_hessian_into(first, second, &mut out)
+            .then_some(out)
+    }
+
+    /// [`Self::projected_hessian`] written into `out` (every entry overwritten): true when
+    /// written, false (with `out` unspecified) when the pair is degenerate.
+    // Index loops over rows and columns read as the matrix formulas they implement.
+    #[allow(clippy::needless_range_loop)]
+    pub fn projected_hessian_into(&self, first: f64, second: f64, out: &mut Mat12) -> bool {
         let c_len = self.c.iter().map(|c| c * c).sum::<f64>().sqrt();
         let r_len = self.r.length();
         if !(c_len > 0.0 && r_len > 0.0 && c_len.is_finite() && r_len.is_finite()) {
-            return None;
+            return false;
         }
         let c_hat = self.c.map(|c| c / c_len);
         let r_hat = self.r / r_len;
@@ -221,7 +229,7 @@ impl RegionForm {
             }
             let len = v.iter().map(|x| x * x).sum::<f64>().sqrt();
             if !(len > 0.0 && len.is_finite()) {
-                return None;
+                return false;
             }
             b[j] = v.map(|x| x / len);
         }
@@ -261,7 +269,7 @@ impl RegionForm {
             }
         }
         if !k.iter().flatten().all(|x| x.is_finite()) {
-            return None;
+            return false;
         }
         let (values, vectors) = symmetric_eigen_n(&k, n);
         // K_+ = Q diag(max(lambda, 0)) Q^T in the reduced coordinates.
@@ -296,7 +304,6 @@ impl RegionForm {
                 bk[i][q] = (0..n).map(|p| basis[i][p] * kp[p][q]).sum();
             }
         }
-        let mut out = [[0.0; 12]; 12];
         for i in 0..12 {
             for l in 0..=i {
                 let v: f64 = (0..n).map(|q| bk[i][q] * basis[l][q]).sum();
@@ -304,6 +311,6 @@ impl RegionForm {
                 out[l][i] = v;
             }
         }
-        Some(out)
+        true
     }
 }

@@ -14,6 +14,7 @@
 //! - [`broad`]: the broad phase, a spatial hash over the primitives' (swept) boxes.
 //! - [`ccd`]: additive continuous collision detection over a linear step.
 //! - [`psd12`]: the positive semidefinite projection of a pair's 12x12 Hessian.
+//! - `spread`: the term's per-pair loops on the integrator's thread pool.
 //! - [`term`]: [`SelfContactTerm`], the barrier as a term of backward Euler's
 //!   minimization, and [`enable_self_contact`].
 //!
@@ -25,6 +26,7 @@ pub mod closed;
 pub mod distance;
 pub mod dual;
 pub mod psd12;
+mod spread;
 pub mod term;
 
 pub use broad::{Candidate, CandidateCache, Primitives, candidates};

@@ -32,14 +32,49 @@ pub fn symmetric_eigen12(m: &Mat12) -> ([f64; VARIABLES], Mat12) {
 /// The eigenvalues and eigenvectors (the columns of the returned matrix) of the symmetric
 /// part of the leading `n x n` block of `m` (`n <= N`; the entries beyond it are
 /// returned as zero).
+///
+/// The sizes the closed-form path uses (3 to 5) run on arrays of exactly that size, so
+/// the rotations' loops have fixed bounds; the arithmetic is the same operation for
+/// operation, so the result is the same bit for bit whichever size it runs at.
 #[must_use]
 pub fn symmetric_eigen_n<const N: usize>(m: &[[f64; N]; N], n: usize) -> ([f64; N], [[f64; N]; N]) {
     let n = n.min(N);
-    let mut index = [0usize; N];
-    for (i, slot) in index.iter_mut().enumerate() {
-        *slot = i;
+    match n {
+        3 => eigen_exact::<N, 3>(m),
+        4 => eigen_exact::<N, 4>(m),
+        5 => eigen_exact::<N, 5>(m),
+        _ => {
+            let mut index = [0usize; N];
+            for (i, slot) in index.iter_mut().enumerate() {
+                *slot = i;
+            }
+            symmetric_eigen_on(m, &index[..n])
+        }
     }
-    symmetric_eigen_on(m, &index[..n])
+}
+
+/// [`symmetric_eigen_n`] for `n = M` on `M x M` arrays.
+// Index loops over rows and columns read as the matrix formulas they implement.
+#[allow(clippy::needless_range_loop)]
+fn eigen_exact<const N: usize, const M: usize>(m: &[[f64; N]; N]) -> ([f64; N], [[f64; N]; N]) {
+    let mut a = [[0.0; M]; M];
+    for i in 0..M.min(N) {
+        for j in 0..=i {
+            let s = 0.5 * (m[i][j] + m[j][i]);
+            a[i][j] = s;
+            a[j][i] = s;
+        }
+    }
+    let mut v = [[0.0; M]; M];
+    jacobi(&mut a, &mut v, M);
+    let mut vectors = [[0.0; N]; N];
+    for i in 0..M.min(N) {
+        vectors[i][..M].copy_from_slice(&v[i]);
+    }
+    (
+        std::array::from_fn(|i| if i < M { a[i][i] } else { 0.0 }),
+        vectors,
+    )
 }
 
 /// The eigen-decomposition of the principal submatrix of `m` on the rows and columns
@@ -61,6 +96,26 @@ fn symmetric_eigen_on<const N: usize>(
         }
     }
     let mut v = [[0.0; N]; N];
+    jacobi(&mut a, &mut v, n);
+    (
+        std::array::from_fn(|i| if i < n { a[i][i] } else { 0.0 }),
+        v,
+    )
+}
+
+/// Cyclic Jacobi on the leading `n x n` block of the symmetric `a` (the rest zero): on
+/// return its diagonal holds the eigenvalues and the leading block of `v` the
+/// eigenvectors as columns.
+///
+/// `a` stays symmetric bit for bit (every entry below the diagonal is computed by the
+/// same operations as its mirror), so each rotation computes the two rows it changes
+/// once and mirrors them into the columns, rather than rotating the columns and then the
+/// rows of the whole matrix: half the arithmetic, and the same values, including the
+/// two diagonal entries, whose operations (the columns' rotation, then the rows') are
+/// written out as the full update performs them.
+// Index loops over rows and columns read as the matrix formulas they implement.
+#[allow(clippy::needless_range_loop)]
+fn jacobi<const N: usize>(a: &mut [[f64; N]; N], v: &mut [[f64; N]; N], n: usize) {
     for i in 0..n {
         v[i][i] = 1.0;
     }
@@ -68,6 +123,8 @@ fn symmetric_eigen_on<const N: usize>(
     // Converged when the off-diagonal part is below 1e-14 of the matrix: the projected
     // matrix is then within that relative distance of the exact projection.
     let tol = (1e-14 * scale).powi(2);
+    // An entry far below the off-diagonal target is not worth a rotation.
+    let skip = 1e-4 * tol / (n * n) as f64;
     for _ in 0..MAX_SWEEPS {
         let mut off = 0.0;
         for i in 0..n {
@@ -81,8 +138,7 @@ fn symmetric_eigen_on<const N: usize>(
         for p in 0..n {
             for q in p + 1..n {
                 let apq = a[p][q];
-                // An entry far below the off-diagonal target is not worth a rotation.
-                if apq * apq <= 1e-4 * tol / (n * n) as f64 {
+                if apq * apq <= skip {
                     continue;
                 }
                 // The rotation that zeroes a[p][q], with |angle| <= pi/4 for stability.
@@ -94,16 +150,23 @@ fn symmetric_eigen_on<const N: usize>(
                 };
                 let c = 1.0 / (t * t + 1.0).sqrt();
                 let s = t * c;
-                for row in a.iter_mut().take(n) {
-                    let (rp, rq) = (row[p], row[q]);
-                    row[p] = c * rp - s * rq;
-                    row[q] = s * rp + c * rq;
-                }
+                let (app, aqq) = (a[p][p], a[q][q]);
                 for k in 0..n {
-                    let (rp, rq) = (a[p][k], a[q][k]);
-                    a[p][k] = c * rp - s * rq;
-                    a[q][k] = s * rp + c * rq;
+                    if k == p || k == q {
+                        continue;
+                    }
+                    let (rp, rq) = (a[k][p], a[k][q]);
+                    let (np, nq) = (c * rp - s * rq, s * rp + c * rq);
+                    a[k][p] = np;
+                    a[p][k] = np;
+                    a[k][q] = nq;
+                    a[q][k] = nq;
                 }
+                // The columns' rotation of the 2x2 block, then the rows'.
+                let (pp, pq) = (c * app - s * apq, s * app + c * apq);
+                let (qp, qq) = (c * apq - s * aqq, s * apq + c * aqq);
+                a[p][p] = c * pp - s * qp;
+                a[q][q] = s * pq + c * qq;
                 a[p][q] = 0.0;
                 a[q][p] = 0.0;
                 for row in v.iter_mut().take(n) {
@@ -114,10 +177,6 @@ fn symmetric_eigen_on<const N: usize>(
             }
         }
     }
-    (
-        std::array::from_fn(|i| if i < n { a[i][i] } else { 0.0 }),
-        v,
-    )
 }
 
 /// The positive semidefinite matrix nearest to the symmetric part of `m` in the

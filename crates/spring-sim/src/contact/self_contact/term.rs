@@ -49,10 +49,12 @@ use super::broad::{Candidate, CandidateCache, Primitives, candidates};
 use super::ccd::additive_ccd_from_gap;
 use super::closed::RegionForm;
 use super::distance::{
-    PairKind, mollifier, mollifier_derivatives, squared_distance, squared_distance_derivatives,
+    Closest, PairKind, mollifier, mollifier_derivatives, squared_distance,
+    squared_distance_derivatives, squared_distance_in,
 };
-use super::dual::{Dual12, Scalar};
+use super::dual::{Dual12, Scalar, values};
 use super::psd12::{Mat12, project_psd12};
+use super::spread;
 use crate::contact::ContactError;
 use crate::contact::barrier::{
     AdaptiveKappa, KappaSettings, barrier, barrier_first_derivative, barrier_second_derivative,
@@ -206,10 +208,18 @@ pub struct SelfContactTerm {
     /// The pairs within `dhat` at `active_at`.
     active: Vec<Candidate>,
     active_at: Vec<DVec3>,
-    /// Per active pair with a barrier at `active_at`: its particles, energy gradient and
-    /// projected Hessian (computed once per iteration for both the gradient and the
-    /// Hessian, which Newton asks for at the iterate the set was collected at).
+    /// Per active pair, with a barrier at `active_at`: its particles, energy gradient
+    /// and projected Hessian (computed once per iteration for both the gradient and the
+    /// Hessian, which Newton asks for at the iterate the set was collected at), marked
+    /// not present for a pair with none (the slots are filled on the thread pool, one
+    /// per pair).
+    /// Only the first `cache_len` slots are this iteration's; the storage is kept.
     cache: Vec<PairDerivatives>,
+    cache_len: usize,
+    /// Scratch for the gaps of the pairs near the iterate, with their regions.
+    near_gaps: Vec<(f64, Closest)>,
+    /// The regions of the active pairs (in `active`'s order).
+    active_regions: Vec<Closest>,
     /// The broad phase's pairs over the last Newton step's whole line-search segment
     /// (collected by [`Term::max_step`]); every query it covers filters it instead of
     /// hashing the mesh again. It also keeps each listed pair's gap and energy at the
@@ -261,6 +271,9 @@ impl SelfContactTerm {
             active: Vec::new(),
             active_at: Vec::new(),
             cache: Vec::new(),
+            cache_len: 0,
+            near_gaps: Vec::new(),
+            active_regions: Vec::new(),
             segment: Mutex::new(Segment::default()),
             stats: Arc::new(SelfContactStats::default()),
         };
@@ -329,21 +342,33 @@ impl SelfContactTerm {
         squared_distance(kind, &v.map(|i| x[i])).sqrt() - self.settings.thickness
     }
 
+    /// [`Self::gap`] (the same operations) with the region of the closest points it
+    /// found, which the pair's derivatives then need not find again.
+    fn gap_and_region(&self, c: Candidate, x: &[DVec3]) -> (f64, Closest) {
+        let (kind, v) = self.pair(c);
+        let p = v.map(|i| x[i]);
+        let closest = kind.closest(&p);
+        let gap = squared_distance_in(&values(&p), closest).sqrt() - self.settings.thickness;
+        (gap, closest)
+    }
+
     /// The broad phase's pairs within `dhat + thickness` at `x` or along `x -> x + dx`:
     /// filtered from the segment's list when it covers the query (the same set, see
     /// [`CandidateCache`]), else found by hashing the mesh.
     fn pairs(&self, x: &[DVec3], dx: Option<&[DVec3]>, fixed: &[bool]) -> Vec<Candidate> {
         let margin = self.settings.dhat + self.settings.thickness;
-        let kept = self
-            .segment
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
+        let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
+        let seg = &mut *segment;
+        if seg
             .pairs
-            .query(&self.prims, x, dx, margin, fixed);
-        kept.unwrap_or_else(|| {
-            self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
-            candidates(&self.prims, x, dx, margin, fixed)
-        })
+            .query_indices_into(&self.prims, x, dx, margin, fixed, &mut seg.found)
+        {
+            let list = seg.pairs.list();
+            return seg.found.iter().map(|&k| list[k]).collect();
+        }
+        drop(segment);
+        self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
+        candidates(&self.prims, x, dx, margin, fixed)
     }
 
     /// Collects the broad phase's pairs over the segment `x -> x + dx` and keeps them
@@ -381,11 +406,10 @@ impl SelfContactTerm {
     /// The smallest gap at `x` over the pairs within `dhat` (`+inf` when none).
     #[must_use]
     pub fn min_gap(&self, x: &[DVec3], fixed: &[bool]) -> f64 {
-        let min = self
-            .near(x, fixed)
-            .into_iter()
-            .map(|c| self.gap(c, x))
-            .fold(f64::INFINITY, f64::min);
+        let near = self.near(x, fixed);
+        let mut gaps = Vec::new();
+        spread::fill(&mut gaps, near.len(), 0.0, |i| self.gap(near[i], x));
+        let min = gaps.into_iter().fold(f64::INFINITY, f64::min);
         if min < self.settings.dhat {
             min
         } else {
@@ -419,7 +443,12 @@ impl SelfContactTerm {
 
     /// A pair's barrier energy at `x` (`+inf` at a gap of zero or below).
     fn pair_energy(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> f64 {
-        let gap = self.gap(c, x);
+        self.pair_energy_at_gap(kappa, c, x, self.gap(c, x))
+    }
+
+    /// [`Self::pair_energy`] with the pair's gap at `x` given (as [`Self::gap`] computes
+    /// it, so the value is the same).
+    fn pair_energy_at_gap(&self, kappa: f64, c: Candidate, x: &[DVec3], gap: f64) -> f64 {
         if gap.is_nan() || gap <= 0.0 {
             return f64::INFINITY;
         }
@@ -433,52 +462,68 @@ impl SelfContactTerm {
         kappa * m * barrier(gap, self.settings.dhat)
     }
 
-    /// A pair's energy gradient and projected Hessian in the pair's twelve coordinates
-    /// (`None` when the pair is beyond `dhat` or not admissible).
+    /// A pair's energy gradient and projected Hessian in the pair's twelve coordinates,
+    /// written into `out` (which is marked as holding none when the pair is beyond `dhat`
+    /// or not admissible).
     ///
     /// Pairs without a mollifier (every vertex-triangle pair, and edge pairs far from
     /// parallel, where the mollifier is identically 1) take the closed form of
     /// [`RegionForm`]; mollified edge pairs, and the degenerate pairs the closed form
-    /// declines, take the dual numbers and the full 12x12 projection.
-    fn pair_derivatives(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> Option<PairDerivatives> {
+    /// declines, take the dual numbers and the full 12x12 projection. `region` is the
+    /// region of the closest points at `x` when the caller has it (found by the same
+    /// rules, so the same). The results are written in place: a pair's derivatives are
+    /// over a kilobyte, and the lists of a few ten thousand pairs are refilled at every
+    /// Newton iteration.
+    fn pair_derivatives(
+        &self,
+        kappa: f64,
+        c: Candidate,
+        x: &[DVec3],
+        region: Option<Closest>,
+        out: &mut PairDerivatives,
+    ) {
         let (kind, v) = self.pair(c);
         let p = v.map(|i| x[i]);
+        out.kind = kind;
+        out.particles = v;
+        out.present = false;
         let mollified = self
             .mollifier_threshold(c)
             .is_some_and(|eps| mollifier(&p, eps) < 1.0);
-        if !mollified && let Some(d) = self.pair_derivatives_closed(kappa, kind, v, &p) {
-            return d;
+        let closest = || region.unwrap_or_else(|| kind.closest(&p));
+        if !mollified && let Some(present) = self.pair_derivatives_closed(kappa, closest(), &p, out)
+        {
+            out.present = present;
+            return;
         }
-        let e = self.pair_energy_dual(kappa, c, x)?;
-        Some(PairDerivatives {
-            kind,
-            particles: v,
-            gradient: e.gradient,
-            hessian: project_psd12(&e.hessian),
-        })
+        if let Some(e) = self.pair_energy_dual(kappa, c, x) {
+            out.gradient = e.gradient;
+            out.hessian = project_psd12(&e.hessian);
+            out.present = true;
+        }
     }
 
-    /// The closed-form derivatives of an unmollified pair: `Some(None)` when the pair is
-    /// beyond `dhat` or not admissible, `None` when the closed form declines a degenerate
-    /// pair. With `E(s) = kappa b(sqrt(s) - xi)`, `E' = kappa b' / (2 d)` and
+    /// The closed-form derivatives of an unmollified pair into `out`'s gradient and
+    /// Hessian: `Some(true)` when written, `Some(false)` when the pair is beyond `dhat` or
+    /// not admissible, `None` when the closed form declines a degenerate pair. With
+    /// `E(s) = kappa b(sqrt(s) - xi)`, `E' = kappa b' / (2 d)` and
     /// `E'' = kappa (b'' / (4 s) - b' / (4 s d))`, `d = sqrt(s)`.
-    #[allow(clippy::option_option)]
     fn pair_derivatives_closed(
         &self,
         kappa: f64,
-        kind: PairKind,
-        particles: [usize; 4],
+        closest: Closest,
         p: &[DVec3; 4],
-    ) -> Option<Option<PairDerivatives>> {
-        let form = RegionForm::of(kind, p);
+        out: &mut PairDerivatives,
+    ) -> Option<bool> {
+        let form = RegionForm::new(p, closest);
         let s = form.value();
         if s.is_nan() || s <= 0.0 {
-            return Some(None);
+            return Some(false);
         }
         let d = s.sqrt();
         let (g, dhat) = (d - self.settings.thickness, self.settings.dhat);
         if g.is_nan() || g <= 0.0 || g >= dhat {
-            return Some(None);
+            return Some(false);
         }
         let (b1, b2) = (
             barrier_first_derivative(g, dhat),
@@ -486,13 +531,11 @@ impl SelfContactTerm {
         );
         let first = kappa * b1 / (2.0 * d);
         let second = kappa * (b2 / (4.0 * s) - b1 / (4.0 * s * d));
-        let hessian = form.projected_hessian(first, second)?;
-        Some(Some(PairDerivatives {
-            kind,
-            particles,
-            gradient: form.gradient().map(|v| first * v),
-            hessian,
-        }))
+        if !form.projected_hessian_into(first, second, &mut out.hessian) {
+            return None;
+        }
+        out.gradient = form.gradient().map(|v| first * v);
+        Some(true)
     }
 
     /// A pair's energy with its exact gradient and Hessian in the pair's twelve
@@ -530,15 +573,15 @@ impl SelfContactTerm {
         fixed: &[bool],
     ) -> std::borrow::Cow<'_, [PairDerivatives]> {
         if self.active_at.as_slice() == x {
-            std::borrow::Cow::Borrowed(&self.cache)
+            std::borrow::Cow::Borrowed(&self.cache[..self.cache_len])
         } else {
             let kappa = self.kappa();
-            std::borrow::Cow::Owned(
-                self.near(x, fixed)
-                    .into_iter()
-                    .filter_map(|c| self.pair_derivatives(kappa, c, x))
-                    .collect(),
-            )
+            let near = self.near(x, fixed);
+            let mut out = vec![PairDerivatives::default(); near.len()];
+            spread::for_each(&mut out, |i, slot| {
+                self.pair_derivatives(kappa, near[i], x, None, slot);
+            });
+            std::borrow::Cow::Owned(out)
         }
     }
 
@@ -555,34 +598,40 @@ impl SelfContactTerm {
         };
         let mut t: f64 = 1.0;
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
-        if let Some(found) = segment
+        let seg = &mut *segment;
+        if seg
             .pairs
-            .query_indices(&self.prims, x, Some(dx), margin, fixed)
+            .query_indices_into(&self.prims, x, Some(dx), margin, fixed, &mut seg.found)
         {
-            let at_start = segment.starts_at(x);
-            for k in found {
-                let c = segment.pairs.list()[k];
-                let gap0 = if at_start {
-                    segment.gap(k, || self.gap(c, x))
+            // Per found pair its gap at `x` (kept once computed) and its safe fraction,
+            // on the pool; the minimum does not depend on the order.
+            let at_start = seg.starts_at(x);
+            let (found, list, kept) = (&seg.found, seg.pairs.list(), &seg.gap);
+            spread::fill(&mut seg.values, found.len(), (0.0, 0.0), |i| {
+                let (k, c) = (found[i], list[found[i]]);
+                let gap0 = if at_start && !kept[k].is_nan() {
+                    kept[k]
                 } else {
                     self.gap(c, x)
                 };
-                t = t.min(sweep(c, gap0));
-                if t <= 0.0 {
-                    break;
+                (gap0, sweep(c, gap0))
+            });
+            for (&k, &(gap0, fraction)) in seg.found.iter().zip(&seg.values) {
+                if at_start {
+                    seg.gap[k] = gap0;
                 }
+                t = t.min(fraction);
             }
             return t;
         }
         drop(segment);
         self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
-        for c in candidates(&self.prims, x, Some(dx), margin, fixed) {
-            t = t.min(sweep(c, self.gap(c, x)));
-            if t <= 0.0 {
-                break;
-            }
-        }
-        t
+        let found = candidates(&self.prims, x, Some(dx), margin, fixed);
+        let mut fractions = Vec::new();
+        spread::fill(&mut fractions, found.len(), 0.0, |i| {
+            sweep(found[i], self.gap(found[i], x))
+        });
+        fractions.into_iter().fold(t, f64::min)
     }
 }
 
@@ -602,6 +651,10 @@ struct Segment {
     /// NaN where not computed yet (a NaN gap is recomputed every time, as before).
     gap: Vec<f64>,
     energy: Vec<f64>,
+    /// Scratch, its storage reused: a query's positions in the list, and two values per
+    /// found pair.
+    found: Vec<usize>,
+    values: Vec<(f64, f64)>,
 }
 
 impl Segment {
@@ -621,26 +674,6 @@ impl Segment {
 
     fn starts_at(&self, x: &[DVec3]) -> bool {
         self.start.as_slice() == x
-    }
-
-    /// Kept pair `k`'s gap at the start, computed by `compute` the first time.
-    fn gap(&mut self, k: usize, compute: impl FnOnce() -> f64) -> f64 {
-        if self.gap[k].is_nan() {
-            self.gap[k] = compute();
-        }
-        self.gap[k]
-    }
-
-    /// Kept pair `k`'s energy at the start with stiffness `kappa` (recomputed whenever
-    /// `kappa` is not the one the values were kept for).
-    fn energy(&mut self, k: usize, kappa: f64, compute: impl FnOnce() -> f64) -> f64 {
-        if kappa.to_bits() != self.kappa.to_bits() {
-            return compute();
-        }
-        if self.energy[k].is_nan() {
-            self.energy[k] = compute();
-        }
-        self.energy[k]
     }
 }
 
@@ -689,25 +722,40 @@ impl Term for SelfContactTerm {
         // fault in than to fill.
         let mut active = std::mem::take(&mut self.active);
         active.clear();
-        for c in self.near(x, fixed) {
-            let gap = self.gap(c, x);
+        let near = self.near(x, fixed);
+        let mut gaps = std::mem::take(&mut self.near_gaps);
+        let mut regions = std::mem::take(&mut self.active_regions);
+        regions.clear();
+        spread::fill(
+            &mut gaps,
+            near.len(),
+            (0.0, Closest::PointPoint([0, 1])),
+            |i| self.gap_and_region(near[i], x),
+        );
+        for (&c, &(gap, closest)) in near.iter().zip(&gaps) {
             if gap < dhat {
                 active.push(c);
+                regions.push(closest);
                 min = min.min(gap);
             }
         }
+        self.near_gaps = gaps;
         let kappa = self.kappa();
         let mut cache = std::mem::take(&mut self.cache);
-        cache.clear();
+        self.cache_len = 0;
         if kappa > 0.0 {
-            cache.extend(
-                active
-                    .iter()
-                    .filter_map(|&c| self.pair_derivatives(kappa, c, x)),
-            );
+            // The slots only grow: every one in use is overwritten whole.
+            if cache.len() < active.len() {
+                cache.resize(active.len(), PairDerivatives::default());
+            }
+            spread::for_each(&mut cache[..active.len()], |i, slot| {
+                self.pair_derivatives(kappa, active[i], x, Some(regions[i]), slot);
+            });
+            self.cache_len = active.len();
         }
         self.cache = cache;
         self.active = active;
+        self.active_regions = regions;
         self.active_at.clear();
         self.active_at.extend_from_slice(x);
         self.publish(min);
@@ -718,10 +766,12 @@ impl Term for SelfContactTerm {
         if kappa == 0.0 {
             return 0.0;
         }
-        self.near(x, step.system.fixed())
-            .into_iter()
-            .map(|c| self.pair_energy(kappa, c, x))
-            .sum()
+        let near = self.near(x, step.system.fixed());
+        let mut energies = Vec::new();
+        spread::fill(&mut energies, near.len(), 0.0, |i| {
+            self.pair_energy(kappa, near[i], x)
+        });
+        energies.into_iter().sum()
     }
 
     fn energy_change(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
@@ -736,36 +786,57 @@ impl Term for SelfContactTerm {
         let margin = self.settings.dhat + self.settings.thickness;
         let mut change = 0.0;
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
-        if let Some(found) =
-            segment
-                .pairs
-                .query_indices(&self.prims, x, Some(&sweep), margin, fixed)
+        let seg = &mut *segment;
+        if seg
+            .pairs
+            .query_indices_into(&self.prims, x, Some(&sweep), margin, fixed, &mut seg.found)
         {
-            // The energy at `x` is the same for every trial of the line search: kept.
-            let at_start = segment.starts_at(x);
-            for k in found {
-                let c = segment.pairs.list()[k];
+            // The energy at `x` is the same for every trial of the line search: kept (for
+            // the stiffness it was computed with), and computed from the kept gap when
+            // there is one. Each found pair's two energies on the pool, then the sum in
+            // the pairs' order.
+            let at_start = seg.starts_at(x);
+            let same_kappa = kappa.to_bits() == seg.kappa.to_bits();
+            let (found, list) = (&seg.found, seg.pairs.list());
+            let (kept_gap, kept_energy) = (&seg.gap, &seg.energy);
+            spread::fill(&mut seg.values, found.len(), (0.0, 0.0), |i| {
+                let (k, c) = (found[i], list[found[i]]);
                 let after = self.pair_energy(kappa, c, &moved);
-                if after == f64::INFINITY {
-                    return f64::INFINITY;
-                }
-                let before = if at_start {
-                    segment.energy(k, kappa, || self.pair_energy(kappa, c, x))
+                let before = if at_start && same_kappa && !kept_energy[k].is_nan() {
+                    kept_energy[k]
+                } else if at_start && !kept_gap[k].is_nan() {
+                    self.pair_energy_at_gap(kappa, c, x, kept_gap[k])
                 } else {
                     self.pair_energy(kappa, c, x)
                 };
+                (after, before)
+            });
+            for (&k, &(after, before)) in seg.found.iter().zip(&seg.values) {
+                if at_start && same_kappa {
+                    seg.energy[k] = before;
+                }
+                if after == f64::INFINITY {
+                    return f64::INFINITY;
+                }
                 change += after - before;
             }
             return change;
         }
         drop(segment);
         self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
-        for c in candidates(&self.prims, x, Some(&sweep), margin, fixed) {
-            let after = self.pair_energy(kappa, c, &moved);
+        let found = candidates(&self.prims, x, Some(&sweep), margin, fixed);
+        let mut values = Vec::new();
+        spread::fill(&mut values, found.len(), (0.0, 0.0), |i| {
+            (
+                self.pair_energy(kappa, found[i], &moved),
+                self.pair_energy(kappa, found[i], x),
+            )
+        });
+        for (after, before) in values {
             if after == f64::INFINITY {
                 return f64::INFINITY;
             }
-            change += after - self.pair_energy(kappa, c, x);
+            change += after - before;
         }
         change
     }
@@ -775,7 +846,11 @@ impl Term for SelfContactTerm {
         if kappa == 0.0 {
             return;
         }
-        for e in self.derivatives_at(x, step.system.fixed()).iter() {
+        for e in self
+            .derivatives_at(x, step.system.fixed())
+            .iter()
+            .filter(|e| e.present)
+        {
             for (k, &i) in e.particles.iter().enumerate() {
                 gradient[i] += DVec3::new(
                     e.gradient[3 * k],
@@ -798,7 +873,11 @@ impl Term for SelfContactTerm {
             return;
         }
         let mut missing = Vec::new();
-        for e in self.derivatives_at(x, step.system.fixed()).iter() {
+        for e in self
+            .derivatives_at(x, step.system.fixed())
+            .iter()
+            .filter(|e| e.present)
+        {
             scatter(&e.hessian, e.kind, e.particles, sink, &mut missing);
         }
         if !missing.is_empty() {
@@ -832,13 +911,26 @@ fn block(h: &Mat12, a: usize, b: usize) -> DMat3 {
     }))
 }
 
-/// A pair's derivatives at one state.
+/// A pair's derivatives at one state (`present` false: the pair has none there).
 #[derive(Clone, Debug)]
 struct PairDerivatives {
+    present: bool,
     kind: PairKind,
     particles: [usize; 4],
     gradient: [f64; 12],
     hessian: Mat12,
+}
+
+impl Default for PairDerivatives {
+    fn default() -> Self {
+        Self {
+            present: false,
+            kind: PairKind::PointTriangle,
+            particles: [0; 4],
+            gradient: [0.0; 12],
+            hessian: [[0.0; 12]; 12],
+        }
+    }
 }
 
 /// Adds a pair's projected Hessian `h` to `sink`: all of it when the pattern has every
@@ -856,20 +948,23 @@ fn scatter(
         PairKind::EdgeEdge => usize::from(k > 1),
     };
     let pairs = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
-    let has = |a: usize, b: usize| sink.has_pair(v[a], v[b]);
-    let keep_all = pairs.iter().all(|&(a, b)| has(a, b));
+    // Each pattern look-up once (a binary search per pair of particles).
+    let has = pairs.map(|(a, b)| sink.has_pair(v[a], v[b]));
+    let keep_all = has.iter().all(|&h| h);
     if !keep_all {
         missing.extend(
             pairs
                 .iter()
-                .filter(|&&(a, b)| !has(a, b))
-                .map(|&(a, b)| [v[a], v[b]]),
+                .zip(has)
+                .filter(|&(_, h)| !h)
+                .map(|(&(a, b), _)| [v[a], v[b]]),
         );
     }
     let keep_within = pairs
         .iter()
-        .filter(|&&(a, b)| group(a) == group(b))
-        .all(|&(a, b)| has(a, b));
+        .zip(has)
+        .filter(|&(&(a, b), _)| group(a) == group(b))
+        .all(|(_, h)| h);
     for (k, &i) in v.iter().enumerate() {
         sink.add_diagonal(i, SymBlock::from_lower(&block(h, k, k)));
     }

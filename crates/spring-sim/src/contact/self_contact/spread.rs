@@ -1,0 +1,93 @@
+//! The self-contact term's per-pair work spread over the integrator's thread pool.
+//!
+//! Backward Euler runs its whole minimization inside its thread pool when it has one
+//! (`NewtonSettings::threads` above 1 and a system above the pool's size), so the term's
+//! methods are called from one of the pool's threads. The term then splits its per-pair
+//! loops (distances, energies, CCD, derivatives, the kept list's box tests) into fixed
+//! chunks of pairs on that pool; called from any other thread (no pool: one thread, a
+//! small system, or a caller running the term alone) it runs them in turn on the
+//! calling thread.
+//!
+//! Every spread loop writes one value per pair into its own slot, a function of that
+//! pair alone; sums and minimums over the pairs are then taken on one thread in the
+//! pairs' order, as the sequential loops take them. So the results are the same bits
+//! whatever the number of threads, and the same as the loops before they were spread.
+
+/// Pairs per task: large enough that a task's cost (a few microseconds per pair) hides
+/// the hand-off, small enough that two threads end within a small fraction of a loop of
+/// a few thousand pairs of each other.
+const CHUNK: usize = 256;
+
+/// Whether the caller runs on a thread pool of more than one thread (see the module
+/// documentation).
+#[must_use]
+pub(crate) fn on_pool() -> bool {
+    #[cfg(feature = "parallel")]
+    {
+        rayon::current_thread_index().is_some() && rayon::current_num_threads() > 1
+    }
+    #[cfg(not(feature = "parallel"))]
+    {
+        false
+    }
+}
+
+/// Calls `f(i, &mut out[i])` for every `i`, in chunks on the caller's pool when there is
+/// one.
+pub(crate) fn for_each<T: Send>(out: &mut [T], f: impl Fn(usize, &mut T) + Sync + Send) {
+    #[cfg(feature = "parallel")]
+    if out.len() > CHUNK && on_pool() {
+        use rayon::prelude::*;
+        out.par_chunks_mut(CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                for (i, slot) in chunk.iter_mut().enumerate() {
+                    f(c * CHUNK + i, slot);
+                }
+            });
+        return;
+    }
+    for (i, slot) in out.iter_mut().enumerate() {
+        f(i, slot);
+    }
+}
+
+/// `out` cleared and refilled with `f(i)` for `i` in `0..n` (its storage reused), in
+/// chunks on the caller's pool when there is one.
+pub(crate) fn fill<T: Send + Clone>(
+    out: &mut Vec<T>,
+    n: usize,
+    blank: T,
+    f: impl Fn(usize) -> T + Sync + Send,
+) {
+    out.clear();
+    out.resize(n, blank);
+    for_each(out, |i, slot| *slot = f(i));
+}
+
+/// The indices `i` in `0..n` for which `keep(i)` holds, ascending, into `out` (cleared
+/// first), with the tests in chunks on the caller's pool when there is one.
+pub(crate) fn filter_indices(
+    n: usize,
+    out: &mut Vec<usize>,
+    keep: impl Fn(usize) -> bool + Sync + Send,
+) {
+    out.clear();
+    #[cfg(feature = "parallel")]
+    if n > CHUNK && on_pool() {
+        use rayon::prelude::*;
+        let parts: Vec<Vec<usize>> = (0..n.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                (c * CHUNK..((c + 1) * CHUNK).min(n))
+                    .filter(|&i| keep(i))
+                    .collect()
+            })
+            .collect();
+        for part in parts {
+            out.extend_from_slice(&part);
+        }
+        return;
+    }
+    out.extend((0..n).filter(|&i| keep(i)));
+}
