@@ -275,29 +275,7 @@ impl BackwardEuler {
         term: Box<dyn Term>,
         pairs: &[[usize; 2]],
     ) -> Result<(), ModelError> {
-        self.check_topology(system)?;
-        if pairs.iter().flatten().any(|&p| p >= system.len()) {
-            return Err(ModelError::BadParameter {
-                name: "pairs",
-                reason: "a coupled particle index is out of range",
-            });
-        }
-        let mut coupled = self.coupled_pairs.clone();
-        coupled.extend_from_slice(pairs);
-        let pattern = HessianPattern::with_pairs(system, &coupled);
-        // Both solvers are built before either is replaced, so an error leaves the
-        // integrator as it was.
-        let direct = match self.direct {
-            Some(_) => Some(Self::build_direct(&pattern, &self.settings)?),
-            None => None,
-        };
-        self.pcg = Self::build_pcg(&pattern, self.settings.threads)?;
-        if direct.is_some() {
-            self.direct = direct;
-        }
-        self.coupled_pairs = coupled;
-        self.values = vec![0.0; pattern.nnz()];
-        self.pattern = pattern;
+        self.add_coupled_pairs(system, pairs)?;
         self.potential.push(term);
         Ok(())
     }
