@@ -128,19 +128,13 @@ fn grid(
     s: f64,
     offset: usize,
 ) -> (Vec<DVec3>, Vec<[usize; 3]>) {
-    let x = (0..n)
-        .flat_map(|i| (0..n).map(move |j| origin + s * (i as f64 * u + j as f64 * w)))
-        .collect();
-    let grid = ClothGrid {
+    ClothGrid {
         size: n,
+        spacing: s,
+        origin,
         ..ClothGrid::lab()
-    };
-    let t = grid
-        .triangles()
-        .into_iter()
-        .map(|t| t.map(|v| v + offset))
-        .collect();
-    (x, t)
+    }
+    .sheet(u, w, offset)
 }
 
 fn main() {

@@ -481,4 +481,23 @@ impl ClothGrid {
         }
         triangles
     }
+
+    /// The grid laid out along the directions `u` and `w` (unit vectors, normally
+    /// orthogonal) instead of the x-z plane: vertex `i n + j + offset` at `origin +
+    /// spacing (i u + j w)`, with [`ClothGrid::triangles`] shifted by `offset`. For
+    /// building one triangle mesh from several sheets (placed and turned), as the
+    /// self-contact workloads do; `origin`, `spacing` and `size` are the grid's own.
+    #[must_use]
+    pub fn sheet(&self, u: DVec3, w: DVec3, offset: usize) -> (Vec<DVec3>, Vec<[usize; 3]>) {
+        let (n, origin, s) = (self.size, self.origin, self.spacing);
+        let x = (0..n)
+            .flat_map(|i| (0..n).map(move |j| origin + s * (i as f64 * u + j as f64 * w)))
+            .collect();
+        let t = self
+            .triangles()
+            .into_iter()
+            .map(|t| t.map(|v| v + offset))
+            .collect();
+        (x, t)
+    }
 }

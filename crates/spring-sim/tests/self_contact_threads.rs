@@ -18,19 +18,13 @@ const N: usize = 33;
 
 /// An `N x N` grid of points `origin + s (i u + j w)` and its triangles, indices offset.
 fn grid(origin: DVec3, u: DVec3, w: DVec3, s: f64, offset: usize) -> (Vec<DVec3>, Vec<[usize; 3]>) {
-    let x = (0..N)
-        .flat_map(|i| (0..N).map(move |j| origin + s * (i as f64 * u + j as f64 * w)))
-        .collect();
-    let grid = ClothGrid {
+    ClothGrid {
         size: N,
+        spacing: s,
+        origin,
         ..ClothGrid::lab()
-    };
-    let t = grid
-        .triangles()
-        .into_iter()
-        .map(|t| t.map(|v| v + offset))
-        .collect();
-    (x, t)
+    }
+    .sheet(u, w, offset)
 }
 
 /// What a run ends with: the state, the Newton iterations per step, and per step the
