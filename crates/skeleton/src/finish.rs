@@ -2030,6 +2030,16 @@ fn subtract_outer(matrix: &mut [f64], rows: usize, column: &[(usize, f64)]) {
 mod tests {
     use super::*;
 
+    /// Numbers uniform in [-1, 1) from a xorshift generator started at `seed`.
+    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        }
+    }
+
     #[test]
     fn the_quick_clamp_test_agrees_with_the_angle() {
         // Pairs of rotations apart by angles from far below to far above the threshold,
@@ -2241,13 +2251,7 @@ mod tests {
         // then by columns, the sizes that are multiples of three up to 24 with constant
         // bounds, the rows below taken four at a time ending every way), solved both ways
         // with the same bits; a matrix with a negative pivot is refused by both.
-        let mut seed = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut next = uniform(0x2545_f491_4f6c_dd1d_u64);
         for rows in 1..=27 {
             let cols = rows + 2;
             let j: Vec<f64> = (0..rows * cols).map(|_| next()).collect();
@@ -2286,13 +2290,7 @@ mod tests {
         // against the products of every pair of entries added in column order; in a
         // matrix of the rows the columns reach (12), and in larger ones, of a size with
         // the rows' length a constant (15, 24) and of others (13, 27).
-        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut next = uniform(0x9e37_79b9_7f4a_7c15_u64);
         for (round, rows) in (0..40).zip([12, 13, 15, 24, 27].into_iter().cycle()) {
             let mut fin = Finish::default();
             let mut d = [
@@ -2360,13 +2358,7 @@ mod tests {
         // a blocked direction; against each column's sum over all its entries in order
         // and the turns summed axis by axis from them. Leaving out the zero products may
         // change a zero sum's sign only.
-        let mut seed = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut next = uniform(0x2545_f491_4f6c_dd1d_u64);
         let same =
             |got: f64, want: f64| got.to_bits() == want.to_bits() || (got == 0.0 && want == 0.0);
         for round in 0..24 {
