@@ -810,8 +810,10 @@ pub struct PcgSolver {
 struct RowProduct {
     /// Particle `p`'s entries are `upper[upper_ptr[p]..upper_ptr[p + 1]]`.
     upper_ptr: Vec<usize>,
-    /// `(q, k)`: the block `(p, q)` is the `k`-th neighbour block of column particle `q`.
-    upper: Vec<(usize, usize)>,
+    /// `(3 q, [s0, s1, s2])`: the block `(p, q)` is the `k`-th neighbour block of column
+    /// particle `q`, and its column `3 q + c` starts at `values[sc]`. The starts are found
+    /// once here, so the product reads no `col_ptr` entry of `q` per block.
+    upper: Vec<(usize, [usize; 3])>,
     /// Particle `p`'s neighbours below it are `lower[lower_ptr[p]..lower_ptr[p + 1]]`,
     /// in the order of its columns' blocks: one index per 3x3 block instead of the
     /// pattern's one per entry, so the product reads a ninth of the indices.
@@ -825,7 +827,7 @@ impl RowProduct {
         let particles = pattern.free_particles.len();
         let col_ptr = pattern.symbolic.col_ptr();
         let row_idx = pattern.symbolic.row_idx();
-        let mut lists: Vec<Vec<(usize, usize)>> = vec![Vec::new(); particles];
+        let mut lists: Vec<Vec<(usize, [usize; 3])>> = vec![Vec::new(); particles];
         let mut lower_ptr = Vec::with_capacity(particles + 1);
         lower_ptr.push(0);
         let mut lower = Vec::with_capacity(row_idx.len() / 9);
@@ -836,7 +838,8 @@ impl RowProduct {
                 .step_by(3)
                 .enumerate()
             {
-                lists[row / 3].push((q, k));
+                let start_of = |c: usize| col_ptr[3 * q + c] + (3 - c) + 3 * k;
+                lists[row / 3].push((3 * q, [start_of(0), start_of(1), start_of(2)]));
                 lower.push(row);
             }
             lower_ptr.push(lower.len());
@@ -893,12 +896,10 @@ impl RowProduct {
                 }
             }
             // The blocks left of the diagonal: stored as the block (p, q) in q's columns.
-            for &(q, k) in &self.upper[self.upper_ptr[p]..self.upper_ptr[p + 1]] {
-                for c in 0..3 {
-                    let base = col_ptr[3 * q + c] + (3 - c) + 3 * k;
-                    let xq = x[3 * q + c];
-                    for (r, a) in acc.iter_mut().enumerate() {
-                        *a += values[base + r] * xq;
+            for (j, starts) in &self.upper[self.upper_ptr[p]..self.upper_ptr[p + 1]] {
+                for (xq, &start) in x[*j..*j + 3].iter().zip(starts) {
+                    for (a, v) in acc.iter_mut().zip(&values[start..start + 3]) {
+                        *a += v * xq;
                     }
                 }
             }
