@@ -2030,6 +2030,20 @@ fn subtract_outer(matrix: &mut [f64], rows: usize, column: &[(usize, f64)]) {
 mod tests {
     use super::*;
 
+    /// The translation's three columns over three position rows of the given weights (rows
+    /// 0, 3 and 6), as `linearize` writes them.
+    fn push_translation_columns(fin: &mut Finish, weights: [f64; 3]) {
+        for u in [DVec3::X, DVec3::Y, DVec3::Z] {
+            fin.col_start.push(fin.entries.len());
+            fin.dofs.push((TRANSLATION, u));
+            for (row, w) in [0, 3, 6].into_iter().zip(weights) {
+                let v = u * w;
+                fin.entries
+                    .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
+            }
+        }
+    }
+
     /// Numbers uniform in [-1, 1) from a xorshift generator started at `seed`.
     fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
         move || {
@@ -2316,15 +2330,7 @@ mod tests {
             fin.col_start.push(fin.entries.len());
             fin.dofs.push((1, DVec3::Y));
             fin.entries.extend([(0, next()), (2, next()), (7, next())]);
-            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
-                fin.col_start.push(fin.entries.len());
-                fin.dofs.push((TRANSLATION, u));
-                for (row, w) in [(0, w0), (3, 1.5), (6, w1)] {
-                    let v = u * w;
-                    fin.entries
-                        .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
-                }
-            }
+            push_translation_columns(&mut fin, [w0, 1.5, w1]);
             fin.col_start.push(fin.entries.len());
             fin.normal_full.resize(rows * rows, 0.0);
             fin.accumulate_normal(rows);
@@ -2390,15 +2396,7 @@ mod tests {
             fin.dofs
                 .push((2, DVec3::new(next(), next(), next()).normalize()));
             fin.entries.extend([(0, next()), (2, next()), (7, next())]);
-            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
-                fin.col_start.push(fin.entries.len());
-                fin.dofs.push((TRANSLATION, u));
-                for (row, w) in [(0, w0), (3, 1.5), (6, w1)] {
-                    let v = u * w;
-                    fin.entries
-                        .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
-                }
-            }
+            push_translation_columns(&mut fin, [w0, 1.5, w1]);
             fin.col_start.push(fin.entries.len());
             fin.normal_full.resize(rows * rows, 0.0);
             fin.accumulate_normal(rows);
