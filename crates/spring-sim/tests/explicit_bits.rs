@@ -51,6 +51,13 @@ fn assert_bits(a: &[DVec3], b: &[DVec3], what: &str) {
     assert_eq!(bits(a), bits(b), "{what}");
 }
 
+/// The system's positions and velocities are bitwise `x` and `v` after step `step`.
+fn assert_state(system: &SpringSystem, x: &[DVec3], v: &[DVec3], step: usize) {
+    let after = |what: &str| format!("{what} after step {step}");
+    assert_bits(system.positions(), x, &after("positions"));
+    assert_bits(system.velocities(), v, &after("velocities"));
+}
+
 #[test]
 fn velocity_verlet_is_bitwise_the_textbook_kick_drift_force_kick() {
     let mut system = cloth();
@@ -80,16 +87,7 @@ fn velocity_verlet_is_bitwise_the_textbook_kick_drift_force_kick() {
                 v[i] += (half * inv_mass[i]) * f[i];
             }
         }
-        assert_bits(
-            system.positions(),
-            &x,
-            &format!("positions after step {step}"),
-        );
-        assert_bits(
-            system.velocities(),
-            &v,
-            &format!("velocities after step {step}"),
-        );
+        assert_state(&system, &x, &v, step);
     }
 }
 
@@ -111,15 +109,6 @@ fn symplectic_euler_is_bitwise_the_textbook_loop() {
                 }
             }
         }
-        assert_bits(
-            system.positions(),
-            &x,
-            &format!("positions after step {step}"),
-        );
-        assert_bits(
-            system.velocities(),
-            &v,
-            &format!("velocities after step {step}"),
-        );
+        assert_state(&system, &x, &v, step);
     }
 }
