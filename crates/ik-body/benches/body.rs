@@ -81,12 +81,7 @@ fn batch(c: &mut Criterion) {
         let label = if threads == 1 { "thread" } else { "threads" };
         group.bench_function(format!("1000-characters/{threads}-{label}"), |b| {
             b.iter(|| {
-                let problems: Vec<BodyProblem<'_>> = (0..characters)
-                    .map(|c| {
-                        BodyProblem::new(&skel, &frames[(c * 7 + step) % CLIP_FRAMES], settings)
-                            .with_root_translation(true)
-                    })
-                    .collect();
+                let problems = workload::batch_problems(&skel, &frames, settings, characters, step);
                 batch
                     .solve(&problems, &mut states, &mut reports, threads)
                     .expect("valid");

@@ -151,12 +151,7 @@ fn batch(skeleton: &Skeleton) {
     let mut solved = 0;
     let mut identical = true;
     for step in 0..20 {
-        let problems: Vec<BodyProblem<'_>> = (0..characters)
-            .map(|c| {
-                BodyProblem::new(skeleton, &frames[(c * 7 + step) % CLIP_FRAMES], settings)
-                    .with_root_translation(true)
-            })
-            .collect();
+        let problems = workload::batch_problems(skeleton, &frames, settings, characters, step);
         for (k, &threads) in thread_counts.iter().enumerate() {
             let start = Instant::now();
             batches[k]

@@ -100,12 +100,7 @@ fn main() {
             let mut reports = vec![empty; characters];
             let mut batch = BodyBatch::new(TreeFabrikOptions::default()).expect("valid");
             for step in 0..total {
-                let problems: Vec<BodyProblem<'_>> = (0..characters)
-                    .map(|c| {
-                        BodyProblem::new(&skel, &frames[(c * 7 + step) % CLIP_FRAMES], settings)
-                            .with_root_translation(true)
-                    })
-                    .collect();
+                let problems = workload::batch_problems(&skel, &frames, settings, characters, step);
                 batch
                     .solve(&problems, &mut states, &mut reports, threads)
                     .expect("valid");

@@ -20,7 +20,7 @@
 //!
 //! Effectors: l_wrist, r_wrist, l_ankle, r_ankle, head; the hips translate.
 
-use crate::problem::{BodyEffector, BodyState};
+use crate::problem::{BodyEffector, BodyProblem, BodyState};
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::EffectorGoal;
 use sinew_skeleton::limits::{Hinge, JointLimit, SwingTwist};
@@ -237,6 +237,25 @@ pub fn goal_sets(skeleton: &Skeleton, count: usize, seed: u64, rotations: bool) 
 
 /// Frames of the squat clip.
 pub const CLIP_FRAMES: usize = 600;
+
+/// One step of the batch workload: `characters` problems on `skeleton`, character `c`
+/// at frame `(7 c + step) mod CLIP_FRAMES` of `frames` (the clip's frames, so the
+/// characters stand at staggered points of the squat), the root free to translate.
+#[must_use]
+pub fn batch_problems<'a>(
+    skeleton: &'a Skeleton,
+    frames: &'a [[BodyEffector; 5]],
+    settings: sinew_skeleton::ik::SolveSettings,
+    characters: usize,
+    step: usize,
+) -> Vec<BodyProblem<'a>> {
+    (0..characters)
+        .map(|c| {
+            BodyProblem::new(skeleton, &frames[(c * 7 + step) % frames.len()], settings)
+                .with_root_translation(true)
+        })
+        .collect()
+}
 
 /// The effectors of frame `frame` of the squat clip, given the rest pose's forward
 /// kinematics `rest`: both ankles pinned where they stand, the head's goal descending
