@@ -24,6 +24,9 @@ const LIMB_SEED_DISTANCE: f64 = 0.25;
 /// minimum, so that the solver restarts (see `docs/ik-body.md`).
 const STALL_WINDOW: usize = 10;
 
+/// The finish's [`FinishJob::damping_cap`] on problems without pins.
+const DAMPING_CAP: f64 = 1.0;
+
 /// Buffers and per-solve data every body solver keeps.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Common {
@@ -158,6 +161,7 @@ impl Common {
         iterations: usize,
         chord_start: bool,
     ) -> Result<Finished, IkError> {
+        let pinned = self.targets.iter().any(|t| t.pinned);
         let job = FinishJob {
             skeleton: problem.skeleton,
             movers: &self.topology,
@@ -169,11 +173,11 @@ impl Common {
             chord_start,
             // A pinned problem (the clip, a batch of characters) restarts only from poses
             // that keep its pins; it is left to converge, however slowly.
-            stall_window: if self.targets.iter().any(|t| t.pinned) {
-                0
-            } else {
-                STALL_WINDOW
-            },
+            stall_window: if pinned { 0 } else { STALL_WINDOW },
+            // The damping follows the cost down only without pins: a pinned problem's
+            // steps trade the pins against the other goals, and nearly Gauss-Newton steps
+            // there lost warm frames of the 1 000-character batch (`docs/ik-body.md`).
+            damping_cap: if pinned { f64::INFINITY } else { DAMPING_CAP },
         };
         Ok(self.dls.run(
             &job,

@@ -347,6 +347,12 @@ pub struct FinishJob<'a> {
     /// A finish whose cost has not fallen by `STALL_FACTOR` over this many steps stops in
     /// a local minimum (so that its caller may restart), however it got there; 0 never.
     pub stall_window: usize,
+    /// After an accepted step the damping is at most this times the new cost (as well as
+    /// divided by 3), so that it follows the cost down as Yamashita and Fukushima's
+    /// `lambda = |r|^2` does and the last steps (and the chord steps on their factor)
+    /// are nearly Gauss-Newton; `f64::INFINITY` leaves it to the division alone. See
+    /// `docs/ik-finish.md` for where it pays and where it does not.
+    pub damping_cap: f64,
 }
 
 /// What a finish did.
@@ -486,6 +492,7 @@ impl ChainFinish {
             iterations,
             chord_start: false,
             stall_window: 0,
+            damping_cap: f64::INFINITY,
         };
         let mut translation = DVec3::ZERO;
         let mut finished = self.finish.run(&job, pose, &mut translation, global)?;
@@ -868,6 +875,11 @@ impl Finish {
                     });
                 }
                 damping /= 3.0;
+                // (A damping not yet set, NaN after a chord start, stays unset: the first
+                // full step sets it from the scale of `J J^T`.)
+                if damping > job.damping_cap * trial_cost {
+                    damping = job.damping_cap * trial_cost;
+                }
                 rejections = 0;
                 fresh = false;
                 for (on, &clamped) in self.on_bound.iter_mut().zip(&self.clamped) {
