@@ -1127,55 +1127,11 @@ fn closest_on_ellipse_ordered(e0: f64, e1: f64, y0: f64, y1: f64) -> (f64, f64) 
     (x0.copysign(y0), x1.copysign(y1))
 }
 
-/// The root `t` of `F(t) = (r0 n0 / (t + r0))^2 + (n1 / (t + 1))^2 - 1` (convex and
-/// decreasing for `t > -1`), `g = F(0)`: Newton's climb ([`ellipse_root_newton`]), or,
-/// should it not settle, the bisection.
+/// The root `t` of `F(t) = (r0 n0 / (t + r0))^2 + (n1 / (t + 1))^2 - 1` (decreasing for
+/// `t > -1`) by bisection until the midpoint repeats an end point. `g = F(0)`.
 fn ellipse_root(r0: f64, n0: f64, n1: f64, g: f64) -> f64 {
-    match ellipse_root_newton(r0, n0, n1) {
-        Ok(t) => t,
-        // Not reached in practice (the climb converges quadratically from its start); left
-        // to the bisection, which cannot fail, from the last point, still left of the root.
-        Err(lo) => ellipse_root_bisection(r0 * n0, r0, n1, g, lo),
-    }
-}
-
-/// [`ellipse_root`] by Newton's method from the left: from a point where `F >= 0` each
-/// step stays left of the root (the tangent of a convex decreasing function lies below
-/// it) and moves right, so the iterates climb to the root without overshooting it
-/// (`docs/ik-limits.md`). The climb stops when `F` is no longer positive or a step no
-/// longer moves `t`: the root to rounding. `Err` with the last point after
-/// [`NEWTON_STEPS`] steps.
-fn ellipse_root_newton(r0: f64, n0: f64, n1: f64) -> Result<f64, f64> {
     let rn0 = r0 * n0;
-    // Each term alone is 1 at its own left end (`t = rn0 - r0`, `t = n1 - 1`), so `F >= 0`
-    // at the larger of the two: a start left of the root and near it when either term
-    // dominates.
-    let mut t = (rn0 - r0).max(n1 - 1.0);
-    for _ in 0..NEWTON_STEPS {
-        let (p, q) = (t + r0, t + 1.0);
-        let (a, b) = (rn0 / p, n1 / q);
-        let (a2, b2) = (a * a, b * b);
-        let f = a2 + b2 - 1.0;
-        if f.is_nan() || f <= 0.0 {
-            return Ok(t);
-        }
-        // `-F'(t) / 2`; positive for `t > -1`.
-        let slope = a2 / p + b2 / q;
-        let next = t + 0.5 * f / slope;
-        if next.is_nan() || next <= t {
-            return Ok(t);
-        }
-        t = next;
-    }
-    Err(t)
-}
-
-/// How many Newton steps [`ellipse_root`] takes at most before it bisects.
-const NEWTON_STEPS: usize = 100;
-
-/// The root of [`ellipse_root`]'s `F` (`rn0 = r0 n0`) by bisection of `[lo, hi]`, `lo`
-/// left of the root, until the midpoint repeats an end point.
-fn ellipse_root_bisection(rn0: f64, r0: f64, n1: f64, g: f64, mut lo: f64) -> f64 {
+    let mut lo = n1 - 1.0;
     let mut hi = if g < 0.0 { 0.0 } else { rn0.hypot(n1) - 1.0 };
     let mut t = lo;
     // The bracket is at most ~r0 wide and the root only matters to rounding relative to
@@ -1427,69 +1383,6 @@ mod tests {
             }
             assert!(zeros > 10_000, "{zeros}");
         }
-    }
-
-    /// Newton's climb finds the root that the bisection of the whole bracket finds, to
-    /// rounding: that of `t` itself, and the width of the interval where the computed
-    /// `F` (a sum of terms up to 1, so rounded by a few `eps`) changes sign, `eps / |F'|`;
-    /// over points inside and
-    /// outside round, wide and very thin ellipses, near the axes and far away; and it
-    /// gets there without falling back to the bisection.
-    #[test]
-    fn the_ellipse_root_by_newton_is_the_bisection_s_to_rounding() {
-        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut uniform = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let mut worst: f64 = 0.0;
-        for (e0, e1) in [
-            (1.0, 1.0),
-            (1.745, 1.222),
-            (3.0, 0.2),
-            (1.5, 0.05),
-            (2.0, 1e-3),
-        ] {
-            let r0 = (e0 / e1) * (e0 / e1);
-            for _ in 0..20_000 {
-                // Distances from 1e-6 to 10 times the ellipse's size, angles from the
-                // major axis to the minor one, some within 1e-9 of either.
-                let scale = 10f64.powf(7.0 * uniform() - 6.0) * e0;
-                let angle = match (uniform() * 4.0) as u32 {
-                    0 => 1e-9 * uniform(),
-                    1 => std::f64::consts::FRAC_PI_2 - 1e-9 * uniform(),
-                    _ => std::f64::consts::FRAC_PI_2 * uniform(),
-                };
-                let (y0, y1) = (scale * angle.cos(), scale * angle.sin());
-                if !(y0 > 0.0 && y1 > 0.0) {
-                    continue;
-                }
-                let (n0, n1) = (y0 / e0, y1 / e1);
-                let g = n0 * n0 + n1 * n1 - 1.0;
-                if g == 0.0 {
-                    continue;
-                }
-                let newton = ellipse_root_newton(r0, n0, n1).expect("the climb settles");
-                let bisection = ellipse_root_bisection(r0 * n0, r0, n1, g, n1 - 1.0);
-                let (p, q) = (bisection + r0, bisection + 1.0);
-                let slope = 2.0 * ((r0 * n0 / p).powi(2) / p + (n1 / q).powi(2) / q);
-                let rounding = bisection.abs() + 1.0 + 1.0 / slope;
-                let error = (newton - bisection).abs() / rounding;
-                worst = worst.max(error);
-                assert!(
-                    error <= 8.0 * f64::EPSILON,
-                    "({e0}, {e1}) ({y0}, {y1}): {newton} vs {bisection}"
-                );
-                // The sign of the root says inside or outside, as the level does.
-                assert_eq!(newton > 0.0, g > 0.0, "({e0}, {e1}) ({y0}, {y1})");
-            }
-        }
-        assert!(
-            worst > 0.0,
-            "the two never differ: the test compares nothing"
-        );
     }
 
     #[test]
