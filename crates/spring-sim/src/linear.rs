@@ -976,6 +976,23 @@ impl PcgSolver {
         Ok(())
     }
 
+    /// Runs on `previous`'s threads, sharing its thread pool instead of starting one
+    /// (a pattern widened during a run, possibly a few times a step, gets a new solver
+    /// each time), when the two split their work alike (both above [`PARALLEL_MIN`]
+    /// unknowns or both not, as for one system's patterns, which differ only in their
+    /// coupled pairs). False, and nothing changes, when they do not: then
+    /// [`PcgSolver::set_threads`] is the way.
+    pub fn share_threads(&mut self, previous: &PcgSolver) -> bool {
+        if self.rows.is_some() != previous.rows.is_some() {
+            return false;
+        }
+        #[cfg(feature = "parallel")]
+        {
+            self.pool = previous.pool.clone();
+        }
+        true
+    }
+
     /// The thread pool, when the work is spread over more than one thread.
     #[cfg(feature = "parallel")]
     pub(crate) fn pool(&self) -> Option<&std::sync::Arc<rayon::ThreadPool>> {
@@ -1388,6 +1405,44 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A solver for a widened pattern shares its predecessor's thread pool (the same
+    /// pool, not a new one of the same size) and then solves bitwise as one with a pool
+    /// of its own; a solver that splits its work differently (below [`PARALLEL_MIN`])
+    /// is refused and keeps none.
+    #[cfg(feature = "parallel")]
+    #[test]
+    fn a_widened_patterns_solver_shares_the_thread_pool() {
+        let (pattern, values, _) = stretched(46, 0.04);
+        let mut first = PcgSolver::new(&pattern);
+        first.set_threads(2).unwrap();
+        let mut shared = PcgSolver::new(&pattern);
+        assert!(shared.share_threads(&first));
+        assert_eq!(shared.threads(), 2);
+        assert!(std::sync::Arc::ptr_eq(
+            first.pool().unwrap(),
+            shared.pool().unwrap()
+        ));
+        let b = rhs(pattern.dim());
+        let mut answers = Vec::new();
+        for solver in [&mut first, &mut shared] {
+            let mut x = vec![0.0; pattern.dim()];
+            let outcome = solver.solve(&pattern, &values, &b, &mut x, 1e-10, 500);
+            assert!(outcome.relative_residual <= 1e-10 && outcome.iterations > 5);
+            answers.push(x);
+        }
+        assert!(
+            answers[0]
+                .iter()
+                .zip(&answers[1])
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        );
+        let (small, _, _) = stretched(11, 0.1);
+        let mut other = PcgSolver::new(&small);
+        assert!(!other.share_threads(&first));
+        assert!(other.pool().is_none());
+        assert_eq!(other.threads(), 1);
     }
 
     /// The row-ordered product of a system above one chunk equals the column-ordered one
