@@ -13,7 +13,10 @@
 //!   `g<N>` (an N x N lab-pattern cloth 2 wide, like W6); integrators: `be-auto`,
 //!   `be-pcg`, `be-direct`, `verlet`, `se1` (symplectic Euler, 1 substep), `se<N>`,
 //!   `auto`, the backward Euler ones with a `-t<N>` suffix for N threads and then a
-//!   `-f<eta>` suffix for PCG's largest forcing term (`NewtonSettings::pcg_forcing`).
+//!   `-f<eta>` suffix for PCG's largest forcing term (`NewtonSettings::pcg_forcing`);
+//! - `pcg <workload> <threads> [iterations] [batches]`: PCG's iterations alone on the
+//!   workload's Newton matrix, time per iteration;
+//! - `explicit ...`: the explicit steppers with a thread count (`explicit` below).
 
 use sinew_spring_sim::*;
 use std::time::Instant;
@@ -202,6 +205,43 @@ fn steps(args: &[String]) {
     );
 }
 
+/// `pcg <workload> <threads> [iterations] [batches]`: PCG alone on the workload's Newton
+/// matrix at its starting state (right-hand side all ones), `iterations` iterations per
+/// call; prints the medians over `batches` calls of the wall time and of this thread's
+/// CPU time per iteration (with one thread the two agree but for waiting; with two
+/// the CPU time is the calling thread's share only). Two builds are compared by
+/// alternating their runs.
+fn pcg(args: &[String]) {
+    let (system, h) = workload(&args[0]);
+    let threads: usize = args[1].parse().unwrap();
+    let iterations: usize = args.get(2).map_or(20, |s| s.parse().unwrap());
+    let batches: usize = args.get(3).map_or(15, |s| s.parse().unwrap());
+    let settings = NewtonSettings {
+        linear_solver: LinearSolverChoice::Pcg,
+        threads,
+        ..Default::default()
+    };
+    let mut be = BackwardEuler::new(&system, settings).unwrap();
+    be.assemble_newton_matrix(&system, h);
+    let (mut wall, mut cpu) = (Vec::new(), Vec::new());
+    for _ in 0..batches {
+        let (t, c) = (Instant::now(), thread_cpu());
+        let outcome = be.pcg_iterations_on_newton_matrix(iterations);
+        assert_eq!(outcome.iterations, iterations);
+        wall.push(t.elapsed().as_secs_f64() / iterations as f64);
+        cpu.push((thread_cpu() - c) / iterations as f64);
+    }
+    println!(
+        "{} pcg threads {}: wall median {:.1} us/iteration, CPU (this thread) median {:.1} us/iteration ({} batches of {} iterations)",
+        args[0],
+        be.threads(),
+        median(wall) * 1e6,
+        median(cpu) * 1e6,
+        batches,
+        iterations
+    );
+}
+
 /// FNV-1a over the bits of every position and velocity: two runs ended in the same
 /// state exactly when their hashes agree (up to a collision).
 fn state_hash(system: &SpringSystem) -> u64 {
@@ -268,6 +308,7 @@ fn main() {
         Some("costs") => costs(),
         Some("steps") => steps(&args[1..]),
         Some("explicit") => explicit(&args[1..]),
+        Some("pcg") => pcg(&args[1..]),
         _ => {
             eprintln!("usage: speed costs | speed steps <workload> <integrator> [steps] [repeats]")
         }

@@ -872,28 +872,49 @@ impl RowProduct {
         for (offset, yp) in y.chunks_exact_mut(3).enumerate() {
             let p = first + offset;
             let below = &self.lower[self.lower_ptr[p]..self.lower_ptr[p + 1]];
+            // Row 3p + c's sum is one chain of additions in a fixed order: its diagonal
+            // block's three entries, then the blocks below the diagonal in column 3p + c
+            // (the transposes of the blocks right of the diagonal in p's rows), three
+            // entries per neighbour in the stored order, then the blocks left of the
+            // diagonal. The three rows' chains are advanced side by side, a neighbour at
+            // a time: each chain's order is unchanged (so are the bits), but the three
+            // are independent, so the processor overlaps them instead of waiting on one
+            // addition after another, and each neighbour's `x` is read once, not thrice.
+            let (s0, s1, s2) = (col_ptr[3 * p], col_ptr[3 * p + 1], col_ptr[3 * p + 2]);
+            let end = col_ptr[3 * p + 3];
+            let xp = &x[3 * p..3 * p + 3];
+            let (d00, d10, d20) = (values[s0], values[s0 + 1], values[s0 + 2]);
+            let (d11, d21, d22) = (values[s1], values[s1 + 1], values[s2]);
             let mut acc = [0.0f64; 3];
-            // Column 3p + c: the diagonal block's lower entries (rows 3p + c..3p + 3),
-            // then the blocks below it, which are the transposes of the blocks right of
-            // the diagonal in p's rows.
-            for c in 0..3 {
-                let j = 3 * p + c;
-                let (start, end) = (col_ptr[j], col_ptr[j + 1]);
-                let xj = x[j];
-                acc[c] += values[start] * xj;
-                for r in c + 1..3 {
-                    let v = values[start + r - c];
-                    acc[r] += v * xj;
-                    acc[c] += v * x[3 * p + r];
-                }
-                // Three rows per neighbour block, in the stored order (the sum's order
-                // is the entry-by-entry one's).
-                let blocks = &values[start + 3 - c..end];
-                for (v, &row) in blocks.chunks_exact(3).zip(below) {
-                    acc[c] += v[0] * x[row];
-                    acc[c] += v[1] * x[row + 1];
-                    acc[c] += v[2] * x[row + 2];
-                }
+            acc[0] += d00 * xp[0];
+            acc[1] += d10 * xp[0];
+            acc[0] += d10 * xp[1];
+            acc[2] += d20 * xp[0];
+            acc[0] += d20 * xp[2];
+            acc[1] += d11 * xp[1];
+            acc[2] += d21 * xp[1];
+            acc[1] += d21 * xp[2];
+            acc[2] += d22 * xp[2];
+            // Column 3p + c's neighbour blocks start `3 - c` entries past its start.
+            let blocks0 = &values[s0 + 3..s1];
+            let blocks1 = &values[s1 + 2..s2];
+            let blocks2 = &values[s2 + 1..end];
+            for (((v0, v1), v2), &row) in blocks0
+                .chunks_exact(3)
+                .zip(blocks1.chunks_exact(3))
+                .zip(blocks2.chunks_exact(3))
+                .zip(below)
+            {
+                let xr = &x[row..row + 3];
+                acc[0] += v0[0] * xr[0];
+                acc[1] += v1[0] * xr[0];
+                acc[2] += v2[0] * xr[0];
+                acc[0] += v0[1] * xr[1];
+                acc[1] += v1[1] * xr[1];
+                acc[2] += v2[1] * xr[1];
+                acc[0] += v0[2] * xr[2];
+                acc[1] += v1[2] * xr[2];
+                acc[2] += v2[2] * xr[2];
             }
             // The blocks left of the diagonal: stored as the block (p, q) in q's columns.
             for (j, starts) in &self.upper[self.upper_ptr[p]..self.upper_ptr[p + 1]] {
@@ -953,6 +974,23 @@ impl PcgSolver {
         #[cfg(not(feature = "parallel"))]
         let _ = threads;
         Ok(())
+    }
+
+    /// Runs on `previous`'s threads, sharing its thread pool instead of starting one
+    /// (a pattern widened during a run, possibly a few times a step, gets a new solver
+    /// each time), when the two split their work alike (both above [`PARALLEL_MIN`]
+    /// unknowns or both not, as for one system's patterns, which differ only in their
+    /// coupled pairs). False, and nothing changes, when they do not: then
+    /// [`PcgSolver::set_threads`] is the way.
+    pub fn share_threads(&mut self, previous: &PcgSolver) -> bool {
+        if self.rows.is_some() != previous.rows.is_some() {
+            return false;
+        }
+        #[cfg(feature = "parallel")]
+        {
+            self.pool = previous.pool.clone();
+        }
+        true
     }
 
     /// The thread pool, when the work is spread over more than one thread.
@@ -1367,6 +1405,44 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A solver for a widened pattern shares its predecessor's thread pool (the same
+    /// pool, not a new one of the same size) and then solves bitwise as one with a pool
+    /// of its own; a solver that splits its work differently (below [`PARALLEL_MIN`])
+    /// is refused and keeps none.
+    #[cfg(feature = "parallel")]
+    #[test]
+    fn a_widened_patterns_solver_shares_the_thread_pool() {
+        let (pattern, values, _) = stretched(46, 0.04);
+        let mut first = PcgSolver::new(&pattern);
+        first.set_threads(2).unwrap();
+        let mut shared = PcgSolver::new(&pattern);
+        assert!(shared.share_threads(&first));
+        assert_eq!(shared.threads(), 2);
+        assert!(std::sync::Arc::ptr_eq(
+            first.pool().unwrap(),
+            shared.pool().unwrap()
+        ));
+        let b = rhs(pattern.dim());
+        let mut answers = Vec::new();
+        for solver in [&mut first, &mut shared] {
+            let mut x = vec![0.0; pattern.dim()];
+            let outcome = solver.solve(&pattern, &values, &b, &mut x, 1e-10, 500);
+            assert!(outcome.relative_residual <= 1e-10 && outcome.iterations > 5);
+            answers.push(x);
+        }
+        assert!(
+            answers[0]
+                .iter()
+                .zip(&answers[1])
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        );
+        let (small, _, _) = stretched(11, 0.1);
+        let mut other = PcgSolver::new(&small);
+        assert!(!other.share_threads(&first));
+        assert!(other.pool().is_none());
+        assert_eq!(other.threads(), 1);
     }
 
     /// The row-ordered product of a system above one chunk equals the column-ordered one

@@ -43,9 +43,23 @@ pub(super) fn search(
     let mut alpha = cap.min(1.0);
     let mut backtracks = 0;
     let mut accepted = None;
+    // The change at the doubled full step, computed with the full step's: when the full
+    // step is accepted and may be lengthened, the doubling is the next thing tried, and
+    // evaluating both in one pass over the springs reads them once instead of twice
+    // (the two results are the bits of two separate evaluations). A term other than
+    // inertia and gravity (contact) is evaluated at the doubled step only when that step
+    // is tried, so a rejected full step costs it nothing more.
+    let mut doubled = None;
     if alpha > 0.0 {
         for _ in 0..=settings.max_backtracks {
-            let change = potential.energy_change_chunked(step, x, dx, alpha, par, partials);
+            let change = if expand && alpha == 1.0 && 2.0 <= cap {
+                let (full, twice) =
+                    potential.energy_change_pair_chunked(step, x, dx, [1.0, 2.0], par, partials);
+                doubled = Some(twice);
+                full
+            } else {
+                potential.energy_change_chunked(step, x, dx, alpha, par, partials)
+            };
             if change <= settings.armijo * alpha * slope {
                 accepted = Some(change);
                 break;
@@ -72,7 +86,10 @@ pub(super) fn search(
             if 2.0 * alpha > cap {
                 break;
             }
-            let trial = potential.energy_change_chunked(step, x, dx, 2.0 * alpha, par, partials);
+            let trial = match doubled.take() {
+                Some(twice) if alpha == 1.0 => potential.second_change(step, x, dx, twice),
+                _ => potential.energy_change_chunked(step, x, dx, 2.0 * alpha, par, partials),
+            };
             if trial < best && trial <= settings.armijo * 2.0 * alpha * slope {
                 alpha *= 2.0;
                 best = trial;

@@ -185,9 +185,10 @@ impl BackwardEuler {
         })
     }
 
-    /// PCG on `pattern` with its thread pool: rebuilt with every widened pattern, which
-    /// must keep the threads the settings ask for (a rebuilt solver without them ran
-    /// every later step of a term with coupled pairs on one thread).
+    /// PCG on `pattern` with a thread pool of its own. A widened pattern's solver keeps
+    /// the threads the settings ask for by sharing its predecessor's pool (a rebuilt
+    /// solver without them ran every later step of a term with coupled pairs on one
+    /// thread).
     fn build_pcg(pattern: &HessianPattern, threads: usize) -> Result<PcgSolver, ModelError> {
         let mut pcg = PcgSolver::new(pattern);
         pcg.set_threads(threads)?;
@@ -306,7 +307,14 @@ impl BackwardEuler {
             Some(_) => Some(Self::build_direct(&pattern, &self.settings)?),
             None => None,
         };
-        self.pcg = Self::build_pcg(&pattern, self.settings.threads)?;
+        // The new PCG solver runs on the old one's thread pool: the dimension is the
+        // same, and starting a pool (and stopping the old one) at every widening is
+        // thread creation a contact step would pay several times.
+        let mut pcg = PcgSolver::new(&pattern);
+        if !pcg.share_threads(&self.pcg) {
+            pcg.set_threads(self.settings.threads)?;
+        }
+        self.pcg = pcg;
         if direct.is_some() {
             self.direct = direct;
         }

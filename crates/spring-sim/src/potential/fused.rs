@@ -111,6 +111,56 @@ impl PerSpring<'_> {
         change
     }
 
+    /// [`Self::energy_change_over`] at two step lengths in one pass over the springs
+    /// `range`: each spring's positions and direction are read once for both, and each
+    /// of the two sums is the one [`Self::energy_change_over`] makes at its length, the
+    /// same bits.
+    pub(super) fn energy_change_pair_over(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        dx: &[DVec3],
+        [a1, a2]: [f64; 2],
+        range: std::ops::Range<usize>,
+    ) -> [f64; 2] {
+        debug_assert!(self.springs);
+        let springs = &step.system.springs()[range.clone()];
+        let (mut c1, mut c2) = (0.0, 0.0);
+        match self.damping {
+            Some((term, c)) => {
+                for (s, &w) in springs.iter().zip(&term.directions()[range]) {
+                    let (da, db) = (dx[s.a], dx[s.b]);
+                    let delta1 = a1 * da - a1 * db;
+                    let delta2 = a2 * da - a2 * db;
+                    let d = x[s.a] - x[s.b];
+                    let d_ref = step.x_ref[s.a] - step.x_ref[s.b];
+                    if delta1 != DVec3::ZERO {
+                        c1 += springs::energy_change(s, x, delta1)
+                            + damping::energy_change(c, w, d, d_ref, delta1);
+                    }
+                    if delta2 != DVec3::ZERO {
+                        c2 += springs::energy_change(s, x, delta2)
+                            + damping::energy_change(c, w, d, d_ref, delta2);
+                    }
+                }
+            }
+            None => {
+                for s in springs {
+                    let (da, db) = (dx[s.a], dx[s.b]);
+                    let delta1 = a1 * da - a1 * db;
+                    let delta2 = a2 * da - a2 * db;
+                    if delta1 != DVec3::ZERO {
+                        c1 += springs::energy_change(s, x, delta1);
+                    }
+                    if delta2 != DVec3::ZERO {
+                        c2 += springs::energy_change(s, x, delta2);
+                    }
+                }
+            }
+        }
+        [c1, c2]
+    }
+
     /// Adds the sum of the terms' gradients to `gradient`.
     pub(super) fn add_gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
         match (self.springs, self.damping) {

@@ -217,6 +217,60 @@ fn chunked_sum(
     partials[1..].iter().fold(partials[0], |sum, p| sum + p)
 }
 
+/// [`chunked_sum`] of two sums at once: `part` returns both of a chunk's sums (kept in
+/// `partials` as consecutive pairs), and each of the two totals is added in chunk order
+/// from the first chunk, as [`chunked_sum`] adds its one.
+fn chunked_sum2(
+    n: usize,
+    par: bool,
+    partials: &mut Vec<f64>,
+    part: impl Fn(std::ops::Range<usize>) -> [f64; 2] + Sync + Send,
+) -> [f64; 2] {
+    let chunks = n.div_ceil(CHANGE_CHUNK).max(1);
+    let range = |c: usize| c * CHANGE_CHUNK..((c + 1) * CHANGE_CHUNK).min(n);
+    partials.resize(2 * chunks, 0.0);
+    let write = |(c, out): (usize, &mut [f64])| out.copy_from_slice(&part(range(c)));
+    #[cfg(feature = "parallel")]
+    if par {
+        use rayon::prelude::*;
+        partials.par_chunks_mut(2).enumerate().for_each(write);
+    } else {
+        partials.chunks_mut(2).enumerate().for_each(write);
+    }
+    #[cfg(not(feature = "parallel"))]
+    {
+        let _ = par;
+        partials.chunks_mut(2).enumerate().for_each(write);
+    }
+    let mut sums = [partials[0], partials[1]];
+    for pair in partials[2..].chunks_exact(2) {
+        sums[0] += pair[0];
+        sums[1] += pair[1];
+    }
+    sums
+}
+
+/// What [`Potential::energy_change_pair_chunked`] computed of the change at its second
+/// step length, completed by [`Potential::second_change`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum SecondChange {
+    /// Nothing yet (a potential without the spring term).
+    Whole {
+        /// The step length.
+        alpha: f64,
+    },
+    /// The springs' part, and the other terms' part when it was cheap enough to
+    /// compute at once.
+    Others {
+        /// The step length.
+        alpha: f64,
+        /// The springs' (and the damping's) change.
+        springs: f64,
+        /// The other terms' change, when computed.
+        others: Option<f64>,
+    },
+}
+
 /// The first [`Springs`] and the first [`AxialDamping`] among the terms are evaluated
 /// together in one loop over the springs (each term's per-spring formulas stay in its own
 /// module; the loop calls both on the same spring), and a damping term is skipped when
@@ -413,12 +467,7 @@ impl Potential {
         if !per.springs {
             return self.energy_change(step, x, dx, alpha);
         }
-        let others = || -> f64 {
-            self.other_terms
-                .iter()
-                .map(|&t| self.terms[t].energy_change(step, x, dx, alpha))
-                .sum()
-        };
+        let others = || self.others_change(step, x, dx, alpha);
         let springs = |partials: &mut Vec<f64>| {
             chunked_sum(step.system.springs().len(), par, partials, |range| {
                 per.energy_change_over(step, x, dx, alpha, range)
@@ -432,6 +481,86 @@ impl Potential {
             return others + springs;
         }
         others() + springs(partials)
+    }
+
+    /// [`Self::energy_change_chunked`] at the first of the two step lengths `alphas`,
+    /// with the springs' part at the second computed in the same pass over the springs
+    /// (the line search's full step and its doubling, which it almost always asks for
+    /// one after the other): the springs' positions, directions and lengths are read
+    /// once instead of twice. The change at the second length is completed by
+    /// [`Self::second_change`]; both are bit for bit what
+    /// [`Self::energy_change_chunked`] gives at their lengths, for any number of
+    /// threads. The other terms' change at the second length is computed here too when
+    /// they are all per particle (inertia and gravity: a cheap pass, run beside the
+    /// springs' chunks), and otherwise only if it is asked for, so an expensive term
+    /// (contact) costs nothing more when the first length is rejected. `partials` is a
+    /// buffer for the chunks' sums.
+    pub(crate) fn energy_change_pair_chunked(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        dx: &[DVec3],
+        [a1, a2]: [f64; 2],
+        par: bool,
+        partials: &mut Vec<f64>,
+    ) -> (f64, SecondChange) {
+        let per = self.per_spring(step);
+        if !per.springs {
+            let first = self.energy_change(step, x, dx, a1);
+            return (first, SecondChange::Whole { alpha: a2 });
+        }
+        let eager = self.pointwise_others.is_some();
+        let others = || -> (f64, Option<f64>) {
+            let first = self.others_change(step, x, dx, a1);
+            (first, eager.then(|| self.others_change(step, x, dx, a2)))
+        };
+        let springs = |partials: &mut Vec<f64>| {
+            chunked_sum2(step.system.springs().len(), par, partials, |range| {
+                per.energy_change_pair_over(step, x, dx, [a1, a2], range)
+            })
+        };
+        #[cfg(feature = "parallel")]
+        let ((o1, o2), [s1, s2]) = if par {
+            rayon::join(others, || springs(partials))
+        } else {
+            (others(), springs(partials))
+        };
+        #[cfg(not(feature = "parallel"))]
+        let ((o1, o2), [s1, s2]) = (others(), springs(partials));
+        let second = SecondChange::Others {
+            alpha: a2,
+            springs: s2,
+            others: o2,
+        };
+        (o1 + s1, second)
+    }
+
+    /// The change of `g` at the second length of [`Self::energy_change_pair_chunked`]
+    /// (`x` and `dx` must be the ones given there): the bits of
+    /// [`Self::energy_change_chunked`] at that length.
+    pub(crate) fn second_change(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        dx: &[DVec3],
+        second: SecondChange,
+    ) -> f64 {
+        match second {
+            SecondChange::Whole { alpha } => self.energy_change(step, x, dx, alpha),
+            SecondChange::Others {
+                alpha,
+                springs,
+                others,
+            } => others.unwrap_or_else(|| self.others_change(step, x, dx, alpha)) + springs,
+        }
+    }
+
+    /// The sum of the changes of the terms outside the fused loop over the springs.
+    fn others_change(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
+        self.other_terms
+            .iter()
+            .map(|&t| self.terms[t].energy_change(step, x, dx, alpha))
+            .sum()
     }
 
     /// Writes `grad g(x)` into `gradient` (one entry per particle; overwritten).
@@ -485,4 +614,121 @@ pub fn incremental_potential(system: &SpringSystem, h: f64, x: &[DVec3]) -> f64 
     let mut potential = Potential::mass_spring(system);
     potential.begin_step(&step);
     potential.energy(&step, x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::ClothGrid;
+
+    /// A damped 41 x 41 lab-pattern cloth (9 600 springs: three chunks of
+    /// [`CHANGE_CHUNK`], the last one short) moved off its rest state, a step context
+    /// whose prediction and reference differ from the positions (every term changes),
+    /// the potential with its damping directions frozen, and a direction that is zero at
+    /// the fixed particles.
+    fn case() -> (SpringSystem, Vec<DVec3>, Vec<DVec3>, Vec<DVec3>) {
+        let mut system =
+            SpringSystem::cloth(&ClothGrid::lab_sized(41, 0.05).with_damping(0.2)).unwrap();
+        let wave =
+            |i: usize, f: f64| DVec3::new((f * i as f64).sin(), (1.3 * f * i as f64).cos(), 0.5);
+        let x: Vec<DVec3> = system
+            .positions()
+            .iter()
+            .enumerate()
+            .map(|(i, p)| *p * 1.1 + 0.01 * wave(i, 0.7))
+            .collect();
+        let v = vec![DVec3::ZERO; x.len()];
+        system.set_state(&x, &v).unwrap();
+        let y: Vec<DVec3> = x
+            .iter()
+            .enumerate()
+            .map(|(i, p)| *p + 0.02 * wave(i, 0.3))
+            .collect();
+        let x_ref: Vec<DVec3> = x
+            .iter()
+            .enumerate()
+            .map(|(i, p)| *p - 0.01 * wave(i, 1.9))
+            .collect();
+        let dx: Vec<DVec3> = (0..x.len())
+            .map(|i| {
+                if system.fixed()[i] {
+                    DVec3::ZERO
+                } else {
+                    0.003 * wave(i, 2.3)
+                }
+            })
+            .collect();
+        (system, y, x_ref, dx)
+    }
+
+    /// The paired evaluation gives each length's change bit for bit as a separate
+    /// evaluation does, on the calling thread and on pools of two and three threads, and
+    /// those are changes of `g` (checked against the difference of two energies); with a
+    /// term that is not per particle among the others (a second damping term), the
+    /// second length's other terms are left for [`Potential::second_change`].
+    #[test]
+    fn paired_energy_changes_are_the_single_ones_bit_for_bit() {
+        let (system, y, x_ref, dx) = case();
+        assert!(system.springs().len() > 2 * CHANGE_CHUNK);
+        let x = system.positions();
+        let step = StepContext::new(&system, 1.0 / 60.0, &y, &x_ref);
+        let mut mass_spring = Potential::mass_spring(&system);
+        let mut with_other = Potential::mass_spring(&system);
+        with_other.push(Box::new(AxialDamping::new(&system)));
+        for (potential, eager) in [(&mut mass_spring, true), (&mut with_other, false)] {
+            potential.begin_step(&step);
+            let potential = &*potential;
+            assert!(potential.per_spring(&step).damping.is_some());
+            assert_eq!(potential.pointwise_others.is_some(), eager);
+            let mut partials = Vec::new();
+            for alphas in [[1.0, 2.0], [0.5, 0.25], [1.0, 0.0]] {
+                let single = alphas.map(|alpha| {
+                    potential.energy_change_chunked(&step, x, &dx, alpha, false, &mut partials)
+                });
+                let pair = |par: bool, partials: &mut Vec<f64>| {
+                    let (first, second) =
+                        potential.energy_change_pair_chunked(&step, x, &dx, alphas, par, partials);
+                    match second {
+                        SecondChange::Others { others, .. } => {
+                            assert_eq!(others.is_some(), eager);
+                        }
+                        SecondChange::Whole { .. } => panic!("the springs were not paired"),
+                    }
+                    [first, potential.second_change(&step, x, &dx, second)]
+                };
+                let paired = pair(false, &mut partials);
+                assert_eq!(
+                    single.map(f64::to_bits),
+                    paired.map(f64::to_bits),
+                    "{alphas:?}"
+                );
+                for (alpha, change) in alphas.into_iter().zip(single) {
+                    let moved: Vec<DVec3> =
+                        x.iter().zip(&dx).map(|(x, d)| *x + alpha * *d).collect();
+                    let difference = potential.energy(&step, &moved) - potential.energy(&step, x);
+                    let scale = potential.energy(&step, x).abs();
+                    assert!(
+                        (change - difference).abs() <= 1e-10 * scale,
+                        "{alpha}: {change} against {difference}"
+                    );
+                    if alpha != 0.0 {
+                        assert!(change.abs() > 1e-6 * scale, "{alpha}: {change}");
+                    }
+                }
+                #[cfg(feature = "parallel")]
+                for threads in [2, 3] {
+                    let pool = rayon::ThreadPoolBuilder::new()
+                        .num_threads(threads)
+                        .build()
+                        .unwrap();
+                    let on_pool = pool.install(|| pair(true, &mut partials));
+                    assert_eq!(
+                        single.map(f64::to_bits),
+                        on_pool.map(f64::to_bits),
+                        "{threads}"
+                    );
+                }
+            }
+        }
+    }
 }

@@ -15,10 +15,11 @@
 //!
 //! When the potential's other terms are only inertia and gravity, the gather also
 //! starts each particle from their per-particle kernels (the sequential loop's first
-//! additions), and the Hessian's gather computes each spring's block itself where it
-//! needs it, at both ends, instead of reading it from the first pass's buffer: one pass
-//! over the values and no pass over a buffer of blocks, for twice the blocks'
-//! arithmetic (docs/spring-sim.md, "Fewer passes over memory").
+//! additions): one pass over the values, none zeroing them or adding the inertia
+//! (docs/spring-sim.md, "Fewer passes over memory"). Each spring's block is computed
+//! once, in the first pass, and read at both ends: its square root and four divisions
+//! computed at both ends instead cost more than the buffer's traffic (docs/spring-sim.md,
+//! "Each spring's block once").
 
 use super::fused::PerSpring;
 use super::{Pointwise, Potential, StepContext, SymBlock, gravity, inertia};
@@ -289,16 +290,27 @@ impl SpringGather {
             // Only inertia and gravity besides the springs (gravity has no curvature):
             // each particle's gather zeroes its own columns and adds the inertia's
             // diagonal block before its springs' blocks, the sequential loop's order, so
-            // no pass zeroes every stored entry and none adds the inertia. The gather
-            // also computes each spring's block where it needs it, at both ends: twice
-            // the blocks' arithmetic, but no buffer of 48 bytes per spring written in a
-            // pass of its own and read back (on 317 x 317, 29 MB each way, where the
-            // step is bound by memory traffic).
+            // no pass zeroes every stored entry and none adds the inertia. The springs'
+            // blocks are computed first, once each, into their buffer: computed where
+            // they are needed, at both ends, the block's square root and four divisions
+            // ran twice per spring, and the gather waited on the divider more than
+            // the buffer's 48 bytes per spring, written and read back, cost.
+            let blocks = &mut self.blocks;
+            blocks
+                .par_chunks_mut(SPRING_CHUNK)
+                .enumerate()
+                .for_each(|(c, chunk)| {
+                    let first = c * SPRING_CHUNK;
+                    for (i, k) in chunk.iter_mut().enumerate() {
+                        *k = per.spring_block(step, x, curvature, first + i);
+                    }
+                });
+            let blocks = &self.blocks;
             let gather = Gather {
                 pattern,
                 coupling_ptr: &index.ptr,
                 coupling: &index.entries,
-                blocks: |e| per.spring_block(step, x, curvature, e),
+                blocks: |e| blocks[e],
                 inertia: Some(Fold {
                     count,
                     inv_h2: 1.0 / (step.h * step.h),
