@@ -49,6 +49,9 @@ pub struct MeshClothTask {
     /// Newton's iteration cap per step (default 100).
     #[serde(default = "max_iterations")]
     pub max_iterations: usize,
+    /// Newton's tolerance (default sinew-spring-sim's, `NewtonSettings::tolerance`).
+    #[serde(default = "tolerance")]
+    pub tolerance: f64,
     /// Self-contact settings (`dhat`, thickness, ...; defaults: sinew-spring-sim's).
     #[serde(default)]
     pub self_contact: SelfContactSettings,
@@ -74,6 +77,10 @@ fn areal_density() -> f64 {
 
 fn max_iterations() -> usize {
     100
+}
+
+fn tolerance() -> f64 {
+    NewtonSettings::default().tolerance
 }
 
 fn x_axis() -> DVec3 {
@@ -304,6 +311,12 @@ impl MeshClothTask {
         let a = self.assemble()?;
         at_most("steps", self.steps, MAX_STEPS)?;
         at_most("max_iterations", self.max_iterations, MAX_ITERATIONS)?;
+        if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
+            return Err(format!(
+                "tolerance = {}, must be finite and > 0",
+                self.tolerance
+            ));
+        }
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(format!("dt = {}, must be finite and > 0", self.dt));
         }
@@ -375,6 +388,7 @@ impl TaskSpec for MeshClothTask {
         .map_err(|e| format!("cloth: {e}"))?;
         let newton = NewtonSettings {
             max_iterations: self.max_iterations,
+            tolerance: self.tolerance,
             ..NewtonSettings::default()
         };
         let mut integrator = model
