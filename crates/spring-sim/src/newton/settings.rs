@@ -49,8 +49,9 @@ pub struct NewtonSettings {
     pub pcg_forcing: f64,
     /// On the direct solve, the conjugate-gradient iterations a Newton iteration may
     /// spend preconditioned by the last numeric factor before it factors its own matrix
-    /// (default 8; 0: a new factorization every Newton iteration). The factor is kept
-    /// within a step only; see docs/spring-sim.md ("Linear solvers").
+    /// (default 0: off, a new factorization every Newton iteration; on the rotating-sphere
+    /// workload 8 cost more than it saved). The factor is kept within a step only; see
+    /// docs/spring-sim.md ("Linear solvers").
     pub factor_reuse_iterations: usize,
     /// With `Auto`, how many steps may pass on the direct solve before PCG runs a step
     /// again to observe its iteration count (default 64).
