@@ -286,7 +286,7 @@ impl SpringGather {
                 .filter(|k| matches!(k, Pointwise::Inertia))
                 .count()
         });
-        if let Some(count) = inertia_terms {
+        if inertia_terms.is_some() {
             // Only inertia and gravity besides the springs (gravity has no curvature):
             // each particle's gather zeroes its own columns and adds the inertia's
             // diagonal block before its springs' blocks, the sequential loop's order, so
@@ -295,62 +295,34 @@ impl SpringGather {
             // they are needed, at both ends, the block's square root and four divisions
             // ran twice per spring, and the gather waited on the divider more than
             // the buffer's 48 bytes per spring, written and read back, cost.
+            per.fill_spring_blocks(step, x, curvature, &mut self.blocks);
+        } else {
+            // Zeroing the values and the other terms' blocks (a pass over every stored
+            // entry, then the inertia's diagonal) on one thread while the pool's others
+            // start on the springs' blocks, which are written to their own buffer.
             let blocks = &mut self.blocks;
-            blocks
-                .par_chunks_mut(SPRING_CHUNK)
-                .enumerate()
-                .for_each(|(c, chunk)| {
-                    let first = c * SPRING_CHUNK;
-                    for (i, k) in chunk.iter_mut().enumerate() {
-                        *k = per.spring_block(step, x, curvature, first + i);
+            rayon::join(
+                || {
+                    values.fill(0.0);
+                    let mut sink = super::HessianSink::values(pattern, values);
+                    for &t in &potential.other_terms {
+                        potential.terms[t].add_hessian(step, x, curvature, &mut sink);
                     }
-                });
-            let blocks = &self.blocks;
-            let gather = Gather {
-                pattern,
-                coupling_ptr: &index.ptr,
-                coupling: &index.entries,
-                blocks: |e| blocks[e],
-                inertia: Some(Fold {
-                    count,
-                    inv_h2: 1.0 / (step.h * step.h),
-                    masses: step.system.masses(),
-                }),
-            };
-            gather.run(0, chunks, values, 0);
-            return;
+                },
+                || per.fill_spring_blocks(step, x, curvature, blocks),
+            );
         }
-        // Zeroing the values and the other terms' blocks (a pass over every stored
-        // entry, then the inertia's diagonal) on one thread while the pool's others
-        // start on the springs' blocks, which are written to their own buffer.
-        let blocks = &mut self.blocks;
-        rayon::join(
-            || {
-                values.fill(0.0);
-                let mut sink = super::HessianSink::values(pattern, values);
-                for &t in &potential.other_terms {
-                    potential.terms[t].add_hessian(step, x, curvature, &mut sink);
-                }
-            },
-            || {
-                blocks
-                    .par_chunks_mut(SPRING_CHUNK)
-                    .enumerate()
-                    .for_each(|(c, chunk)| {
-                        let first = c * SPRING_CHUNK;
-                        for (i, k) in chunk.iter_mut().enumerate() {
-                            *k = per.spring_block(step, x, curvature, first + i);
-                        }
-                    });
-            },
-        );
         let blocks = &self.blocks;
         let gather = Gather {
             pattern,
             coupling_ptr: &index.ptr,
             coupling: &index.entries,
             blocks: |e| blocks[e],
-            inertia: None,
+            inertia: inertia_terms.map(|count| Fold {
+                count,
+                inv_h2: 1.0 / (step.h * step.h),
+                masses: step.system.masses(),
+            }),
         };
         gather.run(0, chunks, values, 0);
     }
@@ -472,6 +444,26 @@ impl PerSpring<'_> {
             }
             None => super::springs::gradient(s, x),
         }
+    }
+
+    /// Every spring's block into `blocks` (one per spring), on the current thread pool
+    /// in fixed chunks.
+    fn fill_spring_blocks(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        curvature: Curvature,
+        blocks: &mut [SymBlock],
+    ) {
+        blocks
+            .par_chunks_mut(SPRING_CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                let first = c * SPRING_CHUNK;
+                for (i, k) in chunk.iter_mut().enumerate() {
+                    *k = self.spring_block(step, x, curvature, first + i);
+                }
+            });
     }
 
     /// Spring `e`'s block: the sequential loop's expression.
