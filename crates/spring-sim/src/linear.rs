@@ -52,6 +52,7 @@ pub enum SolverError {
 
 impl SolverError {
     /// A thread pool of `threads` threads failed to start with `cause`.
+    #[cfg(feature = "parallel")]
     pub(crate) fn thread_pool(
         threads: usize,
         cause: impl std::error::Error + Send + Sync + 'static,

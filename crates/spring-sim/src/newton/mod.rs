@@ -128,6 +128,7 @@ pub struct BackwardEuler {
     /// The chunks' sums of the line search's changes of `g`.
     change_partials: Vec<f64>,
     /// Per spring, its energy, for the report's energies on the thread pool.
+    #[cfg(feature = "parallel")]
     spring_energies: Vec<f64>,
     /// The springs' gather index for assembly on the thread pool, built the first time
     /// a step assembles with more than one thread.
@@ -177,6 +178,7 @@ impl BackwardEuler {
                 midpoint: false,
             },
             change_partials: Vec::new(),
+            #[cfg(feature = "parallel")]
             spring_energies: Vec::new(),
             #[cfg(feature = "parallel")]
             gather: None,

@@ -16,20 +16,15 @@
 /// Pairs per task: large enough that a task's cost (a few microseconds per pair) hides
 /// the hand-off, small enough that two threads end within a small fraction of a loop of
 /// a few thousand pairs of each other.
+#[cfg(feature = "parallel")]
 const CHUNK: usize = 256;
 
 /// Whether the caller runs on a thread pool of more than one thread (see the module
-/// documentation).
+/// documentation); without the `parallel` feature there is none.
+#[cfg(feature = "parallel")]
 #[must_use]
-pub(crate) fn on_pool() -> bool {
-    #[cfg(feature = "parallel")]
-    {
-        rayon::current_thread_index().is_some() && rayon::current_num_threads() > 1
-    }
-    #[cfg(not(feature = "parallel"))]
-    {
-        false
-    }
+fn on_pool() -> bool {
+    rayon::current_thread_index().is_some() && rayon::current_num_threads() > 1
 }
 
 /// Calls `f(i, &mut out[i])` for every `i`, in chunks on the caller's pool when there is
