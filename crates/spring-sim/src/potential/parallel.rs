@@ -38,6 +38,19 @@ const PARTICLE_CHUNK: usize = 512;
 /// Marks a spring whose coupling block is not in the gathering particle's columns.
 const NO_COUPLING: u32 = u32::MAX;
 
+/// `out[e] = per_spring(e)` for every spring `e`, on the current thread pool in fixed
+/// chunks of `SPRING_CHUNK` (each value is computed alone, so the chunking changes no bit).
+fn fill_per_spring<T: Send>(out: &mut [T], per_spring: impl Fn(usize) -> T + Sync) {
+    out.par_chunks_mut(SPRING_CHUNK)
+        .enumerate()
+        .for_each(|(c, chunk)| {
+            let first = c * SPRING_CHUNK;
+            for (i, value) in chunk.iter_mut().enumerate() {
+                *value = per_spring(first + i);
+            }
+        });
+}
+
 /// The gather index of one topology and the per-spring buffers.
 #[derive(Debug)]
 pub(crate) struct SpringGather {
@@ -182,17 +195,7 @@ impl SpringGather {
             return;
         }
         let springs = &mut self.gradients;
-        let mut spring_pass = move || {
-            springs
-                .par_chunks_mut(SPRING_CHUNK)
-                .enumerate()
-                .for_each(|(c, chunk)| {
-                    let first = c * SPRING_CHUNK;
-                    for (i, g) in chunk.iter_mut().enumerate() {
-                        *g = per.spring_gradient(step, x, first + i);
-                    }
-                });
-        };
+        let mut spring_pass = move || fill_per_spring(springs, |e| per.spring_gradient(step, x, e));
         // With only inertia and gravity besides the springs, each particle's gather
         // starts from their terms, added in the terms' order as the sequential loop
         // does after zeroing: one pass over the gradient instead of three.
@@ -455,15 +458,7 @@ impl PerSpring<'_> {
         curvature: Curvature,
         blocks: &mut [SymBlock],
     ) {
-        blocks
-            .par_chunks_mut(SPRING_CHUNK)
-            .enumerate()
-            .for_each(|(c, chunk)| {
-                let first = c * SPRING_CHUNK;
-                for (i, k) in chunk.iter_mut().enumerate() {
-                    *k = self.spring_block(step, x, curvature, first + i);
-                }
-            });
+        fill_per_spring(blocks, |e| self.spring_block(step, x, curvature, e));
     }
 
     /// Spring `e`'s block: the sequential loop's expression.
