@@ -355,6 +355,131 @@ pub struct FinishJob<'a> {
     pub damping_cap: f64,
 }
 
+/// How far from 1 the length of a target's rotation may be: a normalized quaternion's
+/// length is 1 to a few ulps, so this catches a rotation that was never normalized, not
+/// the rounding of one that was.
+const UNIT_SLACK: f64 = 1e-9;
+
+impl FinishJob<'_> {
+    /// Checks every field a finish reads, so that a bad job is an error naming the field
+    /// rather than a panic (an index out of range) or NaN in the pose:
+    ///
+    /// - `settings.tolerance` and `settings.rotation_tolerance` finite and `>= 0`;
+    ///   `iterations` (already spent) at most `settings.max_iterations` (any cap is
+    ///   valid, 0 allowing no step);
+    /// - `damping_cap` `> 0`, finite or `+inf` (0 or below would make every step after
+    ///   the first undamped Gauss-Newton whatever the cost, NaN would be ignored by the
+    ///   comparison that applies it);
+    /// - `stall_window`: every value is valid (0 turns the rule off; a window longer than
+    ///   the iteration cap never fires), so it is not checked;
+    /// - `base` and every movable joint of `movers` joints of `skeleton`, and every
+    ///   effector they list one of `targets`;
+    /// - each target's joint in the skeleton, its position finite, its position weight
+    ///   finite and `> 0`, its rotation weight finite and `>= 0`, its rotation (if any)
+    ///   finite and of length 1.
+    pub fn validate(&self) -> Result<(), SkeletonError> {
+        let bad =
+            |field: String, reason: String| Err(SkeletonError::InvalidFinishJob { field, reason });
+        let settings = &self.settings;
+        for (name, value) in [
+            ("settings.tolerance", settings.tolerance),
+            ("settings.rotation_tolerance", settings.rotation_tolerance),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return bad(name.into(), format!("must be finite and >= 0, got {value}"));
+            }
+        }
+        if self.iterations > settings.max_iterations {
+            return bad(
+                "iterations".into(),
+                format!(
+                    "{} already spent exceeds the iteration cap settings.max_iterations = {}",
+                    self.iterations, settings.max_iterations
+                ),
+            );
+        }
+        if self.damping_cap.is_nan() || self.damping_cap <= 0.0 {
+            return bad(
+                "damping_cap".into(),
+                format!("must be > 0 (or +inf), got {}", self.damping_cap),
+            );
+        }
+        let joints = self.skeleton.len();
+        if let Some(base) = self.base
+            && base >= joints
+        {
+            return bad(
+                "base".into(),
+                format!("joint {base} is not in the skeleton of {joints} joints"),
+            );
+        }
+        // Every list is scanned whole first (a few dozen entries, no early exit to
+        // predict); the entry to name is looked for only when one is bad.
+        let movable = self.movers.movable();
+        let targets = self.targets.len();
+        if movable.iter().fold(0, |a, &j| a.max(j)) >= joints && !movable.is_empty() {
+            let m = movable.iter().position(|&j| j >= joints).unwrap_or(0);
+            return bad(
+                format!("movers.movable[{m}]"),
+                format!(
+                    "joint {} is not in the skeleton of {joints} joints",
+                    movable[m]
+                ),
+            );
+        }
+        if self.movers.below.iter().fold(0, |a, &e| a.max(e)) >= targets
+            && !self.movers.below.is_empty()
+        {
+            let m = (0..movable.len())
+                .find(|&m| self.movers.below(m).iter().any(|&e| e >= targets))
+                .unwrap_or(0);
+            let e = self.movers.below(m).iter().fold(0, |a, &e| a.max(e));
+            return bad(
+                format!("movers.below({m})"),
+                format!("effector {e} is not one of the {targets} targets"),
+            );
+        }
+        for (e, t) in self.targets.iter().enumerate() {
+            if t.joint >= joints {
+                return bad(
+                    format!("targets[{e}].joint"),
+                    format!(
+                        "joint {} is not in the skeleton of {joints} joints",
+                        t.joint
+                    ),
+                );
+            }
+            if !t.position.is_finite() {
+                return bad(
+                    format!("targets[{e}].position"),
+                    format!("{} has a NaN or infinite component", t.position),
+                );
+            }
+            if !(t.position_weight.is_finite() && t.position_weight > 0.0) {
+                return bad(
+                    format!("targets[{e}].position_weight"),
+                    format!("must be finite and > 0, got {}", t.position_weight),
+                );
+            }
+            if !(t.rotation_weight.is_finite() && t.rotation_weight >= 0.0) {
+                return bad(
+                    format!("targets[{e}].rotation_weight"),
+                    format!("must be finite and >= 0, got {}", t.rotation_weight),
+                );
+            }
+            if let Some(q) = t.rotation
+                && !(q.is_finite() && (q.length() - 1.0).abs() <= UNIT_SLACK)
+            {
+                return bad(
+                    format!("targets[{e}].rotation"),
+                    format!("{q} must be finite and normalized (length {})", q.length()),
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
 /// What a finish did.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Finished {
@@ -589,6 +714,13 @@ impl Finish {
     /// its exact forward kinematics) until every effector is within the tolerances,
     /// `job.iterations + steps` reaches the cap, or steps stop helping. `translation`
     /// only changes when `job.translates`.
+    ///
+    /// # Errors
+    ///
+    /// [`SkeletonError::InvalidFinishJob`] naming the field when the job is invalid
+    /// ([`FinishJob::validate`]), or when `global` is not of the skeleton's size or
+    /// `translation` is not finite; [`SkeletonError::PoseLength`] for a pose of another
+    /// size; a forward kinematics error for an invalid rotation.
     pub fn run(
         &mut self,
         job: &FinishJob<'_>,
@@ -596,7 +728,31 @@ impl Finish {
         translation: &mut DVec3,
         global: &mut GlobalPose,
     ) -> Result<Finished, SkeletonError> {
+        job.validate()?;
         let (skeleton, targets, settings) = (job.skeleton, job.targets, &job.settings);
+        let joints = skeleton.len();
+        if pose.rotations.len() != joints {
+            return Err(SkeletonError::PoseLength {
+                expected: joints,
+                got: pose.rotations.len(),
+            });
+        }
+        if global.rotations.len() != joints || global.positions.len() != joints {
+            return Err(SkeletonError::InvalidFinishJob {
+                field: "global".into(),
+                reason: format!(
+                    "{} rotations and {} positions for a skeleton of {joints} joints (it must be forward kinematics of the pose)",
+                    global.rotations.len(),
+                    global.positions.len()
+                ),
+            });
+        }
+        if !translation.is_finite() {
+            return Err(SkeletonError::InvalidFinishJob {
+                field: "translation".into(),
+                reason: format!("{translation} has a NaN or infinite component"),
+            });
+        }
         let movable = job.movers.movable();
         self.first_row.clear();
         let mut rows = 0;
@@ -2453,5 +2609,360 @@ mod tests {
                 assert!(same(got, want), "round {round}: shift");
             }
         }
+    }
+
+    /// A three-joint chain from the origin along +y, free joints, one effector on its tip.
+    fn small_problem() -> (Skeleton, Vec<Target>, Movers) {
+        let skeleton = Skeleton::new([
+            crate::JointDef::root(DVec3::ZERO),
+            crate::JointDef::child(0, DVec3::Y),
+            crate::JointDef::child(1, DVec3::Y),
+        ])
+        .expect("valid");
+        let targets = vec![Target {
+            joint: 2,
+            position: DVec3::new(0.8, 1.2, 0.3),
+            rotation: None,
+            position_weight: 1.0,
+            rotation_weight: 0.0,
+            pinned: false,
+        }];
+        let mut movers = Movers::default();
+        movers.build(&skeleton, &targets);
+        (skeleton, targets, movers)
+    }
+
+    fn job<'a>(skeleton: &'a Skeleton, movers: &'a Movers, targets: &'a [Target]) -> FinishJob<'a> {
+        FinishJob {
+            skeleton,
+            movers,
+            targets,
+            translates: true,
+            base: None,
+            settings: SolveSettings::default(),
+            iterations: 0,
+            chord_start: false,
+            stall_window: 10,
+            damping_cap: 1.0,
+        }
+    }
+
+    /// The field a refusal names, or a panic saying what came instead.
+    fn refused_field(result: Result<(), SkeletonError>) -> String {
+        match result {
+            Err(SkeletonError::InvalidFinishJob { field, reason }) => {
+                let message = SkeletonError::InvalidFinishJob {
+                    field: field.clone(),
+                    reason,
+                }
+                .to_string();
+                assert!(message.contains(&field), "{message}");
+                field
+            }
+            other => panic!("not refused by field: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_bad_finish_job_is_refused_naming_the_field() {
+        let (skeleton, targets, movers) = small_problem();
+        let good = job(&skeleton, &movers, &targets);
+        assert_eq!(good.validate(), Ok(()));
+        // Every value a caller may mean is accepted: no cap on the damping, no stall
+        // rule or a window past the cap, no iteration left, a zero tolerance.
+        for accepted in [
+            FinishJob {
+                damping_cap: f64::INFINITY,
+                ..good
+            },
+            FinishJob {
+                damping_cap: 1e-300,
+                ..good
+            },
+            FinishJob {
+                stall_window: 0,
+                ..good
+            },
+            FinishJob {
+                stall_window: usize::MAX,
+                ..good
+            },
+            FinishJob {
+                iterations: good.settings.max_iterations,
+                ..good
+            },
+            FinishJob {
+                settings: SolveSettings {
+                    tolerance: 0.0,
+                    rotation_tolerance: 0.0,
+                    max_iterations: 0,
+                },
+                ..good
+            },
+        ] {
+            assert_eq!(accepted.validate(), Ok(()), "{accepted:?}");
+        }
+        let settings = good.settings;
+        let cases: Vec<(FinishJob<'_>, &str)> = vec![
+            (
+                FinishJob {
+                    damping_cap: f64::NAN,
+                    ..good
+                },
+                "damping_cap",
+            ),
+            (
+                FinishJob {
+                    damping_cap: 0.0,
+                    ..good
+                },
+                "damping_cap",
+            ),
+            (
+                FinishJob {
+                    damping_cap: -1.0,
+                    ..good
+                },
+                "damping_cap",
+            ),
+            (
+                FinishJob {
+                    damping_cap: f64::NEG_INFINITY,
+                    ..good
+                },
+                "damping_cap",
+            ),
+            (
+                FinishJob {
+                    iterations: settings.max_iterations + 1,
+                    ..good
+                },
+                "iterations",
+            ),
+            (
+                FinishJob {
+                    settings: SolveSettings {
+                        tolerance: f64::NAN,
+                        ..settings
+                    },
+                    ..good
+                },
+                "settings.tolerance",
+            ),
+            (
+                FinishJob {
+                    settings: SolveSettings {
+                        tolerance: -1e-6,
+                        ..settings
+                    },
+                    ..good
+                },
+                "settings.tolerance",
+            ),
+            (
+                FinishJob {
+                    settings: SolveSettings {
+                        rotation_tolerance: f64::INFINITY,
+                        ..settings
+                    },
+                    ..good
+                },
+                "settings.rotation_tolerance",
+            ),
+            (
+                FinishJob {
+                    base: Some(3),
+                    ..good
+                },
+                "base",
+            ),
+        ];
+        for (bad, field) in cases {
+            assert_eq!(refused_field(bad.validate()), field, "{bad:?}");
+        }
+        // Targets: each field of the second target spoiled in turn.
+        type Spoil = fn(&mut Target);
+        let spoil: [(Spoil, &str); 8] = [
+            (|t| t.joint = 3, "targets[1].joint"),
+            (|t| t.position.y = f64::NAN, "targets[1].position"),
+            (|t| t.position_weight = 0.0, "targets[1].position_weight"),
+            (
+                |t| t.position_weight = f64::INFINITY,
+                "targets[1].position_weight",
+            ),
+            (|t| t.rotation_weight = -1.0, "targets[1].rotation_weight"),
+            (
+                |t| t.rotation_weight = f64::NAN,
+                "targets[1].rotation_weight",
+            ),
+            (
+                |t| t.rotation = Some(DQuat::from_xyzw(0.0, 0.0, 0.0, 2.0)),
+                "targets[1].rotation",
+            ),
+            (
+                |t| t.rotation = Some(DQuat::from_xyzw(f64::NAN, 0.0, 0.0, 1.0)),
+                "targets[1].rotation",
+            ),
+        ];
+        for (change, field) in spoil {
+            let mut two = vec![targets[0]; 2];
+            change(&mut two[1]);
+            // The movers of the good targets (a joint out of range cannot be walked).
+            let mut movers = Movers::default();
+            movers.build(&skeleton, &[targets[0], targets[0]]);
+            assert_eq!(
+                refused_field(job(&skeleton, &movers, &two).validate()),
+                field
+            );
+        }
+        // Movers that do not belong to the skeleton or the targets.
+        let mut far = Movers::default();
+        far.chain(&[0, 5]);
+        assert_eq!(
+            refused_field(job(&skeleton, &far, &targets).validate()),
+            "movers.movable[1]"
+        );
+        assert_eq!(
+            refused_field(job(&skeleton, &movers, &[]).validate()),
+            "movers.below(0)"
+        );
+        // The run checks the job and the buffers it is handed, and changes nothing.
+        let mut pose = skeleton.rest_pose();
+        let mut global = GlobalPose::new();
+        skeleton
+            .forward_kinematics(&pose, &mut global)
+            .expect("valid");
+        let (pose0, global0) = (pose.clone(), global.clone());
+        let mut translation = DVec3::ZERO;
+        let mut finish = Finish::default();
+        let bad = FinishJob {
+            damping_cap: f64::NAN,
+            ..good
+        };
+        assert!(matches!(
+            finish.run(&bad, &mut pose, &mut translation, &mut global),
+            Err(SkeletonError::InvalidFinishJob { field, .. }) if field == "damping_cap"
+        ));
+        let mut nan = DVec3::new(0.0, f64::NAN, 0.0);
+        assert!(matches!(
+            finish.run(&good, &mut pose, &mut nan, &mut global),
+            Err(SkeletonError::InvalidFinishJob { field, .. }) if field == "translation"
+        ));
+        let mut short = GlobalPose::new();
+        assert!(matches!(
+            finish.run(&good, &mut pose, &mut translation, &mut short),
+            Err(SkeletonError::InvalidFinishJob { field, .. }) if field == "global"
+        ));
+        let mut short_pose = Pose {
+            rotations: vec![DQuat::IDENTITY; 2],
+        };
+        assert!(matches!(
+            finish.run(&good, &mut short_pose, &mut translation, &mut global),
+            Err(SkeletonError::PoseLength {
+                expected: 3,
+                got: 2
+            })
+        ));
+        assert_eq!((pose, global, translation), (pose0, global0, DVec3::ZERO));
+        // And the good job runs to its goal.
+        let mut pose = skeleton.rest_pose();
+        let mut global = GlobalPose::new();
+        skeleton
+            .forward_kinematics(&pose, &mut global)
+            .expect("valid");
+        let done = finish
+            .run(&good, &mut pose, &mut translation, &mut global)
+            .expect("a valid job");
+        assert_eq!(done.stop, StopReason::Converged, "{done:?}");
+    }
+
+    /// The residual left after `steps` steps of the finish on a problem whose model is
+    /// exact: a lone root that only translates, its one effector on itself, so that
+    /// `J = I` and a step damped by `lambda` leaves `lambda / (1 + lambda)` of the
+    /// residual. The tolerance is 0, so the finish stops at the cap of `steps` (or at an
+    /// exact answer).
+    fn translation_residual(goal: DVec3, damping_cap: f64, steps: usize) -> f64 {
+        let skeleton = Skeleton::new([crate::JointDef::root(DVec3::ZERO)]).expect("valid");
+        let targets = [Target {
+            joint: 0,
+            position: goal,
+            rotation: None,
+            position_weight: 1.0,
+            rotation_weight: 0.0,
+            pinned: false,
+        }];
+        let mut movers = Movers::default();
+        movers.build(&skeleton, &targets);
+        assert!(movers.movable().is_empty());
+        let job = FinishJob {
+            settings: SolveSettings {
+                max_iterations: steps,
+                tolerance: 0.0,
+                rotation_tolerance: 0.0,
+            },
+            stall_window: 0,
+            damping_cap,
+            ..job(&skeleton, &movers, &targets)
+        };
+        let mut pose = skeleton.rest_pose();
+        let mut global = GlobalPose::new();
+        skeleton
+            .forward_kinematics(&pose, &mut global)
+            .expect("valid");
+        let mut translation = DVec3::ZERO;
+        let done = Finish::default()
+            .run(&job, &mut pose, &mut translation, &mut global)
+            .expect("a valid job");
+        // (Tolerance 0 is met only by an exact answer, which a nearly Gauss-Newton step
+        // on this linear problem may give.)
+        assert!(
+            done.steps == steps || done.stop == StopReason::Converged,
+            "{done:?}"
+        );
+        global.positions[0].distance(goal)
+    }
+
+    #[test]
+    fn the_damping_cap_makes_a_later_step_nearly_gauss_newton() {
+        let goal = DVec3::new(0.3, 0.4, 0.0);
+        let (r0, cost0) = (goal.length(), goal.length_squared());
+        // The first damping (`J J^T = I`, three rows) and the floor the division by 3 after
+        // each accepted step puts under the damping of step `k` (counted from 1).
+        let first = (INITIAL_DAMPING).min(COST_DAMPING * cost0);
+        let floor = |k: i32| first / 3f64.powi(k - 1);
+        let contraction = |lambda: f64| lambda / (1.0 + lambda);
+        let rounding = 4.0 * f64::EPSILON * r0;
+        let steps = 6;
+        let uncapped: Vec<f64> = (0..=steps)
+            .map(|k| translation_residual(goal, f64::INFINITY, k))
+            .collect();
+        let capped: Vec<f64> = (0..=steps)
+            .map(|k| translation_residual(goal, 1.0, k))
+            .collect();
+        assert_eq!(uncapped[0], r0);
+        // The first step is the same either way (no step accepted yet), and exact.
+        assert_eq!(capped[1], uncapped[1]);
+        assert!((uncapped[1] - r0 * contraction(first)).abs() <= rounding);
+        // Without a cap, no step's damping falls under the division's floor (checked
+        // while the residual is far above rounding).
+        for k in 2..=5 {
+            let ratio = uncapped[k] / uncapped[k - 1];
+            assert!(
+                ratio >= 0.99 * contraction(floor(k as i32)),
+                "step {k}: {ratio:e}"
+            );
+        }
+        // With the cap 1, some step after the first is damped by at most the cost it
+        // starts from (`damping <= cap * cost`, cost `= r^2` here): it leaves at most that
+        // fraction of the residual, far under what the division alone allows.
+        let gauss_newton = (2..=steps).find(|&k| {
+            let before = capped[k - 1];
+            capped[k] <= before * (before * before) + rounding
+                && capped[k] < 0.01 * before * contraction(floor(k as i32))
+        });
+        assert!(
+            gauss_newton.is_some(),
+            "capped {capped:?}, uncapped {uncapped:?}"
+        );
     }
 }

@@ -109,7 +109,8 @@ impl JointDef {
     }
 }
 
-/// Why a skeleton, a pose or a chain was refused. Every variant names the joint.
+/// Why a skeleton, a pose, a chain or a finish job was refused. Every variant names the
+/// joint, or the field of the job.
 #[derive(Clone, Debug, PartialEq)]
 pub enum SkeletonError {
     /// A skeleton needs at least one joint.
@@ -171,6 +172,14 @@ pub enum SkeletonError {
         /// What is wrong with the limit (it names the field).
         error: LimitError,
     },
+    /// A field of a [`FinishJob`](crate::finish::FinishJob) (or a buffer handed to the
+    /// finish with it) is invalid.
+    InvalidFinishJob {
+        /// The field, with the index of the entry when it is a list (`targets[2].joint`).
+        field: String,
+        /// What is wrong with it.
+        reason: String,
+    },
 }
 
 impl fmt::Display for SkeletonError {
@@ -208,6 +217,9 @@ impl fmt::Display for SkeletonError {
             }
             Self::UnknownName { name } => write!(f, "no joint is named \"{name}\""),
             Self::InvalidLimit { joint, error } => write!(f, "{joint}: limit: {error}"),
+            Self::InvalidFinishJob { field, reason } => {
+                write!(f, "finish job: {field}: {reason}")
+            }
         }
     }
 }
