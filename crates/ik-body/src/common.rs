@@ -27,6 +27,16 @@ const STALL_WINDOW: usize = 10;
 /// The finish's [`FinishJob::damping_cap`] on problems without pins.
 const DAMPING_CAP: f64 = 1.0;
 
+/// How far a warm frame's near restart ([`Common::seed_near`]) draws a joint on its bound
+/// from its starting rotation towards the centre of its limit (a fraction of the way),
+/// and how much further from the centre (a fraction of its angle from it) a rotation
+/// turned that way must leave the limit for the joint to count as on its bound.
+pub(crate) const NEAR_PULL: f64 = 0.03;
+pub(crate) const NEAR_BOUND: f64 = 0.01;
+/// The most iterations a warm frame's near restart may take, so that one that crawls
+/// too leaves the restarts from far some (`docs/ik-body.md`).
+pub(crate) const NEAR_ITERATIONS: usize = 30;
+
 /// Buffers and per-solve data every body solver keeps.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Common {
@@ -341,6 +351,51 @@ impl Common {
         Ok(())
     }
 
+    /// The seed of a warm frame's near restart: the starting pose (the last frame's
+    /// answer, projected) with every movable joint that is on a bound of its limit (turned
+    /// [`NEAR_BOUND`] of its angle further from the limit's centre, it leaves the limit)
+    /// drawn [`NEAR_PULL`] of the way towards that centre (spherical interpolation, then
+    /// projected onto the limit); the other joints and the body's translation as they
+    /// started. A finish that crawled into a local minimum along curved bounds starts
+    /// again just off those bounds, near where the frame started, so that its answer stays
+    /// near the last frame's instead of jumping to wherever a restart from the centre of
+    /// the limits lands. Deterministic: the same starting pose gives the same seed.
+    pub fn seed_near(
+        &self,
+        problem: &BodyProblem<'_>,
+        state: &mut BodyState,
+    ) -> Result<(), IkError> {
+        state.pose.rotations.copy_from_slice(&self.start);
+        state.root_translation = self.start_translation;
+        for &j in self.topology.movable() {
+            let limit = problem.skeleton.prepared_limit(j);
+            let Some(centre) = limit.limit().centre() else {
+                continue;
+            };
+            let q = state.pose.rotations[j];
+            // On its bound: turned a little further away from the centre, it leaves the
+            // limit. A joint inside keeps its rotation, so the seed moves only what the
+            // crawl is stuck on.
+            let mut away = q * centre.conjugate();
+            if away.w < 0.0 {
+                away = -away;
+            }
+            let further =
+                (DQuat::from_scaled_axis(away.to_scaled_axis() * NEAR_BOUND) * q).normalize();
+            if limit.violation(further) == 0.0 {
+                continue;
+            }
+            state.pose.rotations[j] = limit.project(q.slerp(centre, NEAR_PULL).normalize());
+        }
+        forward_kinematics(
+            problem.skeleton,
+            &state.pose,
+            state.root_translation,
+            &mut state.global,
+        )?;
+        Ok(())
+    }
+
     /// A cold start's closed-form limb poses: each position-only effector with a limb
     /// above it (a hinge whose parent has three degrees of freedom, `sinew_skeleton::seed`)
     /// that moves no other effector, and that is further from its goal than a quarter of
@@ -608,5 +663,66 @@ impl Common {
     /// The weighted cost at `state`.
     pub fn cost(&self, state: &BodyState) -> f64 {
         total_cost(&self.targets, &state.global)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::workload;
+    use sinew_skeleton::ik::{SolveSettings, rotation_angle};
+
+    #[test]
+    fn the_near_seed_draws_only_the_joints_on_their_bounds_a_little_inwards() {
+        let skeleton = workload::humanoid().expect("valid");
+        let goals = &workload::goal_sets(&skeleton, 1, 3, false)[0];
+        let settings = SolveSettings::default();
+        let problem =
+            BodyProblem::new(&skeleton, &goals.effectors, settings).with_root_translation(true);
+        // A pose drawn inside the limits (every joint off its limit's centre), with the
+        // elbows and knees put at the straight end of their hinges (on a bound).
+        let (elbows, knees) = ([8, 12], [15, 19]);
+        let mut state = BodyState::rest(&skeleton);
+        state.pose.rotations.copy_from_slice(&goals.pose.rotations);
+        for j in elbows.into_iter().chain(knees) {
+            state.pose.rotations[j] = DQuat::IDENTITY;
+        }
+        let mut common = Common::default();
+        assert!(matches!(
+            common.begin(&problem, &mut state, false, false),
+            Ok(Begin::Iterate)
+        ));
+        let start = state.pose.clone();
+        common.seed_near(&problem, &mut state).expect("valid");
+        let seeded = state.clone();
+        let mut moved = Vec::new();
+        for &j in common.topology.movable() {
+            let limit = skeleton.limit(j);
+            let (q0, q) = (start.rotations[j], seeded.pose.rotations[j]);
+            assert!(limit.violation(q) <= 1e-12, "joint {j} leaves its limit");
+            let Some(centre) = limit.centre() else {
+                assert_eq!(q, q0, "joint {j} is free and keeps its rotation");
+                continue;
+            };
+            if q == q0 {
+                continue;
+            }
+            moved.push(j);
+            // Drawn towards the centre by the pull, along the arc between them.
+            let (step, whole) = (rotation_angle(q0, q), rotation_angle(q0, centre));
+            assert!(
+                (step - NEAR_PULL * whole).abs() <= 1e-9,
+                "joint {j}: {step} of {whole}"
+            );
+            assert!(rotation_angle(q, centre) < whole, "joint {j}");
+        }
+        // Exactly the joints put on their bounds moved (the drawn ones are inside).
+        let mut on_bound: Vec<usize> = elbows.into_iter().chain(knees).collect();
+        on_bound.sort_unstable();
+        assert_eq!(moved, on_bound);
+        assert_eq!(seeded.root_translation, state.root_translation);
+        // The same start gives the same seed, to the bit.
+        common.seed_near(&problem, &mut state).expect("valid");
+        assert_eq!(state, seeded);
     }
 }

@@ -23,11 +23,12 @@
 //! the passes stop when one gains less than `switch_ratio`, and the damped least-squares
 //! finish takes over, which reaches feasible goals to the tolerance instead of
 //! approaching them. A finish that ends in a local minimum short of the goals may restart
-//! once from the centre of the joint limits; the better of the two answers is returned.
+//! (a warm frame first near its start, then from the centre of the joint limits and from
+//! drawn poses); the best answer is returned.
 
 use crate::BodySolver;
 use crate::carry::Carried;
-use crate::common::{Begin, Common};
+use crate::common::{Begin, Common, NEAR_ITERATIONS};
 use crate::horn::BestRotation;
 use crate::problem::{BodyProblem, BodyReport, BodyState, forward_kinematics};
 use sinew_math::{DQuat, DVec3, rotation_between, try_unit};
@@ -53,7 +54,10 @@ pub struct TreeFabrikOptions {
     /// restart: first the finish alone from the starting pose (skipped without passes),
     /// then from the centre of the joint limits, then from poses drawn inside them (a
     /// fixed sequence, so a solve is reproducible). The restarts share the iteration
-    /// cap; the best answer is returned.
+    /// cap; the best answer is returned. When it is not 0, a warm frame that continues a
+    /// sequence (its state the last answer of this solver) first restarts once more, near
+    /// its start: the joints on their bounds drawn a little inwards
+    /// (`docs/ik-body.md`, "A warm frame's restart stays near the last answer").
     pub restarts: usize,
 }
 
@@ -289,6 +293,38 @@ impl TreeFabrikSolver {
         let (mut iterations, mut stop) =
             self.attempt(problem, state, spent, first_passes, false)?;
         let mut restarted = false;
+        // A frame that continues a sequence and ends in a local minimum first restarts near
+        // where it started (the last frame's answer, drawn a little off the bounds), the
+        // finish alone: the restarts below start far from it, and an answer found from
+        // there may be far from the last frame's, a visible pop in an animation.
+        if continued
+            && self.options.finish
+            && self.options.restarts > 0
+            && stop == StopReason::LocalMinimum
+            && iterations < problem.settings.max_iterations
+        {
+            let best_translation = self.common.keep_best(state);
+            self.common.seed_near(problem, state)?;
+            // With its own share of the iterations: a near restart that crawls too must
+            // leave the far restarts some.
+            let mut near = *problem;
+            near.settings.max_iterations = problem
+                .settings
+                .max_iterations
+                .min(iterations.saturating_add(NEAR_ITERATIONS));
+            let (used, next_stop) = self.attempt(&near, state, iterations, 0, false)?;
+            iterations = used;
+            // Only a converged answer is kept, even at a higher cost than the crawl's end
+            // (which is short of the tolerance); any other leaves the restarts below to
+            // compare theirs with the crawl's end, as without this one (kept at a lower
+            // cost, it made them drop converged answers: measured in `docs/ik-body.md`).
+            if next_stop == StopReason::Converged && self.common.pins_hold(problem, state) {
+                stop = next_stop;
+                restarted = true;
+            } else {
+                self.common.restore_best(problem, state, best_translation)?;
+            }
+        }
         let mut seed = 0;
         while seed < self.options.restarts
             && stop == StopReason::LocalMinimum
