@@ -33,6 +33,9 @@ const DAMPING_CAP: f64 = 1.0;
 /// turned that way must leave the limit for the joint to count as on its bound.
 pub(crate) const NEAR_PULL: f64 = 0.03;
 pub(crate) const NEAR_BOUND: f64 = 0.01;
+/// A warm frame restarts near its start only when its crawl ended with every effector
+/// within this many times the tolerances (`docs/ik-body.md`).
+pub(crate) const NEAR_REACH: f64 = 10.0;
 /// The most iterations a warm frame's near restart may take, so that one that crawls
 /// too leaves the restarts from far some (`docs/ik-body.md`).
 pub(crate) const NEAR_ITERATIONS: usize = 30;
@@ -349,6 +352,18 @@ impl Common {
             &mut state.global,
         )?;
         Ok(())
+    }
+
+    /// Whether every effector is within [`NEAR_REACH`] times the tolerances of its goal at
+    /// `state` (a rotation goal with weight 0 does not count): a local minimum that close
+    /// is a crawl short of the goals, which a restart near the start may finish.
+    pub fn ended_near(&self, problem: &BodyProblem<'_>, state: &BodyState) -> bool {
+        let settings = &problem.settings;
+        self.targets.iter().all(|t| {
+            let (p, r) = t.errors(&state.global);
+            p <= NEAR_REACH * settings.tolerance
+                && (!t.has_rotation() || r <= NEAR_REACH * settings.rotation_tolerance)
+        })
     }
 
     /// The seed of a warm frame's near restart: the starting pose (the last frame's

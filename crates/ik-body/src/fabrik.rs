@@ -293,15 +293,18 @@ impl TreeFabrikSolver {
         let (mut iterations, mut stop) =
             self.attempt(problem, state, spent, first_passes, false)?;
         let mut restarted = false;
-        // A frame that continues a sequence and ends in a local minimum first restarts near
-        // where it started (the last frame's answer, drawn a little off the bounds), the
-        // finish alone: the restarts below start far from it, and an answer found from
-        // there may be far from the last frame's, a visible pop in an animation.
+        // A frame that continues a sequence and ends in a local minimum near its goals
+        // first restarts near where it started (the last frame's answer, drawn a little
+        // off the bounds), the finish alone: the restarts below start far from it, and an
+        // answer found from there may be far from the last frame's, a visible pop in an
+        // animation. A frame that ended far from its goals is in another basin, which the
+        // restarts from far are for.
         if continued
             && self.options.finish
             && self.options.restarts > 0
             && stop == StopReason::LocalMinimum
             && iterations < problem.settings.max_iterations
+            && self.common.ended_near(problem, state)
         {
             let best_translation = self.common.keep_best(state);
             self.common.seed_near(problem, state)?;
