@@ -31,10 +31,13 @@
 //! benchmark: a table for docs/contact.md, run with
 //! `cargo bench -p sinew-spring-sim --bench contact [-- ground|drape|rotating|twist|stack
 //! [steps] [--trace] [mu=..] [eps_v=..] [solver=direct|pcg|auto] [reuse=..] [tol=..]
-//! [save=FILE] [against=FILE]]` (`--trace`: a line per step on stderr; `mu`, `eps_v`: the
+//! [exact=0|1] [save=FILE] [against=FILE]]` (`--trace`: a line per step on stderr; `mu`, `eps_v`: the
 //! collider friction settings instead of the workload's; `solver`: the linear solver,
 //! `auto` by default; `reuse`: the direct solver's `factor_reuse_iterations`, 0 for a
-//! factorization every Newton iteration; `tol`: `NewtonSettings::tolerance`; `save`:
+//! factorization every Newton iteration; `tol`: `NewtonSettings::tolerance`; `exact`:
+//! `SelfContactSettings::exact_hessian` (the self-contact pairs' exact Hessians tried
+//! first, default 0; the self-contact rows then end with the times the term wrote them
+//! and fell back to their projections); `save`:
 //! write the final positions and velocities to FILE; `against`: read such a file and
 //! print the largest distance of a particle's final position and velocity from it, the
 //! deviation from a reference run). The last line gives the direct solver's numeric
@@ -43,7 +46,7 @@
 
 use sinew_exact::intersecting_pairs;
 use sinew_math::DVec3;
-use sinew_spring_sim::contact::self_contact::SelfContactSettings;
+use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactStats};
 use sinew_spring_sim::contact::{
     Collider, ContactPotential, ContactSettings, ContactTerm, signed_distance,
 };
@@ -51,6 +54,7 @@ use sinew_spring_sim::{
     BackwardEuler, Bending, ClothGrid, Integrator, LinearSolverChoice, Material, MeshCloth,
     NewtonSettings, PinDriver, PinnedMotion, Simulation, SpringSystem, StepReport, TriangleMesh,
 };
+use std::sync::Arc;
 use std::time::Instant;
 
 /// A sheet of a self-contact workload: `size x size` vertices at `origin + spacing (i u +
@@ -201,13 +205,19 @@ struct MeshRun {
     integrator: BackwardEuler,
     system: SpringSystem,
     pins: Option<PinDriver>,
+    self_contact: Arc<SelfContactStats>,
     triangles: Vec<[usize; 3]>,
     colliders: Vec<Collider>,
     time: f64,
 }
 
 impl Running {
-    fn new(w: &Workload, settings: NewtonSettings, contact: ContactSettings) -> Self {
+    fn new(
+        w: &Workload,
+        settings: NewtonSettings,
+        contact: ContactSettings,
+        exact_hessian: bool,
+    ) -> Self {
         match &w.cloth {
             Cloth::Grid {
                 size,
@@ -284,12 +294,13 @@ impl Running {
                         .expect("the contact settings are valid");
                     integrator.add_term(Box::new(ContactTerm::new(potential)));
                 }
-                model
+                let self_contact = model
                     .enable_self_contact(
                         &mut integrator,
                         SelfContactSettings {
                             dhat: 2e-3,
                             thickness: 1e-3,
+                            exact_hessian,
                             ..SelfContactSettings::default()
                         },
                     )
@@ -301,6 +312,7 @@ impl Running {
                     integrator,
                     system,
                     pins,
+                    self_contact,
                     triangles,
                     colliders: w.colliders.clone(),
                     time: 0.0,
@@ -464,7 +476,8 @@ fn main() {
             eps_v: number("eps_v").unwrap_or(ContactSettings::default().eps_v),
             ..ContactSettings::default()
         };
-        let mut run = Running::new(&w, settings, contact);
+        let exact = number("exact").is_some_and(|e| e != 0.0);
+        let mut run = Running::new(&w, settings, contact, exact);
         let h = 1.0 / 60.0;
         let mut times = Vec::with_capacity(steps);
         let (mut newton, mut most, mut linear, mut backtracks) = (0, 0, 0, 0);
@@ -519,6 +532,14 @@ fn main() {
             "{}: {factorizations} factorizations, {kept_solves} kept-factor solves, {kept_iterations} kept-factor iterations",
             w.name
         );
+        if let Running::Mesh(mesh) = &run {
+            println!(
+                "{}: exact pair Hessians written {} times, projected after them {} times",
+                w.name,
+                mesh.self_contact.exact_hessians(),
+                mesh.self_contact.projected_after_exact(),
+            );
+        }
         if let Some(path) = value("save") {
             std::fs::write(path, state_bytes(run.system()))
                 .unwrap_or_else(|e| panic!("save={path}: {e}"));

@@ -87,6 +87,13 @@ pub enum Curvature {
     /// [`Curvature::Clamped`]). The Newton matrix built from it grows with `theta`, so
     /// backward Euler raises `theta` until that matrix is positive definite.
     Softened(f64),
+    /// [`Curvature::Softened`]`(theta)` for the springs (and bending), with the exact
+    /// Hessians of the self-contact barrier's pairs instead of their projection, whose
+    /// negative curvature no `theta` removes: backward Euler tries it first once
+    /// Newton is slow, and falls back to `Softened(theta)` when the matrix is not
+    /// positive definite (docs/contact.md). Terms without an exact form read it as
+    /// `Softened(theta)`.
+    ExactContact(f64),
 }
 
 /// The 3x3 block `K` of the spring Hessian (it enters as `+K` on the `(a, a)` and
@@ -140,7 +147,9 @@ pub fn hessian_coefficients(
     let across = match curvature {
         Curvature::Exact => exact,
         Curvature::Clamped => exact.max(0.0),
-        Curvature::Softened(theta) => exact.max(0.0) + (1.0 - theta) * exact.min(0.0),
+        Curvature::Softened(theta) | Curvature::ExactContact(theta) => {
+            exact.max(0.0) + (1.0 - theta) * exact.min(0.0)
+        }
     };
     let isotropic = stiffness * across;
     (isotropic, stiffness - isotropic, u)

@@ -1,7 +1,9 @@
 //! The closed-form squared distances of self-contact ([`RegionForm`]) against the dual
 //! numbers (value, gradient, Hessian) and against central differences, in every region of
 //! both pair kinds; and the projection in the Hessian's span against the full 12x12
-//! Jacobi projection of the same matrix, with its eigenvalues checked non-negative; and
+//! Jacobi projection of the same matrix, with its eigenvalues checked non-negative; the
+//! exact barrier Hessian in the span against the dual numbers and against central
+//! differences of the barrier's gradient (the region chosen afresh at every state); and
 //! the Jacobi rotations (which update the two rows a rotation changes and mirror them)
 //! against the textbook update of the whole matrix, bit for bit.
 
@@ -9,6 +11,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use sinew_math::DVec3;
+use sinew_spring_sim::contact::barrier::{barrier_first_derivative, barrier_second_derivative};
 use sinew_spring_sim::contact::self_contact::RegionForm;
 use sinew_spring_sim::contact::self_contact::distance::{
     Closest, PairKind, squared_distance_derivatives,
@@ -230,6 +233,96 @@ fn the_projection_in_the_span_equals_the_12x12_projection_and_is_psd() {
 }
 
 #[test]
+fn the_exact_hessian_in_the_span_equals_the_dual_numbers() {
+    let mut rng = Rng(91);
+    for (r, (name, kind, want)) in regions().into_iter().enumerate() {
+        for pair in pairs_in(kind, want, 40, 61 + r as u64) {
+            let first = -(10f64).powf(4.0 * rng.next() - 2.0);
+            let second = (10f64).powf(8.0 * rng.next() - 2.0);
+            for (sf, ss) in [(1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)] {
+                let (first, second) = (sf * first, ss * second);
+                let full = full_barrier_hessian(kind, &pair, first, second);
+                let ours = RegionForm::of(kind, &pair)
+                    .exact_hessian(first, second)
+                    .expect("a non-degenerate pair");
+                let scale = max_abs(&full);
+                for i in 0..12 {
+                    for j in 0..12 {
+                        assert!(
+                            (ours[i][j] - full[i][j]).abs() <= 1e-10 * scale,
+                            "{name} ({first}, {second}): {i},{j}: {} vs {}",
+                            ours[i][j],
+                            full[i][j]
+                        );
+                        assert_eq!(ours[i][j], ours[j][i]);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The barrier of a pair at squared distance `s` as the term has it (`kappa` 1): its
+/// first and second derivatives in `s`, for a reach `dhat` and a thickness `xi`.
+fn barrier_in_s(s: f64, dhat: f64, xi: f64) -> (f64, f64) {
+    let d = s.sqrt();
+    let (b1, b2) = (
+        barrier_first_derivative(d - xi, dhat),
+        barrier_second_derivative(d - xi, dhat),
+    );
+    (b1 / (2.0 * d), b2 / (4.0 * s) - b1 / (4.0 * s * d))
+}
+
+/// The barrier's gradient at `q`, its region chosen at `q` itself.
+fn barrier_gradient(kind: PairKind, q: &[DVec3; 4], dhat: f64, xi: f64) -> [f64; 12] {
+    let form = RegionForm::of(kind, q);
+    let (first, _) = barrier_in_s(form.value(), dhat, xi);
+    form.gradient().map(|g| first * g)
+}
+
+#[test]
+fn the_exact_barrier_hessian_matches_central_differences_of_its_gradient() {
+    for (r, (name, kind, want)) in regions().into_iter().enumerate() {
+        // The odd-numbered pairs are 1e-3 apart: the barrier acts there.
+        let pairs = pairs_in(kind, want, 24, 71 + r as u64);
+        for pair in pairs.iter().skip(1).step_by(2) {
+            let form = RegionForm::of(kind, pair);
+            let d = form.value().sqrt();
+            // A reach and a thickness that put the gap in the barrier's range.
+            let (dhat, xi) = (2.0 * d, 0.3 * d);
+            let (first, second) = barrier_in_s(form.value(), dhat, xi);
+            let h = form
+                .exact_hessian(first, second)
+                .expect("a non-degenerate pair");
+            let scale = max_abs(&h);
+            let step = 1e-7 * d;
+            for i in 0..12 {
+                let gp = barrier_gradient(kind, &perturbed(pair, i, step), dhat, xi);
+                let gm = barrier_gradient(kind, &perturbed(pair, i, -step), dhat, xi);
+                for j in 0..12 {
+                    let fd = (gp[j] - gm[j]) / (2.0 * step);
+                    assert!(
+                        (fd - h[i][j]).abs() <= 1e-5 * scale,
+                        "{name}: {i},{j}: {} vs {fd} (scale {scale})",
+                        h[i][j]
+                    );
+                }
+            }
+            // Where the projection acts: a point-plane or line-line pair's exact Hessian
+            // has at least two negative eigenvalues, which the projection drops.
+            if matches!(
+                kind.closest(pair),
+                Closest::PointPlane(_) | Closest::LineLine(_)
+            ) {
+                let (values, _) = symmetric_eigen12(&h);
+                let negative = values.iter().filter(|&&v| v < -1e-9 * scale).count();
+                assert!(negative >= 2, "{name}: {values:?}");
+            }
+        }
+    }
+}
+
+#[test]
 fn the_closed_form_declines_a_pair_at_zero_distance() {
     let p = DVec3::new(0.2, 0.0, 0.2);
     let pair = [
@@ -241,6 +334,7 @@ fn the_closed_form_declines_a_pair_at_zero_distance() {
     let form = RegionForm::of(PairKind::PointTriangle, &pair);
     assert_eq!(form.value(), 0.0);
     assert!(form.projected_hessian(-1.0, 1.0).is_none());
+    assert!(form.exact_hessian(-1.0, 1.0).is_none());
 }
 
 /// Cyclic Jacobi as first written: every rotation rotates the columns `p` and `q` of the

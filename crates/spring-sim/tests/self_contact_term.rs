@@ -309,3 +309,95 @@ fn the_next_iterations_segment_inside_the_kept_region_is_not_hashed_and_answers_
     assert_eq!(stats.broad_phases(), before + 1);
     assert!(nonzero > 0);
 }
+
+/// `H z` of `term` at `x` in the form `curvature` asks for.
+fn hessian_product(
+    term: &SelfContactTerm,
+    step: &StepContext,
+    x: &[DVec3],
+    curvature: Curvature,
+    z: &[DVec3],
+) -> Vec<DVec3> {
+    let fixed = step.system.fixed().to_vec();
+    let mut out = vec![DVec3::ZERO; x.len()];
+    let mut sink = HessianSink::product(&fixed, z, &mut out);
+    term.add_hessian(step, x, curvature, &mut sink);
+    out
+}
+
+#[test]
+fn the_exact_hessian_matches_differences_of_the_gradient_and_the_projection_follows_it() {
+    let (system, triangles) = two_sheets();
+    let exact_settings = SelfContactSettings {
+        dhat: 2e-3,
+        exact_hessian: true,
+        ..SelfContactSettings::default()
+    };
+    let projected_settings = SelfContactSettings {
+        exact_hessian: false,
+        ..exact_settings
+    };
+    let x0 = system.positions().to_vec();
+    let step = StepContext::new(&system, 1.0 / 60.0, &x0, &x0);
+    let mut term = begun(&system, &triangles, exact_settings, &step);
+    let mut projected = begun(&system, &triangles, projected_settings, &step);
+    let stats = term.stats();
+    let mut rng = Rng(23);
+    let x: Vec<DVec3> = x0
+        .iter()
+        .map(|p| *p + 2e-4 * DVec3::new(rng.next(), rng.next(), rng.next()))
+        .collect();
+    let free = |v: &mut Vec<DVec3>| v[0] = DVec3::ZERO;
+    let eps = 1e-9;
+    let mut differs = false;
+    // Twice: at a state the active set was not collected at (computed afresh), then at
+    // the active set's state (the kept slots, in whichever form they were filled).
+    for collected in [false, true] {
+        if collected {
+            term.update_active_set(&step, &x);
+            projected.update_active_set(&step, &x);
+        }
+        for _ in 0..6 {
+            let mut z: Vec<DVec3> = (0..x.len())
+                .map(|_| DVec3::new(rng.next(), rng.next(), rng.next()))
+                .collect();
+            free(&mut z);
+            let hz = hessian_product(&term, &step, &x, Curvature::ExactContact(1.0), &z);
+            let gradient_at = |s: f64| {
+                let moved: Vec<DVec3> = x.iter().zip(&z).map(|(p, d)| *p + s * *d).collect();
+                let mut g = vec![DVec3::ZERO; x.len()];
+                term.add_gradient(&step, &moved, &mut g);
+                g
+            };
+            let (gp, gm) = (gradient_at(eps), gradient_at(-eps));
+            let scale = hz.iter().map(|v| v.abs().max_element()).fold(0.0, f64::max);
+            assert!(scale > 0.0);
+            for i in 1..x.len() {
+                let fd = (gp[i] - gm[i]) / (2.0 * eps);
+                assert!(
+                    (fd - hz[i]).abs().max_element() <= 1e-5 * scale,
+                    "particle {i}: {} vs {fd}",
+                    hz[i]
+                );
+            }
+            // The projection, asked for after the exact form, is the projected term's,
+            // to the bit; the exact form asked again is the same as before.
+            let clamped = hessian_product(&term, &step, &x, Curvature::Clamped, &z);
+            let reference = hessian_product(&projected, &step, &x, Curvature::Clamped, &z);
+            assert_eq!(clamped, reference);
+            differs |= clamped != hz;
+            let again = hessian_product(&term, &step, &x, Curvature::ExactContact(1.0), &z);
+            assert_eq!(again, hz);
+            // Without the setting the term gives its projection whatever is asked.
+            let refused = hessian_product(&projected, &step, &x, Curvature::ExactContact(1.0), &z);
+            assert_eq!(refused, reference);
+        }
+    }
+    assert!(differs, "the exact and projected Hessians never differed");
+    assert!(stats.exact_hessians() > 0);
+    // At the collected state the projection was asked for after the exact form: one
+    // fallback counted for that iterate, however many times it was asked.
+    assert_eq!(stats.projected_after_exact(), 1);
+    assert_eq!(projected.stats().exact_hessians(), 0);
+    assert_eq!(projected.stats().projected_after_exact(), 0);
+}

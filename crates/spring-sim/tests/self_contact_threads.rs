@@ -5,7 +5,8 @@
 //! and a thickness of 1 mm, hundreds of pairs are within the barrier's reach from the
 //! first iteration, more than one chunk of the term's spread loops (gaps, derivatives,
 //! energies, CCD, the kept list's box tests). Positions, velocities, Newton iterations and
-//! the contact statistics must agree to the bit.
+//! the contact statistics must agree to the bit, with the pairs' projected Hessians and
+//! with their exact ones tried first (`SelfContactSettings::exact_hessian`).
 
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
@@ -28,10 +29,11 @@ fn grid(origin: DVec3, u: DVec3, w: DVec3, s: f64, offset: usize) -> (Vec<DVec3>
 }
 
 /// What a run ends with: the state, the Newton iterations per step, and per step the
-/// active pairs and `kappa` (as bits).
+/// active pairs and `kappa` (as bits), then the times the exact pair Hessians were
+/// written and the fallbacks to the projected ones so far.
 type Outcome = (SpringSystem, Vec<usize>, Vec<(usize, u64)>);
 
-fn run(threads: usize, steps: usize) -> Outcome {
+fn run(threads: usize, steps: usize, exact_hessian: bool) -> Outcome {
     let s = 0.01;
     let (mut x, mut t) = grid(DVec3::ZERO, DVec3::X, DVec3::Z, s, 0);
     let (u, w) = (
@@ -63,6 +65,7 @@ fn run(threads: usize, steps: usize) -> Outcome {
     let settings = SelfContactSettings {
         dhat: 2e-3,
         thickness: 1e-3,
+        exact_hessian,
         ..SelfContactSettings::default()
     };
     let stats = model
@@ -76,6 +79,10 @@ fn run(threads: usize, steps: usize) -> Outcome {
         let report = integrator.step(&mut system, H).unwrap();
         iterations.push(report.iterations);
         contact.push((stats.active_pairs(), stats.kappa().to_bits()));
+        contact.push((
+            stats.exact_hessians() as usize,
+            stats.projected_after_exact(),
+        ));
         widened += report.pattern_pairs_added;
     }
     // Contact widened the Hessian pattern (which rebuilds the linear solvers), and the
@@ -88,21 +95,32 @@ fn run(threads: usize, steps: usize) -> Outcome {
 #[test]
 fn self_contact_steps_alike_on_one_two_and_three_threads() {
     let steps = 1;
-    let one = run(1, steps);
-    assert!(
-        one.1.iter().all(|&k| k > 0),
-        "a step without Newton iterations: {:?}",
-        one.1
-    );
-    assert!(
-        one.2.iter().all(|&(pairs, _)| pairs > 256),
-        "too few pairs within dhat to split the term's loops: {:?}",
-        one.2
-    );
+    for exact in [false, true] {
+        let one = run(1, steps, exact);
+        assert!(
+            one.1.iter().all(|&k| k > 0),
+            "a step without Newton iterations: {:?}",
+            one.1
+        );
+        assert!(
+            one.2.iter().step_by(2).all(|&(pairs, _)| pairs > 256),
+            "too few pairs within dhat to split the term's loops: {:?}",
+            one.2
+        );
+        let written = one.2.last().map_or(0, |&(written, _)| written);
+        assert_eq!(written > 0, exact, "exact blocks written {written} times");
+        compare_threads(&one, steps, exact);
+    }
+}
+
+fn compare_threads(one: &Outcome, steps: usize, exact: bool) {
     for threads in [2, 3] {
-        let other = run(threads, steps);
+        let other = run(threads, steps, exact);
         assert_eq!(other.1, one.1, "{threads} threads: Newton iterations");
-        assert_eq!(other.2, one.2, "{threads} threads: pairs and kappa");
+        assert_eq!(
+            other.2, one.2,
+            "{threads} threads: pairs, kappa and exact-Hessian counts"
+        );
         assert_eq!(
             other.0.positions(),
             one.0.positions(),

@@ -92,6 +92,12 @@ impl BackwardEuler {
         // Hessian first, starting from `theta` (see `SOFTENING_*`).
         let mut softening = false;
         let mut theta = 0.0f64;
+        // Whether asking for the exact contact blocks can change the Newton matrix: false
+        // once a refused matrix with them equalled the one without (no term of this
+        // system has them), so the rest of the step does not try them in vain.
+        let mut exact_contact_differs = true;
+        // The refused matrix, kept for that comparison (allocated on the first refusal).
+        let mut saved: Vec<f64> = Vec::new();
         loop {
             // Pairs a term coupled without Hessian slots in the last iteration (self-contact
             // meeting particles no spring joins) get slots now rather than after the step:
@@ -168,23 +174,37 @@ impl BackwardEuler {
                 0.1 * tol_abs / residual_l2
             };
             let rtol = forcing.max(floor).max(1e-13);
+            // Once Newton is slow, the contact pairs' exact Hessians are tried first as
+            // well (`Curvature::ExactContact`, for terms that have them and are set to give
+            // them): the projection drops each pair's negative curvature, and the Newton
+            // step then converges only linearly (docs/contact.md, "The exact pair Hessian
+            // first"). That negative curvature is the barrier's, which no `theta`
+            // removes, so a matrix with them that is not positive definite is replaced at
+            // once by the one with their projections, at the same `theta`.
+            let mut exact_contact = exact_contact_differs && softening;
             if softening {
+                let mut assembled = false;
                 while theta <= SOFTENING_MAX_THETA {
-                    self.assemble_hessian(&step, Curvature::Softened(theta));
-                    if kind == LinearSolverKind::Direct {
-                        if self.direct.is_some() {
-                            solved = self.direct_direction(false, &mut report);
-                        }
-                    } else {
-                        // CG meets a direction of non-positive curvature exactly when the
-                        // matrix is not positive definite along the Krylov space it
-                        // explores.
-                        let outcome = self.pcg_direction(rtol);
-                        report.linear_iterations += outcome.iterations;
-                        solved = !outcome.negative_curvature;
+                    if !assembled {
+                        let curvature = if exact_contact {
+                            Curvature::ExactContact(theta)
+                        } else {
+                            Curvature::Softened(theta)
+                        };
+                        self.assemble_hessian(&step, curvature);
                     }
+                    assembled = false;
+                    solved = self.unshifted_direction(kind, rtol, &mut report);
                     if solved {
                         break;
+                    }
+                    if exact_contact {
+                        exact_contact = false;
+                        if self.reassembled_differs(&step, Curvature::Softened(theta), &mut saved) {
+                            assembled = true;
+                            continue;
+                        }
+                        exact_contact_differs = false;
                     }
                     theta = 1.0 - SOFTENING_RAISE * (1.0 - theta);
                 }
@@ -255,6 +275,41 @@ impl BackwardEuler {
         self.chooser
             .record(kind, report.iterations, report.linear_iterations);
         Ok(report)
+    }
+
+    /// The Newton direction of the assembled matrix into `dx`, only if the matrix is
+    /// positive definite (no shifts): whether it was found.
+    fn unshifted_direction(
+        &mut self,
+        kind: LinearSolverKind,
+        rtol: f64,
+        report: &mut StepReport,
+    ) -> bool {
+        if kind == LinearSolverKind::Direct {
+            self.direct.is_some() && self.direct_direction(false, report)
+        } else {
+            // CG meets a direction of non-positive curvature exactly when the matrix is
+            // not positive definite along the Krylov space it explores.
+            let outcome = self.pcg_direction(rtol);
+            report.linear_iterations += outcome.iterations;
+            !outcome.negative_curvature
+        }
+    }
+
+    /// Assembles the Newton matrix in the form `curvature` asks for in place of the
+    /// refused one (kept in `saved`), and returns whether the two differ: when they do
+    /// not, no term distinguished the refused form from this one, and this matrix is
+    /// refused as well.
+    fn reassembled_differs(
+        &mut self,
+        step: &StepContext<'_>,
+        curvature: Curvature,
+        saved: &mut Vec<f64>,
+    ) -> bool {
+        saved.clear();
+        saved.extend_from_slice(&self.values);
+        self.assemble_hessian(step, curvature);
+        *saved != self.values
     }
 
     /// The Newton direction of the assembled matrix on the direct solver, into `dx`:

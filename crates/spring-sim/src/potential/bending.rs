@@ -319,7 +319,7 @@ impl DihedralBending {
         let removed = match curvature {
             Curvature::Exact => 0.0,
             Curvature::Clamped => 1.0,
-            Curvature::Softened(theta) => theta.clamp(0.0, 1.0),
+            Curvature::Softened(theta) | Curvature::ExactContact(theta) => theta.clamp(0.0, 1.0),
         };
         // With theta at rest the second part vanishes and the matrix is k w g g^T, already
         // positive semidefinite: no eigen-decomposition needed.

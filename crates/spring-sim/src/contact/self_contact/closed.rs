@@ -204,9 +204,33 @@ impl RegionForm {
 
     /// [`Self::projected_hessian`] written into `out` (every entry overwritten): true when
     /// written, false (with `out` unspecified) when the pair is degenerate.
+    pub fn projected_hessian_into(&self, first: f64, second: f64, out: &mut Mat12) -> bool {
+        self.span_hessian_into(first, second, true, out)
+    }
+
+    /// The exact Hessian of `phi(s)` at this pair, `second grad s grad s^T + first hess s`
+    /// (indefinite in general: a point-plane or line-line pair has at least two negative
+    /// eigenvalues where `first > 0`), computed as `B K B^T` in the span of the module
+    /// documentation, without the eigen-decomposition of `K` the projection needs.
+    /// `None` for the pairs [`Self::projected_hessian`] declines (the same test), so a
+    /// caller takes the same path for a pair whichever form it asks for.
+    #[must_use]
+    pub fn exact_hessian(&self, first: f64, second: f64) -> Option<Mat12> {
+        let mut out = [[0.0; 12]; 12];
+        self.exact_hessian_into(first, second, &mut out)
+            .then_some(out)
+    }
+
+    /// [`Self::exact_hessian`] written into `out` (every entry overwritten): true when
+    /// written, false (with `out` unspecified) when the pair is degenerate.
+    pub fn exact_hessian_into(&self, first: f64, second: f64, out: &mut Mat12) -> bool {
+        self.span_hessian_into(first, second, false, out)
+    }
+
+    /// `B K_+ B^T` when `project`, else `B K B^T` (see the module documentation).
     // Index loops over rows and columns read as the matrix formulas they implement.
     #[allow(clippy::needless_range_loop)]
-    pub fn projected_hessian_into(&self, first: f64, second: f64, out: &mut Mat12) -> bool {
+    fn span_hessian_into(&self, first: f64, second: f64, project: bool, out: &mut Mat12) -> bool {
         let c_len = self.c.iter().map(|c| c * c).sum::<f64>().sqrt();
         let r_len = self.r.length();
         if !(c_len > 0.0 && r_len > 0.0 && c_len.is_finite() && r_len.is_finite()) {
@@ -271,19 +295,24 @@ impl RegionForm {
         if !k.iter().flatten().all(|x| x.is_finite()) {
             return false;
         }
-        let (values, vectors) = symmetric_eigen_n(&k, n);
-        // K_+ = Q diag(max(lambda, 0)) Q^T in the reduced coordinates.
-        let mut kp = [[0.0; SPAN]; SPAN];
-        for (e, &lambda) in values.iter().take(n).enumerate() {
-            if lambda <= 0.0 {
-                continue;
-            }
-            for p in 0..n {
-                for q in 0..n {
-                    kp[p][q] += lambda * vectors[p][e] * vectors[q][e];
+        let kp = if project {
+            let (values, vectors) = symmetric_eigen_n(&k, n);
+            // K_+ = Q diag(max(lambda, 0)) Q^T in the reduced coordinates.
+            let mut kp = [[0.0; SPAN]; SPAN];
+            for (e, &lambda) in values.iter().take(n).enumerate() {
+                if lambda <= 0.0 {
+                    continue;
+                }
+                for p in 0..n {
+                    for q in 0..n {
+                        kp[p][q] += lambda * vectors[p][e] * vectors[q][e];
+                    }
                 }
             }
-        }
+            kp
+        } else {
+            k
+        };
         // The basis: column p < 3 is c_hat (x) e_p, column 3 + l is b_l (x) r_hat.
         let basis: [[f64; SPAN]; 12] = std::array::from_fn(|i| {
             let (vk, x) = (i / 3, i % 3);

@@ -33,7 +33,12 @@
 //! never increases it within the step.
 //!
 //! Hessian blocks: each pair's 12x12 Hessian is projected to be positive semidefinite
-//! and scattered into its 4x4 particle blocks. A pair couples particles no spring joins,
+//! and scattered into its 4x4 particle blocks; asked for [`Curvature::ExactContact`] (or
+//! [`Curvature::Exact`]) and with [`SelfContactSettings::exact_hessian`] set, the exact
+//! Hessian of every unmollified pair is scattered instead (mollified edge pairs stay
+//! projected), which is cheaper per pair (no eigen-decomposition) and restores the
+//! quadratic convergence the projection loses, but may make the Newton matrix
+//! indefinite: backward Euler then falls back to the projected blocks at once. A pair couples particles no spring joins,
 //! and the Hessian pattern has slots only for the springs' pairs (and pairs added with
 //! [`crate::BackwardEuler::add_coupled_term`]); when some of a pair's blocks have no
 //! slots, the pair contributes only the blocks within each of its two primitives (or, if
@@ -66,7 +71,7 @@ use crate::potential::{HessianSink, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
 use sinew_math::{DMat3, DVec3};
 use std::collections::BTreeSet;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
 /// The self-contact settings.
@@ -86,6 +91,10 @@ pub struct SelfContactSettings {
     pub mollifier_ratio: f64,
     /// The adaptive stiffness rule's constants.
     pub kappa: KappaSettings,
+    /// Whether the term gives its pairs' exact Hessians when the Newton matrix asks for
+    /// them ([`Curvature::ExactContact`]); when false it always gives their projections
+    /// (default false, see docs/contact.md).
+    pub exact_hessian: bool,
 }
 
 impl Default for SelfContactSettings {
@@ -96,6 +105,7 @@ impl Default for SelfContactSettings {
             toi_fraction: 0.9,
             mollifier_ratio: 1e-3,
             kappa: KappaSettings::default(),
+            exact_hessian: false,
         }
     }
 }
@@ -149,6 +159,8 @@ pub struct SelfContactStats {
     active_pairs: AtomicU64,
     min_gap: AtomicU64,
     broad_phases: AtomicU64,
+    exact_hessians: AtomicU64,
+    projected_after_exact: AtomicU64,
     /// Particle pairs a contact pair coupled that the Hessian pattern had no slots for.
     missing: Mutex<BTreeSet<[usize; 2]>>,
 }
@@ -180,6 +192,20 @@ impl SelfContactStats {
         self.broad_phases.load(Ordering::Relaxed)
     }
 
+    /// How many times the term has written its pairs' exact Hessians into a Newton matrix.
+    #[must_use]
+    pub fn exact_hessians(&self) -> u64 {
+        self.exact_hessians.load(Ordering::Relaxed)
+    }
+
+    /// How many Newton iterations asked for the projected Hessians after the exact ones
+    /// at the same iterate (the fallback when the matrix with the exact blocks was not
+    /// positive definite).
+    #[must_use]
+    pub fn projected_after_exact(&self) -> u64 {
+        self.projected_after_exact.load(Ordering::Relaxed)
+    }
+
     /// Takes the particle pairs (`[low, high]`, sorted) that contact pairs coupled since
     /// the last call but the Hessian pattern had no slots for (the integrator takes them
     /// at every Newton iteration through the term; this is for a caller that runs the
@@ -209,13 +235,17 @@ pub struct SelfContactTerm {
     active: Vec<Candidate>,
     active_at: Vec<DVec3>,
     /// Per active pair, with a barrier at `active_at`: its particles, energy gradient
-    /// and projected Hessian (computed once per iteration for both the gradient and the
-    /// Hessian, which Newton asks for at the iterate the set was collected at), marked
-    /// not present for a pair with none (the slots are filled on the thread pool, one
-    /// per pair).
-    /// Only the first `cache_len` slots are this iteration's; the storage is kept.
-    cache: Vec<PairDerivatives>,
-    cache_len: usize,
+    /// and Hessian (computed once per iteration for both the gradient and the Hessian,
+    /// which Newton asks for at the iterate the set was collected at, in the form the
+    /// last iterate first asked for; recomputed in the other form when that is asked).
+    cache: Mutex<PairCache>,
+    /// The form the first Hessian asked for at the current iterate had (`FORM_NONE`
+    /// before one is asked), and whether the projected form was asked after the exact
+    /// one there.
+    first_asked: AtomicU8,
+    fell_back: AtomicBool,
+    /// The form the active pairs' derivatives are computed in at the next iterate.
+    next_form: HessianForm,
     /// Scratch for the gaps of the pairs near the iterate, with their regions.
     near_gaps: Vec<(f64, Closest)>,
     /// The regions of the active pairs (in `active`'s order).
@@ -270,8 +300,10 @@ impl SelfContactTerm {
             kappa: None,
             active: Vec::new(),
             active_at: Vec::new(),
-            cache: Vec::new(),
-            cache_len: 0,
+            cache: Mutex::new(PairCache::default()),
+            first_asked: AtomicU8::new(FORM_NONE),
+            fell_back: AtomicBool::new(false),
+            next_form: HessianForm::Projected,
             near_gaps: Vec::new(),
             active_regions: Vec::new(),
             segment: Mutex::new(Segment::default()),
@@ -462,14 +494,16 @@ impl SelfContactTerm {
         kappa * m * barrier(gap, self.settings.dhat)
     }
 
-    /// A pair's energy gradient and projected Hessian in the pair's twelve coordinates,
-    /// written into `out` (which is marked as holding none when the pair is beyond `dhat`
-    /// or not admissible).
+    /// A pair's energy gradient and Hessian (projected, or exact for an unmollified pair
+    /// when `form` asks for it) in the pair's twelve coordinates, written into `out`
+    /// (which is marked as holding none when the pair is beyond `dhat` or not
+    /// admissible). The gradient does not depend on `form`, bit for bit.
     ///
     /// Pairs without a mollifier (every vertex-triangle pair, and edge pairs far from
     /// parallel, where the mollifier is identically 1) take the closed form of
     /// [`RegionForm`]; mollified edge pairs, and the degenerate pairs the closed form
-    /// declines, take the dual numbers and the full 12x12 projection. `region` is the
+    /// declines, take the dual numbers and the full 12x12 projection (or, for a
+    /// degenerate unmollified pair in the exact form, the dual numbers' Hessian). `region` is the
     /// region of the closest points at `x` when the caller has it (found by the same
     /// rules, so the same). The results are written in place: a pair's derivatives are
     /// over a kilobyte, and the lists of a few ten thousand pairs are refilled at every
@@ -480,6 +514,7 @@ impl SelfContactTerm {
         c: Candidate,
         x: &[DVec3],
         region: Option<Closest>,
+        form: HessianForm,
         out: &mut PairDerivatives,
     ) {
         let (kind, v) = self.pair(c);
@@ -491,20 +526,26 @@ impl SelfContactTerm {
             .mollifier_threshold(c)
             .is_some_and(|eps| mollifier(&p, eps) < 1.0);
         let closest = || region.unwrap_or_else(|| kind.closest(&p));
-        if !mollified && let Some(present) = self.pair_derivatives_closed(kappa, closest(), &p, out)
+        let exact = form == HessianForm::Exact && !mollified;
+        if !mollified
+            && let Some(present) = self.pair_derivatives_closed(kappa, closest(), &p, exact, out)
         {
             out.present = present;
             return;
         }
         if let Some(e) = self.pair_energy_dual(kappa, c, x) {
             out.gradient = e.gradient;
-            out.hessian = project_psd12(&e.hessian);
+            out.hessian = if exact {
+                e.hessian
+            } else {
+                project_psd12(&e.hessian)
+            };
             out.present = true;
         }
     }
 
     /// The closed-form derivatives of an unmollified pair into `out`'s gradient and
-    /// Hessian: `Some(true)` when written, `Some(false)` when the pair is beyond `dhat` or
+    /// Hessian (the exact one when `exact`, else its projection): `Some(true)` when written, `Some(false)` when the pair is beyond `dhat` or
     /// not admissible, `None` when the closed form declines a degenerate pair. With
     /// `E(s) = kappa b(sqrt(s) - xi)`, `E' = kappa b' / (2 d)` and
     /// `E'' = kappa (b'' / (4 s) - b' / (4 s d))`, `d = sqrt(s)`.
@@ -513,6 +554,7 @@ impl SelfContactTerm {
         kappa: f64,
         closest: Closest,
         p: &[DVec3; 4],
+        exact: bool,
         out: &mut PairDerivatives,
     ) -> Option<bool> {
         let form = RegionForm::new(p, closest);
@@ -531,7 +573,12 @@ impl SelfContactTerm {
         );
         let first = kappa * b1 / (2.0 * d);
         let second = kappa * (b2 / (4.0 * s) - b1 / (4.0 * s * d));
-        if !form.projected_hessian_into(first, second, &mut out.hessian) {
+        let written = if exact {
+            form.exact_hessian_into(first, second, &mut out.hessian)
+        } else {
+            form.projected_hessian_into(first, second, &mut out.hessian)
+        };
+        if !written {
             return None;
         }
         out.gradient = form.gradient().map(|v| first * v);
@@ -565,23 +612,43 @@ impl SelfContactTerm {
         Some(e.scale(kappa))
     }
 
-    /// The derivatives of every pair with a barrier at `x`: the cache if the active set
-    /// was collected at `x`, otherwise computed from the broad phase's pairs.
-    fn derivatives_at(
+    /// Calls `f` with the derivatives of every pair with a barrier at `x`, their Hessians
+    /// in `form` (any form when `None`, for the gradient): the active pairs' kept slots
+    /// if the active set was collected at `x` (recomputed first if they hold the other
+    /// form), otherwise computed from the broad phase's pairs.
+    fn with_derivatives(
         &self,
         x: &[DVec3],
         fixed: &[bool],
-    ) -> std::borrow::Cow<'_, [PairDerivatives]> {
+        form: Option<HessianForm>,
+        f: impl FnOnce(&[PairDerivatives]),
+    ) {
+        let kappa = self.kappa();
         if self.active_at.as_slice() == x {
-            std::borrow::Cow::Borrowed(&self.cache[..self.cache_len])
+            let mut cache = self.cache.lock().unwrap_or_else(PoisonError::into_inner);
+            if let Some(form) = form
+                && form != cache.form
+            {
+                // The slots are taken out while the pool fills them, so no lock is held
+                // across the parallel loop.
+                let mut slots = std::mem::take(&mut cache.slots);
+                let len = cache.len;
+                let (active, regions) = (&self.active, &self.active_regions);
+                spread::for_each(&mut slots[..len], |i, slot| {
+                    self.pair_derivatives(kappa, active[i], x, Some(regions[i]), form, slot);
+                });
+                cache.slots = slots;
+                cache.form = form;
+            }
+            f(&cache.slots[..cache.len]);
         } else {
-            let kappa = self.kappa();
             let near = self.near(x, fixed);
+            let form = form.unwrap_or(HessianForm::Projected);
             let mut out = vec![PairDerivatives::default(); near.len()];
             spread::for_each(&mut out, |i, slot| {
-                self.pair_derivatives(kappa, near[i], x, None, slot);
+                self.pair_derivatives(kappa, near[i], x, None, form, slot);
             });
-            std::borrow::Cow::Owned(out)
+            f(&out);
         }
     }
 
@@ -741,19 +808,30 @@ impl Term for SelfContactTerm {
         }
         self.near_gaps = gaps;
         let kappa = self.kappa();
-        let mut cache = std::mem::take(&mut self.cache);
-        self.cache_len = 0;
+        // The derivatives are computed in the form the last iterate's matrix first asked
+        // for: an iterate usually asks for the same form as the one before it.
+        match self.first_asked.swap(FORM_NONE, Ordering::Relaxed) {
+            FORM_EXACT => self.next_form = HessianForm::Exact,
+            FORM_PROJECTED => self.next_form = HessianForm::Projected,
+            _ => {}
+        }
+        self.fell_back.store(false, Ordering::Relaxed);
+        let form = self.next_form;
+        let mut cache =
+            std::mem::take(self.cache.get_mut().unwrap_or_else(PoisonError::into_inner));
+        cache.len = 0;
+        cache.form = form;
         if kappa > 0.0 {
             // The slots only grow: every one in use is overwritten whole.
-            if cache.len() < active.len() {
-                cache.resize(active.len(), PairDerivatives::default());
+            if cache.slots.len() < active.len() {
+                cache.slots.resize(active.len(), PairDerivatives::default());
             }
-            spread::for_each(&mut cache[..active.len()], |i, slot| {
-                self.pair_derivatives(kappa, active[i], x, Some(regions[i]), slot);
+            spread::for_each(&mut cache.slots[..active.len()], |i, slot| {
+                self.pair_derivatives(kappa, active[i], x, Some(regions[i]), form, slot);
             });
-            self.cache_len = active.len();
+            cache.len = active.len();
         }
-        self.cache = cache;
+        *self.cache.get_mut().unwrap_or_else(PoisonError::into_inner) = cache;
         self.active = active;
         self.active_regions = regions;
         self.active_at.clear();
@@ -846,40 +924,71 @@ impl Term for SelfContactTerm {
         if kappa == 0.0 {
             return;
         }
-        for e in self
-            .derivatives_at(x, step.system.fixed())
-            .iter()
-            .filter(|e| e.present)
-        {
-            for (k, &i) in e.particles.iter().enumerate() {
-                gradient[i] += DVec3::new(
-                    e.gradient[3 * k],
-                    e.gradient[3 * k + 1],
-                    e.gradient[3 * k + 2],
-                );
+        self.with_derivatives(x, step.system.fixed(), None, |pairs| {
+            for e in pairs.iter().filter(|e| e.present) {
+                for (k, &i) in e.particles.iter().enumerate() {
+                    gradient[i] += DVec3::new(
+                        e.gradient[3 * k],
+                        e.gradient[3 * k + 1],
+                        e.gradient[3 * k + 2],
+                    );
+                }
             }
-        }
+        });
     }
 
     fn add_hessian(
         &self,
         step: &StepContext<'_>,
         x: &[DVec3],
-        _curvature: Curvature,
+        curvature: Curvature,
         sink: &mut HessianSink<'_>,
     ) {
         let kappa = self.kappa();
         if kappa == 0.0 {
             return;
         }
-        let mut missing = Vec::new();
-        for e in self
-            .derivatives_at(x, step.system.fixed())
-            .iter()
-            .filter(|e| e.present)
-        {
-            scatter(&e.hessian, e.kind, e.particles, sink, &mut missing);
+        let form = match curvature {
+            Curvature::Exact | Curvature::ExactContact(_) if self.settings.exact_hessian => {
+                HessianForm::Exact
+            }
+            _ => HessianForm::Projected,
+        };
+        let code = match form {
+            HessianForm::Exact => FORM_EXACT,
+            HessianForm::Projected => FORM_PROJECTED,
+        };
+        if form == HessianForm::Exact {
+            self.stats.exact_hessians.fetch_add(1, Ordering::Relaxed);
         }
+        // What the Newton iteration asked for at its iterate (the state the active set
+        // was collected at): the form to fill the next iterate's slots in, and the
+        // fallbacks.
+        if self.active_at.as_slice() == x {
+            let first = match self.first_asked.compare_exchange(
+                FORM_NONE,
+                code,
+                Ordering::Relaxed,
+                Ordering::Relaxed,
+            ) {
+                Ok(_) => code,
+                Err(earlier) => earlier,
+            };
+            if form == HessianForm::Projected
+                && first == FORM_EXACT
+                && !self.fell_back.swap(true, Ordering::Relaxed)
+            {
+                self.stats
+                    .projected_after_exact
+                    .fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        let mut missing = Vec::new();
+        self.with_derivatives(x, step.system.fixed(), Some(form), |pairs| {
+            for e in pairs.iter().filter(|e| e.present) {
+                scatter(&e.hessian, e.kind, e.particles, sink, &mut missing);
+            }
+        });
         if !missing.is_empty() {
             self.stats.note_missing(missing.into_iter());
         }
@@ -901,6 +1010,30 @@ impl Term for SelfContactTerm {
         // conservative times, which may fall short of it, so never return less.
         (LONG_STEP * self.ccd_fraction(x, &long, fixed)).max(1.0)
     }
+}
+
+/// Which Hessian of a pair is asked for: its projection onto positive semidefinite
+/// matrices, or the exact one (mollified pairs stay projected).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+enum HessianForm {
+    #[default]
+    Projected,
+    Exact,
+}
+
+/// [`SelfContactTerm::first_asked`]'s values.
+const FORM_NONE: u8 = 0;
+const FORM_PROJECTED: u8 = 1;
+const FORM_EXACT: u8 = 2;
+
+/// The active pairs' derivatives at the iterate the active set was collected at: only
+/// the first `len` slots are this iteration's (the storage is kept from iteration to
+/// iteration), their Hessians in `form`.
+#[derive(Debug, Default)]
+struct PairCache {
+    slots: Vec<PairDerivatives>,
+    len: usize,
+    form: HessianForm,
 }
 
 /// The 3x3 block of `h` at particle rows `a` and columns `b` (pair-local indices).
@@ -933,9 +1066,10 @@ impl Default for PairDerivatives {
     }
 }
 
-/// Adds a pair's projected Hessian `h` to `sink`: all of it when the pattern has every
-/// coupling block, else the blocks within each primitive, else the diagonal blocks (see
-/// the module documentation). Particle pairs without slots are pushed to `missing`.
+/// Adds a pair's Hessian `h` to `sink`: all of it when the pattern has every coupling
+/// block, else the blocks within each primitive, else the diagonal blocks (see the module
+/// documentation; for an exact, indefinite `h` the partial blocks carry no guarantee,
+/// and the matrix may then be refused and the projected blocks asked for). Particle pairs without slots are pushed to `missing`.
 fn scatter(
     h: &Mat12,
     kind: PairKind,
