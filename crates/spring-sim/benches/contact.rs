@@ -36,8 +36,9 @@
 //! `auto` by default; `reuse`: the direct solver's `factor_reuse_iterations`, 0 for a
 //! factorization every Newton iteration; `tol`: `NewtonSettings::tolerance`; `exact`:
 //! `SelfContactSettings::exact_hessian` (the self-contact pairs' exact Hessians tried
-//! first, default 0; the self-contact rows then end with the times the term wrote them
-//! and fell back to their projections); `save`:
+//! first once Newton is slow, default 1 as the setting's default; the self-contact
+//! workloads print the times the term wrote them and fell back to their projections);
+//! `save`:
 //! write the final positions and velocities to FILE; `against`: read such a file and
 //! print the largest distance of a particle's final position and velocity from it, the
 //! deviation from a reference run). The last line gives the direct solver's numeric
@@ -476,7 +477,8 @@ fn main() {
             eps_v: number("eps_v").unwrap_or(ContactSettings::default().eps_v),
             ..ContactSettings::default()
         };
-        let exact = number("exact").is_some_and(|e| e != 0.0);
+        let exact =
+            number("exact").map_or(SelfContactSettings::default().exact_hessian, |e| e != 0.0);
         let mut run = Running::new(&w, settings, contact, exact);
         let h = 1.0 / 60.0;
         let mut times = Vec::with_capacity(steps);

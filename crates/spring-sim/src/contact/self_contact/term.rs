@@ -93,7 +93,8 @@ pub struct SelfContactSettings {
     pub kappa: KappaSettings,
     /// Whether the term gives its pairs' exact Hessians when the Newton matrix asks for
     /// them ([`Curvature::ExactContact`]); when false it always gives their projections
-    /// (default false, see docs/contact.md).
+    /// (default true: fewer Newton iterations and less time on the stacked and twisted
+    /// sheets, docs/contact.md, "The exact pair Hessian first").
     pub exact_hessian: bool,
 }
 
@@ -105,7 +106,7 @@ impl Default for SelfContactSettings {
             toi_fraction: 0.9,
             mollifier_ratio: 1e-3,
             kappa: KappaSettings::default(),
-            exact_hessian: false,
+            exact_hessian: true,
         }
     }
 }
