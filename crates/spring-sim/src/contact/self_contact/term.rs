@@ -634,10 +634,12 @@ impl SelfContactTerm {
                 // across the parallel loop.
                 let mut slots = std::mem::take(&mut cache.slots);
                 let len = cache.len;
+                drop(cache);
                 let (active, regions) = (&self.active, &self.active_regions);
                 spread::for_each(&mut slots[..len], |i, slot| {
                     self.pair_derivatives(kappa, active[i], x, Some(regions[i]), form, slot);
                 });
+                cache = self.cache.lock().unwrap_or_else(PoisonError::into_inner);
                 cache.slots = slots;
                 cache.form = form;
             }
