@@ -179,6 +179,11 @@ pub struct StepReport {
     /// springs' negative curvature kept; `spring::Curvature::Softened`) because it was
     /// positive definite and the projected one was converging slowly.
     pub exact_hessian_iterations: usize,
+    /// Newton matrices with the contact pairs' exact Hessians that were refused (not
+    /// positive definite) and replaced at once by the same matrix with the pairs'
+    /// projections (`spring::Curvature::ExactContact`; 0 without self-contact).
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub contact_projection_fallbacks: usize,
     /// Explicit substeps (1 for implicit steps).
     pub substeps: usize,
     /// Energies at the start of the step.
@@ -237,6 +242,7 @@ impl StepReport {
         self.direct_failures += part.direct_failures;
         self.descent_fallbacks += part.descent_fallbacks;
         self.exact_hessian_iterations += part.exact_hessian_iterations;
+        self.contact_projection_fallbacks += part.contact_projection_fallbacks;
         self.pattern_pairs_added += part.pattern_pairs_added;
     }
 
@@ -259,6 +265,7 @@ impl StepReport {
             direct_failures: 0,
             descent_fallbacks: 0,
             exact_hessian_iterations: 0,
+            contact_projection_fallbacks: 0,
             substeps: 1,
             energy_before: Energies::default(),
             energy_after: Energies::default(),

@@ -39,6 +39,8 @@ struct Outcome {
     fallbacks: u64,
     iterations: usize,
     smallest_gap: f64,
+    /// The steps' reports' count of refused exact matrices.
+    reported_fallbacks: usize,
 }
 
 fn run(exact_hessian: bool, n: usize, steps: usize) -> Outcome {
@@ -75,11 +77,12 @@ fn run(exact_hessian: bool, n: usize, steps: usize) -> Outcome {
         .enable_self_contact(&mut integrator, settings)
         .unwrap();
     let mut system = model.system.clone();
-    let (mut iterations, mut smallest_gap) = (0, f64::INFINITY);
+    let (mut iterations, mut smallest_gap, mut reported_fallbacks) = (0, f64::INFINITY, 0);
     for step in 0..steps {
         let report = integrator.step(&mut system, H).unwrap();
         assert_eq!(report.stop, StepStop::Converged, "step {step}: {report:?}");
         iterations += report.iterations;
+        reported_fallbacks += report.contact_projection_fallbacks;
         smallest_gap = smallest_gap.min(stats.min_gap());
     }
     Outcome {
@@ -88,6 +91,7 @@ fn run(exact_hessian: bool, n: usize, steps: usize) -> Outcome {
         fallbacks: stats.projected_after_exact(),
         iterations,
         smallest_gap,
+        reported_fallbacks,
     }
 }
 
@@ -100,6 +104,10 @@ fn refused_exact_blocks_fall_back_to_the_projection_and_the_steps_converge() {
     assert!(exact.fallbacks > 0, "the fallback never engaged");
     assert_eq!(projected.exact, 0);
     assert_eq!(projected.fallbacks, 0);
+    // The step reports show the fallbacks too, and only where the exact blocks were on.
+    assert!(exact.reported_fallbacks > 0, "no step reported a fallback");
+    assert!(exact.reported_fallbacks as u64 <= exact.fallbacks);
+    assert_eq!(projected.reported_fallbacks, 0);
     // Contact happened, and every gap stayed positive.
     assert!(exact.smallest_gap < 2e-3, "{}", exact.smallest_gap);
     assert!(exact.smallest_gap > 0.0, "{}", exact.smallest_gap);

@@ -201,6 +201,7 @@ impl BackwardEuler {
                     if exact_contact {
                         exact_contact = false;
                         if self.reassembled_differs(&step, Curvature::Softened(theta), &mut saved) {
+                            report.contact_projection_fallbacks += 1;
                             assembled = true;
                             continue;
                         }
