@@ -75,7 +75,12 @@ pub fn gradient(x_a: DVec3, x_b: DVec3, rest_length: f64, stiffness: f64) -> DVe
 /// Which form of a spring's Hessian block to use. Only the curvature across a
 /// compressed spring differs between them (the block's eigenvalues are `k` along the
 /// spring and `k (1 - L/l)` twice across it; docs/spring-sim.md).
+///
+/// A [`crate::potential::Term`] written outside this crate receives it: new forms may be
+/// added (as `ExactContact` was), so it is `#[non_exhaustive]` and such a term's `match`
+/// needs a catch-all arm (read an unknown form as the projection, the safe one).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum Curvature {
     /// The exact Hessian: `k (1 - L/l)` across the spring, negative when compressed.
     Exact,
