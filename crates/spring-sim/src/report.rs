@@ -134,8 +134,14 @@ pub enum StepStop {
 }
 
 /// The report of one step.
+///
+/// Read-only for users: the integrators fill it, and it gains fields as they learn to
+/// report more (the contact counters did), so it is `#[non_exhaustive]`: a literal or an
+/// exhaustive pattern outside this crate would break on each new field (patterns need
+/// `..`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[non_exhaustive]
 pub struct StepReport {
     /// The integrator.
     pub integrator: IntegratorKind,
