@@ -778,7 +778,7 @@ impl BackwardEuler {
     /// waiting (about 8% of a two-thread W6 step). Each spring's energy is the same
     /// expression wherever it is computed, and the three sums are added in the order of
     /// [`SpringSystem::energies`] (the springs' sum beside the particles' two), so the
-    /// result does not depend on the threads (`tests/thread_counts.rs` compares it
+    /// result does not depend on the threads (`tests/suite/thread_counts.rs` compares it
     /// with [`SpringSystem::energies`]).
     fn energies(&mut self, system: &SpringSystem) -> crate::model::Energies {
         #[cfg(feature = "parallel")]

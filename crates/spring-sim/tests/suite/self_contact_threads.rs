@@ -10,22 +10,14 @@
 
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
-use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, SpringSystem, TriangleMesh,
-};
+use sinew_spring_sim::{Bending, Material, MeshCloth, NewtonSettings, SpringSystem, TriangleMesh};
 
 const H: f64 = 1.0 / 60.0;
 const N: usize = 33;
 
 /// An `N x N` grid of points `origin + s (i u + j w)` and its triangles, indices offset.
 fn grid(origin: DVec3, u: DVec3, w: DVec3, s: f64, offset: usize) -> (Vec<DVec3>, Vec<[usize; 3]>) {
-    ClothGrid {
-        size: N,
-        spacing: s,
-        origin,
-        ..ClothGrid::lab()
-    }
-    .sheet(u, w, offset)
+    crate::common::grid(N, origin, u, w, s, offset)
 }
 
 /// What a run ends with: the state, the Newton iterations per step, and per step the

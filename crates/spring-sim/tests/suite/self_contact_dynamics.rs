@@ -6,14 +6,14 @@
 //! every Newton iterate never increases within a step; and the smallest gap over all
 //! such pairs, by brute force, stays positive.
 
+use crate::common::grid;
 use sinew_exact::{intersecting_pairs, triangles_meet};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
 use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactStats};
 use sinew_spring_sim::contact::{Collider, ContactPotential, ContactSettings, ContactTerm};
 use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, MeshClothModel, NewtonSettings, SpringSystem,
-    TriangleMesh,
+    Bending, Material, MeshCloth, MeshClothModel, NewtonSettings, SpringSystem, TriangleMesh,
 };
 use std::sync::Arc;
 
@@ -102,24 +102,6 @@ fn min_gap(x: &[DVec3], triangles: &[[usize; 3]], thickness: f64) -> f64 {
         }
     }
     min.sqrt() - thickness
-}
-
-/// An `n x m` grid of points `origin + i s u + j s w` and its triangles, indices offset.
-fn grid(
-    n: usize,
-    origin: DVec3,
-    u: DVec3,
-    w: DVec3,
-    s: f64,
-    offset: usize,
-) -> (Vec<DVec3>, Vec<[usize; 3]>) {
-    ClothGrid {
-        size: n,
-        spacing: s,
-        origin,
-        ..ClothGrid::lab()
-    }
-    .sheet(u, w, offset)
 }
 
 struct Run {

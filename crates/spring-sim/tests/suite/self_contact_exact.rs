@@ -5,31 +5,14 @@
 //! converges, keeps every gap positive, and ends where the projected run ends (both
 //! solve the same minimization, to the tolerance).
 
+use crate::common::grid;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, SpringSystem, StepStop, TriangleMesh,
+    Bending, Material, MeshCloth, NewtonSettings, SpringSystem, StepStop, TriangleMesh,
 };
 
 const H: f64 = 1.0 / 60.0;
-
-/// An `n x n` grid of points `origin + s (i u + j w)` and its triangles, indices offset.
-fn grid(
-    n: usize,
-    origin: DVec3,
-    u: DVec3,
-    w: DVec3,
-    s: f64,
-    offset: usize,
-) -> (Vec<DVec3>, Vec<[usize; 3]>) {
-    ClothGrid {
-        size: n,
-        spacing: s,
-        origin,
-        ..ClothGrid::lab()
-    }
-    .sheet(u, w, offset)
-}
 
 /// What a run ends with: the state, and the exact-Hessian statistics (times written,
 /// fallbacks), the Newton iterations and the smallest gap over the steps.
