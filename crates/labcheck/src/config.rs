@@ -7,8 +7,8 @@
 //! that fraction scales with `PROPTEST_CASES`, so a deep run deepens every property.
 //!
 //! Regressions: a failing case, once shrunk, is written to
-//! `tests/<file>.proptest-regressions` beside the test file and replayed first on every
-//! later run (commit those files).
+//! `tests/suite/<module>.proptest-regressions` beside the test module and replayed first
+//! on every later run (commit those files).
 //!
 //! Seeds: every run draws the same cases from a fixed seed ([`DEFAULT_SEED`]), so a
 //! green CI run is green again on the same code, and a red one is red again. Another seed

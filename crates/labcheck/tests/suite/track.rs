@@ -3,9 +3,7 @@
 //! every bone keeps its length, nothing becomes NaN, and the per-frame records tell the
 //! truth (docs/labcheck.md).
 
-mod common;
-
-use common::{fk, make_solver, settings, solver_kind};
+use crate::common::{fk, make_solver, settings, solver_kind};
 use proptest::prelude::*;
 use sinew_labcheck::config;
 use sinew_labcheck::reference::kinematics::skeleton_bone_violation;

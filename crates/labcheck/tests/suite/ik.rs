@@ -2,9 +2,7 @@
 //! (sinew-ik-ccd, sinew-ik-fabrik) on random chains, trees and targets of every kind.
 //! Each property is listed with its reason in docs/labcheck.md.
 
-mod common;
-
-use common::{every_solver, fk, make_solver, settings, solve_checked, solver_kind};
+use crate::common::{every_solver, fk, make_solver, settings, solve_checked, solver_kind};
 use proptest::prelude::*;
 use sinew_ik_ccd::CcdSolver;
 use sinew_ik_fabrik::FabrikSolver;
