@@ -15,7 +15,7 @@
 //! is only conditionally stable: above its limit it explodes, and then the step is undone
 //! and reported as an error rather than returning NaN.
 
-use crate::model::{SpringSystem, check_time_step};
+use crate::model::{Spring, SpringSystem, check_time_step};
 use crate::potential::AxialDamping;
 #[cfg(doc)]
 use crate::potential::Gravity;
@@ -184,13 +184,64 @@ pub(crate) fn negated_forces(system: &SpringSystem, x: &[DVec3], v: &[DVec3], ou
     let n = out.len();
     let (x, v) = (&x[..n], &v[..n]);
     let c = system.material().damping;
-    for s in system.springs() {
-        let mut g = spring::gradient(x[s.a], x[s.b], s.rest_length, s.stiffness);
-        if c > 0.0 {
-            g += AxialDamping::rate_gradient(c, x[s.a] - x[s.b], v[s.a] - v[s.b]);
-        }
+    for_each_spring_force(system.springs(), x, v, c, |_, s, g| {
         out[s.a] += g;
         out[s.b] -= g;
+    });
+}
+
+/// One spring's share of [`negated_forces`] on its first particle (minus it on the
+/// second): the spring kernel, plus the axial damping when `c > 0`.
+#[inline(always)]
+fn spring_force(s: &Spring, x: &[DVec3], v: &[DVec3], c: f64) -> DVec3 {
+    let mut g = spring::gradient(x[s.a], x[s.b], s.rest_length, s.stiffness);
+    if c > 0.0 {
+        g += AxialDamping::rate_gradient(c, x[s.a] - x[s.b], v[s.a] - v[s.b]);
+    }
+    g
+}
+
+/// Calls `f(k, spring, g)` for each spring `k` of `springs` in order, `g` its
+/// [`spring_force`]. The forces are computed a batch of [`spring::BATCH`] springs at a
+/// time ([`spring::gradients_of_batch`], the same bits) before `f` sees the first of
+/// them, so the batch's square roots and divisions overlap instead of each waiting for
+/// the previous spring's stores; a batch with a length outside the plain range is
+/// computed spring by spring.
+#[inline(always)]
+fn for_each_spring_force(
+    springs: &[Spring],
+    x: &[DVec3],
+    v: &[DVec3],
+    c: f64,
+    mut f: impl FnMut(usize, &Spring, DVec3),
+) {
+    let mut batches = springs.chunks_exact(spring::BATCH);
+    let mut k = 0;
+    for batch in &mut batches {
+        let mut b = spring::SpringBatch::default();
+        for (i, s) in batch.iter().enumerate() {
+            let d = x[s.a] - x[s.b];
+            [b.d[0][i], b.d[1][i], b.d[2][i]] = [d.x, d.y, d.z];
+            if c > 0.0 {
+                let dv = v[s.a] - v[s.b];
+                [b.dv[0][i], b.dv[1][i], b.dv[2][i]] = [dv.x, dv.y, dv.z];
+            }
+            b.rest_length[i] = s.rest_length;
+            b.stiffness[i] = s.stiffness;
+        }
+        if let Some(g) = spring::gradients_of_batch(&b, c) {
+            for (i, s) in batch.iter().enumerate() {
+                f(k + i, s, DVec3::new(g[0][i], g[1][i], g[2][i]));
+            }
+        } else {
+            for (i, s) in batch.iter().enumerate() {
+                f(k + i, s, spring_force(s, x, v, c));
+            }
+        }
+        k += spring::BATCH;
+    }
+    for (i, s) in batches.remainder().iter().enumerate() {
+        f(k + i, s, spring_force(s, x, v, c));
     }
 }
 
@@ -297,16 +348,7 @@ impl ThreadedForces {
                     .par_chunks(SPRINGS_PER_TASK)
                     .zip(per_spring.par_chunks_mut(SPRINGS_PER_TASK))
                     .for_each(|(springs, out)| {
-                        for (s, g) in springs.iter().zip(out) {
-                            *g = spring::gradient(x[s.a], x[s.b], s.rest_length, s.stiffness);
-                            if c > 0.0 {
-                                *g += AxialDamping::rate_gradient(
-                                    c,
-                                    x[s.a] - x[s.b],
-                                    v[s.a] - v[s.b],
-                                );
-                            }
-                        }
+                        for_each_spring_force(springs, x, v, c, |k, _, g| out[k] = g);
                     });
                 let per_spring = &*per_spring;
                 out.par_chunks_mut(PARTICLES_PER_TASK)
@@ -548,5 +590,125 @@ impl VelocityVerlet {
         self.end_v.extend_from_slice(system.velocities());
         self.end_energy = Some(report.energy_after);
         Ok(report)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Material, Particle, SpringSpec};
+
+    /// A line of particles whose neighbours sit at plain distances, at the same point, at
+    /// distances whose squares underflow, near the plain range's lower end, and one
+    /// particle so far away that the squared length overflows; springs between
+    /// neighbours and next neighbours (some of zero rest length), 43 of them, so the
+    /// last batch is cut short.
+    fn odd_line(damping: f64) -> SpringSystem {
+        let offsets = [
+            0.2, 0.0, 0.3, 1e-160, 0.25, 1e-155, 0.2, 2e-150, 0.3, 0.2, 0.0, 0.0, 0.3, 0.2, 0.25,
+            1e200, 0.3, 0.2, 0.2, 5e-151, 0.3, 0.2,
+        ];
+        let mut particles = vec![Particle::at_rest(DVec3::ZERO, 1.0)];
+        let mut at = DVec3::ZERO;
+        for (i, &o) in offsets.iter().enumerate() {
+            // Not along an axis, so every component of a spring's force is worked.
+            let bend = 0.1 * (i as f64).sin();
+            let step = o * DVec3::new(1.0, bend, 0.5 - bend).normalize();
+            // The far particle is an outlier: the line goes on from its neighbour.
+            let position = at + step;
+            if o < 1.0 {
+                at = position;
+            }
+            particles.push(Particle {
+                velocity: DVec3::new(0.1 * (i as f64).cos(), -0.2, 0.05 * i as f64),
+                ..Particle::at_rest(position, 1.0 + 0.1 * i as f64)
+            });
+        }
+        particles[0].fixed = true;
+        let n = particles.len();
+        let mut springs = Vec::new();
+        for step in [1, 2] {
+            for a in 0..n - step {
+                springs.push(SpringSpec {
+                    rest_length: Some(if a % 7 == 3 { 0.0 } else { 0.21 * step as f64 }),
+                    stiffness: Some(50.0 + a as f64),
+                    ..SpringSpec::between(a, a + step)
+                });
+            }
+        }
+        SpringSystem::new(&particles, &springs, Material::lab().with_damping(damping)).unwrap()
+    }
+
+    /// The scalar loop the batches replace: gravity, then each spring's kernels and its
+    /// scatter, in spring order.
+    fn scalar_negated_forces(system: &SpringSystem, x: &[DVec3], v: &[DVec3]) -> Vec<DVec3> {
+        let c = system.material().damping;
+        let mut out: Vec<DVec3> = system
+            .masses()
+            .iter()
+            .map(|&m| {
+                let mut f = DVec3::ZERO;
+                f -= m * system.material().gravity;
+                f
+            })
+            .collect();
+        for s in system.springs() {
+            let mut g = spring::gradient(x[s.a], x[s.b], s.rest_length, s.stiffness);
+            if c > 0.0 {
+                g += AxialDamping::rate_gradient(c, x[s.a] - x[s.b], v[s.a] - v[s.b]);
+            }
+            out[s.a] += g;
+            out[s.b] -= g;
+        }
+        out
+    }
+
+    fn bits(f: &[DVec3]) -> Vec<[u64; 3]> {
+        f.iter()
+            .map(|g| [g.x.to_bits(), g.y.to_bits(), g.z.to_bits()])
+            .collect()
+    }
+
+    #[test]
+    fn batched_forces_are_bitwise_the_scalar_loop_with_odd_lengths() {
+        for damping in [0.0, 0.3] {
+            let system = odd_line(damping);
+            assert_eq!(system.springs().len() % spring::BATCH, 43 % spring::BATCH);
+            let (x, v) = (system.positions(), system.velocities());
+            // Both kinds of batch occur: all lengths plain, and some not.
+            let (mut plain, mut odd) = (0, 0);
+            for batch in system.springs().chunks_exact(spring::BATCH) {
+                let mut b = spring::SpringBatch::default();
+                for (i, s) in batch.iter().enumerate() {
+                    let d = x[s.a] - x[s.b];
+                    [b.d[0][i], b.d[1][i], b.d[2][i]] = [d.x, d.y, d.z];
+                    let dv = v[s.a] - v[s.b];
+                    [b.dv[0][i], b.dv[1][i], b.dv[2][i]] = [dv.x, dv.y, dv.z];
+                    b.rest_length[i] = s.rest_length;
+                    b.stiffness[i] = s.stiffness;
+                }
+                match spring::gradients_of_batch(&b, damping) {
+                    Some(_) => plain += 1,
+                    None => odd += 1,
+                }
+            }
+            assert!(plain >= 2 && odd >= 4, "plain {plain}, odd {odd}");
+            let mut out = vec![DVec3::splat(f64::NAN); system.len()];
+            negated_forces(&system, x, v, &mut out);
+            let expected = scalar_negated_forces(&system, x, v);
+            assert!(expected.iter().all(|f| f.is_finite()));
+            assert_eq!(bits(&out), bits(&expected), "damping {damping}");
+            // The threaded path's per-spring pass, on one batch list.
+            let mut per_spring = vec![DVec3::ZERO; system.springs().len()];
+            for_each_spring_force(system.springs(), x, v, damping, |k, _, g| {
+                per_spring[k] = g;
+            });
+            let scalar: Vec<DVec3> = system
+                .springs()
+                .iter()
+                .map(|s| spring_force(s, x, v, damping))
+                .collect();
+            assert_eq!(bits(&per_spring), bits(&scalar), "damping {damping}");
+        }
     }
 }

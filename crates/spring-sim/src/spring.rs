@@ -72,6 +72,88 @@ pub fn gradient(x_a: DVec3, x_b: DVec3, rest_length: f64, stiffness: f64) -> DVe
     }
 }
 
+/// Springs per batch of the batched kernels ([`gradients_of_batch`]).
+pub(crate) const BATCH: usize = 4;
+
+/// The lengths for which [`gradient`] takes its plain form `k (1 - L (1/l)) d`, the
+/// condition of its fast path written without branches so a batch tests all its lanes
+/// at once (a NaN length fails both comparisons, as it fails `is_finite`).
+#[inline(always)]
+fn plain_length(l: f64) -> bool {
+    (l > 1e-150) & (l < f64::INFINITY)
+}
+
+/// A batch of [`BATCH`] springs as components: the spring vectors `d = x_a - x_b`, the
+/// relative velocities `v_a - v_b` (read only with damping), the rest lengths and the
+/// stiffnesses, lane `i` being the batch's `i`-th spring.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct SpringBatch {
+    pub(crate) d: [[f64; BATCH]; 3],
+    pub(crate) dv: [[f64; BATCH]; 3],
+    pub(crate) rest_length: [f64; BATCH],
+    pub(crate) stiffness: [f64; BATCH],
+}
+
+/// Each spring's [`gradient`] of a batch, plus its axial damping's
+/// [`crate::potential::AxialDamping::rate_gradient`] when `c > 0`, by the same
+/// floating-point operations in the same order as the scalar kernels, lane by lane;
+/// `None` when a length is outside the plain range `1e-150 < l < inf` (the caller then
+/// uses the scalar kernels, whose other branches handle it).
+///
+/// Why a batch: the scalar loop is a chain per spring (square root, division, products)
+/// followed by stores to the two particles, which the next spring sharing a particle
+/// must wait for, so the processor overlaps few springs. Here the batch's chains have no
+/// store between them, and each operation is written once over all lanes so the
+/// compiler can pair lanes in packed square roots and divisions (the same correctly
+/// rounded operations as the scalar ones). In the plain range the damping's `|d|^2` is
+/// positive (`l > 0`), so its zero-length branch cannot be taken either.
+#[inline(always)]
+#[must_use]
+pub(crate) fn gradients_of_batch(b: &SpringBatch, c: f64) -> Option<[[f64; BATCH]; 3]> {
+    let [dx, dy, dz] = &b.d;
+    // `d.length()`: `(x x + y y) + z z`, then its square root.
+    let mut l2 = [0.0; BATCH];
+    for i in 0..BATCH {
+        l2[i] = dx[i] * dx[i] + dy[i] * dy[i] + dz[i] * dz[i];
+    }
+    let mut l = [0.0; BATCH];
+    for i in 0..BATCH {
+        l[i] = l2[i].sqrt();
+    }
+    let mut plain = true;
+    for &li in &l {
+        plain &= plain_length(li);
+    }
+    if !plain {
+        return None;
+    }
+    // `k (1 - L (1/l))`, the factor of `d`.
+    let mut scale = [0.0; BATCH];
+    for i in 0..BATCH {
+        scale[i] = b.stiffness[i] * (1.0 - b.rest_length[i] * (1.0 / l[i]));
+    }
+    let mut g = [[0.0; BATCH]; 3];
+    for (g, d) in g.iter_mut().zip(&b.d) {
+        for i in 0..BATCH {
+            g[i] = scale[i] * d[i];
+        }
+    }
+    if c > 0.0 {
+        // `(c (d . dv) / |d|^2) d`, added to the spring's term.
+        let [vx, vy, vz] = &b.dv;
+        let mut rate = [0.0; BATCH];
+        for i in 0..BATCH {
+            rate[i] = c * (dx[i] * vx[i] + dy[i] * vy[i] + dz[i] * vz[i]) / l2[i];
+        }
+        for (g, d) in g.iter_mut().zip(&b.d) {
+            for i in 0..BATCH {
+                g[i] += rate[i] * d[i];
+            }
+        }
+    }
+    Some(g)
+}
+
 /// Which form of a spring's Hessian block to use. Only the curvature across a
 /// compressed spring differs between them (the block's eigenvalues are `k` along the
 /// spring and `k (1 - L/l)` twice across it; docs/spring-sim.md).
