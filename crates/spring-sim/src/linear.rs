@@ -797,6 +797,8 @@ pub struct PcgSolver {
     partials: Vec<f64>,
     /// Per-chunk partial sums of two dot products computed in one pass.
     partials2: Vec<[f64; 2]>,
+    /// Per-chunk partial sums of the three sums of a cold start's set-up.
+    partials3: Vec<[f64; 3]>,
     /// The row-ordered product's index, for systems above [`PARALLEL_MIN`].
     rows: Option<RowProduct>,
     /// The threads (none: the calling thread only).
@@ -944,6 +946,7 @@ impl PcgSolver {
             chunk: if n > PARALLEL_MIN { CHUNK } else { n.max(3) },
             partials: Vec::new(),
             partials2: Vec::new(),
+            partials3: Vec::new(),
             rows: (n > PARALLEL_MIN).then(|| RowProduct::new(pattern)),
             #[cfg(feature = "parallel")]
             pool: None,
@@ -1049,63 +1052,26 @@ impl PcgSolver {
         max_iterations: usize,
     ) -> PcgOutcome {
         let size = self.chunk;
-        // The block inverses, with |b|^2 (chunks of `size / 3` blocks are the chunks of
-        // `size` unknowns).
-        chunks1(
-            par,
-            size / 3,
-            &mut self.inverse_blocks,
-            &mut self.partials,
-            |first, blocks| {
-                for (i, inv) in blocks.iter_mut().enumerate() {
-                    let block = pattern.diag_block(values, first + i);
-                    // The diagonal blocks of an SPD matrix are SPD; the guard keeps a NaN
-                    // out if a caller passes something else.
-                    let d = block.determinant();
-                    *inv = if d.is_finite() && d > 0.0 {
-                        block.inverse()
-                    } else {
-                        DMat3::IDENTITY
-                    };
-                }
-                let piece = &b[3 * first..3 * (first + blocks.len())];
-                dot(piece, piece)
-            },
-        );
-        let b_norm = ordered_sum(&self.partials).sqrt();
+        // The usual cold start (every Newton direction starts from zero): `A 0 = 0`, so
+        // the residual is `b` itself and the product, a fifth to a third of the products
+        // of a solve that ends in a few iterations, is skipped. `b - 0` is `b` bit for
+        // bit, so the iterates are the same as with it. Then nothing of the set-up needs
+        // another chunk's data, and its two passes are one region: each chunk inverts
+        // its diagonal blocks, sums its share of `|b|^2`, sets `r = b`, `z = P^-1 r`,
+        // `p = z` and sums its shares of `r . r` and `r . z`, the same operations on the
+        // same chunks as the two passes of a warm start.
+        let cold = x.iter().all(|v| *v == 0.0);
+        let (b_norm, rr, rz) = if cold {
+            let [bb, rr, rz] = self.cold_setup(par, pattern, values, b);
+            (bb.sqrt(), rr, rz)
+        } else {
+            self.warm_setup(par, pattern, values, b, x)
+        };
         if b_norm == 0.0 {
             x.fill(0.0);
             return PcgOutcome::default();
         }
-        // The usual cold start (every Newton direction starts from zero): `A 0 = 0`, so
-        // the residual is `b` itself and the product, a fifth to a third of the products
-        // of a solve that ends in a few iterations, is skipped. `b - 0` is `b` bit for
-        // bit, so the iterates are the same as with it.
-        let cold = x.iter().all(|v| *v == 0.0);
-        if !cold {
-            self.product(par, pattern, values, x);
-        }
-        let (inverse, ap) = (&self.inverse_blocks, &self.ap);
-        chunks3(
-            par,
-            size,
-            [&mut self.r, &mut self.z, &mut self.p],
-            &mut self.partials2,
-            |first, [r, z, p]| {
-                let b = &b[first..first + r.len()];
-                if cold {
-                    r.copy_from_slice(b);
-                } else {
-                    for ((r, b), ap) in r.iter_mut().zip(b).zip(&ap[first..first + b.len()]) {
-                        *r = b - ap;
-                    }
-                }
-                precondition(inverse, first, r, z);
-                p.copy_from_slice(z);
-                dot2(r, z)
-            },
-        );
-        let [rr, mut rz] = ordered_sum2(&self.partials2);
+        let mut rz = rz;
         let mut r_norm = rr.sqrt();
         let mut iterations = 0;
         let mut negative_curvature = false;
@@ -1162,6 +1128,107 @@ impl PcgSolver {
         }
     }
 
+    /// The set-up of a warm start (`x` not zero) in two passes: the block inverses with
+    /// `|b|^2`, then (unless `b` is zero) `r = b - A x`, `z = P^-1 r`, `p = z` with
+    /// `r . r` and `r . z`. Returns `(|b|, r . r, r . z)`, `|b| = 0` alone when `b` is
+    /// zero.
+    fn warm_setup(
+        &mut self,
+        par: bool,
+        pattern: &HessianPattern,
+        values: &[f64],
+        b: &[f64],
+        x: &[f64],
+    ) -> (f64, f64, f64) {
+        let size = self.chunk;
+        // The block inverses, with |b|^2 (chunks of `size / 3` blocks are the chunks of
+        // `size` unknowns).
+        chunks1(
+            par,
+            size / 3,
+            &mut self.inverse_blocks,
+            &mut self.partials,
+            |first, blocks| {
+                invert_diagonal_blocks(pattern, values, first, blocks);
+                let piece = &b[3 * first..3 * (first + blocks.len())];
+                dot(piece, piece)
+            },
+        );
+        let b_norm = ordered_sum(&self.partials).sqrt();
+        if b_norm == 0.0 {
+            return (0.0, 0.0, 0.0);
+        }
+        self.product(par, pattern, values, x);
+        let (inverse, ap) = (&self.inverse_blocks, &self.ap);
+        chunks3(
+            par,
+            size,
+            [&mut self.r, &mut self.z, &mut self.p],
+            &mut self.partials2,
+            |first, [r, z, p]| {
+                let b = &b[first..first + r.len()];
+                for ((r, b), ap) in r.iter_mut().zip(b).zip(&ap[first..first + b.len()]) {
+                    *r = b - ap;
+                }
+                precondition(inverse, first, r, z);
+                p.copy_from_slice(z);
+                dot2(r, z)
+            },
+        );
+        let [rr, rz] = ordered_sum2(&self.partials2);
+        (b_norm, rr, rz)
+    }
+
+    /// The set-up of a cold start (`x` zero) in one pass over the chunks (see
+    /// [`Self::solve_on`]): returns `[|b|^2, r . r, r . z]`, each the in-order sum of
+    /// the chunks' in-order sums, as the two passes of [`Self::warm_setup`] give them.
+    fn cold_setup(
+        &mut self,
+        par: bool,
+        pattern: &HessianPattern,
+        values: &[f64],
+        b: &[f64],
+    ) -> [f64; 3] {
+        let size = self.chunk;
+        let chunk = |k: usize, inverse: &mut [DMat3], [r, z, p]: [&mut [f64]; 3]| {
+            let first = k * size;
+            invert_diagonal_blocks(pattern, values, first / 3, inverse);
+            let b = &b[first..first + r.len()];
+            let bb = dot(b, b);
+            r.copy_from_slice(b);
+            precondition(inverse, 0, r, z);
+            p.copy_from_slice(z);
+            let [rr, rz] = dot2(r, z);
+            [bb, rr, rz]
+        };
+        let partials = &mut self.partials3;
+        #[cfg(feature = "parallel")]
+        if par {
+            use rayon::prelude::*;
+            self.inverse_blocks
+                .par_chunks_mut(size / 3)
+                .zip(self.r.par_chunks_mut(size))
+                .zip(self.z.par_chunks_mut(size))
+                .zip(self.p.par_chunks_mut(size))
+                .enumerate()
+                .map(|(k, (((inv, r), z), p))| chunk(k, inv, [r, z, p]))
+                .collect_into_vec(partials);
+            return ordered_sum3(partials);
+        }
+        let _ = par;
+        partials.clear();
+        partials.extend(
+            self.inverse_blocks
+                .chunks_mut(size / 3)
+                .zip(self.r.chunks_mut(size))
+                .zip(self.z.chunks_mut(size))
+                .zip(self.p.chunks_mut(size))
+                .enumerate()
+                .map(|(k, (((inv, r), z), p))| chunk(k, inv, [r, z, p])),
+        );
+        ordered_sum3(partials)
+    }
+
     /// `ap = A x`.
     fn product(&mut self, par: bool, pattern: &HessianPattern, values: &[f64], x: &[f64]) {
         match &self.rows {
@@ -1197,6 +1264,28 @@ impl PcgSolver {
     }
 }
 
+/// The inverses of the diagonal blocks `first..first + inverse.len()` of the matrix
+/// `values` on `pattern` into `inverse` (the identity for a block that is not positive
+/// definite).
+fn invert_diagonal_blocks(
+    pattern: &HessianPattern,
+    values: &[f64],
+    first: usize,
+    inverse: &mut [DMat3],
+) {
+    for (i, inv) in inverse.iter_mut().enumerate() {
+        let block = pattern.diag_block(values, first + i);
+        // The diagonal blocks of an SPD matrix are SPD; the guard keeps a NaN out if a
+        // caller passes something else.
+        let d = block.determinant();
+        *inv = if d.is_finite() && d > 0.0 {
+            block.inverse()
+        } else {
+            DMat3::IDENTITY
+        };
+    }
+}
+
 /// `z = P^-1 r` on the chunk of unknowns starting at `first`, block by block.
 fn precondition(inverse: &[DMat3], first: usize, r: &[f64], z: &mut [f64]) {
     let inverse = &inverse[first / 3..first / 3 + r.len() / 3];
@@ -1211,6 +1300,15 @@ fn precondition(inverse: &[DMat3], first: usize, r: &[f64], z: &mut [f64]) {
 /// The sum of per-chunk partial sums, in chunk order.
 fn ordered_sum(partials: &[f64]) -> f64 {
     partials.iter().sum()
+}
+
+/// [`ordered_sum`] of three sums' partial sums at once.
+fn ordered_sum3(partials: &[[f64; 3]]) -> [f64; 3] {
+    [
+        partials.iter().map(|p| p[0]).sum(),
+        partials.iter().map(|p| p[1]).sum(),
+        partials.iter().map(|p| p[2]).sum(),
+    ]
 }
 
 /// [`ordered_sum`] of two dot products' partial sums at once.
