@@ -294,6 +294,35 @@ impl SolverCosts {
         })
     }
 
+    /// Counts no larger than [`SolverCosts::analyze`]'s, from the pattern's sizes alone
+    /// (no ordering, O(1)), so their crossover is no larger than the analysed one: a
+    /// PCG count at or below it is below the analysed crossover too, and the choice it
+    /// makes is the analysis' without the analysis (docs/spring-sim.md, "The solver
+    /// choice without its analysis").
+    ///
+    /// Under any ordering the factor has every entry the matrix stores below its
+    /// diagonal, so `nnz(L) >= nnz(A) - n`; and `F = sum_j d_j (d_j + 1) / 2` over the
+    /// `n` columns, a convex and increasing function of the `d_j` whose sum is `nnz(L)`,
+    /// is at least `n f(nnz(L) / n)` (Jensen).
+    #[must_use]
+    pub fn lower_bound(pattern: &HessianPattern) -> Self {
+        let dim = pattern.dim();
+        let matrix_nonzeros = pattern.nnz();
+        let below = matrix_nonzeros.saturating_sub(dim) as f64;
+        let factor_multiply_adds = if dim > 0 {
+            let mean = below / dim as f64;
+            dim as f64 * 0.5 * mean * (mean + 1.0)
+        } else {
+            0.0
+        };
+        Self {
+            dim,
+            matrix_nonzeros,
+            factor_nonzeros: below,
+            factor_multiply_adds,
+        }
+    }
+
     /// Model cost of one PCG iteration, in multiply-adds: the symmetric product reads
     /// every stored off-diagonal entry twice (`2 nnz`), and the preconditioner (9 per
     /// particle row, 3 per unknown), three dot products and three updates add 9 per
@@ -1697,5 +1726,79 @@ mod tests {
                     .all(|(a, b)| a.to_bits() == b.to_bits())
             );
         }
+    }
+
+    /// The bound of [`SolverCosts::lower_bound`] is below the analysis' counts and
+    /// crossover on lab-pattern cloths of several sizes (with and without extra coupled
+    /// pairs, which add fill), on a chain (no fill: the factor's count is the matrix's)
+    /// and on an empty system, and high enough that the soft cloths' 2 to 3 PCG
+    /// iterations per Newton iteration stay below it.
+    #[test]
+    fn the_costs_bound_is_below_the_analysis() {
+        let chain = {
+            let particles: Vec<crate::model::Particle> = (0..6)
+                .map(|i| crate::model::Particle {
+                    fixed: i == 0,
+                    ..crate::model::Particle::at_rest(
+                        sinew_math::DVec3::new(0.0, -(i as f64), 0.0),
+                        1.0,
+                    )
+                })
+                .collect();
+            let springs: Vec<crate::model::SpringSpec> = (0..5)
+                .map(|i| crate::model::SpringSpec::between(i, i + 1))
+                .collect();
+            SpringSystem::new(&particles, &springs, crate::model::Material::default()).unwrap()
+        };
+        let grid = |n: usize| SpringSystem::cloth(&ClothGrid::lab_sized(n, 0.05)).unwrap();
+        let mut patterns = vec![HessianPattern::new(&chain)];
+        for n in [3, 11, 31, 51] {
+            let system = grid(n);
+            patterns.push(HessianPattern::new(&system));
+            // Far pairs across the sheet: fill the ordering cannot avoid.
+            let far: Vec<[usize; 2]> = (0..n).map(|i| [i, n * n - 1 - i]).collect();
+            patterns.push(HessianPattern::with_pairs(&system, &far));
+        }
+        for pattern in &patterns {
+            let bound = SolverCosts::lower_bound(pattern);
+            let exact = SolverCosts::analyze(pattern).unwrap();
+            assert_eq!(
+                (bound.dim, bound.matrix_nonzeros),
+                (exact.dim, exact.matrix_nonzeros)
+            );
+            assert!(
+                bound.factor_nonzeros <= exact.factor_nonzeros,
+                "{bound:?} {exact:?}"
+            );
+            assert!(
+                bound.factor_multiply_adds <= exact.factor_multiply_adds,
+                "{bound:?} {exact:?}"
+            );
+            assert!(
+                bound.crossover_iterations() <= exact.crossover_iterations(),
+                "{bound:?} {exact:?}"
+            );
+            if pattern.dim() > 100 {
+                assert!(bound.crossover_iterations() > 5.0, "{bound:?}");
+            }
+        }
+        // The chain has no fill: the bound's count of factor entries is exact.
+        let (bound, exact) = (
+            SolverCosts::lower_bound(&patterns[0]),
+            SolverCosts::analyze(&patterns[0]).unwrap(),
+        );
+        assert_eq!(bound.factor_nonzeros, exact.factor_nonzeros);
+        let empty = SpringSystem::new(
+            &[crate::model::Particle {
+                fixed: true,
+                ..crate::model::Particle::at_rest(sinew_math::DVec3::ZERO, 1.0)
+            }],
+            &[],
+            crate::model::Material::default(),
+        )
+        .unwrap();
+        let bound = SolverCosts::lower_bound(&HessianPattern::new(&empty));
+        assert_eq!(bound.factor_multiply_adds, 0.0);
+        assert_eq!(bound.crossover_iterations(), f64::INFINITY);
     }
 }

@@ -39,6 +39,12 @@ impl SolverChooser {
         choice == LinearSolverChoice::Auto && self.pcg_iterations_per_newton.is_some()
     }
 
+    /// PCG iterations per Newton iteration on the last PCG step that had a Newton
+    /// iteration, once there was one.
+    pub(super) fn observed(&self) -> Option<f64> {
+        self.pcg_iterations_per_newton
+    }
+
     /// The solver for the next step under `choice`; `costs` must be given when
     /// [`SolverChooser::needs_costs`] says so.
     pub(super) fn choose(
@@ -177,5 +183,38 @@ mod tests {
             chooser.choose(LinearSolverChoice::Pcg, 4, Some(&c)),
             LinearSolverKind::Pcg
         );
+    }
+
+    /// The soft lab cloth (2 PCG iterations per Newton iteration, below the bound's
+    /// crossover) runs `Auto` without the analysis, and its choices are those made with
+    /// the analysis; the stiff one (about 35, above the bound) analyses and moves to the
+    /// direct solve.
+    #[test]
+    fn the_soft_cloth_chooses_without_the_analysis() {
+        use crate::model::{ClothGrid, SpringSystem};
+        use crate::newton::{BackwardEuler, NewtonSettings};
+        let run = |stiffness: f64, h: f64, analysed_first: bool| {
+            let mut grid = ClothGrid::lab();
+            grid.material.stiffness = stiffness;
+            let system = SpringSystem::cloth(&grid).unwrap();
+            let mut be = BackwardEuler::new(&system, NewtonSettings::default()).unwrap();
+            if analysed_first {
+                be.solver_costs().unwrap();
+            }
+            let mut s = system.clone();
+            let kinds: Vec<_> = (0..20)
+                .map(|_| be.step(&mut s, h).unwrap().linear_solver)
+                .collect();
+            (kinds, be.costs.is_some(), s)
+        };
+        let (soft, analysed, end) = run(100.0, 1.0 / 60.0, false);
+        assert!(!analysed);
+        assert!(soft.iter().all(|k| *k == Some(LinearSolverKind::Pcg)));
+        let (with, _, end_with) = run(100.0, 1.0 / 60.0, true);
+        assert_eq!(soft, with);
+        assert_eq!(end.positions(), end_with.positions());
+        let (stiff, analysed, _) = run(1e6, 1.0 / 30.0, false);
+        assert!(analysed);
+        assert!(stiff.contains(&Some(LinearSolverKind::Direct)));
     }
 }
