@@ -1026,6 +1026,13 @@ impl PcgSolver {
         true
     }
 
+    /// Whether the system is above [`PARALLEL_MIN`] unknowns, so its work is cut in
+    /// chunks (and spread over the thread pool, when there is one).
+    #[must_use]
+    pub(crate) fn is_chunked(&self) -> bool {
+        self.rows.is_some()
+    }
+
     /// The thread pool, when the work is spread over more than one thread.
     #[cfg(feature = "parallel")]
     pub(crate) fn pool(&self) -> Option<&std::sync::Arc<rayon::ThreadPool>> {

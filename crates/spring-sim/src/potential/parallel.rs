@@ -39,16 +39,71 @@ const PARTICLE_CHUNK: usize = 512;
 const NO_COUPLING: u32 = u32::MAX;
 
 /// `out[e] = per_spring(e)` for every spring `e`, on the current thread pool in fixed
-/// chunks of `SPRING_CHUNK` (each value is computed alone, so the chunking changes no bit).
-fn fill_per_spring<T: Send>(out: &mut [T], per_spring: impl Fn(usize) -> T + Sync) {
-    out.par_chunks_mut(SPRING_CHUNK)
-        .enumerate()
-        .for_each(|(c, chunk)| {
-            let first = c * SPRING_CHUNK;
-            for (i, value) in chunk.iter_mut().enumerate() {
-                *value = per_spring(first + i);
-            }
-        });
+/// chunks of `SPRING_CHUNK` when `par`, else in order on the calling thread (each value
+/// is computed alone, so neither changes a bit).
+fn fill_per_spring<T: Send>(par: bool, out: &mut [T], per_spring: impl Fn(usize) -> T + Sync) {
+    let fill = |(c, chunk): (usize, &mut [T])| {
+        let first = c * SPRING_CHUNK;
+        for (i, value) in chunk.iter_mut().enumerate() {
+            *value = per_spring(first + i);
+        }
+    };
+    if par {
+        out.par_chunks_mut(SPRING_CHUNK).enumerate().for_each(fill);
+    } else {
+        out.chunks_mut(SPRING_CHUNK).enumerate().for_each(fill);
+    }
+}
+
+/// [`fill_per_spring`] of two values per spring at once, `(a[e], b[e]) = per_spring(e)`.
+fn fill_per_spring_pair<A: Send, B: Send>(
+    par: bool,
+    a: &mut [A],
+    b: &mut [B],
+    per_spring: impl Fn(usize) -> (A, B) + Sync,
+) {
+    let fill = |(c, (a, b)): (usize, (&mut [A], &mut [B]))| {
+        let first = c * SPRING_CHUNK;
+        for (i, (a, b)) in a.iter_mut().zip(b.iter_mut()).enumerate() {
+            (*a, *b) = per_spring(first + i);
+        }
+    };
+    if par {
+        a.par_chunks_mut(SPRING_CHUNK)
+            .zip(b.par_chunks_mut(SPRING_CHUNK))
+            .enumerate()
+            .for_each(fill);
+    } else {
+        a.chunks_mut(SPRING_CHUNK)
+            .zip(b.chunks_mut(SPRING_CHUNK))
+            .enumerate()
+            .for_each(fill);
+    }
+}
+
+/// `f(c, chunk)` for the chunks of `PARTICLE_CHUNK` of `data`, on the current thread
+/// pool when `par`, else in order on the calling thread.
+fn for_particle_chunks<T: Send>(
+    par: bool,
+    data: &mut [T],
+    f: impl Fn((usize, &mut [T])) + Sync + Send,
+) {
+    if par {
+        data.par_chunks_mut(PARTICLE_CHUNK).enumerate().for_each(f);
+    } else {
+        data.chunks_mut(PARTICLE_CHUNK).enumerate().for_each(f);
+    }
+}
+
+/// `a` and `b`, side by side on the current thread pool when `par`, else one after the
+/// other on the calling thread (they write disjoint data, so the order changes nothing).
+fn join_if(par: bool, a: impl FnOnce() + Send, b: impl FnOnce() + Send) {
+    if par {
+        rayon::join(a, b);
+    } else {
+        a();
+        b();
+    }
 }
 
 /// The gather index of one topology and the per-spring buffers.
@@ -180,22 +235,57 @@ impl SpringGather {
         self.size == (system.len(), system.springs().len())
     }
 
-    /// [`Potential::gradient`] with the springs' part on the current thread pool; the
-    /// same bits.
+    /// [`Potential::gradient`] with the springs' part on the current thread pool when
+    /// `par` (else on the calling thread, by the sequential scatter); the same bits.
+    ///
+    /// With `blocks`, the pass over the springs also writes each spring's Hessian block
+    /// in that form to the blocks' buffer, for a [`Self::hessian`] at the same `x` that
+    /// is told so: the Newton iteration that follows a gradient needs the blocks at the
+    /// same positions, and one pass computing both reads the springs and their ends once
+    /// instead of twice and is one parallel region less. Returns whether it wrote them.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn gradient(
         &mut self,
         potential: &Potential,
         step: &StepContext<'_>,
         x: &[DVec3],
         gradient: &mut [DVec3],
-    ) {
+        par: bool,
+        blocks: Option<Curvature>,
+    ) -> bool {
         let per = potential.per_spring(step);
         if !per.springs || self.oversized {
             potential.gradient(step, x, gradient);
-            return;
+            return false;
         }
-        let springs = &mut self.gradients;
-        let mut spring_pass = move || fill_per_spring(springs, |e| per.spring_gradient(step, x, e));
+        if !par {
+            // On one thread the sequential scatter is the cheaper gradient (the gather's
+            // buffer and its pass over the particles cost more than the scatter's
+            // random writes): the same loop, each spring's block written beside it.
+            gradient.fill(DVec3::ZERO);
+            for &t in &potential.other_terms {
+                potential.terms[t].add_gradient(step, x, gradient);
+            }
+            for (e, s) in step.system.springs().iter().enumerate() {
+                let g = per.spring_gradient(step, x, e);
+                gradient[s.a] += g;
+                gradient[s.b] -= g;
+                if let Some(curvature) = blocks {
+                    self.blocks[e] = per.spring_block(step, x, curvature, e);
+                }
+            }
+            return blocks.is_some();
+        }
+        let (springs, block_buffer) = (&mut self.gradients, &mut self.blocks);
+        let mut spring_pass = move || match blocks {
+            Some(curvature) => fill_per_spring_pair(par, springs, block_buffer, |e| {
+                (
+                    per.spring_gradient(step, x, e),
+                    per.spring_block(step, x, curvature, e),
+                )
+            }),
+            None => fill_per_spring(par, springs, |e| per.spring_gradient(step, x, e)),
+        };
         // With only inertia and gravity besides the springs, each particle's gather
         // starts from their terms, added in the terms' order as the sequential loop
         // does after zeroing: one pass over the gradient instead of three.
@@ -205,7 +295,8 @@ impl SpringGather {
         } else {
             // The other terms on one thread while the pool's others start on the
             // springs: they write `gradient`, the springs their own buffer.
-            rayon::join(
+            join_if(
+                par,
                 || {
                     gradient.fill(DVec3::ZERO);
                     for &t in &potential.other_terms {
@@ -219,40 +310,43 @@ impl SpringGather {
         let masses = step.system.masses();
         let inv_h2 = 1.0 / (step.h * step.h);
         let g_vec = step.system.material().gravity;
-        gradient
-            .par_chunks_mut(PARTICLE_CHUNK)
-            .enumerate()
-            .for_each(|(c, chunk)| {
-                let first = c * PARTICLE_CHUNK;
-                for (i, g) in chunk.iter_mut().enumerate() {
-                    let p = first + i;
-                    if let Some(kinds) = pointwise {
-                        *g = DVec3::ZERO;
-                        for kind in kinds {
-                            match kind {
-                                Pointwise::Inertia => {
-                                    inertia::add_gradient_at(g, masses[p], inv_h2, x[p], step.y[p])
-                                }
-                                Pointwise::Gravity => {
-                                    gravity::add_gradient_at(g, masses[p], g_vec);
-                                }
+        for_particle_chunks(par, gradient, |(c, chunk)| {
+            let first = c * PARTICLE_CHUNK;
+            for (i, g) in chunk.iter_mut().enumerate() {
+                let p = first + i;
+                if let Some(kinds) = pointwise {
+                    *g = DVec3::ZERO;
+                    for kind in kinds {
+                        match kind {
+                            Pointwise::Inertia => {
+                                inertia::add_gradient_at(g, masses[p], inv_h2, x[p], step.y[p])
+                            }
+                            Pointwise::Gravity => {
+                                gravity::add_gradient_at(g, masses[p], g_vec);
                             }
                         }
                     }
-                    for &code in &incident[ptr[p]..ptr[p + 1]] {
-                        let spring = gradients[(code / 2) as usize];
-                        if code % 2 == 0 {
-                            *g += spring;
-                        } else {
-                            *g -= spring;
-                        }
+                }
+                for &code in &incident[ptr[p]..ptr[p + 1]] {
+                    let spring = gradients[(code / 2) as usize];
+                    if code % 2 == 0 {
+                        *g += spring;
+                    } else {
+                        *g -= spring;
                     }
                 }
-            });
+            }
+        });
+        blocks.is_some()
     }
 
     /// Writes the Newton matrix's values like zeroing `values` and calling
-    /// [`Potential::add_hessian`] with a values sink on `pattern`, with the springs' part on the current thread pool; the same bits.
+    /// [`Potential::add_hessian`] with a values sink on `pattern`, with the springs' part
+    /// on the current thread pool when `par` (else on the calling thread, by the same
+    /// passes); the same bits. `blocks_ready`: the blocks' buffer already holds the
+    /// springs' blocks at `x` in the form `curvature` (written by [`Self::gradient`]),
+    /// so they are not computed again.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn hessian(
         &mut self,
         potential: &mut Potential,
@@ -261,6 +355,8 @@ impl SpringGather {
         curvature: Curvature,
         pattern: &HessianPattern,
         values: &mut [f64],
+        par: bool,
+        blocks_ready: bool,
     ) {
         if !potential.per_spring(step).springs || self.oversized {
             values.fill(0.0);
@@ -298,13 +394,16 @@ impl SpringGather {
             // they are needed, at both ends, the block's square root and four divisions
             // ran twice per spring, and the gather waited on the divider more than
             // the buffer's 48 bytes per spring, written and read back, cost.
-            per.fill_spring_blocks(step, x, curvature, &mut self.blocks);
+            if !blocks_ready {
+                per.fill_spring_blocks(par, step, x, curvature, &mut self.blocks);
+            }
         } else {
             // Zeroing the values and the other terms' blocks (a pass over every stored
             // entry, then the inertia's diagonal) on one thread while the pool's others
             // start on the springs' blocks, which are written to their own buffer.
             let blocks = &mut self.blocks;
-            rayon::join(
+            join_if(
+                par,
                 || {
                     values.fill(0.0);
                     let mut sink = super::HessianSink::values(pattern, values);
@@ -312,11 +411,16 @@ impl SpringGather {
                         potential.terms[t].add_hessian(step, x, curvature, &mut sink);
                     }
                 },
-                || per.fill_spring_blocks(step, x, curvature, blocks),
+                || {
+                    if !blocks_ready {
+                        per.fill_spring_blocks(par, step, x, curvature, blocks);
+                    }
+                },
             );
         }
         let blocks = &self.blocks;
         let gather = Gather {
+            par,
             pattern,
             coupling_ptr: &index.ptr,
             coupling: &index.entries,
@@ -341,6 +445,8 @@ struct Fold<'a> {
 
 /// What the second pass of the Hessian reads.
 struct Gather<'a, B> {
+    /// Whether the chunks are spread over the current thread pool.
+    par: bool,
     pattern: &'a HessianPattern,
     coupling_ptr: &'a [usize],
     coupling: &'a [[u32; 2]],
@@ -360,6 +466,13 @@ impl<B: Fn(usize) -> SymBlock + Sync> Gather<'_, B> {
     /// `offset` on, halving the range over the pool (no allocation: the value ranges are
     /// split in place).
     fn run(&self, first: usize, last: usize, values: &mut [f64], offset: usize) {
+        if !self.par {
+            let nfree = self.pattern.free_particles.len();
+            for f in first * PARTICLE_CHUNK..(last * PARTICLE_CHUNK).min(nfree) {
+                self.particle(f, values, offset);
+            }
+            return;
+        }
         if last - first > 1 {
             let mid = first + (last - first) / 2;
             let split = self.first_slot(mid * PARTICLE_CHUNK) - offset;
@@ -450,15 +563,16 @@ impl PerSpring<'_> {
     }
 
     /// Every spring's block into `blocks` (one per spring), on the current thread pool
-    /// in fixed chunks.
+    /// in fixed chunks when `par`.
     fn fill_spring_blocks(
         &self,
+        par: bool,
         step: &StepContext<'_>,
         x: &[DVec3],
         curvature: Curvature,
         blocks: &mut [SymBlock],
     ) {
-        fill_per_spring(blocks, |e| self.spring_block(step, x, curvature, e));
+        fill_per_spring(par, blocks, |e| self.spring_block(step, x, curvature, e));
     }
 
     /// Spring `e`'s block: the sequential loop's expression.
