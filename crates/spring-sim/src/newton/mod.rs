@@ -372,7 +372,28 @@ impl BackwardEuler {
     /// Advances `system` by one step of length `h` of `scheme`, each one the same
     /// minimization with its own effective step, prediction and velocity update
     /// (docs/integrators.md).
+    ///
+    /// With a thread pool the whole step runs inside it (as the minimization did
+    /// before): the calling thread hands the step over once instead of four times (the
+    /// report's two energies, the first guess's test, the minimization), and the passes
+    /// over the particles between them (the prediction, the end-of-step update) run
+    /// on the pool's threads, in chunks, instead of on the calling thread while the
+    /// pool's threads sleep.
     pub(crate) fn step_scheme(
+        &mut self,
+        system: &mut SpringSystem,
+        h: f64,
+        scheme: Scheme<'_>,
+    ) -> Result<StepReport, StepError> {
+        #[cfg(feature = "parallel")]
+        if let Some(pool) = self.pcg.pool().cloned() {
+            return pool.install(|| self.step_scheme_here(system, h, scheme));
+        }
+        self.step_scheme_here(system, h, scheme)
+    }
+
+    /// [`Self::step_scheme`] on the current thread (and the pool it runs in, if any).
+    fn step_scheme_here(
         &mut self,
         system: &mut SpringSystem,
         h: f64,
@@ -630,57 +651,60 @@ impl BackwardEuler {
             Scheme::Bdf2 { .. } => (IntegratorKind::Bdf2, 2.0 * h / 3.0),
         };
         let fixed = system.fixed();
-        for (i, (&x, &v)) in system
-            .positions()
-            .iter()
-            .zip(system.velocities())
-            .enumerate()
-        {
+        let (positions, velocities) = (system.positions(), system.velocities());
+        let extrapolate =
+            self.settings.initial_guess == InitialGuess::Extrapolated && self.have_prev_velocity;
+        let prev_velocity = &self.prev_velocity;
+        // Per particle: `x_ref`, `y`, the first guess `x`, and the straight path from
+        // the safe start x_n to the guess, `x - x_n`, for both tests below.
+        let predict = |i: usize, [x_ref, y, guess, path]: [&mut DVec3; 4]| {
+            let (x, v) = (positions[i], velocities[i]);
             if fixed[i] {
                 // A pinned particle sits at its end-of-step position `x` and moved with
                 // the prescribed velocity `v` over the step (zero for a particle held
                 // still): it enters the potential at the scheme's evaluation point
                 // (the midpoint's `z` is halfway along its move), and its reference
                 // point is where that velocity started it, so damping sees its motion.
-                let (at, x_ref) = match scheme {
+                let (at, start) = match scheme {
                     Scheme::Midpoint => (x - h_eff * v, x - 2.0 * h_eff * v),
                     Scheme::BackwardEuler | Scheme::Bdf2 { .. } => (x, x - h_eff * v),
                 };
-                self.x_ref[i] = x_ref;
-                self.y[i] = at;
-                self.x[i] = at;
-                continue;
-            }
-            // x_ref: the point the new velocity is measured from, v' = (x' - x_ref)/h_eff
-            // (also the damping's reference); y: the inertial prediction.
-            let (x_ref, v_ref) = match scheme {
-                Scheme::BackwardEuler | Scheme::Midpoint => (x, v),
-                Scheme::Bdf2 { prev_x, prev_v } => {
-                    ((4.0 * x - prev_x[i]) / 3.0, (4.0 * v - prev_v[i]) / 3.0)
+                *x_ref = start;
+                *y = at;
+                *guess = at;
+            } else {
+                // x_ref: the point the new velocity is measured from, v' = (x' -
+                // x_ref)/h_eff (also the damping's reference); y: the inertial prediction.
+                let (start, v_ref) = match scheme {
+                    Scheme::BackwardEuler | Scheme::Midpoint => (x, v),
+                    Scheme::Bdf2 { prev_x, prev_v } => {
+                        ((4.0 * x - prev_x[i]) / 3.0, (4.0 * v - prev_v[i]) / 3.0)
+                    }
+                };
+                *x_ref = start;
+                *y = start + h_eff * v_ref;
+                *guess = *y;
+                if extrapolate {
+                    *guess += h_eff * (v - prev_velocity[i]);
                 }
-            };
-            self.x_ref[i] = x_ref;
-            self.y[i] = x_ref + h_eff * v_ref;
-            self.x[i] = self.y[i];
-            if self.settings.initial_guess == InitialGuess::Extrapolated && self.have_prev_velocity
-            {
-                self.x[i] += h_eff * (v - self.prev_velocity[i]);
             }
-        }
+            *path = *guess - x;
+        };
+        per_particle(
+            &self.pcg,
+            [
+                &mut self.x_ref,
+                &mut self.y,
+                &mut self.x,
+                &mut self.dx_particles,
+            ],
+            predict,
+        );
         // Per-step state of the terms (damping directions frozen at the step's start).
         let timing = self.timing;
         self.potential
             .begin_step(&StepContext::new(system, h_eff, &self.y, &self.x_ref).with_timing(timing));
         let step = StepContext::new(system, h_eff, &self.y, &self.x_ref).with_timing(timing);
-        // The straight path from the safe start x_n to the guess, for both tests below.
-        for ((d, x), r) in self
-            .dx_particles
-            .iter_mut()
-            .zip(&self.x)
-            .zip(system.positions())
-        {
-            *d = *x - *r;
-        }
         // Start from x_n when the predicted guess is worse (backward Euler only): Newton
         // with the line search never increases g from its starting point, so then every
         // step has g(x_{n+1}) <= g(x_n), which is what the energy inequality of
@@ -745,7 +769,7 @@ impl BackwardEuler {
         scheme: Scheme<'_>,
         kind: IntegratorKind,
     ) -> Result<(), StepError> {
-        if let Some(particle) = self.x.iter().position(|x| !x.is_finite()) {
+        if let Some(particle) = first_non_finite(&self.pcg, &self.x) {
             // Not reached with finite input (every iterate passed the line search); kept
             // so a NaN can never leave this call.
             return Err(StepError::NonFinite {
@@ -754,20 +778,26 @@ impl BackwardEuler {
             });
         }
         let (positions, velocities) = system.state_mut();
-        for i in 0..positions.len() {
-            self.prev_velocity[i] = velocities[i];
-            if !fixed_at(&self.pattern, i) {
-                let v_mean = (self.x[i] - self.x_ref[i]) / h_eff;
+        let (x, x_ref, pattern) = (&self.x, &self.x_ref, &self.pattern);
+        let update = |i: usize, [position, velocity, prev]: [&mut DVec3; 3]| {
+            *prev = *velocity;
+            if !fixed_at(pattern, i) {
+                let v_mean = (x[i] - x_ref[i]) / h_eff;
                 if matches!(scheme, Scheme::Midpoint) {
-                    // self.x is the midpoint z: x' = 2 z - x_n, v' = 2 v_mean - v_n.
-                    velocities[i] = 2.0 * v_mean - velocities[i];
-                    positions[i] = 2.0 * self.x[i] - self.x_ref[i];
+                    // x is the midpoint z: x' = 2 z - x_n, v' = 2 v_mean - v_n.
+                    *velocity = 2.0 * v_mean - *velocity;
+                    *position = 2.0 * x[i] - x_ref[i];
                 } else {
-                    velocities[i] = v_mean;
-                    positions[i] = self.x[i];
+                    *velocity = v_mean;
+                    *position = x[i];
                 }
             }
-        }
+        };
+        per_particle(
+            &self.pcg,
+            [positions, velocities, &mut self.prev_velocity],
+            update,
+        );
         self.have_prev_velocity = true;
         Ok(())
     }
@@ -990,6 +1020,78 @@ fn change_on_pool(
     #[cfg(not(feature = "parallel"))]
     let _ = pcg;
     potential.energy_change_chunked(step, x, dx, 1.0, false, partials)
+}
+
+/// Particles per task of a step's passes over the particles on the thread pool.
+#[cfg(feature = "parallel")]
+const PARTICLE_CHUNK: usize = 1024;
+
+/// `f(i, [&mut a[i], ...])` for every particle `i` of the `N` equally long arrays, in
+/// chunks on the solver's thread pool when it has one (each particle is computed alone,
+/// so the same bits on any number of threads), else in order on the calling thread.
+fn per_particle<const N: usize>(
+    pcg: &PcgSolver,
+    arrays: [&mut [DVec3]; N],
+    f: impl Fn(usize, [&mut DVec3; N]) + Sync + Send,
+) {
+    let len = arrays[0].len();
+    debug_assert!(arrays.iter().all(|a| a.len() == len));
+    let run = |first: usize, mut chunk: [&mut [DVec3]; N]| {
+        for k in 0..chunk[0].len() {
+            f(first + k, chunk.each_mut().map(|a| &mut a[k]));
+        }
+    };
+    #[cfg(feature = "parallel")]
+    if let Some(pool) = pcg.pool() {
+        // Split every array at the same chunk boundaries, halving the range over the
+        // pool (no allocation).
+        fn split<const N: usize>(
+            first: usize,
+            arrays: [&mut [DVec3]; N],
+            run: &(impl Fn(usize, [&mut [DVec3]; N]) + Sync),
+        ) {
+            let len = arrays[0].len();
+            if len <= PARTICLE_CHUNK {
+                run(first, arrays);
+                return;
+            }
+            let mid = (len / PARTICLE_CHUNK).div_ceil(2) * PARTICLE_CHUNK;
+            let mut low = arrays;
+            let high = low.each_mut().map(|a| {
+                let (l, h) = std::mem::take(a).split_at_mut(mid);
+                *a = l;
+                h
+            });
+            rayon::join(|| split(first, low, run), || split(first + mid, high, run));
+        }
+        pool.install(|| split(0, arrays, &run));
+        return;
+    }
+    #[cfg(not(feature = "parallel"))]
+    let _ = pcg;
+    run(0, arrays);
+}
+
+/// The first particle of `x` that is not finite, searched on the solver's thread pool
+/// when it has one.
+fn first_non_finite(pcg: &PcgSolver, x: &[DVec3]) -> Option<usize> {
+    #[cfg(feature = "parallel")]
+    if let Some(pool) = pcg.pool() {
+        use rayon::prelude::*;
+        return pool.install(|| {
+            x.par_chunks(PARTICLE_CHUNK)
+                .enumerate()
+                .find_map_first(|(c, chunk)| {
+                    chunk
+                        .iter()
+                        .position(|x| !x.is_finite())
+                        .map(|k| c * PARTICLE_CHUNK + k)
+                })
+        });
+    }
+    #[cfg(not(feature = "parallel"))]
+    let _ = pcg;
+    x.iter().position(|x| !x.is_finite())
 }
 
 /// The fraction of [`SolverCosts::lower_bound`]'s crossover below which a PCG count is
