@@ -1028,6 +1028,7 @@ impl PcgSolver {
 
     /// Whether the system is above [`PARALLEL_MIN`] unknowns, so its work is cut in
     /// chunks (and spread over the thread pool, when there is one).
+    #[cfg(feature = "parallel")]
     #[must_use]
     pub(crate) fn is_chunked(&self) -> bool {
         self.rows.is_some()
