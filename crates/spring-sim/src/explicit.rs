@@ -149,6 +149,15 @@ impl SymplecticEuler {
     }
 }
 
+/// Whether `a` and `b` hold bitwise the same vectors.
+fn same_bits(a: &[DVec3], b: &[DVec3]) -> bool {
+    a.len() == b.len()
+        && a.iter().zip(b).all(|(p, q)| {
+            (p.x.to_bits(), p.y.to_bits(), p.z.to_bits())
+                == (q.x.to_bits(), q.y.to_bits(), q.z.to_bits())
+        })
+}
+
 /// `1/m` per particle, 0 for fixed ones.
 fn inverse_masses(system: &SpringSystem) -> Vec<f64> {
     system
@@ -456,12 +465,12 @@ pub struct VelocityVerlet {
     /// Minus the forces of the last evaluation ([`negated_forces`]).
     neg_forces: Vec<DVec3>,
     threaded: ThreadedForces,
+    /// The state being advanced; after a step that was written back (`end_energy` is
+    /// then set), the state it wrote.
     work_x: Vec<DVec3>,
     work_v: Vec<DVec3>,
-    /// The state after the last step and the energy there, to reuse the forces and
-    /// energies when nobody changed it.
-    end_x: Vec<DVec3>,
-    end_v: Vec<DVec3>,
+    /// The energy after the last step written back, to reuse it and its forces when
+    /// nobody changed the system's state since (it is then bitwise `work_x`, `work_v`).
     end_energy: Option<crate::model::Energies>,
     /// `1/m`, 0 for fixed particles (whose velocity is 0), so the update has no branch.
     inv_mass: Vec<f64>,
@@ -504,8 +513,6 @@ impl VelocityVerlet {
             threaded: ThreadedForces::new(system, 0)?,
             work_x: system.positions().to_vec(),
             work_v: system.velocities().to_vec(),
-            end_x: Vec::new(),
-            end_v: Vec::new(),
             end_energy: None,
             inv_mass: inverse_masses(system),
             topology: system.topology(),
@@ -551,17 +558,21 @@ impl VelocityVerlet {
         self.topology.check(&system.topology())?;
         let mut report = StepReport::new(IntegratorKind::VelocityVerlet);
         report.substeps = self.substeps;
+        // Compared bit for bit: only then are the kept forces and energy exactly the
+        // state's (`==` would take -0.0 for 0.0).
         let unchanged = self.end_energy.is_some()
-            && self.end_x == system.positions()
-            && self.end_v == system.velocities();
+            && same_bits(&self.work_x, system.positions())
+            && same_bits(&self.work_v, system.velocities());
         report.energy_before = match (unchanged, self.end_energy) {
             (true, Some(e)) => e,
             _ => system.energies(),
         };
         // Advanced in the work buffers, written back only when finite (as in
-        // [`SymplecticEuler::step`]).
-        self.work_x.copy_from_slice(system.positions());
-        self.work_v.copy_from_slice(system.velocities());
+        // [`SymplecticEuler::step`]); they already hold the state when it is unchanged.
+        if !unchanged {
+            self.work_x.copy_from_slice(system.positions());
+            self.work_v.copy_from_slice(system.velocities());
+        }
         let dt = h / self.substeps as f64;
         let (x, v) = (&mut self.work_x, &mut self.work_v);
         if !unchanged {
@@ -651,10 +662,6 @@ impl VelocityVerlet {
         velocities.copy_from_slice(v);
         report.iterations = self.substeps;
         report.energy_after = after;
-        self.end_x.clear();
-        self.end_x.extend_from_slice(system.positions());
-        self.end_v.clear();
-        self.end_v.extend_from_slice(system.velocities());
         self.end_energy = Some(report.energy_after);
         Ok(report)
     }
@@ -782,6 +789,68 @@ mod tests {
                 assert_eq!(bits(system.positions()), bits(serial.positions()));
                 assert_eq!(bits(system.velocities()), bits(serial.velocities()));
             }
+        }
+    }
+
+    /// Verlet keeps the last end state's forces and energy for the next step only while
+    /// the system still holds that state bit for bit: unchanged and undamped, the kept
+    /// ones must be what a fresh stepper computes (with damping the kept force used the
+    /// half-step velocity, by design); changed between steps (a position moved, or a
+    /// pinned particle's zero velocity given the other sign, which `==` would not see),
+    /// the state is stepped as a fresh stepper steps it, damped or not.
+    #[test]
+    fn verlet_steps_a_state_changed_between_steps_as_a_fresh_stepper() {
+        /// A name, the damping, and the change made between the two steps.
+        type Change = (&'static str, f64, fn(&mut SpringSystem));
+        let changes: [Change; 5] = [
+            ("none", 0.0, |_| {}),
+            ("a position moved", 0.0, |system| {
+                system.state_mut().0[12].y += 1e-3;
+            }),
+            ("a zero's sign flipped", 0.0, |system| {
+                let v = &mut system.state_mut().1[0];
+                assert_eq!(v.x.to_bits(), 0.0f64.to_bits());
+                v.x = -0.0;
+            }),
+            ("a position moved", 0.1, |system| {
+                system.state_mut().0[12].y += 1e-3;
+            }),
+            ("a zero's sign flipped", 0.1, |system| {
+                // Particle 0 is pinned: its velocity stays exactly +0.0.
+                let v = &mut system.state_mut().1[0];
+                assert_eq!(v.x.to_bits(), 0.0f64.to_bits());
+                v.x = -0.0;
+            }),
+        ];
+        for (name, damping, change) in changes {
+            let mut system = crate::ClothGrid::lab_sized(7, 0.2)
+                .with_damping(damping)
+                .build()
+                .unwrap();
+            assert!(system.fixed()[0]);
+            let mut kept = VelocityVerlet::new(&system, 3).unwrap();
+            kept.step(&mut system, 1.0 / 60.0).unwrap();
+            change(&mut system);
+            let mut copy = system.clone();
+            let second = kept.step(&mut system, 1.0 / 60.0).unwrap();
+            let fresh = VelocityVerlet::new(&copy, 3)
+                .unwrap()
+                .step(&mut copy, 1.0 / 60.0)
+                .unwrap();
+            let case = format!("{name}, damping {damping}");
+            assert_eq!(bits(system.positions()), bits(copy.positions()), "{case}");
+            assert_eq!(bits(system.velocities()), bits(copy.velocities()), "{case}");
+            assert_eq!(
+                (
+                    second.energy_before.total().to_bits(),
+                    second.energy_after.total().to_bits()
+                ),
+                (
+                    fresh.energy_before.total().to_bits(),
+                    fresh.energy_after.total().to_bits()
+                ),
+                "{name}"
+            );
         }
     }
 
