@@ -211,11 +211,7 @@ fn spring_force(s: &Spring, x: &[DVec3], v: &[DVec3], c: f64) -> DVec3 {
 }
 
 /// Calls `f(k, spring, g)` for each spring `k` of `springs` in order, `g` its
-/// [`spring_force`]. The forces are computed a batch of [`spring::BATCH`] springs at a
-/// time ([`spring::gradients_of_batch`], the same bits) before `f` sees the first of
-/// them, so the batch's square roots and divisions overlap instead of each waiting for
-/// the previous spring's stores; a batch with a length outside the plain range is
-/// computed spring by spring.
+/// [`spring_force`] ([`for_each_spring`] without the energies).
 #[inline(always)]
 fn for_each_spring_force(
     springs: &[Spring],
@@ -224,6 +220,32 @@ fn for_each_spring_force(
     c: f64,
     mut f: impl FnMut(usize, &Spring, DVec3),
 ) {
+    for_each_spring::<false>(springs, x, v, c, |k, s, g, _| f(k, s, g));
+}
+
+/// Calls `f(k, spring, g, e)` for each spring `k` of `springs` in order, `g` its
+/// [`spring_force`] and, with `ENERGY`, `e` its [`spring::energy`] (0 without). The
+/// forces are computed a batch of [`spring::BATCH`] springs at a time
+/// ([`spring::gradients_of_batch`], the same bits) before `f` sees the first of them,
+/// so the batch's square roots and divisions overlap instead of each waiting for the
+/// previous spring's stores; the energies from the batch's lengths (the same bits as
+/// from the positions). A batch with a length outside the plain range is computed
+/// spring by spring.
+#[inline(always)]
+fn for_each_spring<const ENERGY: bool>(
+    springs: &[Spring],
+    x: &[DVec3],
+    v: &[DVec3],
+    c: f64,
+    mut f: impl FnMut(usize, &Spring, DVec3, f64),
+) {
+    let scalar_energy = |s: &Spring| {
+        if ENERGY {
+            spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness)
+        } else {
+            0.0
+        }
+    };
     let mut batches = springs.chunks_exact(spring::BATCH);
     let mut k = 0;
     for batch in &mut batches {
@@ -238,19 +260,24 @@ fn for_each_spring_force(
             b.rest_length[i] = s.rest_length;
             b.stiffness[i] = s.stiffness;
         }
-        if let Some(g) = spring::gradients_of_batch(&b, c) {
+        if let Some((g, l)) = spring::gradients_of_batch(&b, c) {
             for (i, s) in batch.iter().enumerate() {
-                f(k + i, s, DVec3::new(g[0][i], g[1][i], g[2][i]));
+                let e = if ENERGY {
+                    spring::energy_at_length(l[i], s.rest_length, s.stiffness)
+                } else {
+                    0.0
+                };
+                f(k + i, s, DVec3::new(g[0][i], g[1][i], g[2][i]), e);
             }
         } else {
             for (i, s) in batch.iter().enumerate() {
-                f(k + i, s, spring_force(s, x, v, c));
+                f(k + i, s, spring_force(s, x, v, c), scalar_energy(s));
             }
         }
         k += spring::BATCH;
     }
     for (i, s) in batches.remainder().iter().enumerate() {
-        f(k + i, s, spring_force(s, x, v, c));
+        f(k + i, s, spring_force(s, x, v, c), scalar_energy(s));
     }
 }
 
@@ -393,11 +420,13 @@ impl ThreadedForces {
                     .zip(per_spring.par_chunks_mut(SPRINGS_PER_TASK))
                     .zip(per_spring_energy.par_chunks_mut(SPRINGS_PER_TASK))
                     .for_each(|((springs, out), energies)| {
-                        for_each_spring_force(springs, x, v, c, |k, _, g| out[k] = g);
                         if energy {
-                            for (e, s) in energies.iter_mut().zip(springs) {
-                                *e = spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness);
-                            }
+                            for_each_spring::<true>(springs, x, v, c, |k, _, g, e| {
+                                out[k] = g;
+                                energies[k] = e;
+                            });
+                        } else {
+                            for_each_spring_force(springs, x, v, c, |k, _, g| out[k] = g);
                         }
                     });
                 let per_spring = &*per_spring;
@@ -894,6 +923,21 @@ mod tests {
                 .map(|s| spring_force(s, x, v, damping))
                 .collect();
             assert_eq!(bits(&per_spring), bits(&scalar), "damping {damping}");
+            // With the energies: the same forces, and each energy bitwise the scalar
+            // kernel's from the positions (from the batch's lengths where it is plain).
+            let mut energies = vec![f64::NAN; system.springs().len()];
+            for_each_spring::<true>(system.springs(), x, v, damping, |k, _, g, e| {
+                per_spring[k] = g;
+                energies[k] = e;
+            });
+            assert_eq!(bits(&per_spring), bits(&scalar), "damping {damping}");
+            let expected: Vec<u64> = system
+                .springs()
+                .iter()
+                .map(|s| spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness).to_bits())
+                .collect();
+            let got: Vec<u64> = energies.iter().map(|e| e.to_bits()).collect();
+            assert_eq!(got, expected, "damping {damping}");
         }
     }
 }

@@ -32,7 +32,14 @@ fn direction_and_length(d: DVec3) -> Option<(DVec3, f64)> {
 /// Spring energy `k/2 (|x_a - x_b| - L)^2`.
 #[must_use]
 pub fn energy(x_a: DVec3, x_b: DVec3, rest_length: f64, stiffness: f64) -> f64 {
-    let l = (x_a - x_b).length();
+    energy_at_length((x_a - x_b).length(), rest_length, stiffness)
+}
+
+/// Spring energy `k/2 (l - L)^2` at length `l` (the one expression of [`energy`], so a
+/// caller holding the length gets the same bits).
+#[inline(always)]
+#[must_use]
+pub(crate) fn energy_at_length(l: f64, rest_length: f64, stiffness: f64) -> f64 {
     0.5 * stiffness * (l - rest_length) * (l - rest_length)
 }
 
@@ -96,7 +103,8 @@ pub(crate) struct SpringBatch {
 
 /// Each spring's [`gradient`] of a batch, plus its axial damping's
 /// [`crate::potential::AxialDamping::rate_gradient`] when `c > 0`, by the same
-/// floating-point operations in the same order as the scalar kernels, lane by lane;
+/// floating-point operations in the same order as the scalar kernels, lane by lane, and
+/// the lengths `|d|` (bitwise `d.length()`, for a caller that wants the energies too);
 /// `None` when a length is outside the plain range `1e-150 < l < inf` (the caller then
 /// uses the scalar kernels, whose other branches handle it).
 ///
@@ -109,7 +117,10 @@ pub(crate) struct SpringBatch {
 /// positive (`l > 0`), so its zero-length branch cannot be taken either.
 #[inline(always)]
 #[must_use]
-pub(crate) fn gradients_of_batch(b: &SpringBatch, c: f64) -> Option<[[f64; BATCH]; 3]> {
+pub(crate) fn gradients_of_batch(
+    b: &SpringBatch,
+    c: f64,
+) -> Option<([[f64; BATCH]; 3], [f64; BATCH])> {
     let [dx, dy, dz] = &b.d;
     // `d.length()`: `(x x + y y) + z z`, then its square root.
     let mut l2 = [0.0; BATCH];
@@ -151,7 +162,7 @@ pub(crate) fn gradients_of_batch(b: &SpringBatch, c: f64) -> Option<[[f64; BATCH
             }
         }
     }
-    Some(g)
+    Some((g, l))
 }
 
 /// Which form of a spring's Hessian block to use. Only the curvature across a
