@@ -213,11 +213,13 @@ pub struct StepReport {
     /// and the other counts include the abandoned attempts, and `residual`, `tolerance`
     /// and `stop` are those of the piece with the largest `residual / tolerance`.
     pub pieces: usize,
-    /// How many times the shortest piece was halved (0 when not split).
+    /// How many times the shortest piece was halved (0 when not split); up to
+    /// `NewtonSettings::max_split_depth + 2`, the two extra levels taken only by pieces
+    /// still far from converged at the settings' depth after their continued solve.
     pub split_depth: usize,
     /// Pieces kept although they stopped far from converged (their residual above both
     /// the tolerance and the round-off floor), because the split was at its deepest
-    /// allowed or splitting is off (then the whole step counts as one piece): 0 when
+    /// level (two below `NewtonSettings::max_split_depth`) or splitting is off (then the whole step counts as one piece): 0 when
     /// every piece converged or stopped at round-off. The step's `stop` then says why the
     /// worst one stopped (the iteration cap or a stalled line search).
     pub unconverged_pieces: usize,

@@ -413,7 +413,7 @@ impl BackwardEuler {
         // Every piece is given its own start time (kinematic colliders are posed from
         // it) and the terms rewind what an abandoned solve changed, so any step may be
         // redone in pieces, moving colliders included.
-        let depth = self.settings.max_split_depth;
+        let depth = self.settings.max_split_depth + self.extra_split_depth();
         let start = self.time;
         self.last_piece_depth = depth;
         let mut report = self.step_in_pieces(system, h, scheme, depth, true, start)?;
@@ -455,10 +455,14 @@ impl BackwardEuler {
         }
         let (mut attempt, h_eff) = self.solve(system, h, scheme, start, None)?;
         let mut far = self.far_from_converged(system, &attempt, h_eff);
-        if far && depth == 0 && self.settings.max_split_depth > 0 {
-            // A piece at the deepest split allowed cannot be halved again: its solve,
-            // which was still lowering `g`, is continued from its iterate one iteration
-            // cap at a time (at most `CONTINUED_CAPS` more) before it is kept.
+        let extra = self.extra_split_depth();
+        if far && (depth == extra || depth == 0) && self.settings.max_split_depth > 0 {
+            // A piece at the deepest split the settings ask for (`depth == extra`), or at
+            // the last of the extra levels below it (`depth == 0`): its solve, which was
+            // still lowering `g`, is continued from its iterate one iteration cap at a
+            // time (at most `CONTINUED_CAPS` more). At the settings' depth a piece still
+            // far from converged after that is halved again (`EXTRA_SPLIT_DEPTH`); at the
+            // last level it is kept.
             let mut from = std::mem::take(&mut self.continue_from);
             for _ in 0..CONTINUED_CAPS {
                 if !far || attempt.stop != StepStop::IterationCap {
@@ -551,6 +555,16 @@ impl BackwardEuler {
         };
         self.split_saves[depth - 1] = save.take().expect("guarded");
         Ok(report)
+    }
+
+    /// The levels of halving below `NewtonSettings::max_split_depth` that a piece still
+    /// far from converged after its continued solve may take (none with splitting off).
+    fn extra_split_depth(&self) -> usize {
+        if self.settings.max_split_depth > 0 {
+            EXTRA_SPLIT_DEPTH
+        } else {
+            0
+        }
     }
 
     /// A piece of a split step taken as its two halves without a solve of its own
@@ -972,6 +986,14 @@ fn keeps_energy_inequality(system: &SpringSystem, save: &SplitSave) -> bool {
 /// last iterate: the whole step's after its split was rejected, and a piece at the
 /// deepest split allowed (see `BackwardEuler::step_in_pieces`).
 const CONTINUED_CAPS: usize = 16;
+
+/// How many more halvings a piece at `NewtonSettings::max_split_depth` may take when its
+/// continued solve still stops far from converged. The continuation comes first because
+/// it converged every such piece of the 51 x 51 stress grid, so every step that converged
+/// without these levels is computed exactly as before; a compressed 101 x 101 sheet
+/// (k = 1e4, h = 1/4) left one piece of `h/64` far from converged after 16 more caps, and
+/// its pieces of `h/128` converge (docs/stress.md).
+const EXTRA_SPLIT_DEPTH: usize = 2;
 
 /// The report of a step split into `first` and `second` after the solve `attempt` was
 /// abandoned: the work of all three, the pieces of both halves, and the residual,

@@ -80,8 +80,14 @@ pub struct NewtonSettings {
     /// step: when the pieces together break it, they are discarded and the whole step's
     /// solve is continued from its last iterate, one iteration cap at a time (at most 16
     /// more), which keeps the inequality at every iterate. A piece at the deepest split
-    /// that stops at the cap far from converged is continued the same way before it is
-    /// kept (only when splitting is on: with 0 the cap is the cap).
+    /// that stops at the cap far from converged is continued the same way; if it is still
+    /// far from converged then, it is halved up to two more times (pieces down to
+    /// `h / 2^(max_split_depth + 2)`, the last of them continued again before it is kept),
+    /// so [`crate::StepReport::split_depth`] can exceed this setting by 2. A stiff sheet
+    /// buckling from compression needs that: its pieces of `h / 2^6` can stay far from
+    /// converged after 16 more caps while those of `h / 2^7` converge, because the inertia
+    /// term `m / h^2` grows fourfold per halving against the springs' negative curvature.
+    /// Only when splitting is on: with 0 the cap is the cap.
     /// [`crate::StepReport::pieces`] says how many pieces a step took and
     /// [`crate::StepReport::unconverged_pieces`] how many pieces at the deepest split
     /// still stopped far from converged (their stop is the step's `stop`). A step that

@@ -236,8 +236,48 @@ fn a_split_too_shallow_says_so() {
     assert_ne!(report.stop, StepStop::Converged, "{report:?}");
     assert!(report.residual > report.tolerance);
     assert!(report.unconverged_pieces >= 1, "{report:?}");
-    assert!(report.split_depth <= 1);
+    // The settings' depth and the two extra levels below it.
+    assert!(report.split_depth <= 1 + 2);
     assert!(inequality_excess(&before, &system) <= 1e-12);
+}
+
+/// A piece at the settings' deepest split that is still far from converged after its
+/// continued solve is halved again (at most twice), and the step converges: the
+/// compressed 11 x 11 sheet at k = 1e6, h = 1/240 with a cap of 4 iterations and
+/// `max_split_depth` 2 leaves a piece of `h/4` far from converged after its extra caps.
+#[test]
+fn a_piece_still_far_at_the_deepest_split_is_halved_again() {
+    let (k, h) = (1e6, 1.0 / 240.0);
+    let tight = NewtonSettings {
+        max_iterations: 4,
+        ..settings(2)
+    };
+    let mut system = cloth(11, k, State::Compressed);
+    let before = system.clone();
+    let mut be = BackwardEuler::new(&system, tight).unwrap();
+    let report = be.step(&mut system, h).unwrap();
+    assert_eq!(report.stop, StepStop::Converged, "{report:?}");
+    assert!(report.residual <= report.tolerance, "{report:?}");
+    assert_eq!((report.unconverged_pieces, report.rejected_splits), (0, 0));
+    // It needed the extra levels, and no more than the two allowed.
+    assert!(
+        report.split_depth > 2 && report.split_depth <= 4,
+        "{report:?}"
+    );
+    assert!(report.pieces <= 1 << report.split_depth);
+    assert!(inequality_excess(&before, &system) <= 1e-12);
+    assert!(system.positions().iter().all(|x| x.is_finite()));
+    // Without the halving below the settings' depth, the same piece would be kept far
+    // from converged: a step of h/4 alone, with no split allowed, stops at the cap.
+    let mut alone_system = cloth(11, k, State::Compressed);
+    let no_split = NewtonSettings {
+        max_iterations: 4,
+        ..settings(0)
+    };
+    let mut alone = BackwardEuler::new(&alone_system, no_split).unwrap();
+    let quarter = alone.step(&mut alone_system, 0.25 * h).unwrap();
+    assert_eq!(quarter.stop, StepStop::IterationCap, "{quarter:?}");
+    assert!(quarter.residual > 1e3 * quarter.tolerance, "{quarter:?}");
 }
 
 /// The energy inequality of backward Euler holds for every step, split or not: where the
@@ -290,7 +330,7 @@ fn a_split_step_with_a_moving_collider_is_its_pieces_taken_by_hand() {
     use sinew_spring_sim::contact::{Collider, ContactSettings, Shape};
     let h = 1.0 / 30.0;
     // A 6 x 6 sheet falling at 0.6 m/s, 2 mm above a ground sinking at 0.3 m/s: it
-    // reaches the ground within the step, and 3 Newton iterations leave the step far
+    // reaches the ground within the step, and 4 Newton iterations leave the step far
     // from converged. (The ground takes energy from the sheet, so backward Euler's
     // energy inequality, which a split step must keep, holds; a collider pushing the
     // sheet does work, and a split that breaks the inequality falls back to the attempt.)
@@ -318,7 +358,7 @@ fn a_split_step_with_a_moving_collider_is_its_pieces_taken_by_hand() {
     .moving(DVec3::new(0.0, -0.3, 0.0), DVec3::ZERO);
     let run = |depth: usize| {
         let settings = NewtonSettings {
-            max_iterations: 3,
+            max_iterations: 4,
             ..settings(depth)
         };
         let mut sim = Simulation::new(system.clone(), Integrator::BackwardEuler(settings)).unwrap();
@@ -333,6 +373,12 @@ fn a_split_step_with_a_moving_collider_is_its_pieces_taken_by_hand() {
     let mut by_hand = run(1);
     let report = split.step(h).unwrap();
     assert!(report.pieces >= 2, "{report:?}");
+    // Within the settings' depth, so the halves by hand take the same decisions. (Below
+    // it, a piece halved twice more in the first half makes the split step skip the
+    // solves of the second half's coarser pieces, which a second half asked for by hand,
+    // a whole step, always tries: then the leaves are still ordinary steps, but not the
+    // same ones.)
+    assert!(report.split_depth <= 2, "{report:?}");
     let mut pieces = 0;
     for _ in 0..2 {
         pieces += by_hand.step(0.5 * h).unwrap().pieces;
