@@ -945,8 +945,9 @@ mod tests {
 
     /// The packed layout's forces, in both instances, are bitwise the scalar loop's:
     /// on the line of odd lengths (batches computed spring by spring, a last batch of
-    /// three springs) and on a cloth off rest (121 particles, padded to 128; 618 springs,
-    /// a last batch of two), damped and not.
+    /// three springs and the padding spring) and on a cloth off rest (121 particles,
+    /// padded to 128; 618 springs, a last batch of two and two padding springs), damped
+    /// and not.
     #[test]
     fn packed_forces_are_bitwise_the_scalar_loop() {
         for damping in [0.0, 0.3] {

@@ -58,11 +58,9 @@ pub(super) struct Packed {
     /// load: the stepper only steps systems of its own spring pairs.
     order: Vec<usize>,
     batches: Vec<Batch>,
-    /// The springs in the last batch (its other lanes repeat its first spring: computed,
-    /// never added).
-    last: usize,
     /// The particle arrays' length less one, a power of two less one: a spring's end
-    /// masked by it is in bounds of all of them, so indexing needs no check.
+    /// masked by it is in bounds of all of them, so indexing needs no check. The arrays
+    /// hold two particles more than the system at least ([`Self::load`]).
     mask: usize,
     x: Vec<Lanes>,
     v: Vec<Lanes>,
@@ -96,9 +94,10 @@ impl Packed {
         }
     }
 
-    /// Whether a system fits the layout (spring ends must fit in 32 bits).
+    /// Whether a system fits the layout (its particles and the two padding ones are
+    /// numbered in 32 bits).
     pub(super) fn fits(system: &SpringSystem) -> bool {
-        system.len() <= 1 << 32
+        system.len() + 2 <= 1 << 32
     }
 
     /// Fills the layout from `system`'s springs, masses and gravity and from the state
@@ -114,7 +113,12 @@ impl Packed {
         dt: f64,
     ) {
         let n = system.len();
-        let size = n.next_power_of_two();
+        // Two padding particles, `n` at (1, 0, 0) and `n + 1` at the origin, fixed
+        // (their `dt/2 / m` is 0): a spring of stiffness 0 and rest length 1 between
+        // them fills the last batch's missing lanes. Its length 1 is plain and its term
+        // `0 (1 - 1 (1/1)) d` is zero, added to the padding particles only, so every
+        // batch is whole and no lane count is tested in the loop.
+        let size = (n + 2).next_power_of_two();
         self.mask = size - 1;
         let lanes = |p: &DVec3| Lanes([p.x, p.y, p.z, 0.0]);
         for (buffer, from) in [
@@ -126,6 +130,7 @@ impl Packed {
             buffer.extend(from.iter().map(lanes));
             buffer.resize(size, Lanes::default());
         }
+        self.x[n] = Lanes([1.0, 0.0, 0.0, 0.0]);
         let gravity = system.material().gravity;
         self.gravity.clear();
         self.gravity.extend(system.masses().iter().map(|&m| {
@@ -145,10 +150,14 @@ impl Packed {
         }
         self.batches.clear();
         for chunk in self.order.chunks(BATCH) {
-            let mut b = Batch::default();
-            for i in 0..BATCH {
-                // A short last batch repeats its first spring in the lanes it lacks.
-                let s = &springs[*chunk.get(i).unwrap_or(&chunk[0])];
+            let mut b = Batch {
+                a: [n as u32; BATCH],
+                b: [n as u32 + 1; BATCH],
+                rest_length: [1.0; BATCH],
+                stiffness: [0.0; BATCH],
+            };
+            for (i, &k) in chunk.iter().enumerate() {
+                let s = &springs[k];
                 b.a[i] = s.a as u32;
                 b.b[i] = s.b as u32;
                 b.rest_length[i] = s.rest_length;
@@ -156,10 +165,6 @@ impl Packed {
             }
             self.batches.push(b);
         }
-        self.last = match springs.len() % BATCH {
-            0 => BATCH,
-            r => r,
-        };
     }
 
     /// Writes the state and minus the forces back into the stepper's buffers.
@@ -261,7 +266,7 @@ fn run_lanes(p: &mut Packed, c: f64, dt: f64, substeps: usize, evaluate_only: bo
     let (gravity, w) = (&p.gravity[..size], &p.half_inv_mass[..size]);
     if evaluate_only {
         f.copy_from_slice(gravity);
-        add_springs(&p.batches, p.last, p.mask, x, v, c, f);
+        add_springs(&p.batches, p.mask, x, v, c, f);
         return;
     }
     for substep in 0..substeps {
@@ -284,7 +289,7 @@ fn run_lanes(p: &mut Packed, c: f64, dt: f64, substeps: usize, evaluate_only: bo
             }
             (*xi, *vi, *fi) = (xn, vn, *gi);
         }
-        add_springs(&p.batches, p.last, p.mask, x, v, c, f);
+        add_springs(&p.batches, p.mask, x, v, c, f);
     }
     for ((vi, fi), &wi) in v.iter_mut().zip(f.iter()).zip(w) {
         let mut vn = *vi;
@@ -299,40 +304,20 @@ fn run_lanes(p: &mut Packed, c: f64, dt: f64, substeps: usize, evaluate_only: bo
 /// damping's when `c > 0`), in spring order: `+g` on its first particle, `-g` on its
 /// second.
 #[inline(always)]
-fn add_springs(
-    batches: &[Batch],
-    last: usize,
-    mask: usize,
-    x: &[Lanes],
-    v: &[Lanes],
-    c: f64,
-    f: &mut [Lanes],
-) {
+fn add_springs(batches: &[Batch], mask: usize, x: &[Lanes], v: &[Lanes], c: f64, f: &mut [Lanes]) {
     let (x, v, f) = (&x[..=mask], &v[..=mask], &mut f[..=mask]);
-    let Some((tail, full)) = batches.split_last() else {
-        return;
-    };
-    for b in full {
-        add_batch(b, BATCH, mask, x, v, c, f);
+    for b in batches {
+        add_batch(b, mask, x, v, c, f);
     }
-    add_batch(tail, last, mask, x, v, c, f);
 }
 
-/// One batch's terms, its first `len` springs added.
+/// One batch's terms.
 #[inline(always)]
-fn add_batch(
-    b: &Batch,
-    len: usize,
-    mask: usize,
-    x: &[Lanes],
-    v: &[Lanes],
-    c: f64,
-    f: &mut [Lanes],
-) {
+fn add_batch(b: &Batch, mask: usize, x: &[Lanes], v: &[Lanes], c: f64, f: &mut [Lanes]) {
     let ends = |i: usize| (b.a[i] as usize & mask, b.b[i] as usize & mask);
     match gradients(b, mask, x, v, c) {
         Some(g) => {
-            for (i, g) in g.iter().enumerate().take(len) {
+            for (i, g) in g.iter().enumerate() {
                 let (a, e) = ends(i);
                 for j in 0..4 {
                     f[a][j] += g[j];
@@ -342,24 +327,16 @@ fn add_batch(
                 }
             }
         }
-        None => add_scalar(b, len, mask, x, v, c, f),
+        None => add_scalar(b, mask, x, v, c, f),
     }
 }
 
-/// A batch's first `len` springs by the scalar kernels ([`spring::gradient`] and
+/// A batch's springs by the scalar kernels ([`spring::gradient`] and
 /// [`AxialDamping::rate_gradient`]), spring by spring: the batch has a length outside
 /// the plain range, which those kernels' other branches handle.
-fn add_scalar(
-    b: &Batch,
-    len: usize,
-    mask: usize,
-    x: &[Lanes],
-    v: &[Lanes],
-    c: f64,
-    f: &mut [Lanes],
-) {
+fn add_scalar(b: &Batch, mask: usize, x: &[Lanes], v: &[Lanes], c: f64, f: &mut [Lanes]) {
     let vector = |l: &Lanes| DVec3::new(l[0], l[1], l[2]);
-    for i in 0..len {
+    for i in 0..BATCH {
         let (a, e) = (b.a[i] as usize & mask, b.b[i] as usize & mask);
         let (xa, xb) = (vector(&x[a]), vector(&x[e]));
         let mut g = spring::gradient(xa, xb, b.rest_length[i], b.stiffness[i]);
@@ -475,7 +452,7 @@ mod avx2 {
         let (gravity, w) = (&p.gravity[..size], &p.half_inv_mass[..size]);
         if evaluate_only {
             f.copy_from_slice(gravity);
-            add_springs(&p.batches, p.last, p.mask, x, v, c, f);
+            add_springs(&p.batches, p.mask, x, v, c, f);
             return;
         }
         let step = _mm256_set1_pd(dt);
@@ -498,7 +475,7 @@ mod avx2 {
                 *vi = lanes(vn);
                 *fi = *gi;
             }
-            add_springs(&p.batches, p.last, p.mask, x, v, c, f);
+            add_springs(&p.batches, p.mask, x, v, c, f);
         }
         for ((vi, fi), &wi) in v.iter_mut().zip(f.iter()).zip(w) {
             let kick = _mm256_mul_pd(_mm256_set1_pd(wi), load(fi));
@@ -507,14 +484,32 @@ mod avx2 {
     }
 
     /// [`super::add_springs`] in 256-bit registers: each batch's terms as
-    /// [`super::gradients`] computes them, its first springs (all but in the last batch)
-    /// added as [`super::add_batch`] adds them. (One function: a `#[target_feature]`
-    /// function cannot be `#[inline(always)]`, and a call per batch cost its registers.)
+    /// [`super::gradients`] computes them, added as [`super::add_batch`] adds them, with
+    /// the damping's test made once (`DAMPED` is `c > 0`). (One function: a
+    /// `#[target_feature]` function cannot be `#[inline(always)]`, and a call per batch
+    /// cost its registers.)
     #[inline]
     #[target_feature(enable = "avx2")]
     fn add_springs(
         batches: &[Batch],
-        last: usize,
+        mask: usize,
+        x: &[Lanes],
+        v: &[Lanes],
+        c: f64,
+        f: &mut [Lanes],
+    ) {
+        if c > 0.0 {
+            add_springs_with::<true>(batches, mask, x, v, c, f);
+        } else {
+            add_springs_with::<false>(batches, mask, x, v, c, f);
+        }
+    }
+
+    /// [`add_springs`] with the damping (`DAMPED`) or without.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn add_springs_with<const DAMPED: bool>(
+        batches: &[Batch],
         mask: usize,
         x: &[Lanes],
         v: &[Lanes],
@@ -522,9 +517,7 @@ mod avx2 {
         f: &mut [Lanes],
     ) {
         let (x, v, f) = (&x[..=mask], &v[..=mask], &mut f[..=mask]);
-        let count = batches.len();
-        for (k, b) in batches.iter().enumerate() {
-            let len = if k + 1 == count { last } else { BATCH };
+        for b in batches {
             let mut ends = [(0, 0); BATCH];
             for (i, end) in ends.iter_mut().enumerate() {
                 *end = (b.a[i] as usize & mask, b.b[i] as usize & mask);
@@ -549,7 +542,7 @@ mod avx2 {
                 _mm256_cmp_pd::<_CMP_LT_OQ>(l, _mm256_set1_pd(f64::INFINITY)),
             );
             if _mm256_movemask_pd(plain) != 0b1111 {
-                add_scalar(b, len, mask, x, v, c, f);
+                add_scalar(b, mask, x, v, c, f);
                 continue;
             }
             let one = _mm256_set1_pd(1.0);
@@ -573,7 +566,7 @@ mod avx2 {
                 _mm256_mul_pd(splat::<0xAA>(scale), d[2]),
                 _mm256_mul_pd(splat::<0xFF>(scale), d[3]),
             ];
-            if c > 0.0 {
+            if DAMPED {
                 let dot = sums([
                     _mm256_mul_pd(d[0], difference(v, ends[0])),
                     _mm256_mul_pd(d[1], difference(v, ends[1])),
@@ -586,7 +579,7 @@ mod avx2 {
                 g[2] = _mm256_add_pd(g[2], _mm256_mul_pd(splat::<0xAA>(rate), d[2]));
                 g[3] = _mm256_add_pd(g[3], _mm256_mul_pd(splat::<0xFF>(rate), d[3]));
             }
-            for (&(a, e), &g) in ends.iter().zip(&g).take(len) {
+            for (&(a, e), &g) in ends.iter().zip(&g) {
                 f[a] = lanes(_mm256_add_pd(load(&f[a]), g));
                 f[e] = lanes(_mm256_sub_pd(load(&f[e]), g));
             }
