@@ -54,8 +54,9 @@ struct Batch {
 /// springs against the tens of substeps it serves), so nothing in it can go stale.
 #[derive(Clone, Debug, Default)]
 pub(super) struct Packed {
-    /// The springs in the order they are computed ([`schedule`]), built at the first
-    /// load: the stepper only steps systems of its own spring pairs.
+    /// The springs in the order they are computed ([`schedule`]), and the batches' ends,
+    /// built at the first load: the stepper only steps systems of its own spring pairs
+    /// (its topology check).
     order: Vec<usize>,
     batches: Vec<Batch>,
     /// The particle arrays' length less one, a power of two less one: a spring's end
@@ -147,23 +148,27 @@ impl Packed {
         let springs = system.springs();
         if self.order.len() != springs.len() {
             self.order = schedule(n, springs);
-        }
-        self.batches.clear();
-        for chunk in self.order.chunks(BATCH) {
-            let mut b = Batch {
-                a: [n as u32; BATCH],
-                b: [n as u32 + 1; BATCH],
-                rest_length: [1.0; BATCH],
-                stiffness: [0.0; BATCH],
-            };
-            for (i, &k) in chunk.iter().enumerate() {
-                let s = &springs[k];
-                b.a[i] = s.a as u32;
-                b.b[i] = s.b as u32;
-                b.rest_length[i] = s.rest_length;
-                b.stiffness[i] = s.stiffness;
+            self.batches.clear();
+            for chunk in self.order.chunks(BATCH) {
+                let mut b = Batch {
+                    a: [n as u32; BATCH],
+                    b: [n as u32 + 1; BATCH],
+                    rest_length: [1.0; BATCH],
+                    stiffness: [0.0; BATCH],
+                };
+                for (i, &k) in chunk.iter().enumerate() {
+                    (b.a[i], b.b[i]) = (springs[k].a as u32, springs[k].b as u32);
+                }
+                self.batches.push(b);
             }
-            self.batches.push(b);
+        }
+        // The rest lengths and stiffnesses are read at every step, the ends (like the
+        // order) only with the order.
+        for (b, chunk) in self.batches.iter_mut().zip(self.order.chunks(BATCH)) {
+            for (i, &k) in chunk.iter().enumerate() {
+                b.rest_length[i] = springs[k].rest_length;
+                b.stiffness[i] = springs[k].stiffness;
+            }
         }
     }
 
