@@ -72,6 +72,7 @@ pub(super) struct Packed {
     /// `dt/2 / m`, 0 for fixed particles and for the padding.
     half_inv_mass: Vec<f64>,
     /// Whether to run the AVX2 instance (the processor has it).
+    #[cfg(target_arch = "x86_64")]
     avx2: bool,
 }
 
@@ -89,9 +90,19 @@ pub(super) enum Instance {
 impl Packed {
     /// An empty layout; [`Self::load`] fills it.
     pub(super) fn new(instance: Instance) -> Self {
-        Self {
-            avx2: instance == Instance::Detect && avx2_detected(),
-            ..Self::default()
+        #[cfg(target_arch = "x86_64")]
+        {
+            // `std` caches the answer.
+            let avx2 = std::arch::is_x86_feature_detected!("avx2");
+            Self {
+                avx2: instance == Instance::Detect && avx2,
+                ..Self::default()
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = instance;
+            Self::default()
         }
     }
 
@@ -234,18 +245,6 @@ fn schedule(particles: usize, springs: &[crate::model::Spring]) -> Vec<usize> {
     // Stable: the system's order within a level.
     order.sort_by_key(|&k| level[k]);
     order
-}
-
-/// Whether the processor has AVX2 (`std` caches the answer).
-fn avx2_detected() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
 }
 
 /// [`run_lanes`] for the target's baseline (SSE2 on x86_64).
