@@ -1,7 +1,8 @@
 //! Velocity Verlet's substeps on the calling thread in a layout made for them: every
 //! particle's position, velocity and force as four lanes `x, y, z, 0`, and the springs
 //! in batches of [`BATCH`] with their ends, rest lengths and stiffnesses side by side.
-//! With AVX2 (detected at run time) the same code runs in 256-bit registers.
+//! With AVX2 (detected at run time) an instance written with its intrinsics runs the
+//! same operations in 256-bit registers.
 //!
 //! The results are bitwise those of [`super::negated_forces`] and of the stepper's loop
 //! over `DVec3`s: each lane is computed by the same floating-point operations in the same
@@ -50,8 +51,10 @@ struct Batch {
 }
 
 /// The packed state and springs of a [`super::VelocityVerlet`] stepping on the calling
-/// thread. Refilled from the system at every step (one pass over the particles and the
-/// springs against the tens of substeps it serves), so nothing in it can go stale.
+/// thread. The state, masses, gravity, rest lengths and stiffnesses are refilled from
+/// the system and the stepper at every step (one pass over the particles and the springs
+/// against the tens of substeps it serves); the spring order and the batches' ends,
+/// which depend only on the spring pairs, at the first.
 #[derive(Clone, Debug, Default)]
 pub(super) struct Packed {
     /// The springs in the order they are computed ([`schedule`]), and the batches' ends,
@@ -109,7 +112,7 @@ impl Packed {
     /// Whether a system fits the layout (its particles and the two padding ones are
     /// numbered in 32 bits).
     pub(super) fn fits(system: &SpringSystem) -> bool {
-        system.len() + 2 <= 1 << 32
+        system.len() < u32::MAX as usize
     }
 
     /// Fills the layout from `system`'s springs, masses and gravity and from the state
@@ -437,7 +440,8 @@ mod avx2 {
         _mm256_add_pd(_mm256_add_pd(first, second), third)
     }
 
-    /// Lane `I` of `r` in every lane.
+    /// One lane of `r` in every lane: `I` is the permutation's immediate, `0x00`,
+    /// `0x55`, `0xAA` or `0xFF` for lane 0, 1, 2 or 3.
     #[inline]
     #[target_feature(enable = "avx2")]
     fn splat<const I: i32>(r: __m256d) -> __m256d {
