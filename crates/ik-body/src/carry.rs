@@ -43,6 +43,16 @@ pub(crate) struct Carried {
     pub before: Vec<DQuat>,
     pub before_translation: DVec3,
     pub has_before: bool,
+    /// Per joint, when the last solve's answer came from its extrapolated start
+    /// (`has_correction`): the rotation that took the first-order extrapolation to the
+    /// answer (`answer * extrapolation^-1`; the identity for a joint that was not
+    /// extrapolated), and the same difference of the translation. For a smooth motion it
+    /// is the second difference of the answers, which changes slowly, so the next start
+    /// composes it onto its own extrapolation (`docs/ik-body.md`, "A start corrected by
+    /// the last frame's correction").
+    pub correction: Vec<DQuat>,
+    pub correction_translation: DVec3,
+    pub has_correction: bool,
 }
 
 fn key<'a>(problem: &BodyProblem<'a>) -> impl Iterator<Item = EffectorKey> + 'a {
@@ -105,6 +115,7 @@ impl Carried {
     pub fn invalidate(&mut self) {
         self.valid = false;
         self.has_before = false;
+        self.has_correction = false;
     }
 
     /// Records the answer in `state` of a solve of `problem`; `continued` says whether it
@@ -118,6 +129,7 @@ impl Carried {
             self.has_before = true;
         } else {
             self.has_before = false;
+            self.has_correction = false;
             self.fingerprint = skeleton.fingerprint();
             self.limits.clear();
             self.limits
@@ -137,5 +149,39 @@ impl Carried {
         self.last_global_positions
             .extend_from_slice(&state.global.positions);
         self.valid = true;
+    }
+
+    /// After [`Carried::record`] of an answer solved from the extrapolated start whose
+    /// first-order part was `first_order` (per joint, used where `extrapolated`) and
+    /// `first_order_translation`: keeps how far the answer ended from it, for the next
+    /// start ([`Common::predict`](crate::common::Common::predict)).
+    pub fn record_correction(
+        &mut self,
+        state: &BodyState,
+        first_order: &[DQuat],
+        extrapolated: &[bool],
+        first_order_translation: DVec3,
+    ) {
+        self.correction.clear();
+        self.correction.extend(
+            state
+                .pose
+                .rotations
+                .iter()
+                .zip(first_order)
+                .zip(extrapolated)
+                .map(|((&answer, &first), &used)| {
+                    if !used {
+                        return DQuat::IDENTITY;
+                    }
+                    let mut c = answer * first.conjugate();
+                    if c.w < 0.0 {
+                        c = -c;
+                    }
+                    c.normalize()
+                }),
+        );
+        self.correction_translation = state.root_translation - first_order_translation;
+        self.has_correction = self.correction.len() == state.pose.rotations.len();
     }
 }

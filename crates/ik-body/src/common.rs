@@ -39,6 +39,9 @@ pub(crate) const NEAR_REACH: f64 = 10.0;
 /// The most iterations a warm frame's near restart may take, so that one that crawls
 /// too leaves the restarts from far some (`docs/ik-body.md`).
 pub(crate) const NEAR_ITERATIONS: usize = 30;
+/// A warm frame's corrected start ([`Common::predict`]) whose cost is under this fraction
+/// of the given start's is kept without trying the first-order start.
+const SURE_CORRECTION: f64 = 1e-3;
 
 /// Buffers and per-solve data every body solver keeps.
 #[derive(Clone, Debug, Default)]
@@ -63,6 +66,11 @@ pub(crate) struct Common {
     limbs: Vec<Chain>,
     /// The limbs a cold start seeds: (target, index into `limbs`).
     seedable: Vec<(usize, usize)>,
+    /// The last extrapolated start's first-order part ([`Common::predict`]): per joint the
+    /// extrapolated rotation and whether the joint took it, and the translation.
+    pub first_order: Vec<DQuat>,
+    pub extrapolated: Vec<bool>,
+    pub first_order_translation: DVec3,
 }
 
 /// More cached limbs than this (many skeletons through one solver) and the cache starts
@@ -628,6 +636,12 @@ impl Common {
         self.kept.clear();
         self.kept.extend_from_slice(&state.pose.rotations);
         let kept_translation = state.root_translation;
+        let joints = state.pose.rotations.len();
+        let corrected = carried.has_correction && carried.correction.len() == joints;
+        self.first_order.clear();
+        self.first_order.resize(joints, DQuat::IDENTITY);
+        self.extrapolated.clear();
+        self.extrapolated.resize(joints, false);
         let mut moved = false;
         for &j in self.topology.movable() {
             let (now, then) = (carried.last[j], carried.before[j]);
@@ -638,12 +652,21 @@ impl Common {
             if d.w < 0.0 {
                 d = -d;
             }
-            let next = (d * now).normalize();
+            let first = (d * now).normalize();
+            // The last frame's answer ended off its own extrapolation by the second
+            // difference of the motion; the next one will too, nearly.
+            let next = if corrected {
+                (carried.correction[j] * first).normalize()
+            } else {
+                first
+            };
             let limit = skeleton.prepared_limit(j);
             // A joint whose extrapolation leaves its limit keeps its rotation: projected,
             // it would start the frame on a bound it did not reach by itself.
             if matches!(limit.limit(), JointLimit::Free) || limit.project(next) == next {
                 state.pose.rotations[j] = next;
+                self.first_order[j] = first;
+                self.extrapolated[j] = true;
                 moved = true;
             }
         }
@@ -651,6 +674,13 @@ impl Common {
             let step = carried.last_translation - carried.before_translation;
             moved |= step != DVec3::ZERO;
             state.root_translation += step;
+            self.first_order_translation = state.root_translation;
+            if corrected {
+                moved |= carried.correction_translation != DVec3::ZERO;
+                state.root_translation += carried.correction_translation;
+            }
+        } else {
+            self.first_order_translation = state.root_translation;
         }
         if !moved {
             return Ok(false);
@@ -661,7 +691,44 @@ impl Common {
             state.root_translation,
             &mut state.global,
         )?;
-        if self.cost(state) < before {
+        let mut cost = self.cost(state);
+        // The corrected start is nearly always far better than the first-order one (its
+        // error is the motion's third difference instead of its second); where it is
+        // not clearly so (after the motion or the active set changed, the correction is
+        // stale for a frame or two), the first-order start is tried too and the better
+        // one kept (measured in `docs/ik-body.md`).
+        if corrected && cost >= SURE_CORRECTION * before {
+            let corrected_translation = state.root_translation;
+            self.swap_first_order(state);
+            state.root_translation = self.first_order_translation;
+            forward_kinematics(
+                skeleton,
+                &state.pose,
+                state.root_translation,
+                &mut state.global,
+            )?;
+            let plain = self.cost(state);
+            if plain <= cost {
+                // Kept; `first_order` now holds the corrected rotations, which the
+                // answer's correction must not be measured from.
+                for &j in self.topology.movable() {
+                    if self.extrapolated[j] {
+                        self.first_order[j] = state.pose.rotations[j];
+                    }
+                }
+                cost = plain;
+            } else {
+                self.swap_first_order(state);
+                state.root_translation = corrected_translation;
+                forward_kinematics(
+                    skeleton,
+                    &state.pose,
+                    state.root_translation,
+                    &mut state.global,
+                )?;
+            }
+        }
+        if cost < before {
             return Ok(true);
         }
         state.pose.rotations.copy_from_slice(&self.kept);
@@ -673,6 +740,15 @@ impl Common {
             &mut state.global,
         )?;
         Ok(false)
+    }
+
+    /// Swaps the extrapolated joints' rotations in `state` with `first_order`.
+    fn swap_first_order(&mut self, state: &mut BodyState) {
+        for &j in self.topology.movable() {
+            if self.extrapolated[j] {
+                std::mem::swap(&mut state.pose.rotations[j], &mut self.first_order[j]);
+            }
+        }
     }
 
     /// The weighted cost at `state`.

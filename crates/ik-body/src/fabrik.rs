@@ -128,6 +128,8 @@ pub struct TreeFabrikSolver {
     passes: Passes,
     /// The last answers, for the next warm frame's start.
     carried: Carried,
+    /// Whether the last solve's answer came from its extrapolated start.
+    from_prediction: bool,
 }
 
 /// Buffers of the FABRIK passes.
@@ -243,7 +245,19 @@ impl BodySolver for TreeFabrikSolver {
         let global_exact = continued && self.carried.global_unchanged(state);
         let result = self.solve_from(problem, state, continued, global_exact);
         match &result {
-            Ok(_) => self.carried.record(problem, state, continued),
+            Ok(_) => {
+                self.carried.record(problem, state, continued);
+                if self.from_prediction {
+                    self.carried.record_correction(
+                        state,
+                        &self.common.first_order,
+                        &self.common.extrapolated,
+                        self.common.first_order_translation,
+                    );
+                } else {
+                    self.carried.has_correction = false;
+                }
+            }
             Err(_) => self.carried.invalidate(),
         }
         result
@@ -262,6 +276,7 @@ impl TreeFabrikSolver {
         continued: bool,
         global_exact: bool,
     ) -> Result<BodyReport, IkError> {
+        self.from_prediction = false;
         if !continued {
             // The finish's last factor belongs to another problem (or to none).
             self.common.dls.forget();
@@ -284,6 +299,7 @@ impl TreeFabrikSolver {
             // pins where they may be, else the frame is solved from the pose given.
             let (used, stop) = self.attempt(problem, state, 0, first_passes, true)?;
             if stop == StopReason::Converged && self.common.pins_hold(problem, state) {
+                self.from_prediction = true;
                 return Ok(self.common.report_exact(problem, state, used, stop, false));
             }
             spent = used;
