@@ -620,11 +620,16 @@ impl Common {
 
     /// The start of a warm frame that continues a sequence ([`Carried`]), extrapolated
     /// from the last two answers: every movable joint turned once more by its turn
-    /// between them (`d = q1 q0^-1`, then `d q1`, where that stays inside the joint's
-    /// limit) and the translation moved once more by its step. Kept only when it lowers
-    /// the cost; returns whether it was kept. For goals moving smoothly the extrapolation is off by the
-    /// second difference of the motion instead of the first, so one Gauss-Newton step
-    /// from it usually reaches the tolerance.
+    /// between them (`d = q1 q0^-1`, then `d q1`) and the translation moved once more by
+    /// its step. When the last answer came from such a start, the correction that took
+    /// that start to the answer (`Carried::correction`) is composed on too, so that the
+    /// start is off by the motion's third difference instead of its second; a corrected
+    /// start that is not clearly better than the given pose is compared with the
+    /// first-order one and the better kept. A joint whose start would leave its limit
+    /// keeps its rotation. Kept only when it lowers the cost; returns whether it was
+    /// kept. Called right after [`Common::begin`], on the state it left. `first_order`,
+    /// `extrapolated` and `first_order_translation` say what the first-order start was,
+    /// for the next frame's correction.
     pub fn predict(
         &mut self,
         problem: &BodyProblem<'_>,
@@ -632,7 +637,8 @@ impl Common {
         carried: &Carried,
     ) -> Result<bool, IkError> {
         let skeleton = problem.skeleton;
-        let before = self.cost(state);
+        // The state is still the one `begin` measured.
+        let before = self.initial_cost;
         self.kept.clear();
         self.kept.extend_from_slice(&state.pose.rotations);
         let kept_translation = state.root_translation;

@@ -130,6 +130,8 @@ pub struct TreeFabrikSolver {
     carried: Carried,
     /// Whether the last solve's answer came from its extrapolated start.
     from_prediction: bool,
+    /// Whether `passes` holds this solve's topology.
+    passes_ready: bool,
 }
 
 /// Buffers of the FABRIK passes.
@@ -195,6 +197,10 @@ impl TreeFabrikSolver {
         let mut cost = self.common.cost(state);
         let mut stop = StopReason::Stalled;
         let mut passes = 0;
+        if max_passes > 0 && !self.passes_ready {
+            self.passes.prepare(problem, &self.common);
+            self.passes_ready = true;
+        }
         while passes < max_passes {
             if iterations >= settings.max_iterations {
                 stop = StopReason::IterationCap;
@@ -284,7 +290,9 @@ impl TreeFabrikSolver {
         if let Begin::Done(report) = self.common.begin(problem, state, continued, global_exact)? {
             return Ok(report);
         }
-        self.passes.prepare(problem, &self.common);
+        // The passes' topology is built when a pass first runs: the default options run
+        // none on a frame that converges from its first attempt.
+        self.passes_ready = false;
         let first_passes = if self.options.finish {
             0
         } else {
