@@ -668,8 +668,10 @@ impl Common {
             };
             let limit = skeleton.prepared_limit(j);
             // A joint whose extrapolation leaves its limit keeps its rotation: projected,
-            // it would start the frame on a bound it did not reach by itself.
-            if matches!(limit.limit(), JointLimit::Free) || limit.project(next) == next {
+            // it would start the frame on a bound it did not reach by itself. (The inside
+            // test of the projection, without the projection: a rotation outside is not
+            // clamped only to be dropped.)
+            if matches!(limit.limit(), JointLimit::Free) || limit.keeps(next) {
                 state.pose.rotations[j] = next;
                 self.first_order[j] = first;
                 self.extrapolated[j] = true;
