@@ -10,14 +10,21 @@
 //! never candidates (a triangle's own vertices, edges meeting at a vertex): the barrier
 //! would push the mesh's own neighbours apart.
 //!
-//! The hash's cells are cubes of the mean largest extent of the triangles' boxes; each
+//! The hash's cells are boxes whose side along each axis is the triangles' boxes' mean
+//! extent along it (but at least a quarter of the largest such side): the boxes of a
+//! sheet swept along its normal are several times taller than wide, and cubic cells the
+//! size of their height would hold many times the triangles a box can meet. Each
 //! triangle (and each edge, in a second table) is listed in the cells its box touches,
 //! and each vertex (edge) box looks up the cells it touches. The table is flat (a
 //! counting sort of the boxes by their cells' buckets), so a rebuild allocates a few
 //! arrays, not a list per cell. A box touching more than
 //! [`MAX_CELLS`] cells (a primitive swept far) is kept in a short list tested against
-//! every query instead. The result is sorted and free of duplicates, and is exactly the
-//! set [`candidates_brute_force`] finds by testing every pair.
+//! every query instead. Each query's pairs are sorted on their own and appended in the
+//! queries' order (vertices, then edges, ascending), which is the sorted order of the
+//! whole list; the queries run in chunks on the caller's thread pool when there is one
+//! (each chunk's pairs are its own, joined in the chunks' order, so the list does not
+//! depend on the threads). The result is sorted and free of duplicates, and is exactly
+//! the set [`candidates_brute_force`] finds by testing every pair.
 
 use sinew_math::DVec3;
 
@@ -150,7 +157,7 @@ impl Boxes {
 /// a few boxes from the other cell, which the exact overlap test of every candidate
 /// removes.
 struct Grid {
-    cell: f64,
+    cell: DVec3,
     /// `64 - log2(buckets)`: the top bits of the multiplied key pick the bucket.
     shift: u32,
     start: Vec<usize>,
@@ -178,7 +185,7 @@ fn for_cells(lo: [i64; 3], hi: [i64; 3], mut visit: impl FnMut([i64; 3])) {
     }
 }
 
-fn cell_range(cell: f64, b: &Aabb) -> Option<([i64; 3], [i64; 3])> {
+fn cell_range(cell: DVec3, b: &Aabb) -> Option<([i64; 3], [i64; 3])> {
     let lo = (b.min / cell).floor();
     let hi = (b.max / cell).floor();
     let count = (hi - lo + DVec3::ONE).max(DVec3::ZERO);
@@ -193,7 +200,7 @@ fn cell_range(cell: f64, b: &Aabb) -> Option<([i64; 3], [i64; 3])> {
 }
 
 impl Grid {
-    fn new(boxes: &[Aabb], cell: f64) -> Self {
+    fn new(boxes: &[Aabb], cell: DVec3) -> Self {
         let ranges: Vec<Option<([i64; 3], [i64; 3])>> =
             boxes.iter().map(|b| cell_range(cell, b)).collect();
         let entries: usize = ranges
@@ -258,6 +265,26 @@ impl Grid {
     }
 }
 
+/// The hash's cell: per axis the mean extent of `boxes` along it, at least a quarter of
+/// the largest of the three (a flat sheet's boxes have no extent across it), or a unit
+/// cube when the boxes give no finite positive size.
+fn cell_size(boxes: &[Aabb]) -> DVec3 {
+    let mean = boxes
+        .iter()
+        .fold(DVec3::ZERO, |sum, b| sum + (b.max - b.min))
+        / boxes.len() as f64;
+    let largest = mean.max_element();
+    if mean.is_finite() && largest > 0.0 {
+        mean.max(DVec3::splat(0.25 * largest))
+    } else {
+        DVec3::ONE
+    }
+}
+
+/// Queries per task when the broad phase runs on a pool: a query costs about a
+/// microsecond, so a task is a few hundred microseconds.
+const QUERIES_PER_TASK: usize = 512;
+
 /// The candidate pairs within `margin` at `x` (`dx = None`) or anywhere on the step from
 /// `x` to `x + dx`, sorted, by the spatial hash. Vertex-triangle pairs and edge-edge
 /// pairs whose primitives share a vertex are left out, and so are pairs for which
@@ -274,49 +301,80 @@ pub fn candidates(
     if prims.triangles.is_empty() {
         return Vec::new();
     }
-    let mean_extent = boxes
-        .triangle
-        .iter()
-        .map(|b| (b.max - b.min).max_element())
-        .sum::<f64>()
-        / prims.triangles.len() as f64;
-    let cell = if mean_extent.is_finite() && mean_extent > 0.0 {
-        mean_extent
-    } else {
-        1.0
-    };
+    let cell = cell_size(&boxes.triangle);
     let mut out = Vec::new();
     let triangles = Grid::new(&boxes.triangle, cell);
-    // A box is met once per shared cell (and per bucket collision); `seen[i]` holds the
-    // last query that met box `i`, so each pair is tested once without sorting the hits.
-    let mut seen = vec![usize::MAX; prims.triangles.len().max(prims.edges.len())];
-    for &v in &prims.vertices {
-        triangles.query(&boxes.vertex[v], prims.triangles.len(), |t| {
-            if seen[t] != v {
-                seen[t] = v;
-                if point_triangle_kept(prims, &boxes, skip, v, t) {
-                    out.push(Candidate::PointTriangle {
-                        vertex: v,
-                        triangle: t,
-                    });
-                }
+    super::spread::concat_chunks(
+        &mut out,
+        prims.vertices.len(),
+        QUERIES_PER_TASK,
+        |range, part| {
+            let mut found = Found::new(prims.triangles.len());
+            for &v in &prims.vertices[range] {
+                triangles.query(&boxes.vertex[v], prims.triangles.len(), |t| {
+                    found.meet(t, v, || point_triangle_kept(prims, &boxes, skip, v, t));
+                });
+                found.append(part, |t| Candidate::PointTriangle {
+                    vertex: v,
+                    triangle: t,
+                });
             }
-        });
-    }
+        },
+    );
     let edges = Grid::new(&boxes.edge, cell);
-    seen.fill(usize::MAX);
-    for a in 0..prims.edges.len() {
-        edges.query(&boxes.edge[a], prims.edges.len(), |b| {
-            if b > a && seen[b] != a {
-                seen[b] = a;
-                if edge_edge_kept(prims, &boxes, skip, a, b) {
-                    out.push(Candidate::EdgeEdge { a, b });
-                }
+    let mut edge_pairs = Vec::new();
+    super::spread::concat_chunks(
+        &mut edge_pairs,
+        prims.edges.len(),
+        QUERIES_PER_TASK,
+        |range, part| {
+            let mut found = Found::new(prims.edges.len());
+            for a in range {
+                edges.query(&boxes.edge[a], prims.edges.len(), |b| {
+                    if b > a {
+                        found.meet(b, a, || edge_edge_kept(prims, &boxes, skip, a, b));
+                    }
+                });
+                found.append(part, |b| Candidate::EdgeEdge { a, b });
             }
-        });
-    }
-    out.sort_unstable();
+        },
+    );
+    out.append(&mut edge_pairs);
     out
+}
+
+/// One task's record of the boxes its queries met: a box is met once per shared cell
+/// (and per bucket collision), and `seen[i]` holds the last query that met box `i`, so
+/// each pair is tested once without sorting the hits; the kept ones of the current query
+/// wait in `kept` to be sorted and appended.
+struct Found {
+    seen: Vec<usize>,
+    kept: Vec<usize>,
+}
+
+impl Found {
+    fn new(boxes: usize) -> Self {
+        Self {
+            seen: vec![usize::MAX; boxes],
+            kept: Vec::new(),
+        }
+    }
+
+    /// Box `i` met by query `query`: tested by `keep` the first time.
+    fn meet(&mut self, i: usize, query: usize, keep: impl FnOnce() -> bool) {
+        if self.seen[i] != query {
+            self.seen[i] = query;
+            if keep() {
+                self.kept.push(i);
+            }
+        }
+    }
+
+    /// The current query's kept boxes, ascending, appended to `out` as pairs.
+    fn append(&mut self, out: &mut Vec<Candidate>, pair: impl Fn(usize) -> Candidate) {
+        self.kept.sort_unstable();
+        out.extend(self.kept.drain(..).map(pair));
+    }
 }
 
 fn point_triangle_kept(
@@ -537,5 +595,93 @@ impl CandidateCache {
             Candidate::EdgeEdge { a, b } => edge_edge_kept(prims, &boxes, skip, a, b),
         });
         true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two 24 x 24 sheets 0.02 apart (more queries than one task takes), the lower one
+    /// swept 0.1 along its normal and slightly sheared, so the swept boxes are five times
+    /// taller than wide and the cells are not cubes.
+    fn stacked_sheets() -> (Vec<DVec3>, Vec<DVec3>, Vec<[usize; 3]>) {
+        const N: usize = 24;
+        let mut x = Vec::new();
+        let mut dx = Vec::new();
+        let mut triangles = Vec::new();
+        for sheet in 0..2 {
+            let base = x.len();
+            for i in 0..N {
+                for j in 0..N {
+                    let wobble = 1e-3 * ((7 * i + 3 * j) % 5) as f64;
+                    x.push(DVec3::new(
+                        0.01 * i as f64,
+                        0.02 * sheet as f64 + wobble,
+                        0.01 * j as f64,
+                    ));
+                    let lift = if sheet == 0 { 0.1 } else { 0.0 };
+                    dx.push(DVec3::new(1e-3 * (j % 3) as f64, lift, 0.0));
+                }
+            }
+            for i in 0..N - 1 {
+                for j in 0..N - 1 {
+                    let a = base + i * N + j;
+                    triangles.push([a, a + N, a + 1]);
+                    triangles.push([a + 1, a + N, a + N + 1]);
+                }
+            }
+        }
+        (x, dx, triangles)
+    }
+
+    #[test]
+    fn the_cells_follow_the_boxes_and_the_pairs_are_the_brute_force_ones() {
+        let (x, dx, triangles) = stacked_sheets();
+        let prims = Primitives::new(&triangles);
+        let skip = vec![false; x.len()];
+        let boxes = Boxes::new(&prims, &x, Some(&dx), 3e-3);
+        let cell = cell_size(&boxes.triangle);
+        assert!(cell.y > 3.0 * cell.x && cell.y > 3.0 * cell.z, "{cell}");
+        assert!(prims.vertices.len() > QUERIES_PER_TASK);
+        for sweep in [None, Some(dx.as_slice())] {
+            let slow = candidates_brute_force(&prims, &x, sweep, 3e-3, &skip);
+            let fast = candidates(&prims, &x, sweep, 3e-3, &skip);
+            assert_eq!(fast, slow, "sweep {}", sweep.is_some());
+            assert!(!fast.is_empty());
+            #[cfg(feature = "parallel")]
+            for threads in [2, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let on_pool = pool.install(|| candidates(&prims, &x, sweep, 3e-3, &skip));
+                assert_eq!(
+                    on_pool,
+                    slow,
+                    "{threads} threads, sweep {}",
+                    sweep.is_some()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn flat_and_empty_boxes_get_usable_cells() {
+        let flat = [Aabb {
+            min: DVec3::ZERO,
+            max: DVec3::new(1.0, 0.0, 2.0),
+        }];
+        assert_eq!(cell_size(&flat), DVec3::new(1.0, 0.5, 2.0));
+        let point = [Aabb {
+            min: DVec3::ONE,
+            max: DVec3::ONE,
+        }];
+        assert_eq!(cell_size(&point), DVec3::ONE);
+        let nan = [Aabb {
+            min: DVec3::splat(f64::NAN),
+            max: DVec3::ONE,
+        }];
+        assert_eq!(cell_size(&nan), DVec3::ONE);
     }
 }

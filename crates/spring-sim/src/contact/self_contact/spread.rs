@@ -86,3 +86,34 @@ pub(crate) fn filter_indices(
     }
     out.extend((0..n).filter(|&i| keep(i)));
 }
+
+/// `out` extended by what `f(range, part)` appends to `part` for the consecutive ranges of
+/// `chunk` indices covering `0..n`, in the ranges' order: the ranges as tasks on the
+/// caller's pool when there is one (each appends to its own list, joined in order), else
+/// the whole range at once. So `f` must append for a range what it appends for its
+/// pieces one after another; the result then does not depend on the threads.
+pub(crate) fn concat_chunks<T: Send>(
+    out: &mut Vec<T>,
+    n: usize,
+    chunk: usize,
+    f: impl Fn(std::ops::Range<usize>, &mut Vec<T>) + Sync + Send,
+) {
+    #[cfg(feature = "parallel")]
+    if n > chunk && on_pool() {
+        use rayon::prelude::*;
+        let parts: Vec<Vec<T>> = (0..n.div_ceil(chunk))
+            .into_par_iter()
+            .map(|c| {
+                let mut part = Vec::new();
+                f(c * chunk..((c + 1) * chunk).min(n), &mut part);
+                part
+            })
+            .collect();
+        for mut part in parts {
+            out.append(&mut part);
+        }
+        return;
+    }
+    let _ = chunk;
+    f(0..n, out);
+}
