@@ -19,9 +19,7 @@
 use crate::BodySolver;
 use crate::common::{Begin, Common};
 use crate::horn::BestRotation;
-use crate::problem::{
-    BodyProblem, BodyReport, BodyState, all_within, forward_kinematics, forward_kinematics_from,
-};
+use crate::problem::{BodyProblem, BodyReport, BodyState, all_within, forward_kinematics_from};
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{IkError, StopReason};
 use sinew_skeleton::limits::JointLimit;
@@ -209,15 +207,10 @@ impl TreeCcdSolver {
         let before = self.common.cost(state);
         let kept = state.root_translation;
         state.root_translation += sum / weight;
-        forward_kinematics(
-            problem.skeleton,
-            &state.pose,
-            state.root_translation,
-            &mut state.global,
-        )?;
+        state.update_global(problem.skeleton)?;
         if !(self.common.cost(state) < before && self.common.pins_hold(problem, state)) {
             state.root_translation = kept;
-            forward_kinematics(problem.skeleton, &state.pose, kept, &mut state.global)?;
+            state.update_global(problem.skeleton)?;
         }
         Ok(())
     }

@@ -117,12 +117,7 @@ impl Common {
         // continued state whose global pose is the one the last solve returned has both
         // checked and exact already.
         if !global_exact {
-            forward_kinematics(
-                skeleton,
-                &state.pose,
-                state.root_translation,
-                &mut state.global,
-            )?;
+            state.update_global(skeleton)?;
         }
         let mut moved = false;
         for j in 0..skeleton.len() {
@@ -137,12 +132,7 @@ impl Common {
             state.pose.rotations[j] = projected;
         }
         if moved {
-            forward_kinematics(
-                skeleton,
-                &state.pose,
-                state.root_translation,
-                &mut state.global,
-            )?;
+            state.update_global(skeleton)?;
         }
         self.start.clear();
         self.start.extend_from_slice(&state.pose.rotations);
@@ -219,12 +209,7 @@ impl Common {
         stop: StopReason,
         restarted: bool,
     ) -> Result<BodyReport, IkError> {
-        forward_kinematics(
-            problem.skeleton,
-            &state.pose,
-            state.root_translation,
-            &mut state.global,
-        )?;
+        state.update_global(problem.skeleton)?;
         Ok(self.report_exact(problem, state, iterations, stop, restarted))
     }
 
@@ -301,12 +286,7 @@ impl Common {
     ) -> Result<(), IkError> {
         state.pose.rotations.copy_from_slice(&self.best);
         state.root_translation = translation;
-        forward_kinematics(
-            problem.skeleton,
-            &state.pose,
-            translation,
-            &mut state.global,
-        )?;
+        state.update_global(problem.skeleton)?;
         Ok(())
     }
 
@@ -319,12 +299,7 @@ impl Common {
     ) -> Result<(), IkError> {
         state.pose.rotations.copy_from_slice(&self.kept);
         state.root_translation = translation;
-        forward_kinematics(
-            problem.skeleton,
-            &state.pose,
-            translation,
-            &mut state.global,
-        )?;
+        state.update_global(problem.skeleton)?;
         Ok(())
     }
 
@@ -353,12 +328,7 @@ impl Common {
                 limit.sample([rng.uniform(), rng.uniform(), rng.uniform()])
             };
         }
-        forward_kinematics(
-            problem.skeleton,
-            &state.pose,
-            state.root_translation,
-            &mut state.global,
-        )?;
+        state.update_global(problem.skeleton)?;
         Ok(())
     }
 
@@ -410,12 +380,7 @@ impl Common {
             }
             state.pose.rotations[j] = limit.project(q.slerp(centre, NEAR_PULL).normalize());
         }
-        forward_kinematics(
-            problem.skeleton,
-            &state.pose,
-            state.root_translation,
-            &mut state.global,
-        )?;
+        state.update_global(problem.skeleton)?;
         Ok(())
     }
 
@@ -519,23 +484,13 @@ impl Common {
         if !moved {
             return Ok(false);
         }
-        forward_kinematics(
-            skeleton,
-            &state.pose,
-            state.root_translation,
-            &mut state.global,
-        )?;
+        state.update_global(skeleton)?;
         if self.cost(state) < before && self.pins_hold(problem, state) {
             return Ok(true);
         }
         state.pose.rotations.copy_from_slice(&self.kept);
         state.root_translation = kept_translation;
-        forward_kinematics(
-            skeleton,
-            &state.pose,
-            state.root_translation,
-            &mut state.global,
-        )?;
+        state.update_global(skeleton)?;
         Ok(false)
     }
 
@@ -609,12 +564,7 @@ impl Common {
         }
         state.pose.rotations[root] = (turn * state.pose.rotations[root]).normalize();
         state.root_translation += shift;
-        forward_kinematics(
-            skeleton,
-            &state.pose,
-            state.root_translation,
-            &mut state.global,
-        )?;
+        state.update_global(skeleton)?;
         Ok(true)
     }
 
@@ -693,12 +643,7 @@ impl Common {
         if !moved {
             return Ok(false);
         }
-        forward_kinematics(
-            skeleton,
-            &state.pose,
-            state.root_translation,
-            &mut state.global,
-        )?;
+        state.update_global(skeleton)?;
         let mut cost = self.cost(state);
         // The corrected start is nearly always far better than the first-order one (its
         // error is the motion's third difference instead of its second); where it is
@@ -709,12 +654,7 @@ impl Common {
             let corrected_translation = state.root_translation;
             self.swap_first_order(state);
             state.root_translation = self.first_order_translation;
-            forward_kinematics(
-                skeleton,
-                &state.pose,
-                state.root_translation,
-                &mut state.global,
-            )?;
+            state.update_global(skeleton)?;
             let plain = self.cost(state);
             if plain <= cost {
                 // Kept; `first_order` now holds the corrected rotations, which the
@@ -728,12 +668,7 @@ impl Common {
             } else {
                 self.swap_first_order(state);
                 state.root_translation = corrected_translation;
-                forward_kinematics(
-                    skeleton,
-                    &state.pose,
-                    state.root_translation,
-                    &mut state.global,
-                )?;
+                state.update_global(skeleton)?;
             }
         }
         if cost < before {
@@ -741,12 +676,7 @@ impl Common {
         }
         state.pose.rotations.copy_from_slice(&self.kept);
         state.root_translation = kept_translation;
-        forward_kinematics(
-            skeleton,
-            &state.pose,
-            state.root_translation,
-            &mut state.global,
-        )?;
+        state.update_global(skeleton)?;
         Ok(false)
     }
 

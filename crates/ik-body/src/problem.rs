@@ -173,6 +173,17 @@ impl BodyState {
         }
     }
 
+    /// Recomputes `global` as forward kinematics of the pose moved by the translation
+    /// ([`forward_kinematics`]), after the pose or the translation changed.
+    pub(crate) fn update_global(&mut self, skeleton: &Skeleton) -> Result<(), SkeletonError> {
+        forward_kinematics(
+            skeleton,
+            &self.pose,
+            self.root_translation,
+            &mut self.global,
+        )
+    }
+
     /// Copies `other`'s pose and translation into this state without allocating (once the
     /// sizes match); the global pose is recomputed by the next solve.
     pub fn copy_pose_from(&mut self, pose: &Pose, root_translation: DVec3) {

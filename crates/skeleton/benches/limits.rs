@@ -4,6 +4,9 @@
 //! ellipse (semi-axes pi and 0.05), where the ellipse's nearest point needs the most
 //! bisection steps.
 
+#[path = "../tests/common/mod.rs"]
+mod common;
+
 use criterion::{Criterion, criterion_group, criterion_main};
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::limits::JointLimit;
@@ -33,18 +36,7 @@ fn bench_limits(c: &mut Criterion) {
             "elbow_hinge",
             JointLimit::hinge(-DVec3::Y, 0.0, 150f64.to_radians()).expect("valid hinge"),
         ),
-        (
-            "shoulder",
-            JointLimit::swing_twist(
-                DVec3::X,
-                DVec3::Z,
-                100f64.to_radians(),
-                70f64.to_radians(),
-                -80f64.to_radians(),
-                80f64.to_radians(),
-            )
-            .expect("valid swing-twist"),
-        ),
+        ("shoulder", common::shoulder()),
         (
             "thin_ellipse",
             JointLimit::swing_twist(

@@ -1239,6 +1239,22 @@ fn check_range(
     Ok(())
 }
 
+/// The human shoulder of the W7 and W8 workloads, the crate's unit tests' common limit:
+/// bone along +x, swing 100 degrees about z, 70 about y, twist +-80 degrees (the
+/// integration tests and the benchmarks share the same in `tests/common`).
+#[cfg(test)]
+pub(crate) fn test_shoulder() -> JointLimit {
+    JointLimit::swing_twist(
+        DVec3::X,
+        DVec3::Z,
+        100f64.to_radians(),
+        70f64.to_radians(),
+        -80f64.to_radians(),
+        80f64.to_radians(),
+    )
+    .expect("valid swing-twist")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1303,15 +1319,7 @@ mod tests {
     #[test]
     fn keeps_only_what_the_projection_returns_unchanged() {
         let limits = [
-            JointLimit::swing_twist(
-                DVec3::X,
-                DVec3::Z,
-                100f64.to_radians(),
-                70f64.to_radians(),
-                -80f64.to_radians(),
-                80f64.to_radians(),
-            )
-            .unwrap(),
+            test_shoulder(),
             JointLimit::cone(DVec3::Y, 0.5).unwrap(),
             JointLimit::hinge(-DVec3::Y, 0.0, 150f64.to_radians()).unwrap(),
             JointLimit::Free,
@@ -1358,16 +1366,7 @@ mod tests {
 
     #[test]
     fn the_quick_test_takes_rotations_well_inside() {
-        let shoulder = JointLimit::swing_twist(
-            DVec3::X,
-            DVec3::Z,
-            100f64.to_radians(),
-            70f64.to_radians(),
-            -80f64.to_radians(),
-            80f64.to_radians(),
-        )
-        .unwrap()
-        .prepare();
+        let shoulder = test_shoulder().prepare();
         let elbow = JointLimit::hinge(-DVec3::Y, 0.0, 150f64.to_radians())
             .unwrap()
             .prepare();
@@ -1429,15 +1428,11 @@ mod tests {
     #[test]
     fn the_quick_violation_parts_are_the_exact_ones() {
         let tilted = DVec3::new(1.0, 2.0, 3.0).normalize();
+        let JointLimit::SwingTwist(shoulder) = test_shoulder() else {
+            unreachable!("the shoulder is a swing-twist limit")
+        };
         let limits = [
-            SwingTwist {
-                twist_axis: DVec3::X,
-                a_axis: DVec3::Z,
-                swing_a: 100f64.to_radians(),
-                swing_b: 70f64.to_radians(),
-                twist_min: -80f64.to_radians(),
-                twist_max: 80f64.to_radians(),
-            },
+            shoulder,
             SwingTwist {
                 twist_axis: tilted,
                 a_axis: tilted.any_orthonormal_vector(),

@@ -150,7 +150,7 @@ fn wrap(angle: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::limits::{Hinge, SwingTwist};
+    use crate::limits::{Hinge, test_shoulder};
     use crate::{GlobalPose, JointDef};
 
     /// An arm: a base joint with `base_limit`, an elbow hinge about -y (0 to 150
@@ -185,17 +185,6 @@ mod tests {
             joint(Some(3), DVec3::new(0.08, 0.0, 0.0), JointLimit::Free),
         ])
         .unwrap()
-    }
-
-    fn shoulder() -> JointLimit {
-        JointLimit::SwingTwist(SwingTwist {
-            twist_axis: DVec3::X,
-            a_axis: DVec3::Z,
-            swing_a: 100f64.to_radians(),
-            swing_b: 70f64.to_radians(),
-            twist_min: -80f64.to_radians(),
-            twist_max: 80f64.to_radians(),
-        })
     }
 
     /// Seeds `pose` for `target` and returns the hand's distance to it.
@@ -251,14 +240,14 @@ mod tests {
 
     #[test]
     fn a_limited_base_stays_inside_and_reaches_most_targets() {
-        let skeleton = arm(shoulder());
+        let skeleton = arm(test_shoulder());
         let mut global = GlobalPose::new();
         let mut reached = 0;
         let count = 100;
         for i in 0..count {
             let u = (i as f64 + 0.5) / count as f64;
             let mut pose = skeleton.rest_pose();
-            pose.rotations[0] = shoulder().sample([u, (7.0 * u) % 1.0, (3.0 * u) % 1.0]);
+            pose.rotations[0] = test_shoulder().sample([u, (7.0 * u) % 1.0, (3.0 * u) % 1.0]);
             pose.rotations[1] = skeleton.limit(1).sample([(5.0 * u) % 1.0, 0.0, 0.0]);
             skeleton.forward_kinematics(&pose, &mut global).unwrap();
             let target = global.positions[4];
@@ -320,7 +309,7 @@ mod tests {
         ));
         assert_eq!(pose, before);
         // A target on the base joint gives no direction to aim along.
-        let skeleton = arm(shoulder());
+        let skeleton = arm(test_shoulder());
         let chain = Chain::whole(&skeleton).unwrap();
         assert!(is_limb(&skeleton, &chain));
         let mut pose = skeleton.rest_pose();

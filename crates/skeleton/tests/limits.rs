@@ -1,6 +1,9 @@
 //! Joint limits against hand-computed cases, an independent closest-point computation
 //! (dense sampling) and invariants on seeded random rotations.
 
+mod common;
+
+use common::shoulder;
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::limits::{Hinge, JointLimit, LimitError, SwingTwist, swing_twist};
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
@@ -57,20 +60,6 @@ impl Rng {
 
 fn deg(d: f64) -> f64 {
     d.to_radians()
-}
-
-/// The workload's shoulder: bone along +x, swing 100 degrees about z, 70 about y, twist
-/// +-80 degrees.
-fn shoulder() -> JointLimit {
-    JointLimit::swing_twist(
-        DVec3::X,
-        DVec3::Z,
-        deg(100.0),
-        deg(70.0),
-        deg(-80.0),
-        deg(80.0),
-    )
-    .unwrap()
 }
 
 fn swing_twist_of(limit: &JointLimit) -> SwingTwist {
