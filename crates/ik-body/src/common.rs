@@ -3,8 +3,8 @@
 //! every effector is already within tolerance, and the report.
 
 use crate::problem::{
-    BodyProblem, BodyReport, BodyState, Target, all_within, finish_report, forward_kinematics,
-    pins_hold, resolve_targets, total_cost,
+    BodyProblem, BodyReport, BodyState, Target, all_within, finish_report, pins_hold,
+    resolve_targets, total_cost,
 };
 use sinew_skeleton::finish::{Finish, FinishJob, Finished, Movers};
 
@@ -228,7 +228,7 @@ impl Common {
         #[cfg(debug_assertions)]
         {
             let mut check = state.global.clone();
-            let _ = forward_kinematics(
+            let _ = crate::problem::forward_kinematics(
                 problem.skeleton,
                 &state.pose,
                 state.root_translation,
@@ -494,17 +494,20 @@ impl Common {
         Ok(false)
     }
 
-    /// Places the body as a whole before its limbs are seeded: the rigid motion that best
-    /// fits the effectors' positions to their goals (weighted least squares, the weights
-    /// squared as in the cost). With a free root that may translate, that is the rotation
-    /// of the centred positions onto the centred goals (Horn's closed form,
-    /// [`BestRotation`](crate::BestRotation)), taken about the root, and the translation
-    /// that then brings the weighted centroid of the positions onto that of the goals;
-    /// without the translation, the best rotation about the root; with a root that is not
-    /// free, the translation alone. On a cold start from the rest pose the hips are then
-    /// roughly where the goals put them, the limbs' bases with them, so the finish starts
-    /// nearer (measured in `docs/ik-body.md`). `state.global` is forward kinematics of
-    /// the result; returns whether anything moved.
+    /// Places the body as a whole before its limbs are seeded: a rigid motion fitted to
+    /// the effectors' positions and goals (the weights squared as in the cost), first of
+    /// all for the effectors no limb seed will serve. With a free root that may
+    /// translate, the translation brings the weighted centroid of those effectors (of
+    /// every effector when each is served by a limb seed) onto that of their goals, and
+    /// the rotation, taken about the root, is the best fit of every effector's position
+    /// about that centroid onto its goal about the goals' (Horn's closed form,
+    /// [`BestRotation`](crate::BestRotation)); without the translation, the best rotation
+    /// about the root; with a root that is not free, the translation alone. A seeded limb
+    /// reaches its goal from wherever its base lands, the head only moves with the body:
+    /// on a cold start from the rest pose the head is then on its goal and the limbs'
+    /// bases roughly where the goals put them, so the finish starts much nearer (measured
+    /// in `docs/ik-body.md`). `state.global` is forward kinematics of the result; returns
+    /// whether anything moved.
     fn place_body(
         &mut self,
         problem: &BodyProblem<'_>,
@@ -520,14 +523,31 @@ impl Common {
         }
         // The effectors the root moves are every effector below it; an effector on the
         // root itself turns with it about its own position, which changes nothing.
+        // The centroids the translation matches: those of the effectors no limb seed
+        // will serve (the head, a limb near its goal, an effector with a rotation goal)
+        // when there are any, else those of every effector. A seeded limb reaches its
+        // goal from wherever its base lands, the others only move with the body, so the
+        // body is placed for them first (the limbs still weigh in the rotation).
         let mut weight = 0.0;
         let mut centre = DVec3::ZERO;
         let mut goal_centre = DVec3::ZERO;
-        for t in &self.targets {
+        let mut fixed_weight = 0.0;
+        let mut fixed_centre = DVec3::ZERO;
+        let mut fixed_goal_centre = DVec3::ZERO;
+        for (e, t) in self.targets.iter().enumerate() {
             let w = t.position_weight * t.position_weight;
+            let (at, goal) = (state.global.positions[t.joint] * w, t.position * w);
             weight += w;
-            centre += state.global.positions[t.joint] * w;
-            goal_centre += t.position * w;
+            centre += at;
+            goal_centre += goal;
+            if !self.seedable.iter().any(|&(s, _)| s == e) {
+                fixed_weight += w;
+                fixed_centre += at;
+                fixed_goal_centre += goal;
+            }
+        }
+        if fixed_weight > 0.0 {
+            (weight, centre, goal_centre) = (fixed_weight, fixed_centre, fixed_goal_centre);
         }
         if weight <= 0.0 {
             return Ok(false);
@@ -700,6 +720,76 @@ mod tests {
     use super::*;
     use crate::workload;
     use sinew_skeleton::ik::{SolveSettings, rotation_angle};
+
+    /// A cold start places the body for the effector no limb serves (the head) and seeds
+    /// the limbs from there: on goals made from poses with the spine and clavicles at
+    /// rest (the hips turned and moved, the limbs drawn inside their limits), the head
+    /// lands on its goal to rounding (with a limb near its goal, unseeded, the centroid of
+    /// the two) and the spine is left at rest.
+    #[test]
+    fn a_cold_start_places_the_body_for_the_effectors_no_limb_serves() {
+        let skeleton = workload::humanoid().expect("valid");
+        let settings = SolveSettings::default();
+        let spine_and_clavicles = [1, 2, 3, 4, 5, 6, 10];
+        let mut rng = Rng::new(0x00B0_D1E5);
+        let (mut seeded, mut all_limbs) = (0, 0);
+        for _ in 0..20 {
+            let mut pose = workload::random_pose(&skeleton, &mut rng, 0.5);
+            for j in spine_and_clavicles {
+                pose.rotations[j] = DQuat::IDENTITY;
+            }
+            let mut goal = BodyState::rest(&skeleton);
+            goal.pose = pose;
+            goal.root_translation = rng.in_ball(0.3);
+            goal.update_global(&skeleton).expect("valid");
+            let effectors: Vec<_> = workload::EFFECTORS
+                .iter()
+                .map(|&j| {
+                    crate::BodyEffector::new(sinew_skeleton::ik::EffectorGoal::at(
+                        j,
+                        goal.global.positions[j],
+                    ))
+                })
+                .collect();
+            let problem =
+                BodyProblem::new(&skeleton, &effectors, settings).with_root_translation(true);
+            let mut state = BodyState::rest(&skeleton);
+            let mut common = Common::default();
+            assert!(matches!(
+                common.begin(&problem, &mut state, false, false),
+                Ok(Begin::Iterate)
+            ));
+            if !common.seed_limbs(&problem, &mut state).expect("valid") {
+                continue;
+            }
+            seeded += 1;
+            // The effectors no limb seed served (the head, and any limb that started near
+            // its goal): their centroid is on their goals' (all weights are 1 here).
+            let (mut at, mut goal, mut count) = (DVec3::ZERO, DVec3::ZERO, 0.0);
+            for (e, t) in common.targets.iter().enumerate() {
+                if !common.seedable.iter().any(|&(s, _)| s == e) {
+                    at += state.global.positions[t.joint];
+                    goal += t.position;
+                    count += 1.0;
+                }
+            }
+            assert!(count >= 1.0);
+            let error = at.distance(goal) / count;
+            assert!(error <= 1e-12, "centroid {error}");
+            if common.seedable.len() == 4 {
+                let head = common.targets[4].errors(&state.global).0;
+                assert!(head <= 1e-12, "head {head}");
+                all_limbs += 1;
+            }
+            for j in spine_and_clavicles {
+                assert_eq!(state.pose.rotations[j], DQuat::IDENTITY, "joint {j}");
+            }
+        }
+        assert!(
+            seeded >= 15 && all_limbs >= 5,
+            "{seeded} of 20 seeded, {all_limbs} with every limb"
+        );
+    }
 
     #[test]
     fn the_near_seed_draws_only_the_joints_on_their_bounds_a_little_inwards() {
