@@ -20,6 +20,10 @@ use sinew_skeleton::seed::limb_seed;
 /// further from its goal than this fraction of the limb's length.
 const LIMB_SEED_DISTANCE: f64 = 0.25;
 
+/// When a cold start places the body ([`Common::place_body`]), a limb whose effector is
+/// further from its goal than this fraction of the limb's length is seeded too.
+const PLACED_LIMB_SEED_DISTANCE: f64 = 0.1;
+
 /// A finish whose cost has not fallen tenfold over this many steps ends in a local
 /// minimum, so that the solver restarts (see `docs/ik-body.md`).
 const STALL_WINDOW: usize = 10;
@@ -66,6 +70,8 @@ pub(crate) struct Common {
     limbs: Vec<Chain>,
     /// The limbs a cold start seeds: (target, index into `limbs`).
     seedable: Vec<(usize, usize)>,
+    /// The limbs seeded only when the body is placed (see [`PLACED_LIMB_SEED_DISTANCE`]).
+    nearer: Vec<(usize, usize)>,
     /// The last extrapolated start's first-order part ([`Common::predict`]): per joint the
     /// extrapolated rotation and whether the joint took it, and the translation.
     pub first_order: Vec<DQuat>,
@@ -405,6 +411,7 @@ impl Common {
         self.kept.extend_from_slice(&state.pose.rotations);
         let kept_translation = state.root_translation;
         self.seedable.clear();
+        self.nearer.clear();
         for (e, t) in self.targets.iter().enumerate() {
             if t.rotation.is_some() {
                 continue;
@@ -456,6 +463,8 @@ impl Common {
             let distance = state.global.positions[t.joint].distance(t.position);
             if distance > LIMB_SEED_DISTANCE * self.limbs[k].reach() {
                 self.seedable.push((e, k));
+            } else if distance > PLACED_LIMB_SEED_DISTANCE * self.limbs[k].reach() {
+                self.nearer.push((e, k));
             }
         }
         if self.seedable.is_empty() {
@@ -463,6 +472,9 @@ impl Common {
         }
         let mut moved = false;
         if !self.targets.iter().any(|t| t.pinned) {
+            // The placement moves every limb's base: one nearer its goal than the warm
+            // frames' gate is seeded too, rather than left to the finish.
+            self.seedable.extend_from_slice(&self.nearer);
             moved = self.place_body(problem, state)?;
         }
         for &(e, k) in &self.seedable {
