@@ -433,8 +433,8 @@ pub fn candidates_brute_force(
 /// it filter the list instead of hashing the mesh again.
 ///
 /// Built like [`candidates`] (`x`, an optional step `dx`, `margin`, `skip`), it keeps the
-/// grown box of every vertex and the pairs found. A later query (`x'`, `dx'`, the same
-/// `margin` and `skip`) is covered when every vertex's grown box for the query lies
+/// grown box of every vertex and the pairs found. A later query (the same primitives,
+/// `x'`, `dx'`, the same `margin` and `skip`) is covered when every vertex's grown box for the query lies
 /// inside the kept one. Then every edge and triangle box of the query (a union of its
 /// vertices' boxes) lies inside the kept box of the same primitive, so two primitives
 /// whose query boxes overlap also had overlapping kept boxes: every pair the query would
@@ -587,12 +587,14 @@ impl CandidateCache {
         let Some(boxes) = self.covering_boxes(prims, x, dx, margin, skip) else {
             return false;
         };
+        // A listed pair shares no vertex and has a free vertex (the list was built with
+        // the same `skip`, checked above): only its boxes' overlap is left to test.
         let list = &self.list;
         super::spread::filter_indices(list.len(), out, |i| match list[i] {
             Candidate::PointTriangle { vertex, triangle } => {
-                point_triangle_kept(prims, &boxes, skip, vertex, triangle)
+                boxes.vertex[vertex].overlaps(&boxes.triangle[triangle])
             }
-            Candidate::EdgeEdge { a, b } => edge_edge_kept(prims, &boxes, skip, a, b),
+            Candidate::EdgeEdge { a, b } => boxes.edge[a].overlaps(&boxes.edge[b]),
         });
         true
     }
