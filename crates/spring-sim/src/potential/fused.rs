@@ -7,6 +7,7 @@
 //! per term, which made Newton's assembly markedly slower than a single pass.
 
 use super::damping::{AxialDamping, kernel as damping};
+use super::lanes::{self, Instance};
 use super::springs::{self, Springs};
 use super::{HessianSink, StepContext, Term};
 use crate::model::SpringSystem;
@@ -99,13 +100,7 @@ impl PerSpring<'_> {
                 }
             }
             None => {
-                for s in springs {
-                    let delta = alpha * dx[s.a] - alpha * dx[s.b];
-                    if delta == DVec3::ZERO {
-                        continue;
-                    }
-                    change += springs::energy_change(s, x, delta);
-                }
+                change = lanes::energy_change_sum(Instance::Detect, springs, x, dx, alpha);
             }
         }
         change
@@ -145,17 +140,8 @@ impl PerSpring<'_> {
                 }
             }
             None => {
-                for s in springs {
-                    let (da, db) = (dx[s.a], dx[s.b]);
-                    let delta1 = a1 * da - a1 * db;
-                    let delta2 = a2 * da - a2 * db;
-                    if delta1 != DVec3::ZERO {
-                        c1 += springs::energy_change(s, x, delta1);
-                    }
-                    if delta2 != DVec3::ZERO {
-                        c2 += springs::energy_change(s, x, delta2);
-                    }
-                }
+                [c1, c2] =
+                    lanes::energy_change_pair_sum(Instance::Detect, springs, x, dx, [a1, a2]);
             }
         }
         [c1, c2]

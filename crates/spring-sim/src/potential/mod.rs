@@ -25,6 +25,7 @@ mod damping;
 mod fused;
 mod gravity;
 mod inertia;
+mod lanes;
 #[cfg(feature = "parallel")]
 mod parallel;
 mod sink;

@@ -22,6 +22,7 @@
 //! "Each spring's block once").
 
 use super::fused::PerSpring;
+use super::lanes::{self, Instance};
 use super::{Pointwise, Potential, StepContext, SymBlock, gravity, inertia};
 use crate::model::SpringSystem;
 use crate::pattern::{FIXED, HessianPattern};
@@ -42,16 +43,43 @@ const NO_COUPLING: u32 = u32::MAX;
 /// chunks of `SPRING_CHUNK` when `par`, else in order on the calling thread (each value
 /// is computed alone, so neither changes a bit).
 fn fill_per_spring<T: Send>(par: bool, out: &mut [T], per_spring: impl Fn(usize) -> T + Sync) {
-    let fill = |(c, chunk): (usize, &mut [T])| {
-        let first = c * SPRING_CHUNK;
+    fill_spring_chunks(par, out, |first, chunk| {
         for (i, value) in chunk.iter_mut().enumerate() {
             *value = per_spring(first + i);
         }
-    };
+    });
+}
+
+/// `fill(first, chunk)` for the chunks of `SPRING_CHUNK` springs of `out` (`first`: the
+/// chunk's first spring), on the current thread pool when `par`, else in order on the
+/// calling thread.
+fn fill_spring_chunks<T: Send>(par: bool, out: &mut [T], fill: impl Fn(usize, &mut [T]) + Sync) {
+    let fill = |(c, chunk): (usize, &mut [T])| fill(c * SPRING_CHUNK, chunk);
     if par {
         out.par_chunks_mut(SPRING_CHUNK).enumerate().for_each(fill);
     } else {
         out.chunks_mut(SPRING_CHUNK).enumerate().for_each(fill);
+    }
+}
+
+/// [`fill_spring_chunks`] of two buffers with one value per spring each.
+fn fill_spring_chunk_pairs<A: Send, B: Send>(
+    par: bool,
+    a: &mut [A],
+    b: &mut [B],
+    fill: impl Fn(usize, &mut [A], &mut [B]) + Sync,
+) {
+    let fill = |(c, (a, b)): (usize, (&mut [A], &mut [B]))| fill(c * SPRING_CHUNK, a, b);
+    if par {
+        a.par_chunks_mut(SPRING_CHUNK)
+            .zip(b.par_chunks_mut(SPRING_CHUNK))
+            .enumerate()
+            .for_each(fill);
+    } else {
+        a.chunks_mut(SPRING_CHUNK)
+            .zip(b.chunks_mut(SPRING_CHUNK))
+            .enumerate()
+            .for_each(fill);
     }
 }
 
@@ -266,7 +294,34 @@ impl SpringGather {
             for &t in &potential.other_terms {
                 potential.terms[t].add_gradient(step, x, gradient);
             }
-            for (e, s) in step.system.springs().iter().enumerate() {
+            let springs = step.system.springs();
+            if per.damping.is_none() {
+                // Undamped, a chunk's gradients (and blocks) four springs at a time into
+                // their buffers, then the chunk's scatter in spring order: the same
+                // additions in the same order.
+                for first in (0..springs.len()).step_by(SPRING_CHUNK) {
+                    let range = first..(first + SPRING_CHUNK).min(springs.len());
+                    let chunk = &springs[range.clone()];
+                    let g = &mut self.gradients[range.clone()];
+                    match blocks {
+                        Some(curvature) => lanes::gradients_and_blocks(
+                            Instance::Detect,
+                            chunk,
+                            x,
+                            curvature,
+                            g,
+                            &mut self.blocks[range],
+                        ),
+                        None => lanes::gradients(Instance::Detect, chunk, x, g),
+                    }
+                    for (s, &g) in chunk.iter().zip(&*g) {
+                        gradient[s.a] += g;
+                        gradient[s.b] -= g;
+                    }
+                }
+                return blocks.is_some();
+            }
+            for (e, s) in springs.iter().enumerate() {
                 let g = per.spring_gradient(step, x, e);
                 gradient[s.a] += g;
                 gradient[s.b] -= g;
@@ -277,12 +332,24 @@ impl SpringGather {
             return blocks.is_some();
         }
         let (springs, block_buffer) = (&mut self.gradients, &mut self.blocks);
+        let all = step.system.springs();
+        let undamped = per.damping.is_none();
         let mut spring_pass = move || match blocks {
+            // Undamped, four springs at a time (`lanes`), the same bits.
+            Some(curvature) if undamped => {
+                fill_spring_chunk_pairs(par, springs, block_buffer, |first, g, b| {
+                    let chunk = &all[first..first + g.len()];
+                    lanes::gradients_and_blocks(Instance::Detect, chunk, x, curvature, g, b);
+                });
+            }
             Some(curvature) => fill_per_spring_pair(par, springs, block_buffer, |e| {
                 (
                     per.spring_gradient(step, x, e),
                     per.spring_block(step, x, curvature, e),
                 )
+            }),
+            None if undamped => fill_spring_chunks(par, springs, |first, g| {
+                lanes::gradients(Instance::Detect, &all[first..first + g.len()], x, g);
             }),
             None => fill_per_spring(par, springs, |e| per.spring_gradient(step, x, e)),
         };
@@ -572,6 +639,20 @@ impl PerSpring<'_> {
         curvature: Curvature,
         blocks: &mut [SymBlock],
     ) {
+        if self.damping.is_none() {
+            // Four springs at a time (`lanes`), the same bits.
+            let all = step.system.springs();
+            fill_spring_chunks(par, blocks, |first, b| {
+                lanes::blocks(
+                    Instance::Detect,
+                    &all[first..first + b.len()],
+                    x,
+                    curvature,
+                    b,
+                );
+            });
+            return;
+        }
         fill_per_spring(par, blocks, |e| self.spring_block(step, x, curvature, e));
     }
 
