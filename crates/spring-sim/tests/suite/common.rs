@@ -20,3 +20,14 @@ pub fn grid(
     }
     .sheet(u, w, offset)
 }
+
+/// The threads a solver asked for `threads` runs on: those, or the calling thread alone
+/// when the crate is built without its `parallel` feature (the thread-count tests then
+/// still compare the runs, which must agree all the more).
+pub fn expected_threads(threads: usize) -> usize {
+    if cfg!(feature = "parallel") {
+        threads
+    } else {
+        1
+    }
+}
