@@ -5,11 +5,11 @@
 //! Each kernel is one loop over batches of [`LANES`] springs written lane by lane: the
 //! spring vectors are gathered per lane, then every operation (the squares, the square
 //! roots, the divisions, the products) is written once over the four lanes, so the
-//! compiler can issue it as one packed instruction. The loops are compiled twice: for
-//! the target's baseline (SSE2 on x86_64: pairs of lanes) and, called only when the
-//! processor reports AVX2 at run time, inside a function that enables AVX2 (four lanes
-//! per register). The square roots and divisions, a spring's longest chains, then run
-//! four springs per instruction; the scalar loops issued one per spring.
+//! compiler can issue it as one packed instruction. These portable loops run on the
+//! target's baseline (SSE2 on x86_64: pairs of lanes at best); when the processor
+//! reports AVX2 at run time, the same loops written with AVX2's intrinsics run instead,
+//! four lanes per register. The square roots and divisions, a spring's longest chains,
+//! then run four springs per instruction; the scalar loops issued one per spring.
 //!
 //! The results are bitwise the scalar kernels' ([`crate::spring::gradient`],
 //! [`crate::spring::hessian_coefficients`] with [`SymBlock::isotropic_plus_outer`],
