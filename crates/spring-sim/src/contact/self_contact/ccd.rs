@@ -53,7 +53,14 @@ pub fn additive_ccd_from_gap(
     keep: f64,
     gap0: f64,
 ) -> f64 {
-    let lp = approach_bound(kind, dx);
+    let mean = (dx[0] + dx[1] + dx[2] + dx[3]) / 4.0;
+    let p = dx.map(|d| d - mean);
+    let lp = match kind {
+        PairKind::PointTriangle => {
+            p[0].length() + p[1].length().max(p[2].length()).max(p[3].length())
+        }
+        PairKind::EdgeEdge => p[0].length().max(p[1].length()) + p[2].length().max(p[3].length()),
+    };
     let gap_at = |t: f64| {
         let xt: [DVec3; 4] = std::array::from_fn(|k| x[k] + t * dx[k]);
         squared_distance(kind, &xt).sqrt() - thickness
@@ -96,80 +103,4 @@ pub fn additive_ccd_from_gap(
         step = 0.9 * gap / lp;
     }
     t
-}
-
-/// `l_p` of the module documentation: a bound on how fast any point of one primitive of
-/// the pair approaches any point of the other over the step `dx` (per unit of the step),
-/// the mean displacement subtracted. [`additive_ccd_from_gap`] uses exactly this value.
-#[must_use]
-pub fn approach_bound(kind: PairKind, dx: &[DVec3; 4]) -> f64 {
-    let mean = (dx[0] + dx[1] + dx[2] + dx[3]) / 4.0;
-    let p = dx.map(|d| d - mean);
-    match kind {
-        PairKind::PointTriangle => {
-            p[0].length() + p[1].length().max(p[2].length()).max(p[3].length())
-        }
-        PairKind::EdgeEdge => p[0].length().max(p[1].length()) + p[2].length().max(p[3].length()),
-    }
-}
-
-/// A lower bound of the pair's distance at `x`, without the distance itself: the
-/// distance between the boxes of its two primitives' vertices (the point or first edge,
-/// and the triangle or second edge), which no two points of the primitives are closer
-/// than, less a relative `1e-6` and a few units of round-off of the coordinates, so that
-/// `squared_distance(kind, x).sqrt()` as computed is not below it either.
-#[must_use]
-pub fn distance_floor(kind: PairKind, x: &[DVec3; 4]) -> f64 {
-    let split = match kind {
-        PairKind::PointTriangle => 1,
-        PairKind::EdgeEdge => 2,
-    };
-    let (a, b) = x.split_at(split);
-    let bounds = |s: &[DVec3]| {
-        s.iter()
-            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &p| {
-                (lo.min(p), hi.max(p))
-            })
-    };
-    let ((a_lo, a_hi), (b_lo, b_hi)) = (bounds(a), bounds(b));
-    let apart = (b_lo - a_hi).max(a_lo - b_hi).max(DVec3::ZERO);
-    let scale = a_lo.abs().max(a_hi.abs()).max(b_lo.abs()).max(b_hi.abs());
-    apart.length() * (1.0 - 1e-6) - 1e-14 * scale.max_element()
-}
-
-/// True only when [`additive_ccd_from_gap`] of the pair for the step `dx` is 1 (with
-/// `gap0` the pair's gap at `x` as [`additive_ccd`] computes it), judged from
-/// [`distance_floor`] and [`approach_bound`] without the distance: the gap is positive
-/// and even approaching at the bound's rate the step closes less than the `1 - keep` of
-/// it the function allows. A pair moving with its neighbours (a sheet falling as one)
-/// is settled so, without its distance.
-#[must_use]
-pub fn surely_clear(
-    kind: PairKind,
-    x: &[DVec3; 4],
-    dx: &[DVec3; 4],
-    thickness: f64,
-    keep: f64,
-) -> bool {
-    let floor = distance_floor(kind, x) - thickness;
-    let lp = approach_bound(kind, dx);
-    // `floor <= gap0` makes `floor (1 - keep) <= gap0 (1 - keep)` after rounding too.
-    floor > 0.0 && lp.is_finite() && lp <= floor * (1.0 - keep)
-}
-
-/// True only when the pair's gap (distance less `thickness`) stays at or above `reach`
-/// at `x` and at `x + dx` and everywhere between, judged as [`surely_clear`] is: the
-/// distance falls at most by [`approach_bound`] over the step, which is inflated by a
-/// relative `1e-6` for the rounding of the moved positions.
-#[must_use]
-pub fn surely_beyond(
-    kind: PairKind,
-    x: &[DVec3; 4],
-    dx: &[DVec3; 4],
-    thickness: f64,
-    reach: f64,
-) -> bool {
-    let floor = distance_floor(kind, x) - thickness;
-    let lp = approach_bound(kind, dx);
-    lp.is_finite() && floor - lp * (1.0 + 1e-6) >= reach * (1.0 + 1e-6)
 }

@@ -51,7 +51,7 @@
 //! iteration on the Newton matrix has the pairs' full blocks.
 
 use super::broad::{Candidate, CandidateCache, Primitives, candidates};
-use super::ccd::{additive_ccd_from_gap, surely_beyond, surely_clear};
+use super::ccd::additive_ccd_from_gap;
 use super::closed::RegionForm;
 use super::distance::{
     Closest, PairKind, mollifier, mollifier_derivatives, squared_distance,
@@ -666,13 +666,6 @@ impl SelfContactTerm {
             let (p, d) = (v.map(|i| x[i]), v.map(|i| dx[i]));
             additive_ccd_from_gap(kind, &p, &d, thickness, keep, gap0)
         };
-        // A pair that surely sweeps to 1 (its answer whatever its gap) needs no distance:
-        // the segment's list holds every pair of the sheets within reach of the long
-        // sweep, most of them moving with their neighbours.
-        let clear = |c: Candidate| {
-            let (kind, v) = self.pair(c);
-            surely_clear(kind, &v.map(|i| x[i]), &v.map(|i| dx[i]), thickness, keep)
-        };
         let mut t: f64 = 1.0;
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
         let seg = &mut *segment;
@@ -686,10 +679,6 @@ impl SelfContactTerm {
             let (found, list, kept) = (&seg.found, seg.pairs.list(), &seg.gap);
             spread::fill(&mut seg.values, found.len(), (0.0, 0.0), |i| {
                 let (k, c) = (found[i], list[found[i]]);
-                if clear(c) {
-                    // No gap: NaN marks it not computed.
-                    return (f64::NAN, 1.0);
-                }
                 let gap0 = if at_start && !kept[k].is_nan() {
                     kept[k]
                 } else {
@@ -698,7 +687,7 @@ impl SelfContactTerm {
                 (gap0, sweep(c, gap0))
             });
             for (&k, &(gap0, fraction)) in seg.found.iter().zip(&seg.values) {
-                if at_start && !gap0.is_nan() {
+                if at_start {
                     seg.gap[k] = gap0;
                 }
                 t = t.min(fraction);
@@ -710,11 +699,7 @@ impl SelfContactTerm {
         let found = candidates(&self.prims, x, Some(dx), margin, fixed);
         let mut fractions = Vec::new();
         spread::fill(&mut fractions, found.len(), 0.0, |i| {
-            if clear(found[i]) {
-                1.0
-            } else {
-                sweep(found[i], self.gap(found[i], x))
-            }
+            sweep(found[i], self.gap(found[i], x))
         });
         fractions.into_iter().fold(t, f64::min)
     }
@@ -880,19 +865,6 @@ impl Term for SelfContactTerm {
         // Every pair within dhat at either end: the swept boxes contain both ends.
         let fixed = step.system.fixed();
         let margin = self.settings.dhat + self.settings.thickness;
-        // A pair that surely stays beyond `dhat` on the whole trial step has energy 0
-        // at both ends, which is what its two energies would give, without them.
-        let (thickness, dhat) = (self.settings.thickness, self.settings.dhat);
-        let beyond = |c: Candidate| {
-            let (kind, v) = self.pair(c);
-            surely_beyond(
-                kind,
-                &v.map(|i| x[i]),
-                &v.map(|i| sweep[i]),
-                thickness,
-                dhat,
-            )
-        };
         let mut change = 0.0;
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
         let seg = &mut *segment;
@@ -910,9 +882,6 @@ impl Term for SelfContactTerm {
             let (kept_gap, kept_energy) = (&seg.gap, &seg.energy);
             spread::fill(&mut seg.values, found.len(), (0.0, 0.0), |i| {
                 let (k, c) = (found[i], list[found[i]]);
-                if beyond(c) {
-                    return (0.0, 0.0);
-                }
                 let after = self.pair_energy(kappa, c, &moved);
                 let before = if at_start && same_kappa && !kept_energy[k].is_nan() {
                     kept_energy[k]
@@ -939,9 +908,6 @@ impl Term for SelfContactTerm {
         let found = candidates(&self.prims, x, Some(&sweep), margin, fixed);
         let mut values = Vec::new();
         spread::fill(&mut values, found.len(), (0.0, 0.0), |i| {
-            if beyond(found[i]) {
-                return (0.0, 0.0);
-            }
             (
                 self.pair_energy(kappa, found[i], &moved),
                 self.pair_energy(kappa, found[i], x),
