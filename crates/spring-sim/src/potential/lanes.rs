@@ -66,6 +66,27 @@ fn plain_length(l: f64) -> bool {
     (l > 1e-150) & (l < f64::INFINITY)
 }
 
+/// The springs `range` one by one by the scalar kernels, each output written at the
+/// spring's own index: a batch outside the plain case, and the last short batch.
+#[inline]
+fn fill_scalar<const GRADIENT: bool, const BLOCK: bool>(
+    springs: &[Spring],
+    range: std::ops::Range<usize>,
+    x: &[DVec3],
+    curvature: Curvature,
+    gradients: &mut [DVec3],
+    blocks: &mut [SymBlock],
+) {
+    for e in range {
+        if GRADIENT {
+            gradients[e] = springs::gradient(&springs[e], x);
+        }
+        if BLOCK {
+            blocks[e] = springs::block(&springs[e], x, curvature);
+        }
+    }
+}
+
 /// Four lanes of one quantity.
 type Lane = [f64; LANES];
 
@@ -109,14 +130,8 @@ fn fill_lanes<const GRADIENT: bool, const BLOCK: bool>(
             }
         }
         if !plain {
-            for (e, s) in batch.iter().enumerate() {
-                if GRADIENT {
-                    gradients[first + e] = springs::gradient(s, x);
-                }
-                if BLOCK {
-                    blocks[first + e] = springs::block(s, x, curvature);
-                }
-            }
+            let range = first..first + LANES;
+            fill_scalar::<GRADIENT, BLOCK>(springs, range, x, curvature, gradients, blocks);
             continue;
         }
         let mut rest = [0.0; LANES];
@@ -182,14 +197,8 @@ fn fill_lanes<const GRADIENT: bool, const BLOCK: bool>(
             }
         }
     }
-    for (e, s) in springs.iter().enumerate().skip(whole) {
-        if GRADIENT {
-            gradients[e] = springs::gradient(s, x);
-        }
-        if BLOCK {
-            blocks[e] = springs::block(s, x, curvature);
-        }
-    }
+    let tail = whole..springs.len();
+    fill_scalar::<GRADIENT, BLOCK>(springs, tail, x, curvature, gradients, blocks);
 }
 
 /// The change of each spring's energy when its vector `d` moves by `delta`, by
@@ -340,7 +349,7 @@ fn ends(batch: &[Spring], v: &[DVec3]) -> ([Lane; 3], [Lane; 3]) {
 /// loops' divisions in pairs and singles when compiled for AVX2).
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
-    use super::{Curvature, DVec3, LANES, Lane, Spring, SymBlock, springs};
+    use super::{Curvature, DVec3, LANES, Lane, Spring, SymBlock};
     use std::arch::x86_64::{
         __m256d, _CMP_EQ_OQ, _CMP_GT_OQ, _CMP_LT_OQ, _CMP_NEQ_UQ, _mm256_add_pd, _mm256_and_pd,
         _mm256_andnot_pd, _mm256_cmp_pd, _mm256_cvtsd_f64, _mm256_div_pd, _mm256_max_pd,
@@ -436,14 +445,10 @@ mod avx2 {
                 plain = _mm256_and_pd(plain, _mm256_cmp_pd::<_CMP_NEQ_UQ>(rest, zero));
             }
             if bits(plain) != 0b1111 {
-                for (e, s) in batch.iter().enumerate() {
-                    if GRADIENT {
-                        gradients[first + e] = springs::gradient(s, x);
-                    }
-                    if BLOCK {
-                        blocks[first + e] = springs::block(s, x, curvature);
-                    }
-                }
+                let range = first..first + LANES;
+                super::fill_scalar::<GRADIENT, BLOCK>(
+                    springs, range, x, curvature, gradients, blocks,
+                );
                 continue;
             }
             if GRADIENT {
@@ -491,14 +496,8 @@ mod avx2 {
                 }
             }
         }
-        for (e, s) in springs.iter().enumerate().skip(whole) {
-            if GRADIENT {
-                gradients[e] = springs::gradient(s, x);
-            }
-            if BLOCK {
-                blocks[e] = springs::block(s, x, curvature);
-            }
-        }
+        let tail = whole..springs.len();
+        super::fill_scalar::<GRADIENT, BLOCK>(springs, tail, x, curvature, gradients, blocks);
     }
 
     /// The changes of a batch's energies along the moves `alpha (dx_a - dx_b)` (as

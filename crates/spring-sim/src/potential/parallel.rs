@@ -90,23 +90,11 @@ fn fill_per_spring_pair<A: Send, B: Send>(
     b: &mut [B],
     per_spring: impl Fn(usize) -> (A, B) + Sync,
 ) {
-    let fill = |(c, (a, b)): (usize, (&mut [A], &mut [B]))| {
-        let first = c * SPRING_CHUNK;
+    fill_spring_chunk_pairs(par, a, b, |first, a, b| {
         for (i, (a, b)) in a.iter_mut().zip(b.iter_mut()).enumerate() {
             (*a, *b) = per_spring(first + i);
         }
-    };
-    if par {
-        a.par_chunks_mut(SPRING_CHUNK)
-            .zip(b.par_chunks_mut(SPRING_CHUNK))
-            .enumerate()
-            .for_each(fill);
-    } else {
-        a.chunks_mut(SPRING_CHUNK)
-            .zip(b.chunks_mut(SPRING_CHUNK))
-            .enumerate()
-            .for_each(fill);
-    }
+    });
 }
 
 /// `f(c, chunk)` for the chunks of `PARTICLE_CHUNK` of `data`, on the current thread
