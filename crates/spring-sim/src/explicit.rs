@@ -24,6 +24,8 @@ use crate::spring;
 use sinew_math::DVec3;
 
 mod packed;
+#[cfg(feature = "parallel")]
+mod parts;
 
 /// Symplectic Euler with a fixed substep count, with its force buffer. Below its
 /// stability limit its energy error stays bounded (of order `omega h`) instead of
@@ -503,11 +505,17 @@ pub struct VelocityVerlet {
     /// The energy after the last step written back, to reuse it and its forces when
     /// nobody changed the system's state since (it is then bitwise `work_x`, `work_v`).
     end_energy: Option<crate::model::Energies>,
+    /// [`material_key`] of the system of that end state.
+    end_material: (u64, [u64; 3], u64),
     /// `1/m`, 0 for fixed particles (whose velocity is 0), so the update has no branch.
     inv_mass: Vec<f64>,
     /// The substeps' layout on the calling thread ([`packed`]); boxed, as the stepper
     /// sits in the integrators' enum beside smaller ones.
     packed: Box<packed::Packed>,
+    /// The substeps' layouts on several threads ([`parts`]), built at the first step
+    /// that runs on threads.
+    #[cfg(feature = "parallel")]
+    parts: Option<Box<parts::Parts>>,
     /// The fingerprint of the system `inv_mass` and the force lists were built for: a
     /// system of equal counts but other masses, pins or pairs would run on them silently.
     topology: crate::model::Topology,
@@ -548,8 +556,11 @@ impl VelocityVerlet {
             work_x: system.positions().to_vec(),
             work_v: system.velocities().to_vec(),
             end_energy: None,
+            end_material: material_key(system),
             inv_mass: inverse_masses(system),
             packed: Box::new(packed::Packed::new(packed::Instance::Detect)),
+            #[cfg(feature = "parallel")]
+            parts: None,
             topology: system.topology(),
             keep_start_if_runaway: false,
         })
@@ -566,10 +577,13 @@ impl VelocityVerlet {
         self.substeps = substeps.max(1);
     }
 
-    /// Spreads the force loop of a system of at least [`PARALLEL_MIN_PARTICLES`]
+    /// Spreads the substeps of a system of at least [`PARALLEL_MIN_PARTICLES`]
     /// particles over `threads` threads (0, the default: one per core; 1: the calling
-    /// thread). The result is bitwise the same for every count: each spring's force is computed
-    /// first, then each particle adds its springs' forces in spring order.
+    /// thread). The result is bitwise the same for every count: the particles are cut
+    /// into one contiguous range per thread, and each thread computes every spring with
+    /// an end in its range and adds the terms to its own particles in spring order, as
+    /// the single-threaded loop adds them (a spring between two ranges is computed by
+    /// both threads).
     pub fn set_threads(
         &mut self,
         system: &SpringSystem,
@@ -577,6 +591,10 @@ impl VelocityVerlet {
     ) -> Result<(), crate::model::ModelError> {
         self.topology.check(&system.topology())?;
         self.threaded = ThreadedForces::new(system, threads)?;
+        #[cfg(feature = "parallel")]
+        {
+            self.parts = None;
+        }
         Ok(())
     }
 
@@ -646,8 +664,11 @@ impl VelocityVerlet {
         let mut report = StepReport::new(IntegratorKind::VelocityVerlet);
         report.substeps = self.substeps;
         // Compared bit for bit: only then are the kept forces and energy exactly the
-        // state's (`==` would take -0.0 for 0.0).
+        // state's (`==` would take -0.0 for 0.0); and with the same springs and
+        // material, which another system of the same topology, or a change of damping,
+        // need not have.
         let unchanged = self.end_energy.is_some()
+            && self.end_material == material_key(system)
             && same_bits(&self.work_x, system.positions())
             && same_bits(&self.work_v, system.velocities());
         report.energy_before = match (unchanged, self.end_energy) {
@@ -664,7 +685,27 @@ impl VelocityVerlet {
         // The springs' energy at the end state, when the last force evaluation
         // computed it (on threads).
         let mut end_spring_energy = None;
-        if self.threaded.threads() == 1 && packed::Packed::fits(system) {
+        #[cfg(feature = "parallel")]
+        let on_parts = self.threaded.threads() > 1 && packed::Packed::fits(system);
+        #[cfg(not(feature = "parallel"))]
+        let on_parts = false;
+        if on_parts {
+            // On several threads each thread steps a part of the particles in its own
+            // packed layout ([`parts`]), with the same bits.
+            #[cfg(feature = "parallel")]
+            if let Some(pool) = self.threaded.pool.clone() {
+                let threads = pool.current_num_threads();
+                let parts = self
+                    .parts
+                    .get_or_insert_with(|| Box::new(parts::Parts::new(system, threads)));
+                let (inv_mass, substeps) = (&self.inv_mass, self.substeps);
+                let (x, v, f) = (&mut self.work_x, &mut self.work_v, &mut self.neg_forces);
+                end_spring_energy =
+                    Some(pool.install(|| {
+                        parts.step(system, inv_mass, x, v, f, unchanged, dt, substeps)
+                    }));
+            }
+        } else if self.threaded.threads() == 1 && packed::Packed::fits(system) {
             // On the calling thread the substeps run in their own layout, with the
             // same bits ([`packed`]).
             let c = system.material().damping;
@@ -732,8 +773,20 @@ impl VelocityVerlet {
         report.iterations = self.substeps;
         report.energy_after = after;
         self.end_energy = Some(report.energy_after);
+        self.end_material = material_key(system);
         Ok(report)
     }
+}
+
+/// What, beside the state, the forces and energies depend on: the fingerprint of the
+/// springs' rest lengths and stiffnesses, and the bits of the gravity and the damping.
+fn material_key(system: &SpringSystem) -> (u64, [u64; 3], u64) {
+    let material = system.material();
+    (
+        system.spring_constants(),
+        material.gravity.to_array().map(f64::to_bits),
+        material.damping.to_bits(),
+    )
 }
 
 #[cfg(test)]
@@ -812,7 +865,6 @@ mod tests {
             .collect()
     }
 
-    #[cfg(feature = "parallel")]
     fn energy_bits(e: &crate::model::Energies) -> [u64; 3] {
         [e.kinetic.to_bits(), e.spring.to_bits(), e.gravity.to_bits()]
     }
@@ -923,6 +975,102 @@ mod tests {
         }
     }
 
+    /// `system` at its state, with every spring's stiffness times `stiffness` and rest
+    /// length times `rest`, under `gravity`: the same topology, other constants.
+    fn with_constants(
+        system: &SpringSystem,
+        stiffness: f64,
+        rest: f64,
+        gravity: DVec3,
+    ) -> SpringSystem {
+        let (x, v) = (system.positions(), system.velocities());
+        let particles: Vec<Particle> = (0..system.len())
+            .map(|i| Particle {
+                fixed: system.fixed()[i],
+                velocity: v[i],
+                ..Particle::at_rest(x[i], system.masses()[i])
+            })
+            .collect();
+        let springs: Vec<SpringSpec> = system
+            .springs()
+            .iter()
+            .map(|s| SpringSpec {
+                rest_length: Some(rest * s.rest_length),
+                stiffness: Some(stiffness * s.stiffness),
+                ..SpringSpec::between(s.a, s.b)
+            })
+            .collect();
+        let material = system.material().with_gravity(gravity);
+        SpringSystem::new(&particles, &springs, material).unwrap()
+    }
+
+    /// Verlet keeps, between steps, the springs' constants, each particle's kick and
+    /// gravity (and, on threads, the state in its layouts): after a step, another `h`, then
+    /// another system of the same topology and the same state (other stiffnesses, rest
+    /// lengths and gravity), then a change of damping, are each stepped as a fresh stepper
+    /// steps them, on one thread and on two.
+    #[test]
+    fn verlet_steps_other_constants_and_steps_as_a_fresh_stepper() {
+        for threads in [1, 2] {
+            let mut system = crate::ClothGrid::lab_sized(51, 0.04)
+                .with_damping(0.0)
+                .build()
+                .unwrap();
+            let mut stepper = VelocityVerlet::new(&system, 2).unwrap();
+            stepper.set_threads(&system, threads).unwrap();
+            if cfg!(feature = "parallel") {
+                assert_eq!(stepper.threads(), threads);
+            }
+            let fresh_step = |system: &SpringSystem, h: f64| {
+                let mut copy = system.clone();
+                let mut fresh = VelocityVerlet::new(&copy, 2).unwrap();
+                fresh.set_threads(&copy, threads).unwrap();
+                let report = fresh.step(&mut copy, h).unwrap();
+                (copy, report)
+            };
+            stepper.step(&mut system, 1.0 / 60.0).unwrap();
+            // Each change starts from the state the stepper ended with last, so only the
+            // change tells it that its kept forces and energy are not the system's.
+            type Change = (&'static str, fn(&mut SpringSystem));
+            let changes: [Change; 3] = [
+                ("another h", |_| {}),
+                ("other constants", |system| {
+                    *system = with_constants(system, 1.5, 1.01, DVec3::new(0.1, -2.0, 0.0));
+                }),
+                ("a change of damping", |system| {
+                    system.set_damping(0.3).unwrap()
+                }),
+            ];
+            for (name, change) in changes {
+                change(&mut system);
+                let h = 1.0 / 50.0;
+                let (expected, fresh) = fresh_step(&system, h);
+                let report = stepper.step(&mut system, h).unwrap();
+                let case = format!("{name}, {threads} threads");
+                assert_eq!(
+                    bits(system.positions()),
+                    bits(expected.positions()),
+                    "{case}"
+                );
+                assert_eq!(
+                    bits(system.velocities()),
+                    bits(expected.velocities()),
+                    "{case}"
+                );
+                assert_eq!(
+                    energy_bits(&report.energy_before),
+                    energy_bits(&fresh.energy_before),
+                    "{case}"
+                );
+                assert_eq!(
+                    energy_bits(&report.energy_after),
+                    energy_bits(&fresh.energy_after),
+                    "{case}"
+                );
+            }
+        }
+    }
+
     /// The packed layout's instances ([`packed::Instance`]): AVX2 where the processor
     /// has it (else the portable one again), and the portable one.
     const INSTANCES: [packed::Instance; 2] = [packed::Instance::Detect, packed::Instance::Portable];
@@ -1026,6 +1174,137 @@ mod tests {
                     assert_eq!(bits(&px), bits(&x), "{case}");
                     assert_eq!(bits(&pv), bits(&v), "{case}");
                     assert_eq!(bits(&pf), bits(&f), "{case}");
+                }
+            }
+        }
+    }
+
+    /// `system` with its particles renumbered: new particle `j` is old particle
+    /// `order[j]`; the springs keep their order.
+    #[cfg(feature = "parallel")]
+    fn renumbered(system: &SpringSystem, order: &[usize]) -> SpringSystem {
+        let mut new_index = vec![0; order.len()];
+        for (j, &i) in order.iter().enumerate() {
+            new_index[i] = j;
+        }
+        let (x, v) = (system.positions(), system.velocities());
+        let particles: Vec<Particle> = order
+            .iter()
+            .map(|&i| Particle {
+                fixed: system.fixed()[i],
+                velocity: v[i],
+                ..Particle::at_rest(x[i], system.masses()[i])
+            })
+            .collect();
+        let springs: Vec<SpringSpec> = system
+            .springs()
+            .iter()
+            .map(|s| SpringSpec {
+                rest_length: Some(s.rest_length),
+                stiffness: Some(s.stiffness),
+                ..SpringSpec::between(new_index[s.a], new_index[s.b])
+            })
+            .collect();
+        SpringSystem::new(&particles, &springs, *system.material()).unwrap()
+    }
+
+    /// Velocity Verlet's substeps on parts ([`parts`]) are bitwise the single packed
+    /// layout's (itself bitwise the scalar loop, above), and the spring energy they report
+    /// is bitwise the system's of the end state: 1 to 7 parts on 1 to 3 threads, both
+    /// instances, damped and not, the start forces evaluated and then kept, on the line
+    /// of odd lengths, on a cloth off rest, and on that cloth numbered at random (most
+    /// springs cut between parts, halos of most of the other parts' particles).
+    #[cfg(feature = "parallel")]
+    #[test]
+    fn parts_substeps_are_bitwise_the_packed_loop() {
+        let (h, substeps) = (1.0 / 60.0, 5);
+        let dt = h / substeps as f64;
+        for damping in [0.0, 0.2] {
+            let mut cloth = crate::ClothGrid::lab_sized(15, 0.1)
+                .with_damping(damping)
+                .build()
+                .unwrap();
+            let (positions, velocities) = cloth.state_mut();
+            for (i, (p, v)) in positions.iter_mut().zip(velocities).enumerate() {
+                let t = i as f64;
+                *p += 0.01 * DVec3::new(t.sin(), (1.7 * t).cos(), (0.3 * t).sin());
+                *v = DVec3::new((0.7 * t).cos(), 0.5 * t.sin(), -0.2);
+            }
+            // A random order (xorshift, Fisher-Yates).
+            let mut order: Vec<usize> = (0..cloth.len()).collect();
+            let mut state = 0x2545_f491_4f6c_dd1d_u64;
+            for i in (1..order.len()).rev() {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                order.swap(i, (state % (i as u64 + 1)) as usize);
+            }
+            let shuffled = renumbered(&cloth, &order);
+            for (name, system) in [
+                ("odd line", odd_line(damping)),
+                ("cloth", cloth),
+                ("shuffled cloth", shuffled),
+            ] {
+                let c = system.material().damping;
+                let w = inverse_masses(&system);
+                let n = system.len();
+                // The reference: two steps of the single layout, the second from the
+                // first's kept forces.
+                let mut p = packed::Packed::new(packed::Instance::Detect);
+                let mut states = Vec::new();
+                let mut first = (Vec::new(), Vec::new(), Vec::new());
+                let (mut x, mut v) = (system.positions().to_vec(), system.velocities().to_vec());
+                let mut f = vec![DVec3::splat(f64::NAN); n];
+                for kept in [false, true] {
+                    p.load(&system, &w, &x, &v, &f, dt);
+                    if !kept {
+                        p.evaluate(c);
+                    }
+                    p.substeps(c, dt, substeps);
+                    p.store(&mut x, &mut v, &mut f);
+                    let spring = system.energies_of(&x, &v).spring;
+                    states.push((bits(&x), bits(&v), bits(&f), spring.to_bits()));
+                    if !kept {
+                        first = (x.clone(), v.clone(), f.clone());
+                    }
+                }
+                for instance in INSTANCES {
+                    for (count, threads) in [(1, 1), (2, 2), (3, 2), (7, 3)] {
+                        let mut parts = parts::Parts::with_instance(&system, count, instance);
+                        assert_eq!(parts.len(), count);
+                        let pool = rayon::ThreadPoolBuilder::new()
+                            .num_threads(threads)
+                            .build()
+                            .unwrap();
+                        let (mut x, mut v) =
+                            (system.positions().to_vec(), system.velocities().to_vec());
+                        let mut f = vec![DVec3::splat(f64::NAN); n];
+                        for (kept, expected) in [false, true].into_iter().zip(&states) {
+                            let spring = pool.install(|| {
+                                parts.step(&system, &w, &mut x, &mut v, &mut f, kept, dt, substeps)
+                            });
+                            let case = format!(
+                                "{name}, {instance:?}, {count} parts, damping {damping}, kept {kept}"
+                            );
+                            assert_eq!(bits(&x), expected.0, "{case}");
+                            assert_eq!(bits(&v), expected.1, "{case}");
+                            assert_eq!(bits(&f), expected.2, "{case}");
+                            assert_eq!(spring.to_bits(), expected.3, "{case}");
+                        }
+                        // Fresh parts given the first step's end state and its kept
+                        // forces load them, and step as the parts that held them.
+                        let mut fresh = parts::Parts::with_instance(&system, count, instance);
+                        let (mut x, mut v, mut f) = first.clone();
+                        let spring = pool.install(|| {
+                            fresh.step(&system, &w, &mut x, &mut v, &mut f, true, dt, substeps)
+                        });
+                        let case =
+                            format!("{name}, {instance:?}, {count} fresh parts, damping {damping}");
+                        assert_eq!(bits(&x), states[1].0, "{case}");
+                        assert_eq!(bits(&v), states[1].1, "{case}");
+                        assert_eq!(bits(&f), states[1].2, "{case}");
+                        assert_eq!(spring.to_bits(), states[1].3, "{case}");
+                    }
                 }
             }
         }

@@ -406,6 +406,9 @@ pub struct SpringSystem {
     material: Material,
     /// Computed once here: the topology cannot change after construction.
     topology: Topology,
+    /// A fingerprint of the springs' rest lengths and stiffnesses (FNV-1a over their bits,
+    /// in order), computed once here: they cannot change after construction either.
+    spring_constants: u64,
 }
 
 /// A fingerprint of what a stepper's workspace is built from: the particle and spring
@@ -609,6 +612,11 @@ impl SpringSystem {
         let masses: Vec<f64> = particles.iter().map(|p| p.mass).collect();
         let fixed: Vec<bool> = particles.iter().map(|p| p.fixed).collect();
         let topology = Topology::compute(&masses, &fixed, &resolved);
+        let mut constants = Fnv::new();
+        for s in &resolved {
+            constants.word(s.rest_length.to_bits());
+            constants.word(s.stiffness.to_bits());
+        }
         Ok(Self {
             positions: particles.iter().map(|p| p.position).collect(),
             velocities: particles
@@ -620,6 +628,7 @@ impl SpringSystem {
             springs: resolved,
             material,
             topology,
+            spring_constants: constants.0,
         })
     }
 
@@ -813,6 +822,14 @@ impl SpringSystem {
     #[must_use]
     pub fn topology(&self) -> Topology {
         self.topology
+    }
+
+    /// The fingerprint of the springs' rest lengths and stiffnesses, computed when the
+    /// system was built (O(1)): a stepper that keeps a copy of them compares it with
+    /// the fingerprint of the copy's system instead of reading them all again. Two
+    /// systems with other constants share it only by a hash collision (about 2^-64).
+    pub(crate) fn spring_constants(&self) -> u64 {
+        self.spring_constants
     }
 
     /// Whether two systems have the same topology (particle count, fixed set, spring
