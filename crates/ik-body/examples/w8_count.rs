@@ -4,7 +4,12 @@
 //! PART is `cold` (COUNT goal sets, default 100, solved from the rest pose, as the `body`
 //! criterion bench's cold solves), `warm` (COUNT frames of the squat clip, default 600,
 //! warm-started) or `batch` (1 000 characters each solving one warm frame, COUNT times,
-//! default 1, on THREADS threads, default 1). SOLVER is a body solver name (default
+//! default 1, on THREADS threads, default 1), or `trace` (the 600 clip frames warm, one
+//! line per frame: iterations, linearizations, restart, stop, the cost before and after)
+//! and `trace-batch` (the batch of 1 000 characters for COUNT frames, default 12, one line
+//! per character for the last one: its clip frame, iterations, linearizations), for
+//! matching with a per-solve callgrind dump (`--dump-after='*BodySolver>::solve'`).
+//! SOLVER is a body solver name (default
 //! `fabrik`; the batch always runs the default options, `dls`). With
 //! a fixed amount of work, the instructions counted divided by COUNT are the cost of one
 //! solve, a figure that does not depend on the load of the machine the way a clock does.
@@ -13,8 +18,8 @@
 
 use sinew_ik_body::workload::{self, CLIP_FRAMES};
 use sinew_ik_body::{
-    BodyBatch, BodyEffector, BodyProblem, BodyReport, BodySolverOptions, BodyState,
-    TreeFabrikOptions,
+    BodyBatch, BodyEffector, BodyProblem, BodyReport, BodySolver, BodySolverOptions, BodyState,
+    TreeFabrikOptions, TreeFabrikSolver,
 };
 use sinew_skeleton::ik::SolveSettings;
 use std::hint::black_box;
@@ -108,7 +113,60 @@ fn main() {
             }
             states.iter().for_each(&mut absorb);
         }
-        other => panic!("unknown part {other}: cold, warm or batch"),
+        "trace" => {
+            total = CLIP_FRAMES;
+            let mut state = rest.clone();
+            let mut solver = TreeFabrikSolver::new();
+            println!("frame iterations linearizations restarted stop initial_cost cost");
+            for (f, effectors) in frames.iter().enumerate() {
+                let problem =
+                    BodyProblem::new(&skel, effectors, settings).with_root_translation(true);
+                let before = solver.linearizations();
+                let report = solver.solve(&problem, &mut state).expect("valid");
+                within += usize::from(report.within(&settings));
+                count_report(&report);
+                println!(
+                    "{f} {} {} {} {} {:.3e} {:.3e}",
+                    report.iterations,
+                    solver.linearizations() - before,
+                    u8::from(report.restarted),
+                    report.stop.name(),
+                    report.initial_cost,
+                    report.cost
+                );
+            }
+        }
+        "trace-batch" => {
+            let steps = count.unwrap_or(12);
+            total = 1000;
+            let mut states = vec![rest.clone(); total];
+            let mut solvers = vec![TreeFabrikSolver::new(); total];
+            let mut reports = vec![BodyReport::UNSOLVED; total];
+            let mut lins = vec![0; total];
+            for step in 0..steps {
+                let problems = workload::batch_problems(&skel, &frames, settings, total, step);
+                for c in 0..total {
+                    let before = solvers[c].linearizations();
+                    reports[c] = solvers[c]
+                        .solve(&problems[c], &mut states[c])
+                        .expect("valid");
+                    lins[c] = solvers[c].linearizations() - before;
+                }
+            }
+            println!("character frame iterations linearizations restarted");
+            for c in 0..total {
+                within += usize::from(reports[c].within(&settings));
+                count_report(&reports[c]);
+                println!(
+                    "{c} {} {} {} {}",
+                    (c * 7 + steps - 1) % CLIP_FRAMES,
+                    reports[c].iterations,
+                    lins[c],
+                    u8::from(reports[c].restarted)
+                );
+            }
+        }
+        other => panic!("unknown part {other}: cold, warm, batch, trace or trace-batch"),
     }
     if digesting {
         println!("{part} {name}: {within} within of {total}; digest of the answers {digest:016x}");
