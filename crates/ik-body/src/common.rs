@@ -77,6 +77,10 @@ pub(crate) struct Common {
     pub first_order: Vec<DQuat>,
     pub extrapolated: Vec<bool>,
     pub first_order_translation: DVec3,
+    /// Per joint, from the last report: whether the projection onto its limit is known to
+    /// return the returned pose's rotation unchanged, so that a next solve that continues
+    /// from that pose (to the bit, [`Carried`]) need not project it again.
+    fixed: Vec<bool>,
 }
 
 /// More cached limbs than this (many skeletons through one solver) and the cache starts
@@ -103,7 +107,9 @@ impl Common {
     /// by a FABRIK pass (the finish does not turn them). (The movable ones are still
     /// projected: the last answer is inside its limits, but not always to the bit a
     /// fixed point of the projection, and skipping them changed the clip's path; see
-    /// `docs/ik-body.md`.)
+    /// `docs/ik-body.md`. Only those the last report found to be fixed points, by the
+    /// quick inside test it made for their violation, are skipped: their projection
+    /// would return them unchanged.)
     pub fn begin(
         &mut self,
         problem: &BodyProblem<'_>,
@@ -126,10 +132,14 @@ impl Common {
             state.update_global(skeleton)?;
         }
         let mut moved = false;
+        // A continued state is the last answer, whose report found which rotations are
+        // their own projections (for the same limits: `Carried` checks them).
+        let known = continued && self.fixed.len() == skeleton.len();
         for j in 0..skeleton.len() {
             let limit = skeleton.prepared_limit(j);
             if matches!(limit.limit(), JointLimit::Free)
                 || (continued && self.topology.slot(j).is_none())
+                || (known && self.fixed[j])
             {
                 continue;
             }
@@ -208,7 +218,7 @@ impl Common {
     /// (incremental updates of a translated body round differently, and the global pose
     /// returned must be exactly [`forward_kinematics`] of the pose).
     pub fn report(
-        &self,
+        &mut self,
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
         iterations: usize,
@@ -224,7 +234,7 @@ impl Common {
     /// poses it restores, the FABRIK passes, the seeds and the extrapolated start all
     /// compute it from the root), so it is not computed again.
     pub fn report_exact(
-        &self,
+        &mut self,
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
         iterations: usize,
@@ -250,6 +260,7 @@ impl Common {
             problem,
             &self.targets,
             state,
+            &mut self.fixed,
             &self.initial,
             self.initial_cost,
             iterations,

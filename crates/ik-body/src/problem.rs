@@ -299,12 +299,17 @@ pub(crate) fn resolve_targets(problem: &BodyProblem<'_>, out: &mut Vec<Target>) 
     }
 }
 
-/// Fills `state.effectors` and the report's measured fields from `state.global`.
+/// Fills `state.effectors` and the report's measured fields from `state.global`, and
+/// `fixed` per joint with whether the projection onto its limit is known to return the
+/// pose's rotation unchanged (see [`PreparedLimit::violation_and_fixed`]).
+///
+/// [`PreparedLimit::violation_and_fixed`]: sinew_skeleton::limits::PreparedLimit::violation_and_fixed
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn finish_report(
     problem: &BodyProblem<'_>,
     targets: &[Target],
     state: &mut BodyState,
+    fixed: &mut Vec<bool>,
     initial: &[(f64, f64)],
     initial_cost: f64,
     iterations: usize,
@@ -325,6 +330,15 @@ pub(crate) fn finish_report(
             rotation: r,
         });
     }
+    // The same figure as `limit_violation`, joint by joint.
+    let skeleton = problem.skeleton;
+    fixed.clear();
+    let mut violation: f64 = 0.0;
+    for (j, &q) in state.pose.rotations.iter().enumerate() {
+        let (v, unchanged) = skeleton.prepared_limit(j).violation_and_fixed(q);
+        violation = violation.max(v);
+        fixed.push(unchanged);
+    }
     BodyReport {
         iterations,
         stop,
@@ -332,7 +346,7 @@ pub(crate) fn finish_report(
         cost: total_cost(targets, &state.global),
         max_error,
         max_rotation_error,
-        limit_violation: limit_violation(problem.skeleton, &state.pose),
+        limit_violation: violation,
         restarted,
     }
 }

@@ -807,6 +807,28 @@ impl PreparedLimit {
         }
     }
 
+    /// [`PreparedLimit::violation`] of `q`, and whether [`PreparedLimit::project`] is
+    /// known to return `q` itself, to the bit: `q` is unit to rounding (the projection
+    /// starts from `q`, not from a normalized copy) and inside by the quick test (the
+    /// projection then returns it unchanged, and the violation is 0). `false` says only
+    /// that the quick test did not tell: the projection may still return `q`. A solver
+    /// that reports the violation of its answer learns, for the same work, which joints
+    /// of that answer need no projection when the next solve starts from it.
+    #[must_use]
+    pub fn violation_and_fixed(&self, q: DQuat) -> (f64, bool) {
+        let unit_as_given = q.is_finite() && (q.length_squared() - 1.0).abs() <= 4.0 * f64::EPSILON;
+        let inside = match &self.fast {
+            Fast::None => false,
+            Fast::Hinge { axis, range, .. } => unit_as_given && quick_hinge_inside(*axis, range, q),
+            Fast::SwingTwist { .. } => unit_as_given && self.quick_swing_twist_inside(q),
+        };
+        if inside {
+            (0.0, true)
+        } else {
+            (self.violation(q), false)
+        }
+    }
+
     /// Exactly [`Hinge::pushes_outwards`] for a prepared hinge (false for any other
     /// limit), without the arc tangent when `local` is clearly inside the range: its
     /// half-angle then lies more than 1e-12 inside each bound (the quick twist test, with
@@ -1362,6 +1384,66 @@ mod tests {
             "on a bound: {} not kept, {} kept",
             on_bound_kept[0], on_bound_kept[1]
         );
+    }
+
+    /// The violation it returns is `violation`'s to the bit, and a rotation it says is
+    /// fixed is returned by the projection to the bit (with violation 0); rotations
+    /// drawn well inside are said to be fixed (the quick test takes them).
+    #[test]
+    fn violation_and_fixed_agrees_with_the_violation_and_the_projection() {
+        let limits = [
+            test_shoulder(),
+            JointLimit::cone(DVec3::Y, 0.5).unwrap(),
+            JointLimit::hinge(-DVec3::Y, 0.0, 150f64.to_radians()).unwrap(),
+            JointLimit::Free,
+            JointLimit::Fixed,
+        ];
+        let mut state = 0x0f1e_2d3c_4b5a_6978_u64;
+        let mut uniform = move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let bits = |q: DQuat| q.to_array().map(f64::to_bits);
+        let mut fixed_count = 0;
+        for limit in limits {
+            let prepared = limit.prepare();
+            for _ in 0..2000 {
+                let inside = limit.sample([uniform(), uniform(), uniform()]);
+                let well_inside =
+                    limit.sample([0.25 * uniform(), uniform(), 0.4 + 0.2 * uniform()]);
+                let axis = DVec3::new(uniform() - 0.5, uniform() - 0.5, uniform() - 0.5);
+                let turn = DQuat::from_scaled_axis(axis * (0.1 + 4.0 * uniform()).powi(3));
+                let outside = (turn * inside).normalize();
+                let on_bound = prepared.project(outside);
+                for q in [
+                    inside,
+                    well_inside,
+                    outside,
+                    on_bound,
+                    inside * (1.0 + 1e-6),
+                ] {
+                    let (violation, fixed) = prepared.violation_and_fixed(q);
+                    assert_eq!(
+                        violation.to_bits(),
+                        prepared.violation(q).to_bits(),
+                        "{limit:?}: {q:?}"
+                    );
+                    if fixed {
+                        assert_eq!(bits(prepared.project(q)), bits(q), "{limit:?}: {q:?}");
+                        assert_eq!(violation, 0.0);
+                        fixed_count += 1;
+                    }
+                    if matches!(limit, JointLimit::Hinge(_) | JointLimit::SwingTwist(_))
+                        && q == well_inside
+                    {
+                        assert!(fixed, "{limit:?}: {q:?} well inside, not said fixed");
+                    }
+                }
+            }
+        }
+        assert!(fixed_count >= 6000, "{fixed_count}");
     }
 
     #[test]
