@@ -816,16 +816,30 @@ impl PreparedLimit {
     /// of that answer need no projection when the next solve starts from it.
     #[must_use]
     pub fn violation_and_fixed(&self, q: DQuat) -> (f64, bool) {
+        // For a `q` unit as given, the steps of `violation` (and of `project` before it
+        // clamps) on `q` itself, the quick test made once.
         let unit_as_given = q.is_finite() && (q.length_squared() - 1.0).abs() <= 4.0 * f64::EPSILON;
-        let inside = match &self.fast {
-            Fast::None => false,
-            Fast::Hinge { axis, range, .. } => unit_as_given && quick_hinge_inside(*axis, range, q),
-            Fast::SwingTwist { .. } => unit_as_given && self.quick_swing_twist_inside(q),
-        };
-        if inside {
-            (0.0, true)
-        } else {
-            (self.violation(q), false)
+        match &self.fast {
+            Fast::Hinge { axis, range, .. } if unit_as_given => {
+                if quick_hinge_inside(*axis, range, q) {
+                    return (0.0, true);
+                }
+                let JointLimit::Hinge(h) = &self.limit else {
+                    unreachable!("a hinge's prepared parts belong to a hinge")
+                };
+                (hinge_violation(h, *axis, q), false)
+            }
+            Fast::SwingTwist { frame, quick } if unit_as_given => {
+                if self.quick_swing_twist_inside(q) {
+                    return (0.0, true);
+                }
+                let JointLimit::SwingTwist(st) = &self.limit else {
+                    unreachable!("a swing-twist's prepared parts belong to a swing-twist")
+                };
+                let (swing, twist) = st.unit_violation_parts(frame, Some(quick), q);
+                (twist.max(swing), false)
+            }
+            _ => (self.violation(q), false),
         }
     }
 
