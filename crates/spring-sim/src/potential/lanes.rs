@@ -134,12 +134,7 @@ fn fill_lanes<const GRADIENT: bool, const BLOCK: bool>(
             fill_scalar::<GRADIENT, BLOCK>(springs, range, x, curvature, gradients, blocks);
             continue;
         }
-        let mut rest = [0.0; LANES];
-        let mut k = [0.0; LANES];
-        for (i, s) in batch.iter().enumerate() {
-            rest[i] = s.rest_length;
-            k[i] = s.stiffness;
-        }
+        let (rest, k) = constants(batch);
         if GRADIENT {
             // `k (1 - L (1/l)) d`.
             let mut scale = [0.0; LANES];
@@ -265,12 +260,7 @@ fn energy_change_lanes<const PAIR: bool>(
     for first in (0..whole).step_by(LANES) {
         let batch = &springs[first..first + LANES];
         let (d, l) = vectors_and_lengths(batch, x);
-        let mut rest = [0.0; LANES];
-        let mut k = [0.0; LANES];
-        for (i, s) in batch.iter().enumerate() {
-            rest[i] = s.rest_length;
-            k[i] = s.stiffness;
-        }
+        let (rest, k) = constants(batch);
         let delta1 = moves(batch, dx, a1);
         let change1 = energy_changes(&d, &l, &delta1, &rest, &k);
         for (i, change) in change1.iter().enumerate() {
@@ -315,6 +305,18 @@ fn energy_change_tail<const PAIR: bool>(
         }
     }
     [c1, c2]
+}
+
+/// The rest lengths and stiffnesses of `batch`'s springs (a batch's first [`LANES`]).
+#[inline(always)]
+fn constants(batch: &[Spring]) -> (Lane, Lane) {
+    let mut rest = [0.0; LANES];
+    let mut k = [0.0; LANES];
+    for (i, s) in batch.iter().enumerate().take(LANES) {
+        rest[i] = s.rest_length;
+        k[i] = s.stiffness;
+    }
+    (rest, k)
 }
 
 /// Per lane `v[s.a] - v[s.b]` of `batch`'s springs (a batch's first [`LANES`]), as
