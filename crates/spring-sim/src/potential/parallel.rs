@@ -369,15 +369,18 @@ impl SpringGather {
             let first = c * PARTICLE_CHUNK;
             for (i, g) in chunk.iter_mut().enumerate() {
                 let p = first + i;
+                // The sum is kept in a local over the springs and stored once (added in
+                // place, it went through memory at every spring): the same additions.
+                let mut sum = *g;
                 if let Some(kinds) = pointwise {
-                    *g = DVec3::ZERO;
+                    sum = DVec3::ZERO;
                     for kind in kinds {
                         match kind {
-                            Pointwise::Inertia => {
-                                inertia::add_gradient_at(g, masses[p], inv_h2, x[p], step.y[p])
-                            }
+                            Pointwise::Inertia => inertia::add_gradient_at(
+                                &mut sum, masses[p], inv_h2, x[p], step.y[p],
+                            ),
                             Pointwise::Gravity => {
-                                gravity::add_gradient_at(g, masses[p], g_vec);
+                                gravity::add_gradient_at(&mut sum, masses[p], g_vec);
                             }
                         }
                     }
@@ -385,11 +388,12 @@ impl SpringGather {
                 for &code in &incident[ptr[p]..ptr[p + 1]] {
                     let spring = gradients[(code / 2) as usize];
                     if code % 2 == 0 {
-                        *g += spring;
+                        sum += spring;
                     } else {
-                        *g -= spring;
+                        sum -= spring;
                     }
                 }
+                *g = sum;
             }
         });
         blocks.is_some()
@@ -565,19 +569,30 @@ impl<B: Fn(usize) -> SymBlock + Sync> Gather<'_, B> {
         let cols = &mut values[c0..end];
         let (c1, c2) = (c1 - c0, c2 - c0);
         let diag = [0, 1, 2, c1, c1 + 1, c2];
+        // The diagonal block's six sums are kept in registers over the springs and
+        // stored once. Added in place, each went through memory at every spring (the
+        // coupling blocks' stores might alias them, as far as the compiler knows): a
+        // chain of a load, an addition and a store per spring and entry. The same
+        // additions in the same order, from the same start (the zeroed value or what
+        // the other terms stored).
+        let mut sums = [0.0; 6];
         if let Some(fold) = &self.inertia {
             cols.fill(0.0);
             let m = fold.masses[self.pattern.free_particles[f]];
             for _ in 0..fold.count {
-                for (&slot, v) in diag.iter().zip(inertia::block(m, fold.inv_h2).0) {
-                    cols[slot] += v;
+                for (sum, v) in sums.iter_mut().zip(inertia::block(m, fold.inv_h2).0) {
+                    *sum += v;
                 }
+            }
+        } else {
+            for (sum, &slot) in sums.iter_mut().zip(&diag) {
+                *sum = cols[slot];
             }
         }
         for &[e, k] in &self.coupling[self.coupling_ptr[f]..self.coupling_ptr[f + 1]] {
             let block = (self.blocks)(e as usize);
-            for (&slot, v) in diag.iter().zip(block.0) {
-                cols[slot] += v;
+            for (sum, v) in sums.iter_mut().zip(block.0) {
+                *sum += v;
             }
             if k != NO_COUPLING {
                 let k = 3 * k as usize;
@@ -597,6 +612,9 @@ impl<B: Fn(usize) -> SymBlock + Sync> Gather<'_, B> {
                     cols[slot] -= v;
                 }
             }
+        }
+        for (&slot, sum) in diag.iter().zip(sums) {
+            cols[slot] = sum;
         }
     }
 }
