@@ -842,7 +842,7 @@ pub struct PcgSolver {
 struct RowProduct {
     /// Particle `p`'s entries are `upper[upper_ptr[p]..upper_ptr[p + 1]]`.
     upper_ptr: Vec<usize>,
-    /// `(3 q, [s0, s1, s2])`: the block `(p, q)` is the `k`-th neighbour block of column
+    /// `(q, [s0, s1, s2])`: the block `(p, q)` is the `k`-th neighbour block of column
     /// particle `q`, and its column `3 q + c` starts at `values[sc]`. The starts are found
     /// once here, so the product reads no `col_ptr` entry of `q` per block.
     upper: Vec<(usize, [usize; 3])>,
@@ -850,7 +850,7 @@ struct RowProduct {
     /// in the order of its columns' blocks: one index per 3x3 block instead of the
     /// pattern's one per entry, so the product reads a ninth of the indices.
     lower_ptr: Vec<usize>,
-    /// The first unknown `3 q` of each neighbour `q` below the diagonal.
+    /// Each neighbour `q` below the diagonal (its unknowns are `3 q..3 q + 3`).
     lower: Vec<usize>,
 }
 
@@ -871,8 +871,8 @@ impl RowProduct {
                 .enumerate()
             {
                 let start_of = |c: usize| col_ptr[3 * q + c] + (3 - c) + 3 * k;
-                lists[row / 3].push((3 * q, [start_of(0), start_of(1), start_of(2)]));
-                lower.push(row);
+                lists[row / 3].push((q, [start_of(0), start_of(1), start_of(2)]));
+                lower.push(row / 3);
             }
             lower_ptr.push(lower.len());
         }
@@ -901,6 +901,9 @@ impl RowProduct {
         y: &mut [f64],
     ) {
         let col_ptr = pattern.symbolic.col_ptr();
+        // `x` by particle: a neighbour's three entries are one bounds check on its
+        // index, where a range of three needed an overflow check and two bounds checks.
+        let (xs, _) = x.as_chunks::<3>();
         for (offset, yp) in y.chunks_exact_mut(3).enumerate() {
             let p = first + offset;
             let below = &self.lower[self.lower_ptr[p]..self.lower_ptr[p + 1]];
@@ -914,7 +917,7 @@ impl RowProduct {
             // addition after another, and each neighbour's `x` is read once, not thrice.
             let (s0, s1, s2) = (col_ptr[3 * p], col_ptr[3 * p + 1], col_ptr[3 * p + 2]);
             let end = col_ptr[3 * p + 3];
-            let xp = &x[3 * p..3 * p + 3];
+            let xp = xs[p];
             let (d00, d10, d20) = (values[s0], values[s0 + 1], values[s0 + 2]);
             let (d11, d21, d22) = (values[s1], values[s1 + 1], values[s2]);
             let mut acc = [0.0f64; 3];
@@ -931,13 +934,13 @@ impl RowProduct {
             let blocks0 = &values[s0 + 3..s1];
             let blocks1 = &values[s1 + 2..s2];
             let blocks2 = &values[s2 + 1..end];
-            for (((v0, v1), v2), &row) in blocks0
+            for (((v0, v1), v2), &q) in blocks0
                 .chunks_exact(3)
                 .zip(blocks1.chunks_exact(3))
                 .zip(blocks2.chunks_exact(3))
                 .zip(below)
             {
-                let xr = &x[row..row + 3];
+                let xr = xs[q];
                 acc[0] += v0[0] * xr[0];
                 acc[1] += v1[0] * xr[0];
                 acc[2] += v2[0] * xr[0];
@@ -949,8 +952,8 @@ impl RowProduct {
                 acc[2] += v2[2] * xr[2];
             }
             // The blocks left of the diagonal: stored as the block (p, q) in q's columns.
-            for (j, starts) in &self.upper[self.upper_ptr[p]..self.upper_ptr[p + 1]] {
-                for (xq, &start) in x[*j..*j + 3].iter().zip(starts) {
+            for (q, starts) in &self.upper[self.upper_ptr[p]..self.upper_ptr[p + 1]] {
+                for (xq, &start) in xs[*q].iter().zip(starts) {
                     for (a, v) in acc.iter_mut().zip(&values[start..start + 3]) {
                         *a += v * xq;
                     }
