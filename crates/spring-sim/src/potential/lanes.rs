@@ -1,6 +1,7 @@
 //! The springs' kernels of the implicit step four springs at a time: the gradient and
-//! the Hessian's blocks (one pass over the springs writing either or both), and the
-//! line search's change of the springs' energy at one or two step lengths.
+//! the Hessian's blocks (one pass over the springs writing either or both), the line
+//! search's change of the springs' energy at one or two step lengths, and each spring's
+//! energy for the energies a step reports.
 //!
 //! Each kernel is one loop over batches of [`LANES`] springs written lane by lane: the
 //! spring vectors are gathered per lane, then every operation (the squares, the square
@@ -13,13 +14,14 @@
 //!
 //! The results are bitwise the scalar kernels' ([`crate::spring::gradient`],
 //! [`crate::spring::hessian_coefficients`] with [`SymBlock::isotropic_plus_outer`],
-//! [`crate::spring::energy_change`]): each lane goes through the same floating-point
-//! operations in the same order (no FMA is enabled, and Rust never contracts a product
-//! and a sum), a batch with a spring outside the kernels' plain case (a length outside
-//! `1e-150 < l < inf`, or a zero rest length for a block) is computed spring by spring
-//! by the scalar kernels, and the energy changes are added to their sum one spring at a
-//! time in spring order, skipping the springs the scalar loop skips. The design is in
-//! docs/spring-sim.md ("Four springs at a time in the implicit step").
+//! [`crate::spring::energy_change`], [`crate::spring::energy`]): each lane goes through
+//! the same floating-point operations in the same order (no FMA is enabled, and Rust
+//! never contracts a product and a sum), a batch with a spring outside the kernels'
+//! plain case (a length outside `1e-150 < l < inf`, or a zero rest length for a block)
+//! is computed spring by spring by the scalar kernels, and the energy changes are added
+//! to their sum one spring at a time in spring order, skipping the springs the scalar
+//! loop skips. The design is in docs/spring-sim.md ("Four springs at a time in the
+//! implicit step"; the energies: "Sums kept in registers in the gathers").
 
 use super::SymBlock;
 use super::springs;
@@ -307,6 +309,27 @@ fn energy_change_tail<const PAIR: bool>(
     [c1, c2]
 }
 
+/// Each spring's energy `k/2 (l - L)^2` at `x` into `energies` (as long as
+/// `springs`), four springs at a time: [`crate::spring::energy`]'s operations lane by
+/// lane (`l = |x_a - x_b|` as `d.length()`, then `((0.5 k) (l - L)) (l - L)`), with no
+/// branch to take, so every batch is a plain one; the short tail by the scalar kernel.
+#[cfg_attr(not(feature = "parallel"), allow(dead_code))]
+#[inline(always)]
+fn energies_lanes(springs: &[Spring], x: &[DVec3], energies: &mut [f64]) {
+    let whole = springs.len() / LANES * LANES;
+    for first in (0..whole).step_by(LANES) {
+        let batch = &springs[first..first + LANES];
+        let (_, l) = vectors_and_lengths(batch, x);
+        let (rest, k) = constants(batch);
+        for i in 0..LANES {
+            energies[first + i] = 0.5 * k[i] * (l[i] - rest[i]) * (l[i] - rest[i]);
+        }
+    }
+    for (e, s) in energies[whole..].iter_mut().zip(&springs[whole..]) {
+        *e = crate::spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness);
+    }
+}
+
 /// The rest lengths and stiffnesses of `batch`'s springs (a batch's first [`LANES`]).
 #[inline(always)]
 fn constants(batch: &[Spring]) -> (Lane, Lane) {
@@ -589,6 +612,25 @@ mod avx2 {
         }
         super::energy_change_tail::<PAIR>(&springs[whole..], x, dx, [a1, a2], [c1, c2])
     }
+
+    /// [`super::energies_lanes`] in 256-bit registers.
+    #[cfg_attr(not(feature = "parallel"), allow(dead_code))]
+    #[target_feature(enable = "avx2")]
+    pub(super) fn energies(springs: &[Spring], x: &[DVec3], energies: &mut [f64]) {
+        let half = _mm256_set1_pd(0.5);
+        let whole = springs.len() / LANES * LANES;
+        for first in (0..whole).step_by(LANES) {
+            let batch = &springs[first..first + LANES];
+            let l = _mm256_sqrt_pd(squared_length(differences(batch, x)));
+            let (rest, k) = constants(batch);
+            let stretch = _mm256_sub_pd(l, rest);
+            let e = _mm256_mul_pd(_mm256_mul_pd(_mm256_mul_pd(half, k), stretch), stretch);
+            energies[first..first + LANES].copy_from_slice(&lanes(e));
+        }
+        for (e, s) in energies[whole..].iter_mut().zip(&springs[whole..]) {
+            *e = crate::spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness);
+        }
+    }
 }
 
 /// [`fill_lanes`] in the instance `instance` selects.
@@ -701,6 +743,24 @@ pub(crate) fn energy_change_pair_sum(
     energy_change::<true>(instance, springs, x, dx, alphas)
 }
 
+/// Each spring's energy at `x` into `energies` (as long as `springs`): bitwise
+/// [`crate::spring::energy`] per spring.
+#[cfg_attr(not(feature = "parallel"), allow(dead_code))]
+pub(crate) fn energies(instance: Instance, springs: &[Spring], x: &[DVec3], energies: &mut [f64]) {
+    assert_eq!(energies.len(), springs.len());
+    #[cfg(target_arch = "x86_64")]
+    if instance.avx2() {
+        // SAFETY: as in `fill`: the feature was reported on this processor.
+        #[allow(unsafe_code)]
+        unsafe {
+            avx2::energies(springs, x, energies);
+        }
+        return;
+    }
+    let _ = instance;
+    energies_lanes(springs, x, energies);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -772,6 +832,26 @@ mod tests {
 
     fn bits(v: &[f64]) -> Vec<u64> {
         v.iter().map(|f| f.to_bits()).collect()
+    }
+
+    /// Every prefix of the cases in both instances, bitwise the scalar kernel's energies
+    /// (overflowing and underflowing lengths, zero rest lengths and stiffnesses in
+    /// every lane).
+    #[test]
+    fn energies_are_bitwise_the_scalar_kernel() {
+        let (x, springs) = cases();
+        for n in 0..=springs.len() {
+            let springs = &springs[..n];
+            let scalar: Vec<f64> = springs
+                .iter()
+                .map(|s| crate::spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness))
+                .collect();
+            for instance in instances() {
+                let mut e = vec![f64::NAN; n];
+                energies(instance, springs, &x, &mut e);
+                assert_eq!(bits(&e), bits(&scalar), "{n} {instance:?}");
+            }
+        }
     }
 
     /// Every prefix of the cases (every batch position and remainder, the empty one

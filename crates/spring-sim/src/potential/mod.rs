@@ -27,6 +27,8 @@ mod gravity;
 mod inertia;
 mod lanes;
 #[cfg(feature = "parallel")]
+pub(crate) use lanes::{Instance, energies as spring_energies};
+#[cfg(feature = "parallel")]
 mod parallel;
 mod sink;
 mod springs;
