@@ -1128,16 +1128,19 @@ mod tests {
 
     /// Velocity Verlet's substeps in the packed layout, in both instances, are bitwise
     /// those of the loop over `DVec3`s with the scalar forces, damped and not, with the
-    /// start forces evaluated and loaded.
+    /// start forces evaluated and loaded, on a cloth of one scheduled chunk of springs and
+    /// on one of three.
     #[test]
     fn packed_verlet_substeps_are_bitwise_the_scalar_loop() {
         let (h, substeps) = (1.0 / 60.0, 7);
         let dt = h / substeps as f64;
-        for damping in [0.0, 0.2] {
-            let system = crate::ClothGrid::lab_sized(9, 0.25)
+        for (size, damping) in [(9, 0.0), (9, 0.2), (21, 0.0), (21, 0.2)] {
+            let system = crate::ClothGrid::lab_sized(size, 0.1)
                 .with_damping(damping)
                 .build()
                 .unwrap();
+            let chunks = system.springs().len().div_ceil(packed::SCHEDULE_CHUNK);
+            assert_eq!(chunks, if size == 9 { 1 } else { 3 });
             let c = system.material().damping;
             let w = inverse_masses(&system);
             // The reference: the stepper's loop, one kick at a time.

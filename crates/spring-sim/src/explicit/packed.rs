@@ -411,29 +411,47 @@ impl Packed {
     }
 }
 
+/// Springs per scheduled chunk ([`schedule`]): a multiple of [`BATCH`], so no batch
+/// straddles two chunks.
+pub(super) const SCHEDULE_CHUNK: usize = 1024;
+const _: () = assert!(SCHEDULE_CHUNK % BATCH == 0);
+
 /// The springs' indices (into `ends`, each spring's two particles) in the order the
-/// packed loop computes and adds them: by level, a spring's level being one more than
-/// the highest level of the springs before it that share a particle with it, and in the
-/// given order within a level.
+/// packed loop computes and adds them: in chunks of [`SCHEDULE_CHUNK`] consecutive
+/// springs, in order, and within a chunk by level, a spring's level being one more than
+/// the highest level of the chunk's springs before it that share a particle with it (in
+/// the given order within a level).
 ///
-/// Every particle still receives its springs' terms in the given order (along the
-/// springs at one particle the level rises), so its sums are the same bits; and the
-/// springs of one level share no particle, so the additions of neighbouring springs
-/// in the loop do not wait for each other. In the system's order a particle's springs
-/// come one after another (the lab pattern lists up to six per particle), and each
-/// addition to its sum waited for the store of the one before.
+/// Every particle still receives its springs' terms in the given order (the chunks keep
+/// their order, and along the springs at one particle the level rises within a chunk),
+/// so its sums are the same bits; and the springs of one level share no particle, so
+/// the additions of neighbouring springs in the loop do not wait for each other. In the
+/// given order a particle's springs come one after another (the lab pattern lists up to
+/// six per particle), and each addition to its sum waited for the store of the one
+/// before. The chunks keep the loop's memory local: levelled over a whole large sheet,
+/// each level swept every particle again (about a dozen sweeps per force pass), while a
+/// chunk of a grid's springs touches a band of a few hundred particles.
 fn schedule(particles: usize, ends: &[(usize, usize)]) -> Vec<usize> {
-    // The level a particle's next spring takes at least.
+    // The level a particle's next spring in the chunk takes at least.
     let mut next = vec![0_usize; particles];
-    let mut level = Vec::with_capacity(ends.len());
-    for &(a, b) in ends {
-        let l = next[a].max(next[b]);
-        level.push(l);
-        (next[a], next[b]) = (l + 1, l + 1);
+    let mut level = Vec::with_capacity(SCHEDULE_CHUNK);
+    let mut order: Vec<usize> = Vec::with_capacity(ends.len());
+    for (c, chunk) in ends.chunks(SCHEDULE_CHUNK).enumerate() {
+        let first = c * SCHEDULE_CHUNK;
+        level.clear();
+        for &(a, b) in chunk {
+            let l = next[a].max(next[b]);
+            level.push(l);
+            (next[a], next[b]) = (l + 1, l + 1);
+        }
+        for &(a, b) in chunk {
+            (next[a], next[b]) = (0, 0);
+        }
+        let start = order.len();
+        order.extend(first..first + chunk.len());
+        // Stable: the given order within a level.
+        order[start..].sort_by_key(|&k| level[k - first]);
     }
-    let mut order: Vec<usize> = (0..ends.len()).collect();
-    // Stable: the given order within a level.
-    order.sort_by_key(|&k| level[k]);
     order
 }
 
