@@ -975,17 +975,24 @@ mod tests {
         }
     }
 
-    /// `system` at its state, with every spring's stiffness times `stiffness` and rest
-    /// length times `rest`, under `gravity`: the same topology, other constants.
-    fn with_constants(
+    /// `system` at its state with its particles renumbered (new particle `j` is old
+    /// particle `order[j]`; the springs keep their order), every spring's stiffness times
+    /// `stiffness` and rest length times `rest`, under `gravity`.
+    fn rebuilt(
         system: &SpringSystem,
+        order: &[usize],
         stiffness: f64,
         rest: f64,
         gravity: DVec3,
     ) -> SpringSystem {
+        let mut new_index = vec![0; order.len()];
+        for (j, &i) in order.iter().enumerate() {
+            new_index[i] = j;
+        }
         let (x, v) = (system.positions(), system.velocities());
-        let particles: Vec<Particle> = (0..system.len())
-            .map(|i| Particle {
+        let particles: Vec<Particle> = order
+            .iter()
+            .map(|&i| Particle {
                 fixed: system.fixed()[i],
                 velocity: v[i],
                 ..Particle::at_rest(x[i], system.masses()[i])
@@ -997,7 +1004,7 @@ mod tests {
             .map(|s| SpringSpec {
                 rest_length: Some(rest * s.rest_length),
                 stiffness: Some(stiffness * s.stiffness),
-                ..SpringSpec::between(s.a, s.b)
+                ..SpringSpec::between(new_index[s.a], new_index[s.b])
             })
             .collect();
         let material = system.material().with_gravity(gravity);
@@ -1035,7 +1042,9 @@ mod tests {
             let changes: [Change; 3] = [
                 ("another h", |_| {}),
                 ("other constants", |system| {
-                    *system = with_constants(system, 1.5, 1.01, DVec3::new(0.1, -2.0, 0.0));
+                    let order: Vec<usize> = (0..system.len()).collect();
+                    let gravity = DVec3::new(0.1, -2.0, 0.0);
+                    *system = rebuilt(system, &order, 1.5, 1.01, gravity);
                 }),
                 ("a change of damping", |system| {
                     system.set_damping(0.3).unwrap()
@@ -1182,35 +1191,6 @@ mod tests {
         }
     }
 
-    /// `system` with its particles renumbered: new particle `j` is old particle
-    /// `order[j]`; the springs keep their order.
-    #[cfg(feature = "parallel")]
-    fn renumbered(system: &SpringSystem, order: &[usize]) -> SpringSystem {
-        let mut new_index = vec![0; order.len()];
-        for (j, &i) in order.iter().enumerate() {
-            new_index[i] = j;
-        }
-        let (x, v) = (system.positions(), system.velocities());
-        let particles: Vec<Particle> = order
-            .iter()
-            .map(|&i| Particle {
-                fixed: system.fixed()[i],
-                velocity: v[i],
-                ..Particle::at_rest(x[i], system.masses()[i])
-            })
-            .collect();
-        let springs: Vec<SpringSpec> = system
-            .springs()
-            .iter()
-            .map(|s| SpringSpec {
-                rest_length: Some(s.rest_length),
-                stiffness: Some(s.stiffness),
-                ..SpringSpec::between(new_index[s.a], new_index[s.b])
-            })
-            .collect();
-        SpringSystem::new(&particles, &springs, *system.material()).unwrap()
-    }
-
     /// Velocity Verlet's substeps on parts ([`parts`]) are bitwise the single packed
     /// layout's (itself bitwise the scalar loop, above), and the spring energy they report
     /// is bitwise the system's of the end state: 1 to 7 parts on 1 to 3 threads, both
@@ -1242,7 +1222,8 @@ mod tests {
                 state ^= state << 17;
                 order.swap(i, (state % (i as u64 + 1)) as usize);
             }
-            let shuffled = renumbered(&cloth, &order);
+            let gravity = cloth.material().gravity;
+            let shuffled = rebuilt(&cloth, &order, 1.0, 1.0, gravity);
             for (name, system) in [
                 ("odd line", odd_line(damping)),
                 ("cloth", cloth),

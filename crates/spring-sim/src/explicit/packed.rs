@@ -414,7 +414,7 @@ impl Packed {
 /// Springs per scheduled chunk ([`schedule`]): a multiple of [`BATCH`], so no batch
 /// straddles two chunks.
 pub(super) const SCHEDULE_CHUNK: usize = 1024;
-const _: () = assert!(SCHEDULE_CHUNK % BATCH == 0);
+const _: () = assert!(SCHEDULE_CHUNK.is_multiple_of(BATCH));
 
 /// The springs' indices (into `ends`, each spring's two particles) in the order the
 /// packed loop computes and adds them: in chunks of [`SCHEDULE_CHUNK`] consecutive
