@@ -1345,6 +1345,28 @@ mod tests {
         }
     }
 
+    /// A swing-twist limit, a cone, a hinge, a free and a fixed joint: one of each kind.
+    fn five_limits() -> [JointLimit; 5] {
+        [
+            test_shoulder(),
+            JointLimit::cone(DVec3::Y, 0.5).unwrap(),
+            JointLimit::hinge(-DVec3::Y, 0.0, 150f64.to_radians()).unwrap(),
+            JointLimit::Free,
+            JointLimit::Fixed,
+        ]
+    }
+
+    /// Uniform numbers in `[0, 1)` from a 64-bit linear congruential generator seeded
+    /// with `seed` (deterministic, no dependency).
+    fn uniform_from(mut state: u64) -> impl FnMut() -> f64 {
+        move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
     /// The quick test must actually take the rotations well inside (or it saves nothing):
     /// every sample of the inner part of the W7 shoulder and elbow ranges.
     /// `keeps` never keeps a rotation the projection moves, keeps every rotation drawn
@@ -1354,20 +1376,8 @@ mod tests {
     /// way; the count of those kept and not is only printed.
     #[test]
     fn keeps_only_what_the_projection_returns_unchanged() {
-        let limits = [
-            test_shoulder(),
-            JointLimit::cone(DVec3::Y, 0.5).unwrap(),
-            JointLimit::hinge(-DVec3::Y, 0.0, 150f64.to_radians()).unwrap(),
-            JointLimit::Free,
-            JointLimit::Fixed,
-        ];
-        let mut state = 0x1234_5678_9abc_def0_u64;
-        let mut uniform = move || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let limits = five_limits();
+        let mut uniform = uniform_from(0x1234_5678_9abc_def0_u64);
         let mut on_bound_kept = [0, 0];
         for limit in limits {
             let prepared = limit.prepare();
@@ -1405,20 +1415,8 @@ mod tests {
     /// drawn well inside are said to be fixed (the quick test takes them).
     #[test]
     fn violation_and_fixed_agrees_with_the_violation_and_the_projection() {
-        let limits = [
-            test_shoulder(),
-            JointLimit::cone(DVec3::Y, 0.5).unwrap(),
-            JointLimit::hinge(-DVec3::Y, 0.0, 150f64.to_radians()).unwrap(),
-            JointLimit::Free,
-            JointLimit::Fixed,
-        ];
-        let mut state = 0x0f1e_2d3c_4b5a_6978_u64;
-        let mut uniform = move || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let limits = five_limits();
+        let mut uniform = uniform_from(0x0f1e_2d3c_4b5a_6978_u64);
         let bits = |q: DQuat| q.to_array().map(f64::to_bits);
         let mut fixed_count = 0;
         for limit in limits {

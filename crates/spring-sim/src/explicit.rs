@@ -1100,6 +1100,17 @@ mod tests {
         out
     }
 
+    /// Moves every particle of `cloth` off its rest place and gives it a velocity, each
+    /// by its own amount, so every spring has a force and a damping term.
+    fn off_rest(cloth: &mut SpringSystem) {
+        let (positions, velocities) = cloth.state_mut();
+        for (i, (p, v)) in positions.iter_mut().zip(velocities).enumerate() {
+            let t = i as f64;
+            *p += 0.01 * DVec3::new(t.sin(), (1.7 * t).cos(), (0.3 * t).sin());
+            *v = DVec3::new((0.7 * t).cos(), 0.5 * t.sin(), -0.2);
+        }
+    }
+
     /// The packed layout's forces, in both instances, are bitwise the scalar loop's:
     /// on the line of odd lengths (batches computed spring by spring, a last batch of
     /// three springs and the padding spring) and on a cloth off rest (121 particles,
@@ -1112,12 +1123,7 @@ mod tests {
                 .with_damping(damping)
                 .build()
                 .unwrap();
-            let (positions, velocities) = cloth.state_mut();
-            for (i, (p, v)) in positions.iter_mut().zip(velocities).enumerate() {
-                let t = i as f64;
-                *p += 0.01 * DVec3::new(t.sin(), (1.7 * t).cos(), (0.3 * t).sin());
-                *v = DVec3::new((0.7 * t).cos(), 0.5 * t.sin(), -0.2);
-            }
+            off_rest(&mut cloth);
             assert_eq!(cloth.springs().len() % 4, 2);
             for system in [odd_line(damping), cloth] {
                 let (x, v) = (system.positions(), system.velocities());
@@ -1207,12 +1213,7 @@ mod tests {
                 .with_damping(damping)
                 .build()
                 .unwrap();
-            let (positions, velocities) = cloth.state_mut();
-            for (i, (p, v)) in positions.iter_mut().zip(velocities).enumerate() {
-                let t = i as f64;
-                *p += 0.01 * DVec3::new(t.sin(), (1.7 * t).cos(), (0.3 * t).sin());
-                *v = DVec3::new((0.7 * t).cos(), 0.5 * t.sin(), -0.2);
-            }
+            off_rest(&mut cloth);
             // A random order (xorshift, Fisher-Yates).
             let mut order: Vec<usize> = (0..cloth.len()).collect();
             let mut state = 0x2545_f491_4f6c_dd1d_u64;
