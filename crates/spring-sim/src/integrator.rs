@@ -73,7 +73,8 @@ pub enum Integrator {
 pub struct AutoSettings {
     /// Numerical damping wanted (settling to rest): always backward Euler (default false).
     pub settle: bool,
-    /// Newton settings of the implicit integrators `auto` may use.
+    /// Newton settings of the implicit integrators `auto` may use; their `threads` is
+    /// also the thread count of the explicit steps.
     pub newton: NewtonSettings,
     /// Largest substep count `auto` accepts for velocity Verlet (default 100 000); above
     /// it BDF2 is used whatever the costs.
@@ -360,6 +361,11 @@ impl AutoStepper {
             verlet: {
                 let mut verlet = VelocityVerlet::new(system, 1)?;
                 verlet.keep_start_if_runaway = true;
+                // One thread setting for every step `auto` takes (0, the default, is
+                // what the stepper starts with).
+                if settings.newton.threads != 0 {
+                    verlet.set_threads(system, settings.newton.threads)?;
+                }
                 verlet
             },
             bdf2: None,
