@@ -10,11 +10,16 @@
 //! writes `docs/bench/README.md`, `docs/bench/results.json` and SVG plots of time against
 //! error. `cargo xtask stress` runs the cloth stability grid and the IK degenerate set,
 //! writes `docs/bench/stress.md` and exits non-zero on NaN, divergence or a broken
-//! invariant. Both re-run themselves in release, except with `--quick` (a smoke run).
+//! invariant. `cargo xtask scale` runs backward Euler on cloths from 11 x 11 to
+//! 1000 x 1000 particles on one thread and on every core and writes
+//! `docs/bench/scale.md` (time, memory and the speed-up per size) and a plot of the cost
+//! per particle. All three re-run themselves in release, except with `--quick` (a smoke
+//! run).
 
 mod bench;
 mod machine;
 mod report;
+mod scale;
 mod stress;
 
 use clap::{Parser, Subcommand};
@@ -41,6 +46,10 @@ enum Command {
     /// The numerical stress grid (cloth) and the degenerate IK set (writes
     /// docs/bench/stress.md; exits 1 on NaN, divergence or a broken invariant).
     Stress(stress::StressArgs),
+    /// Cost against cloth size on one thread and on every core, with peak memory
+    /// (writes docs/bench/scale.md, scale.json and plots/scale.svg; exits 1 when two
+    /// thread counts end in different states).
+    Scale(scale::ScaleArgs),
 }
 
 #[derive(clap::Args)]
@@ -81,6 +90,7 @@ fn main() -> ExitCode {
         Command::RunScene(args) => run_scene_command(&args),
         Command::Bench(args) => bench::run(&args),
         Command::Stress(args) => stress::run(&args),
+        Command::Scale(args) => scale::run(&args),
     }
 }
 
