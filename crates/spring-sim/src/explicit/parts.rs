@@ -189,18 +189,7 @@ impl Parts {
                 p.run(c, dt, next);
             });
         }
-        // Each part's own particles are a contiguous range: the buffers cut into them.
-        let mut pieces = Vec::with_capacity(self.parts.len());
-        let (mut x, mut v, mut f) = (x, v, neg_forces);
-        for (p, part) in self.parts.iter_mut().enumerate() {
-            let own = self.starts[p + 1] - self.starts[p];
-            let (xo, xr) = std::mem::take(&mut x).split_at_mut(own);
-            let (vo, vr) = std::mem::take(&mut v).split_at_mut(own);
-            let (fo, fr) = std::mem::take(&mut f).split_at_mut(own);
-            (x, v, f) = (xr, vr, fr);
-            pieces.push((part, xo, vo, fo));
-        }
-        each(&mut pieces, |(part, x, v, f)| part.store(x, v, f));
+        store(&self.parts, &self.starts, x, v, neg_forces);
         self.hold_end = true;
         self.energy_slots
             .iter()
@@ -234,6 +223,29 @@ impl Parts {
         }
         slots
     }
+}
+
+/// Each part's own particles into the stepper's buffers, the parts on the installed rayon
+/// pool's threads. The parts' own ranges are contiguous (`starts[p]..starts[p + 1]`, and
+/// `starts` has one entry more than `parts`), so the buffers are cut in halves with the
+/// parts, each half stored by a `rayon::join` branch: no list of the pieces is built per
+/// step.
+fn store(parts: &[Packed], starts: &[usize], x: &mut [DVec3], v: &mut [DVec3], f: &mut [DVec3]) {
+    match parts {
+        [] => return,
+        [part] => return part.store(x, v, f),
+        _ => {}
+    }
+    let mid = parts.len() / 2;
+    let cut = starts[mid] - starts[0];
+    let (parts_l, parts_r) = parts.split_at(mid);
+    let (x_l, x_r) = x.split_at_mut(cut);
+    let (v_l, v_r) = v.split_at_mut(cut);
+    let (f_l, f_r) = f.split_at_mut(cut);
+    rayon::join(
+        || store(parts_l, &starts[..=mid], x_l, v_l, f_l),
+        || store(parts_r, &starts[mid..], x_r, v_r, f_r),
+    );
 }
 
 /// Runs `op` on every item, on the installed rayon pool's threads.
