@@ -5,16 +5,16 @@
 //!
 //! The carried answers count only while the frames form one sequence: the state handed to
 //! a solve is exactly (to the bit) the pose and translation the last solve returned, on
-//! the same skeleton (structure and limits), with the same effectors (joints, pins,
-//! weights, which have rotation goals), settings and translation freedom. Anything else
-//! (another character through the same solver, a pose the caller changed, an edited
+//! the same skeleton (structure, and limits to the bit), with the same effectors (joints,
+//! pins, weights, which have rotation goals), settings and translation freedom. Anything
+//! else (another character through the same solver, a pose the caller changed, an edited
 //! problem) drops them, and the solve is exactly the one a fresh solver would do.
 
 use crate::problem::BodyProblem;
 use crate::problem::BodyState;
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::SolveSettings;
-use sinew_skeleton::limits::JointLimit;
+use sinew_skeleton::limits::{Hinge, JointLimit, SwingTwist};
 
 /// One effector as far as the carried answers are concerned: joint, pinned, position
 /// weight, rotation weight, whether it has a rotation goal. The goal positions and
@@ -67,6 +67,46 @@ fn key<'a>(problem: &BodyProblem<'a>) -> impl Iterator<Item = EffectorKey> + 'a 
     })
 }
 
+/// Zero exactly when `a` and `b` hold the same bits. Every word is compared, with no
+/// early exit, so that a whole pose is compared in a few instructions a joint (the
+/// carried checks run on every warm frame).
+#[inline(always)]
+fn bit_difference<const N: usize>(a: &[f64; N], b: &[f64; N]) -> u64 {
+    a.iter()
+        .zip(b)
+        .fold(0, |d, (x, y)| d | (x.to_bits() ^ y.to_bits()))
+}
+
+/// Whether two joint limits are the same, to the bit (a limit that equals another only
+/// by value, a `-0` for a `0`, counts as another: the carried answers are then dropped,
+/// which is always allowed).
+fn same_limit_bits(a: &JointLimit, b: &JointLimit) -> bool {
+    match (a, b) {
+        (JointLimit::Free, JointLimit::Free) | (JointLimit::Fixed, JointLimit::Fixed) => true,
+        (JointLimit::Hinge(a), JointLimit::Hinge(b)) => {
+            // Every field, by a pattern that a new field would break.
+            let words = |&Hinge { axis, min, max }: &Hinge| [axis.x, axis.y, axis.z, min, max];
+            bit_difference(&words(a), &words(b)) == 0
+        }
+        (JointLimit::SwingTwist(a), JointLimit::SwingTwist(b)) => {
+            let words = |&SwingTwist {
+                             twist_axis: t,
+                             a_axis: a,
+                             swing_a,
+                             swing_b,
+                             twist_min,
+                             twist_max,
+                         }: &SwingTwist| {
+                [
+                    t.x, t.y, t.z, a.x, a.y, a.z, swing_a, swing_b, twist_min, twist_max,
+                ]
+            };
+            bit_difference(&words(a), &words(b)) == 0
+        }
+        _ => false,
+    }
+}
+
 impl Carried {
     /// Whether a solve of `problem` from `state` continues the sequence of the carried
     /// answers (call before anything changes `state`).
@@ -77,11 +117,9 @@ impl Carried {
             && self.root_translates == problem.root_translates
             && self.fingerprint == skeleton.fingerprint()
             && self.limits.len() == skeleton.len()
-            && self
-                .limits
-                .iter()
-                .enumerate()
-                .all(|(j, limit)| limit == skeleton.limit(j))
+            && (0..skeleton.len()).fold(true, |same, j| {
+                same & same_limit_bits(&self.limits[j], skeleton.limit(j))
+            })
             && self.effectors.len() == problem.effectors.len()
             && self.effectors.iter().copied().eq(key(problem))
             && state.root_translation == self.last_translation
@@ -92,8 +130,6 @@ impl Carried {
     /// that for a state that [`Carried::continues`] it is exactly forward kinematics of
     /// the pose and need not be computed again.
     pub fn global_unchanged(&self, state: &BodyState) -> bool {
-        let bits = |q: &DQuat| q.to_array().map(f64::to_bits);
-        let vbits = |p: &DVec3| p.to_array().map(f64::to_bits);
         self.valid
             && state.global.rotations.len() == self.last_global_rotations.len()
             && state.global.positions.len() == self.last_global_positions.len()
@@ -102,13 +138,19 @@ impl Carried {
                 .rotations
                 .iter()
                 .zip(&self.last_global_rotations)
-                .all(|(a, b)| bits(a) == bits(b))
+                .fold(0, |d, (a, b)| {
+                    d | bit_difference(&a.to_array(), &b.to_array())
+                })
+                == 0
             && state
                 .global
                 .positions
                 .iter()
                 .zip(&self.last_global_positions)
-                .all(|(a, b)| vbits(a) == vbits(b))
+                .fold(0, |d, (a, b)| {
+                    d | bit_difference(&a.to_array(), &b.to_array())
+                })
+                == 0
     }
 
     /// Forgets the carried answers (after an error).
@@ -183,5 +225,70 @@ impl Carried {
         );
         self.correction_translation = state.root_translation - first_order_translation;
         self.has_correction = self.correction.len() == state.pose.rotations.len();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sinew_math::DVec3;
+
+    /// Every field of a limit counts, to the bit; another kind of limit never matches.
+    #[test]
+    fn limits_are_the_same_only_to_the_bit() {
+        let hinge = JointLimit::hinge(DVec3::Y, -0.5, 2.0).expect("valid");
+        let shoulder =
+            JointLimit::swing_twist(DVec3::X, DVec3::Z, 1.7, 1.2, -1.4, 1.4).expect("valid");
+        for limit in [JointLimit::Free, JointLimit::Fixed, hinge, shoulder] {
+            assert!(same_limit_bits(&limit, &limit), "{limit:?}");
+        }
+        assert!(!same_limit_bits(&JointLimit::Free, &JointLimit::Fixed));
+        assert!(!same_limit_bits(&hinge, &shoulder));
+        let JointLimit::Hinge(h) = hinge else {
+            panic!("a hinge")
+        };
+        let hinges = [
+            Hinge { min: -0.4, ..h },
+            Hinge { max: 2.1, ..h },
+            Hinge {
+                axis: DVec3::new(-0.0, 1.0, 0.0),
+                ..h
+            },
+        ];
+        for other in hinges {
+            assert!(
+                !same_limit_bits(&hinge, &JointLimit::Hinge(other)),
+                "{other:?}"
+            );
+        }
+        let JointLimit::SwingTwist(st) = shoulder else {
+            panic!("a swing-twist")
+        };
+        let others = [
+            SwingTwist {
+                twist_axis: DVec3::new(1.0, 1e-17, 0.0),
+                ..st
+            },
+            SwingTwist {
+                a_axis: DVec3::new(0.0, 1e-17, 1.0),
+                ..st
+            },
+            SwingTwist { swing_a: 1.6, ..st },
+            SwingTwist { swing_b: 1.1, ..st },
+            SwingTwist {
+                twist_min: -1.3,
+                ..st
+            },
+            SwingTwist {
+                twist_max: 1.3,
+                ..st
+            },
+        ];
+        for other in others {
+            assert!(
+                !same_limit_bits(&shoulder, &JointLimit::SwingTwist(other)),
+                "{other:?}"
+            );
+        }
     }
 }

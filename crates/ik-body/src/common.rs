@@ -77,10 +77,13 @@ pub(crate) struct Common {
     pub first_order: Vec<DQuat>,
     pub extrapolated: Vec<bool>,
     pub first_order_translation: DVec3,
-    /// Per joint, from the last report: whether the projection onto its limit is known to
-    /// return the returned pose's rotation unchanged, so that a next solve that continues
-    /// from that pose (to the bit, [`Carried`]) need not project it again.
-    fixed: Vec<bool>,
+    /// Per joint: a rotation known to be its own projection onto the joint's limit, with
+    /// no violation (`PreparedLimit::violation_and_fixed` says `(0, true)`), if any; filled
+    /// by the finish's trials and by the reports, for the limits of this solve and of
+    /// the solves that continue it ([`Carried`] checks the limits), so that neither the
+    /// report nor a next solve that continues from the answer measures or projects such
+    /// a joint again.
+    fixed: Vec<Option<DQuat>>,
 }
 
 /// More cached limbs than this (many skeletons through one solver) and the cache starts
@@ -132,14 +135,18 @@ impl Common {
             state.update_global(skeleton)?;
         }
         let mut moved = false;
-        // A continued state is the last answer, whose report found which rotations are
-        // their own projections (for the same limits: `Carried` checks them).
-        let known = continued && self.fixed.len() == skeleton.len();
+        // The rotations known to be their own projections hold for the same limits only,
+        // which a continued solve has (`Carried` checks them); its state is the last
+        // answer, whose report found which of its rotations are.
+        if !continued {
+            self.fixed.clear();
+        }
+        self.fixed.resize(skeleton.len(), None);
         for j in 0..skeleton.len() {
             let limit = skeleton.prepared_limit(j);
             if matches!(limit.limit(), JointLimit::Free)
                 || (continued && self.topology.slot(j).is_none())
-                || (known && self.fixed[j])
+                || self.fixed[j] == Some(state.pose.rotations[j])
             {
                 continue;
             }
@@ -206,12 +213,24 @@ impl Common {
             // there lost warm frames of the 1 000-character batch (`docs/ik-body.md`).
             damping_cap: if pinned { f64::INFINITY } else { DAMPING_CAP },
         };
-        Ok(self.dls.run(
+        let finished = self.dls.run(
             &job,
             &mut state.pose,
             &mut state.root_translation,
             &mut state.global,
-        )?)
+        )?;
+        // The rotations its trials found to be their own projections, for the report.
+        for (&j, &q) in self
+            .topology
+            .movable()
+            .iter()
+            .zip(self.dls.fixed_rotations())
+        {
+            if q.is_some() {
+                self.fixed[j] = q;
+            }
+        }
+        Ok(finished)
     }
 
     /// The report of the pose in `state`, after forward kinematics of it from the root

@@ -309,7 +309,7 @@ pub(crate) fn finish_report(
     problem: &BodyProblem<'_>,
     targets: &[Target],
     state: &mut BodyState,
-    fixed: &mut Vec<bool>,
+    fixed: &mut Vec<Option<DQuat>>,
     initial: &[(f64, f64)],
     initial_cost: f64,
     iterations: usize,
@@ -330,14 +330,27 @@ pub(crate) fn finish_report(
             rotation: r,
         });
     }
-    // The same figure as `limit_violation`, joint by joint.
+    // The same figure as `limit_violation`, joint by joint; a rotation already known to
+    // be its own projection (by a trial's projection or an earlier report, for the same
+    // limits) has no violation, which is what `violation_and_fixed` would say of it.
     let skeleton = problem.skeleton;
-    fixed.clear();
+    fixed.resize(state.pose.rotations.len(), None);
     let mut violation: f64 = 0.0;
-    for (j, &q) in state.pose.rotations.iter().enumerate() {
+    for (j, (&q, known)) in state
+        .pose
+        .rotations
+        .iter()
+        .zip(fixed.iter_mut())
+        .enumerate()
+    {
+        if *known == Some(q) {
+            continue;
+        }
         let (v, unchanged) = skeleton.prepared_limit(j).violation_and_fixed(q);
         violation = violation.max(v);
-        fixed.push(unchanged);
+        if unchanged {
+            *known = Some(q);
+        }
     }
     BodyReport {
         iterations,

@@ -560,6 +560,9 @@ pub struct Finish {
     linearizations: usize,
     /// The cost before each step of the current run (for [`FinishJob::stall_window`]).
     history: Vec<f64>,
+    /// Per movable joint: the last rotation this run's projections returned as the
+    /// rotation given, by the quick inside test (see [`Finish::fixed_rotations`]).
+    fixed: Vec<Option<DQuat>>,
     /// Whether `dofs`, `col_start`, `first_dof` and the rows of `entries` were built for
     /// the current run (its movers and targets do not change), so that a linearization
     /// only writes the values.
@@ -703,6 +706,20 @@ impl Finish {
         self.linearizations
     }
 
+    /// Per movable joint of the last run (in the order of its movers), the last rotation
+    /// one of its trials turned the joint to that the projection returned unchanged by
+    /// its quick inside test ([`PreparedLimit::project_and_fixed`]), if any: a rotation
+    /// whose [`PreparedLimit::violation_and_fixed`] is `(0, true)`, so that a caller whose
+    /// answer holds it (compared by value) knows its violation and its projection without
+    /// measuring them again. Only for the skeleton of that run.
+    ///
+    /// [`PreparedLimit::project_and_fixed`]: crate::limits::PreparedLimit::project_and_fixed
+    /// [`PreparedLimit::violation_and_fixed`]: crate::limits::PreparedLimit::violation_and_fixed
+    #[must_use]
+    pub fn fixed_rotations(&self) -> &[Option<DQuat>] {
+        &self.fixed
+    }
+
     /// Frees every joint of the active set (which then no longer matches the factor).
     fn free_active_set(&mut self) {
         self.frozen.fill(false);
@@ -754,6 +771,8 @@ impl Finish {
             });
         }
         let movable = job.movers.movable();
+        self.fixed.clear();
+        self.fixed.resize(movable.len(), None);
         self.first_row.clear();
         let mut rows = 0;
         for t in targets {
@@ -1742,7 +1761,10 @@ impl Finish {
             if matches!(limit.limit(), JointLimit::Free) {
                 pose.rotations[j] = turned;
             } else {
-                let projected = limit.project(turned);
+                let (projected, fixed) = limit.project_and_fixed(turned);
+                if fixed {
+                    self.fixed[m] = Some(projected);
+                }
                 // A rotation inside its limit comes back unchanged; only one that moved
                 // needs its angle measured.
                 self.clamped[m] = projected != turned && moved_more_than_clamped(turned, projected);

@@ -734,6 +734,40 @@ impl PreparedLimit {
         }
     }
 
+    /// [`PreparedLimit::project`] of `q`, and whether it is `q` itself returned by the
+    /// quick inside test with `q` unit as given: exactly the case where
+    /// [`PreparedLimit::violation_and_fixed`] of the result says `(0, true)`. A solver
+    /// that projects every joint it turns learns, for the same work, which joints of its
+    /// answer need no violation measured and no projection when the next solve starts
+    /// from it. `false` says only that the quick test did not tell.
+    #[must_use]
+    pub fn project_and_fixed(&self, q: DQuat) -> (DQuat, bool) {
+        match &self.fast {
+            Fast::None => (self.limit.project(q), false),
+            Fast::Hinge { axis, range, .. } => {
+                let u = unit_quat(q).unwrap_or(DQuat::IDENTITY);
+                if quick_hinge_inside(*axis, range, u) {
+                    // `unit_quat` returns `q` itself exactly when it is unit as given.
+                    return (u, u == q);
+                }
+                let JointLimit::Hinge(h) = &self.limit else {
+                    unreachable!("a hinge's prepared parts belong to a hinge")
+                };
+                (project_hinge(h, *axis, u), false)
+            }
+            Fast::SwingTwist { frame, .. } => {
+                let u = unit_quat(q).unwrap_or(DQuat::IDENTITY);
+                if self.quick_swing_twist_inside(u) {
+                    return (u, u == q);
+                }
+                let JointLimit::SwingTwist(st) = &self.limit else {
+                    unreachable!("a swing-twist's prepared parts belong to a swing-twist")
+                };
+                (project_swing_twist(st, frame, u), false)
+            }
+        }
+    }
+
     /// Whether `q` is inside the limit by the tests [`PreparedLimit::project`] makes
     /// before it clamps (and unit to rounding, so that the projection starts from `q`
     /// itself): then the projection returns `q` to the bit. Cheaper than projecting and
@@ -1437,6 +1471,19 @@ mod tests {
                     inside * (1.0 + 1e-6),
                 ] {
                     let (violation, fixed) = prepared.violation_and_fixed(q);
+                    // The projection's own answer: the projection's bits, and said fixed
+                    // exactly when the violation's steps say so.
+                    let (projected, projected_fixed) = prepared.project_and_fixed(q);
+                    assert_eq!(
+                        bits(projected),
+                        bits(prepared.project(q)),
+                        "{limit:?}: {q:?}"
+                    );
+                    assert_eq!(projected_fixed, fixed, "{limit:?}: {q:?}");
+                    if projected_fixed {
+                        assert_eq!(bits(projected), bits(q), "{limit:?}: {q:?}");
+                        assert_eq!(prepared.violation_and_fixed(projected), (0.0, true));
+                    }
                     assert_eq!(
                         violation.to_bits(),
                         prepared.violation(q).to_bits(),
