@@ -120,7 +120,13 @@ impl Common {
         continued: bool,
         global_exact: bool,
     ) -> Result<Begin, IkError> {
-        problem.validate()?;
+        // A continued solve's problem has the structure, weights and settings of the last
+        // one, which was validated: only what moves is checked.
+        if continued {
+            problem.validate_moving()?;
+        } else {
+            problem.validate()?;
+        }
         let skeleton = problem.skeleton;
         if !state.root_translation.is_finite() {
             return Err(IkError::InvalidSettings(format!(

@@ -125,6 +125,18 @@ impl<'a> BodyProblem<'a> {
         }
         Ok(())
     }
+
+    /// [`BodyProblem::validate`] of a problem that differs from one `validate` accepted
+    /// only in its goals' positions, rotations and poles (the same skeleton, effector
+    /// joints, pins, weights, settings: a warm frame that continues a sequence, whose
+    /// solver compares all of them): the same answer, only the fields that can have
+    /// changed checked ([`EffectorGoal::validate_moving`]).
+    pub(crate) fn validate_moving(&self) -> Result<(), IkError> {
+        for (i, effector) in self.effectors.iter().enumerate() {
+            effector.goal.validate_moving(i)?;
+        }
+        Ok(())
+    }
 }
 
 /// The errors of one effector, before and after a solve.

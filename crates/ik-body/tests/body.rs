@@ -769,4 +769,25 @@ fn the_carried_answers_are_dropped_when_the_problem_the_state_or_the_skeleton_ch
     let (_, mut again, mut again_state) = squat_up_to(12);
     again.solve(&problem, &mut again_state).unwrap();
     assert_eq!(again_state, a);
+    // A frame that continues the sequence checks only what moves (the goals' positions,
+    // rotations and poles), with the same error as a fresh solver's full validation.
+    let mut bad_position = frame;
+    bad_position[1].goal.position.y = f64::NAN;
+    let mut bad_pole = frame;
+    bad_pole[3].goal.pole = Some(DVec3::new(0.0, f64::INFINITY, 0.0));
+    let mut both = bad_pole;
+    both[0].goal.position.x = f64::INFINITY;
+    for (what, effectors) in [
+        ("position", &bad_position),
+        ("pole", &bad_pole),
+        ("position before pole", &both),
+    ] {
+        let problem = BodyProblem::new(&skel, effectors, settings).with_root_translation(true);
+        let mut a = state.clone();
+        let ea = carried.clone().solve(&problem, &mut a).unwrap_err();
+        let mut b = state.clone();
+        let eb = TreeFabrikSolver::new().solve(&problem, &mut b).unwrap_err();
+        assert_eq!(ea.to_string(), eb.to_string(), "{what}");
+        assert!(matches!(ea, IkError::InvalidGoal { .. }), "{what}: {ea}");
+    }
 }
