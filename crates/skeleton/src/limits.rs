@@ -1447,6 +1447,8 @@ mod tests {
     /// The violation it returns is `violation`'s to the bit, and a rotation it says is
     /// fixed is returned by the projection to the bit (with violation 0); rotations
     /// drawn well inside are said to be fixed (the quick test takes them).
+    /// `project_and_fixed` returns the projection's bits and says fixed exactly when
+    /// `violation_and_fixed` does.
     #[test]
     fn violation_and_fixed_agrees_with_the_violation_and_the_projection() {
         let limits = five_limits();
