@@ -709,29 +709,7 @@ impl PreparedLimit {
     /// Exactly [`JointLimit::project`] of the prepared limit.
     #[must_use]
     pub fn project(&self, q: DQuat) -> DQuat {
-        match &self.fast {
-            Fast::None => self.limit.project(q),
-            Fast::Hinge { axis, range, .. } => {
-                let q = unit_quat(q).unwrap_or(DQuat::IDENTITY);
-                if quick_hinge_inside(*axis, range, q) {
-                    return q;
-                }
-                let JointLimit::Hinge(h) = &self.limit else {
-                    unreachable!("a hinge's prepared parts belong to a hinge")
-                };
-                project_hinge(h, *axis, q)
-            }
-            Fast::SwingTwist { frame, .. } => {
-                let q = unit_quat(q).unwrap_or(DQuat::IDENTITY);
-                if self.quick_swing_twist_inside(q) {
-                    return q;
-                }
-                let JointLimit::SwingTwist(st) = &self.limit else {
-                    unreachable!("a swing-twist's prepared parts belong to a swing-twist")
-                };
-                project_swing_twist(st, frame, q)
-            }
-        }
+        self.project_and_fixed(q).0
     }
 
     /// [`PreparedLimit::project`] of `q`, and whether it is `q` itself returned by the
