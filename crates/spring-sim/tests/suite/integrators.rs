@@ -534,7 +534,8 @@ fn auto_chooses_verlet_on_the_workloads() {
 
 /// The explicit force loop of a large system (W6 with damping 0.2, 10 201 particles) on
 /// threads gathers each particle's spring forces in spring order, so 1, 2 and all threads
-/// give bitwise the same steps, for velocity Verlet and symplectic Euler alike.
+/// give bitwise the same steps, for velocity Verlet and symplectic Euler alike, and for
+/// `auto`, whose explicit steps take its Newton settings' thread count.
 #[test]
 fn explicit_steps_of_w6_are_bitwise_the_same_on_one_and_two_threads() {
     let system = SpringSystem::cloth(&ClothGrid::lab_sized(101, 0.02).with_damping(0.2)).unwrap();
@@ -557,7 +558,23 @@ fn explicit_steps_of_w6_are_bitwise_the_same_on_one_and_two_threads() {
         }
         s
     };
-    for run in [&verlet as &dyn Fn(usize) -> SpringSystem, &euler] {
+    // `auto` steps W6 by velocity Verlet on its Newton settings' thread count.
+    let auto = |threads: usize| {
+        let settings = AutoSettings {
+            newton: NewtonSettings {
+                threads,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let mut sim = Simulation::new(system.clone(), Integrator::Auto(settings)).unwrap();
+        for _ in 0..3 {
+            let r = sim.step(h).unwrap();
+            assert_eq!(r.integrator, IntegratorKind::VelocityVerlet);
+        }
+        sim.system().clone()
+    };
+    for run in [&verlet as &dyn Fn(usize) -> SpringSystem, &euler, &auto] {
         let one = run(1);
         assert_ne!(one.positions(), system.positions(), "the sheet moved");
         for threads in [2, 0] {
