@@ -24,6 +24,7 @@
 //! implicit step"; the energies: "Sums kept in registers in the gathers").
 
 use super::SymBlock;
+use super::damping::kernel as damping;
 use super::springs;
 use crate::model::Spring;
 use crate::spring::Curvature;
@@ -68,23 +69,72 @@ fn plain_length(l: f64) -> bool {
     (l > 1e-150) & (l < f64::INFINITY)
 }
 
-/// The springs `range` one by one by the scalar kernels, each output written at the
+/// The axial damping term's share of the springs a kernel is given: its coefficient
+/// `c/h`, the springs' directions frozen at the step's start (one per spring given, in
+/// the same order) and the step's reference positions. The kernels add it to the
+/// springs' gradients, blocks and energy changes by the potential's fused expressions
+/// (the spring's value, then the damping's added to it).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Damping<'a> {
+    /// `c/h`.
+    pub(crate) c: f64,
+    /// The frozen directions of the springs given to the kernel.
+    pub(crate) directions: &'a [DVec3],
+    /// The reference positions `x_ref`, indexed by particle.
+    pub(crate) x_ref: &'a [DVec3],
+}
+
+impl Damping<'_> {
+    /// The placeholder the undamped instances of the loops are given (and never read).
+    const NONE: Damping<'static> = Damping {
+        c: 0.0,
+        directions: &[],
+        x_ref: &[],
+    };
+
+    /// Spring `e`'s damping gradient on its first particle (`s` the spring, `e` its
+    /// index among the springs given to the kernel), by the damping kernel.
+    #[inline(always)]
+    fn gradient(&self, s: &Spring, e: usize, x: &[DVec3]) -> DVec3 {
+        let (d, d_ref) = (x[s.a] - x[s.b], self.x_ref[s.a] - self.x_ref[s.b]);
+        damping::gradient(self.c, self.directions[e], d, d_ref)
+    }
+}
+
+/// The springs `range` one by one by the scalar kernels (with the damping's added when
+/// `DAMPED`, as the potential's fused loop adds them), each output written at the
 /// spring's own index: a batch outside the plain case, and the last short batch.
 #[inline]
-fn fill_scalar<const GRADIENT: bool, const BLOCK: bool>(
+#[allow(clippy::too_many_arguments)]
+fn fill_scalar<const GRADIENT: bool, const BLOCK: bool, const DAMPED: bool>(
     springs: &[Spring],
     range: std::ops::Range<usize>,
     x: &[DVec3],
     curvature: Curvature,
+    damped: &Damping<'_>,
     gradients: &mut [DVec3],
     blocks: &mut [SymBlock],
 ) {
     for e in range {
+        let s = &springs[e];
         if GRADIENT {
-            gradients[e] = springs::gradient(&springs[e], x);
+            gradients[e] = if DAMPED {
+                springs::gradient(s, x) + damped.gradient(s, e, x)
+            } else {
+                springs::gradient(s, x)
+            };
         }
         if BLOCK {
-            blocks[e] = springs::block(&springs[e], x, curvature);
+            let mut k = springs::block(s, x, curvature);
+            if DAMPED {
+                for (v, add) in
+                    k.0.iter_mut()
+                        .zip(damping::block(damped.c, damped.directions[e]).0)
+                {
+                    *v += add;
+                }
+            }
+            blocks[e] = k;
         }
     }
 }
@@ -112,10 +162,11 @@ fn vectors_and_lengths(batch: &[Spring], x: &[DVec3]) -> ([Lane; 3], Lane) {
 /// possibly empty): bitwise `springs::gradient` and `springs::block` per spring.
 #[cfg_attr(not(feature = "parallel"), allow(dead_code))]
 #[inline(always)]
-fn fill_lanes<const GRADIENT: bool, const BLOCK: bool>(
+fn fill_lanes<const GRADIENT: bool, const BLOCK: bool, const DAMPED: bool>(
     springs: &[Spring],
     x: &[DVec3],
     curvature: Curvature,
+    damped: &Damping<'_>,
     gradients: &mut [DVec3],
     blocks: &mut [SymBlock],
 ) {
@@ -133,19 +184,41 @@ fn fill_lanes<const GRADIENT: bool, const BLOCK: bool>(
         }
         if !plain {
             let range = first..first + LANES;
-            fill_scalar::<GRADIENT, BLOCK>(springs, range, x, curvature, gradients, blocks);
+            fill_scalar::<GRADIENT, BLOCK, DAMPED>(
+                springs, range, x, curvature, damped, gradients, blocks,
+            );
             continue;
         }
         let (rest, k) = constants(batch);
+        // The frozen directions `w`, as components.
+        let w = if DAMPED {
+            components(&damped.directions[first..first + LANES])
+        } else {
+            [[0.0; LANES]; 3]
+        };
         if GRADIENT {
             // `k (1 - L (1/l)) d`.
             let mut scale = [0.0; LANES];
             for i in 0..LANES {
                 scale[i] = k[i] * (1.0 - rest[i] * (1.0 / l[i]));
             }
+            let mut g = [[0.0; LANES]; 3];
+            for (g, d) in g.iter_mut().zip(&d) {
+                for i in 0..LANES {
+                    g[i] = scale[i] * d[i];
+                }
+            }
+            if DAMPED {
+                // `(c e) w` added, `e = w . (d - d_ref)`.
+                let e = elongations(&w, &d, &differences(batch, damped.x_ref));
+                for (g, w) in g.iter_mut().zip(&w) {
+                    for i in 0..LANES {
+                        g[i] += damped.c * e[i] * w[i];
+                    }
+                }
+            }
             for i in 0..LANES {
-                gradients[first + i] =
-                    DVec3::new(scale[i] * d[0][i], scale[i] * d[1][i], scale[i] * d[2][i]);
+                gradients[first + i] = DVec3::new(g[0][i], g[1][i], g[2][i]);
             }
         }
         if BLOCK {
@@ -183,19 +256,61 @@ fn fill_lanes<const GRADIENT: bool, const BLOCK: bool>(
             }
             let [ux, uy, uz] = &u;
             for i in 0..LANES {
-                blocks[first + i] = SymBlock([
+                let mut block = [
                     alpha[i] + beta[i] * ux[i] * ux[i],
                     beta[i] * uy[i] * ux[i],
                     beta[i] * uz[i] * ux[i],
                     alpha[i] + beta[i] * uy[i] * uy[i],
                     beta[i] * uz[i] * uy[i],
                     alpha[i] + beta[i] * uz[i] * uz[i],
-                ]);
+                ];
+                if DAMPED {
+                    // The damping's block `0 I + c w w^T` added entry by entry.
+                    let c = damped.c;
+                    let [wx, wy, wz] = [w[0][i], w[1][i], w[2][i]];
+                    let add = [
+                        0.0 + c * wx * wx,
+                        c * wy * wx,
+                        c * wz * wx,
+                        0.0 + c * wy * wy,
+                        c * wz * wy,
+                        0.0 + c * wz * wz,
+                    ];
+                    for (v, add) in block.iter_mut().zip(add) {
+                        *v += add;
+                    }
+                }
+                blocks[first + i] = SymBlock(block);
             }
         }
     }
     let tail = whole..springs.len();
-    fill_scalar::<GRADIENT, BLOCK>(springs, tail, x, curvature, gradients, blocks);
+    fill_scalar::<GRADIENT, BLOCK, DAMPED>(springs, tail, x, curvature, damped, gradients, blocks);
+}
+
+/// The elongations `e = w . (d - d_ref)` of a batch (the damping kernel's, `w`'s dot
+/// product with the difference taken component by component first).
+#[inline(always)]
+fn elongations(w: &[Lane; 3], d: &[Lane; 3], d_ref: &[Lane; 3]) -> Lane {
+    let mut e = [0.0; LANES];
+    for i in 0..LANES {
+        e[i] = w[0][i] * (d[0][i] - d_ref[0][i])
+            + w[1][i] * (d[1][i] - d_ref[1][i])
+            + w[2][i] * (d[2][i] - d_ref[2][i]);
+    }
+    e
+}
+
+/// The damping's changes `c/2 de (2 e + de)` with `de = w . delta` (the damping kernel's
+/// operations lane by lane).
+#[inline(always)]
+fn damping_changes(c: f64, w: &[Lane; 3], e: &Lane, delta: &[Lane; 3]) -> Lane {
+    let mut change = [0.0; LANES];
+    for i in 0..LANES {
+        let de = w[0][i] * delta[0][i] + w[1][i] * delta[1][i] + w[2][i] * delta[2][i];
+        change[i] = 0.5 * c * de * (2.0 * e[i] + de);
+    }
+    change
 }
 
 /// The change of each spring's energy when its vector `d` moves by `delta`, by
@@ -251,11 +366,12 @@ fn moved(delta: &[Lane; 3], i: usize) -> bool {
 /// both lengths, else the first only, the second sum then being 0), each added in
 /// spring order and skipping the springs whose move is zero: bitwise the scalar loops'.
 #[inline(always)]
-fn energy_change_lanes<const PAIR: bool>(
+fn energy_change_lanes<const PAIR: bool, const DAMPED: bool>(
     springs: &[Spring],
     x: &[DVec3],
     dx: &[DVec3],
     [a1, a2]: [f64; 2],
+    damped: &Damping<'_>,
 ) -> [f64; 2] {
     let (mut c1, mut c2) = (0.0, 0.0);
     let whole = springs.len() / LANES * LANES;
@@ -263,8 +379,21 @@ fn energy_change_lanes<const PAIR: bool>(
         let batch = &springs[first..first + LANES];
         let (d, l) = vectors_and_lengths(batch, x);
         let (rest, k) = constants(batch);
+        let (w, e) = if DAMPED {
+            let w = components(&damped.directions[first..first + LANES]);
+            let e = elongations(&w, &d, &differences(batch, damped.x_ref));
+            (w, e)
+        } else {
+            ([[0.0; LANES]; 3], [0.0; LANES])
+        };
         let delta1 = moves(batch, dx, a1);
-        let change1 = energy_changes(&d, &l, &delta1, &rest, &k);
+        let mut change1 = energy_changes(&d, &l, &delta1, &rest, &k);
+        if DAMPED {
+            let damping = damping_changes(damped.c, &w, &e, &delta1);
+            for (change, damping) in change1.iter_mut().zip(damping) {
+                *change += damping;
+            }
+        }
         for (i, change) in change1.iter().enumerate() {
             if moved(&delta1, i) {
                 c1 += change;
@@ -272,7 +401,13 @@ fn energy_change_lanes<const PAIR: bool>(
         }
         if PAIR {
             let delta2 = moves(batch, dx, a2);
-            let change2 = energy_changes(&d, &l, &delta2, &rest, &k);
+            let mut change2 = energy_changes(&d, &l, &delta2, &rest, &k);
+            if DAMPED {
+                let damping = damping_changes(damped.c, &w, &e, &delta2);
+                for (change, damping) in change2.iter_mut().zip(damping) {
+                    *change += damping;
+                }
+            }
             for (i, change) in change2.iter().enumerate() {
                 if moved(&delta2, i) {
                     c2 += change;
@@ -280,29 +415,46 @@ fn energy_change_lanes<const PAIR: bool>(
             }
         }
     }
-    energy_change_tail::<PAIR>(&springs[whole..], x, dx, [a1, a2], [c1, c2])
+    let (tail, directions) = (
+        &springs[whole..],
+        &damped.directions[whole.min(damped.directions.len())..],
+    );
+    energy_change_tail::<PAIR, DAMPED>(tail, x, dx, [a1, a2], [c1, c2], damped, directions)
 }
 
 /// The sums `sums` continued over the springs `rest` (fewer than a batch) one at a
-/// time by the scalar kernel.
+/// time by the scalar kernels (the damping's change added to the spring's when
+/// `DAMPED`, `directions` being the springs' `rest`'s).
 #[inline(always)]
-fn energy_change_tail<const PAIR: bool>(
+fn energy_change_tail<const PAIR: bool, const DAMPED: bool>(
     rest: &[Spring],
     x: &[DVec3],
     dx: &[DVec3],
     [a1, a2]: [f64; 2],
     [mut c1, mut c2]: [f64; 2],
+    damped: &Damping<'_>,
+    directions: &[DVec3],
 ) -> [f64; 2] {
-    for s in rest {
+    let change = |j: usize, s: &Spring, delta: DVec3| {
+        if DAMPED {
+            let d = x[s.a] - x[s.b];
+            let d_ref = damped.x_ref[s.a] - damped.x_ref[s.b];
+            springs::energy_change(s, x, delta)
+                + damping::energy_change(damped.c, directions[j], d, d_ref, delta)
+        } else {
+            springs::energy_change(s, x, delta)
+        }
+    };
+    for (j, s) in rest.iter().enumerate() {
         let (da, db) = (dx[s.a], dx[s.b]);
         let delta1 = a1 * da - a1 * db;
         if delta1 != DVec3::ZERO {
-            c1 += springs::energy_change(s, x, delta1);
+            c1 += change(j, s, delta1);
         }
         if PAIR {
             let delta2 = a2 * da - a2 * db;
             if delta2 != DVec3::ZERO {
-                c2 += springs::energy_change(s, x, delta2);
+                c2 += change(j, s, delta2);
             }
         }
     }
@@ -356,6 +508,16 @@ fn differences(batch: &[Spring], v: &[DVec3]) -> [Lane; 3] {
     d
 }
 
+/// The first [`LANES`] vectors of `v` as components, lane `i` being `v[i]`.
+#[inline(always)]
+fn components(v: &[DVec3]) -> [Lane; 3] {
+    let mut c = [[0.0; LANES]; 3];
+    for (i, v) in v.iter().enumerate().take(LANES) {
+        (c[0][i], c[1][i], c[2][i]) = (v.x, v.y, v.z);
+    }
+    c
+}
+
 /// Per lane `v[s.a]` and `v[s.b]` of `batch`'s springs, as components.
 #[inline(always)]
 fn ends(batch: &[Spring], v: &[DVec3]) -> ([Lane; 3], [Lane; 3]) {
@@ -374,7 +536,7 @@ fn ends(batch: &[Spring], v: &[DVec3]) -> ([Lane; 3], [Lane; 3]) {
 /// loops' divisions in pairs and singles when compiled for AVX2).
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
-    use super::{Curvature, DVec3, LANES, Lane, Spring, SymBlock};
+    use super::{Curvature, DVec3, Damping, LANES, Lane, Spring, SymBlock};
     use std::arch::x86_64::{
         __m256d, _CMP_EQ_OQ, _CMP_GT_OQ, _CMP_LT_OQ, _CMP_NEQ_UQ, _mm256_add_pd, _mm256_and_pd,
         _mm256_andnot_pd, _mm256_cmp_pd, _mm256_cvtsd_f64, _mm256_div_pd, _mm256_max_pd,
@@ -408,6 +570,31 @@ mod avx2 {
     fn differences(batch: &[Spring], v: &[DVec3]) -> [__m256d; 3] {
         let [x, y, z] = super::differences(batch, v);
         [load(x), load(y), load(z)]
+    }
+
+    /// The first four vectors of `v` as three registers of components.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn components(v: &[DVec3]) -> [__m256d; 3] {
+        let [x, y, z] = super::components(v);
+        [load(x), load(y), load(z)]
+    }
+
+    /// `w . (d - d_ref)` per lane, the damping kernel's elongation.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn elongation(
+        [wx, wy, wz]: [__m256d; 3],
+        [dx, dy, dz]: [__m256d; 3],
+        r: [__m256d; 3],
+    ) -> __m256d {
+        _mm256_add_pd(
+            _mm256_add_pd(
+                _mm256_mul_pd(wx, _mm256_sub_pd(dx, r[0])),
+                _mm256_mul_pd(wy, _mm256_sub_pd(dy, r[1])),
+            ),
+            _mm256_mul_pd(wz, _mm256_sub_pd(dz, r[2])),
+        )
     }
 
     /// The rest lengths and stiffnesses of `batch`'s springs.
@@ -446,13 +633,15 @@ mod avx2 {
     /// [`super::fill_lanes`] in 256-bit registers.
     #[cfg_attr(not(feature = "parallel"), allow(dead_code))]
     #[target_feature(enable = "avx2")]
-    pub(super) fn fill<const GRADIENT: bool, const BLOCK: bool>(
+    pub(super) fn fill<const GRADIENT: bool, const BLOCK: bool, const DAMPED: bool>(
         springs: &[Spring],
         x: &[DVec3],
         curvature: Curvature,
+        damped: &Damping<'_>,
         gradients: &mut [DVec3],
         blocks: &mut [SymBlock],
     ) {
+        let c = _mm256_set1_pd(damped.c);
         let (one, zero) = (_mm256_set1_pd(1.0), _mm256_setzero_pd());
         let (tiny, infinity) = (_mm256_set1_pd(1e-150), _mm256_set1_pd(f64::INFINITY));
         let whole = springs.len() / LANES * LANES;
@@ -471,17 +660,33 @@ mod avx2 {
             }
             if bits(plain) != 0b1111 {
                 let range = first..first + LANES;
-                super::fill_scalar::<GRADIENT, BLOCK>(
-                    springs, range, x, curvature, gradients, blocks,
+                super::fill_scalar::<GRADIENT, BLOCK, DAMPED>(
+                    springs, range, x, curvature, damped, gradients, blocks,
                 );
                 continue;
             }
+            let w = if DAMPED {
+                components(&damped.directions[first..first + LANES])
+            } else {
+                [zero; 3]
+            };
             if GRADIENT {
                 let inverse = _mm256_div_pd(one, l);
                 let scale = _mm256_mul_pd(k, _mm256_sub_pd(one, _mm256_mul_pd(rest, inverse)));
-                let gx = lanes(_mm256_mul_pd(scale, dx));
-                let gy = lanes(_mm256_mul_pd(scale, dy));
-                let gz = lanes(_mm256_mul_pd(scale, dz));
+                let mut g = [
+                    _mm256_mul_pd(scale, dx),
+                    _mm256_mul_pd(scale, dy),
+                    _mm256_mul_pd(scale, dz),
+                ];
+                if DAMPED {
+                    // `(c e) w` added.
+                    let e = elongation(w, d, differences(batch, damped.x_ref));
+                    let ce = _mm256_mul_pd(c, e);
+                    for (g, w) in g.iter_mut().zip(w) {
+                        *g = _mm256_add_pd(*g, _mm256_mul_pd(ce, w));
+                    }
+                }
+                let [gx, gy, gz] = g.map(|g| lanes(g));
                 for i in 0..LANES {
                     gradients[first + i] = DVec3::new(gx[i], gy[i], gz[i]);
                 }
@@ -510,19 +715,44 @@ mod avx2 {
                     _mm256_mul_pd(beta, uy),
                     _mm256_mul_pd(beta, uz),
                 );
-                let xx = lanes(_mm256_add_pd(alpha, _mm256_mul_pd(bx, ux)));
-                let yx = lanes(_mm256_mul_pd(by, ux));
-                let zx = lanes(_mm256_mul_pd(bz, ux));
-                let yy = lanes(_mm256_add_pd(alpha, _mm256_mul_pd(by, uy)));
-                let zy = lanes(_mm256_mul_pd(bz, uy));
-                let zz = lanes(_mm256_add_pd(alpha, _mm256_mul_pd(bz, uz)));
+                let mut entries = [
+                    _mm256_add_pd(alpha, _mm256_mul_pd(bx, ux)),
+                    _mm256_mul_pd(by, ux),
+                    _mm256_mul_pd(bz, ux),
+                    _mm256_add_pd(alpha, _mm256_mul_pd(by, uy)),
+                    _mm256_mul_pd(bz, uy),
+                    _mm256_add_pd(alpha, _mm256_mul_pd(bz, uz)),
+                ];
+                if DAMPED {
+                    // The damping's block `0 I + c w w^T` added entry by entry.
+                    let [wx, wy, wz] = w;
+                    let (cx, cy, cz) = (
+                        _mm256_mul_pd(c, wx),
+                        _mm256_mul_pd(c, wy),
+                        _mm256_mul_pd(c, wz),
+                    );
+                    let add = [
+                        _mm256_add_pd(zero, _mm256_mul_pd(cx, wx)),
+                        _mm256_mul_pd(cy, wx),
+                        _mm256_mul_pd(cz, wx),
+                        _mm256_add_pd(zero, _mm256_mul_pd(cy, wy)),
+                        _mm256_mul_pd(cz, wy),
+                        _mm256_add_pd(zero, _mm256_mul_pd(cz, wz)),
+                    ];
+                    for (v, add) in entries.iter_mut().zip(add) {
+                        *v = _mm256_add_pd(*v, add);
+                    }
+                }
+                let [xx, yx, zx, yy, zy, zz] = entries.map(|v| lanes(v));
                 for i in 0..LANES {
                     blocks[first + i] = SymBlock([xx[i], yx[i], zx[i], yy[i], zy[i], zz[i]]);
                 }
             }
         }
         let tail = whole..springs.len();
-        super::fill_scalar::<GRADIENT, BLOCK>(springs, tail, x, curvature, gradients, blocks);
+        super::fill_scalar::<GRADIENT, BLOCK, DAMPED>(
+            springs, tail, x, curvature, damped, gradients, blocks,
+        );
     }
 
     /// The changes of a batch's energies along the moves `alpha (dx_a - dx_b)` (as
@@ -537,6 +767,7 @@ mod avx2 {
         l: __m256d,
         half_k: __m256d,
         twice_rest: __m256d,
+        damping: Option<([__m256d; 3], __m256d, __m256d)>,
     ) -> (Lane, i32) {
         let (zero, two) = (_mm256_setzero_pd(), _mm256_set1_pd(2.0));
         let a = _mm256_set1_pd(alpha);
@@ -568,20 +799,35 @@ mod avx2 {
         let dl = _mm256_div_pd(dot, sum);
         let change = _mm256_mul_pd(_mm256_mul_pd(half_k, dl), _mm256_sub_pd(sum, twice_rest));
         // Both lengths zero: the scalar kernel's 0 (`andnot` clears those lanes to +0).
-        let change = _mm256_andnot_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(sum, zero), change);
+        let mut change = _mm256_andnot_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(sum, zero), change);
+        if let Some(([wx, wy, wz], e, half_c)) = damping {
+            // The damping's `((c/2) de) (2 e + de)`, `de = w . delta`, added.
+            let de = _mm256_add_pd(
+                _mm256_add_pd(_mm256_mul_pd(wx, ex), _mm256_mul_pd(wy, ey)),
+                _mm256_mul_pd(wz, ez),
+            );
+            let damping = _mm256_mul_pd(
+                _mm256_mul_pd(half_c, de),
+                _mm256_add_pd(_mm256_mul_pd(two, e), de),
+            );
+            change = _mm256_add_pd(change, damping);
+        }
         (lanes(change), moved)
     }
 
     /// [`super::energy_change_lanes`] in 256-bit registers.
     #[target_feature(enable = "avx2")]
-    pub(super) fn energy_change<const PAIR: bool>(
+    pub(super) fn energy_change<const PAIR: bool, const DAMPED: bool>(
         springs: &[Spring],
         x: &[DVec3],
         dx: &[DVec3],
         [a1, a2]: [f64; 2],
+        damped: &Damping<'_>,
     ) -> [f64; 2] {
         let (mut c1, mut c2) = (0.0, 0.0);
         let (half, two) = (_mm256_set1_pd(0.5), _mm256_set1_pd(2.0));
+        // `0.5 c`, the damping kernel's first product.
+        let half_c = _mm256_set1_pd(0.5 * damped.c);
         let whole = springs.len() / LANES * LANES;
         for first in (0..whole).step_by(LANES) {
             let batch = &springs[first..first + LANES];
@@ -595,14 +841,22 @@ mod avx2 {
                 [load(da[0]), load(da[1]), load(da[2])],
                 [load(db[0]), load(db[1]), load(db[2])],
             );
-            let (change, moved) = changes(a1, moves, d, l, half_k, twice_rest);
+            let damping = DAMPED.then(|| {
+                let w = components(&damped.directions[first..first + LANES]);
+                (
+                    w,
+                    elongation(w, d, differences(batch, damped.x_ref)),
+                    half_c,
+                )
+            });
+            let (change, moved) = changes(a1, moves, d, l, half_k, twice_rest, damping);
             for (i, change) in change.iter().enumerate() {
                 if moved & (1 << i) != 0 {
                     c1 += change;
                 }
             }
             if PAIR {
-                let (change, moved) = changes(a2, moves, d, l, half_k, twice_rest);
+                let (change, moved) = changes(a2, moves, d, l, half_k, twice_rest, damping);
                 for (i, change) in change.iter().enumerate() {
                     if moved & (1 << i) != 0 {
                         c2 += change;
@@ -610,7 +864,10 @@ mod avx2 {
                 }
             }
         }
-        super::energy_change_tail::<PAIR>(&springs[whole..], x, dx, [a1, a2], [c1, c2])
+        let tail = &springs[whole..];
+        let directions = &damped.directions[whole.min(damped.directions.len())..];
+        let sums = [c1, c2];
+        super::energy_change_tail::<PAIR, DAMPED>(tail, x, dx, [a1, a2], sums, damped, directions)
     }
 
     /// [`super::energies_lanes`] in 256-bit registers.
@@ -633,16 +890,20 @@ mod avx2 {
     }
 }
 
-/// [`fill_lanes`] in the instance `instance` selects.
+/// [`fill_lanes`] in the instance `instance` selects, damped or not.
 #[cfg_attr(not(feature = "parallel"), allow(dead_code))]
 fn fill<const GRADIENT: bool, const BLOCK: bool>(
     instance: Instance,
     springs: &[Spring],
     x: &[DVec3],
     curvature: Curvature,
+    damping: Option<Damping<'_>>,
     gradients: &mut [DVec3],
     blocks: &mut [SymBlock],
 ) {
+    if let Some(d) = &damping {
+        assert_eq!(d.directions.len(), springs.len());
+    }
     #[cfg(target_arch = "x86_64")]
     if instance.avx2() {
         // SAFETY: `Instance::avx2` is true only when `is_x86_feature_detected!("avx2")`
@@ -650,39 +911,66 @@ fn fill<const GRADIENT: bool, const BLOCK: bool>(
         // AVX2 requires to be called.
         #[allow(unsafe_code)]
         unsafe {
-            avx2::fill::<GRADIENT, BLOCK>(springs, x, curvature, gradients, blocks);
+            match &damping {
+                Some(d) => {
+                    avx2::fill::<GRADIENT, BLOCK, true>(springs, x, curvature, d, gradients, blocks)
+                }
+                None => avx2::fill::<GRADIENT, BLOCK, false>(
+                    springs,
+                    x,
+                    curvature,
+                    &Damping::NONE,
+                    gradients,
+                    blocks,
+                ),
+            }
         }
         return;
     }
     let _ = instance;
-    fill_lanes::<GRADIENT, BLOCK>(springs, x, curvature, gradients, blocks);
+    match &damping {
+        Some(d) => fill_lanes::<GRADIENT, BLOCK, true>(springs, x, curvature, d, gradients, blocks),
+        None => fill_lanes::<GRADIENT, BLOCK, false>(
+            springs,
+            x,
+            curvature,
+            &Damping::NONE,
+            gradients,
+            blocks,
+        ),
+    }
 }
 
-/// Each spring's gradient on its first particle at `x` into `gradients` (as long as
-/// `springs`): bitwise `springs::gradient` per spring.
+/// Each spring's gradient on its first particle at `x` (with its damping's added when
+/// `damping` is given) into `gradients` (as long as `springs`): bitwise the potential's
+/// per-spring expressions (`springs::gradient`, plus the damping kernel's gradient).
 #[cfg_attr(not(feature = "parallel"), allow(dead_code))]
 pub(crate) fn gradients(
     instance: Instance,
     springs: &[Spring],
     x: &[DVec3],
+    damping: Option<Damping<'_>>,
     gradients: &mut [DVec3],
 ) {
     assert_eq!(gradients.len(), springs.len());
-    fill::<true, false>(instance, springs, x, Curvature::Clamped, gradients, &mut []);
+    let curvature = Curvature::Clamped;
+    fill::<true, false>(instance, springs, x, curvature, damping, gradients, &mut []);
 }
 
-/// Each spring's block at `x` in the form `curvature` asks for into `blocks` (as long
-/// as `springs`): bitwise `springs::block` per spring.
+/// Each spring's block at `x` in the form `curvature` asks for (with its damping's
+/// block added when `damping` is given) into `blocks` (as long as `springs`): bitwise
+/// `springs::block` per spring, plus the damping kernel's block entry by entry.
 #[cfg_attr(not(feature = "parallel"), allow(dead_code))]
 pub(crate) fn blocks(
     instance: Instance,
     springs: &[Spring],
     x: &[DVec3],
     curvature: Curvature,
+    damping: Option<Damping<'_>>,
     blocks: &mut [SymBlock],
 ) {
     assert_eq!(blocks.len(), springs.len());
-    fill::<false, true>(instance, springs, x, curvature, &mut [], blocks);
+    fill::<false, true>(instance, springs, x, curvature, damping, &mut [], blocks);
 }
 
 /// [`gradients`] and [`blocks`] in one pass over the springs.
@@ -692,44 +980,57 @@ pub(crate) fn gradients_and_blocks(
     springs: &[Spring],
     x: &[DVec3],
     curvature: Curvature,
+    damping: Option<Damping<'_>>,
     gradients: &mut [DVec3],
     blocks: &mut [SymBlock],
 ) {
     assert_eq!(gradients.len(), springs.len());
     assert_eq!(blocks.len(), springs.len());
-    fill::<true, true>(instance, springs, x, curvature, gradients, blocks);
+    fill::<true, true>(instance, springs, x, curvature, damping, gradients, blocks);
 }
 
-/// [`energy_change_lanes`] in the instance `instance` selects.
+/// [`energy_change_lanes`] in the instance `instance` selects, damped or not.
 fn energy_change<const PAIR: bool>(
     instance: Instance,
     springs: &[Spring],
     x: &[DVec3],
     dx: &[DVec3],
     alphas: [f64; 2],
+    damping: Option<Damping<'_>>,
 ) -> [f64; 2] {
+    if let Some(d) = &damping {
+        assert_eq!(d.directions.len(), springs.len());
+    }
     #[cfg(target_arch = "x86_64")]
     if instance.avx2() {
         // SAFETY: as in `fill`: the feature was reported on this processor.
         #[allow(unsafe_code)]
         unsafe {
-            return avx2::energy_change::<PAIR>(springs, x, dx, alphas);
+            return match &damping {
+                Some(d) => avx2::energy_change::<PAIR, true>(springs, x, dx, alphas, d),
+                None => avx2::energy_change::<PAIR, false>(springs, x, dx, alphas, &Damping::NONE),
+            };
         }
     }
     let _ = instance;
-    energy_change_lanes::<PAIR>(springs, x, dx, alphas)
+    match &damping {
+        Some(d) => energy_change_lanes::<PAIR, true>(springs, x, dx, alphas, d),
+        None => energy_change_lanes::<PAIR, false>(springs, x, dx, alphas, &Damping::NONE),
+    }
 }
 
 /// The sum over `springs`, in their order, of their energies' changes along
-/// `alpha dx`, skipping the springs whose move is zero: bitwise the scalar loop's.
+/// `alpha dx` (each with its damping's change added when `damping` is given), skipping
+/// the springs whose move is zero: bitwise the scalar loop's.
 pub(crate) fn energy_change_sum(
     instance: Instance,
     springs: &[Spring],
     x: &[DVec3],
     dx: &[DVec3],
     alpha: f64,
+    damping: Option<Damping<'_>>,
 ) -> f64 {
-    energy_change::<false>(instance, springs, x, dx, [alpha, 0.0])[0]
+    energy_change::<false>(instance, springs, x, dx, [alpha, 0.0], damping)[0]
 }
 
 /// [`energy_change_sum`] at two step lengths in one pass over the springs.
@@ -739,8 +1040,9 @@ pub(crate) fn energy_change_pair_sum(
     x: &[DVec3],
     dx: &[DVec3],
     alphas: [f64; 2],
+    damping: Option<Damping<'_>>,
 ) -> [f64; 2] {
-    energy_change::<true>(instance, springs, x, dx, alphas)
+    energy_change::<true>(instance, springs, x, dx, alphas, damping)
 }
 
 /// Each spring's energy at `x` into `energies` (as long as `springs`): bitwise
@@ -874,7 +1176,7 @@ mod tests {
                 .collect();
             for instance in instances() {
                 let mut g = vec![DVec3::splat(f64::NAN); n];
-                gradients(instance, springs, &x, &mut g);
+                gradients(instance, springs, &x, None, &mut g);
                 let lanes: Vec<f64> = g.iter().flat_map(|g| g.to_array()).collect();
                 assert_eq!(bits(&lanes), bits(&scalar), "{n} {instance:?}");
                 for curvature in curvatures {
@@ -883,12 +1185,12 @@ mod tests {
                         .flat_map(|s| springs::block(s, &x, curvature).0)
                         .collect();
                     let mut b = vec![SymBlock([f64::NAN; 6]); n];
-                    blocks(instance, springs, &x, curvature, &mut b);
+                    blocks(instance, springs, &x, curvature, None, &mut b);
                     let lanes: Vec<f64> = b.iter().flat_map(|b| b.0).collect();
                     assert_eq!(bits(&lanes), bits(&scalar_blocks), "{n} {curvature:?}");
                     let mut g = vec![DVec3::splat(f64::NAN); n];
                     let mut b = vec![SymBlock([f64::NAN; 6]); n];
-                    gradients_and_blocks(instance, springs, &x, curvature, &mut g, &mut b);
+                    gradients_and_blocks(instance, springs, &x, curvature, None, &mut g, &mut b);
                     let lanes: Vec<f64> = b.iter().flat_map(|b| b.0).collect();
                     assert_eq!(bits(&lanes), bits(&scalar_blocks), "{n} {curvature:?}");
                     let lanes: Vec<f64> = g.iter().flat_map(|g| g.to_array()).collect();
@@ -957,12 +1259,160 @@ mod tests {
             for [a1, a2] in [[1.0, 2.0], [0.5, 0.25], [1.0, 0.0], [0.0, -1.0]] {
                 let scalar = [a1, a2].map(|a| scalar_change(springs, &x, &dx, a));
                 for instance in instances() {
-                    let pair = energy_change_pair_sum(instance, springs, &x, &dx, [a1, a2]);
+                    let pair = energy_change_pair_sum(instance, springs, &x, &dx, [a1, a2], None);
                     assert_eq!(pair.map(f64::to_bits), scalar.map(f64::to_bits), "{n} {a1}");
-                    let single = energy_change_sum(instance, springs, &x, &dx, a1);
+                    let single = energy_change_sum(instance, springs, &x, &dx, a1, None);
                     assert_eq!(single.to_bits(), scalar[0].to_bits(), "{n} {a1}");
                 }
             }
         }
+    }
+
+    /// The damping of the cases' springs: a coefficient, directions that are unit
+    /// vectors, zero (a zero-length spring's) and of other lengths (the kernels take any
+    /// vector), and reference positions away from `x`, equal to it at some particles.
+    fn damping_of(x: &[DVec3], springs: &[Spring]) -> (f64, Vec<DVec3>, Vec<DVec3>) {
+        let directions = springs
+            .iter()
+            .enumerate()
+            .map(|(e, s)| match e % 5 {
+                0 => DVec3::ZERO,
+                1 => DVec3::new(0.3, -1.7, 0.25),
+                _ => crate::spring::damping_direction(x[s.a], x[s.b]),
+            })
+            .collect();
+        let x_ref = x
+            .iter()
+            .enumerate()
+            .map(|(i, &p)| {
+                let t = i as f64;
+                if i % 4 == 0 {
+                    p
+                } else {
+                    p + DVec3::new(0.02 * (1.1 * t).cos(), -0.01 * t.sin(), 0.003 * t)
+                }
+            })
+            .collect();
+        (3.7, directions, x_ref)
+    }
+
+    /// Every prefix of the cases in both instances, with damping: the gradients and
+    /// blocks (every form, alone and together) bitwise the potential's fused per-spring
+    /// expressions, the spring kernel's value plus the damping kernel's.
+    #[test]
+    fn damped_gradients_and_blocks_are_bitwise_the_scalar_kernels() {
+        let (x, springs) = cases();
+        let (c, directions, x_ref) = damping_of(&x, &springs);
+        let curvatures = [
+            Curvature::Exact,
+            Curvature::Clamped,
+            Curvature::Softened(0.3),
+            Curvature::ExactContact(0.7),
+        ];
+        let scalar_gradient = |e: usize| {
+            let s = &springs[e];
+            let (d, d_ref) = (x[s.a] - x[s.b], x_ref[s.a] - x_ref[s.b]);
+            springs::gradient(s, &x) + damping::gradient(c, directions[e], d, d_ref)
+        };
+        let scalar_block = |e: usize, curvature| {
+            let mut k = springs::block(&springs[e], &x, curvature);
+            for (v, add) in k.0.iter_mut().zip(damping::block(c, directions[e]).0) {
+                *v += add;
+            }
+            k
+        };
+        for n in 0..=springs.len() {
+            let damped = Some(Damping {
+                c,
+                directions: &directions[..n],
+                x_ref: &x_ref,
+            });
+            let springs = &springs[..n];
+            let scalar: Vec<f64> = (0..n).flat_map(|e| scalar_gradient(e).to_array()).collect();
+            for instance in instances() {
+                let mut g = vec![DVec3::splat(f64::NAN); n];
+                gradients(instance, springs, &x, damped, &mut g);
+                let lanes: Vec<f64> = g.iter().flat_map(|g| g.to_array()).collect();
+                assert_eq!(bits(&lanes), bits(&scalar), "{n} {instance:?}");
+                for curvature in curvatures {
+                    let scalar_blocks: Vec<f64> =
+                        (0..n).flat_map(|e| scalar_block(e, curvature).0).collect();
+                    let mut b = vec![SymBlock([f64::NAN; 6]); n];
+                    blocks(instance, springs, &x, curvature, damped, &mut b);
+                    let lanes: Vec<f64> = b.iter().flat_map(|b| b.0).collect();
+                    assert_eq!(bits(&lanes), bits(&scalar_blocks), "{n} {curvature:?}");
+                    let mut g = vec![DVec3::splat(f64::NAN); n];
+                    let mut b = vec![SymBlock([f64::NAN; 6]); n];
+                    gradients_and_blocks(instance, springs, &x, curvature, damped, &mut g, &mut b);
+                    let lanes: Vec<f64> = b.iter().flat_map(|b| b.0).collect();
+                    assert_eq!(bits(&lanes), bits(&scalar_blocks), "{n} {curvature:?}");
+                    let lanes: Vec<f64> = g.iter().flat_map(|g| g.to_array()).collect();
+                    assert_eq!(bits(&lanes), bits(&scalar), "{n} {curvature:?}");
+                }
+            }
+        }
+        // The damping is not zero on the springs of the plain batches: the comparison
+        // sees its terms.
+        let e = 2;
+        assert_ne!(
+            scalar_gradient(e).to_array().map(f64::to_bits),
+            springs::gradient(&springs[e], &x)
+                .to_array()
+                .map(f64::to_bits)
+        );
+    }
+
+    /// Every prefix of the cases with a finite length in both instances, with damping, at
+    /// one and two step lengths: bitwise the scalar loop of the fused potential (each
+    /// moved spring's change plus its damping's, added in spring order).
+    #[test]
+    fn damped_energy_changes_are_bitwise_the_scalar_loop() {
+        let (x, mut springs) = cases();
+        springs.retain(|s| (x[s.a] - x[s.b]).length().is_finite());
+        let (c, directions, x_ref) = damping_of(&x, &springs);
+        let dx: Vec<DVec3> = (0..x.len())
+            .map(|i| {
+                let t = i as f64;
+                if i % 3 == 0 {
+                    DVec3::ZERO
+                } else {
+                    DVec3::new(0.01 * (2.3 * t).sin(), 0.02 * (0.4 * t).cos(), -0.003 * t)
+                }
+            })
+            .collect();
+        let scalar_change = |n: usize, alpha: f64| {
+            let mut change = 0.0;
+            for (s, &w) in springs[..n].iter().zip(&directions) {
+                let delta = alpha * dx[s.a] - alpha * dx[s.b];
+                if delta == DVec3::ZERO {
+                    continue;
+                }
+                let (d, d_ref) = (x[s.a] - x[s.b], x_ref[s.a] - x_ref[s.b]);
+                change += springs::energy_change(s, &x, delta)
+                    + damping::energy_change(c, w, d, d_ref, delta);
+            }
+            change
+        };
+        for n in 0..=springs.len() {
+            let damped = Some(Damping {
+                c,
+                directions: &directions[..n],
+                x_ref: &x_ref,
+            });
+            for [a1, a2] in [[1.0, 2.0], [0.5, 0.25], [1.0, 0.0], [0.0, -1.0]] {
+                let scalar = [a1, a2].map(|a| scalar_change(n, a));
+                for instance in instances() {
+                    let s = &springs[..n];
+                    let pair = energy_change_pair_sum(instance, s, &x, &dx, [a1, a2], damped);
+                    assert_eq!(pair.map(f64::to_bits), scalar.map(f64::to_bits), "{n} {a1}");
+                    let single = energy_change_sum(instance, s, &x, &dx, a1, damped);
+                    assert_eq!(single.to_bits(), scalar[0].to_bits(), "{n} {a1}");
+                }
+            }
+        }
+        // The damping changes the sums the comparison checks.
+        let n = springs.len();
+        let undamped = energy_change_sum(Instance::Detect, &springs, &x, &dx, 1.0, None);
+        assert_ne!(undamped.to_bits(), scalar_change(n, 1.0).to_bits());
     }
 }

@@ -39,17 +39,6 @@ const PARTICLE_CHUNK: usize = 512;
 /// Marks a spring whose coupling block is not in the gathering particle's columns.
 const NO_COUPLING: u32 = u32::MAX;
 
-/// `out[e] = per_spring(e)` for every spring `e`, on the current thread pool in fixed
-/// chunks of `SPRING_CHUNK` when `par`, else in order on the calling thread (each value
-/// is computed alone, so neither changes a bit).
-fn fill_per_spring<T: Send>(par: bool, out: &mut [T], per_spring: impl Fn(usize) -> T + Sync) {
-    fill_spring_chunks(par, out, |first, chunk| {
-        for (i, value) in chunk.iter_mut().enumerate() {
-            *value = per_spring(first + i);
-        }
-    });
-}
-
 /// `fill(first, chunk)` for the chunks of `SPRING_CHUNK` springs of `out` (`first`: the
 /// chunk's first spring), on the current thread pool when `par`, else in order on the
 /// calling thread.
@@ -81,20 +70,6 @@ fn fill_spring_chunk_pairs<A: Send, B: Send>(
             .enumerate()
             .for_each(fill);
     }
-}
-
-/// [`fill_per_spring`] of two values per spring at once, `(a[e], b[e]) = per_spring(e)`.
-fn fill_per_spring_pair<A: Send, B: Send>(
-    par: bool,
-    a: &mut [A],
-    b: &mut [B],
-    per_spring: impl Fn(usize) -> (A, B) + Sync,
-) {
-    fill_spring_chunk_pairs(par, a, b, |first, a, b| {
-        for (i, (a, b)) in a.iter_mut().zip(b.iter_mut()).enumerate() {
-            (*a, *b) = per_spring(first + i);
-        }
-    });
 }
 
 /// `f(c, chunk)` for the chunks of `PARTICLE_CHUNK` of `data`, on the current thread
@@ -283,63 +258,52 @@ impl SpringGather {
                 potential.terms[t].add_gradient(step, x, gradient);
             }
             let springs = step.system.springs();
-            if per.damping.is_none() {
-                // Undamped, a chunk's gradients (and blocks) four springs at a time into
-                // their buffers, then the chunk's scatter in spring order: the same
-                // additions in the same order.
-                for first in (0..springs.len()).step_by(SPRING_CHUNK) {
-                    let range = first..(first + SPRING_CHUNK).min(springs.len());
-                    let chunk = &springs[range.clone()];
-                    let g = &mut self.gradients[range.clone()];
-                    match blocks {
-                        Some(curvature) => lanes::gradients_and_blocks(
-                            Instance::Detect,
-                            chunk,
-                            x,
-                            curvature,
-                            g,
-                            &mut self.blocks[range],
-                        ),
-                        None => lanes::gradients(Instance::Detect, chunk, x, g),
-                    }
-                    for (s, &g) in chunk.iter().zip(&*g) {
-                        gradient[s.a] += g;
-                        gradient[s.b] -= g;
-                    }
+            // A chunk's gradients (and blocks) four springs at a time into their
+            // buffers (the damping's added to each spring's), then the chunk's scatter
+            // in spring order: the same additions in the same order.
+            for first in (0..springs.len()).step_by(SPRING_CHUNK) {
+                let range = first..(first + SPRING_CHUNK).min(springs.len());
+                let chunk = &springs[range.clone()];
+                let damping = per.lanes_damping(step, range.clone());
+                let g = &mut self.gradients[range.clone()];
+                match blocks {
+                    Some(curvature) => lanes::gradients_and_blocks(
+                        Instance::Detect,
+                        chunk,
+                        x,
+                        curvature,
+                        damping,
+                        g,
+                        &mut self.blocks[range],
+                    ),
+                    None => lanes::gradients(Instance::Detect, chunk, x, damping, g),
                 }
-                return blocks.is_some();
-            }
-            for (e, s) in springs.iter().enumerate() {
-                let g = per.spring_gradient(step, x, e);
-                gradient[s.a] += g;
-                gradient[s.b] -= g;
-                if let Some(curvature) = blocks {
-                    self.blocks[e] = per.spring_block(step, x, curvature, e);
+                for (s, &g) in chunk.iter().zip(&*g) {
+                    gradient[s.a] += g;
+                    gradient[s.b] -= g;
                 }
             }
             return blocks.is_some();
         }
         let (springs, block_buffer) = (&mut self.gradients, &mut self.blocks);
         let all = step.system.springs();
-        let undamped = per.damping.is_none();
+        // Four springs at a time (`lanes`, the damping's added to each spring's), the
+        // same bits.
         let mut spring_pass = move || match blocks {
-            // Undamped, four springs at a time (`lanes`), the same bits.
-            Some(curvature) if undamped => {
+            Some(curvature) => {
                 fill_spring_chunk_pairs(par, springs, block_buffer, |first, g, b| {
-                    let chunk = &all[first..first + g.len()];
-                    lanes::gradients_and_blocks(Instance::Detect, chunk, x, curvature, g, b);
+                    let range = first..first + g.len();
+                    let damping = per.lanes_damping(step, range.clone());
+                    let chunk = &all[range];
+                    let i = Instance::Detect;
+                    lanes::gradients_and_blocks(i, chunk, x, curvature, damping, g, b);
                 });
             }
-            Some(curvature) => fill_per_spring_pair(par, springs, block_buffer, |e| {
-                (
-                    per.spring_gradient(step, x, e),
-                    per.spring_block(step, x, curvature, e),
-                )
+            None => fill_spring_chunks(par, springs, |first, g| {
+                let range = first..first + g.len();
+                let damping = per.lanes_damping(step, range.clone());
+                lanes::gradients(Instance::Detect, &all[range], x, damping, g);
             }),
-            None if undamped => fill_spring_chunks(par, springs, |first, g| {
-                lanes::gradients(Instance::Detect, &all[first..first + g.len()], x, g);
-            }),
-            None => fill_per_spring(par, springs, |e| per.spring_gradient(step, x, e)),
         };
         // With only inertia and gravity besides the springs, each particle's gather
         // starts from their terms, added in the terms' order as the sequential loop
@@ -620,21 +584,6 @@ impl<B: Fn(usize) -> SymBlock + Sync> Gather<'_, B> {
 }
 
 impl PerSpring<'_> {
-    /// Spring `e`'s gradient on its first particle: the sequential loop's expression.
-    #[inline(always)]
-    pub(super) fn spring_gradient(&self, step: &StepContext<'_>, x: &[DVec3], e: usize) -> DVec3 {
-        let s = &step.system.springs()[e];
-        match self.damping {
-            Some((term, c)) => {
-                let w = term.directions()[e];
-                let d = x[s.a] - x[s.b];
-                let d_ref = step.x_ref[s.a] - step.x_ref[s.b];
-                super::springs::gradient(s, x) + super::damping::kernel::gradient(c, w, d, d_ref)
-            }
-            None => super::springs::gradient(s, x),
-        }
-    }
-
     /// Every spring's block into `blocks` (one per spring), on the current thread pool
     /// in fixed chunks when `par`.
     fn fill_spring_blocks(
@@ -645,47 +594,14 @@ impl PerSpring<'_> {
         curvature: Curvature,
         blocks: &mut [SymBlock],
     ) {
-        if self.damping.is_none() {
-            // Four springs at a time (`lanes`), the same bits.
-            let all = step.system.springs();
-            fill_spring_chunks(par, blocks, |first, b| {
-                lanes::blocks(
-                    Instance::Detect,
-                    &all[first..first + b.len()],
-                    x,
-                    curvature,
-                    b,
-                );
-            });
-            return;
-        }
-        fill_per_spring(par, blocks, |e| self.spring_block(step, x, curvature, e));
-    }
-
-    /// Spring `e`'s block: the sequential loop's expression.
-    #[inline(always)]
-    pub(super) fn spring_block(
-        &self,
-        step: &StepContext<'_>,
-        x: &[DVec3],
-        curvature: Curvature,
-        e: usize,
-    ) -> SymBlock {
-        let s = &step.system.springs()[e];
-        match self.damping {
-            Some((term, c)) => {
-                let w = term.directions()[e];
-                let mut k = super::springs::block(s, x, curvature);
-                for (v, add) in k.0.iter_mut().zip(super::damping::kernel::block(c, w).0) {
-                    *v += add;
-                }
-                k
-            }
-            None => {
-                let (alpha, beta, u) = super::springs::coefficients(s, x, curvature);
-                SymBlock::isotropic_plus_outer(alpha, beta, u)
-            }
-        }
+        // Four springs at a time (`lanes`, the damping's added to each spring's), the
+        // same bits.
+        let all = step.system.springs();
+        fill_spring_chunks(par, blocks, |first, b| {
+            let range = first..first + b.len();
+            let damping = self.lanes_damping(step, range.clone());
+            lanes::blocks(Instance::Detect, &all[range], x, curvature, damping, b);
+        });
     }
 }
 
