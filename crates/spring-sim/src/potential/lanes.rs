@@ -686,7 +686,10 @@ mod avx2 {
                         *g = _mm256_add_pd(*g, _mm256_mul_pd(ce, w));
                     }
                 }
-                let [gx, gy, gz] = g.map(|g| lanes(g));
+                // Each register taken apart by a direct call: a closure (`g.map(..)`) would
+                // lack this function's AVX2 feature, so `lanes` could not inline into it
+                // and every batch would pay calls through an out-of-line `array::map`.
+                let [gx, gy, gz] = [lanes(g[0]), lanes(g[1]), lanes(g[2])];
                 for i in 0..LANES {
                     gradients[first + i] = DVec3::new(gx[i], gy[i], gz[i]);
                 }
@@ -743,7 +746,15 @@ mod avx2 {
                         *v = _mm256_add_pd(*v, add);
                     }
                 }
-                let [xx, yx, zx, yy, zy, zz] = entries.map(|v| lanes(v));
+                // Direct calls, as for the gradients.
+                let [xx, yx, zx, yy, zy, zz] = [
+                    lanes(entries[0]),
+                    lanes(entries[1]),
+                    lanes(entries[2]),
+                    lanes(entries[3]),
+                    lanes(entries[4]),
+                    lanes(entries[5]),
+                ];
                 for i in 0..LANES {
                     blocks[first + i] = SymBlock([xx[i], yx[i], zx[i], yy[i], zy[i], zz[i]]);
                 }
@@ -841,14 +852,14 @@ mod avx2 {
                 [load(da[0]), load(da[1]), load(da[2])],
                 [load(db[0]), load(db[1]), load(db[2])],
             );
-            let damping = DAMPED.then(|| {
+            // No closure (`DAMPED.then(..)`): it would not inherit the AVX2 feature.
+            let damping = if DAMPED {
                 let w = components(&damped.directions[first..first + LANES]);
-                (
-                    w,
-                    elongation(w, d, differences(batch, damped.x_ref)),
-                    half_c,
-                )
-            });
+                let e = elongation(w, d, differences(batch, damped.x_ref));
+                Some((w, e, half_c))
+            } else {
+                None
+            };
             let (change, moved) = changes(a1, moves, d, l, half_k, twice_rest, damping);
             for (i, change) in change.iter().enumerate() {
                 if moved & (1 << i) != 0 {
