@@ -465,7 +465,6 @@ fn energy_change_tail<const PAIR: bool, const DAMPED: bool>(
 /// `springs`), four springs at a time: [`crate::spring::energy`]'s operations lane by
 /// lane (`l = |x_a - x_b|` as `d.length()`, then `((0.5 k) (l - L)) (l - L)`), with no
 /// branch to take, so every batch is a plain one; the short tail by the scalar kernel.
-#[cfg_attr(not(feature = "parallel"), allow(dead_code))]
 #[inline(always)]
 fn energies_lanes(springs: &[Spring], x: &[DVec3], energies: &mut [f64]) {
     let whole = springs.len() / LANES * LANES;
@@ -479,6 +478,57 @@ fn energies_lanes(springs: &[Spring], x: &[DVec3], energies: &mut [f64]) {
     }
     for (e, s) in energies[whole..].iter_mut().zip(&springs[whole..]) {
         *e = crate::spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness);
+    }
+}
+
+/// Each spring's damping direction at `x` into `directions` (as long as `springs`),
+/// four springs at a time: [`sinew_math::try_unit`]'s operations lane by lane (the
+/// vector divided by its largest absolute component, then by that quotient's length
+/// `((w_x w_x + w_y w_y) + w_z w_z)^(1/2)`). A batch with a vector that is zero or not
+/// finite (no direction: the zero vector) goes spring by spring through
+/// [`crate::spring::damping_direction`], as does the short tail.
+#[inline(always)]
+fn directions_lanes(springs: &[Spring], x: &[DVec3], directions: &mut [DVec3]) {
+    let whole = springs.len() / LANES * LANES;
+    for first in (0..whole).step_by(LANES) {
+        let batch = &springs[first..first + LANES];
+        let d = differences(batch, x);
+        let mut scale = [0.0; LANES];
+        let mut plain = true;
+        for i in 0..LANES {
+            let (ax, ay, az) = (d[0][i].abs(), d[1][i].abs(), d[2][i].abs());
+            scale[i] = ax.max(ay.max(az));
+            plain &= (ax < f64::INFINITY)
+                & (ay < f64::INFINITY)
+                & (az < f64::INFINITY)
+                & (scale[i] > 0.0);
+        }
+        if !plain {
+            directions_scalar(batch, x, &mut directions[first..first + LANES]);
+            continue;
+        }
+        let mut w = [[0.0; LANES]; 3];
+        for (w, d) in w.iter_mut().zip(&d) {
+            for i in 0..LANES {
+                w[i] = d[i] / scale[i];
+            }
+        }
+        let mut l = [0.0; LANES];
+        for i in 0..LANES {
+            l[i] = (w[0][i] * w[0][i] + w[1][i] * w[1][i] + w[2][i] * w[2][i]).sqrt();
+        }
+        for i in 0..LANES {
+            directions[first + i] = DVec3::new(w[0][i] / l[i], w[1][i] / l[i], w[2][i] / l[i]);
+        }
+    }
+    directions_scalar(&springs[whole..], x, &mut directions[whole..]);
+}
+
+/// [`crate::spring::damping_direction`] of each of `springs` into `directions`.
+#[inline(always)]
+fn directions_scalar(springs: &[Spring], x: &[DVec3], directions: &mut [DVec3]) {
+    for (w, s) in directions.iter_mut().zip(springs) {
+        *w = crate::spring::damping_direction(x[s.a], x[s.b]);
     }
 }
 
@@ -882,7 +932,6 @@ mod avx2 {
     }
 
     /// [`super::energies_lanes`] in 256-bit registers.
-    #[cfg_attr(not(feature = "parallel"), allow(dead_code))]
     #[target_feature(enable = "avx2")]
     pub(super) fn energies(springs: &[Spring], x: &[DVec3], energies: &mut [f64]) {
         let half = _mm256_set1_pd(0.5);
@@ -898,6 +947,53 @@ mod avx2 {
         for (e, s) in energies[whole..].iter_mut().zip(&springs[whole..]) {
             *e = crate::spring::energy(x[s.a], x[s.b], s.rest_length, s.stiffness);
         }
+    }
+
+    /// [`super::directions_lanes`] in 256-bit registers.
+    #[target_feature(enable = "avx2")]
+    pub(super) fn directions(springs: &[Spring], x: &[DVec3], directions: &mut [DVec3]) {
+        let (zero, infinity) = (_mm256_setzero_pd(), _mm256_set1_pd(f64::INFINITY));
+        // `andnot` with `-0.0` clears the sign bit: `f64::abs`.
+        let sign = _mm256_set1_pd(-0.0);
+        let whole = springs.len() / LANES * LANES;
+        for first in (0..whole).step_by(LANES) {
+            let batch = &springs[first..first + LANES];
+            let [dx, dy, dz] = differences(batch, x);
+            let (ax, ay, az) = (
+                _mm256_andnot_pd(sign, dx),
+                _mm256_andnot_pd(sign, dy),
+                _mm256_andnot_pd(sign, dz),
+            );
+            // Exact on the plain lanes (finite, not negative), as `f64::max` is.
+            let scale = _mm256_max_pd(ax, _mm256_max_pd(ay, az));
+            let finite = _mm256_and_pd(
+                _mm256_and_pd(
+                    _mm256_cmp_pd::<_CMP_LT_OQ>(ax, infinity),
+                    _mm256_cmp_pd::<_CMP_LT_OQ>(ay, infinity),
+                ),
+                _mm256_cmp_pd::<_CMP_LT_OQ>(az, infinity),
+            );
+            let plain = _mm256_and_pd(finite, _mm256_cmp_pd::<_CMP_GT_OQ>(scale, zero));
+            if bits(plain) != 0b1111 {
+                super::directions_scalar(batch, x, &mut directions[first..first + LANES]);
+                continue;
+            }
+            let w = [
+                _mm256_div_pd(dx, scale),
+                _mm256_div_pd(dy, scale),
+                _mm256_div_pd(dz, scale),
+            ];
+            let l = _mm256_sqrt_pd(squared_length(w));
+            let [ux, uy, uz] = [
+                lanes(_mm256_div_pd(w[0], l)),
+                lanes(_mm256_div_pd(w[1], l)),
+                lanes(_mm256_div_pd(w[2], l)),
+            ];
+            for i in 0..LANES {
+                directions[first + i] = DVec3::new(ux[i], uy[i], uz[i]);
+            }
+        }
+        super::directions_scalar(&springs[whole..], x, &mut directions[whole..]);
     }
 }
 
@@ -1058,7 +1154,6 @@ pub(crate) fn energy_change_pair_sum(
 
 /// Each spring's energy at `x` into `energies` (as long as `springs`): bitwise
 /// [`crate::spring::energy`] per spring.
-#[cfg_attr(not(feature = "parallel"), allow(dead_code))]
 pub(crate) fn energies(instance: Instance, springs: &[Spring], x: &[DVec3], energies: &mut [f64]) {
     assert_eq!(energies.len(), springs.len());
     #[cfg(target_arch = "x86_64")]
@@ -1072,6 +1167,28 @@ pub(crate) fn energies(instance: Instance, springs: &[Spring], x: &[DVec3], ener
     }
     let _ = instance;
     energies_lanes(springs, x, energies);
+}
+
+/// Each spring's damping direction at `x` into `directions` (as long as `springs`):
+/// bitwise [`crate::spring::damping_direction`] per spring.
+pub(crate) fn damping_directions(
+    instance: Instance,
+    springs: &[Spring],
+    x: &[DVec3],
+    directions: &mut [DVec3],
+) {
+    assert_eq!(directions.len(), springs.len());
+    #[cfg(target_arch = "x86_64")]
+    if instance.avx2() {
+        // SAFETY: as in `fill`: the feature was reported on this processor.
+        #[allow(unsafe_code)]
+        unsafe {
+            avx2::directions(springs, x, directions);
+        }
+        return;
+    }
+    let _ = instance;
+    directions_lanes(springs, x, directions);
 }
 
 #[cfg(test)]
@@ -1163,6 +1280,36 @@ mod tests {
                 let mut e = vec![f64::NAN; n];
                 energies(instance, springs, &x, &mut e);
                 assert_eq!(bits(&e), bits(&scalar), "{n} {instance:?}");
+            }
+        }
+    }
+
+    /// Every prefix of the cases in both instances, bitwise the scalar kernel's damping
+    /// directions (zero, overflowing and underflowing vectors in every lane), and the
+    /// cases do give both kinds of batch (with and without a vector of no direction).
+    #[test]
+    fn damping_directions_are_bitwise_the_scalar_kernel() {
+        let (x, springs) = cases();
+        let scalar: Vec<DVec3> = springs
+            .iter()
+            .map(|s| crate::spring::damping_direction(x[s.a], x[s.b]))
+            .collect();
+        assert!(scalar.contains(&DVec3::ZERO));
+        assert!(
+            scalar
+                .chunks(LANES)
+                .any(|b| b.iter().all(|w| *w != DVec3::ZERO))
+        );
+        let flat = |v: &[DVec3]| -> Vec<f64> { v.iter().flat_map(|w| w.to_array()).collect() };
+        for n in 0..=springs.len() {
+            for instance in instances() {
+                let mut w = vec![DVec3::splat(f64::NAN); n];
+                damping_directions(instance, &springs[..n], &x, &mut w);
+                assert_eq!(
+                    bits(&flat(&w)),
+                    bits(&flat(&scalar[..n])),
+                    "{n} {instance:?}"
+                );
             }
         }
     }

@@ -26,7 +26,6 @@ mod fused;
 mod gravity;
 mod inertia;
 mod lanes;
-#[cfg(feature = "parallel")]
 pub(crate) use lanes::{Instance, energies as spring_energies};
 #[cfg(feature = "parallel")]
 mod parallel;
