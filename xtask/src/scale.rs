@@ -13,8 +13,9 @@
 //!
 //! Backward Euler's and `auto`'s results do not depend on the thread count (the threaded
 //! passes add every term in the single-threaded order): each case prints a hash of the
-//! final positions' and velocities' bits, and the run fails when two thread counts of
-//! one workload end in different states. Written: `scale.md` and `scale.json` (default
+//! final positions' and velocities' bits, and the run fails when two runs of one case
+//! (every case runs three times, in rounds) or two thread counts of one workload end in
+//! different states. Written: `scale.md` and `scale.json` (default
 //! `docs/bench/`; `--quick` writes to `target/scale-quick/`) and `plots/scale.svg`.
 
 use crate::machine::Machine;
@@ -43,10 +44,15 @@ pub struct ScaleArgs {
     /// Thread counts, comma-separated (default 1 and every core; 0 means every core).
     #[arg(long, value_delimiter = ',')]
     threads: Vec<usize>,
-    /// Steps per case (default: 30 up to 10 000 particles, 10 up to 200 000, then 3;
-    /// W5 100).
+    /// Steps per case (default: 30 up to 10 000 particles, 10 up to 200 000, then 5;
+    /// W5 100). The first step of a run also pays the linear-solver choice's analysis
+    /// of the matrix, which the median over the steps leaves out.
     #[arg(long)]
     steps: Option<usize>,
+    /// Runs of every case, in rounds (default 3; 1 with --quick): each figure is the
+    /// median of the runs' figures, the peak memory their largest.
+    #[arg(long)]
+    repeats: Option<usize>,
     /// Write scale.md, scale.json and plots/scale.svg here.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -244,6 +250,29 @@ fn run_case(case: &Case) -> Result<CaseResult, String> {
     })
 }
 
+/// One result from the runs of one case: the medians of their wall medians, wall means
+/// and CPU times, the largest peak memory. The runs must end in the same state: the same
+/// inputs give the same bits, run after run.
+fn combine(runs: Vec<CaseResult>) -> Result<CaseResult, String> {
+    let first = runs.first().ok_or("no run")?.clone();
+    if let Some(other) = runs.iter().find(|r| r.state_hash != first.state_hash) {
+        return Err(format!(
+            "two runs of the same case ended in different states ({} and {})",
+            first.state_hash, other.state_hash
+        ));
+    }
+    let of = |f: fn(&CaseResult) -> f64| median(runs.iter().map(f).collect());
+    let cpu: Option<Vec<f64>> = runs.iter().map(|r| r.cpu_mean).collect();
+    Ok(CaseResult {
+        build_seconds: of(|r| r.build_seconds),
+        wall_median: of(|r| r.wall_median),
+        wall_mean: of(|r| r.wall_mean),
+        cpu_mean: cpu.map(median),
+        peak_rss: runs.iter().filter_map(|r| r.peak_rss).max(),
+        ..first
+    })
+}
+
 /// Default steps of a case with `particles` particles.
 fn default_steps(workload: &str, particles: usize) -> usize {
     if workload == "w5" {
@@ -253,7 +282,7 @@ fn default_steps(workload: &str, particles: usize) -> usize {
     } else if particles <= 200_000 {
         10
     } else {
-        3
+        5
     }
 }
 
@@ -375,7 +404,12 @@ fn speed_up(results: &[CaseResult], r: &CaseResult) -> Option<f64> {
 }
 
 /// The markdown report.
-fn markdown(results: &[CaseResult], machine: &Machine, load_at_end: Option<f64>) -> String {
+fn markdown(
+    results: &[CaseResult],
+    repeats: usize,
+    machine: &Machine,
+    load_at_end: Option<f64>,
+) -> String {
     let mut s = String::from(
         "# Cost against size, and threads\n\n\
          Written by `cargo xtask scale` (xtask/src/scale.rs says how each figure is taken; \
@@ -383,9 +417,17 @@ fn markdown(results: &[CaseResult], machine: &Machine, load_at_end: Option<f64>)
          pattern on N x N particles, 2 wide, stiffness 100, no damping, stepped from rest \
          at h = 1/60 by backward Euler with the default settings (`be`), and two goal \
          rows with `auto`: W5 (11 x 11, stiffness 1e6, h = 1/30) and W6 (101 x 101). \
-         Wall times are medians and means over the case's steps; CPU is the process's \
-         (every thread) per step, over all steps; peak memory is the process's (`VmHWM`), building the cloth included. \
-         Speed-up is the first thread count's wall median over this one's.\n\n",
+         Wall times are the medians over the runs of each run's median and mean over \
+         its steps; CPU is the process's (every thread) per step, over all steps; peak \
+         memory is the process's (`VmHWM`), building the cloth included. Speed-up is the \
+         first thread count's wall median over this one's. W5 (121 particles) is below \
+         `PARALLEL_MIN_PARTICLES` and runs on the calling thread at every thread count: \
+         its rows differ by the machine's noise only.\n\n",
+    );
+    let _ = writeln!(
+        s,
+        "Each case ran {repeats} time{} in its own process, in rounds over all cases.\n",
+        if repeats == 1 { "" } else { "s" }
     );
     let _ = writeln!(
         s,
@@ -514,16 +556,36 @@ pub fn run(args: &ScaleArgs) -> ExitCode {
         })
     });
     eprintln!("scale on {}", machine.describe());
-    let mut results = Vec::new();
-    for case in plan(&sizes, &threads, args.steps, args.quick) {
-        eprint!("{} ... ", label(&case));
-        match run_child(&case) {
-            Ok(r) => {
-                eprintln!("{} per step", micros(r.wall_median));
-                results.push(r);
+    let cases = plan(&sizes, &threads, args.steps, args.quick);
+    let repeats = args.repeats.unwrap_or(if args.quick { 1 } else { 3 });
+    if repeats == 0 {
+        eprintln!("error: --repeats must be at least 1");
+        return ExitCode::FAILURE;
+    }
+    // Round after round over every case, so a slow spell of the shared machine falls on
+    // all cases alike rather than on one.
+    let mut runs: Vec<Vec<CaseResult>> = vec![Vec::new(); cases.len()];
+    for round in 0..repeats {
+        for (case, runs) in cases.iter().zip(&mut runs) {
+            eprint!("round {} of {repeats}: {} ... ", round + 1, label(case));
+            match run_child(case) {
+                Ok(r) => {
+                    eprintln!("{} per step", micros(r.wall_median));
+                    runs.push(r);
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::FAILURE;
+                }
             }
+        }
+    }
+    let mut results = Vec::new();
+    for (case, runs) in cases.iter().zip(runs) {
+        match combine(runs) {
+            Ok(r) => results.push(r),
             Err(e) => {
-                eprintln!("error: {e}");
+                eprintln!("error: {}: {e}", label(case));
                 return ExitCode::FAILURE;
             }
         }
@@ -531,7 +593,7 @@ pub fn run(args: &ScaleArgs) -> ExitCode {
     let load_at_end = std::fs::read_to_string("/proc/loadavg")
         .ok()
         .and_then(|t| t.split_whitespace().next()?.parse().ok());
-    let text = markdown(&results, &machine, load_at_end);
+    let text = markdown(&results, repeats, &machine, load_at_end);
     let written = std::fs::create_dir_all(out.join("plots"))
         .map_err(|e| format!("{}: {e}", out.display()))
         .and_then(|()| {
@@ -665,7 +727,7 @@ mod tests {
         assert!(m[0].starts_with("g31 be"), "{}", m[0]);
         assert_eq!(speed_up(&rows, &rows[1]), Some(2.0));
         assert_eq!(speed_up(&rows, &rows[0]), None);
-        let text = markdown(&rows, &Machine::read(), None);
+        let text = markdown(&rows, 3, &Machine::read(), None);
         assert!(text.contains("Thread counts that ended in different states"));
         assert_eq!(
             text.lines().filter(|l| l.starts_with("| g")).count(),
@@ -674,12 +736,29 @@ mod tests {
     }
 
     #[test]
+    fn runs_combine_into_medians_and_must_end_alike() {
+        let runs = vec![
+            result("g11", 1, 3e-3, "aa"),
+            result("g11", 1, 1e-3, "aa"),
+            result("g11", 1, 2e-3, "aa"),
+        ];
+        let combined = combine(runs.clone()).unwrap();
+        assert_eq!(combined.wall_median, 2e-3);
+        assert_eq!(combined.state_hash, "aa");
+        let mut other = runs;
+        other[2].state_hash = "ab".into();
+        let err = combine(other).unwrap_err();
+        assert!(err.contains("different states"), "{err}");
+        assert!(combine(Vec::new()).is_err());
+    }
+
+    #[test]
     fn the_plan_runs_every_size_on_every_thread_count_and_the_goal_rows() {
         let cases = plan(&[11, 1000], &[1, 2], None, false);
         let names: Vec<String> = cases.iter().map(label).collect();
         assert_eq!(cases.len(), 8, "{names:?}");
         assert_eq!(cases[0].steps, 30);
-        assert_eq!(cases[2].steps, 3);
+        assert_eq!(cases[2].steps, 5);
         assert!(cases.iter().any(|c| c.workload == "w5" && c.steps == 100));
         assert!(
             cases
