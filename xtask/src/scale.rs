@@ -128,7 +128,7 @@ struct CaseResult {
     linear_per_step: f64,
     /// Peak resident memory of the process, bytes (`None` where it cannot be read).
     peak_rss: Option<u64>,
-    /// FNV-1a of the final positions' and velocities' bits, hexadecimal.
+    /// The final state's fingerprint (`SpringSystem::state_fingerprint`), hexadecimal.
     state_hash: String,
 }
 
@@ -190,18 +190,6 @@ fn peak_rss() -> Option<u64> {
     Some(kib * 1024)
 }
 
-fn state_hash(system: &SpringSystem) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for p in system.positions().iter().chain(system.velocities()) {
-        for c in [p.x, p.y, p.z] {
-            for byte in c.to_bits().to_le_bytes() {
-                h = (h ^ u64::from(byte)).wrapping_mul(0x0000_0100_0000_01b3);
-            }
-        }
-    }
-    h
-}
-
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
@@ -246,7 +234,7 @@ fn run_case(case: &Case) -> Result<CaseResult, String> {
         iterations_per_step: iterations as f64 / n,
         linear_per_step: linear as f64 / n,
         peak_rss: peak_rss(),
-        state_hash: format!("{:016x}", state_hash(sim.system())),
+        state_hash: format!("{:016x}", sim.system().state_fingerprint()),
     })
 }
 

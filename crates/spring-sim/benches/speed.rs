@@ -186,7 +186,7 @@ fn steps(args: &[String]) {
         }
         let p = sim.system().positions().last().copied().unwrap();
         last = DVec3Like([p.x, p.y, p.z]);
-        hash = state_hash(sim.system());
+        hash = sim.system().state_fingerprint();
     }
     let mean = cpu.iter().sum::<f64>() / cpu.len() as f64;
     println!(
@@ -244,17 +244,6 @@ fn pcg(args: &[String]) {
 
 /// FNV-1a over the bits of every position and velocity: two runs ended in the same
 /// state exactly when their hashes agree (up to a collision).
-fn state_hash(system: &SpringSystem) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for p in system.positions().iter().chain(system.velocities()) {
-        for c in [p.x, p.y, p.z] {
-            for byte in c.to_bits().to_le_bytes() {
-                h = (h ^ u64::from(byte)).wrapping_mul(0x0000_0100_0000_01b3);
-            }
-        }
-    }
-    h
-}
 
 #[derive(Default, Debug, Clone, Copy)]
 struct DVec3Like([f64; 3]);

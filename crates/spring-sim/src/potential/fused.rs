@@ -70,19 +70,8 @@ impl PerSpring<'_> {
         alpha: f64,
     ) -> f64 {
         match (self.springs, self.damping) {
-            (true, Some((term, c))) => {
-                let mut change = 0.0;
-                for (s, &w) in step.system.springs().iter().zip(term.directions()) {
-                    let delta = alpha * dx[s.a] - alpha * dx[s.b];
-                    if delta == DVec3::ZERO {
-                        continue;
-                    }
-                    let d = x[s.a] - x[s.b];
-                    let d_ref = step.x_ref[s.a] - step.x_ref[s.b];
-                    change += springs::energy_change(s, x, delta)
-                        + damping::energy_change(c, w, d, d_ref, delta);
-                }
-                change
+            (true, Some(_)) => {
+                self.energy_change_over(step, x, dx, alpha, 0..step.system.springs().len())
             }
             (true, None) => Springs.energy_change(step, x, dx, alpha),
             (false, Some((term, _))) => term.energy_change(step, x, dx, alpha),

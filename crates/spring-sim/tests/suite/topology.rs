@@ -140,3 +140,42 @@ fn material_and_state_changes_keep_the_topology() {
         assert!(!a.same_topology(&other));
     }
 }
+
+/// The state's fingerprint is FNV-1a over the positions' and then the velocities'
+/// coordinate bits (written again here, byte by byte), so it changes with any one bit of
+/// the state and not with anything else (the masses, the springs).
+#[test]
+fn the_state_fingerprint_is_fnv_of_the_state_bits_and_sees_one_bit() {
+    let fnv = |values: &[f64]| {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        for v in values {
+            for byte in v.to_bits().to_le_bytes() {
+                h = (h ^ u64::from(byte)).wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        }
+        h
+    };
+    let mut system = SpringSystem::cloth(&sinew_spring_sim::ClothGrid::lab()).unwrap();
+    let n = system.len();
+    let x: Vec<DVec3> = system.positions().to_vec();
+    let v: Vec<DVec3> = (0..n)
+        .map(|i| DVec3::new(i as f64 * 0.25, -0.5, 1e-3))
+        .collect();
+    system.set_state(&x, &v).unwrap();
+    let coordinates: Vec<f64> = system
+        .positions()
+        .iter()
+        .chain(system.velocities())
+        .flat_map(|p| [p.x, p.y, p.z])
+        .collect();
+    assert_eq!(system.state_fingerprint(), fnv(&coordinates));
+    let mut other = system.clone();
+    let mut x1 = x.clone();
+    x1[n / 2].y = f64::from_bits(x1[n / 2].y.to_bits() + 1);
+    other
+        .set_state(&x1, other.velocities().to_vec().as_slice())
+        .unwrap();
+    assert_ne!(other.state_fingerprint(), system.state_fingerprint());
+    other.set_state(&x, system.velocities()).unwrap();
+    assert_eq!(other.state_fingerprint(), system.state_fingerprint());
+}
