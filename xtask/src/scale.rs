@@ -274,7 +274,8 @@ fn default_steps(workload: &str, particles: usize) -> usize {
     }
 }
 
-/// Every case of a run, in the order they run (sizes ascending, thread counts as given).
+/// Every case of a run, in the order they run: the sizes as given, then the `auto` rows,
+/// each on every thread count.
 fn plan(sizes: &[usize], threads: &[usize], steps: Option<usize>, quick: bool) -> Vec<Case> {
     let mut workloads: Vec<(String, Method)> = sizes
         .iter()
