@@ -5,7 +5,7 @@
 //! samples).
 
 use sinew_math::DVec3;
-use sinew_spring_sim::contact::self_contact::ccd::additive_ccd;
+use sinew_spring_sim::contact::self_contact::ccd::{additive_ccd, clear_without_distance};
 use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
 
 fn v(x: f64, y: f64, z: f64) -> DVec3 {
@@ -227,4 +227,67 @@ fn moving_by_the_returned_fraction_never_crosses_on_random_pairs() {
     }
     // Many of the random motions do come close: the property is exercised.
     assert!(stopped > 150, "only {stopped} cases stopped early");
+}
+
+#[test]
+fn a_sweep_shown_clear_by_the_boxes_is_one_the_exact_ccd_clears_too() {
+    // Random pairs, a second primitive offset by up to 2, steps from 1e-3 to 1 of the
+    // pairs' size, thicknesses 0 and 0.05: whenever the boxes show the sweep clear, the
+    // exact ACCD returns the whole step, bit for bit 1.
+    let mut rng = Rng(0x2545_f491_4f6c_dd1d);
+    let (mut clear, mut cases) = (0, 0);
+    for _ in 0..20_000 {
+        let offset = rng.vec(2.0);
+        // The point (or first edge) near the origin, the triangle (or second edge) offset.
+        let x: [DVec3; 4] = std::array::from_fn(|k| {
+            let near_origin = k == 0;
+            rng.vec(0.5) + if near_origin { DVec3::ZERO } else { offset }
+        });
+        let size = 10f64.powf(-3.0 * rng.next());
+        let dx: [DVec3; 4] = std::array::from_fn(|_| rng.vec(size));
+        for kind in [PairKind::PointTriangle, PairKind::EdgeEdge] {
+            for thickness in [0.0, 0.05] {
+                cases += 1;
+                if clear_without_distance(kind, &x, &dx, thickness, KEEP) {
+                    clear += 1;
+                    let t = additive_ccd(kind, &x, &dx, thickness, KEEP);
+                    assert_eq!(t, 1.0, "{kind:?} {x:?} {dx:?} {thickness}");
+                }
+            }
+        }
+    }
+    // The test is not vacuous: most of these far pairs are shown clear.
+    assert!(clear > cases / 4, "{clear} of {cases}");
+    // A pair already within the thickness, or a motion that is not finite, is never clear.
+    let x = tri_with(v(0.2, 0.2, 0.01));
+    let still = [DVec3::ZERO; 4];
+    assert!(!clear_without_distance(
+        PairKind::PointTriangle,
+        &x,
+        &still,
+        0.02,
+        KEEP
+    ));
+    let x = tri_with(v(0.2, 0.2, 1.0));
+    let wild = [v(f64::NAN, 0.0, 0.0), DVec3::ZERO, DVec3::ZERO, DVec3::ZERO];
+    assert!(!clear_without_distance(
+        PairKind::PointTriangle,
+        &x,
+        &wild,
+        0.0,
+        KEEP
+    ));
+    let far = [
+        v(f64::INFINITY, 0.0, 0.0),
+        DVec3::ZERO,
+        DVec3::ZERO,
+        DVec3::ZERO,
+    ];
+    assert!(!clear_without_distance(
+        PairKind::PointTriangle,
+        &far,
+        &still,
+        0.0,
+        KEEP
+    ));
 }

@@ -5,8 +5,9 @@
 
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::distance::{
-    Closest, PairKind, edge_edge_closest, mollifier, mollifier_derivatives, point_triangle_closest,
-    squared_distance, squared_distance_derivatives, squared_distance_in,
+    Closest, PairKind, beyond, edge_edge_closest, mollifier, mollifier_derivatives,
+    point_triangle_closest, separation, squared_distance, squared_distance_derivatives,
+    squared_distance_in,
 };
 use sinew_spring_sim::contact::self_contact::dual::values;
 use sinew_spring_sim::contact::self_contact::psd12::{project_psd12, symmetric_eigen12};
@@ -429,4 +430,78 @@ fn the_12x12_projection_keeps_psd_matrices_and_clamps_negative_eigenvalues() {
             }
         }
     }
+}
+
+#[test]
+fn the_separation_bounds_the_distance_from_below_and_beyond_agrees_with_it() {
+    // By hand: a point beyond a triangle's corner, on the line through the centroid; a
+    // sheet's neighbours that share no vertex (the corner a right triangle lacks, two
+    // edges of a row apart), whose boxes meet; crossing edges, whose centroid line is
+    // their common normal.
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-15;
+    let corner = pt(v(1.0, 1.0, 0.0));
+    let d = squared_distance(PairKind::PointTriangle, &corner).sqrt();
+    assert!(close(d, 0.5f64.sqrt()));
+    assert!(close(separation(PairKind::PointTriangle, &corner), d));
+    let rows = [
+        v(0.0, 0.0, 0.0),
+        v(1.0, 0.0, 0.0),
+        v(0.0, 0.0, 1.0),
+        v(1.0, 0.0, 1.0),
+    ];
+    assert!(close(separation(PairKind::EdgeEdge, &rows), 1.0));
+    let crossing = [
+        v(-1.0, 0.0, 0.0),
+        v(1.0, 0.0, 0.0),
+        v(0.0, -1.0, 0.5),
+        v(0.0, 1.0, 0.5),
+    ];
+    assert!(close(separation(PairKind::EdgeEdge, &crossing), 0.5));
+    // Overlapping projections give 0, not a negative bound.
+    let through = pt(v(0.2, 0.2, 0.0));
+    assert_eq!(separation(PairKind::PointTriangle, &through), 0.0);
+    // Random pairs at scales 1e-4 to 1, the second primitive offset, nearly parallel edges
+    // among them: the separation never exceeds the distance, and `beyond` at reaches
+    // around the distance holds only where the exact distance reaches too.
+    let mut rng = Rng(0x853c_49e6_748f_ea9b);
+    let (mut shown, mut cases) = (0, 0);
+    for case in 0..20_000 {
+        let scale = 10f64.powf(-4.0 * rng.next());
+        let offset = rng.vec(3.0 * scale);
+        let mut pair: [DVec3; 4] = std::array::from_fn(|_| rng.vec(scale));
+        if case % 4 == 3 {
+            // The second edge the first one moved by `offset` and turned by 1e-9 to 1e-5.
+            let turn = 10f64.powf(-9.0 + 4.0 * rng.next()) * scale;
+            pair[2] = pair[0] + offset;
+            pair[3] = pair[1] + offset + rng.vec(turn);
+        } else {
+            pair[1] += offset;
+            pair[2] += offset;
+            pair[3] += offset;
+        }
+        for kind in [PairKind::PointTriangle, PairKind::EdgeEdge] {
+            let d = squared_distance(kind, &pair).sqrt();
+            let s = separation(kind, &pair);
+            assert!(
+                (0.0..=d * (1.0 + 1e-12)).contains(&s),
+                "case {case} {kind:?}: separation {s} against distance {d}"
+            );
+            for ratio in [0.5, 0.9, 0.999, 0.9999, 0.99999, 1.0, 1.00001] {
+                let reach = ratio * d;
+                cases += 1;
+                if beyond(kind, &pair, reach) {
+                    shown += 1;
+                    assert!(d >= reach, "case {case} {kind:?}: {d} within {reach}");
+                }
+            }
+        }
+    }
+    assert!(shown > cases / 10, "{shown} of {cases}");
+    // A coordinate that is not finite gives NaN, and no pair is then beyond anything.
+    let mut pair = pt(v(5.0, 5.0, 5.0));
+    pair[2] = v(f64::NAN, 0.0, 0.0);
+    assert!(separation(PairKind::PointTriangle, &pair).is_nan());
+    assert!(!beyond(PairKind::PointTriangle, &pair, 1e-3));
+    pair[2] = v(f64::INFINITY, 0.0, 0.0);
+    assert!(!beyond(PairKind::PointTriangle, &pair, 1e-3));
 }

@@ -17,7 +17,7 @@
 //! very close (many small steps), which an iteration cap bounds: at the cap the time
 //! reached so far is returned, still safe.
 
-use super::distance::{PairKind, squared_distance};
+use super::distance::{PairKind, SEPARATION_MARGIN, separation, squared_distance};
 use sinew_math::DVec3;
 
 /// Most ACCD iterations per pair; at this many the time reached so far is returned.
@@ -40,6 +40,55 @@ pub fn additive_ccd(
     additive_ccd_from_gap(kind, x, dx, thickness, keep, gap0)
 }
 
+/// `l_p` of the module documentation: a bound on how much the gap of a pair moving by
+/// `dx` over the step can fall (the rate at which any point of one primitive approaches
+/// any point of the other, the mean displacement taken out).
+#[must_use]
+pub fn approach_bound(kind: PairKind, dx: &[DVec3; 4]) -> f64 {
+    let mean = (dx[0] + dx[1] + dx[2] + dx[3]) / 4.0;
+    let p = dx.map(|d| d - mean);
+    match kind {
+        PairKind::PointTriangle => {
+            p[0].length() + p[1].length().max(p[2].length()).max(p[3].length())
+        }
+        PairKind::EdgeEdge => p[0].length().max(p[1].length()) + p[2].length().max(p[3].length()),
+    }
+}
+
+/// Whether [`additive_ccd`] returns 1 for the pair on its first test (`l_p <= (1 - keep)
+/// gap0`, the whole step closes less than the allowed part of the gap), shown with a
+/// lower bound of `gap0` instead of the exact distance: the pair's [`separation`] less
+/// [`SEPARATION_MARGIN`] of it, less the thickness. A pair the broad phase lists along a
+/// long step is usually clear this way, at a few dot products.
+#[must_use]
+pub fn clear_without_distance(
+    kind: PairKind,
+    x: &[DVec3; 4],
+    dx: &[DVec3; 4],
+    thickness: f64,
+    keep: f64,
+) -> bool {
+    clear_by_separation(kind, separation(kind, x), dx, thickness, keep)
+}
+
+/// [`clear_without_distance`] with the pair's [`separation`] at `x` given (a caller that
+/// sweeps the pair along two steps from the same state computes it once).
+#[must_use]
+pub fn clear_by_separation(
+    kind: PairKind,
+    separation: f64,
+    dx: &[DVec3; 4],
+    thickness: f64,
+    keep: f64,
+) -> bool {
+    // A NaN separation fails the first test.
+    let lower = separation * (1.0 - SEPARATION_MARGIN) - thickness;
+    lower > 0.0 && {
+        let lp = approach_bound(kind, dx);
+        lp.is_finite() && lp <= lower * (1.0 - keep)
+    }
+}
+
 /// [`additive_ccd`] with the pair's gap at `t = 0` given: `gap0` must be
 /// `squared_distance(kind, x).sqrt() - thickness`, as [`additive_ccd`] computes it, so
 /// the answer is the same; a caller that already has it (the term evaluates every pair's
@@ -53,14 +102,7 @@ pub fn additive_ccd_from_gap(
     keep: f64,
     gap0: f64,
 ) -> f64 {
-    let mean = (dx[0] + dx[1] + dx[2] + dx[3]) / 4.0;
-    let p = dx.map(|d| d - mean);
-    let lp = match kind {
-        PairKind::PointTriangle => {
-            p[0].length() + p[1].length().max(p[2].length()).max(p[3].length())
-        }
-        PairKind::EdgeEdge => p[0].length().max(p[1].length()) + p[2].length().max(p[3].length()),
-    };
+    let lp = approach_bound(kind, dx);
     let gap_at = |t: f64| {
         let xt: [DVec3; 4] = std::array::from_fn(|k| x[k] + t * dx[k]);
         squared_distance(kind, &xt).sqrt() - thickness

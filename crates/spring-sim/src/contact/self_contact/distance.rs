@@ -171,6 +171,58 @@ impl PairKind {
     }
 }
 
+/// A lower bound of the pair's distance, at a few dot products instead of the region
+/// choice and a closed form: the gap between the primitives' vertex sets (the point and
+/// the triangle's vertices, or the two edges' ends) projected on the line through their
+/// centroids. Each primitive lies in the hull of its vertices and a projection never
+/// lengthens a segment, so no two points of the primitives are closer than that gap. The
+/// line separates the neighbouring primitives of a sheet that share no vertex, which the
+/// broad phase's boxes cannot (a right triangle's box holds the corner it lacks). 0 when
+/// the sets' projections overlap, NaN when a coordinate is not finite.
+#[must_use]
+pub fn separation(kind: PairKind, v: &[DVec3; 4]) -> f64 {
+    // Positions from the first vertex, so the projections keep their digits far from the
+    // origin; the axis is not normalised until the end (one square root, one division).
+    let r = [v[1] - v[0], v[2] - v[0], v[3] - v[0]];
+    let gap = match kind {
+        PairKind::PointTriangle => {
+            // The point is the origin; the axis runs to the triangle's centroid.
+            let d = r[0] + r[1] + r[2];
+            let low = r[0].dot(d).min(r[1].dot(d)).min(r[2].dot(d));
+            low / d.length()
+        }
+        PairKind::EdgeEdge => {
+            // The axis runs from the first edge's midpoint to the second's (twice).
+            let d = r[1] + r[2] - r[0];
+            let high = r[0].dot(d).max(0.0);
+            let low = r[1].dot(d).min(r[2].dot(d));
+            (low - high) / d.length()
+        }
+    };
+    if !(v[0] + v[1] + v[2] + v[3]).is_finite() {
+        return f64::NAN;
+    }
+    // Coincident centroids (0 / 0, NaN) say nothing.
+    if gap > 0.0 { gap } else { 0.0 }
+}
+
+/// The relative margin by which a pair's [`separation`] must pass a reach before
+/// [`beyond`] takes the pair to be beyond it without its exact distance. The closed forms
+/// err by far less (and so does the separation): a relative round-off of order `1e-16 L / d` (`L` an edge's length,
+/// `d` the distance), and for the line-line form of edges near the [`PARALLEL`] limit
+/// about `eps L / sin`, at most `2.2e-9 L`, below `1e-4 d` while `L < 4e4 d`. So a pair
+/// taken to be beyond is also beyond by its exact distance, and skipping that distance
+/// changes no answer (docs/self-contact.md).
+pub const SEPARATION_MARGIN: f64 = 1e-4;
+
+/// Whether the pair's distance is certainly at least `reach`, read from its
+/// [`separation`] (at least `(1 + SEPARATION_MARGIN) reach`): the exact distance is then
+/// not needed to know it. False for a non-finite coordinate.
+#[must_use]
+pub fn beyond(kind: PairKind, v: &[DVec3; 4], reach: f64) -> bool {
+    separation(kind, v) >= reach * (1.0 + SEPARATION_MARGIN)
+}
+
 /// The squared distance of the pair `v` of kind `kind`.
 #[must_use]
 pub fn squared_distance(kind: PairKind, v: &[DVec3; 4]) -> f64 {

@@ -51,11 +51,11 @@
 //! iteration on the Newton matrix has the pairs' full blocks.
 
 use super::broad::{Candidate, CandidateCache, Primitives, candidates};
-use super::ccd::additive_ccd_from_gap;
+use super::ccd::{additive_ccd_from_gap, clear_by_separation};
 use super::closed::RegionForm;
 use super::distance::{
-    Closest, PairKind, mollifier, mollifier_derivatives, squared_distance,
-    squared_distance_derivatives, squared_distance_in,
+    Closest, PairKind, SEPARATION_MARGIN, mollifier, mollifier_derivatives, separation,
+    squared_distance, squared_distance_derivatives, squared_distance_in,
 };
 use super::dual::{Dual12, Scalar, values};
 use super::psd12::{Mat12, project_psd12};
@@ -385,6 +385,26 @@ impl SelfContactTerm {
         (gap, closest)
     }
 
+    /// The pair's [`separation`] at `x`: a lower bound of its distance at a few dot
+    /// products.
+    fn separation(&self, c: Candidate, x: &[DVec3]) -> f64 {
+        let (kind, v) = self.pair(c);
+        separation(kind, &v.map(|i| x[i]))
+    }
+
+    /// Whether a pair of that separation has a gap certainly at least `dhat` (see
+    /// [`SEPARATION_MARGIN`]): then its energy is zero and it is not active, and its exact
+    /// distance, several times the cost, is not needed. Most pairs the broad phase lists
+    /// along a long step are such pairs.
+    fn beyond_dhat_by(&self, separation: f64) -> bool {
+        separation >= (self.settings.dhat + self.settings.thickness) * (1.0 + SEPARATION_MARGIN)
+    }
+
+    /// [`Self::beyond_dhat_by`] the pair's separation at `x`.
+    fn beyond_dhat(&self, c: Candidate, x: &[DVec3]) -> bool {
+        self.beyond_dhat_by(self.separation(c, x))
+    }
+
     /// The broad phase's pairs within `dhat + thickness` at `x` or along `x -> x + dx`:
     /// filtered from the segment's list when it covers the query (the same set, see
     /// [`CandidateCache`]), else found by hashing the mesh.
@@ -441,7 +461,13 @@ impl SelfContactTerm {
     pub fn min_gap(&self, x: &[DVec3], fixed: &[bool]) -> f64 {
         let near = self.near(x, fixed);
         let mut gaps = Vec::new();
-        spread::fill(&mut gaps, near.len(), 0.0, |i| self.gap(near[i], x));
+        spread::fill(&mut gaps, near.len(), 0.0, |i| {
+            if self.beyond_dhat(near[i], x) {
+                f64::INFINITY
+            } else {
+                self.gap(near[i], x)
+            }
+        });
         let min = gaps.into_iter().fold(f64::INFINITY, f64::min);
         if min < self.settings.dhat {
             min
@@ -454,6 +480,9 @@ impl SelfContactTerm {
     /// or negative.
     pub fn check_state(&self, x: &[DVec3], fixed: &[bool]) -> Result<(), ContactError> {
         for c in self.near(x, fixed) {
+            if self.beyond_dhat(c, x) {
+                continue;
+            }
             let gap = self.gap(c, x);
             if gap.is_nan() || gap <= 0.0 {
                 let item = match c {
@@ -476,6 +505,9 @@ impl SelfContactTerm {
 
     /// A pair's barrier energy at `x` (`+inf` at a gap of zero or below).
     fn pair_energy(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> f64 {
+        if self.beyond_dhat(c, x) {
+            return 0.0;
+        }
         self.pair_energy_at_gap(kappa, c, x, self.gap(c, x))
     }
 
@@ -676,19 +708,35 @@ impl SelfContactTerm {
             // Per found pair its gap at `x` (kept once computed) and its safe fraction,
             // on the pool; the minimum does not depend on the order.
             let at_start = seg.starts_at(x);
-            let (found, list, kept) = (&seg.found, seg.pairs.list(), &seg.gap);
-            spread::fill(&mut seg.values, found.len(), (0.0, 0.0), |i| {
+            let (found, list) = (&seg.found, seg.pairs.list());
+            let (kept, kept_separation) = (&seg.gap, &seg.separation);
+            spread::fill(&mut seg.values, found.len(), (0.0, 0.0, 0.0), |i| {
                 let (k, c) = (found[i], list[found[i]]);
-                let gap0 = if at_start && !kept[k].is_nan() {
-                    kept[k]
+                if at_start && !kept[k].is_nan() {
+                    return (kept[k], f64::NAN, sweep(c, kept[k]));
+                }
+                // A pair the separation shows clear needs no distance; its gap stays
+                // unknown (NaN), as before it was asked for.
+                let sep = if at_start && !kept_separation[k].is_nan() {
+                    kept_separation[k]
                 } else {
-                    self.gap(c, x)
+                    self.separation(c, x)
                 };
-                (gap0, sweep(c, gap0))
+                let (kind, v) = self.pair(c);
+                if clear_by_separation(kind, sep, &v.map(|i| dx[i]), thickness, keep) {
+                    return (f64::NAN, sep, 1.0);
+                }
+                let gap0 = self.gap(c, x);
+                (gap0, sep, sweep(c, gap0))
             });
-            for (&k, &(gap0, fraction)) in seg.found.iter().zip(&seg.values) {
+            for (&k, &(gap0, sep, fraction)) in seg.found.iter().zip(&seg.values) {
                 if at_start {
-                    seg.gap[k] = gap0;
+                    if !gap0.is_nan() {
+                        seg.gap[k] = gap0;
+                    }
+                    if !sep.is_nan() {
+                        seg.separation[k] = sep;
+                    }
                 }
                 t = t.min(fraction);
             }
@@ -699,7 +747,13 @@ impl SelfContactTerm {
         let found = candidates(&self.prims, x, Some(dx), margin, fixed);
         let mut fractions = Vec::new();
         spread::fill(&mut fractions, found.len(), 0.0, |i| {
-            sweep(found[i], self.gap(found[i], x))
+            let (kind, v) = self.pair(found[i]);
+            let sep = self.separation(found[i], x);
+            if clear_by_separation(kind, sep, &v.map(|i| dx[i]), thickness, keep) {
+                1.0
+            } else {
+                sweep(found[i], self.gap(found[i], x))
+            }
         });
         fractions.into_iter().fold(t, f64::min)
     }
@@ -721,10 +775,12 @@ struct Segment {
     /// NaN where not computed yet (a NaN gap is recomputed every time, as before).
     gap: Vec<f64>,
     energy: Vec<f64>,
-    /// Scratch, its storage reused: a query's positions in the list, and two values per
-    /// found pair.
+    /// Each pair's [`separation`] at the start (NaN where not computed yet).
+    separation: Vec<f64>,
+    /// Scratch, its storage reused: a query's positions in the list, and up to three
+    /// values per found pair.
     found: Vec<usize>,
-    values: Vec<(f64, f64)>,
+    values: Vec<(f64, f64, f64)>,
 }
 
 impl Segment {
@@ -740,6 +796,8 @@ impl Segment {
         self.gap.resize(n, f64::NAN);
         self.energy.clear();
         self.energy.resize(n, f64::NAN);
+        self.separation.clear();
+        self.separation.resize(n, f64::NAN);
     }
 
     fn starts_at(&self, x: &[DVec3]) -> bool {
@@ -800,7 +858,13 @@ impl Term for SelfContactTerm {
             &mut gaps,
             near.len(),
             (0.0, Closest::PointPoint([0, 1])),
-            |i| self.gap_and_region(near[i], x),
+            |i| {
+                if self.beyond_dhat(near[i], x) {
+                    (f64::INFINITY, Closest::PointPoint([0, 1]))
+                } else {
+                    self.gap_and_region(near[i], x)
+                }
+            },
         );
         for (&c, &(gap, closest)) in near.iter().zip(&gaps) {
             if gap < dhat {
@@ -874,25 +938,29 @@ impl Term for SelfContactTerm {
         {
             // The energy at `x` is the same for every trial of the line search: kept (for
             // the stiffness it was computed with), and computed from the kept gap when
-            // there is one. Each found pair's two energies on the pool, then the sum in
-            // the pairs' order.
+            // there is one, or zero when the kept separation shows the pair beyond `dhat`.
+            // Each found pair's two energies on the pool, then the sum in the pairs'
+            // order.
             let at_start = seg.starts_at(x);
             let same_kappa = kappa.to_bits() == seg.kappa.to_bits();
             let (found, list) = (&seg.found, seg.pairs.list());
             let (kept_gap, kept_energy) = (&seg.gap, &seg.energy);
-            spread::fill(&mut seg.values, found.len(), (0.0, 0.0), |i| {
+            let kept_separation = &seg.separation;
+            spread::fill(&mut seg.values, found.len(), (0.0, 0.0, 0.0), |i| {
                 let (k, c) = (found[i], list[found[i]]);
                 let after = self.pair_energy(kappa, c, &moved);
                 let before = if at_start && same_kappa && !kept_energy[k].is_nan() {
                     kept_energy[k]
                 } else if at_start && !kept_gap[k].is_nan() {
                     self.pair_energy_at_gap(kappa, c, x, kept_gap[k])
+                } else if at_start && self.beyond_dhat_by(kept_separation[k]) {
+                    0.0
                 } else {
                     self.pair_energy(kappa, c, x)
                 };
-                (after, before)
+                (after, before, 0.0)
             });
-            for (&k, &(after, before)) in seg.found.iter().zip(&seg.values) {
+            for (&k, &(after, before, _)) in seg.found.iter().zip(&seg.values) {
                 if at_start && same_kappa {
                     seg.energy[k] = before;
                 }
