@@ -230,9 +230,9 @@ fn moving_by_the_returned_fraction_never_crosses_on_random_pairs() {
 }
 
 #[test]
-fn a_sweep_shown_clear_by_the_boxes_is_one_the_exact_ccd_clears_too() {
+fn a_sweep_the_separation_clears_is_one_the_exact_ccd_clears_too() {
     // Random pairs, a second primitive offset by up to 2, steps from 1e-3 to 1 of the
-    // pairs' size, thicknesses 0 and 0.05: whenever the boxes show the sweep clear, the
+    // pairs' size, thicknesses 0 and 0.05: whenever the separation shows the sweep clear, the
     // exact ACCD returns the whole step, bit for bit 1.
     let mut rng = Rng(0x2545_f491_4f6c_dd1d);
     let (mut clear, mut cases) = (0, 0);
