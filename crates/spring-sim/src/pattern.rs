@@ -196,39 +196,59 @@ impl HessianPattern {
     ///
     /// Column `3 p + c` holds its diagonal entry, the `2 - c` entries below it in `p`'s
     /// diagonal block, then three consecutive rows per neighbour block (the structure
-    /// [`HessianPattern::with_pairs`] builds). The loop reads one row index per
-    /// neighbour block instead of one per entry; the additions are those of the
-    /// entry-by-entry product, in the same order, so the result is the same bit for bit.
+    /// [`HessianPattern::with_pairs`] builds), the same neighbours in the same order in
+    /// each of `p`'s three columns. The loop takes a particle's three columns together:
+    /// one row index per neighbour block instead of one per entry (or per column and
+    /// block), and the block's three rows of `y` and `x` are read once for the three
+    /// columns instead of once per column. Each entry of `y` still gets the additions of
+    /// the entry-by-entry product in its order (within a particle's columns a row of
+    /// `y` is added to column by column, and no other column adds to it in between),
+    /// and each column's sum the products in its order, so the result is the same bit
+    /// for bit.
     pub(crate) fn sym_matvec(&self, values: &[f64], x: &[f64], y: &mut [f64]) {
         y.fill(0.0);
         let col_ptr = self.symbolic.col_ptr();
         let row_idx = self.symbolic.row_idx();
-        for j in 0..self.dim() {
-            let xj = x[j];
-            let (start, end) = (col_ptr[j], col_ptr[j + 1]);
-            // The first entry of every column is its diagonal entry.
-            let mut acc = values[start] * xj;
-            let blocks = start + 3 - j % 3;
-            for k in start + 1..blocks {
-                let i = row_idx[k];
-                let v = values[k];
-                y[i] += v * xj;
-                acc += v * x[i];
-            }
-            debug_assert_eq!((end - blocks) % 3, 0);
-            for (v, &i) in values[blocks..end]
+        for j in (0..self.dim()).step_by(3) {
+            let (s0, s1, s2, end) = (col_ptr[j], col_ptr[j + 1], col_ptr[j + 2], col_ptr[j + 3]);
+            let (x0, x1, x2) = (x[j], x[j + 1], x[j + 2]);
+            // The diagonal block: column j's three entries, j + 1's two, j + 2's one.
+            let (d0, d1) = (&values[s0..s0 + 3], &values[s1..s1 + 2]);
+            let mut acc0 = d0[0] * x0;
+            y[j + 1] += d0[1] * x0;
+            acc0 += d0[1] * x1;
+            y[j + 2] += d0[2] * x0;
+            acc0 += d0[2] * x2;
+            let mut acc1 = d1[0] * x1;
+            y[j + 2] += d1[1] * x1;
+            acc1 += d1[1] * x2;
+            let mut acc2 = values[s2] * x2;
+            let (v0, v1, v2) = (
+                &values[s0 + 3..s1],
+                &values[s1 + 2..s2],
+                &values[s2 + 1..end],
+            );
+            debug_assert!(v0.len() % 3 == 0 && v1.len() == v0.len() && v2.len() == v0.len());
+            let rows = &row_idx[s0 + 3..s1];
+            for (((v0, v1), v2), &i) in v0
                 .chunks_exact(3)
-                .zip(row_idx[blocks..end].iter().step_by(3))
+                .zip(v1.chunks_exact(3))
+                .zip(v2.chunks_exact(3))
+                .zip(rows.iter().step_by(3))
             {
                 let (yi, xi) = (&mut y[i..i + 3], &x[i..i + 3]);
-                yi[0] += v[0] * xj;
-                acc += v[0] * xi[0];
-                yi[1] += v[1] * xj;
-                acc += v[1] * xi[1];
-                yi[2] += v[2] * xj;
-                acc += v[2] * xi[2];
+                for r in 0..3 {
+                    yi[r] += v0[r] * x0;
+                    yi[r] += v1[r] * x1;
+                    yi[r] += v2[r] * x2;
+                    acc0 += v0[r] * xi[r];
+                    acc1 += v1[r] * xi[r];
+                    acc2 += v2[r] * xi[r];
+                }
             }
-            y[j] += acc;
+            y[j] += acc0;
+            y[j + 1] += acc1;
+            y[j + 2] += acc2;
         }
     }
 }
