@@ -10,11 +10,19 @@ use crate::spring::Curvature;
 use sinew_math::DVec3;
 
 /// Axial damping along the springs' directions at the step's start.
+///
+/// The directions and the springs' vectors at the step's reference positions
+/// `d_s(x_ref)` are both frozen by [`Term::begin_step`], so the term's evaluations until
+/// the next one read the `x_ref` of that step.
 #[derive(Clone, Debug, Default)]
 pub struct AxialDamping {
     /// Per spring, the unit direction at the step's start (zero for a zero-length
     /// spring, which then has no axial damping in that step).
     directions: Vec<DVec3>,
+    /// Per spring, `d_s(x_ref) = x_ref[a] - x_ref[b]` of the step: the same in every
+    /// evaluation of a step, so it is computed once there instead of gathered from the
+    /// two ends in every pass over the springs.
+    references: Vec<DVec3>,
 }
 
 impl AxialDamping {
@@ -23,6 +31,7 @@ impl AxialDamping {
     pub fn new(system: &SpringSystem) -> Self {
         Self {
             directions: vec![DVec3::ZERO; system.springs().len()],
+            references: vec![DVec3::ZERO; system.springs().len()],
         }
     }
 
@@ -32,6 +41,13 @@ impl AxialDamping {
     #[must_use]
     pub fn directions(&self) -> &[DVec3] {
         &self.directions
+    }
+
+    /// The springs' vectors at the reference positions of the last step started with
+    /// damping, one per spring (kept as [`Self::directions`] are).
+    #[must_use]
+    pub fn reference_vectors(&self) -> &[DVec3] {
+        &self.references
     }
 
     /// `c/h`, or `None` when the material has no damping (the term is then zero).
@@ -172,6 +188,10 @@ impl Term for AxialDamping {
             x,
             &mut self.directions,
         );
+        let x_ref = step.x_ref;
+        self.references.clear();
+        self.references
+            .extend(springs.iter().map(|s| x_ref[s.a] - x_ref[s.b]));
     }
 
     fn energy(&self, step: &StepContext<'_>, x: &[DVec3]) -> f64 {
@@ -179,9 +199,9 @@ impl Term for AxialDamping {
             return 0.0;
         };
         let mut e = 0.0;
-        for (sp, &w) in step.system.springs().iter().zip(&self.directions) {
+        let frozen = self.directions.iter().zip(&self.references);
+        for (sp, (&w, &d_ref)) in step.system.springs().iter().zip(frozen) {
             let d = x[sp.a] - x[sp.b];
-            let d_ref = step.x_ref[sp.a] - step.x_ref[sp.b];
             e += kernel::energy(c, w, d, d_ref);
         }
         e
@@ -192,13 +212,13 @@ impl Term for AxialDamping {
             return 0.0;
         };
         let mut change = 0.0;
-        for (sp, &w) in step.system.springs().iter().zip(&self.directions) {
+        let frozen = self.directions.iter().zip(&self.references);
+        for (sp, (&w, &d_ref)) in step.system.springs().iter().zip(frozen) {
             let delta = alpha * dx[sp.a] - alpha * dx[sp.b];
             if delta == DVec3::ZERO {
                 continue;
             }
             let d = x[sp.a] - x[sp.b];
-            let d_ref = step.x_ref[sp.a] - step.x_ref[sp.b];
             change += kernel::energy_change(c, w, d, d_ref, delta);
         }
         change
@@ -208,9 +228,9 @@ impl Term for AxialDamping {
         let Some(c) = Self::coefficient(step) else {
             return;
         };
-        for (sp, &w) in step.system.springs().iter().zip(&self.directions) {
+        let frozen = self.directions.iter().zip(&self.references);
+        for (sp, (&w, &d_ref)) in step.system.springs().iter().zip(frozen) {
             let d = x[sp.a] - x[sp.b];
-            let d_ref = step.x_ref[sp.a] - step.x_ref[sp.b];
             let g = kernel::gradient(c, w, d, d_ref);
             gradient[sp.a] += g;
             gradient[sp.b] -= g;

@@ -31,15 +31,14 @@ pub(super) struct PerSpring<'t> {
 impl PerSpring<'_> {
     /// The damping of the springs `range` for the four-spring kernels ([`lanes`]), when
     /// the damping term is active.
-    pub(super) fn lanes_damping<'s>(
-        &'s self,
-        step: &'s StepContext<'_>,
+    pub(super) fn lanes_damping(
+        &self,
         range: std::ops::Range<usize>,
-    ) -> Option<lanes::Damping<'s>> {
+    ) -> Option<lanes::Damping<'_>> {
         self.damping.map(|(term, c)| lanes::Damping {
             c,
-            directions: &term.directions()[range],
-            x_ref: step.x_ref,
+            directions: &term.directions()[range.clone()],
+            references: &term.reference_vectors()[range],
         })
     }
 
@@ -48,9 +47,9 @@ impl PerSpring<'_> {
         match (self.springs, self.damping) {
             (true, Some((term, c))) => {
                 let mut e = 0.0;
-                for (s, &w) in step.system.springs().iter().zip(term.directions()) {
+                let frozen = term.directions().iter().zip(term.reference_vectors());
+                for (s, (&w, &d_ref)) in step.system.springs().iter().zip(frozen) {
                     let d = x[s.a] - x[s.b];
-                    let d_ref = step.x_ref[s.a] - step.x_ref[s.b];
                     e += springs::energy(s, x) + damping::energy(c, w, d, d_ref);
                 }
                 e
@@ -94,18 +93,21 @@ impl PerSpring<'_> {
         let springs = &step.system.springs()[range.clone()];
         if let Some((term, c)) = self.damping {
             // Damped, spring by spring: the four-spring kernel gives the same bits but
-            // took a quarter more instructions on the ground contact workload (its
-            // gathers of the reference positions and directions cost more than the
-            // packed square roots and division save at one step length), and no
-            // measurable time.
+            // takes a quarter more instructions on the ground contact workload (its
+            // gathers of the springs' ends into lanes cost more than the packed square
+            // roots and division save at one step length; measured again with the
+            // reference vectors cached: 96.5 M against 77.3 M over the run), and no
+            // measurable time (docs/contact.md).
             let mut change = 0.0;
-            for (s, &w) in springs.iter().zip(&term.directions()[range]) {
+            let frozen = term.directions()[range.clone()]
+                .iter()
+                .zip(&term.reference_vectors()[range]);
+            for (s, (&w, &d_ref)) in springs.iter().zip(frozen) {
                 let delta = alpha * dx[s.a] - alpha * dx[s.b];
                 if delta == DVec3::ZERO {
                     continue;
                 }
                 let d = x[s.a] - x[s.b];
-                let d_ref = step.x_ref[s.a] - step.x_ref[s.b];
                 change += springs::energy_change(s, x, delta)
                     + damping::energy_change(c, w, d, d_ref, delta);
             }
@@ -130,7 +132,7 @@ impl PerSpring<'_> {
         let springs = &step.system.springs()[range.clone()];
         // Four springs at a time, the damping's change added to each spring's as the
         // loop of `Self::energy_change` adds it: the same bits.
-        let damping = self.lanes_damping(step, range);
+        let damping = self.lanes_damping(range);
         lanes::energy_change_pair_sum(Instance::Detect, springs, x, dx, [a1, a2], damping)
     }
 
@@ -147,7 +149,7 @@ impl PerSpring<'_> {
                 for first in (0..springs.len()).step_by(CHUNK) {
                     let range = first..(first + CHUNK).min(springs.len());
                     let g = &mut buffer[..range.len()];
-                    let damping = self.lanes_damping(step, range.clone());
+                    let damping = self.lanes_damping(range.clone());
                     let chunk = &springs[range];
                     lanes::gradients(Instance::Detect, chunk, x, damping, g);
                     for (s, &g) in chunk.iter().zip(&*g) {
@@ -179,7 +181,7 @@ impl PerSpring<'_> {
                 for first in (0..springs.len()).step_by(CHUNK) {
                     let range = first..(first + CHUNK).min(springs.len());
                     let b = &mut buffer[..range.len()];
-                    let damping = self.lanes_damping(step, range.clone());
+                    let damping = self.lanes_damping(range.clone());
                     let chunk = &springs[range];
                     lanes::blocks(Instance::Detect, chunk, x, curvature, damping, b);
                     let edges = chunk.iter().zip(&*b).enumerate();

@@ -70,18 +70,18 @@ fn plain_length(l: f64) -> bool {
 }
 
 /// The axial damping term's share of the springs a kernel is given: its coefficient
-/// `c/h`, the springs' directions frozen at the step's start (one per spring given, in
-/// the same order) and the step's reference positions. The kernels add it to the
-/// springs' gradients, blocks and energy changes by the potential's fused expressions
-/// (the spring's value, then the damping's added to it).
+/// `c/h`, and per spring given (in the same order) its direction and its vector at the
+/// step's reference positions, both frozen at the step's start. The kernels add it to
+/// the springs' gradients, blocks and energy changes by the potential's fused
+/// expressions (the spring's value, then the damping's added to it).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Damping<'a> {
     /// `c/h`.
     pub(crate) c: f64,
     /// The frozen directions of the springs given to the kernel.
     pub(crate) directions: &'a [DVec3],
-    /// The reference positions `x_ref`, indexed by particle.
-    pub(crate) x_ref: &'a [DVec3],
+    /// The springs' vectors `x_ref[a] - x_ref[b]` at the reference positions.
+    pub(crate) references: &'a [DVec3],
 }
 
 impl Damping<'_> {
@@ -89,15 +89,26 @@ impl Damping<'_> {
     const NONE: Damping<'static> = Damping {
         c: 0.0,
         directions: &[],
-        x_ref: &[],
+        references: &[],
     };
 
     /// Spring `e`'s damping gradient on its first particle (`s` the spring, `e` its
     /// index among the springs given to the kernel), by the damping kernel.
     #[inline(always)]
     fn gradient(&self, s: &Spring, e: usize, x: &[DVec3]) -> DVec3 {
-        let (d, d_ref) = (x[s.a] - x[s.b], self.x_ref[s.a] - self.x_ref[s.b]);
-        damping::gradient(self.c, self.directions[e], d, d_ref)
+        let d = x[s.a] - x[s.b];
+        damping::gradient(self.c, self.directions[e], d, self.references[e])
+    }
+
+    /// The same share for the springs from the `first` given on (empty slices for
+    /// [`Self::NONE`]).
+    #[inline(always)]
+    fn from(&self, first: usize) -> Self {
+        Damping {
+            c: self.c,
+            directions: &self.directions[first.min(self.directions.len())..],
+            references: &self.references[first.min(self.references.len())..],
+        }
     }
 }
 
@@ -210,7 +221,8 @@ fn fill_lanes<const GRADIENT: bool, const BLOCK: bool, const DAMPED: bool>(
             }
             if DAMPED {
                 // `(c e) w` added, `e = w . (d - d_ref)`.
-                let e = elongations(&w, &d, &differences(batch, damped.x_ref));
+                let d_ref = components(&damped.references[first..first + LANES]);
+                let e = elongations(&w, &d, &d_ref);
                 for (g, w) in g.iter_mut().zip(&w) {
                     for i in 0..LANES {
                         g[i] += damped.c * e[i] * w[i];
@@ -381,7 +393,8 @@ fn energy_change_lanes<const PAIR: bool, const DAMPED: bool>(
         let (rest, k) = constants(batch);
         let (w, e) = if DAMPED {
             let w = components(&damped.directions[first..first + LANES]);
-            let e = elongations(&w, &d, &differences(batch, damped.x_ref));
+            let d_ref = components(&damped.references[first..first + LANES]);
+            let e = elongations(&w, &d, &d_ref);
             (w, e)
         } else {
             ([[0.0; LANES]; 3], [0.0; LANES])
@@ -415,16 +428,13 @@ fn energy_change_lanes<const PAIR: bool, const DAMPED: bool>(
             }
         }
     }
-    let (tail, directions) = (
-        &springs[whole..],
-        &damped.directions[whole.min(damped.directions.len())..],
-    );
-    energy_change_tail::<PAIR, DAMPED>(tail, x, dx, [a1, a2], [c1, c2], damped, directions)
+    let tail = &springs[whole..];
+    energy_change_tail::<PAIR, DAMPED>(tail, x, dx, [a1, a2], [c1, c2], &damped.from(whole))
 }
 
 /// The sums `sums` continued over the springs `rest` (fewer than a batch) one at a
 /// time by the scalar kernels (the damping's change added to the spring's when
-/// `DAMPED`, `directions` being the springs' `rest`'s).
+/// `DAMPED`, `damped` being the springs' `rest`'s).
 #[inline(always)]
 fn energy_change_tail<const PAIR: bool, const DAMPED: bool>(
     rest: &[Spring],
@@ -433,14 +443,13 @@ fn energy_change_tail<const PAIR: bool, const DAMPED: bool>(
     [a1, a2]: [f64; 2],
     [mut c1, mut c2]: [f64; 2],
     damped: &Damping<'_>,
-    directions: &[DVec3],
 ) -> [f64; 2] {
     let change = |j: usize, s: &Spring, delta: DVec3| {
         if DAMPED {
             let d = x[s.a] - x[s.b];
-            let d_ref = damped.x_ref[s.a] - damped.x_ref[s.b];
+            let (w, d_ref) = (damped.directions[j], damped.references[j]);
             springs::energy_change(s, x, delta)
-                + damping::energy_change(damped.c, directions[j], d, d_ref, delta)
+                + damping::energy_change(damped.c, w, d, d_ref, delta)
         } else {
             springs::energy_change(s, x, delta)
         }
@@ -730,7 +739,8 @@ mod avx2 {
                 ];
                 if DAMPED {
                     // `(c e) w` added.
-                    let e = elongation(w, d, differences(batch, damped.x_ref));
+                    let d_ref = components(&damped.references[first..first + LANES]);
+                    let e = elongation(w, d, d_ref);
                     let ce = _mm256_mul_pd(c, e);
                     for (g, w) in g.iter_mut().zip(w) {
                         *g = _mm256_add_pd(*g, _mm256_mul_pd(ce, w));
@@ -905,7 +915,8 @@ mod avx2 {
             // No closure (`DAMPED.then(..)`): it would not inherit the AVX2 feature.
             let damping = if DAMPED {
                 let w = components(&damped.directions[first..first + LANES]);
-                let e = elongation(w, d, differences(batch, damped.x_ref));
+                let d_ref = components(&damped.references[first..first + LANES]);
+                let e = elongation(w, d, d_ref);
                 Some((w, e, half_c))
             } else {
                 None
@@ -925,10 +936,9 @@ mod avx2 {
                 }
             }
         }
-        let tail = &springs[whole..];
-        let directions = &damped.directions[whole.min(damped.directions.len())..];
-        let sums = [c1, c2];
-        super::energy_change_tail::<PAIR, DAMPED>(tail, x, dx, [a1, a2], sums, damped, directions)
+        let (tail, sums) = (&springs[whole..], [c1, c2]);
+        let damped = damped.from(whole);
+        super::energy_change_tail::<PAIR, DAMPED>(tail, x, dx, [a1, a2], sums, &damped)
     }
 
     /// [`super::energies_lanes`] in 256-bit registers.
@@ -1461,6 +1471,7 @@ mod tests {
     fn damped_gradients_and_blocks_are_bitwise_the_scalar_kernels() {
         let (x, springs) = cases();
         let (c, directions, x_ref) = damping_of(&x, &springs);
+        let references: Vec<DVec3> = springs.iter().map(|s| x_ref[s.a] - x_ref[s.b]).collect();
         let curvatures = [
             Curvature::Exact,
             Curvature::Clamped,
@@ -1483,7 +1494,7 @@ mod tests {
             let damped = Some(Damping {
                 c,
                 directions: &directions[..n],
-                x_ref: &x_ref,
+                references: &references[..n],
             });
             let springs = &springs[..n];
             let scalar: Vec<f64> = (0..n).flat_map(|e| scalar_gradient(e).to_array()).collect();
@@ -1528,6 +1539,7 @@ mod tests {
         let (x, mut springs) = cases();
         springs.retain(|s| (x[s.a] - x[s.b]).length().is_finite());
         let (c, directions, x_ref) = damping_of(&x, &springs);
+        let references: Vec<DVec3> = springs.iter().map(|s| x_ref[s.a] - x_ref[s.b]).collect();
         let dx: Vec<DVec3> = (0..x.len())
             .map(|i| {
                 let t = i as f64;
@@ -1555,7 +1567,7 @@ mod tests {
             let damped = Some(Damping {
                 c,
                 directions: &directions[..n],
-                x_ref: &x_ref,
+                references: &references[..n],
             });
             for [a1, a2] in [[1.0, 2.0], [0.5, 0.25], [1.0, 0.0], [0.0, -1.0]] {
                 let scalar = [a1, a2].map(|a| scalar_change(n, a));

@@ -264,7 +264,7 @@ impl SpringGather {
             for first in (0..springs.len()).step_by(SPRING_CHUNK) {
                 let range = first..(first + SPRING_CHUNK).min(springs.len());
                 let chunk = &springs[range.clone()];
-                let damping = per.lanes_damping(step, range.clone());
+                let damping = per.lanes_damping(range.clone());
                 let g = &mut self.gradients[range.clone()];
                 match blocks {
                     Some(curvature) => lanes::gradients_and_blocks(
@@ -293,7 +293,7 @@ impl SpringGather {
             Some(curvature) => {
                 fill_spring_chunk_pairs(par, springs, block_buffer, |first, g, b| {
                     let range = first..first + g.len();
-                    let damping = per.lanes_damping(step, range.clone());
+                    let damping = per.lanes_damping(range.clone());
                     let chunk = &all[range];
                     let i = Instance::Detect;
                     lanes::gradients_and_blocks(i, chunk, x, curvature, damping, g, b);
@@ -301,7 +301,7 @@ impl SpringGather {
             }
             None => fill_spring_chunks(par, springs, |first, g| {
                 let range = first..first + g.len();
-                let damping = per.lanes_damping(step, range.clone());
+                let damping = per.lanes_damping(range.clone());
                 lanes::gradients(Instance::Detect, &all[range], x, damping, g);
             }),
         };
@@ -599,7 +599,7 @@ impl PerSpring<'_> {
         let all = step.system.springs();
         fill_spring_chunks(par, blocks, |first, b| {
             let range = first..first + b.len();
-            let damping = self.lanes_damping(step, range.clone());
+            let damping = self.lanes_damping(range.clone());
             lanes::blocks(Instance::Detect, &all[range], x, curvature, damping, b);
         });
     }
