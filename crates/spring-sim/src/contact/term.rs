@@ -258,6 +258,12 @@ impl Term for ContactTerm {
         });
     }
 
+    fn hessian_is_block_diagonal(&self) -> bool {
+        // A rigid collider couples no two particles: the barrier's and friction's blocks
+        // are all per particle.
+        true
+    }
+
     fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
         // The line search may lengthen an accepted full step up to 2^10 times, so the
         // cap is computed over that whole range; nothing near within it: no cap. The

@@ -55,6 +55,10 @@ impl Term for Gravity {
     ) {
         // A linear term has no curvature.
     }
+
+    fn hessian_is_block_diagonal(&self) -> bool {
+        true
+    }
 }
 
 /// Adds a particle's gradient `-m g` to `grad` (the term's loop and the threaded

@@ -60,6 +60,10 @@ impl Term for Inertia {
             sink.add_diagonal(p, block(m, inv_h2));
         }
     }
+
+    fn hessian_is_block_diagonal(&self) -> bool {
+        true
+    }
 }
 
 // The per-particle kernels, written once for the term's loops and for the threaded

@@ -164,6 +164,16 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
         sink: &mut HessianSink<'_>,
     );
 
+    /// Whether [`Term::add_hessian`] gives only diagonal blocks (`(i, i)`: no particle
+    /// coupled to another), as inertia, gravity and contact with rigid colliders do. The
+    /// threaded assembly then collects such terms' blocks per particle instead of
+    /// zeroing every stored value of the Newton matrix first. `false` by default; a term
+    /// that answers `true` and still gives a coupling block is detected by the sink, and
+    /// the matrix is then assembled the general way (correct, only slower).
+    fn hessian_is_block_diagonal(&self) -> bool {
+        false
+    }
+
     /// The largest `alpha` for which every state on `x + [0, alpha] dx` is admissible
     /// (the line search never tries beyond it); unlimited by default.
     fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {

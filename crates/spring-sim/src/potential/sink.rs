@@ -93,6 +93,15 @@ enum Target<'a> {
         z: &'a [DVec3],
         out: &'a mut [DVec3],
     },
+    /// The diagonal blocks alone, one per free particle (indexed by free index), for
+    /// terms that give no others: a coupling block only sets `coupled`. (Only the
+    /// threaded assembly's gather collects them.)
+    #[cfg_attr(not(feature = "parallel"), allow(dead_code))]
+    Diagonal {
+        pattern: &'a HessianPattern,
+        blocks: &'a mut [SymBlock],
+        coupled: bool,
+    },
 }
 
 /// A pair `(i, j)` of free particles whose block the pattern has no slots for (a term
@@ -139,10 +148,54 @@ impl<'a> HessianSink<'a> {
         }
     }
 
+    /// Accumulates the diagonal blocks alone into `blocks`, one per free particle of
+    /// `pattern` (by free index; not cleared), each entry added as the values target
+    /// adds it to its slot. A coupling block (an edge or a pair of two particles) is not
+    /// stored anywhere: it only marks the sink as [`Self::coupled`], and the caller then
+    /// assembles the matrix the general way.
+    #[must_use]
+    #[cfg_attr(not(feature = "parallel"), allow(dead_code))]
+    pub(crate) fn diagonal(pattern: &'a HessianPattern, blocks: &'a mut [SymBlock]) -> Self {
+        debug_assert_eq!(blocks.len(), pattern.free_particles.len());
+        Self {
+            target: Target::Diagonal {
+                pattern,
+                blocks,
+                coupled: false,
+            },
+        }
+    }
+
+    /// Whether a diagonal-blocks sink ([`Self::diagonal`]) was given a coupling block
+    /// (then its blocks are not the matrix's); false for the other targets.
+    #[must_use]
+    #[cfg_attr(not(feature = "parallel"), allow(dead_code))]
+    pub(crate) fn coupled(&self) -> bool {
+        matches!(self.target, Target::Diagonal { coupled: true, .. })
+    }
+
+    /// Marks a diagonal-blocks sink as given a coupling block.
+    #[inline]
+    fn mark_coupled(&mut self) {
+        if let Target::Diagonal { coupled, .. } = &mut self.target {
+            *coupled = true;
+        }
+    }
+
     /// Adds the symmetric block `b` at `(i, i)`.
     #[inline]
     pub fn add_diagonal(&mut self, i: usize, b: SymBlock) {
         match &mut self.target {
+            Target::Diagonal {
+                pattern, blocks, ..
+            } => {
+                let f = pattern.free_index[i];
+                if f != FIXED {
+                    for (sum, v) in blocks[f].0.iter_mut().zip(b.0) {
+                        *sum += v;
+                    }
+                }
+            }
             Target::Values { pattern, values } => {
                 let f = pattern.free_index[i];
                 if f != FIXED {
@@ -173,6 +226,7 @@ impl<'a> HessianSink<'a> {
             Target::Values { pattern, values } => edge_values(pattern, values, edge, a, b, k),
             Target::RowSums { fixed, rows } => edge_row_sums(fixed, rows, a, b, k.abs_row_sums()),
             Target::Product { fixed, z, out } => edge_product(fixed, z, out, a, b, |d| k.mul(d)),
+            Target::Diagonal { .. } => self.mark_coupled(),
         }
     }
 
@@ -200,6 +254,7 @@ impl<'a> HessianSink<'a> {
             Target::Product { fixed, z, out } => {
                 edge_product(fixed, z, out, a, b, |d| alpha * d + beta * u.dot(d) * u);
             }
+            Target::Diagonal { .. } => self.mark_coupled(),
         }
     }
 
@@ -227,6 +282,10 @@ impl<'a> HessianSink<'a> {
                     edge_product(fixed, z, out, a, b, |d| alpha * d + beta * u.dot(d) * u);
                 }
             }
+            Target::Diagonal { coupled, .. } => {
+                let mut edges = edges;
+                *coupled |= edges.next().is_some();
+            }
         }
     }
 
@@ -250,6 +309,10 @@ impl<'a> HessianSink<'a> {
                     edge_product(fixed, z, out, a, b, |d| k.mul(d));
                 }
             }
+            Target::Diagonal { coupled, .. } => {
+                let mut edges = edges;
+                *coupled |= edges.next().is_some();
+            }
         }
     }
 
@@ -261,7 +324,7 @@ impl<'a> HessianSink<'a> {
     #[must_use]
     pub fn has_pair(&self, i: usize, j: usize) -> bool {
         match &self.target {
-            Target::Values { pattern, .. } => {
+            Target::Values { pattern, .. } | Target::Diagonal { pattern, .. } => {
                 let (fi, fj) = (pattern.free_index[i], pattern.free_index[j]);
                 i == j || fi == FIXED || fj == FIXED || pattern.off_block_slots(fi, fj).is_some()
             }
@@ -312,6 +375,7 @@ impl<'a> HessianSink<'a> {
                 out[i] += *b * z[j];
                 out[j] += b.transpose() * z[i];
             }
+            Target::Diagonal { .. } => self.mark_coupled(),
         }
         Ok(())
     }
