@@ -30,7 +30,7 @@
 
 use super::ContactSettings;
 use super::barrier::barrier_first_derivative;
-use super::collider::Collider;
+use super::collider::{Collider, Shape};
 use super::distance::signed_distance;
 use crate::spring::outer;
 use sinew_math::{DMat3, DVec3};
@@ -106,7 +106,23 @@ impl FrictionContact {
         kappa: f64,
         settings: &ContactSettings,
     ) -> Option<Self> {
-        let sd = signed_distance(&collider.at(t_n), x_n, settings.thickness);
+        Self::lagged_posed(collider, &collider.at(t_n), x_n, t_n, h, kappa, settings)
+    }
+
+    /// [`Self::lagged`] with the collider's pose at `t_n` given (`posed`, which must be
+    /// `collider.at(t_n)`): a step lags every particle against the same pose, computed
+    /// once instead of once per particle.
+    #[must_use]
+    pub(crate) fn lagged_posed(
+        collider: &Collider,
+        posed: &Shape,
+        x_n: DVec3,
+        t_n: f64,
+        h: f64,
+        kappa: f64,
+        settings: &ContactSettings,
+    ) -> Option<Self> {
+        let sd = signed_distance(posed, x_n, settings.thickness);
         if !(sd.distance > 0.0 && sd.distance < settings.dhat) || settings.mu == 0.0 {
             return None;
         }

@@ -245,9 +245,16 @@ impl ContactPotential {
                     if fixed[i] {
                         continue;
                     }
-                    if let Some(mut contact) =
-                        FrictionContact::lagged(collider, x, start, h, kappa.kappa, &self.settings)
-                    {
+                    let lagged = FrictionContact::lagged_posed(
+                        collider,
+                        &shape,
+                        x,
+                        start,
+                        h,
+                        kappa.kappa,
+                        &self.settings,
+                    );
+                    if let Some(mut contact) = lagged {
                         // The lag point stays x_n (normal, force, basis); the displacement
                         // is measured from the scheme's reference point.
                         contact.start = step.anchor[i];
