@@ -742,6 +742,22 @@ mod tests {
     use crate::model::ClothGrid;
     use crate::potential::{HessianSink, Term};
 
+    /// A lab sheet of `size x size` particles (spacing 0.05, the given damping) at rest
+    /// in a state moved off its rest positions (shrunk and rippled), and that state.
+    fn moved_sheet(size: usize, damping: f64) -> (SpringSystem, Vec<DVec3>) {
+        let mut system =
+            SpringSystem::cloth(&ClothGrid::lab_sized(size, 0.05).with_damping(damping)).unwrap();
+        let x: Vec<DVec3> = system
+            .positions()
+            .iter()
+            .enumerate()
+            .map(|(i, p)| *p * 0.9 + 0.01 * DVec3::new((0.7 * i as f64).sin(), 0.0, 0.3))
+            .collect();
+        let v = vec![DVec3::ZERO; x.len()];
+        system.set_state(&x, &v).unwrap();
+        (system, x)
+    }
+
     /// The gather's gradient and Newton matrix, on the calling thread and on pools of two
     /// and three threads, with the springs' blocks computed in their own pass or in the
     /// gradient's, are bitwise the sequential scatter's, for an undamped and a damped
@@ -749,16 +765,7 @@ mod tests {
     #[test]
     fn the_gather_is_the_scatter_bit_for_bit() {
         for damping in [0.0, 0.2] {
-            let mut system =
-                SpringSystem::cloth(&ClothGrid::lab_sized(41, 0.05).with_damping(damping)).unwrap();
-            let x: Vec<DVec3> = system
-                .positions()
-                .iter()
-                .enumerate()
-                .map(|(i, p)| *p * 0.9 + 0.01 * DVec3::new((0.7 * i as f64).sin(), 0.0, 0.3))
-                .collect();
-            let v = vec![DVec3::ZERO; x.len()];
-            system.set_state(&x, &v).unwrap();
+            let (system, x) = moved_sheet(41, damping);
             let y: Vec<DVec3> = x.iter().map(|p| *p + DVec3::new(0.0, -0.01, 0.0)).collect();
             let x_ref: Vec<DVec3> = x.iter().map(|p| *p * 1.01).collect();
             let step = StepContext::new(&system, 1.0 / 60.0, &y, &x_ref);
@@ -872,16 +879,7 @@ mod tests {
     #[test]
     fn the_gather_with_other_terms_is_the_scatter_bit_for_bit() {
         use crate::contact::{Collider, ContactPotential, ContactSettings, ContactTerm};
-        let mut system =
-            SpringSystem::cloth(&ClothGrid::lab_sized(21, 0.05).with_damping(0.2)).unwrap();
-        let x: Vec<DVec3> = system
-            .positions()
-            .iter()
-            .enumerate()
-            .map(|(i, p)| *p * 0.9 + 0.01 * DVec3::new((0.7 * i as f64).sin(), 0.0, 0.3))
-            .collect();
-        let v = vec![DVec3::ZERO; x.len()];
-        system.set_state(&x, &v).unwrap();
+        let (system, x) = moved_sheet(21, 0.2);
         let lowest = x.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
         let ground = Collider::ground(lowest - 5e-4);
         let settings = ContactSettings {
