@@ -31,7 +31,7 @@
 //! benchmark: a table for docs/contact.md, run with
 //! `cargo bench -p sinew-spring-sim --bench contact [-- ground|drape|rotating|twist|stack
 //! [steps] [--trace] [mu=..] [eps_v=..] [solver=direct|pcg|auto] [reuse=..] [tol=..]
-//! [exact=0|1] [save=FILE] [against=FILE]]` (`--trace`: a line per step on stderr; `mu`, `eps_v`: the
+//! [exact=0|1] [save=FILE] [against=FILE]]` (`--trace`: a line per step on stderr, with the step's intersecting triangle pairs for the self-contact workloads; `mu`, `eps_v`: the
 //! collider friction settings instead of the workload's; `solver`: the linear solver,
 //! `auto` by default; `reuse`: the direct solver's `factor_reuse_iterations`, 0 for a
 //! factorization every Newton iteration; `tol`: `NewtonSettings::tolerance`; `exact`:
@@ -499,7 +499,7 @@ fn main() {
             let (d, meeting) = run.check();
             if trace {
                 eprintln!(
-                    "{} step {}: {} Newton, {} PCG, {} factorizations, {} kept-factor solves ({} iterations), {} backtracks, {:?}, {} pieces, kappa {:.4}, d {d:.3e}, residual {:.3e}, {:.2} ms",
+                    "{} step {}: {} Newton, {} PCG, {} factorizations, {} kept-factor solves ({} iterations), {} backtracks, {:?}, {} pieces, kappa {:.4}, d {d:.3e}, residual {:.3e}, {:.2} ms, {meeting} intersecting triangle pairs",
                     w.name,
                     times.len(),
                     report.iterations,
