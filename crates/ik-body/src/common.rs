@@ -11,7 +11,7 @@ use sinew_skeleton::finish::{Finish, FinishJob, Finished, Movers};
 use crate::carry::Carried;
 use crate::horn::BestRotation;
 use crate::workload::Rng;
-use sinew_math::{DQuat, DVec3};
+use sinew_math::{DQuat, DVec3, rotation_between, try_unit};
 use sinew_skeleton::ik::{Chain, IkError, StopReason};
 use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::seed::limb_seed;
@@ -23,6 +23,12 @@ const LIMB_SEED_DISTANCE: f64 = 0.25;
 /// When a cold start places the body ([`Common::place_body`]), a limb whose effector is
 /// further from its goal than this fraction of the limb's length is seeded too.
 const PLACED_LIMB_SEED_DISTANCE: f64 = 0.1;
+
+/// The spins of a limb's base about its base-to-goal line that [`Common::swivel_limbs`]
+/// tries either side of the seeded one, and the angle between two of them: eight a side
+/// cover the 45 degrees between two of the limb seed's own spins.
+const SWIVEL_STEPS: usize = 8;
+const SWIVEL_STEP: f64 = std::f64::consts::TAU / 64.0;
 
 /// A finish whose cost has not fallen tenfold over this many steps ends in a local
 /// minimum, so that the solver restarts (see `docs/ik-body.md`).
@@ -533,6 +539,9 @@ impl Common {
             return Ok(false);
         }
         state.update_global(skeleton)?;
+        if self.swivel_limbs(problem, state) {
+            state.update_global(skeleton)?;
+        }
         if self.cost(state) < before && self.pins_hold(problem, state) {
             return Ok(true);
         }
@@ -540,6 +549,90 @@ impl Common {
         state.root_translation = kept_translation;
         state.update_global(skeleton)?;
         Ok(false)
+    }
+
+    /// After the limb seeds: a seeded limb whose hinge reaches its goal's distance but
+    /// whose effector misses it was turned off its goal by the projection of its base
+    /// joint, when none of the seed's eight spins about the base-to-goal line is inside
+    /// the base's limit. Those spins are 45 degrees apart; the spins inside a shoulder's
+    /// or a hip's limit often form a narrower arc between two of them. So the base is
+    /// tried at finer spins either side of the one nearest its seeded rotation (the
+    /// tip kept on the goal), nearest first, and takes the first that its limit keeps as
+    /// it is ([`PreparedLimit::keeps`](sinew_skeleton::limits::PreparedLimit::keeps): its
+    /// projection returns it unchanged). Returns whether a base moved; `state.global` is
+    /// then stale.
+    fn swivel_limbs(&self, problem: &BodyProblem<'_>, state: &mut BodyState) -> bool {
+        let skeleton = problem.skeleton;
+        let tolerance = problem.settings.tolerance;
+        let mut moved = false;
+        // The half-angle of one spin step, for the rotation of (cos, sin) pairs below.
+        let (step_sin, step_cos) = (0.5 * SWIVEL_STEP).sin_cos();
+        for &(e, k) in &self.seedable {
+            let t = &self.targets[e];
+            let base = self.limbs[k].base();
+            let at = state.global.positions[t.joint];
+            if at.distance(t.position) <= tolerance {
+                continue;
+            }
+            let base_at = state.global.positions[base];
+            let parent = skeleton
+                .parent(base)
+                .map_or(DQuat::IDENTITY, |p| state.global.rotations[p]);
+            // The tip in the base's own frame and the goal in its parent's: the base's
+            // rotation takes one onto the other exactly when the tip is on the goal.
+            let tip = state.global.rotations[base].conjugate() * (at - base_at);
+            let goal = parent.conjugate() * (t.position - base_at);
+            if (tip.length() - goal.length()).abs() > tolerance {
+                // The hinge could not reach the goal's distance: no spin can help.
+                continue;
+            }
+            let Some(axis) = try_unit(goal) else {
+                continue;
+            };
+            // Every rotation taking the tip onto the goal: `cos(h) aim + sin(h) side`,
+            // the shortest one turned by `2 h` about the goal's direction.
+            let aim = rotation_between(tip, goal);
+            let side = DQuat::from_xyzw(axis.x, axis.y, axis.z, 0.0) * aim;
+            let current = state.pose.rotations[base];
+            // The member nearest the seeded rotation: `h` maximising its dot product.
+            let (c0, s0) = {
+                let h = side.dot(current).atan2(aim.dot(current));
+                let (s, c) = h.sin_cos();
+                (c, s)
+            };
+            let candidate = |c: f64, s: f64| (aim * c + side * s).normalize();
+            let limit = skeleton.prepared_limit(base);
+            let mut found = None;
+            let (mut up, mut down) = ((c0, s0), (c0, s0));
+            if limit.keeps(candidate(c0, s0)) {
+                found = Some(candidate(c0, s0));
+            }
+            for _ in 0..SWIVEL_STEPS {
+                if found.is_some() {
+                    break;
+                }
+                up = (
+                    up.0 * step_cos - up.1 * step_sin,
+                    up.1 * step_cos + up.0 * step_sin,
+                );
+                down = (
+                    down.0 * step_cos + down.1 * step_sin,
+                    down.1 * step_cos - down.0 * step_sin,
+                );
+                for (c, s) in [up, down] {
+                    let q = candidate(c, s);
+                    if limit.keeps(q) {
+                        found = Some(q);
+                        break;
+                    }
+                }
+            }
+            if let Some(q) = found {
+                state.pose.rotations[base] = q;
+                moved = true;
+            }
+        }
+        moved
     }
 
     /// Places the body as a whole before its limbs are seeded: a rigid motion fitted to
@@ -836,6 +929,86 @@ mod tests {
         assert!(
             seeded >= 15 && all_limbs >= 5,
             "{seeded} of 20 seeded, {all_limbs} with every limb"
+        );
+    }
+
+    /// A seeded limb spun about its base-to-goal line out of its base's limit and then
+    /// projected onto it (the seed's failure: the tip, at the goal's distance, is moved
+    /// off the goal) is swiveled back onto its goal with its base inside the limit, and
+    /// only its base turned; with the hinge bent as well (the tip no longer at the goal's
+    /// distance) nothing is turned.
+    #[test]
+    fn a_limb_projected_off_its_goal_is_swiveled_back_onto_it() {
+        let skeleton = workload::humanoid().expect("valid");
+        let settings = SolveSettings::default();
+        let (mut tried, mut swiveled) = (0, 0);
+        for goals in &workload::goal_sets(&skeleton, 40, 11, false) {
+            let problem =
+                BodyProblem::new(&skeleton, &goals.effectors, settings).with_root_translation(true);
+            let mut state = BodyState::rest(&skeleton);
+            let mut common = Common::default();
+            assert!(matches!(
+                common.begin(&problem, &mut state, false, false),
+                Ok(Begin::Iterate)
+            ));
+            if !common.seed_limbs(&problem, &mut state).expect("valid") {
+                continue;
+            }
+            let seeded = state.clone();
+            for (e, k) in common.seedable.clone() {
+                let t = common.targets[e];
+                let base = common.limbs[k].base();
+                let hinge = common.limbs[k].joints()[1];
+                let limit = skeleton.prepared_limit(base);
+                if seeded.global.positions[t.joint].distance(t.position) > 1e-9 {
+                    continue;
+                }
+                for angle in [0.4, -0.6, 1.0, -1.5, 2.5] {
+                    let mut state = seeded.clone();
+                    let parent = skeleton
+                        .parent(base)
+                        .map_or(DQuat::IDENTITY, |p| state.global.rotations[p]);
+                    let line = parent.conjugate() * (t.position - state.global.positions[base]);
+                    let spin = DQuat::from_axis_angle(line.normalize(), angle);
+                    let spun = (spin * state.pose.rotations[base]).normalize();
+                    state.pose.rotations[base] = limit.project(spun);
+                    state.update_global(&skeleton).expect("valid");
+                    if state.global.positions[t.joint].distance(t.position) <= 1e-6 {
+                        // Still inside the limit (or nearly): nothing to swivel.
+                        continue;
+                    }
+                    tried += 1;
+                    let projected = state.clone();
+                    if !common.swivel_limbs(&problem, &mut state) {
+                        continue;
+                    }
+                    swiveled += 1;
+                    state.update_global(&skeleton).expect("valid");
+                    let error = state.global.positions[t.joint].distance(t.position);
+                    assert!(error <= 1e-9, "limb {k} at {angle}: {error}");
+                    assert_eq!(limit.violation(state.pose.rotations[base]), 0.0);
+                    for j in (0..skeleton.len()).filter(|&j| j != base) {
+                        assert_eq!(state.pose.rotations[j], projected.pose.rotations[j]);
+                    }
+                    // The hinge bent too: the tip is off the goal's distance, no spin of
+                    // the base reaches the goal, and nothing turns.
+                    let JointLimit::Hinge(h) = skeleton.limit(hinge) else {
+                        unreachable!("a limb's second joint is a hinge");
+                    };
+                    let mut bent = projected.clone();
+                    bent.pose.rotations[hinge] = (bent.pose.rotations[hinge]
+                        * DQuat::from_axis_angle(h.axis, 0.05))
+                    .normalize();
+                    bent.update_global(&skeleton).expect("valid");
+                    let before = bent.clone();
+                    assert!(!common.swivel_limbs(&problem, &mut bent));
+                    assert_eq!(bent.pose, before.pose);
+                }
+            }
+        }
+        assert!(
+            tried >= 20 && swiveled * 2 >= tried,
+            "{swiveled} of {tried} swiveled"
         );
     }
 
