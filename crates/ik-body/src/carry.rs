@@ -108,9 +108,12 @@ fn same_limit_bits(a: &JointLimit, b: &JointLimit) -> bool {
 }
 
 impl Carried {
-    /// Whether a solve of `problem` from `state` continues the sequence of the carried
-    /// answers (call before anything changes `state`).
-    pub fn continues(&self, problem: &BodyProblem<'_>, state: &BodyState) -> bool {
+    /// Whether `problem` has the structure of the last solve's, which was validated: the
+    /// same skeleton (structure, and limits to the bit), effectors (joints, pins,
+    /// weights, which have rotation goals), settings and translation freedom, only the
+    /// goals' positions, rotations and poles free to differ. The state is not looked at:
+    /// a cold solve of another goal set on the same body has the same problem.
+    pub fn same_problem(&self, problem: &BodyProblem<'_>) -> bool {
         let skeleton = problem.skeleton;
         self.valid
             && self.settings == Some(problem.settings)
@@ -122,6 +125,13 @@ impl Carried {
             })
             && self.effectors.len() == problem.effectors.len()
             && self.effectors.iter().copied().eq(key(problem))
+    }
+
+    /// Whether a solve from `state` of a problem that has the last solve's structure
+    /// ([`Carried::same_problem`]) continues the sequence of the carried answers: the
+    /// state is the last answer to the bit (call before anything changes `state`).
+    pub fn continues(&self, state: &BodyState) -> bool {
+        self.valid
             && state.root_translation == self.last_translation
             && state.pose.rotations == self.last
     }
@@ -162,8 +172,15 @@ impl Carried {
 
     /// Records the answer in `state` of a solve of `problem`; `continued` says whether it
     /// started from the last answer ([`Carried::continues`]), which then becomes the one
-    /// before.
-    pub fn record(&mut self, problem: &BodyProblem<'_>, state: &BodyState, continued: bool) {
+    /// before, and `same_problem` whether the problem had the last one's structure
+    /// ([`Carried::same_problem`]), which then need not be copied again.
+    pub fn record(
+        &mut self,
+        problem: &BodyProblem<'_>,
+        state: &BodyState,
+        same_problem: bool,
+        continued: bool,
+    ) {
         let skeleton = problem.skeleton;
         if continued {
             std::mem::swap(&mut self.before, &mut self.last);
@@ -172,6 +189,8 @@ impl Carried {
         } else {
             self.has_before = false;
             self.has_correction = false;
+        }
+        if !same_problem {
             self.fingerprint = skeleton.fingerprint();
             self.limits.clear();
             self.limits

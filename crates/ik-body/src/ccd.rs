@@ -226,7 +226,7 @@ impl BodySolver for TreeCcdSolver {
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
     ) -> Result<BodyReport, IkError> {
-        if let Begin::Done(report) = self.common.begin(problem, state, false, false)? {
+        if let Begin::Done(report) = self.common.begin(problem, state, false, false, false)? {
             return Ok(report);
         }
         let settings = &problem.settings;

@@ -107,28 +107,36 @@ pub(crate) enum Begin {
 impl Common {
     /// Validates the problem and the state, projects the starting pose onto the limits,
     /// resolves the targets and the topology, and exits early when every effector is
-    /// already within tolerance. With `global_exact` (only with `continued`: the state's
+    /// already within tolerance. With `same_problem` (the problem has the structure of
+    /// this solver's last solve, which was validated: [`Carried::same_problem`]) only
+    /// what may have moved is validated, the topology is the last one and is not
+    /// rebuilt, and the rotations known to be their own projections under the same
+    /// limits are kept. With `global_exact` (only with `continued`: the state's
     /// global pose is, to the bit, the one the last solve returned) forward kinematics is
-    /// not computed again. With `continued` (the state is, to the bit, the answer of
-    /// this solver's last solve, of a problem of the same structure: [`Carried`]) the
-    /// topology is the last one and is not rebuilt, and only the movable joints are
+    /// not computed again. With `continued` (also the state is, to the bit, the answer of
+    /// that solve: [`Carried`]) only the movable joints are
     /// projected: the others are as the last solve left them, projected by its start or
     /// by a FABRIK pass (the finish does not turn them). (The movable ones are still
     /// projected: the last answer is inside its limits, but not always to the bit a
     /// fixed point of the projection, and skipping them changed the clip's path; see
-    /// `docs/ik-body.md`. Only those the last report found to be fixed points, by the
-    /// quick inside test it made for their violation, are skipped: their projection
-    /// would return them unchanged.)
+    /// `docs/ik-body.md`.) A joint whose rotation is known to be its own projection (by
+    /// a report's quick inside test, a trial's or a start's projection) is not projected:
+    /// its projection would return it unchanged.
     pub fn begin(
         &mut self,
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
+        same_problem: bool,
         continued: bool,
         global_exact: bool,
     ) -> Result<Begin, IkError> {
-        // A continued solve's problem has the structure, weights and settings of the last
-        // one, which was validated: only what moves is checked.
-        if continued {
+        debug_assert!(
+            same_problem || !continued,
+            "a continued solve has the same problem"
+        );
+        // A problem of the last one's structure has its skeleton, weights and settings,
+        // which were validated: only what moves is checked.
+        if same_problem {
             problem.validate_moving()?;
         } else {
             problem.validate()?;
@@ -148,23 +156,43 @@ impl Common {
         }
         let mut moved = false;
         // The rotations known to be their own projections hold for the same limits only,
-        // which a continued solve has (`Carried` checks them); its state is the last
-        // answer, whose report found which of its rotations are.
-        if !continued {
+        // which a problem of the last one's structure has (`Carried` compares them to the
+        // bit); a continued state is the last answer, whose report found which of its
+        // rotations are, and a cold start from a pose the solver has seen before (the
+        // rest pose) has them from that start's projections.
+        if !same_problem {
             self.fixed.clear();
         }
         self.fixed.resize(skeleton.len(), None);
-        for j in 0..skeleton.len() {
-            let limit = skeleton.prepared_limit(j);
-            if matches!(limit.limit(), JointLimit::Free)
-                || (continued && self.topology.slot(j).is_none())
-                || self.fixed[j] == Some(state.pose.rotations[j])
-            {
-                continue;
+        if continued {
+            for j in 0..skeleton.len() {
+                let limit = skeleton.prepared_limit(j);
+                if matches!(limit.limit(), JointLimit::Free)
+                    || self.topology.slot(j).is_none()
+                    || self.fixed[j] == Some(state.pose.rotations[j])
+                {
+                    continue;
+                }
+                let projected = limit.project(state.pose.rotations[j]);
+                moved |= projected != state.pose.rotations[j];
+                state.pose.rotations[j] = projected;
             }
-            let projected = limit.project(state.pose.rotations[j]);
-            moved |= projected != state.pose.rotations[j];
-            state.pose.rotations[j] = projected;
+        } else {
+            // (A continued frame's report learns which of its rotations are fixed points
+            // itself; a cold start's report would measure every joint it did not turn.)
+            for j in 0..skeleton.len() {
+                let limit = skeleton.prepared_limit(j);
+                let q = state.pose.rotations[j];
+                if matches!(limit.limit(), JointLimit::Free) || self.fixed[j] == Some(q) {
+                    continue;
+                }
+                let (projected, fixed) = limit.project_and_fixed(q);
+                if fixed {
+                    self.fixed[j] = Some(q);
+                }
+                moved |= projected != q;
+                state.pose.rotations[j] = projected;
+            }
         }
         if moved {
             state.update_global(skeleton)?;
@@ -173,7 +201,7 @@ impl Common {
         self.start.extend_from_slice(&state.pose.rotations);
         self.start_translation = state.root_translation;
         resolve_targets(problem, &mut self.targets);
-        if !continued {
+        if !same_problem {
             self.topology.build(skeleton, &self.targets);
         }
         self.initial.clear();
@@ -897,7 +925,7 @@ mod tests {
             let mut state = BodyState::rest(&skeleton);
             let mut common = Common::default();
             assert!(matches!(
-                common.begin(&problem, &mut state, false, false),
+                common.begin(&problem, &mut state, false, false, false),
                 Ok(Begin::Iterate)
             ));
             if !common.seed_limbs(&problem, &mut state).expect("valid") {
@@ -948,7 +976,7 @@ mod tests {
             let mut state = BodyState::rest(&skeleton);
             let mut common = Common::default();
             assert!(matches!(
-                common.begin(&problem, &mut state, false, false),
+                common.begin(&problem, &mut state, false, false, false),
                 Ok(Begin::Iterate)
             ));
             if !common.seed_limbs(&problem, &mut state).expect("valid") {
@@ -1029,7 +1057,7 @@ mod tests {
         }
         let mut common = Common::default();
         assert!(matches!(
-            common.begin(&problem, &mut state, false, false),
+            common.begin(&problem, &mut state, false, false, false),
             Ok(Begin::Iterate)
         ));
         let start = state.pose.clone();

@@ -247,12 +247,13 @@ impl BodySolver for TreeFabrikSolver {
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
     ) -> Result<BodyReport, IkError> {
-        let continued = self.carried.continues(problem, state);
+        let same_problem = self.carried.same_problem(problem);
+        let continued = same_problem && self.carried.continues(state);
         let global_exact = continued && self.carried.global_unchanged(state);
-        let result = self.solve_from(problem, state, continued, global_exact);
+        let result = self.solve_from(problem, state, same_problem, continued, global_exact);
         match &result {
             Ok(_) => {
-                self.carried.record(problem, state, continued);
+                self.carried.record(problem, state, same_problem, continued);
                 if self.from_prediction {
                     self.carried.record_correction(
                         state,
@@ -271,14 +272,16 @@ impl BodySolver for TreeFabrikSolver {
 }
 
 impl TreeFabrikSolver {
-    /// [`BodySolver::solve`], `continued` saying whether `state` is the answer of the
-    /// last solve of the same problem (then the frame starts from the extrapolation of
-    /// the last two answers, when that is better) and `global_exact` whether its global
-    /// pose is the one that solve returned.
+    /// [`BodySolver::solve`], `same_problem` saying whether the problem has the last
+    /// solve's structure ([`Carried::same_problem`]), `continued` whether `state` is
+    /// also that solve's answer (then the frame starts from the extrapolation of the last
+    /// two answers, when that is better) and `global_exact` whether its global pose is
+    /// the one that solve returned.
     fn solve_from(
         &mut self,
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
+        same_problem: bool,
         continued: bool,
         global_exact: bool,
     ) -> Result<BodyReport, IkError> {
@@ -287,7 +290,10 @@ impl TreeFabrikSolver {
             // The finish's last factor belongs to another problem (or to none).
             self.common.dls.forget();
         }
-        if let Begin::Done(report) = self.common.begin(problem, state, continued, global_exact)? {
+        let start = self
+            .common
+            .begin(problem, state, same_problem, continued, global_exact)?;
+        if let Begin::Done(report) = start {
             return Ok(report);
         }
         // The passes' topology is built when a pass first runs: the default options run

@@ -791,3 +791,80 @@ fn the_carried_answers_are_dropped_when_the_problem_the_state_or_the_skeleton_ch
         assert!(matches!(ea, IkError::InvalidGoal { .. }), "{what}: {ea}");
     }
 }
+
+/// Cold solves of one problem's structure through one solver reuse what the last solve
+/// validated and learnt (its topology, which rotations are their own projections under
+/// the same limits); every solve must still give, to the bit, a fresh solver's state and
+/// report, also between solves of another structure (other limits, another effector set,
+/// a pose the rest pose is not), and a bad goal must give a fresh solver's error.
+#[test]
+fn cold_solves_of_one_problem_through_one_solver_match_fresh_solvers_to_the_bit() {
+    let skel = workload::humanoid().unwrap();
+    let settings = SolveSettings::default();
+    let sets = workload::goal_sets(&skel, 12, 21, false);
+    // Other limits: the head's (a joint no effector turns, so a cold start's rotation of
+    // it is kept as it was projected) and a shoulder's swing and twist made tighter.
+    let mut other_limits = skel.clone();
+    let head = workload::EFFECTORS[4];
+    let shoulder = skel
+        .parent(skel.parent(workload::EFFECTORS[0]).unwrap())
+        .unwrap();
+    for (j, factor) in [(head, 0.2), (shoulder, 0.5)] {
+        let mut limit = *skel.limit(j);
+        let JointLimit::SwingTwist(st) = &mut limit else {
+            panic!("joint {j} is a swing-twist joint");
+        };
+        st.swing_a *= factor;
+        st.swing_b *= factor;
+        st.twist_max *= factor;
+        other_limits.set_limit(j, limit).unwrap();
+    }
+    let rest = BodyState::rest(&skel);
+    // A start with the head bent inside its own limit and outside the tighter one.
+    let mut bent = rest.clone();
+    bent.pose.rotations[head] = DQuat::from_rotation_x(0.3);
+    assert_eq!(skel.limit(head).violation(bent.pose.rotations[head]), 0.0);
+    assert!(
+        other_limits
+            .limit(head)
+            .violation(bent.pose.rotations[head])
+            > 0.1
+    );
+    let translation = bent.root_translation;
+    forward_kinematics(&skel, &bent.pose, translation, &mut bent.global).unwrap();
+    let mut solver = TreeFabrikSolver::new();
+    for (i, set) in sets.iter().enumerate() {
+        let (skeleton, effectors, start) = match i % 4 {
+            0 => (&skel, &set.effectors[..], &bent),
+            1 => (&other_limits, &set.effectors[..], &bent),
+            2 => (&other_limits, &set.effectors[..4], &rest),
+            _ => (&skel, &set.effectors[..], &rest),
+        };
+        // Twice each: the second solve has the problem of the first.
+        for _ in 0..2 {
+            let problem =
+                BodyProblem::new(skeleton, effectors, settings).with_root_translation(true);
+            let mut a = start.clone();
+            let ra = solver.solve(&problem, &mut a).unwrap();
+            let mut b = start.clone();
+            let rb = TreeFabrikSolver::new().solve(&problem, &mut b).unwrap();
+            assert_eq!(state_bits(&a), state_bits(&b), "goal set {i}");
+            assert_eq!(report_bits(&ra), report_bits(&rb), "goal set {i}");
+            assert!(ra.within(&settings), "goal set {i}: {ra:?}");
+        }
+        // A bad goal in a problem of the same structure: a fresh solver's error (after
+        // every fourth goal set only, so that the changes of structure above follow a
+        // solve whose answers the solver carries).
+        if i % 4 != 3 {
+            continue;
+        }
+        let mut bad = set.effectors.clone();
+        bad[3].goal.position.z = f64::NAN;
+        let problem = BodyProblem::new(&skel, &bad, settings).with_root_translation(true);
+        let mut a = rest.clone();
+        let ea = solver.solve(&problem, &mut a).unwrap_err();
+        let mut b = rest.clone();
+        let eb = TreeFabrikSolver::new().solve(&problem, &mut b).unwrap_err();
+        assert_eq!(ea.to_string(), eb.to_string(), "goal set {i}");
+    }
+}
