@@ -107,7 +107,8 @@ fn minor(m: &[[f64; 4]; 4], row: usize, col: usize) -> f64 {
 }
 
 /// How large the adjugate's largest diagonal entry must be, against the cube of the
-/// matrix's scale, for [`separated_eigenvector`] to answer (see there).
+/// matrix's scale (Gershgorin's bound on its eigenvalues), for [`separated_eigenvector`]
+/// to answer (see there).
 const SEPARATED: f64 = 1e-3;
 
 /// The unit eigenvector of the largest eigenvalue `l` of a symmetric 4 x 4 matrix `A`,
@@ -127,21 +128,29 @@ const SEPARATED: f64 = 1e-3;
 /// of the direction by a gap squared over that product again); on random well-posed fits
 /// it agrees with Jacobi's to 2e-14 (tested). Also `None` for a non-finite matrix.
 fn separated_eigenvector(a: &[[f64; 4]; 4]) -> Option<[f64; 4]> {
-    let mut upper = f64::NEG_INFINITY;
-    let mut scale: f64 = 0.0;
-    for (i, row) in a.iter().enumerate() {
-        let off: f64 = row
-            .iter()
-            .enumerate()
-            .filter(|&(j, _)| j != i)
-            .map(|(_, x)| x.abs())
-            .sum();
-        upper = upper.max(row[i] + off);
-        scale = scale.max(row[i].abs() + off);
-    }
+    // Gershgorin's discs: every eigenvalue is at most `upper`, and at most `scale` in
+    // size. The matrix is divided by `scale` first (the eigenvectors are the same), so
+    // that the minors below neither overflow nor underflow and the threshold is absolute.
+    let gershgorin = |a: &[[f64; 4]; 4]| {
+        let (mut upper, mut scale) = (f64::NEG_INFINITY, 0.0_f64);
+        for (i, row) in a.iter().enumerate() {
+            let off: f64 = row
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .map(|(_, x)| x.abs())
+                .sum();
+            upper = upper.max(row[i] + off);
+            scale = scale.max(row[i].abs() + off);
+        }
+        (upper, scale)
+    };
+    let (_, scale) = gershgorin(a);
     if !(scale > 0.0 && scale.is_finite()) {
         return None;
     }
+    let a = &a.map(|row| row.map(|x| x / scale));
+    let (upper, _) = gershgorin(a);
     // p(x) = x^4 + c3 x^3 + c2 x^2 + c1 x + c0: the sums of the principal minors.
     let c3 = -(a[0][0] + a[1][1] + a[2][2] + a[3][3]);
     let mut c2 = 0.0;
@@ -178,7 +187,7 @@ fn separated_eigenvector(a: &[[f64; 4]; 4]) -> Option<[f64; 4]> {
             .fold((0, 0.0_f64), |(bi, bv), (i, v)| {
                 if v.abs() > bv.abs() { (i, v) } else { (bi, bv) }
             });
-    if largest.is_nan() || largest.abs() < SEPARATED * scale * scale * scale {
+    if largest.is_nan() || largest.abs() < SEPARATED {
         return None;
     }
     let mut v = [0.0; 4];
