@@ -12,6 +12,7 @@ use crate::carry::Carried;
 use crate::horn::BestRotation;
 use crate::workload::Rng;
 use sinew_math::{DQuat, DVec3, rotation_between, try_unit};
+use sinew_skeleton::Skeleton;
 use sinew_skeleton::ik::{Chain, IkError, StopReason};
 use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::seed::limb_seed;
@@ -90,6 +91,10 @@ pub(crate) struct Common {
     /// report nor a next solve that continues from the answer measures or projects such
     /// a joint again.
     fixed: Vec<Option<DQuat>>,
+    /// Per joint: a rotation a start that did not continue a sequence found to be its own
+    /// projection, under the same limits as `fixed` (kept apart from it, which the
+    /// answers overwrite), so that cold starts from one pose (a rest pose) project it once.
+    start_fixed: Vec<Option<DQuat>>,
 }
 
 /// More cached limbs than this (many skeletons through one solver) and the cache starts
@@ -162,6 +167,7 @@ impl Common {
         // rest pose) has them from that start's projections.
         if !same_problem {
             self.fixed.clear();
+            self.start_fixed.clear();
         }
         self.fixed.resize(skeleton.len(), None);
         if continued {
@@ -178,21 +184,7 @@ impl Common {
                 state.pose.rotations[j] = projected;
             }
         } else {
-            // (A continued frame's report learns which of its rotations are fixed points
-            // itself; a cold start's report would measure every joint it did not turn.)
-            for j in 0..skeleton.len() {
-                let limit = skeleton.prepared_limit(j);
-                let q = state.pose.rotations[j];
-                if matches!(limit.limit(), JointLimit::Free) || self.fixed[j] == Some(q) {
-                    continue;
-                }
-                let (projected, fixed) = limit.project_and_fixed(q);
-                if fixed {
-                    self.fixed[j] = Some(q);
-                }
-                moved |= projected != q;
-                state.pose.rotations[j] = projected;
-            }
+            moved = self.project_cold_start(skeleton, state);
         }
         if moved {
             state.update_global(skeleton)?;
@@ -222,6 +214,42 @@ impl Common {
             )?));
         }
         Ok(Begin::Iterate)
+    }
+
+    /// Projects every limited joint of a start that does not continue a sequence onto
+    /// its limit, recording the rotations that are their own projections (in `fixed`,
+    /// for the report, and in `start_fixed`, which the answers do not overwrite, so that
+    /// the next cold start from the same pose projects none of them again); returns
+    /// whether any rotation moved. (A continued frame's report learns which of its
+    /// rotations are fixed points itself; a cold start's report would otherwise measure
+    /// every joint it did not turn.) Kept out of line: the warm frames' start stays as
+    /// it was compiled before.
+    #[inline(never)]
+    fn project_cold_start(&mut self, skeleton: &Skeleton, state: &mut BodyState) -> bool {
+        let mut moved = false;
+        self.start_fixed.resize(skeleton.len(), None);
+        for j in 0..skeleton.len() {
+            let limit = skeleton.prepared_limit(j);
+            let q = state.pose.rotations[j];
+            if matches!(limit.limit(), JointLimit::Free) {
+                continue;
+            }
+            if self.start_fixed[j] == Some(q) {
+                self.fixed[j] = Some(q);
+                continue;
+            }
+            if self.fixed[j] == Some(q) {
+                continue;
+            }
+            let (projected, fixed) = limit.project_and_fixed(q);
+            if fixed {
+                self.fixed[j] = Some(q);
+                self.start_fixed[j] = Some(q);
+            }
+            moved |= projected != q;
+            state.pose.rotations[j] = projected;
+        }
+        moved
     }
 
     /// The damped least-squares finish over every effector from `state` (see
