@@ -53,6 +53,9 @@ mod mesh;
 mod metrics;
 mod model;
 mod newton;
+// A measurement of orderings for the direct solve (docs/spring-sim.md), tests only.
+#[cfg(test)]
+mod ordering;
 mod pattern;
 mod pins;
 pub mod potential;
