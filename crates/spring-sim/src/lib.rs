@@ -53,9 +53,6 @@ mod mesh;
 mod metrics;
 mod model;
 mod newton;
-// A measurement of orderings for the direct solve (docs/spring-sim.md), tests only.
-#[cfg(test)]
-mod ordering;
 mod pattern;
 mod pins;
 pub mod potential;

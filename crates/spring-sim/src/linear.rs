@@ -484,36 +484,6 @@ impl std::fmt::Debug for DirectSolver {
 impl DirectSolver {
     /// The symbolic factorization of `pattern`'s matrix with the given structure.
     pub fn new(pattern: &HessianPattern, structure: FactorStructure) -> Result<Self, SolverError> {
-        Self::with_ordering(pattern, structure, SymmetricOrdering::Amd)
-    }
-
-    /// [`DirectSolver::new`] with the fill-reducing ordering `ordering` of the free
-    /// particles (`ordering[new] = old`, each particle's three unknowns kept together)
-    /// instead of faer's AMD of the scalar matrix (measurements only, see
-    /// docs/spring-sim.md).
-    #[cfg(test)]
-    pub(crate) fn with_particle_ordering(
-        pattern: &HessianPattern,
-        structure: FactorStructure,
-        ordering: &[usize],
-    ) -> Result<Self, SolverError> {
-        let forward: Vec<usize> = ordering
-            .iter()
-            .flat_map(|&p| [3 * p, 3 * p + 1, 3 * p + 2])
-            .collect();
-        let mut inverse = vec![0usize; forward.len()];
-        for (new, &old) in forward.iter().enumerate() {
-            inverse[old] = new;
-        }
-        let perm = faer::perm::PermRef::new_checked(&forward, &inverse, forward.len());
-        Self::with_ordering(pattern, structure, SymmetricOrdering::Custom(perm))
-    }
-
-    fn with_ordering(
-        pattern: &HessianPattern,
-        structure: FactorStructure,
-        order: SymmetricOrdering<'_, usize>,
-    ) -> Result<Self, SolverError> {
         let threshold = match structure {
             FactorStructure::Supernodal => SupernodalThreshold::FORCE_SUPERNODAL,
             FactorStructure::Simplicial => SupernodalThreshold::FORCE_SIMPLICIAL,
@@ -523,9 +493,13 @@ impl DirectSolver {
             supernodal_flop_ratio_threshold: threshold,
             ..Default::default()
         };
-        let symbolic =
-            factorize_symbolic_cholesky(pattern.symbolic.as_ref(), Side::Lower, order, params)
-                .map_err(SolverError::SymbolicFactorization)?;
+        let symbolic = factorize_symbolic_cholesky(
+            pattern.symbolic.as_ref(),
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            params,
+        )
+        .map_err(SolverError::SymbolicFactorization)?;
         let factor_values = vec![0.0; symbolic.len_val()];
         let factor_work = MemBuffer::new(
             symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
