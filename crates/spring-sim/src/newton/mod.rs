@@ -321,6 +321,10 @@ impl BackwardEuler {
         self.coupled_pairs = coupled;
         self.values = vec![0.0; pattern.nnz()];
         self.pattern = pattern;
+        // The solver choice's counts were those of the narrower pattern: the widened one
+        // has more entries to factor, so they are analysed again when a choice next
+        // needs them.
+        self.costs = None;
         Ok(())
     }
 

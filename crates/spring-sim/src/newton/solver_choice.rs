@@ -185,6 +185,29 @@ mod tests {
         );
     }
 
+    /// Widening the pattern (a coupled term, or pairs a term met during a run) makes the
+    /// choice's counts those of the new pattern: analysed again, they equal a fresh
+    /// integrator's on the widened pattern, and exceed the narrower pattern's.
+    #[test]
+    fn widening_the_pattern_renews_the_solver_costs() {
+        use crate::model::{ClothGrid, SpringSystem};
+        use crate::newton::{BackwardEuler, NewtonSettings};
+        let system = SpringSystem::cloth(&ClothGrid::lab()).unwrap();
+        let mut be = BackwardEuler::new(&system, NewtonSettings::default()).unwrap();
+        let narrow = be.solver_costs().unwrap();
+        // Opposite corners' neighbours and two far interior particles: pairs no spring
+        // joins, far apart in the sheet, so the factor fills in between them.
+        let pairs = [[1, 119], [12, 108], [23, 97]];
+        be.add_coupled_pairs(&system, &pairs).unwrap();
+        let wide = be.solver_costs().unwrap();
+        let mut fresh = BackwardEuler::new(&system, NewtonSettings::default()).unwrap();
+        fresh.add_coupled_pairs(&system, &pairs).unwrap();
+        assert_eq!(wide, fresh.solver_costs().unwrap());
+        assert!(wide.matrix_nonzeros > narrow.matrix_nonzeros);
+        assert!(wide.factor_nonzeros > narrow.factor_nonzeros);
+        assert!(wide.factor_multiply_adds > narrow.factor_multiply_adds);
+    }
+
     /// The soft lab cloth (2 PCG iterations per Newton iteration, below the bound's
     /// crossover) runs `Auto` without the analysis, and its choices are those made with
     /// the analysis; the stiff one (about 35, above the bound) analyses and moves to the
