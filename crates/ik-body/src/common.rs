@@ -3,8 +3,8 @@
 //! every effector is already within tolerance, and the report.
 
 use crate::problem::{
-    BodyProblem, BodyReport, BodyState, Target, all_within, finish_report, pins_hold,
-    resolve_targets, total_cost,
+    BodyProblem, BodyReport, BodyState, Target, all_within, finish_report, forward_kinematics,
+    pins_hold, resolve_targets, total_cost,
 };
 use sinew_skeleton::finish::{Finish, FinishJob, Finished, Movers};
 
@@ -12,10 +12,10 @@ use crate::carry::Carried;
 use crate::horn::BestRotation;
 use crate::workload::Rng;
 use sinew_math::{DQuat, DVec3, rotation_between, try_unit};
-use sinew_skeleton::Skeleton;
 use sinew_skeleton::ik::{Chain, IkError, StopReason};
 use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::seed::limb_seed;
+use sinew_skeleton::{GlobalPose, Skeleton};
 
 /// A limb gets its closed-form pose ([`Common::seed_limbs`]) only when its effector is
 /// further from its goal than this fraction of the limb's length.
@@ -95,6 +95,12 @@ pub(crate) struct Common {
     /// projection, under the same limits as `fixed` (kept apart from it, which the
     /// answers overwrite), so that cold starts from one pose (a rest pose) project it once.
     start_fixed: Vec<Option<DQuat>>,
+    /// The global poses of the extrapolated start ([`Common::predict`]): the corrected
+    /// one and the first-order one, computed here rather than in the state so that the
+    /// state keeps the global pose of the pose given, and a start not kept (or the
+    /// start of the two not kept) costs no forward kinematics to undo.
+    predicted_global: GlobalPose,
+    plain_global: GlobalPose,
 }
 
 /// More cached limbs than this (many skeletons through one solver) and the cache starts
@@ -857,11 +863,19 @@ impl Common {
         } else {
             self.first_order_translation = state.root_translation;
         }
+        // The state's global pose stays that of the pose given (exact forward kinematics
+        // of it, which `begin` measured) until a start is kept: a start not kept then
+        // only restores the local rotations and the translation.
         if !moved {
             return Ok(false);
         }
-        state.update_global(skeleton)?;
-        let mut cost = self.cost(state);
+        forward_kinematics(
+            skeleton,
+            &state.pose,
+            state.root_translation,
+            &mut self.predicted_global,
+        )?;
+        let mut cost = total_cost(&self.targets, &self.predicted_global);
         // The corrected start is nearly always far better than the first-order one (its
         // error is the motion's third difference instead of its second); where it is
         // not clearly so (after the motion or the active set changed, the correction is
@@ -870,9 +884,13 @@ impl Common {
         if corrected && cost >= SURE_CORRECTION * before {
             let corrected_translation = state.root_translation;
             self.swap_first_order(state);
-            state.root_translation = self.first_order_translation;
-            state.update_global(skeleton)?;
-            let plain = self.cost(state);
+            forward_kinematics(
+                skeleton,
+                &state.pose,
+                self.first_order_translation,
+                &mut self.plain_global,
+            )?;
+            let plain = total_cost(&self.targets, &self.plain_global);
             if plain <= cost {
                 // Kept; `first_order` now holds the corrected rotations, which the
                 // answer's correction must not be measured from.
@@ -881,19 +899,20 @@ impl Common {
                         self.first_order[j] = state.pose.rotations[j];
                     }
                 }
+                state.root_translation = self.first_order_translation;
+                std::mem::swap(&mut self.predicted_global, &mut self.plain_global);
                 cost = plain;
             } else {
                 self.swap_first_order(state);
                 state.root_translation = corrected_translation;
-                state.update_global(skeleton)?;
             }
         }
         if cost < before {
+            std::mem::swap(&mut state.global, &mut self.predicted_global);
             return Ok(true);
         }
         state.pose.rotations.copy_from_slice(&self.kept);
         state.root_translation = kept_translation;
-        state.update_global(skeleton)?;
         Ok(false)
     }
 

@@ -547,3 +547,82 @@ impl Passes {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::common::Begin;
+    use crate::problem::forward_kinematics;
+    use crate::workload::{self, CLIP_FRAMES};
+    use crate::{BodySolver, BodyState};
+    use sinew_skeleton::ik::SolveSettings;
+
+    /// The extrapolated start of a warm frame computes its global poses apart from the
+    /// state: a start it does not keep leaves the state as `begin` left it, to the bit
+    /// (pose, translation and global pose), and a start it keeps has the exact forward
+    /// kinematics of its pose and translation. The clip is played forwards, then
+    /// backwards, so that the motion's reversals give starts that are not kept.
+    #[test]
+    fn the_extrapolated_start_leaves_the_state_as_given_or_exact() {
+        let skel = workload::humanoid().unwrap();
+        let settings = SolveSettings::default();
+        let rest = BodyState::rest(&skel);
+        let mut state = rest.clone();
+        let mut solver = TreeFabrikSolver::new();
+        let order: Vec<usize> = (0..90).chain((40..90).rev()).chain(40..70).collect();
+        let (mut kept, mut dropped) = (0, 0);
+        let mut exact = rest.global.clone();
+        let bits = |g: &sinew_skeleton::GlobalPose| -> Vec<u64> {
+            g.rotations
+                .iter()
+                .flat_map(|q| q.to_array())
+                .chain(g.positions.iter().flat_map(|p| p.to_array()))
+                .map(f64::to_bits)
+                .collect()
+        };
+        for &f in &order {
+            let effectors = workload::clip_frame(&rest.global, f % CLIP_FRAMES);
+            let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
+            let same = solver.carried.same_problem(&problem);
+            let continued = same && solver.carried.continues(&state);
+            if continued && solver.carried.has_before {
+                let global_exact = solver.carried.global_unchanged(&state);
+                let mut probe = state.clone();
+                let begun = solver
+                    .common
+                    .begin(&problem, &mut probe, same, continued, global_exact)
+                    .unwrap();
+                if matches!(begun, Begin::Iterate) {
+                    let given = probe.clone();
+                    let mut common = solver.common.clone();
+                    if common
+                        .predict(&problem, &mut probe, &solver.carried)
+                        .unwrap()
+                    {
+                        kept += 1;
+                        forward_kinematics(&skel, &probe.pose, probe.root_translation, &mut exact)
+                            .unwrap();
+                        assert_eq!(bits(&probe.global), bits(&exact), "frame {f}");
+                    } else {
+                        dropped += 1;
+                        let local = |s: &BodyState| -> Vec<u64> {
+                            s.pose
+                                .rotations
+                                .iter()
+                                .flat_map(|q| q.to_array())
+                                .chain(s.root_translation.to_array())
+                                .map(f64::to_bits)
+                                .collect()
+                        };
+                        assert_eq!(local(&probe), local(&given), "frame {f}");
+                        assert_eq!(bits(&probe.global), bits(&given.global), "frame {f}");
+                    }
+                }
+            }
+            let report = solver.solve(&problem, &mut state).unwrap();
+            assert!(report.within(&settings), "frame {f}");
+        }
+        assert!(kept > 50, "{kept} starts kept");
+        assert!(dropped > 0, "{dropped} starts not kept");
+    }
+}
