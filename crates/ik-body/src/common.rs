@@ -937,6 +937,21 @@ mod tests {
     use crate::workload;
     use sinew_skeleton::ik::{SolveSettings, rotation_angle};
 
+    /// A cold start of `problem` from the rest pose, begun and limb-seeded as a solve
+    /// does: `None` when no limb was seeded.
+    fn seeded_from_rest(problem: &BodyProblem<'_>) -> Option<(Common, BodyState)> {
+        let mut state = BodyState::rest(problem.skeleton);
+        let mut common = Common::default();
+        assert!(matches!(
+            common.begin(problem, &mut state, false, false, false),
+            Ok(Begin::Iterate)
+        ));
+        common
+            .seed_limbs(problem, &mut state)
+            .expect("valid")
+            .then_some((common, state))
+    }
+
     /// A cold start places the body for the effector no limb serves (the head) and seeds
     /// the limbs from there: on goals made from poses with the spine and clavicles at
     /// rest (the hips turned and moved, the limbs drawn inside their limits), the head
@@ -969,15 +984,9 @@ mod tests {
                 .collect();
             let problem =
                 BodyProblem::new(&skeleton, &effectors, settings).with_root_translation(true);
-            let mut state = BodyState::rest(&skeleton);
-            let mut common = Common::default();
-            assert!(matches!(
-                common.begin(&problem, &mut state, false, false, false),
-                Ok(Begin::Iterate)
-            ));
-            if !common.seed_limbs(&problem, &mut state).expect("valid") {
+            let Some((common, state)) = seeded_from_rest(&problem) else {
                 continue;
-            }
+            };
             seeded += 1;
             // The effectors no limb seed served (the head, and any limb that started near
             // its goal): their centroid is on their goals' (all weights are 1 here).
@@ -1020,15 +1029,9 @@ mod tests {
         for goals in &workload::goal_sets(&skeleton, 40, 11, false) {
             let problem =
                 BodyProblem::new(&skeleton, &goals.effectors, settings).with_root_translation(true);
-            let mut state = BodyState::rest(&skeleton);
-            let mut common = Common::default();
-            assert!(matches!(
-                common.begin(&problem, &mut state, false, false, false),
-                Ok(Begin::Iterate)
-            ));
-            if !common.seed_limbs(&problem, &mut state).expect("valid") {
+            let Some((common, state)) = seeded_from_rest(&problem) else {
                 continue;
-            }
+            };
             let seeded = state.clone();
             for (e, k) in common.seedable.clone() {
                 let t = common.targets[e];

@@ -137,6 +137,17 @@ impl Preconditioner for Jacobi3 {
     }
 }
 
+/// faer's sparse Cholesky factor of the `n x n` matrix whose lower triangle `triplets`
+/// holds (both matrices factored here are positive definite by construction).
+fn cholesky(n: usize, triplets: &[Triplet<usize, usize, f64>]) -> Llt<usize, f64> {
+    let matrix = SparseColMat::<usize, f64>::try_new_from_triplets(n, n, triplets)
+        .expect("a valid lower triangle");
+    let symbolic =
+        SymbolicLlt::try_new(matrix.symbolic(), Side::Lower).expect("its symbolic factor");
+    Llt::try_new_with_symbolic(symbolic, matrix.as_ref(), Side::Lower)
+        .expect("a positive definite matrix")
+}
+
 /// `M/h^2 + k L` over the free particles, factored once, applied per coordinate.
 struct Liu {
     llt: Llt<usize, f64>,
@@ -170,14 +181,8 @@ impl Liu {
                 triplets.push(Triplet::new(hi, lo, -s.stiffness));
             }
         }
-        let matrix = SparseColMat::<usize, f64>::try_new_from_triplets(n, n, &triplets)
-            .expect("the particles' matrix");
-        let symbolic =
-            SymbolicLlt::try_new(matrix.symbolic(), Side::Lower).expect("its symbolic factor");
-        let llt = Llt::try_new_with_symbolic(symbolic, matrix.as_ref(), Side::Lower)
-            .expect("M/h^2 + k L is positive definite");
         Self {
-            llt,
+            llt: cholesky(n, &triplets),
             rhs: vec![0.0; 3 * n],
         }
     }
@@ -214,13 +219,9 @@ impl Direct {
             .iter()
             .map(|&(r, c, v)| Triplet::new(r, c, v))
             .collect();
-        let matrix = SparseColMat::<usize, f64>::try_new_from_triplets(n, n, &triplets)
-            .expect("the Newton matrix");
-        let symbolic =
-            SymbolicLlt::try_new(matrix.symbolic(), Side::Lower).expect("its symbolic factor");
-        let llt = Llt::try_new_with_symbolic(symbolic, matrix.as_ref(), Side::Lower)
-            .expect("the Newton matrix is positive definite");
-        Self { llt }
+        Self {
+            llt: cholesky(n, &triplets),
+        }
     }
 }
 
