@@ -525,10 +525,12 @@ pub fn write(results: &Results, sections: &[Section], out: &Path) -> Result<Stri
     Ok(head)
 }
 
-/// Backward Euler (linear solver `auto`) at every Newton tolerance the run has: the distance
-/// from backward Euler solved to 1e-12 at the same steps (after 1 s, or at the end for runs
-/// shorter than 1 s), one column per workload, and whether that distance never grows as the
-/// tolerance tightens. Empty when the run has fewer than two tolerances.
+/// Backward Euler (linear solver `auto`) at every Newton tolerance the run has, in two
+/// tables, one column per workload: the distance from backward Euler solved to 1e-12 at
+/// the same steps (after 1 s, or at the end for runs shorter than 1 s), and the largest
+/// error of one step from the exact step (from the same states); each with whether the
+/// error never grows as the tolerance tightens, the second also with whether it stays
+/// within the tolerance. Empty when the run has fewer than two tolerances.
 fn tolerance_table(records: &[Record]) -> String {
     let decades: Vec<f64> = (3..=12).map(|e| 10f64.powi(-e)).collect();
     let mut workloads: Vec<&str> = Vec::new();
@@ -553,7 +555,7 @@ fn tolerance_table(records: &[Record]) -> String {
     if rows.len() < 2 {
         return String::new();
     }
-    let error = |r: &Record| {
+    let trajectory = |r: &Record| {
         metric(r, Metric::SolverError1s)
             .or_else(|| metric(r, Metric::SolverErrorEnd))
             .unwrap_or(f64::NAN)
@@ -563,15 +565,45 @@ fn tolerance_table(records: &[Record]) -> String {
          solved to 1e-12 at the same steps (after 1 s; W6, which runs 0.5 s, at its end), and \
          the median time per step, for every Newton tolerance (`|grad g|_inf <= tol m/h^2`, \
          linear solver `auto`). The last row says whether the distance never grows as the \
-         tolerance tightens.\n\n| tolerance |",
+         tolerance tightens.\n\n",
     );
-    for w in &workloads {
+    s.push_str(&tolerance_rows(&workloads, &rows, trajectory, false));
+    if rows.iter().any(|(_, cells)| {
+        cells
+            .iter()
+            .flatten()
+            .any(|r| metric(r, Metric::StepErrorMax).is_some())
+    }) {
+        s.push_str(
+            "\nOne step at a time: from each state of the 1e-12 run's first second (W6: its \
+             30 steps), one step at the tolerance in a simulation started afresh there, \
+             against the same step solved to 1e-12; the largest distance over the steps (the \
+             error from the exact step, without the accumulation over steps), and the median \
+             time per step of the run above. The last rows say whether it never grows as the \
+             tolerance tightens and whether it stays within the tolerance (a distance: the \
+             stopping test bounds the gradient by `tol m/h^2`).\n\n",
+        );
+        let step = |r: &Record| metric(r, Metric::StepErrorMax).unwrap_or(f64::NAN);
+        s.push_str(&tolerance_rows(&workloads, &rows, step, true));
+    }
+    s
+}
+
+/// One tolerance table: a row per tolerance (`error (median time)`), then the verdicts.
+fn tolerance_rows(
+    workloads: &[&str],
+    rows: &[(f64, Vec<Option<&Record>>)],
+    error: impl Fn(&Record) -> f64,
+    within_tolerance: bool,
+) -> String {
+    let mut s = String::from("| tolerance |");
+    for w in workloads {
         let _ = write!(s, " {w} |");
     }
     s.push_str("\n|---|");
     s.push_str(&"---|".repeat(workloads.len()));
     s.push('\n');
-    for (tol, cells) in &rows {
+    for (tol, cells) in rows {
         let _ = write!(s, "| {} |", sinew_bench::sweep::sci(*tol));
         for cell in cells {
             match cell {
@@ -583,19 +615,34 @@ fn tolerance_table(records: &[Record]) -> String {
         }
         s.push('\n');
     }
-    s.push_str("| non-increasing |");
-    for (i, _) in workloads.iter().enumerate() {
-        let errors: Vec<f64> = rows.iter().filter_map(|(_, c)| c[i]).map(error).collect();
-        let verdict = if errors.len() < 2 {
-            "-"
-        } else if errors.windows(2).all(|p| p[1] <= p[0]) {
-            "yes"
-        } else {
-            "NO"
-        };
-        let _ = write!(s, " {verdict} |");
+    // (tolerance, error) pairs of one workload, loosest first.
+    type Judge<'a> = &'a dyn Fn(&[(f64, f64)]) -> bool;
+    let verdicts = |s: &mut String, name: &str, holds: Judge| {
+        let _ = write!(s, "| {name} |");
+        for i in 0..workloads.len() {
+            let errors: Vec<(f64, f64)> = rows
+                .iter()
+                .filter_map(|(tol, c)| c[i].map(|r| (*tol, error(r))))
+                .collect();
+            let verdict = if errors.len() < 2 {
+                "-"
+            } else if holds(&errors) {
+                "yes"
+            } else {
+                "NO"
+            };
+            let _ = write!(s, " {verdict} |");
+        }
+        s.push('\n');
+    };
+    verdicts(&mut s, "non-increasing", &|e| {
+        e.windows(2).all(|p| p[1].1 <= p[0].1)
+    });
+    if within_tolerance {
+        verdicts(&mut s, "within the tolerance", &|e| {
+            e.iter().all(|&(tol, err)| err <= tol)
+        });
     }
-    s.push('\n');
     s
 }
 
@@ -743,6 +790,26 @@ mod tests {
         assert_eq!(rows[4], "| non-increasing | yes | NO |", "{text}");
         // One tolerance is not a table.
         assert_eq!(tolerance_table(&records[..1]), "");
+
+        // With the one-step errors, a second table with its two verdicts: W4's errors
+        // shrink but one is above its tolerance; W6's grow once, each within its tolerance.
+        let mut records = records;
+        for (r, e) in records
+            .iter_mut()
+            .zip([5e-3, 1e-7, 1e-11, 1e-7, 5e-7, 1e-10])
+        {
+            r.metrics.insert(Metric::StepErrorMax, serde_json::json!(e));
+        }
+        let text = tolerance_table(&records);
+        let rows: Vec<&str> = text.lines().filter(|l| l.starts_with("| ")).collect();
+        assert_eq!(rows.len(), 11, "{text}");
+        assert_eq!(rows[5], "| tolerance | W4 d=0 | W6 |", "{text}");
+        assert_eq!(
+            rows[6], "| 1e-3 | 5.0e-3 (1.00 ms) | 1.0e-7 (1.00 ms) |",
+            "{text}"
+        );
+        assert_eq!(rows[9], "| non-increasing | yes | NO |", "{text}");
+        assert_eq!(rows[10], "| within the tolerance | NO | yes |", "{text}");
     }
 
     #[test]

@@ -9,6 +9,10 @@
 //! - from the true motion: velocity Verlet at 64 times the stability bound's substeps,
 //!   checked against 32 times (docs/workloads.md). The check is stored beside the error.
 //!
+//! Backward Euler at each tolerance is also measured one step at a time: from each state of
+//! the converged reference's first second, one step at the tolerance against the same step
+//! solved to 1e-12 (the error from the exact step, without the accumulation over steps).
+//!
 //! Stiff runs are ranked (plotted) by the 1 s figure: after 10 s a stiff cloth's motion is
 //! chaotic. W6 runs 30 steps (0.5 s), so its figures are at 0.5 s.
 
@@ -18,7 +22,8 @@ use sinew_math::DVec3;
 use sinew_spring_sim::DIVERGENCE_RADIUS;
 use sinew_spring_sim::StabilityBound;
 use sinew_spring_sim::{
-    AutoSettings, Integrator, LinearSolverChoice, NewtonSettings, Simulation, StepStop,
+    AutoSettings, Integrator, LinearSolverChoice, NewtonSettings, Simulation, SpringSystem,
+    StepStop,
 };
 use std::time::Instant;
 
@@ -260,6 +265,50 @@ fn errors(run: &Run, reference: &Reference, steps: usize) -> (Option<f64>, f64) 
     (at_one, end)
 }
 
+/// The converged reference's states before each step of its first second (all of its
+/// steps when it is shorter), each with the positions one step later solved to 1e-12 by a
+/// simulation started afresh at that state.
+struct StepReference {
+    states: Vec<SpringSystem>,
+    exact: Vec<Vec<DVec3>>,
+}
+
+/// One backward Euler step at `tolerance` from `state`, in a simulation started afresh
+/// there: its first guess is the prediction without the last step's correction, the same
+/// for every tolerance and for the exact step.
+fn one_step(state: &SpringSystem, dt: f64, tolerance: f64) -> Result<Vec<DVec3>, String> {
+    let integrator = Integrator::BackwardEuler(newton(tolerance, LinearSolverChoice::Auto));
+    let mut sim = Simulation::new(state.clone(), integrator).map_err(|e| e.to_string())?;
+    sim.step(dt).map_err(|e| e.to_string())?;
+    Ok(sim.system().positions().to_vec())
+}
+
+fn step_reference(w: &Workload) -> Result<StepReference, String> {
+    let steps = one_second_step(w).unwrap_or(w.steps);
+    let integrator = Integrator::BackwardEuler(newton(1e-12, LinearSolverChoice::Auto));
+    let mut sim = Simulation::new(w.system.clone(), integrator).map_err(|e| e.to_string())?;
+    let mut states = Vec::with_capacity(steps);
+    let mut exact = Vec::with_capacity(steps);
+    for step in 0..steps {
+        states.push(sim.system().clone());
+        exact.push(one_step(sim.system(), w.dt, 1e-12)?);
+        sim.step(w.dt)
+            .map_err(|e| format!("{}: step reference, step {}: {e}", w.name, step + 1))?;
+    }
+    Ok(StepReference { states, exact })
+}
+
+/// The largest distance of one step at `tolerance` from the exact step, over the reference's
+/// states.
+fn step_error(w: &Workload, reference: &StepReference, tolerance: f64) -> Result<f64, String> {
+    let mut worst: f64 = 0.0;
+    for (state, exact) in reference.states.iter().zip(&reference.exact) {
+        let end = one_step(state, w.dt, tolerance)?;
+        worst = worst.max(max_distance(&end, exact));
+    }
+    Ok(worst)
+}
+
 /// Runs the cloth section.
 pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
     let mut records = Vec::new();
@@ -289,6 +338,7 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
             _ => None,
         };
         let truth_check_end = max_distance(&truth.end, &check.end);
+        let steps_reference = step_reference(&w)?;
         eprintln!(
             "  {}: bound {bound} substeps; true-motion reference check {:.1e} at 1 s, {:.1e} at the end; backward Euler 1e-12 reference residual/tol <= {:.2}",
             w.name,
@@ -319,6 +369,12 @@ pub fn run(plan: &Plan) -> Result<Vec<Record>, String> {
             metrics.insert(Metric::TrueMotionErrorEnd, json!(true_end));
             metrics.insert(Metric::SolverError1s, json!(solver_1s));
             metrics.insert(Metric::SolverErrorEnd, json!(solver_end));
+            if let Integrator::BackwardEuler(settings) = integrator
+                && matches!(settings.linear_solver, LinearSolverChoice::Auto)
+            {
+                let e = step_error(&w, &steps_reference, settings.tolerance)?;
+                metrics.insert(Metric::StepErrorMax, json!(e));
+            }
             metrics.insert(Metric::TrueMotionCheck1s, json!(truth_check_1s));
             metrics.insert(Metric::TrueMotionCheckEnd, json!(truth_check_end));
             metrics.insert(Metric::StabilityBoundSubsteps, json!(bound));

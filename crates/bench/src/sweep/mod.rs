@@ -124,6 +124,10 @@ pub enum Metric {
     SpacingDeviation,
     /// The stability bound's substeps per step at the start.
     StabilityBoundSubsteps,
+    /// Backward Euler at a tolerance: the largest distance, over the steps of the first
+    /// second of the converged reference run, of one step taken from the reference's state
+    /// from the same step solved to the reference's tolerance (the error from the exact step).
+    StepErrorMax,
     /// Steps asked for.
     Steps,
     /// Steps completed.
@@ -150,7 +154,7 @@ pub enum Metric {
 
 impl Metric {
     /// Every metric, in the order of their names.
-    pub const ALL: [Metric; 44] = [
+    pub const ALL: [Metric; 45] = [
         Metric::Backtracks,
         Metric::BallErrorMean,
         Metric::BallSolves,
@@ -184,6 +188,7 @@ impl Metric {
         Metric::Solves,
         Metric::SpacingDeviation,
         Metric::StabilityBoundSubsteps,
+        Metric::StepErrorMax,
         Metric::Steps,
         Metric::StepsDone,
         Metric::SubstepsLastStep,
@@ -234,6 +239,7 @@ impl Metric {
             Metric::Solves => "solves",
             Metric::SpacingDeviation => "spacing_deviation",
             Metric::StabilityBoundSubsteps => "stability_bound_substeps",
+            Metric::StepErrorMax => "step_error_max",
             Metric::Steps => "steps",
             Metric::StepsDone => "steps_done",
             Metric::SubstepsLastStep => "substeps_last_step",
