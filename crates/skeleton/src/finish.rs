@@ -233,6 +233,12 @@ pub struct Movers {
     slot: Vec<usize>,
     /// Per joint: how many effectors it moves (then a fill cursor).
     count: Vec<usize>,
+    /// The largest entry of `movable` and of `below` (`None` when empty), kept by the
+    /// only two functions that write the lists, so that [`FinishJob::validate`] checks
+    /// every entry against the skeleton and the targets without scanning the lists on
+    /// every run.
+    largest_movable: Option<usize>,
+    largest_below: Option<usize>,
 }
 
 impl Movers {
@@ -269,6 +275,13 @@ impl Movers {
             below[cursor[j]] = e;
             cursor[j] += 1;
         });
+        self.note_largest();
+    }
+
+    /// Records the largest entries of the lists just written.
+    fn note_largest(&mut self) {
+        self.largest_movable = self.movable.iter().copied().max();
+        self.largest_below = self.below.iter().copied().max();
     }
 
     /// The lists of a chain: the joints `movable` (in increasing order, each a descendant
@@ -282,6 +295,7 @@ impl Movers {
         self.below.resize(movable.len(), 0);
         self.slot.clear();
         self.count.clear();
+        self.note_largest();
     }
 
     /// The movable joints, in increasing index order.
@@ -413,11 +427,11 @@ impl FinishJob<'_> {
                 format!("joint {base} is not in the skeleton of {joints} joints"),
             );
         }
-        // Every list is scanned whole first (a few dozen entries, no early exit to
-        // predict); the entry to name is looked for only when one is bad.
+        // The lists' largest entries are kept by `Movers` as it writes them (no scan per
+        // run); the entry to name is looked for only when one is bad.
         let movable = self.movers.movable();
         let targets = self.targets.len();
-        if movable.iter().fold(0, |a, &j| a.max(j)) >= joints && !movable.is_empty() {
+        if self.movers.largest_movable.is_some_and(|j| j >= joints) {
             let m = movable.iter().position(|&j| j >= joints).unwrap_or(0);
             return bad(
                 format!("movers.movable[{m}]"),
@@ -427,9 +441,7 @@ impl FinishJob<'_> {
                 ),
             );
         }
-        if self.movers.below.iter().fold(0, |a, &e| a.max(e)) >= targets
-            && !self.movers.below.is_empty()
-        {
+        if self.movers.largest_below.is_some_and(|e| e >= targets) {
             let m = (0..movable.len())
                 .find(|&m| self.movers.below(m).iter().any(|&e| e >= targets))
                 .unwrap_or(0);
@@ -2848,6 +2860,26 @@ mod tests {
             refused_field(job(&skeleton, &movers, &[]).validate()),
             "movers.below(0)"
         );
+        // The movers' largest entries, which the validation compares, follow every
+        // rebuild: the same buffers written again for a problem they fit are accepted,
+        // and for one they do not fit refused again.
+        far.chain(&[0, 1]);
+        assert_eq!(job(&skeleton, &far, &targets).validate(), Ok(()));
+        far.chain(&[1, 3]);
+        assert_eq!(
+            refused_field(job(&skeleton, &far, &targets).validate()),
+            "movers.movable[1]"
+        );
+        let mut rebuilt = Movers::default();
+        rebuilt.build(&skeleton, &[targets[0], targets[0]]);
+        assert_eq!(
+            refused_field(job(&skeleton, &rebuilt, &targets).validate()),
+            "movers.below(0)"
+        );
+        rebuilt.build(&skeleton, &targets);
+        assert_eq!(job(&skeleton, &rebuilt, &targets).validate(), Ok(()));
+        rebuilt.chain(&[]);
+        assert_eq!(job(&skeleton, &rebuilt, &[]).validate(), Ok(()));
         // The run checks the job and the buffers it is handed, and changes nothing.
         let mut pose = skeleton.rest_pose();
         let mut global = GlobalPose::new();
