@@ -1029,9 +1029,18 @@ impl Finish {
             self.saved
                 .extend(movable.iter().map(|&j| pose.rotations[j]));
             let saved_translation = *translation;
-            self.saved_global.rotations.clone_from(&global.rotations);
-            self.saved_global.positions.clone_from(&global.positions);
-            self.apply_step(skeleton, movable, pose, global);
+            // Without a base, forward kinematics writes every joint and reads nothing of
+            // the global pose it overwrites: the pose before the trial is kept by handing
+            // its buffers over (swapped back on a rejection) instead of copied.
+            let mut before = std::mem::take(&mut self.saved_global);
+            if job.base.is_none() {
+                std::mem::swap(global, &mut before);
+            } else {
+                before.rotations.clone_from(&global.rotations);
+                before.positions.clone_from(&global.positions);
+            }
+            self.apply_step(skeleton, movable, pose, &before);
+            self.saved_global = before;
             *translation += shift;
             translated_forward_kinematics(skeleton, pose, *translation, job.base, global)?;
             let trial_cost = total_cost(targets, global);
@@ -1090,8 +1099,12 @@ impl Finish {
                 pose.rotations[j] = saved;
             }
             *translation = saved_translation;
-            global.rotations.clone_from(&self.saved_global.rotations);
-            global.positions.clone_from(&self.saved_global.positions);
+            if job.base.is_none() {
+                std::mem::swap(global, &mut self.saved_global);
+            } else {
+                global.rotations.clone_from(&self.saved_global.rotations);
+                global.positions.clone_from(&self.saved_global.positions);
+            }
             if chord {
                 // The chord step did not pay: linearize here, as after any accepted step.
                 chord = false;
@@ -2928,6 +2941,83 @@ mod tests {
             .run(&good, &mut pose, &mut translation, &mut global)
             .expect("a valid job");
         assert_eq!(done.stop, StopReason::Converged, "{done:?}");
+    }
+
+    /// After a run the global pose is, to the bit, forward kinematics of the pose it
+    /// returns moved by its translation, with or without a base (the trials' global poses
+    /// are swapped with the finish's buffer, not copied, when there is none), over runs
+    /// on limited joints whose trials are rejected and clamped.
+    #[test]
+    fn a_run_leaves_the_global_pose_of_its_answer() {
+        use crate::limits::{Hinge, SwingTwist};
+        let shoulder = JointLimit::SwingTwist(SwingTwist {
+            twist_axis: DVec3::Y,
+            a_axis: DVec3::X,
+            swing_a: 0.6,
+            swing_b: 0.3,
+            twist_min: -0.4,
+            twist_max: 0.2,
+        });
+        let elbow = JointLimit::Hinge(Hinge {
+            axis: DVec3::Z,
+            min: 0.0,
+            max: 1.2,
+        });
+        let skeleton = Skeleton::new([
+            crate::JointDef::root(DVec3::ZERO),
+            crate::JointDef::child(0, DVec3::Y).with_limit(shoulder),
+            crate::JointDef::child(1, DVec3::Y).with_limit(elbow),
+            crate::JointDef::child(2, DVec3::Y),
+            crate::JointDef::child(0, DVec3::X).with_limit(shoulder),
+            crate::JointDef::child(4, DVec3::Y),
+        ])
+        .expect("valid");
+        let mut random = uniform(7);
+        let mut runs = 0;
+        let mut steps = 0;
+        for base in [None, Some(0)] {
+            let mut finish = Finish::default();
+            for _ in 0..40 {
+                let mut goal = || DVec3::new(random(), random(), random()) * 2.0;
+                let targets = [(3, goal()), (5, goal())].map(|(joint, position)| Target {
+                    joint,
+                    position,
+                    rotation: None,
+                    position_weight: 1.0,
+                    rotation_weight: 0.0,
+                    pinned: false,
+                });
+                let targets = if base.is_some() {
+                    &targets[..1]
+                } else {
+                    &targets[..]
+                };
+                let mut movers = Movers::default();
+                movers.build(&skeleton, targets);
+                let job = FinishJob {
+                    translates: base.is_none(),
+                    base,
+                    ..job(&skeleton, &movers, targets)
+                };
+                let mut pose = skeleton.rest_pose();
+                let mut translation = DVec3::ZERO;
+                let mut global = GlobalPose::new();
+                skeleton
+                    .forward_kinematics(&pose, &mut global)
+                    .expect("valid");
+                let done = finish
+                    .run(&job, &mut pose, &mut translation, &mut global)
+                    .expect("a valid job");
+                runs += 1;
+                steps += done.steps;
+                let mut exact = GlobalPose::new();
+                translated_forward_kinematics(&skeleton, &pose, translation, None, &mut exact)
+                    .expect("valid");
+                assert_eq!(global.rotations, exact.rotations, "{base:?} {done:?}");
+                assert_eq!(global.positions, exact.positions, "{base:?} {done:?}");
+            }
+        }
+        assert!(steps > 2 * runs, "{steps} steps in {runs} runs");
     }
 
     /// The residual left after `steps` steps of the finish on a problem whose model is
