@@ -826,7 +826,8 @@ impl Finish {
         Ok(finished)
     }
 
-    /// The steps of [`Finish::run`], with `rows` residual rows.
+    /// The steps of [`Finish::run`], with `rows` residual rows, from the pose whose cost
+    /// `run` left in `best_cost`.
     fn iterate(
         &mut self,
         job: &FinishJob<'_>,
@@ -875,7 +876,8 @@ impl Finish {
         self.turn.resize(movable.len(), DVec3::ZERO);
         self.residual.resize(rows, 0.0);
         self.y.resize(rows, 0.0);
-        let mut cost = total_cost(targets, global);
+        // `run` has just measured this pose's cost as the best so far.
+        let mut cost = self.best_cost;
         let mut damping = f64::NAN;
         let mut rejections = 0;
         let mut crawl = 0;
@@ -893,13 +895,19 @@ impl Finish {
         let mut chords = 0;
         let mut outward_stale = true;
         self.history.clear();
+        // Whether the pose is one already found outside the tolerances: the start (tested
+        // above), and again after a rejected trial (which restores the pose, the
+        // translation and the global pose to their bits) or a solve again after the active
+        // set changed; only an accepted step moves it.
+        let mut known_outside = true;
         loop {
-            if all_within(targets, global, settings) {
+            if !known_outside && all_within(targets, global, settings) {
                 return Ok(Finished {
                     stop: StopReason::Converged,
                     steps,
                 });
             }
+            known_outside = true;
             if job.stall_window > 0 {
                 while self.history.len() <= steps {
                     self.history.push(cost);
@@ -1078,6 +1086,7 @@ impl Finish {
                 }
                 rejections = 0;
                 fresh = false;
+                known_outside = false;
                 for (on, &clamped) in self.on_bound.iter_mut().zip(&self.clamped) {
                     *on |= clamped;
                 }
