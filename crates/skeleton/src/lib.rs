@@ -626,7 +626,14 @@ impl Skeleton {
     #[inline(always)]
     fn update_joint(&self, fk: &mut FkSlices<'_>, i: usize) -> Result<(), SkeletonError> {
         let local = fk.locals[i];
-        if !local.is_finite() || local.length_squared() == 0.0 {
+        // A squared length in `(0, MAX]` says every component is finite (a NaN or an
+        // infinity would make it NaN or infinite) and the length not zero: one test for
+        // the usual rotation, the exact ones only when it fails (a finite quaternion whose
+        // squared length overflows is still accepted).
+        let length_squared = local.length_squared();
+        if !(length_squared > 0.0 && length_squared <= f64::MAX)
+            && (!local.is_finite() || length_squared == 0.0)
+        {
             return Err(SkeletonError::InvalidRotation {
                 joint: self.label(i),
             });
@@ -1028,6 +1035,46 @@ mod tests {
                 (length - rest).abs() <= 1e-12 * rest + roundoff,
                 "bone {i}: {length} vs {rest}"
             );
+        }
+    }
+
+    #[test]
+    fn a_rotation_is_refused_exactly_when_not_finite_or_of_zero_length() {
+        // The one test on the squared length must refuse and accept what the two exact
+        // tests do: an infinity, a NaN, zero, and a finite rotation whose squared length
+        // underflows to zero are refused; one whose squared length overflows is not.
+        let skel = Skeleton::chain(DVec3::ZERO, &[DVec3::X; 2]).unwrap();
+        let mut g = GlobalPose::new();
+        for (q, refused) in [
+            (DQuat::from_xyzw(f64::INFINITY, 0.0, 0.0, 1.0), true),
+            (DQuat::from_xyzw(0.0, f64::NEG_INFINITY, 0.0, 0.0), true),
+            (DQuat::from_xyzw(0.0, 0.0, f64::NAN, 1.0), true),
+            (DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0), true),
+            (DQuat::from_xyzw(0.0, 0.0, 0.0, -0.0), true),
+            (DQuat::from_xyzw(1e-170, 0.0, 0.0, 1e-170), true),
+            (DQuat::from_xyzw(1e200, 0.0, 0.0, 0.0), false),
+            (DQuat::from_xyzw(0.0, f64::MAX, 0.0, f64::MAX), false),
+            (DQuat::from_xyzw(1e-150, 0.0, 0.0, 0.0), false),
+            (DQuat::from_xyzw(0.0, 0.0, 0.6, 0.8), false),
+        ] {
+            let exact = !q.is_finite() || q.length_squared() == 0.0;
+            assert_eq!(exact, refused, "{q}");
+            for joint in 0..3 {
+                let mut pose = skel.rest_pose();
+                pose.rotations[joint] = q;
+                let result = skel.forward_kinematics(&pose, &mut g);
+                if refused {
+                    assert_eq!(
+                        result,
+                        Err(SkeletonError::InvalidRotation {
+                            joint: format!("joint {joint}")
+                        }),
+                        "{q} at joint {joint}"
+                    );
+                } else {
+                    assert_eq!(result, Ok(()), "{q} at joint {joint}");
+                }
+            }
         }
     }
 
