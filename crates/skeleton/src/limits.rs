@@ -829,8 +829,10 @@ impl PreparedLimit {
     #[must_use]
     pub fn violation_and_fixed(&self, q: DQuat) -> (f64, bool) {
         // For a `q` unit as given, the steps of `violation` (and of `project` before it
-        // clamps) on `q` itself, the quick test made once.
-        let unit_as_given = q.is_finite() && (q.length_squared() - 1.0).abs() <= 4.0 * f64::EPSILON;
+        // clamps) on `q` itself, the quick test made once. (A squared length within
+        // rounding of 1 implies finite components: a NaN or an infinity would make it NaN
+        // or infinite.)
+        let unit_as_given = (q.length_squared() - 1.0).abs() <= 4.0 * f64::EPSILON;
         match &self.fast {
             Fast::Hinge { axis, range, .. } if unit_as_given => {
                 if quick_hinge_inside(*axis, range, q) {
@@ -1065,13 +1067,16 @@ impl Frame {
 /// `q / |q|`, or `None` for a zero or non-finite `q`. Scales by the largest component
 /// first so that tiny quaternions do not underflow to zero length.
 fn unit_quat(q: DQuat) -> Option<DQuat> {
+    // A quaternion that is unit to rounding is kept bit for bit, so that an allowed
+    // rotation comes back exactly as it went in. Tested first: a squared length that
+    // close to 1 says every component is finite (a NaN or an infinity would make it NaN
+    // or infinite), so the finiteness test is needed only for the others.
+    let length_squared = q.length_squared();
+    if (length_squared - 1.0).abs() <= 4.0 * f64::EPSILON {
+        return Some(q);
+    }
     if !q.is_finite() {
         return None;
-    }
-    // A quaternion that is unit to rounding is kept bit for bit, so that an allowed
-    // rotation comes back exactly as it went in.
-    if (q.length_squared() - 1.0).abs() <= 4.0 * f64::EPSILON {
-        return Some(q);
     }
     let scale = q.to_array().iter().fold(0.0f64, |m, c| m.max(c.abs()));
     if scale == 0.0 {
@@ -1503,6 +1508,40 @@ mod tests {
                 panic!("a prepared hinge");
             };
             assert!(quick_hinge_inside(*axis, range, q), "elbow {f}");
+        }
+    }
+
+    /// `unit_quat` tests the squared length before finiteness: a quaternion unit to
+    /// rounding comes back itself, one with an infinity or a NaN (whose squared length is
+    /// never near 1) or of zero length is `None`, and any other is normalized.
+    #[test]
+    fn unit_quat_keeps_the_unit_refuses_the_non_finite_and_normalizes_the_rest() {
+        let unit = DQuat::from_xyzw(0.0, 0.0, 0.6, 0.8);
+        let nudged = DQuat::from_xyzw(0.0, 0.0, 0.6, 0.8 + f64::EPSILON);
+        for q in [unit, nudged, DQuat::IDENTITY, -DQuat::IDENTITY] {
+            assert_eq!(
+                unit_quat(q).map(|u| u.to_array()),
+                Some(q.to_array()),
+                "{q}"
+            );
+        }
+        for q in [
+            DQuat::from_xyzw(f64::INFINITY, 0.0, 0.0, 0.0),
+            DQuat::from_xyzw(0.0, f64::NEG_INFINITY, 0.0, 1.0),
+            DQuat::from_xyzw(f64::NAN, 0.0, 0.0, 1.0),
+            DQuat::from_xyzw(0.0, 0.0, 0.0, f64::NAN),
+            DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0),
+        ] {
+            assert_eq!(unit_quat(q), None, "{q}");
+        }
+        for q in [
+            DQuat::from_xyzw(0.0, 0.0, 3.0, 4.0),
+            DQuat::from_xyzw(1e-170, 0.0, 0.0, 1e-170),
+            DQuat::from_xyzw(1e200, 0.0, 0.0, 1e200),
+        ] {
+            let u = unit_quat(q).expect("a finite non-zero quaternion");
+            assert!((u.length() - 1.0).abs() <= 4.0 * f64::EPSILON, "{q} -> {u}");
+            assert!(u.dot(q) > 0.0, "{q} -> {u}");
         }
     }
 
