@@ -61,6 +61,24 @@ impl Instance {
     }
 }
 
+/// `$avx2(args)` (a kernel of the `avx2` module) when `$instance` selects the AVX2
+/// instance, else `$portable(args)`: the dispatch every kernel shares. A macro, not a
+/// function taking the two kernels: the AVX2 call must stay behind the detection, in
+/// the one `unsafe` block whose safety argument is written here.
+macro_rules! dispatch {
+    ($instance:expr, $avx2:path, $portable:path, ($($arg:expr),* $(,)?)) => {
+        match $instance {
+            // SAFETY: `Instance::avx2` is true only when `is_x86_feature_detected!("avx2")`
+            // reported the feature on this processor, which is all a function enabling
+            // AVX2 requires to be called.
+            #[cfg(target_arch = "x86_64")]
+            #[allow(unsafe_code)]
+            instance if instance.avx2() => unsafe { $avx2($($arg),*) },
+            _ => $portable($($arg),*),
+        }
+    };
+}
+
 /// The lengths of the kernels' plain case, the condition of [`spring::gradient`]'s and
 /// [`spring::hessian_coefficients`]' fast paths written without branches (a NaN length
 /// fails both comparisons, as it fails `is_finite`).
@@ -1021,39 +1039,18 @@ fn fill<const GRADIENT: bool, const BLOCK: bool>(
     if let Some(d) = &damping {
         assert_eq!(d.directions.len(), springs.len());
     }
-    #[cfg(target_arch = "x86_64")]
-    if instance.avx2() {
-        // SAFETY: `Instance::avx2` is true only when `is_x86_feature_detected!("avx2")`
-        // reported the feature on this processor, which is all a function enabling
-        // AVX2 requires to be called.
-        #[allow(unsafe_code)]
-        unsafe {
-            match &damping {
-                Some(d) => {
-                    avx2::fill::<GRADIENT, BLOCK, true>(springs, x, curvature, d, gradients, blocks)
-                }
-                None => avx2::fill::<GRADIENT, BLOCK, false>(
-                    springs,
-                    x,
-                    curvature,
-                    &Damping::NONE,
-                    gradients,
-                    blocks,
-                ),
-            }
-        }
-        return;
-    }
-    let _ = instance;
     match &damping {
-        Some(d) => fill_lanes::<GRADIENT, BLOCK, true>(springs, x, curvature, d, gradients, blocks),
-        None => fill_lanes::<GRADIENT, BLOCK, false>(
-            springs,
-            x,
-            curvature,
-            &Damping::NONE,
-            gradients,
-            blocks,
+        Some(d) => dispatch!(
+            instance,
+            avx2::fill::<GRADIENT, BLOCK, true>,
+            fill_lanes::<GRADIENT, BLOCK, true>,
+            (springs, x, curvature, d, gradients, blocks)
+        ),
+        None => dispatch!(
+            instance,
+            avx2::fill::<GRADIENT, BLOCK, false>,
+            fill_lanes::<GRADIENT, BLOCK, false>,
+            (springs, x, curvature, &Damping::NONE, gradients, blocks)
         ),
     }
 }
@@ -1118,21 +1115,19 @@ fn energy_change<const PAIR: bool>(
     if let Some(d) = &damping {
         assert_eq!(d.directions.len(), springs.len());
     }
-    #[cfg(target_arch = "x86_64")]
-    if instance.avx2() {
-        // SAFETY: as in `fill`: the feature was reported on this processor.
-        #[allow(unsafe_code)]
-        unsafe {
-            return match &damping {
-                Some(d) => avx2::energy_change::<PAIR, true>(springs, x, dx, alphas, d),
-                None => avx2::energy_change::<PAIR, false>(springs, x, dx, alphas, &Damping::NONE),
-            };
-        }
-    }
-    let _ = instance;
     match &damping {
-        Some(d) => energy_change_lanes::<PAIR, true>(springs, x, dx, alphas, d),
-        None => energy_change_lanes::<PAIR, false>(springs, x, dx, alphas, &Damping::NONE),
+        Some(d) => dispatch!(
+            instance,
+            avx2::energy_change::<PAIR, true>,
+            energy_change_lanes::<PAIR, true>,
+            (springs, x, dx, alphas, d)
+        ),
+        None => dispatch!(
+            instance,
+            avx2::energy_change::<PAIR, false>,
+            energy_change_lanes::<PAIR, false>,
+            (springs, x, dx, alphas, &Damping::NONE)
+        ),
     }
 }
 
@@ -1166,17 +1161,12 @@ pub(crate) fn energy_change_pair_sum(
 /// [`crate::spring::energy`] per spring.
 pub(crate) fn energies(instance: Instance, springs: &[Spring], x: &[DVec3], energies: &mut [f64]) {
     assert_eq!(energies.len(), springs.len());
-    #[cfg(target_arch = "x86_64")]
-    if instance.avx2() {
-        // SAFETY: as in `fill`: the feature was reported on this processor.
-        #[allow(unsafe_code)]
-        unsafe {
-            avx2::energies(springs, x, energies);
-        }
-        return;
-    }
-    let _ = instance;
-    energies_lanes(springs, x, energies);
+    dispatch!(
+        instance,
+        avx2::energies,
+        energies_lanes,
+        (springs, x, energies)
+    );
 }
 
 /// Each spring's damping direction at `x` into `directions` (as long as `springs`):
@@ -1188,17 +1178,12 @@ pub(crate) fn damping_directions(
     directions: &mut [DVec3],
 ) {
     assert_eq!(directions.len(), springs.len());
-    #[cfg(target_arch = "x86_64")]
-    if instance.avx2() {
-        // SAFETY: as in `fill`: the feature was reported on this processor.
-        #[allow(unsafe_code)]
-        unsafe {
-            avx2::directions(springs, x, directions);
-        }
-        return;
-    }
-    let _ = instance;
-    directions_lanes(springs, x, directions);
+    dispatch!(
+        instance,
+        avx2::directions,
+        directions_lanes,
+        (springs, x, directions)
+    );
 }
 
 #[cfg(test)]
