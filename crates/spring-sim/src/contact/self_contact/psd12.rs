@@ -141,15 +141,7 @@ fn jacobi<const N: usize>(a: &mut [[f64; N]; N], v: &mut [[f64; N]; N], n: usize
                 if apq * apq <= skip {
                     continue;
                 }
-                // The rotation that zeroes a[p][q], with |angle| <= pi/4 for stability.
-                let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
-                let t = if theta.abs() > 1e150 {
-                    0.5 / theta
-                } else {
-                    theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt())
-                };
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
+                let (c, s) = crate::contact::psd::jacobi_rotation(a[p][p], a[q][q], apq);
                 let (app, aqq) = (a[p][p], a[q][q]);
                 for k in 0..n {
                     if k == p || k == q {
