@@ -335,19 +335,34 @@ impl ContactPotential {
             .filter(move |s| box_distance(s, bounds) < reach)
     }
 
+    /// `visit(i, shape, x[i])` for every free particle `i` and every collider
+    /// [`Self::near`] keeps for the free particles' box at `x`: collider by collider, the
+    /// particles in order within each, the order every sum and minimum over the pairs is
+    /// taken in.
+    fn for_each_near_free(
+        &self,
+        x: &[DVec3],
+        fixed: &[bool],
+        mut visit: impl FnMut(usize, &Shape, DVec3),
+    ) {
+        let bounds = free_box(x, fixed, None);
+        for shape in self.near(&bounds) {
+            for (i, &p) in x.iter().enumerate() {
+                if !fixed[i] {
+                    visit(i, shape, p);
+                }
+            }
+        }
+    }
+
     /// The smallest distance (minus the thickness) from a free particle to a collider,
     /// `+inf` when none is within `dhat` (or there are no colliders).
     #[must_use]
     pub fn min_distance(&self, x: &[DVec3], fixed: &[bool]) -> f64 {
-        let bounds = free_box(x, fixed, None);
         let mut min = f64::INFINITY;
-        for shape in self.near(&bounds) {
-            for (i, &p) in x.iter().enumerate() {
-                if !fixed[i] {
-                    min = min.min(distance_to(shape, p, self.settings.thickness));
-                }
-            }
-        }
+        self.for_each_near_free(x, fixed, |_, shape, p| {
+            min = min.min(distance_to(shape, p, self.settings.thickness));
+        });
         if min < self.settings.dhat {
             min
         } else {
@@ -365,25 +380,19 @@ impl ContactPotential {
         active.x.clear();
         active.x.extend_from_slice(x);
         active.pairs.clear();
-        let bounds = free_box(x, fixed, None);
         let mut min = f64::INFINITY;
-        for shape in self.near(&bounds) {
-            for (i, &p) in x.iter().enumerate() {
-                if fixed[i] {
-                    continue;
-                }
-                let sd = signed_distance(shape, p, tau);
-                min = min.min(sd.distance);
-                if sd.distance > 0.0 && sd.distance < dhat {
-                    active.pairs.push((
-                        i,
-                        sd.normal,
-                        barrier_first_derivative(sd.distance, dhat),
-                        barrier_second_derivative(sd.distance, dhat),
-                    ));
-                }
+        self.for_each_near_free(x, fixed, |i, shape, p| {
+            let sd = signed_distance(shape, p, tau);
+            min = min.min(sd.distance);
+            if sd.distance > 0.0 && sd.distance < dhat {
+                active.pairs.push((
+                    i,
+                    sd.normal,
+                    barrier_first_derivative(sd.distance, dhat),
+                    barrier_second_derivative(sd.distance, dhat),
+                ));
             }
-        }
+        });
         self.active = active;
         let d = if min < dhat { min } else { f64::INFINITY };
         self.kappa.as_mut().is_some_and(|k| k.update(d, dhat))
@@ -422,16 +431,11 @@ impl ContactPotential {
         let Some(kappa) = self.kappa else {
             return 0.0;
         };
-        let bounds = free_box(x, fixed, None);
         let mut e = 0.0;
-        for shape in self.near(&bounds) {
-            for (i, &p) in x.iter().enumerate() {
-                if !fixed[i] {
-                    let d = distance_to(shape, p, self.settings.thickness);
-                    e += kappa.kappa * barrier(d, self.settings.dhat);
-                }
-            }
-        }
+        self.for_each_near_free(x, fixed, |_, shape, p| {
+            let d = distance_to(shape, p, self.settings.thickness);
+            e += kappa.kappa * barrier(d, self.settings.dhat);
+        });
         e
     }
 
@@ -498,23 +502,16 @@ impl ContactPotential {
                 gradient[i] += scale * (kappa.kappa * b1 * n);
             }
         } else if let Some(kappa) = self.kappa {
-            let bounds = free_box(x, fixed, None);
-            for shape in self.near(&bounds) {
-                for (i, &p) in x.iter().enumerate() {
-                    if fixed[i] {
-                        continue;
-                    }
-                    let sd = signed_distance(shape, p, self.settings.thickness);
-                    // A particle touching or inside (never the case at an admissible
-                    // state, whose energy is finite) adds nothing, as before.
-                    if sd.distance < self.settings.dhat
-                        && let Some(g) =
-                            point_barrier_gradient(kappa.kappa, self.settings.dhat, &sd)
-                    {
-                        gradient[i] += scale * g;
-                    }
+            self.for_each_near_free(x, fixed, |i, shape, p| {
+                let sd = signed_distance(shape, p, self.settings.thickness);
+                // A particle touching or inside (never the case at an admissible state,
+                // whose energy is finite) adds nothing, as before.
+                if sd.distance < self.settings.dhat
+                    && let Some(g) = point_barrier_gradient(kappa.kappa, self.settings.dhat, &sd)
+                {
+                    gradient[i] += scale * g;
                 }
-            }
+            });
         }
         for (i, c) in &self.friction {
             if !fixed[*i] {
@@ -537,21 +534,15 @@ impl ContactPotential {
                 add(i, outer(n) * (kappa.kappa * b2));
             }
         } else if let Some(kappa) = self.kappa {
-            let bounds = free_box(x, fixed, None);
-            for shape in self.near(&bounds) {
-                for (i, &p) in x.iter().enumerate() {
-                    if fixed[i] {
-                        continue;
-                    }
-                    let sd = signed_distance(shape, p, self.settings.thickness);
-                    if sd.distance > 0.0 && sd.distance < self.settings.dhat {
-                        add(
-                            i,
-                            point_barrier_projected_hessian(kappa.kappa, self.settings.dhat, &sd),
-                        );
-                    }
+            self.for_each_near_free(x, fixed, |i, shape, p| {
+                let sd = signed_distance(shape, p, self.settings.thickness);
+                if sd.distance > 0.0 && sd.distance < self.settings.dhat {
+                    add(
+                        i,
+                        point_barrier_projected_hessian(kappa.kappa, self.settings.dhat, &sd),
+                    );
                 }
-            }
+            });
         }
         for (i, c) in &self.friction {
             if !fixed[*i] {
