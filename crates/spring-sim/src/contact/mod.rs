@@ -157,22 +157,34 @@ impl Default for ContactSettings {
     }
 }
 
+impl ContactError {
+    /// The error [`ContactError::BadSetting`] of the setting `name` given `value`, with
+    /// what is wrong with it: the one way every settings check reports.
+    pub(crate) fn bad_setting<T>(
+        name: &'static str,
+        value: f64,
+        reason: &'static str,
+    ) -> Result<T, Self> {
+        Err(Self::BadSetting {
+            name,
+            value,
+            reason,
+        })
+    }
+}
+
 /// The checks every barrier's settings share: `dhat > 0` and `thickness >= 0`, both
 /// finite; the error names the setting.
 pub(crate) fn check_gap_settings(dhat: f64, thickness: f64) -> Result<(), ContactError> {
     if !(dhat.is_finite() && dhat > 0.0) {
-        return Err(ContactError::BadSetting {
-            name: "dhat",
-            value: dhat,
-            reason: "must be positive and finite",
-        });
+        return ContactError::bad_setting("dhat", dhat, "must be positive and finite");
     }
     if !(thickness.is_finite() && thickness >= 0.0) {
-        return Err(ContactError::BadSetting {
-            name: "thickness",
-            value: thickness,
-            reason: "must be non-negative and finite",
-        });
+        return ContactError::bad_setting(
+            "thickness",
+            thickness,
+            "must be non-negative and finite",
+        );
     }
     Ok(())
 }
@@ -182,11 +194,11 @@ pub(crate) fn check_toi_fraction(fraction: f64) -> Result<(), ContactError> {
     if fraction > 0.0 && fraction < 1.0 {
         Ok(())
     } else {
-        Err(ContactError::BadSetting {
-            name: "toi_fraction",
-            value: fraction,
-            reason: "must lie strictly between 0 and 1",
-        })
+        ContactError::bad_setting(
+            "toi_fraction",
+            fraction,
+            "must lie strictly between 0 and 1",
+        )
     }
 }
 
@@ -194,13 +206,7 @@ impl ContactSettings {
     /// Checks every setting: `dhat > 0`, `thickness >= 0`, `mu >= 0`, `eps_v > 0`,
     /// `0 < toi_fraction < 1`, all finite. The error names the setting.
     pub fn validate(&self) -> Result<(), ContactError> {
-        let bad = |name, value, reason| {
-            Err(ContactError::BadSetting {
-                name,
-                value,
-                reason,
-            })
-        };
+        let bad = ContactError::bad_setting;
         check_gap_settings(self.dhat, self.thickness)?;
         if !(self.mu.is_finite() && self.mu >= 0.0) {
             return bad("mu", self.mu, "must be non-negative and finite");

@@ -106,11 +106,7 @@ impl ContactPotential {
         validate_colliders(&colliders)?;
         settings.validate()?;
         if !start_time.is_finite() {
-            return Err(ContactError::BadSetting {
-                name: "start_time",
-                value: start_time,
-                reason: "must be finite",
-            });
+            return ContactError::bad_setting("start_time", start_time, "must be finite");
         }
         let posed = colliders.iter().map(|c| c.at(start_time)).collect();
         Ok(Self {

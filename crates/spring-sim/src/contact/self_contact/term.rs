@@ -115,13 +115,7 @@ impl SelfContactSettings {
     /// Checks every setting (`dhat > 0`, `thickness >= 0`, `0 < toi_fraction < 1`,
     /// `mollifier_ratio > 0`, all finite); the error names the setting.
     pub fn validate(&self) -> Result<(), ContactError> {
-        let bad = |name, value, reason| {
-            Err(ContactError::BadSetting {
-                name,
-                value,
-                reason,
-            })
-        };
+        let bad = ContactError::bad_setting;
         crate::contact::check_gap_settings(self.dhat, self.thickness)?;
         crate::contact::check_toi_fraction(self.toi_fraction)?;
         if !(self.mollifier_ratio.is_finite() && self.mollifier_ratio > 0.0) {
