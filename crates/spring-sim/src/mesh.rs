@@ -221,15 +221,7 @@ impl TriangleMesh {
     /// The unique edges, each as `[low, high]`, sorted.
     #[must_use]
     pub fn edges(&self) -> Vec<[usize; 2]> {
-        let mut edges: Vec<[usize; 2]> = self
-            .triangles
-            .iter()
-            .flat_map(|&[a, b, c]| [[a, b], [b, c], [c, a]])
-            .map(|[a, b]| [a.min(b), a.max(b)])
-            .collect();
-        edges.sort_unstable();
-        edges.dedup();
-        edges
+        unique_edges(&self.triangles)
     }
 
     /// Every interior edge with its two triangles' opposite vertices, as
@@ -385,6 +377,19 @@ impl MeshClothModel {
     ) -> Result<Arc<SelfContactStats>, ContactError> {
         enable_self_contact(integrator, &self.system, &self.triangles, settings)
     }
+}
+
+/// The unique edges of `triangles`, each as `[low, high]`, sorted: the mesh's edges and
+/// the self-contact broad phase's edge primitives.
+pub(crate) fn unique_edges(triangles: &[[usize; 3]]) -> Vec<[usize; 2]> {
+    let mut edges: Vec<[usize; 2]> = triangles
+        .iter()
+        .flat_map(|&[a, b, c]| [[a, b], [b, c], [c, a]])
+        .map(|[a, b]| [a.min(b), a.max(b)])
+        .collect();
+    edges.sort_unstable();
+    edges.dedup();
+    edges
 }
 
 fn check_field(field: &'static str, value: f64, positive: bool) -> Result<(), MeshError> {

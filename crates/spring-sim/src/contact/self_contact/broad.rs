@@ -94,13 +94,7 @@ impl Primitives {
     /// The primitives of `triangles` (indices are not checked here).
     #[must_use]
     pub fn new(triangles: &[[usize; 3]]) -> Self {
-        let mut edges: Vec<[usize; 2]> = triangles
-            .iter()
-            .flat_map(|&[a, b, c]| [[a, b], [b, c], [c, a]])
-            .map(|[a, b]| [a.min(b), a.max(b)])
-            .collect();
-        edges.sort_unstable();
-        edges.dedup();
+        let edges = crate::mesh::unique_edges(triangles);
         let mut vertices: Vec<usize> = triangles.iter().flatten().copied().collect();
         vertices.sort_unstable();
         vertices.dedup();
