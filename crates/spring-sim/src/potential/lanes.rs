@@ -403,7 +403,7 @@ fn energy_change_lanes<const PAIR: bool, const DAMPED: bool>(
     [a1, a2]: [f64; 2],
     damped: &Damping<'_>,
 ) -> [f64; 2] {
-    let (mut c1, mut c2) = (0.0, 0.0);
+    let mut sums = [0.0; 2];
     let whole = springs.len() / LANES * LANES;
     for first in (0..whole).step_by(LANES) {
         let batch = &springs[first..first + LANES];
@@ -417,37 +417,27 @@ fn energy_change_lanes<const PAIR: bool, const DAMPED: bool>(
         } else {
             ([[0.0; LANES]; 3], [0.0; LANES])
         };
-        let delta1 = moves(batch, dx, a1);
-        let mut change1 = energy_changes(&d, &l, &delta1, &rest, &k);
-        if DAMPED {
-            let damping = damping_changes(damped.c, &w, &e, &delta1);
-            for (change, damping) in change1.iter_mut().zip(damping) {
-                *change += damping;
-            }
-        }
-        for (i, change) in change1.iter().enumerate() {
-            if moved(&delta1, i) {
-                c1 += change;
-            }
-        }
-        if PAIR {
-            let delta2 = moves(batch, dx, a2);
-            let mut change2 = energy_changes(&d, &l, &delta2, &rest, &k);
+        // The first length, then the second with `PAIR` (a loop of a constant one or
+        // two trips, unrolled), each sum taking its own batch's changes in lane order.
+        let lengths = if PAIR { 2 } else { 1 };
+        for (sum, alpha) in sums.iter_mut().zip([a1, a2]).take(lengths) {
+            let delta = moves(batch, dx, alpha);
+            let mut changes = energy_changes(&d, &l, &delta, &rest, &k);
             if DAMPED {
-                let damping = damping_changes(damped.c, &w, &e, &delta2);
-                for (change, damping) in change2.iter_mut().zip(damping) {
+                let damping = damping_changes(damped.c, &w, &e, &delta);
+                for (change, damping) in changes.iter_mut().zip(damping) {
                     *change += damping;
                 }
             }
-            for (i, change) in change2.iter().enumerate() {
-                if moved(&delta2, i) {
-                    c2 += change;
+            for (i, change) in changes.iter().enumerate() {
+                if moved(&delta, i) {
+                    *sum += change;
                 }
             }
         }
     }
     let tail = &springs[whole..];
-    energy_change_tail::<PAIR, DAMPED>(tail, x, dx, [a1, a2], [c1, c2], &damped.from(whole))
+    energy_change_tail::<PAIR, DAMPED>(tail, x, dx, [a1, a2], sums, &damped.from(whole))
 }
 
 /// The sums `sums` continued over the springs `rest` (fewer than a batch) one at a
@@ -1309,48 +1299,78 @@ mod tests {
         }
     }
 
-    /// Every prefix of the cases (every batch position and remainder, the empty one
-    /// included) in both instances, bitwise the scalar kernels' gradients and blocks in
-    /// every form, computed alone and together.
-    #[test]
-    fn gradients_and_blocks_are_bitwise_the_scalar_kernels() {
-        let (x, springs) = cases();
+    /// Every prefix of `springs` (every batch position and remainder, the empty one
+    /// included) in both instances, with the damping `damped(n)` of the first `n`
+    /// springs: the gradients and the blocks in every form, computed alone and together,
+    /// bitwise `gradient(e)` and `block(e, curvature)` of each spring `e`.
+    fn assert_fills_are<'a>(
+        springs: &[Spring],
+        x: &[DVec3],
+        damped: impl Fn(usize) -> Option<Damping<'a>>,
+        gradient: impl Fn(usize) -> DVec3,
+        block: impl Fn(usize, Curvature) -> SymBlock,
+    ) {
         let curvatures = [
             Curvature::Exact,
             Curvature::Clamped,
             Curvature::Softened(0.3),
             Curvature::ExactContact(0.7),
         ];
+        let flat_gradients =
+            |g: &[DVec3]| bits(&g.iter().flat_map(|g| g.to_array()).collect::<Vec<_>>());
+        let flat_blocks = |b: &[SymBlock]| bits(&b.iter().flat_map(|b| b.0).collect::<Vec<_>>());
         for n in 0..=springs.len() {
-            let springs = &springs[..n];
-            let scalar: Vec<f64> = springs
-                .iter()
-                .flat_map(|s| springs::gradient(s, &x).to_array())
-                .collect();
+            let (damped, springs) = (damped(n), &springs[..n]);
+            let scalar: Vec<DVec3> = (0..n).map(&gradient).collect();
             for instance in instances() {
                 let mut g = vec![DVec3::splat(f64::NAN); n];
-                gradients(instance, springs, &x, None, &mut g);
-                let lanes: Vec<f64> = g.iter().flat_map(|g| g.to_array()).collect();
-                assert_eq!(bits(&lanes), bits(&scalar), "{n} {instance:?}");
+                gradients(instance, springs, x, damped, &mut g);
+                assert_eq!(
+                    flat_gradients(&g),
+                    flat_gradients(&scalar),
+                    "{n} {instance:?}"
+                );
                 for curvature in curvatures {
-                    let scalar_blocks: Vec<f64> = springs
-                        .iter()
-                        .flat_map(|s| springs::block(s, &x, curvature).0)
-                        .collect();
+                    let scalar_blocks: Vec<SymBlock> =
+                        (0..n).map(|e| block(e, curvature)).collect();
                     let mut b = vec![SymBlock([f64::NAN; 6]); n];
-                    blocks(instance, springs, &x, curvature, None, &mut b);
-                    let lanes: Vec<f64> = b.iter().flat_map(|b| b.0).collect();
-                    assert_eq!(bits(&lanes), bits(&scalar_blocks), "{n} {curvature:?}");
+                    blocks(instance, springs, x, curvature, damped, &mut b);
+                    assert_eq!(
+                        flat_blocks(&b),
+                        flat_blocks(&scalar_blocks),
+                        "{n} {curvature:?}"
+                    );
                     let mut g = vec![DVec3::splat(f64::NAN); n];
                     let mut b = vec![SymBlock([f64::NAN; 6]); n];
-                    gradients_and_blocks(instance, springs, &x, curvature, None, &mut g, &mut b);
-                    let lanes: Vec<f64> = b.iter().flat_map(|b| b.0).collect();
-                    assert_eq!(bits(&lanes), bits(&scalar_blocks), "{n} {curvature:?}");
-                    let lanes: Vec<f64> = g.iter().flat_map(|g| g.to_array()).collect();
-                    assert_eq!(bits(&lanes), bits(&scalar), "{n} {curvature:?}");
+                    gradients_and_blocks(instance, springs, x, curvature, damped, &mut g, &mut b);
+                    assert_eq!(
+                        flat_blocks(&b),
+                        flat_blocks(&scalar_blocks),
+                        "{n} {curvature:?}"
+                    );
+                    assert_eq!(
+                        flat_gradients(&g),
+                        flat_gradients(&scalar),
+                        "{n} {curvature:?}"
+                    );
                 }
             }
         }
+    }
+
+    /// Every prefix of the cases (every batch position and remainder, the empty one
+    /// included) in both instances, bitwise the scalar kernels' gradients and blocks in
+    /// every form, computed alone and together.
+    #[test]
+    fn gradients_and_blocks_are_bitwise_the_scalar_kernels() {
+        let (x, springs) = cases();
+        assert_fills_are(
+            &springs,
+            &x,
+            |_| None,
+            |e| springs::gradient(&springs[e], &x),
+            |e, curvature| springs::block(&springs[e], &x, curvature),
+        );
         // The cases reach the branches they are meant to: a gradient of zero (zero
         // length), a block `k I` (zero rest length), a non-finite length.
         assert!(
@@ -1457,12 +1477,6 @@ mod tests {
         let (x, springs) = cases();
         let (c, directions, x_ref) = damping_of(&x, &springs);
         let references: Vec<DVec3> = springs.iter().map(|s| x_ref[s.a] - x_ref[s.b]).collect();
-        let curvatures = [
-            Curvature::Exact,
-            Curvature::Clamped,
-            Curvature::Softened(0.3),
-            Curvature::ExactContact(0.7),
-        ];
         let scalar_gradient = |e: usize| {
             let s = &springs[e];
             let (d, d_ref) = (x[s.a] - x[s.b], x_ref[s.a] - x_ref[s.b]);
@@ -1475,36 +1489,14 @@ mod tests {
             }
             k
         };
-        for n in 0..=springs.len() {
-            let damped = Some(Damping {
+        let damped = |n: usize| {
+            Some(Damping {
                 c,
                 directions: &directions[..n],
                 references: &references[..n],
-            });
-            let springs = &springs[..n];
-            let scalar: Vec<f64> = (0..n).flat_map(|e| scalar_gradient(e).to_array()).collect();
-            for instance in instances() {
-                let mut g = vec![DVec3::splat(f64::NAN); n];
-                gradients(instance, springs, &x, damped, &mut g);
-                let lanes: Vec<f64> = g.iter().flat_map(|g| g.to_array()).collect();
-                assert_eq!(bits(&lanes), bits(&scalar), "{n} {instance:?}");
-                for curvature in curvatures {
-                    let scalar_blocks: Vec<f64> =
-                        (0..n).flat_map(|e| scalar_block(e, curvature).0).collect();
-                    let mut b = vec![SymBlock([f64::NAN; 6]); n];
-                    blocks(instance, springs, &x, curvature, damped, &mut b);
-                    let lanes: Vec<f64> = b.iter().flat_map(|b| b.0).collect();
-                    assert_eq!(bits(&lanes), bits(&scalar_blocks), "{n} {curvature:?}");
-                    let mut g = vec![DVec3::splat(f64::NAN); n];
-                    let mut b = vec![SymBlock([f64::NAN; 6]); n];
-                    gradients_and_blocks(instance, springs, &x, curvature, damped, &mut g, &mut b);
-                    let lanes: Vec<f64> = b.iter().flat_map(|b| b.0).collect();
-                    assert_eq!(bits(&lanes), bits(&scalar_blocks), "{n} {curvature:?}");
-                    let lanes: Vec<f64> = g.iter().flat_map(|g| g.to_array()).collect();
-                    assert_eq!(bits(&lanes), bits(&scalar), "{n} {curvature:?}");
-                }
-            }
-        }
+            })
+        };
+        assert_fills_are(&springs, &x, damped, scalar_gradient, scalar_block);
         // The damping is not zero on the springs of the plain batches: the comparison
         // sees its terms.
         let e = 2;
