@@ -1386,6 +1386,44 @@ mod tests {
         );
     }
 
+    /// Moves of `n` particles, zero at every third.
+    fn test_moves(n: usize) -> Vec<DVec3> {
+        (0..n)
+            .map(|i| {
+                let t = i as f64;
+                if i % 3 == 0 {
+                    DVec3::ZERO
+                } else {
+                    DVec3::new(0.01 * (2.3 * t).sin(), 0.02 * (0.4 * t).cos(), -0.003 * t)
+                }
+            })
+            .collect()
+    }
+
+    /// Every prefix of `springs` in both instances, with the damping `damped(n)` of the
+    /// first `n` springs, at one and at two step lengths (zero among them, which skips
+    /// every spring): the sums along `dx` bitwise `scalar(n, alpha)`.
+    fn assert_changes_are<'a>(
+        springs: &[Spring],
+        x: &[DVec3],
+        dx: &[DVec3],
+        damped: impl Fn(usize) -> Option<Damping<'a>>,
+        scalar: impl Fn(usize, f64) -> f64,
+    ) {
+        for n in 0..=springs.len() {
+            let (damped, springs) = (damped(n), &springs[..n]);
+            for [a1, a2] in [[1.0, 2.0], [0.5, 0.25], [1.0, 0.0], [0.0, -1.0]] {
+                let sums = [a1, a2].map(|a| scalar(n, a));
+                for instance in instances() {
+                    let pair = energy_change_pair_sum(instance, springs, x, dx, [a1, a2], damped);
+                    assert_eq!(pair.map(f64::to_bits), sums.map(f64::to_bits), "{n} {a1}");
+                    let single = energy_change_sum(instance, springs, x, dx, a1, damped);
+                    assert_eq!(single.to_bits(), sums[0].to_bits(), "{n} {a1}");
+                }
+            }
+        }
+    }
+
     /// The scalar loop the line search ran: each spring's change added in spring order,
     /// skipping the springs whose move is zero.
     fn scalar_change(springs: &[Spring], x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
@@ -1412,33 +1450,14 @@ mod tests {
         // A length whose square overflows makes the change NaN in both (the line search
         // never sees one): left out, so the sums stay comparable past it.
         springs.retain(|s| (x[s.a] - x[s.b]).length().is_finite());
-        let mut dx: Vec<DVec3> = (0..x.len())
-            .map(|i| {
-                let t = i as f64;
-                if i % 3 == 0 {
-                    DVec3::ZERO
-                } else {
-                    DVec3::new(0.01 * (2.3 * t).sin(), 0.02 * (0.4 * t).cos(), -0.003 * t)
-                }
-            })
-            .collect();
+        let mut dx = test_moves(x.len());
         let z = 40;
         dx[z + 4] = DVec3::new(1e-170, 0.0, 0.0);
         dx[z] = DVec3::ZERO;
         dx[z + 1] = DVec3::new(0.0, 1e-3, 0.0);
         assert_eq!(springs::energy_change(&springs[0], &x, DVec3::ZERO), 0.0);
-        for n in 0..=springs.len() {
-            let springs = &springs[..n];
-            for [a1, a2] in [[1.0, 2.0], [0.5, 0.25], [1.0, 0.0], [0.0, -1.0]] {
-                let scalar = [a1, a2].map(|a| scalar_change(springs, &x, &dx, a));
-                for instance in instances() {
-                    let pair = energy_change_pair_sum(instance, springs, &x, &dx, [a1, a2], None);
-                    assert_eq!(pair.map(f64::to_bits), scalar.map(f64::to_bits), "{n} {a1}");
-                    let single = energy_change_sum(instance, springs, &x, &dx, a1, None);
-                    assert_eq!(single.to_bits(), scalar[0].to_bits(), "{n} {a1}");
-                }
-            }
-        }
+        let scalar = |n: usize, alpha| scalar_change(&springs[..n], &x, &dx, alpha);
+        assert_changes_are(&springs, &x, &dx, |_| None, scalar);
     }
 
     /// The damping of the cases' springs: a coefficient, directions that are unit
@@ -1517,16 +1536,7 @@ mod tests {
         springs.retain(|s| (x[s.a] - x[s.b]).length().is_finite());
         let (c, directions, x_ref) = damping_of(&x, &springs);
         let references: Vec<DVec3> = springs.iter().map(|s| x_ref[s.a] - x_ref[s.b]).collect();
-        let dx: Vec<DVec3> = (0..x.len())
-            .map(|i| {
-                let t = i as f64;
-                if i % 3 == 0 {
-                    DVec3::ZERO
-                } else {
-                    DVec3::new(0.01 * (2.3 * t).sin(), 0.02 * (0.4 * t).cos(), -0.003 * t)
-                }
-            })
-            .collect();
+        let dx = test_moves(x.len());
         let scalar_change = |n: usize, alpha: f64| {
             let mut change = 0.0;
             for (s, &w) in springs[..n].iter().zip(&directions) {
@@ -1540,23 +1550,14 @@ mod tests {
             }
             change
         };
-        for n in 0..=springs.len() {
-            let damped = Some(Damping {
+        let damped = |n: usize| {
+            Some(Damping {
                 c,
                 directions: &directions[..n],
                 references: &references[..n],
-            });
-            for [a1, a2] in [[1.0, 2.0], [0.5, 0.25], [1.0, 0.0], [0.0, -1.0]] {
-                let scalar = [a1, a2].map(|a| scalar_change(n, a));
-                for instance in instances() {
-                    let s = &springs[..n];
-                    let pair = energy_change_pair_sum(instance, s, &x, &dx, [a1, a2], damped);
-                    assert_eq!(pair.map(f64::to_bits), scalar.map(f64::to_bits), "{n} {a1}");
-                    let single = energy_change_sum(instance, s, &x, &dx, a1, damped);
-                    assert_eq!(single.to_bits(), scalar[0].to_bits(), "{n} {a1}");
-                }
-            }
-        }
+            })
+        };
+        assert_changes_are(&springs, &x, &dx, damped, scalar_change);
         // The damping changes the sums the comparison checks.
         let n = springs.len();
         let undamped = energy_change_sum(Instance::Detect, &springs, &x, &dx, 1.0, None);
