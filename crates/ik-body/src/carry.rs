@@ -199,6 +199,11 @@ impl Carried {
             self.effectors.extend(key(problem));
             self.settings = Some(problem.settings);
             self.root_translates = problem.root_translates;
+            // The next frames' correction, sized now: the first one may come many frames
+            // later, and a warm solve must not allocate then.
+            // (A new structure is never continued: no correction is kept.)
+            self.correction.clear();
+            self.correction.reserve(skeleton.len());
         }
         self.last.clear();
         self.last.extend_from_slice(&state.pose.rotations);

@@ -101,6 +101,10 @@ pub(crate) struct Common {
     /// start of the two not kept) costs no forward kinematics to undo.
     predicted_global: GlobalPose,
     plain_global: GlobalPose,
+    /// The debug build's check that a report's global pose is forward kinematics of its
+    /// pose, in a buffer of its own so that the debug build does not allocate either.
+    #[cfg(debug_assertions)]
+    debug_global: GlobalPose,
 }
 
 /// More cached limbs than this (many skeletons through one solver) and the cache starts
@@ -174,6 +178,19 @@ impl Common {
         if !same_problem {
             self.fixed.clear();
             self.start_fixed.clear();
+            // The poses kept aside for a pass or a restart, sized now: a restart may come
+            // hundreds of frames after the first solve, and a warm solve must not
+            // allocate then.
+            for kept in [&mut self.kept, &mut self.best] {
+                kept.clear();
+                kept.reserve(skeleton.len());
+            }
+            // And the extrapolated starts' global poses (each written whole by forward
+            // kinematics before it is read), the first-order one used only now and then.
+            self.predicted_global.clone_from(&state.global);
+            self.plain_global.clone_from(&state.global);
+            #[cfg(debug_assertions)]
+            self.debug_global.clone_from(&state.global);
         }
         self.fixed.resize(skeleton.len(), None);
         if continued {
@@ -336,12 +353,12 @@ impl Common {
     ) -> BodyReport {
         #[cfg(debug_assertions)]
         {
-            let mut check = state.global.clone();
+            let check = &mut self.debug_global;
             let _ = crate::problem::forward_kinematics(
                 problem.skeleton,
                 &state.pose,
                 state.root_translation,
-                &mut check,
+                check,
             );
             debug_assert!(
                 check.rotations == state.global.rotations

@@ -875,6 +875,10 @@ impl Finish {
         self.turn.clear();
         self.turn.resize(movable.len(), DVec3::ZERO);
         self.residual.resize(rows, 0.0);
+        // A blocked direction's column has at most `rows` entries: sized here, not when a
+        // joint first reaches a curved bound, so that a warm run does not allocate then.
+        self.combined.clear();
+        self.combined.reserve(rows);
         self.y.resize(rows, 0.0);
         // `run` has just measured this pose's cost as the best so far.
         let mut cost = self.best_cost;
