@@ -1,6 +1,9 @@
 //! Set-ups shared by several test modules.
 
-use sinew_spring_sim::{ClothGrid, DVec3};
+use sinew_spring_sim::contact::{Collider, ContactSettings, Shape};
+use sinew_spring_sim::{
+    ClothGrid, DVec3, Integrator, Material, Particle, Simulation, SpringSystem,
+};
 
 /// An `n x n` grid of points `origin + s (i u + j w)` and its triangles, indices offset
 /// by `offset` (so several sheets share one particle list).
@@ -30,4 +33,118 @@ pub fn expected_threads(threads: usize) -> usize {
     } else {
         1
     }
+}
+
+/// Gravity's size in the contact tests.
+pub const G: f64 = 9.81;
+
+/// The contact tests' springs: stiffness 1000, damping 0.1, gravity `G` along -y.
+pub fn contact_material() -> Material {
+    Material {
+        stiffness: 1000.0,
+        damping: 0.1,
+        gravity: DVec3::new(0.0, -G, 0.0),
+    }
+}
+
+/// An `n x n` sheet with the lab's spring pattern (structural, shear and skip-one) in the
+/// plane through `origin` spanned by `u` and `w`, areal density 0.2 lumped, at rest.
+pub fn contact_sheet(n: usize, spacing: f64, origin: DVec3, u: DVec3, w: DVec3) -> SpringSystem {
+    let mass = 0.2 * spacing * spacing;
+    let mut particles = Vec::new();
+    for i in 0..n {
+        for j in 0..n {
+            let p = origin + spacing * (i as f64 * u + j as f64 * w);
+            particles.push(Particle::at_rest(p, mass));
+        }
+    }
+    SpringSystem::new(
+        &particles,
+        &ClothGrid::spring_pattern(n),
+        contact_material(),
+    )
+    .unwrap()
+}
+
+/// A 4 x 4 sheet resting on a plane inclined by `theta` (about z) with friction `mu`, run
+/// by `integrator` for `steps` steps of `h`, every step converged and every particle
+/// outside the plane; the mean velocity along the downhill direction after each step.
+pub fn incline_run(integrator: Integrator, theta: f64, mu: f64, steps: usize, h: f64) -> Vec<f64> {
+    let normal = DVec3::new(theta.sin(), theta.cos(), 0.0);
+    let downhill = DVec3::new(theta.cos(), -theta.sin(), 0.0);
+    let settings = ContactSettings {
+        mu,
+        ..ContactSettings::default()
+    };
+    let system = contact_sheet(4, 0.05, 0.5 * settings.dhat * normal, downhill, DVec3::Z);
+    let mut sim = Simulation::new(system, integrator).unwrap();
+    let plane = Collider::fixed(Shape::HalfSpace {
+        point: DVec3::ZERO,
+        normal,
+    });
+    sim.set_contact(vec![plane], settings).unwrap();
+    let mut speeds = Vec::new();
+    for step in 0..steps {
+        let report = sim.step(h).unwrap();
+        assert!(
+            report.residual <= report.tolerance,
+            "step {step}: {report:?}"
+        );
+        let (min, _) = sim.contact_distances().unwrap();
+        assert!(min > 0.0, "step {step}: a particle at distance {min}");
+        let v = sim.system().velocities();
+        speeds.push(v.iter().map(|v| v.dot(downhill)).sum::<f64>() / v.len() as f64);
+    }
+    speeds
+}
+
+/// The signed distance from `x` to `collider` at time `t`, computed here from the
+/// collider's fields, independently of the library's distance functions.
+pub fn independent_distance(collider: &Collider, t: f64, x: DVec3) -> f64 {
+    match collider.at(t) {
+        Shape::HalfSpace { point, normal } => (x - point).dot(normal),
+        Shape::Sphere { center, radius } => (x - center).length() - radius,
+        Shape::Capsule { a, b, radius } => {
+            // The closest point on the segment by ternary search: the distance along the
+            // segment is convex.
+            let (mut lo, mut hi) = (0.0f64, 1.0f64);
+            for _ in 0..200 {
+                let m1 = lo + (hi - lo) / 3.0;
+                let m2 = hi - (hi - lo) / 3.0;
+                if (x - a.lerp(b, m1)).length() < (x - a.lerp(b, m2)).length() {
+                    hi = m2;
+                } else {
+                    lo = m1;
+                }
+            }
+            (x - a.lerp(b, 0.5 * (lo + hi))).length() - radius
+        }
+    }
+}
+
+/// Checks every particle of `positions` strictly outside every collider at time `t`
+/// (by [`independent_distance`]), naming `when` in a failure; the smallest distance to
+/// each collider.
+pub fn outside_colliders(
+    colliders: &[Collider],
+    t: f64,
+    positions: &[DVec3],
+    when: &str,
+) -> Vec<f64> {
+    colliders
+        .iter()
+        .enumerate()
+        .map(|(c, collider)| {
+            let mut nearest = f64::INFINITY;
+            for (i, x) in positions.iter().enumerate() {
+                let d = independent_distance(collider, t, *x);
+                assert!(
+                    d > 0.0,
+                    "{when}: particle {i} inside collider {c} (d = {d})"
+                );
+                nearest = nearest.min(d);
+            }
+            nearest
+        })
+        .collect()
 }

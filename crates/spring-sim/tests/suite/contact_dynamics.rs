@@ -3,46 +3,21 @@
 //! that no accepted state has a particle inside a collider over whole runs (static,
 //! spinning and moving colliders), the explicit projection, and the refusals.
 
+use crate::common::{G, contact_material, contact_sheet, incline_run, outside_colliders};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::{Collider, ContactSettings};
-use sinew_spring_sim::{
-    ClothGrid, Integrator, Material, NewtonSettings, Particle, Simulation, SpringSystem, StepError,
-};
+use sinew_spring_sim::{Integrator, NewtonSettings, Particle, Simulation, SpringSystem, StepError};
 
-const G: f64 = 9.81;
 const H: f64 = 1.0 / 60.0;
-
-fn material() -> Material {
-    Material {
-        stiffness: 1000.0,
-        damping: 0.1,
-        gravity: DVec3::new(0.0, -G, 0.0),
-    }
-}
 
 fn backward_euler() -> Integrator {
     Integrator::BackwardEuler(NewtonSettings::default())
 }
 
-/// An `n x n` sheet with structural, shear and skip-one springs (the lab's pattern), in
-/// the plane through `origin` spanned by `u` and `w`, areal density 0.2 lumped.
-fn sheet(n: usize, spacing: f64, origin: DVec3, u: DVec3, w: DVec3) -> SpringSystem {
-    let mass = 0.2 * spacing * spacing;
-    let mut particles = Vec::new();
-    for i in 0..n {
-        for j in 0..n {
-            let p = origin + spacing * (i as f64 * u + j as f64 * w);
-            particles.push(Particle::at_rest(p, mass));
-        }
-    }
-    let springs = ClothGrid::spring_pattern(n);
-    SpringSystem::new(&particles, &springs, material()).unwrap()
-}
-
 #[test]
 fn a_particle_settles_on_the_ground_within_dhat() {
     let particle = Particle::at_rest(DVec3::new(0.0, 0.02, 0.0), 5e-4);
-    let system = SpringSystem::new(&[particle], &[], material()).unwrap();
+    let system = SpringSystem::new(&[particle], &[], contact_material()).unwrap();
     let mut sim = Simulation::new(system, backward_euler()).unwrap();
     let settings = ContactSettings::default();
     sim.set_contact(vec![Collider::ground(0.0)], settings)
@@ -73,42 +48,10 @@ fn a_particle_settles_on_the_ground_within_dhat() {
     assert_eq!(pairs, 1);
 }
 
-/// A 4 x 4 sheet resting on a plane inclined by `theta` (about z) with friction `mu`,
-/// run for `steps`; returns the mean velocity along the downhill direction after each
-/// step.
-fn incline_run(theta: f64, mu: f64, steps: usize) -> Vec<f64> {
-    let normal = DVec3::new(theta.sin(), theta.cos(), 0.0);
-    let downhill = DVec3::new(theta.cos(), -theta.sin(), 0.0);
-    let settings = ContactSettings {
-        mu,
-        ..ContactSettings::default()
-    };
-    let system = sheet(4, 0.05, 0.5 * settings.dhat * normal, downhill, DVec3::Z);
-    let mut sim = Simulation::new(system, backward_euler()).unwrap();
-    let plane = Collider::fixed(sinew_spring_sim::contact::Shape::HalfSpace {
-        point: DVec3::ZERO,
-        normal,
-    });
-    sim.set_contact(vec![plane], settings).unwrap();
-    let mut speeds = Vec::new();
-    for step in 0..steps {
-        let report = sim.step(H).unwrap();
-        assert!(
-            report.residual <= report.tolerance,
-            "step {step}: {report:?}"
-        );
-        let (min, _) = sim.contact_distances().unwrap();
-        assert!(min > 0.0, "step {step}: a particle at distance {min}");
-        let v = sim.system().velocities();
-        speeds.push(v.iter().map(|v| v.dot(downhill)).sum::<f64>() / v.len() as f64);
-    }
-    speeds
-}
-
 #[test]
 fn friction_holds_a_sheet_on_an_incline_when_mu_exceeds_tan_theta() {
     let theta = 30f64.to_radians();
-    let speeds = incline_run(theta, 0.8, 60);
+    let speeds = incline_run(backward_euler(), theta, 0.8, 60, H);
     // Static friction is smoothed below eps_v = 1e-3: the sheet may creep, no faster.
     let eps_v = ContactSettings::default().eps_v;
     for (step, s) in speeds.iter().enumerate().skip(5) {
@@ -120,7 +63,7 @@ fn friction_holds_a_sheet_on_an_incline_when_mu_exceeds_tan_theta() {
 fn a_sheet_slides_with_coulomb_acceleration_when_mu_is_below_tan_theta() {
     let theta = 30f64.to_radians();
     let mu = 0.2;
-    let speeds = incline_run(theta, mu, 60);
+    let speeds = incline_run(backward_euler(), theta, mu, 60, H);
     let expected = G * (theta.sin() - mu * theta.cos());
     // Backward Euler gives a constant acceleration exactly; skip the first steps while the
     // lagged normal force settles.
@@ -133,36 +76,11 @@ fn a_sheet_slides_with_coulomb_acceleration_when_mu_is_below_tan_theta() {
     );
 }
 
-/// The signed distance from `x` to `collider` at time `t`, computed here from the
-/// collider's fields, independently of the library's distance functions.
-fn independent_distance(collider: &Collider, t: f64, x: DVec3) -> f64 {
-    use sinew_spring_sim::contact::Shape;
-    match collider.at(t) {
-        Shape::HalfSpace { point, normal } => (x - point).dot(normal),
-        Shape::Sphere { center, radius } => (x - center).length() - radius,
-        Shape::Capsule { a, b, radius } => {
-            // Closest point on the segment by golden-section-free brute force: the
-            // distance along the segment is convex, so ternary search finds it.
-            let (mut lo, mut hi) = (0.0f64, 1.0f64);
-            for _ in 0..200 {
-                let m1 = lo + (hi - lo) / 3.0;
-                let m2 = hi - (hi - lo) / 3.0;
-                if (x - a.lerp(b, m1)).length() < (x - a.lerp(b, m2)).length() {
-                    hi = m2;
-                } else {
-                    lo = m1;
-                }
-            }
-            (x - a.lerp(b, 0.5 * (lo + hi))).length() - radius
-        }
-    }
-}
-
 #[test]
 fn no_accepted_state_has_a_particle_inside_a_collider() {
     // A 10 x 10 sheet dropped onto a spinning sphere, a capsule sliding under it and the
     // ground, with friction.
-    let system = sheet(10, 0.05, DVec3::new(0.0, 0.4, 0.0), DVec3::X, DVec3::Z);
+    let system = contact_sheet(10, 0.05, DVec3::new(0.0, 0.4, 0.0), DVec3::X, DVec3::Z);
     let mut sim = Simulation::new(system, backward_euler()).unwrap();
     let colliders = vec![
         Collider::ground(0.0),
@@ -185,16 +103,15 @@ fn no_accepted_state_has_a_particle_inside_a_collider() {
     for step in 0..90 {
         sim.step(H).unwrap();
         let t = sim.time();
-        for (c, collider) in colliders.iter().enumerate() {
-            for (i, x) in sim.system().positions().iter().enumerate() {
-                let d = independent_distance(collider, t, *x);
-                assert!(
-                    d > 0.0,
-                    "step {step}: particle {i} inside collider {c} (d = {d})"
-                );
-                min_seen = min_seen.min(d);
-                touched[c] |= d < settings.dhat;
-            }
+        let nearest = outside_colliders(
+            &colliders,
+            t,
+            sim.system().positions(),
+            &format!("step {step}"),
+        );
+        for (c, d) in nearest.into_iter().enumerate() {
+            min_seen = min_seen.min(d);
+            touched[c] |= d < settings.dhat;
         }
     }
     println!("smallest distance over the run: {min_seen}");
@@ -212,7 +129,7 @@ fn explicit_projection_keeps_particles_out() {
         mass: 1.0,
         fixed: false,
     };
-    let system = SpringSystem::new(&[particle], &[], material()).unwrap();
+    let system = SpringSystem::new(&[particle], &[], contact_material()).unwrap();
     let mut sim = Simulation::new(system, Integrator::SymplecticEuler { substeps: 4 }).unwrap();
     sim.set_contact(
         vec![Collider::ground(0.0)],
@@ -238,7 +155,7 @@ fn explicit_projection_keeps_particles_out() {
 #[test]
 fn refusals_name_what_is_wrong() {
     let particle = Particle::at_rest(DVec3::new(0.0, 0.01, 0.0), 1.0);
-    let system = SpringSystem::new(&[particle], &[], material()).unwrap();
+    let system = SpringSystem::new(&[particle], &[], contact_material()).unwrap();
     {
         let mut sim = Simulation::new(system.clone(), Integrator::FlawedReportMethod).unwrap();
         let err = sim
@@ -286,7 +203,7 @@ fn a_rising_platform_carries_a_resting_particle() {
     // Ground rising at 0.5 m/s under a particle resting on it: the particle rides along,
     // never inside, at the platform's speed once settled.
     let particle = Particle::at_rest(DVec3::new(0.0, 5e-4, 0.0), 5e-4);
-    let system = SpringSystem::new(&[particle], &[], material()).unwrap();
+    let system = SpringSystem::new(&[particle], &[], contact_material()).unwrap();
     let mut sim = Simulation::new(system, backward_euler()).unwrap();
     let platform = Collider::ground(0.0).moving(DVec3::new(0.0, 0.5, 0.0), DVec3::ZERO);
     sim.set_contact(vec![platform], ContactSettings::default())
@@ -311,7 +228,7 @@ fn friction_carries_a_particle_on_a_turntable() {
     // (the surface's displacement over a step is taken along its velocity at the step's
     // start, a chord error of h^2 omega^2 r / 2 = 1.4e-5 m per step, 8e-4 m/s).
     let particle = Particle::at_rest(DVec3::new(0.1, 5e-4, 0.0), 5e-4);
-    let system = SpringSystem::new(&[particle], &[], material()).unwrap();
+    let system = SpringSystem::new(&[particle], &[], contact_material()).unwrap();
     let mut sim = Simulation::new(system, backward_euler()).unwrap();
     let turntable = Collider::ground(0.0).moving(DVec3::ZERO, DVec3::new(0.0, 1.0, 0.0));
     let settings = ContactSettings {
@@ -355,7 +272,7 @@ fn kappa_starts_at_the_balance_of_a_spring_pressing_a_particle_onto_the_ground()
         stiffness: Some(k),
         ..sinew_spring_sim::SpringSpec::between(0, 1)
     };
-    let system = SpringSystem::new(&[anchor, pressed], &[spring], material()).unwrap();
+    let system = SpringSystem::new(&[anchor, pressed], &[spring], contact_material()).unwrap();
     let mut sim = Simulation::new(system, backward_euler()).unwrap();
     let settings = ContactSettings::default();
     sim.set_contact(vec![Collider::ground(0.0)], settings)

@@ -2,22 +2,12 @@
 //! resting on the ground, a sheet dropped on a sphere that stays outside at every step
 //! (distances computed here from the collider's fields), and friction on an incline.
 
+use crate::common::{G, contact_material, contact_sheet, incline_run, outside_colliders};
 use sinew_math::DVec3;
-use sinew_spring_sim::contact::{Collider, ContactSettings, Shape};
-use sinew_spring_sim::{
-    ClothGrid, Integrator, Material, NewtonSettings, Particle, Simulation, SpringSystem,
-};
+use sinew_spring_sim::contact::{Collider, ContactSettings};
+use sinew_spring_sim::{Integrator, NewtonSettings, Particle, Simulation, SpringSystem};
 
-const G: f64 = 9.81;
 const H: f64 = 1.0 / 60.0;
-
-fn material() -> Material {
-    Material {
-        stiffness: 1000.0,
-        damping: 0.1,
-        gravity: DVec3::new(0.0, -G, 0.0),
-    }
-}
 
 /// The three implicit schemes, named for messages.
 fn schemes() -> [(&'static str, Integrator); 3] {
@@ -29,38 +19,12 @@ fn schemes() -> [(&'static str, Integrator); 3] {
     ]
 }
 
-/// An `n x n` sheet with the lab's spring pattern in the plane through `origin` spanned
-/// by `u` and `w`, areal density 0.2 lumped.
-fn sheet(n: usize, spacing: f64, origin: DVec3, u: DVec3, w: DVec3) -> SpringSystem {
-    let mass = 0.2 * spacing * spacing;
-    let mut particles = Vec::new();
-    for i in 0..n {
-        for j in 0..n {
-            particles.push(Particle::at_rest(
-                origin + spacing * (i as f64 * u + j as f64 * w),
-                mass,
-            ));
-        }
-    }
-    SpringSystem::new(&particles, &ClothGrid::spring_pattern(n), material()).unwrap()
-}
-
-/// The signed distance from `x` to a half-space or sphere collider at time `t`, from the
-/// collider's fields (not the library's distance functions).
-fn distance(collider: &Collider, t: f64, x: DVec3) -> f64 {
-    match collider.at(t) {
-        Shape::HalfSpace { point, normal } => (x - point).dot(normal),
-        Shape::Sphere { center, radius } => (x - center).length() - radius,
-        Shape::Capsule { .. } => unreachable!("no capsules here"),
-    }
-}
-
 #[test]
 fn a_dropped_particle_stays_above_the_ground_and_settles_within_dhat() {
     let settings = ContactSettings::default();
     for (name, integrator) in schemes() {
         let particle = Particle::at_rest(DVec3::new(0.0, 0.02, 0.0), 5e-4);
-        let system = SpringSystem::new(&[particle], &[], material()).unwrap();
+        let system = SpringSystem::new(&[particle], &[], contact_material()).unwrap();
         let mut sim = Simulation::new(system, integrator).unwrap();
         sim.set_contact(vec![Collider::ground(0.0)], settings)
             .unwrap();
@@ -111,7 +75,7 @@ fn a_particle_at_rest_in_the_contact_band_stays_in_it() {
     let settings = ContactSettings::default();
     for (name, integrator) in schemes() {
         let particle = Particle::at_rest(DVec3::new(0.0, 0.5 * settings.dhat, 0.0), 5e-4);
-        let system = SpringSystem::new(&[particle], &[], material()).unwrap();
+        let system = SpringSystem::new(&[particle], &[], contact_material()).unwrap();
         let mut sim = Simulation::new(system, integrator).unwrap();
         sim.set_contact(vec![Collider::ground(0.0)], settings)
             .unwrap();
@@ -145,7 +109,7 @@ fn a_sheet_dropped_on_a_sphere_stays_outside_at_every_step() {
         ..ContactSettings::default()
     };
     for (name, integrator) in schemes() {
-        let system = sheet(10, 0.05, DVec3::new(0.0, 0.35, 0.0), DVec3::X, DVec3::Z);
+        let system = contact_sheet(10, 0.05, DVec3::new(0.0, 0.35, 0.0), DVec3::X, DVec3::Z);
         let mut sim = Simulation::new(system, integrator).unwrap();
         sim.set_contact(colliders.clone(), settings).unwrap();
         let mut touched = [false; 2];
@@ -153,16 +117,11 @@ fn a_sheet_dropped_on_a_sphere_stays_outside_at_every_step() {
         for step in 0..90 {
             sim.step(H).unwrap();
             let t = sim.time();
-            for (c, collider) in colliders.iter().enumerate() {
-                for (i, x) in sim.system().positions().iter().enumerate() {
-                    let d = distance(collider, t, *x);
-                    assert!(
-                        d > 0.0,
-                        "{name}, step {step}: particle {i} inside collider {c} (d = {d})"
-                    );
-                    min_seen = min_seen.min(d);
-                    touched[c] |= d < settings.dhat;
-                }
+            let when = format!("{name}, step {step}");
+            let nearest = outside_colliders(&colliders, t, sim.system().positions(), &when);
+            for (c, d) in nearest.into_iter().enumerate() {
+                min_seen = min_seen.min(d);
+                touched[c] |= d < settings.dhat;
             }
         }
         println!("{name}: smallest distance {min_seen}");
@@ -170,43 +129,12 @@ fn a_sheet_dropped_on_a_sphere_stays_outside_at_every_step() {
     }
 }
 
-/// A 4 x 4 sheet resting on a plane inclined by `theta` with friction `mu`; the mean
-/// downhill velocity after each step.
-fn incline_run(integrator: Integrator, theta: f64, mu: f64, steps: usize) -> Vec<f64> {
-    let normal = DVec3::new(theta.sin(), theta.cos(), 0.0);
-    let downhill = DVec3::new(theta.cos(), -theta.sin(), 0.0);
-    let settings = ContactSettings {
-        mu,
-        ..ContactSettings::default()
-    };
-    let system = sheet(4, 0.05, 0.5 * settings.dhat * normal, downhill, DVec3::Z);
-    let mut sim = Simulation::new(system, integrator).unwrap();
-    let plane = Collider::fixed(Shape::HalfSpace {
-        point: DVec3::ZERO,
-        normal,
-    });
-    sim.set_contact(vec![plane], settings).unwrap();
-    let mut speeds = Vec::new();
-    for step in 0..steps {
-        let report = sim.step(H).unwrap();
-        assert!(
-            report.residual <= report.tolerance,
-            "step {step}: {report:?}"
-        );
-        let (min, _) = sim.contact_distances().unwrap();
-        assert!(min > 0.0, "step {step}: a particle at distance {min}");
-        let v = sim.system().velocities();
-        speeds.push(v.iter().map(|v| v.dot(downhill)).sum::<f64>() / v.len() as f64);
-    }
-    speeds
-}
-
 #[test]
 fn friction_holds_a_sheet_when_mu_exceeds_tan_theta() {
     let theta = 30f64.to_radians();
     let eps_v = ContactSettings::default().eps_v;
     for (name, integrator) in schemes() {
-        let speeds = incline_run(integrator, theta, 0.8, 60);
+        let speeds = incline_run(integrator, theta, 0.8, 60, H);
         // Friction acts on the velocity the scheme's forces see: the end-of-step velocity
         // for backward Euler and BDF2, the step's mean velocity (v_n + v_{n+1})/2 for
         // the midpoint, whose end-of-step velocity rings about it (it adds no damping).
@@ -227,7 +155,7 @@ fn a_sheet_slides_with_coulomb_acceleration_when_mu_is_below_tan_theta() {
     let mu = 0.2;
     let expected = G * (theta.sin() - mu * theta.cos());
     for (name, integrator) in schemes() {
-        let speeds = incline_run(integrator, theta, mu, 60);
+        let speeds = incline_run(integrator, theta, mu, 60, H);
         let (a, b) = (20, 59);
         let measured = (speeds[b] - speeds[a]) / ((b - a) as f64 * H);
         println!("{name}: measured {measured}, expected {expected}");
@@ -245,7 +173,7 @@ fn auto_with_contact_takes_every_step_implicitly_and_keeps_particles_outside() {
         Collider::ground(0.0),
         Collider::sphere(DVec3::new(0.225, 0.15, 0.225), 0.12),
     ];
-    let drop = || sheet(10, 0.05, DVec3::new(0.0, 0.35, 0.0), DVec3::X, DVec3::Z);
+    let drop = || contact_sheet(10, 0.05, DVec3::new(0.0, 0.35, 0.0), DVec3::X, DVec3::Z);
     // Without contact this sheet is cheapest by Verlet: auto picks it.
     let mut free = Simulation::new(drop(), Integrator::Auto(AutoSettings::default())).unwrap();
     let first = free.step(H).unwrap();
@@ -267,13 +195,13 @@ fn auto_with_contact_takes_every_step_implicitly_and_keeps_particles_outside() {
             assert_eq!(report.integrator, kind, "step {step}");
             assert_eq!(report.auto_reason, Some(reason), "step {step}");
             let t = sim.time();
-            for (c, collider) in colliders.iter().enumerate() {
-                for (i, x) in sim.system().positions().iter().enumerate() {
-                    let d = distance(collider, t, *x);
-                    assert!(d > 0.0, "step {step}: particle {i} inside collider {c}");
-                    touched |= c == 1 && d < ContactSettings::default().dhat;
-                }
-            }
+            let nearest = outside_colliders(
+                &colliders,
+                t,
+                sim.system().positions(),
+                &format!("step {step}"),
+            );
+            touched |= nearest[1] < ContactSettings::default().dhat;
         }
         assert!(
             touched,
