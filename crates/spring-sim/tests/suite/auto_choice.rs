@@ -136,10 +136,7 @@ fn tuning_by_timing_is_opt_in_and_reported() {
 fn auto_redoes_a_runaway_explicit_step_implicitly() {
     for k in [1e4, 1e7] {
         let mut system = cloth(11, k, 0.0);
-        let rest = system.positions().to_vec();
-        let centre = rest.iter().copied().sum::<DVec3>() / rest.len() as f64;
-        let x: Vec<DVec3> = rest.iter().map(|&p| centre + 0.5 * (p - centre)).collect();
-        system.set_state(&x, &vec![DVec3::ZERO; x.len()]).unwrap();
+        crate::common::scale_about_centre(&mut system, 0.5);
         let mut sim =
             Simulation::new(system.clone(), Integrator::Auto(AutoSettings::default())).unwrap();
         let mut redone = 0;

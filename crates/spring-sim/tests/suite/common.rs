@@ -148,3 +148,16 @@ pub fn outside_colliders(
         })
         .collect()
 }
+
+/// Puts every particle of `system` at `factor` times its offset from the particles'
+/// mean position (2 stretches the sheet, 0.5 compresses it), at rest.
+pub fn scale_about_centre(system: &mut SpringSystem, factor: f64) {
+    let rest = system.positions();
+    let centre = rest.iter().copied().sum::<DVec3>() / rest.len() as f64;
+    let x: Vec<DVec3> = rest
+        .iter()
+        .map(|&p| centre + factor * (p - centre))
+        .collect();
+    let v = vec![DVec3::ZERO; x.len()];
+    system.set_state(&x, &v).unwrap();
+}

@@ -80,15 +80,7 @@ fn a_compressed_damped_sheet_steps_bitwise_alike_on_one_and_two_threads() {
     let mut grid = ClothGrid::lab_sized(61, 0.03).with_damping(0.2);
     grid.material.stiffness = 1e3;
     let mut system = SpringSystem::cloth(&grid).unwrap();
-    let n = system.len() as f64;
-    let centre = system.positions().iter().copied().sum::<DVec3>() / n;
-    let x: Vec<DVec3> = system
-        .positions()
-        .iter()
-        .map(|&p| centre + 0.6 * (p - centre))
-        .collect();
-    let v = vec![DVec3::ZERO; x.len()];
-    system.set_state(&x, &v).unwrap();
+    crate::common::scale_about_centre(&mut system, 0.6);
     let one = run(&system, LinearSolverChoice::Pcg, 1, 1.0 / 30.0, 2);
     let two = run(&system, LinearSolverChoice::Pcg, 2, 1.0 / 30.0, 2);
     eprintln!("Newton, PCG, softened iterations: {:?}", one.1);

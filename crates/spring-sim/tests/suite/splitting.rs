@@ -23,19 +23,12 @@ fn cloth(grid: usize, k: f64, state: State) -> SpringSystem {
     let mut spec = ClothGrid::lab_sized(grid, 2.0 / (grid - 1) as f64).with_damping(0.0);
     spec.material.stiffness = k;
     let mut system = SpringSystem::cloth(&spec).unwrap();
-    let rest = system.positions().to_vec();
-    let centre = rest.iter().copied().sum::<DVec3>() / rest.len() as f64;
     let scale = match state {
         State::Rest => 1.0,
         State::Stretched => 2.0,
         State::Compressed => 0.5,
     };
-    let x: Vec<DVec3> = rest
-        .iter()
-        .map(|&x| centre + scale * (x - centre))
-        .collect();
-    let v = vec![DVec3::ZERO; x.len()];
-    system.set_state(&x, &v).unwrap();
+    crate::common::scale_about_centre(&mut system, scale);
     system
 }
 
