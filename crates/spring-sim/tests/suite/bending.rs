@@ -3,6 +3,7 @@
 //! gradient, and the term's energy, gradient, Hessian (exact and projected) and energy
 //! change against each other.
 
+use crate::common::{Sample, XorshiftStar as Rng};
 use sinew_math::{DMat3, DQuat, DVec3};
 use sinew_spring_sim::potential::{
     DihedralBending, HessianSink, Hinge, StepContext, Term, angle_change, dihedral_angle,
@@ -13,20 +14,6 @@ use sinew_spring_sim::{ClothGrid, SpringSystem};
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_3, PI};
 
 /// A small deterministic generator (xorshift64*), so failures reproduce.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn vec(&mut self, scale: f64) -> DVec3 {
-        (DVec3::new(self.next(), self.next(), self.next()) * 2.0 - DVec3::ONE) * scale
-    }
-}
-
 /// A hinge on the x axis from the origin to (1, 0, 0): the first opposite vertex at
 /// (0.4, 1, 0) (so the first normal is +z), the second at (0.6, -cos a, sin a) turned by
 /// `a` about +x from the flat position (0.6, -1, 0).

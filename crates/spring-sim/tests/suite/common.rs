@@ -161,3 +161,43 @@ pub fn scale_about_centre(system: &mut SpringSystem, factor: f64) {
     let v = vec![DVec3::ZERO; x.len()];
     system.set_state(&x, &v).unwrap();
 }
+
+/// Uniform samples from a deterministic generator, so random cases are reproducible.
+pub trait Sample {
+    /// A sample in [0, 1).
+    fn next(&mut self) -> f64;
+
+    /// A sample in [-1, 1).
+    fn signed(&mut self) -> f64 {
+        2.0 * self.next() - 1.0
+    }
+
+    /// A vector with each coordinate in [-scale, scale).
+    fn vec(&mut self, scale: f64) -> DVec3 {
+        scale * DVec3::new(self.signed(), self.signed(), self.signed())
+    }
+}
+
+/// Marsaglia's xorshift with shifts (13, 7, 17), its top 53 bits as the sample.
+pub struct Xorshift(pub u64);
+
+impl Sample for Xorshift {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// Vigna's xorshift* with shifts (12, 25, 27), the product's top 53 bits as the sample.
+pub struct XorshiftStar(pub u64);
+
+impl Sample for XorshiftStar {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
+    }
+}

@@ -4,30 +4,13 @@
 //! the margin; the list kept for a line-search segment answers every query inside the
 //! segment with exactly the broad phase's set and declines every query outside it.
 
+use crate::common::{Sample, Xorshift as Rng};
 use sinew_math::DVec3;
 use sinew_spring_sim::ClothGrid;
 use sinew_spring_sim::contact::self_contact::broad::{
     Candidate, CandidateCache, Primitives, candidates, candidates_brute_force,
 };
 use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn vec(&mut self, scale: f64) -> DVec3 {
-        scale
-            * DVec3::new(
-                2.0 * self.next() - 1.0,
-                2.0 * self.next() - 1.0,
-                2.0 * self.next() - 1.0,
-            )
-    }
-}
 
 /// An `n x n` grid of spacing 0.1 crumpled by random offsets of size `crumple`.
 fn crumpled(n: usize, crumple: f64, rng: &mut Rng) -> (Vec<DVec3>, Vec<[usize; 3]>) {

@@ -4,30 +4,13 @@
 //! the distance densely enough that the gap's Lipschitz bound rules out a zero between
 //! samples).
 
+use crate::common::{Sample, Xorshift as Rng};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::ccd::{additive_ccd, clear_without_distance};
 use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
 
 fn v(x: f64, y: f64, z: f64) -> DVec3 {
     DVec3::new(x, y, z)
-}
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn vec(&mut self, scale: f64) -> DVec3 {
-        scale
-            * v(
-                2.0 * self.next() - 1.0,
-                2.0 * self.next() - 1.0,
-                2.0 * self.next() - 1.0,
-            )
-    }
 }
 
 const KEEP: f64 = 0.1;

@@ -10,6 +10,7 @@
 // Index loops over rows and columns read as the matrix comparisons they are.
 #![allow(clippy::needless_range_loop)]
 
+use crate::common::{Sample, Xorshift as Rng};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::barrier::{barrier_first_derivative, barrier_second_derivative};
 use sinew_spring_sim::contact::self_contact::RegionForm;
@@ -19,25 +20,6 @@ use sinew_spring_sim::contact::self_contact::distance::{
 use sinew_spring_sim::contact::self_contact::psd12::{
     Mat12, project_psd12, symmetric_eigen_n, symmetric_eigen12,
 };
-
-/// A small deterministic generator (xorshift), so the random cases are reproducible.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn vec(&mut self, scale: f64) -> DVec3 {
-        scale
-            * DVec3::new(
-                2.0 * self.next() - 1.0,
-                2.0 * self.next() - 1.0,
-                2.0 * self.next() - 1.0,
-            )
-    }
-}
 
 type RegionTest = fn(&Closest) -> bool;
 

@@ -3,6 +3,7 @@
 //! the exact gradients and Hessians of the dual numbers against finite differences, the
 //! mollifier, and the 12x12 PSD projection.
 
+use crate::common::{Sample, Xorshift as Rng};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::distance::{
     Closest, PairKind, beyond, edge_edge_closest, mollifier, mollifier_derivatives,
@@ -14,25 +15,6 @@ use sinew_spring_sim::contact::self_contact::psd12::{project_psd12, symmetric_ei
 
 fn v(x: f64, y: f64, z: f64) -> DVec3 {
     DVec3::new(x, y, z)
-}
-
-/// A small deterministic generator (xorshift), so the random cases are reproducible.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn vec(&mut self, scale: f64) -> DVec3 {
-        scale
-            * v(
-                2.0 * self.next() - 1.0,
-                2.0 * self.next() - 1.0,
-                2.0 * self.next() - 1.0,
-            )
-    }
 }
 
 const TRI: [DVec3; 3] = [

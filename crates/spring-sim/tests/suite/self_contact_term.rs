@@ -4,6 +4,7 @@
 //! through the other at the kept fraction of the gap, and the energy `+inf` within the
 //! thickness.
 
+use crate::common::{Sample, Xorshift as Rng};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactTerm};
 use sinew_spring_sim::potential::{HessianSink, StepContext, Term};
@@ -47,16 +48,6 @@ fn two_sheets() -> (SpringSystem, Vec<[usize; 3]>) {
     (cloth.build(&mesh).unwrap().system, t)
 }
 
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-    }
-}
-
 /// The reuse tests' setting: the two sheets with `dhat` 2 mm and thickness 0.5 mm, and a
 /// direction that drifts the top sheet down and sideways by random amounts (at most
 /// 0.1 mm per unit step, so the whole segment up to 8 steps stays clear of the bottom
@@ -80,9 +71,9 @@ fn drifting_sheets(
         .map(|i| {
             if i >= 9 {
                 DVec3::new(
-                    2e-5 * rng.next(),
-                    -8e-5 + 2e-5 * rng.next(),
-                    2e-5 * rng.next(),
+                    2e-5 * rng.signed(),
+                    -8e-5 + 2e-5 * rng.signed(),
+                    2e-5 * rng.signed(),
                 )
             } else {
                 DVec3::ZERO
@@ -121,7 +112,7 @@ fn the_term_is_one_consistent_function() {
     // A state with the sheets a little crumpled, every gap between 0.5 and 2.5 mm.
     let x: Vec<DVec3> = x0
         .iter()
-        .map(|p| *p + 2e-4 * DVec3::new(rng.next(), rng.next(), rng.next()))
+        .map(|p| *p + 2e-4 * DVec3::new(rng.signed(), rng.signed(), rng.signed()))
         .collect();
     let e = term.energy(&step, &x);
     assert!(e > 0.0 && e.is_finite(), "{e}");
@@ -152,7 +143,7 @@ fn the_term_is_one_consistent_function() {
     }
     // The change along a direction against the direct difference.
     let dx: Vec<DVec3> = (0..x.len())
-        .map(|_| 5e-4 * DVec3::new(rng.next(), rng.next(), rng.next()))
+        .map(|_| 5e-4 * DVec3::new(rng.signed(), rng.signed(), rng.signed()))
         .collect();
     for alpha in [1e-3, 0.1, 0.5] {
         let moved: Vec<DVec3> = x.iter().zip(&dx).map(|(p, d)| *p + alpha * *d).collect();
@@ -167,7 +158,7 @@ fn the_term_is_one_consistent_function() {
     let fixed = system.fixed().to_vec();
     for _ in 0..20 {
         let z: Vec<DVec3> = (0..x.len())
-            .map(|_| DVec3::new(rng.next(), rng.next(), rng.next()))
+            .map(|_| DVec3::new(rng.signed(), rng.signed(), rng.signed()))
             .collect();
         let mut out = vec![DVec3::ZERO; x.len()];
         let mut sink = HessianSink::product(&fixed, &z, &mut out);
@@ -345,7 +336,7 @@ fn the_exact_hessian_matches_differences_of_the_gradient_and_the_projection_foll
     let mut rng = Rng(23);
     let x: Vec<DVec3> = x0
         .iter()
-        .map(|p| *p + 2e-4 * DVec3::new(rng.next(), rng.next(), rng.next()))
+        .map(|p| *p + 2e-4 * DVec3::new(rng.signed(), rng.signed(), rng.signed()))
         .collect();
     let free = |v: &mut Vec<DVec3>| v[0] = DVec3::ZERO;
     let eps = 1e-9;
@@ -359,7 +350,7 @@ fn the_exact_hessian_matches_differences_of_the_gradient_and_the_projection_foll
         }
         for _ in 0..6 {
             let mut z: Vec<DVec3> = (0..x.len())
-                .map(|_| DVec3::new(rng.next(), rng.next(), rng.next()))
+                .map(|_| DVec3::new(rng.signed(), rng.signed(), rng.signed()))
                 .collect();
             free(&mut z);
             let hz = hessian_product(&term, &step, &x, Curvature::ExactContact(1.0), &z);

@@ -1,26 +1,17 @@
 //! Finite-difference checks of the spring gradient and Hessian block, and the properties
 //! of the PSD clamp, on random springs: stretched, compressed and near zero length.
 
+use crate::common::{Sample, XorshiftStar as Rng};
 use sinew_math::{DMat3, DVec3};
 use sinew_spring_sim::reference::flawed_report_method::report_block;
 use sinew_spring_sim::spring::{Curvature, energy, energy_change, gradient, hessian_block};
 
-/// A small deterministic generator (xorshift64*), so failures reproduce.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn unit(&mut self) -> DVec3 {
-        loop {
-            let v = DVec3::new(self.next(), self.next(), self.next()) * 2.0 - DVec3::ONE;
-            if v.length() > 0.1 && v.length() < 1.0 {
-                return v.normalize();
-            }
+/// A random unit vector, uniform in direction (by rejection from the cube).
+fn unit(rng: &mut Rng) -> DVec3 {
+    loop {
+        let v = rng.vec(1.0);
+        if v.length() > 0.1 && v.length() < 1.0 {
+            return v.normalize();
         }
     }
 }
@@ -33,7 +24,7 @@ fn springs(seed: u64, ratio: (f64, f64)) -> Vec<(DVec3, DVec3, f64, f64)> {
             let rest = 0.1 + 2.0 * rng.next();
             let l = rest * (ratio.0 + (ratio.1 - ratio.0) * rng.next());
             let x_b = DVec3::new(rng.next(), rng.next(), rng.next()) * 4.0 - DVec3::splat(2.0);
-            let x_a = x_b + rng.unit() * l;
+            let x_a = x_b + unit(&mut rng) * l;
             (x_a, x_b, rest, 1.0 + 1000.0 * rng.next())
         })
         .collect()
@@ -127,7 +118,7 @@ fn clamped_block_is_the_psd_projection_when_compressed() {
         assert!(across < 0.0);
         assert!((exact * w - across * w).length() <= 1e-9 * across.abs());
         for _ in 0..20 {
-            let v = rng.unit();
+            let v = unit(&mut rng);
             assert!(v.dot(clamped * v) >= -1e-12 * k);
         }
         assert!(w.dot(exact * w) < 0.0, "the exact block is indefinite here");
@@ -163,7 +154,7 @@ fn softened_block_interpolates_the_compressed_curvature() {
             assert!((soft * w - (1.0 - theta) * across * w).length() <= 1e-12 * scale);
             // Larger theta: a larger quadratic form in every direction.
             for _ in 0..10 {
-                let v = rng.unit();
+                let v = unit(&mut rng);
                 assert!(v.dot(soft * v) >= v.dot(previous * v) - 1e-12 * scale);
             }
             previous = soft;
@@ -181,7 +172,7 @@ fn softened_block_interpolates_the_compressed_curvature() {
 fn energy_change_matches_the_difference_of_energies() {
     let mut rng = Rng(7);
     for (xa, xb, rest, k) in springs(8, (0.01, 3.0)) {
-        let delta = rng.unit() * rng.next();
+        let delta = unit(&mut rng) * rng.next();
         let direct = energy(xa + delta, xb, rest, k) - energy(xa, xb, rest, k);
         let change = energy_change(xa - xb, delta, rest, k);
         let scale = energy(xa + delta, xb, rest, k) + energy(xa, xb, rest, k);

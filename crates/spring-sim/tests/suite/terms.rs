@@ -4,6 +4,7 @@
 //! against the difference of energies; and their sum against an independent formula of
 //! the whole objective on the lab cloth.
 
+use crate::common::{Sample, XorshiftStar as Rng};
 use sinew_math::DVec3;
 use sinew_spring_sim::potential::{
     AxialDamping, Gravity, HessianSink, Inertia, MissingPair, Potential, Springs, StepContext,
@@ -13,20 +14,6 @@ use sinew_spring_sim::spring::Curvature;
 use sinew_spring_sim::{ClothGrid, HessianPattern, SpringSystem};
 
 /// A small deterministic generator (xorshift64*), so failures reproduce.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn vec(&mut self, scale: f64) -> DVec3 {
-        (DVec3::new(self.next(), self.next(), self.next()) * 2.0 - DVec3::ONE) * scale
-    }
-}
-
 /// A 4 x 4 sheet (two fixed corners) with damping, moved and set in motion so springs are
 /// stretched and compressed, and its step data: prediction `y = x_n + h v_n`, reference
 /// `x_n`.
