@@ -96,6 +96,22 @@ fn begun(
     t
 }
 
+/// Checks `term`'s gradient at `at` bitwise equal to that of `fresh`, a term that has
+/// kept nothing from earlier queries, given its active set at `at`.
+fn assert_gradient_as_fresh(
+    term: &SelfContactTerm,
+    mut fresh: SelfContactTerm,
+    step: &StepContext,
+    at: &[DVec3],
+) {
+    let mut g = vec![DVec3::ZERO; at.len()];
+    let mut g_fresh = g.clone();
+    term.add_gradient(step, at, &mut g);
+    fresh.update_active_set(step, at);
+    fresh.add_gradient(step, at, &mut g_fresh);
+    assert_eq!(g, g_fresh);
+}
+
 #[test]
 fn the_term_is_one_consistent_function() {
     let (system, triangles) = two_sheets();
@@ -243,13 +259,7 @@ fn one_broad_phase_serves_the_whole_line_search_segment_with_unchanged_answers()
         assert_eq!(energy.to_bits(), fresh().energy(&step, &end).to_bits());
         nonzero += usize::from(change != 0.0);
         term.update_active_set(&step, &end);
-        let mut g = vec![DVec3::ZERO; x.len()];
-        let mut g_fresh = g.clone();
-        term.add_gradient(&step, &end, &mut g);
-        let mut reference = fresh();
-        reference.update_active_set(&step, &end);
-        reference.add_gradient(&step, &end, &mut g_fresh);
-        assert_eq!(g, g_fresh);
+        assert_gradient_as_fresh(&term, fresh(), &step, &end);
     }
     // Every query above lay inside the segment: no further hashing.
     assert_eq!(stats.broad_phases(), before + 1);
@@ -288,13 +298,7 @@ fn the_next_iterations_segment_inside_the_kept_region_is_not_hashed_and_answers_
             assert_eq!(change.to_bits(), reference.to_bits());
             nonzero += usize::from(change != 0.0);
         }
-        let mut g = vec![DVec3::ZERO; x.len()];
-        let mut g_fresh = g.clone();
-        term.add_gradient(&step, &at, &mut g);
-        let mut reference = fresh();
-        reference.update_active_set(&step, &at);
-        reference.add_gradient(&step, &at, &mut g_fresh);
-        assert_eq!(g, g_fresh);
+        assert_gradient_as_fresh(&term, fresh(), &step, &at);
     }
     // No iteration after the first hashed the mesh, and the pairs act.
     assert_eq!(stats.broad_phases(), before + 1);
