@@ -12,11 +12,15 @@
 //! gap, the line-search cap from CCD, the step length accepted, and the largest entry of
 //! the whole gradient (the mass-spring terms plus self-contact) over the free particles.
 
+// The tests' scene: the dropped sheets and their cloth.
+#[path = "../tests/suite/sheets.rs"]
+mod sheets;
+
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactTerm};
 use sinew_spring_sim::potential::{HessianSink, Potential, StepContext, Term};
 use sinew_spring_sim::spring::Curvature;
-use sinew_spring_sim::{Bending, ClothGrid, Material, MeshCloth, NewtonSettings, TriangleMesh};
+use sinew_spring_sim::{NewtonSettings, TriangleMesh};
 use std::sync::Mutex;
 use std::time::Instant;
 
@@ -120,23 +124,6 @@ impl Term for Traced {
     }
 }
 
-fn grid(
-    n: usize,
-    origin: DVec3,
-    u: DVec3,
-    w: DVec3,
-    s: f64,
-    offset: usize,
-) -> (Vec<DVec3>, Vec<[usize; 3]>) {
-    ClothGrid {
-        size: n,
-        spacing: s,
-        origin,
-        ..ClothGrid::lab()
-    }
-    .sheet(u, w, offset)
-}
-
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let sizes: Vec<usize> = args.iter().filter_map(|a| a.parse().ok()).collect();
@@ -153,35 +140,9 @@ fn main() {
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
     for n in sizes {
         let s = 0.05 * 7.0 / n as f64;
-        let (mut x, mut t) = grid(n, DVec3::ZERO, DVec3::X, DVec3::Z, s, 0);
-        let (turn_u, turn_w) = (
-            DVec3::new(0.995, 0.0, 0.0998),
-            DVec3::new(-0.0998, 0.0, 0.995),
-        );
-        let (xt, tt) = grid(
-            n,
-            DVec3::new(0.03, 0.02, 0.02),
-            turn_u,
-            turn_w,
-            0.8 * s,
-            x.len(),
-        );
-        x.extend(xt);
-        t.extend(tt);
-        let fixed: Vec<usize> = (0..n * n)
-            .filter(|k| k / n == 0 || k / n == n - 1 || k % n == 0 || k % n == n - 1)
-            .collect();
+        let (x, t, fixed) = sheets::dropped(n, s);
         let mesh = TriangleMesh::new(x, t).unwrap();
-        let cloth = MeshCloth {
-            areal_density: 0.2,
-            material: Material {
-                stiffness: 500.0,
-                damping: 0.1,
-                gravity: DVec3::new(0.0, -9.81, 0.0),
-            },
-            bending: Bending::None,
-            fixed,
-        };
+        let cloth = sheets::cloth(fixed);
         let model = cloth.build(&mesh).unwrap();
         let mut be = model.backward_euler(NewtonSettings::default()).unwrap();
         let settings = SelfContactSettings {

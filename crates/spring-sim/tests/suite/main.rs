@@ -30,6 +30,7 @@ mod self_contact_dynamics;
 mod self_contact_exact;
 mod self_contact_term;
 mod self_contact_threads;
+mod sheets;
 mod splitting;
 mod spring_kernels;
 mod terms;

@@ -6,26 +6,16 @@
 //! every Newton iterate never increases within a step; and the smallest gap over all
 //! such pairs, by brute force, stays positive.
 
-use crate::common::grid;
+use crate::sheets::{self, grid};
 use sinew_exact::{intersecting_pairs, triangles_meet};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
 use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactStats};
 use sinew_spring_sim::contact::{Collider, ContactPotential, ContactSettings, ContactTerm};
-use sinew_spring_sim::{
-    Bending, Material, MeshCloth, MeshClothModel, NewtonSettings, SpringSystem, TriangleMesh,
-};
+use sinew_spring_sim::{MeshClothModel, NewtonSettings, SpringSystem, TriangleMesh};
 use std::sync::Arc;
 
 const H: f64 = 1.0 / 60.0;
-
-fn material() -> Material {
-    Material {
-        stiffness: 500.0,
-        damping: 0.1,
-        gravity: DVec3::new(0.0, -9.81, 0.0),
-    }
-}
 
 // ---------------------------------------------------------------------------------------
 // The independent intersection check.
@@ -120,12 +110,7 @@ fn build(
     settings: SelfContactSettings,
 ) -> Run {
     let mesh = TriangleMesh::new(positions, triangles).unwrap();
-    let cloth = MeshCloth {
-        areal_density: 0.2,
-        material: material(),
-        bending: Bending::None,
-        fixed,
-    };
+    let cloth = sheets::cloth(fixed);
     let model = cloth.build(&mesh).unwrap();
     let newton = NewtonSettings {
         record_objective: true,
@@ -192,26 +177,8 @@ fn run_checked(run: &mut Run, steps: usize) -> (f64, usize) {
 fn a_sheet_dropped_onto_a_pinned_sheet_rests_on_it_without_crossing() {
     let n = 7;
     let s = 0.05;
-    let (mut x, mut t) = grid(n, DVec3::ZERO, DVec3::X, DVec3::Z, s, 0);
-    // The top sheet, 2 cm up, shifted so no vertex is above a vertex, and turned a little.
-    let (turn_u, turn_w) = (
-        DVec3::new(0.995, 0.0, 0.0998),
-        DVec3::new(-0.0998, 0.0, 0.995),
-    );
-    let (xt, tt) = grid(
-        n,
-        DVec3::new(0.03, 0.02, 0.02),
-        turn_u,
-        turn_w,
-        0.8 * s,
-        x.len(),
-    );
-    x.extend(xt);
-    t.extend(tt);
-    // The bottom sheet is pinned along its border.
-    let fixed: Vec<usize> = (0..n * n)
-        .filter(|k| k / n == 0 || k / n == n - 1 || k % n == 0 || k % n == n - 1)
-        .collect();
+    // The top sheet 2 cm up, shifted and turned; the bottom one pinned along its border.
+    let (x, t, fixed) = sheets::dropped(n, s);
     let settings = SelfContactSettings {
         dhat: 2e-3,
         thickness: 1e-3,
@@ -268,12 +235,7 @@ fn a_hanging_sheet_collapses_onto_the_ground_and_folds_onto_itself_without_cross
 fn bad_input_is_an_error_naming_it() {
     let (x, t) = grid(3, DVec3::ZERO, DVec3::X, DVec3::Z, 0.1, 0);
     let mesh = TriangleMesh::new(x.clone(), t.clone()).unwrap();
-    let cloth = MeshCloth {
-        areal_density: 0.2,
-        material: material(),
-        bending: Bending::None,
-        fixed: vec![],
-    };
+    let cloth = sheets::cloth(vec![]);
     let model = cloth.build(&mesh).unwrap();
     let mut be = model.backward_euler(NewtonSettings::default()).unwrap();
     let err = model

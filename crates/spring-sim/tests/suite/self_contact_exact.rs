@@ -5,12 +5,10 @@
 //! converges, keeps every gap positive, and ends where the projected run ends (both
 //! solve the same minimization, to the tolerance).
 
-use crate::common::grid;
+use crate::sheets;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
-use sinew_spring_sim::{
-    Bending, Material, MeshCloth, NewtonSettings, SpringSystem, StepStop, TriangleMesh,
-};
+use sinew_spring_sim::{NewtonSettings, SpringSystem, StepStop, TriangleMesh};
 
 const H: f64 = 1.0 / 60.0;
 
@@ -28,26 +26,14 @@ struct Outcome {
 
 fn run(exact_hessian: bool, n: usize, steps: usize) -> Outcome {
     let s = 0.01;
-    let (mut x, mut t) = grid(n, DVec3::ZERO, DVec3::X, DVec3::Z, s, 0);
     let (u, w) = (
         DVec3::new(0.995_004, 0.0, 0.099_833_4),
         DVec3::new(-0.099_833_4, 0.0, 0.995_004),
     );
-    let (xt, tt) = grid(n, DVec3::new(0.013, 0.0016, 0.011), u, w, s, x.len());
-    x.extend(xt);
-    t.extend(tt);
+    let (x, t) = sheets::stacked(n, s, DVec3::new(0.013, 0.0016, 0.011), u, w, s);
     let mesh = TriangleMesh::new(x, t).unwrap();
-    let cloth = MeshCloth {
-        areal_density: 0.2,
-        material: Material {
-            stiffness: 500.0,
-            damping: 0.1,
-            gravity: DVec3::new(0.0, -9.81, 0.0),
-        },
-        bending: Bending::None,
-        // The bottom sheet held at its four corners; the top one free.
-        fixed: vec![0, n - 1, n * (n - 1), n * n - 1],
-    };
+    // The bottom sheet held at its four corners; the top one free.
+    let cloth = sheets::cloth(vec![0, n - 1, n * (n - 1), n * n - 1]);
     let model = cloth.build(&mesh).unwrap();
     let mut integrator = model.backward_euler(NewtonSettings::default()).unwrap();
     let settings = SelfContactSettings {

@@ -8,17 +8,13 @@
 //! the contact statistics must agree to the bit, with the pairs' projected Hessians and
 //! with their exact ones tried first (`SelfContactSettings::exact_hessian`).
 
+use crate::sheets;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
-use sinew_spring_sim::{Bending, Material, MeshCloth, NewtonSettings, SpringSystem, TriangleMesh};
+use sinew_spring_sim::{NewtonSettings, SpringSystem, TriangleMesh};
 
 const H: f64 = 1.0 / 60.0;
 const N: usize = 33;
-
-/// An `N x N` grid of points `origin + s (i u + j w)` and its triangles, indices offset.
-fn grid(origin: DVec3, u: DVec3, w: DVec3, s: f64, offset: usize) -> (Vec<DVec3>, Vec<[usize; 3]>) {
-    crate::common::grid(N, origin, u, w, s, offset)
-}
 
 /// What a run ends with: the state, the Newton iterations per step, and per step the
 /// active pairs and `kappa` (as bits), then the times the exact pair Hessians were
@@ -27,26 +23,14 @@ type Outcome = (SpringSystem, Vec<usize>, Vec<(usize, u64)>);
 
 fn run(threads: usize, steps: usize, exact_hessian: bool) -> Outcome {
     let s = 0.01;
-    let (mut x, mut t) = grid(DVec3::ZERO, DVec3::X, DVec3::Z, s, 0);
     let (u, w) = (
         DVec3::new(0.995_004, 0.0, 0.099_833_4),
         DVec3::new(-0.099_833_4, 0.0, 0.995_004),
     );
-    let (xt, tt) = grid(DVec3::new(0.06, 0.0016, 0.05), u, w, s, x.len());
-    x.extend(xt);
-    t.extend(tt);
+    let (x, t) = sheets::stacked(N, s, DVec3::new(0.06, 0.0016, 0.05), u, w, s);
     let mesh = TriangleMesh::new(x, t).unwrap();
-    let cloth = MeshCloth {
-        areal_density: 0.2,
-        material: Material {
-            stiffness: 500.0,
-            damping: 0.1,
-            gravity: DVec3::new(0.0, -9.81, 0.0),
-        },
-        bending: Bending::None,
-        // The bottom sheet held at two corners; the top one free.
-        fixed: vec![0, N * N - 1],
-    };
+    // The bottom sheet held at two corners; the top one free.
+    let cloth = sheets::cloth(vec![0, N * N - 1]);
     let model = cloth.build(&mesh).unwrap();
     let newton = NewtonSettings {
         threads,
