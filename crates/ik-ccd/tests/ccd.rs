@@ -10,7 +10,7 @@ use sinew_math::{DQuat, DVec3, angle_between};
 use sinew_skeleton::ik::{
     Chain, IkError, IkSolver, IkState, SolveReport, SolveSettings, StopReason, rotation_angle,
 };
-use sinew_skeleton::track::{TrackSettings, Tracker, track};
+use sinew_skeleton::track::{TrackSettings, TrackSummary, Tracker, track};
 use sinew_skeleton::{GlobalPose, JointDef, Pose, Skeleton};
 use std::f64::consts::{FRAC_PI_2, TAU};
 
@@ -48,6 +48,24 @@ fn check_solution(
     }
 }
 
+/// Solves `chain` towards `target` and checks the solution's invariants.
+fn solve_chain(
+    solver: &mut CcdSolver,
+    skel: &Skeleton,
+    chain: &Chain,
+    pose: &mut Pose,
+    global: &mut GlobalPose,
+    target: DVec3,
+    s: &SolveSettings,
+) -> SolveReport {
+    let report = solver
+        .solve_position(skel, chain, pose, global, target, s)
+        .unwrap();
+    check_solution(skel, chain, pose, global, target, &report);
+    report
+}
+
+/// [`solve_chain`] on the whole skeleton with a fresh global pose.
 fn solve(
     solver: &mut CcdSolver,
     skel: &Skeleton,
@@ -56,12 +74,31 @@ fn solve(
     s: SolveSettings,
 ) -> SolveReport {
     let chain = Chain::whole(skel).unwrap();
+    solve_chain(
+        solver,
+        skel,
+        &chain,
+        pose,
+        &mut GlobalPose::new(),
+        target,
+        &s,
+    )
+}
+
+/// Tracks `targets` with the default solver from the rest pose along the whole skeleton.
+fn track_from_rest(tracker: &mut Tracker, skel: &Skeleton, targets: &[DVec3]) -> TrackSummary {
+    let chain = Chain::whole(skel).unwrap();
+    let mut pose = skel.rest_pose();
     let mut global = GlobalPose::new();
-    let report = solver
-        .solve_position(skel, &chain, pose, &mut global, target, &s)
-        .unwrap();
-    check_solution(skel, &chain, pose, &global, target, &report);
-    report
+    track(
+        tracker,
+        &mut CcdSolver::new(),
+        skel,
+        &chain,
+        &mut IkState::new(&mut pose, &mut global),
+        targets,
+    )
+    .unwrap()
 }
 
 /// Two unit bones, the root turned a quarter about z so the chain points along +y:
@@ -159,17 +196,15 @@ fn w3_gives_the_straight_chain() {
     let mut pose = skel.rest_pose();
     let mut global = GlobalPose::new();
     let target = common::W3_TARGET;
-    let report = CcdSolver::new()
-        .solve_position(
-            &skel,
-            &chain,
-            &mut pose,
-            &mut global,
-            target,
-            &SolveSettings::default(),
-        )
-        .unwrap();
-    check_solution(&skel, &chain, &pose, &global, target, &report);
+    let report = solve_chain(
+        &mut CcdSolver::new(),
+        &skel,
+        &chain,
+        &mut pose,
+        &mut global,
+        target,
+        &SolveSettings::default(),
+    );
     assert_eq!(report.stop, StopReason::OutOfReach);
     assert_eq!(report.iterations, 0);
     assert!((report.error - (target.length() - chain.reach())).abs() < 1e-12);
@@ -197,17 +232,15 @@ fn just_inside_the_reach_converges_to_the_closed_form() {
         let target = direction * chain.reach() * (1.0 - delta);
         let mut pose = skel.rest_pose();
         let mut global = GlobalPose::new();
-        let report = CcdSolver::new()
-            .solve_position(
-                &skel,
-                &chain,
-                &mut pose,
-                &mut global,
-                target,
-                &settings(100_000, 1e-10),
-            )
-            .unwrap();
-        check_solution(&skel, &chain, &pose, &global, target, &report);
+        let report = solve_chain(
+            &mut CcdSolver::new(),
+            &skel,
+            &chain,
+            &mut pose,
+            &mut global,
+            target,
+            &settings(100_000, 1e-10),
+        );
         // Near full extension CCD crawls (docs/ik-ccd.md): 1e-10 is reached for
         // delta >= 1e-4, about 1e-6 after the cap for the closer ones.
         assert!(report.error <= 2e-6, "delta {delta}: {report:?}");
@@ -382,17 +415,15 @@ fn a_chain_inside_a_tree_moves_only_its_subtrees() {
     skel.forward_kinematics(&pose, &mut global).unwrap();
     let before = global.clone();
     let target = global.positions[2] + DVec3::new(0.2, 0.5, 0.4);
-    let report = CcdSolver::new()
-        .solve_position(
-            &skel,
-            &chain,
-            &mut pose,
-            &mut global,
-            target,
-            &SolveSettings::default(),
-        )
-        .unwrap();
-    check_solution(&skel, &chain, &pose, &global, target, &report);
+    let report = solve_chain(
+        &mut CcdSolver::new(),
+        &skel,
+        &chain,
+        &mut pose,
+        &mut global,
+        target,
+        &SolveSettings::default(),
+    );
     assert_eq!(report.stop, StopReason::Converged);
     for i in [0, 1, 2, 3] {
         assert_eq!(global.positions[i], before.positions[i], "joint {i}");
@@ -405,24 +436,13 @@ fn a_chain_inside_a_tree_moves_only_its_subtrees() {
 #[test]
 fn bone_lengths_hold_over_ten_thousand_tracked_frames() {
     let skel = common::w1_skeleton();
-    let chain = Chain::whole(&skel).unwrap();
     let targets: Vec<DVec3> = (0..10_000)
         .map(|i| common::flower_point(0.1, TAU * i as f64 / 2_500.0))
         .collect();
     let mut tracker = Tracker::new(TrackSettings::default())
         .unwrap()
         .keep_records(false);
-    let mut pose = skel.rest_pose();
-    let mut global = GlobalPose::new();
-    let summary = track(
-        &mut tracker,
-        &mut CcdSolver::new(),
-        &skel,
-        &chain,
-        &mut IkState::new(&mut pose, &mut global),
-        &targets,
-    )
-    .unwrap();
+    let summary = track_from_rest(&mut tracker, &skel, &targets);
     assert_eq!(summary.frames, 10_000);
     assert_eq!(summary.converged_frames, 10_000, "{summary:?}");
     assert!(summary.error_max <= 1e-6);
@@ -439,7 +459,6 @@ fn bone_lengths_hold_over_ten_thousand_tracked_frames() {
 #[test]
 fn w1_tracks_every_frame_and_honours_the_rotation_limit() {
     let skel = common::w1_skeleton();
-    let chain = Chain::whole(&skel).unwrap();
     let targets = common::w1_targets();
     for limit in [None, Some(0.05)] {
         let mut tracker = Tracker::new(TrackSettings {
@@ -447,17 +466,7 @@ fn w1_tracks_every_frame_and_honours_the_rotation_limit() {
             ..Default::default()
         })
         .unwrap();
-        let mut pose = skel.rest_pose();
-        let mut global = GlobalPose::new();
-        let summary = track(
-            &mut tracker,
-            &mut CcdSolver::new(),
-            &skel,
-            &chain,
-            &mut IkState::new(&mut pose, &mut global),
-            &targets,
-        )
-        .unwrap();
+        let summary = track_from_rest(&mut tracker, &skel, &targets);
         assert_eq!(summary.frames, 500);
         match limit {
             None => {
