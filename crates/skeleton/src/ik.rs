@@ -935,6 +935,23 @@ mod tests {
         begin_solve(&problem, &mut IkState::new(pose, global))
     }
 
+    /// [`start`] with the default settings where the job is settled before any iteration
+    /// (out of reach or already within the tolerance): its report.
+    fn done_at_start(
+        skeleton: &Skeleton,
+        chain: &Chain,
+        pose: &mut Pose,
+        global: &mut GlobalPose,
+        target: DVec3,
+    ) -> SolveReport {
+        let settings = SolveSettings::default();
+        let start = start(skeleton, chain, pose, global, target, &settings).unwrap();
+        let SolveStart::Done(report) = start else {
+            panic!("expected done at the start: {start:?}")
+        };
+        report
+    }
+
     fn lab_chain() -> Skeleton {
         Skeleton::chain(DVec3::new(0.0, 0.5, 0.0), &[DVec3::new(0.15, 0.0, 0.0); 7]).unwrap()
     }
@@ -998,7 +1015,6 @@ mod tests {
         ];
         let skel = Skeleton::chain(DVec3::new(0.1, -0.4, 0.25), &offsets).unwrap();
         let chain = Chain::whole(&skel).unwrap();
-        let settings = SolveSettings::default();
         let mut pose = skel.rest_pose();
         let mut global = GlobalPose::new();
         let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
@@ -1012,11 +1028,7 @@ mod tests {
             let direction = DVec3::new(uniform(), uniform(), uniform());
             let target = direction.normalize() * (4.0 + 10.0 * uniform().abs());
             for _ in 0..2 {
-                let start =
-                    start(&skel, &chain, &mut pose, &mut global, target, &settings).unwrap();
-                let SolveStart::Done(report) = start else {
-                    panic!("expected closed form")
-                };
+                let report = done_at_start(&skel, &chain, &mut pose, &mut global, target);
                 assert_eq!(report.stop, StopReason::OutOfReach);
                 assert!(
                     report.error <= report.initial_error,
@@ -1039,18 +1051,7 @@ mod tests {
         }
         let mut global = GlobalPose::new();
         let target = DVec3::new(3.0, 1.0, -0.5);
-        let start = start(
-            &skel,
-            &chain,
-            &mut pose,
-            &mut global,
-            target,
-            &SolveSettings::default(),
-        )
-        .unwrap();
-        let SolveStart::Done(report) = start else {
-            panic!("expected closed form")
-        };
+        let report = done_at_start(&skel, &chain, &mut pose, &mut global, target);
         assert_eq!(report.stop, StopReason::OutOfReach);
         assert_eq!(report.iterations, 0);
         let base = global.positions[0];
@@ -1083,18 +1084,7 @@ mod tests {
         let mut pose = skel.rest_pose();
         let mut global = GlobalPose::new();
         let target = DVec3::new(0.0, 10.0, 0.0);
-        let start = start(
-            &skel,
-            &chain,
-            &mut pose,
-            &mut global,
-            target,
-            &SolveSettings::default(),
-        )
-        .unwrap();
-        let SolveStart::Done(report) = start else {
-            panic!("expected closed form")
-        };
+        let report = done_at_start(&skel, &chain, &mut pose, &mut global, target);
         assert_eq!(report.stop, StopReason::OutOfReach);
         assert!(
             (global.positions[4] - DVec3::new(0.0, 2.0, 0.0)).length() < 1e-15,
@@ -1112,23 +1102,8 @@ mod tests {
         let mut global = GlobalPose::new();
         let target = DVec3::new(1.05 + 1e-7, 0.5, 0.0);
         let before = pose.clone();
-        let start = start(
-            &skel,
-            &chain,
-            &mut pose,
-            &mut global,
-            target,
-            &SolveSettings::default(),
-        )
-        .unwrap();
-        assert!(matches!(
-            start,
-            SolveStart::Done(SolveReport {
-                iterations: 0,
-                stop: StopReason::Converged,
-                ..
-            })
-        ));
+        let report = done_at_start(&skel, &chain, &mut pose, &mut global, target);
+        assert_eq!((report.iterations, report.stop), (0, StopReason::Converged));
         assert_eq!(pose, before);
     }
 
