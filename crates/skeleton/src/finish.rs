@@ -2272,6 +2272,24 @@ mod tests {
         }
     }
 
+    /// Joint 0's three columns, one per axis `u`, as `linearize` writes a joint's triple
+    /// over two position rows (0 and 6, arms `d` from the joint, weights `w[0]` and
+    /// `w[1]`) and a rotation row (9, weight `w[2]`).
+    fn push_joint_triple(fin: &mut Finish, d: [DVec3; 2], w: [f64; 3]) {
+        for u in [DVec3::X, DVec3::Y, DVec3::Z] {
+            fin.col_start.push(fin.entries.len());
+            fin.dofs.push((0, u));
+            for (row, v) in [
+                (0, u.cross(d[0]) * w[0]),
+                (6, u.cross(d[1]) * w[1]),
+                (9, u * w[2]),
+            ] {
+                fin.entries
+                    .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
+            }
+        }
+    }
+
     /// Numbers uniform in [-1, 1) from a xorshift generator started at `seed`.
     fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
         move || {
@@ -2543,18 +2561,7 @@ mod tests {
                 d[0].x = -0.0;
             }
             let (w0, w1, wr) = (1.0 + next().abs(), 0.5, 2.0);
-            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
-                fin.col_start.push(fin.entries.len());
-                fin.dofs.push((0, u));
-                for (row, v) in [
-                    (0, u.cross(d[0]) * w0),
-                    (6, u.cross(d[1]) * w1),
-                    (9, u * wr),
-                ] {
-                    fin.entries
-                        .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
-                }
-            }
+            push_joint_triple(&mut fin, d, [w0, w1, wr]);
             fin.col_start.push(fin.entries.len());
             fin.dofs.push((1, DVec3::Y));
             fin.entries.extend([(0, next()), (2, next()), (7, next())]);
@@ -2603,18 +2610,7 @@ mod tests {
                 DVec3::new(next(), 0.0, next()),
             ];
             let (w0, w1, wr) = (1.0 + next().abs(), 0.5, 2.0);
-            for u in [DVec3::X, DVec3::Y, DVec3::Z] {
-                fin.col_start.push(fin.entries.len());
-                fin.dofs.push((0, u));
-                for (row, v) in [
-                    (0, u.cross(d[0]) * w0),
-                    (6, u.cross(d[1]) * w1),
-                    (9, u * wr),
-                ] {
-                    fin.entries
-                        .extend([(row, v.x), (row + 1, v.y), (row + 2, v.z)]);
-                }
-            }
+            push_joint_triple(&mut fin, d, [w0, w1, wr]);
             for u in [DVec3::X, DVec3::Y, DVec3::Z] {
                 fin.col_start.push(fin.entries.len());
                 fin.dofs.push((1, u));
