@@ -56,6 +56,42 @@ fn check_contract(
     assert!(state.pose.rotations.iter().all(|q| q.is_finite()));
 }
 
+/// Solves `problem` from `state` and checks the whole contract on the answer.
+fn solve_checked(
+    solver: &mut dyn BodySolver,
+    problem: &BodyProblem<'_>,
+    state: &mut BodyState,
+) -> BodyReport {
+    let report = solver.solve(problem, state).unwrap();
+    check_contract(problem.skeleton, problem.effectors, state, &report);
+    report
+}
+
+/// [`solve_checked`] from the rest pose.
+fn solve_from_rest(
+    solver: &mut dyn BodySolver,
+    problem: &BodyProblem<'_>,
+) -> (BodyState, BodyReport) {
+    let mut state = BodyState::rest(problem.skeleton);
+    let report = solve_checked(solver, problem, &mut state);
+    (state, report)
+}
+
+/// The squat's pinned effectors (2 and 3, the ankles) are within the tolerance of their
+/// rest positions at `frame`.
+fn assert_feet_pinned(
+    state: &BodyState,
+    rest: &GlobalPose,
+    settings: &SolveSettings,
+    frame: usize,
+) {
+    for k in [2, 3] {
+        let j = workload::EFFECTORS[k];
+        let drift = state.global.positions[j].distance(rest.positions[j]);
+        assert!(drift <= settings.tolerance, "frame {frame}: drift {drift}");
+    }
+}
+
 /// Root at the origin with two unit arms along +x and -x.
 fn two_arms() -> Skeleton {
     Skeleton::new([
@@ -78,10 +114,8 @@ fn conflicting_goals_end_at_the_weighted_least_squares_best() {
     ];
     let settings = SolveSettings::default();
     for (name, mut solver) in all_solvers() {
-        let mut state = BodyState::rest(&skel);
         let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
-        let report = solver.solve(&problem, &mut state).unwrap();
-        check_contract(&skel, &effectors, &state, &report);
+        let (state, report) = solve_from_rest(&mut *solver, &problem);
         let tol = if name.starts_with("fabrik-plain") {
             1e-3
         } else {
@@ -107,17 +141,13 @@ fn a_goal_on_the_root() {
     let settings = SolveSettings::default();
     for (name, mut solver) in all_solvers() {
         // Free to translate: reached.
-        let mut state = BodyState::rest(&skel);
         let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
-        let report = solver.solve(&problem, &mut state).unwrap();
-        check_contract(&skel, &effectors, &state, &report);
+        let (_, report) = solve_from_rest(&mut *solver, &problem);
         assert!(report.within(&settings), "{name}: {report:?}");
         // Fixed: nothing can move the root, so the pose stays and the error is the
         // distance, with a stop that says it was not reached.
-        let mut state = BodyState::rest(&skel);
         let problem = BodyProblem::new(&skel, &effectors, settings);
-        let report = solver.solve(&problem, &mut state).unwrap();
-        check_contract(&skel, &effectors, &state, &report);
+        let (state, report) = solve_from_rest(&mut *solver, &problem);
         assert!((report.max_error - goal.length()).abs() < 1e-15, "{name}");
         assert_ne!(report.stop, StopReason::Converged, "{name}");
         assert_eq!(state.pose, skel.rest_pose(), "{name}");
@@ -157,10 +187,8 @@ fn two_effectors_on_one_chain_and_zero_length_bones() {
         for seed in 0..20 {
             let effectors = feasible_goals(&skel, &[3, 6], seed);
             let mut solver = TreeFabrikSolver::new();
-            let mut state = BodyState::rest(&skel);
             let problem = BodyProblem::new(&skel, &effectors, settings);
-            let report = solver.solve(&problem, &mut state).unwrap();
-            check_contract(&skel, &effectors, &state, &report);
+            let (state, report) = solve_from_rest(&mut solver, &problem);
             assert!(report.within(&settings), "seed {seed}: {report:?}");
             for (i, p) in state.global.positions.iter().enumerate().skip(1) {
                 let bone = p.distance(state.global.positions[i - 1]);
@@ -191,10 +219,8 @@ fn a_thousand_joint_tree() {
     let effectors = feasible_goals(&skel, &[999, 900, 750, 500, 320], 3);
     let settings = SolveSettings::default();
     for (name, mut solver) in all_solvers() {
-        let mut state = BodyState::rest(&skel);
         let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
-        let report = solver.solve(&problem, &mut state).unwrap();
-        check_contract(&skel, &effectors, &state, &report);
+        let (_, report) = solve_from_rest(&mut *solver, &problem);
         if name == "dls" || name == "fabrik" || name == "ccd-finish" {
             assert!(report.within(&settings), "{name}: {report:?}");
         } else {
@@ -213,13 +239,8 @@ fn pinned_feet_stay_planted_through_the_squat() {
     for frame in (0..workload::CLIP_FRAMES).step_by(10) {
         let effectors = workload::clip_frame(&rest, frame);
         let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
-        let report = solver.solve(&problem, &mut state).unwrap();
-        check_contract(&skel, &effectors, &state, &report);
-        for k in [2, 3] {
-            let j = workload::EFFECTORS[k];
-            let drift = state.global.positions[j].distance(rest.positions[j]);
-            assert!(drift <= settings.tolerance, "frame {frame}: drift {drift}");
-        }
+        let report = solve_checked(&mut solver, &problem, &mut state);
+        assert_feet_pinned(&state, &rest, &settings, frame);
         assert!(report.within(&settings), "frame {frame}: {report:?}");
     }
 }
@@ -242,14 +263,9 @@ fn the_squat_clip_has_no_pop_between_frames() {
     for frame in 0..workload::CLIP_FRAMES {
         let effectors = workload::clip_frame(&rest, frame);
         let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
-        let report = solver.solve(&problem, &mut state).unwrap();
-        check_contract(&skel, &effectors, &state, &report);
+        let report = solve_checked(&mut solver, &problem, &mut state);
         assert!(report.within(&settings), "frame {frame}: {report:?}");
-        for k in [2, 3] {
-            let j = workload::EFFECTORS[k];
-            let drift = state.global.positions[j].distance(rest.positions[j]);
-            assert!(drift <= settings.tolerance, "frame {frame}: drift {drift}");
-        }
+        assert_feet_pinned(&state, &rest, &settings, frame);
         if frame > 0 {
             let change = largest_rotation_change(&previous, &state.pose, &joints);
             assert!(change < 0.1, "frame {frame}: a joint turned {change} rad");
@@ -270,11 +286,9 @@ fn the_humanoid_reaches_feasible_goal_sets_from_rest() {
         let mut solver = TreeFabrikSolver::new();
         let mut reached = 0;
         for set in &sets {
-            let mut state = BodyState::rest(&skel);
             let problem =
                 BodyProblem::new(&skel, &set.effectors, settings).with_root_translation(true);
-            let report = solver.solve(&problem, &mut state).unwrap();
-            check_contract(&skel, &set.effectors, &state, &report);
+            let (_, report) = solve_from_rest(&mut solver, &problem);
             reached += usize::from(report.within(&settings));
         }
         // Measured with these seeds: see docs/ik-body.md for the full workload.
@@ -296,10 +310,8 @@ fn a_finish_that_stalls_along_the_bounds_restarts_instead_of_crawling_to_the_cap
     let sets = workload::goal_sets(&skel, 6780, 8, false);
     let set = &sets[6779];
     let mut solver = TreeFabrikSolver::new();
-    let mut state = BodyState::rest(&skel);
     let problem = BodyProblem::new(&skel, &set.effectors, settings).with_root_translation(true);
-    let report = solver.solve(&problem, &mut state).unwrap();
-    check_contract(&skel, &set.effectors, &state, &report);
+    let (_, report) = solve_from_rest(&mut solver, &problem);
     assert!(report.within(&settings), "{report:?}");
     assert!(report.restarted, "{report:?}");
     assert!(report.iterations < 60, "{report:?}");
@@ -341,8 +353,7 @@ fn a_body_moved_as_a_whole_is_placed_back_before_any_iteration() {
             .collect();
         let problem = BodyProblem::new(&skel, &effectors, settings).with_root_translation(true);
         let mut state = rest.clone();
-        let report = TreeFabrikSolver::new().solve(&problem, &mut state).unwrap();
-        check_contract(&skel, &effectors, &state, &report);
+        let report = solve_checked(&mut TreeFabrikSolver::new(), &problem, &mut state);
         assert_eq!(report.iterations, 0, "case {k}: {report:?}");
         assert!(report.max_error <= 1e-9, "case {k}: {report:?}");
         assert!(
@@ -369,18 +380,14 @@ fn ccd_turns_each_joint_by_its_best_rotation() {
     for seed in 0..10 {
         let effectors = feasible_goals(&skel, &[3, 5], seed);
         let mut plain = TreeCcdSolver::new();
-        let mut state = BodyState::rest(&skel);
         let problem = BodyProblem::new(&skel, &effectors, settings);
-        let report = plain.solve(&problem, &mut state).unwrap();
-        check_contract(&skel, &effectors, &state, &report);
+        let (_, report) = solve_from_rest(&mut plain, &problem);
         assert!(
             report.cost < 1e-2 * report.initial_cost,
             "seed {seed}: {report:?}"
         );
         let mut finished = TreeCcdSolver::with_options(TreeCcdOptions::with_finish()).unwrap();
-        let mut state = BodyState::rest(&skel);
-        let report = finished.solve(&problem, &mut state).unwrap();
-        check_contract(&skel, &effectors, &state, &report);
+        let (_, report) = solve_from_rest(&mut finished, &problem);
         assert!(report.within(&settings), "seed {seed}: {report:?}");
     }
 }
@@ -642,14 +649,9 @@ fn warm_frames_from_the_last_two_answers_take_fewer_iterations_and_keep_the_cont
         let mut fresh_solver = TreeFabrikSolver::new();
         let fresh = fresh_solver.solve(&problem, &mut fresh_state).unwrap();
         fresh_linearized += fresh_solver.linearizations();
-        let report = carried.solve(&problem, &mut state).unwrap();
-        check_contract(&skel, &effectors, &state, &report);
+        let report = solve_checked(&mut carried, &problem, &mut state);
         assert!(report.within(&settings), "frame {frame}: {report:?}");
-        for k in [2, 3] {
-            let j = workload::EFFECTORS[k];
-            let drift = state.global.positions[j].distance(rest.positions[j]);
-            assert!(drift <= settings.tolerance, "frame {frame}: drift {drift}");
-        }
+        assert_feet_pinned(&state, &rest, &settings, frame);
         with += report.iterations;
         without += fresh.iterations;
         single += usize::from(report.iterations <= 1);
