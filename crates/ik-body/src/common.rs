@@ -411,10 +411,7 @@ impl Common {
         state: &mut BodyState,
         translation: DVec3,
     ) -> Result<(), IkError> {
-        state.pose.rotations.copy_from_slice(&self.best);
-        state.root_translation = translation;
-        state.update_global(problem.skeleton)?;
-        Ok(())
+        put_back(&self.best, problem, state, translation)
     }
 
     /// Puts the kept pose back and recomputes forward kinematics.
@@ -424,10 +421,7 @@ impl Common {
         state: &mut BodyState,
         translation: DVec3,
     ) -> Result<(), IkError> {
-        state.pose.rotations.copy_from_slice(&self.kept);
-        state.root_translation = translation;
-        state.update_global(problem.skeleton)?;
-        Ok(())
+        put_back(&self.kept, problem, state, translation)
     }
 
     /// The seed of restart number `k >= 1` after a local minimum, from the starting pose:
@@ -946,6 +940,20 @@ impl Common {
     pub fn cost(&self, state: &BodyState) -> f64 {
         total_cost(&self.targets, &state.global)
     }
+}
+
+/// Puts `rotations` and `translation` back as `state`'s pose (one kept by
+/// [`Common::keep`] or [`Common::keep_best`]) and recomputes forward kinematics.
+fn put_back(
+    rotations: &[DQuat],
+    problem: &BodyProblem<'_>,
+    state: &mut BodyState,
+    translation: DVec3,
+) -> Result<(), IkError> {
+    state.pose.rotations.copy_from_slice(rotations);
+    state.root_translation = translation;
+    state.update_global(problem.skeleton)?;
+    Ok(())
 }
 
 #[cfg(test)]
