@@ -512,6 +512,72 @@ pub struct IkOutcome {
     pub failures: Vec<String>,
 }
 
+impl IkOutcome {
+    /// `solver` on `case` before it runs: nothing measured, nothing broken.
+    fn before_run(case: &IkCase, solver: &'static str) -> Self {
+        Self {
+            case: case.name.clone(),
+            solver,
+            bones: case.offsets.len(),
+            distance: 0.0,
+            reach: 0.0,
+            error_bound: 0.0,
+            stop: None,
+            iterations: 0,
+            error: f64::NAN,
+            measured_error: f64::NAN,
+            bone_error_ratio: 0.0,
+            message: None,
+            not_converged: false,
+            seconds: 0.0,
+            failures: Vec::new(),
+        }
+    }
+}
+
+/// The case's skeleton, a chain from its root and offsets; `None`, the failure recorded
+/// in `out` naming the skeleton `what`, when it cannot be built.
+fn build_skeleton(case: &IkCase, what: &str, out: &mut IkOutcome) -> Option<Skeleton> {
+    match Skeleton::chain(case.root, &case.offsets) {
+        Ok(s) => Some(s),
+        Err(e) => {
+            out.failures
+                .push(format!("could not build the {what}: {e}"));
+            None
+        }
+    }
+}
+
+/// The case's start pose (the rest pose unless the case gives one) and forward
+/// kinematics of it; `None`, the failure recorded in `out`, when that fails.
+fn starting_pose(
+    skeleton: &Skeleton,
+    case: &IkCase,
+    out: &mut IkOutcome,
+) -> Option<(Pose, GlobalPose)> {
+    let mut pose = skeleton.rest_pose();
+    if let Some(start) = &case.start {
+        pose.rotations.copy_from_slice(start);
+    }
+    let mut global = GlobalPose::new();
+    if let Err(e) = skeleton.forward_kinematics(&pose, &mut global) {
+        out.failures
+            .push(format!("forward kinematics of the start: {e}"));
+        return None;
+    }
+    Some((pose, global))
+}
+
+/// `max(0, d - reach, inner - d)` for a target at distance `d` from the base of a chain
+/// whose reachable shell has inner radius `inner`; NaN for a non-finite distance.
+fn least_error(distance: f64, reach: f64, inner: f64) -> f64 {
+    if distance.is_finite() {
+        (distance - reach).max(inner - distance).max(0.0)
+    } else {
+        f64::NAN
+    }
+}
+
 /// `16 EPS (depth + 1) scale`: how far two computations of one chain position may
 /// differ by rounding (docs/labcheck.md "Round-off allowances").
 fn position_allowance(depth: usize, scale: f64) -> f64 {
@@ -526,29 +592,9 @@ fn bone_allowance(rest: f64, a: DVec3, b: DVec3) -> f64 {
 /// Runs one solver on one case and checks the invariants.
 #[must_use]
 pub fn run_case(case: &IkCase, solver_name: &'static str) -> IkOutcome {
-    let mut out = IkOutcome {
-        case: case.name.clone(),
-        solver: solver_name,
-        bones: case.offsets.len(),
-        distance: 0.0,
-        reach: 0.0,
-        error_bound: 0.0,
-        stop: None,
-        iterations: 0,
-        error: f64::NAN,
-        measured_error: f64::NAN,
-        bone_error_ratio: 0.0,
-        message: None,
-        not_converged: false,
-        seconds: 0.0,
-        failures: Vec::new(),
-    };
-    let skeleton = match Skeleton::chain(case.root, &case.offsets) {
-        Ok(s) => s,
-        Err(e) => {
-            out.failures.push(format!("could not build the chain: {e}"));
-            return out;
-        }
+    let mut out = IkOutcome::before_run(case, solver_name);
+    let Some(skeleton) = build_skeleton(case, "chain", &mut out) else {
+        return out;
     };
     let chain = match Chain::whole(&skeleton) {
         Ok(c) => c,
@@ -557,29 +603,16 @@ pub fn run_case(case: &IkCase, solver_name: &'static str) -> IkOutcome {
             return out;
         }
     };
-    let mut pose = skeleton.rest_pose();
-    if let Some(start) = &case.start {
-        pose.rotations.copy_from_slice(start);
-    }
-    let start_pose = pose.clone();
-    let mut start_global = GlobalPose::new();
-    if let Err(e) = skeleton.forward_kinematics(&pose, &mut start_global) {
-        out.failures
-            .push(format!("forward kinematics of the start: {e}"));
+    let Some((mut pose, start_global)) = starting_pose(&skeleton, case, &mut out) else {
         return out;
-    }
+    };
+    let start_pose = pose.clone();
     let base = start_global.positions[chain.base()];
     out.distance = case.target.distance(base);
     out.reach = chain.reach();
     let longest = chain.bone_lengths().iter().copied().fold(0.0, f64::max);
     let inner = (2.0 * longest - chain.reach()).max(0.0);
-    out.error_bound = if out.distance.is_finite() {
-        (out.distance - out.reach)
-            .max(inner - out.distance)
-            .max(0.0)
-    } else {
-        f64::NAN
-    };
+    out.error_bound = least_error(out.distance, out.reach, inner);
     let mut global = GlobalPose::new();
     let mut solver = match make_solver(solver_name) {
         Ok(solver) => solver,
@@ -813,55 +846,22 @@ fn judge<R, E: std::fmt::Display>(
 /// the geometry stopped it short).
 #[must_use]
 pub fn run_two_bone_case(case: &IkCase, setup: &TwoBoneSetup) -> IkOutcome {
-    let mut out = IkOutcome {
-        case: case.name.clone(),
-        solver: TWO_BONE,
-        bones: case.offsets.len(),
-        distance: 0.0,
-        reach: 0.0,
-        error_bound: 0.0,
-        stop: None,
-        iterations: 0,
-        error: f64::NAN,
-        measured_error: f64::NAN,
-        bone_error_ratio: 0.0,
-        message: None,
-        not_converged: false,
-        seconds: 0.0,
-        failures: Vec::new(),
-    };
+    let mut out = IkOutcome::before_run(case, TWO_BONE);
     if case.offsets.len() != 2 {
         out.failures
             .push("a two-bone case needs exactly two bones".into());
         return out;
     }
-    let skeleton = match Skeleton::chain(case.root, &case.offsets) {
-        Ok(s) => s,
-        Err(e) => {
-            out.failures.push(format!("could not build the limb: {e}"));
-            return out;
-        }
-    };
-    let mut pose = skeleton.rest_pose();
-    if let Some(start) = &case.start {
-        pose.rotations.copy_from_slice(start);
-    }
-    let mut global = GlobalPose::new();
-    if let Err(e) = skeleton.forward_kinematics(&pose, &mut global) {
-        out.failures
-            .push(format!("forward kinematics of the start: {e}"));
+    let Some(skeleton) = build_skeleton(case, "limb", &mut out) else {
         return out;
-    }
+    };
+    let Some((mut pose, mut global)) = starting_pose(&skeleton, case, &mut out) else {
+        return out;
+    };
     let (upper, lower) = (case.offsets[0].length(), case.offsets[1].length());
     out.distance = case.target.distance(global.positions[0]);
     out.reach = upper + lower;
-    out.error_bound = if out.distance.is_finite() {
-        (out.distance - out.reach)
-            .max((upper - lower).abs() - out.distance)
-            .max(0.0)
-    } else {
-        f64::NAN
-    };
+    out.error_bound = least_error(out.distance, out.reach, (upper - lower).abs());
     let mut job = TwoBoneIk::new(0, 1, 2, case.target, setup.pole);
     job.hinge = setup.hinge;
     let started = Instant::now();
