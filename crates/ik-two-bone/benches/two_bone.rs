@@ -11,40 +11,17 @@
 //! - `two_bone/fk_only`: forward kinematics of the same three joints alone (what every
 //!   solve includes), as the yardstick for the machine the numbers come from.
 
+mod common;
+
+use common::{job, limb, rest, targets};
 use criterion::{Criterion, criterion_group, criterion_main};
-use sinew_ik_two_bone::{Hinge, TwoBoneIk};
-use sinew_math::DVec3;
-use sinew_skeleton::{GlobalPose, Skeleton};
+use sinew_ik_two_bone::TwoBoneIk;
 use std::hint::black_box;
 
-fn targets(n: usize) -> Vec<DVec3> {
-    let mut state = 0x2b0e_u64;
-    let mut next = move || {
-        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-    };
-    let mut out = Vec::with_capacity(n);
-    while out.len() < n {
-        let p = DVec3::new(next(), next(), next());
-        if p.length() <= 1.0 {
-            out.push(p * 0.6);
-        }
-    }
-    out
-}
-
 fn bench_solve(c: &mut Criterion) {
-    let skeleton = Skeleton::chain(
-        DVec3::ZERO,
-        &[DVec3::new(0.30, 0.0, 0.0), DVec3::new(0.25, 0.0, 0.0)],
-    )
-    .expect("valid limb");
+    let skeleton = limb();
     let targets = targets(256);
-    let mut base = TwoBoneIk::new(0, 1, 2, DVec3::ZERO, DVec3::new(0.0, -1.0, -1.0));
-    base.hinge = Hinge::new(DVec3::Z, 0.0, 150f64.to_radians());
+    let base = job();
     let soft = TwoBoneIk {
         soften: 0.9,
         weight: 0.7,
@@ -54,11 +31,7 @@ fn bench_solve(c: &mut Criterion) {
         ("two_bone/solve", base),
         ("two_bone/solve_soft_blend", soft),
     ] {
-        let mut pose = skeleton.rest_pose();
-        let mut global = GlobalPose::new();
-        skeleton
-            .forward_kinematics(&pose, &mut global)
-            .expect("valid pose");
+        let (mut pose, mut global) = rest(&skeleton);
         let mut job = job;
         let mut i = 0;
         c.bench_function(name, |b| {
@@ -75,20 +48,10 @@ fn bench_solve(c: &mut Criterion) {
 }
 
 fn bench_prepared(c: &mut Criterion) {
-    let skeleton = Skeleton::chain(
-        DVec3::ZERO,
-        &[DVec3::new(0.30, 0.0, 0.0), DVec3::new(0.25, 0.0, 0.0)],
-    )
-    .expect("valid limb");
+    let skeleton = limb();
     let targets = targets(256);
-    let mut job = TwoBoneIk::new(0, 1, 2, DVec3::ZERO, DVec3::new(0.0, -1.0, -1.0));
-    job.hinge = Hinge::new(DVec3::Z, 0.0, 150f64.to_radians());
-    let mut prepared = job.prepare(&skeleton).expect("valid job");
-    let mut pose = skeleton.rest_pose();
-    let mut global = GlobalPose::new();
-    skeleton
-        .forward_kinematics(&pose, &mut global)
-        .expect("valid pose");
+    let mut prepared = job().prepare(&skeleton).expect("valid job");
+    let (mut pose, mut global) = rest(&skeleton);
     let mut i = 0;
     c.bench_function("two_bone/prepared", |b| {
         b.iter(|| {
@@ -103,16 +66,8 @@ fn bench_prepared(c: &mut Criterion) {
 }
 
 fn bench_fk_only(c: &mut Criterion) {
-    let skeleton = Skeleton::chain(
-        DVec3::ZERO,
-        &[DVec3::new(0.30, 0.0, 0.0), DVec3::new(0.25, 0.0, 0.0)],
-    )
-    .expect("valid limb");
-    let pose = skeleton.rest_pose();
-    let mut global = GlobalPose::new();
-    skeleton
-        .forward_kinematics(&pose, &mut global)
-        .expect("valid pose");
+    let skeleton = limb();
+    let (pose, mut global) = rest(&skeleton);
     c.bench_function("two_bone/fk_only", |b| {
         b.iter(|| {
             skeleton
