@@ -700,7 +700,7 @@ pub struct Pose {
 }
 
 /// Global rotations and positions of every joint, as forward kinematics computes them.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Debug, Default, PartialEq)]
 pub struct GlobalPose {
     /// Global rotation of each joint.
     pub rotations: Vec<DQuat>,
@@ -708,6 +708,24 @@ pub struct GlobalPose {
     pub positions: Vec<DVec3>,
     /// Scratch for forward kinematics from a joint in non-depth-first skeletons.
     dirty: Vec<bool>,
+}
+
+impl Clone for GlobalPose {
+    fn clone(&self) -> Self {
+        Self {
+            rotations: self.rotations.clone(),
+            positions: self.positions.clone(),
+            dirty: self.dirty.clone(),
+        }
+    }
+
+    /// Copies `source` into `self`'s buffers, which allocates nothing when they are
+    /// large enough (the derived `clone_from` would build a new pose and drop the old).
+    fn clone_from(&mut self, source: &Self) {
+        self.rotations.clone_from(&source.rotations);
+        self.positions.clone_from(&source.positions);
+        self.dirty.clone_from(&source.dirty);
+    }
 }
 
 impl GlobalPose {
@@ -1036,6 +1054,28 @@ mod tests {
                 "bone {i}: {length} vs {rest}"
             );
         }
+    }
+
+    #[test]
+    fn clone_from_copies_a_global_pose_into_the_buffers_it_has() {
+        // Solvers size scratch global poses with `clone_from` so that a later structure
+        // change does not allocate: the buffers must be kept, the contents equal.
+        let skel = Skeleton::chain(DVec3::ZERO, &[DVec3::X, DVec3::Y, DVec3::Z]).unwrap();
+        let mut pose = skel.rest_pose();
+        pose.rotations[1] = DQuat::from_rotation_z(0.3);
+        let mut source = GlobalPose::new();
+        skel.forward_kinematics(&pose, &mut source).unwrap();
+        let mut target = GlobalPose::new();
+        skel.forward_kinematics(&skel.rest_pose(), &mut target)
+            .unwrap();
+        let buffers = (target.rotations.as_ptr(), target.positions.as_ptr());
+        target.clone_from(&source);
+        assert_eq!(target, source);
+        assert_eq!(
+            (target.rotations.as_ptr(), target.positions.as_ptr()),
+            buffers
+        );
+        assert_eq!(source.clone(), source);
     }
 
     #[test]
