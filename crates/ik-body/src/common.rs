@@ -62,12 +62,9 @@ pub(crate) struct Common {
     pub initial: Vec<(f64, f64)>,
     pub initial_cost: f64,
     pub dls: Finish,
-    /// A pose kept while one pass is tried, and the best pose kept while a restart is
-    /// tried (two buffers: a restart runs passes).
-    kept: Vec<DQuat>,
-    best: Vec<DQuat>,
-    /// The starting pose (projected onto the limits) and translation.
-    start: Vec<DQuat>,
+    /// The buffers a solve writes before it reads them (see [`Common::swap_scratch`]).
+    pub scratch: CommonScratch,
+    /// The starting translation (the starting pose is [`CommonScratch::start`]).
     start_translation: DVec3,
     /// Per target: how far from its goal a pinned effector may end (the tolerance, or
     /// its distance at the start if that is larger).
@@ -79,10 +76,8 @@ pub(crate) struct Common {
     seedable: Vec<(usize, usize)>,
     /// The limbs seeded only when the body is placed (see [`PLACED_LIMB_SEED_DISTANCE`]).
     nearer: Vec<(usize, usize)>,
-    /// The last extrapolated start's first-order part ([`Common::predict`]): per joint the
-    /// extrapolated rotation and whether the joint took it, and the translation.
-    pub first_order: Vec<DQuat>,
-    pub extrapolated: Vec<bool>,
+    /// The translation of the last extrapolated start's first-order part (its rotations
+    /// are [`CommonScratch::first_order`]).
     pub first_order_translation: DVec3,
     /// Per joint: a rotation known to be its own projection onto the joint's limit, with
     /// no violation (`PreparedLimit::violation_and_fixed` says `(0, true)`), if any; filled
@@ -95,16 +90,40 @@ pub(crate) struct Common {
     /// projection, under the same limits as `fixed` (kept apart from it, which the
     /// answers overwrite), so that cold starts from one pose (a rest pose) project it once.
     start_fixed: Vec<Option<DQuat>>,
+}
+
+/// The buffers of [`Common`] that a solve writes before it reads them, lent by a batch
+/// (see [`Common::swap_scratch`]).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct CommonScratch {
+    /// A pose kept while one pass is tried, and the best pose kept while a restart is
+    /// tried (two buffers: a restart runs passes).
+    pub kept: Vec<DQuat>,
+    pub best: Vec<DQuat>,
+    /// The starting pose (projected onto the limits).
+    pub start: Vec<DQuat>,
+    /// The last extrapolated start's first-order part ([`Common::predict`]): per joint the
+    /// extrapolated rotation and whether the joint took it.
+    pub first_order: Vec<DQuat>,
+    pub extrapolated: Vec<bool>,
     /// The global poses of the extrapolated start ([`Common::predict`]): the corrected
     /// one and the first-order one, computed here rather than in the state so that the
     /// state keeps the global pose of the pose given, and a start not kept (or the
     /// start of the two not kept) costs no forward kinematics to undo.
-    predicted_global: GlobalPose,
-    plain_global: GlobalPose,
+    pub predicted_global: GlobalPose,
+    pub plain_global: GlobalPose,
     /// The debug build's check that a report's global pose is forward kinematics of its
     /// pose, in a buffer of its own so that the debug build does not allocate either.
     #[cfg(debug_assertions)]
-    debug_global: GlobalPose,
+    pub debug_global: GlobalPose,
+}
+
+/// The buffers a solve writes before it reads them, [`CommonScratch`] and the finish's,
+/// which a batch of characters solved one after another lends each solver in turn.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct SolveScratch {
+    common: CommonScratch,
+    finish: sinew_skeleton::finish::FinishScratch,
 }
 
 /// More cached limbs than this (many skeletons through one solver) and the cache starts
@@ -117,6 +136,14 @@ pub(crate) enum Begin {
     Done(BodyReport),
     /// Iterate from the (projected) starting pose.
     Iterate,
+}
+
+impl SolveScratch {
+    /// Exchanges `common`'s scratch buffers (its own and its finish's) with these.
+    pub fn swap_with(&mut self, common: &mut Common) {
+        std::mem::swap(&mut self.common, &mut common.scratch);
+        common.dls.swap_scratch(&mut self.finish);
+    }
 }
 
 impl Common {
@@ -178,19 +205,23 @@ impl Common {
         if !same_problem {
             self.fixed.clear();
             self.start_fixed.clear();
-            // The poses kept aside for a pass or a restart, sized now: a restart may come
-            // hundreds of frames after the first solve, and a warm solve must not
-            // allocate then.
-            for kept in [&mut self.kept, &mut self.best] {
+        }
+        // The poses kept aside for a pass or a restart, sized now: a restart may come
+        // hundreds of frames after the first solve, and a warm solve must not allocate
+        // then. And the extrapolated starts' global poses (each written whole by forward
+        // kinematics before it is read), the first-order one used only now and then.
+        // Sized at a change of structure, and when a batch has lent buffers of another
+        // size.
+        let scratch = &mut self.scratch;
+        if !same_problem || scratch.predicted_global.rotations.len() != skeleton.len() {
+            for kept in [&mut scratch.kept, &mut scratch.best] {
                 kept.clear();
                 kept.reserve(skeleton.len());
             }
-            // And the extrapolated starts' global poses (each written whole by forward
-            // kinematics before it is read), the first-order one used only now and then.
-            self.predicted_global.clone_from(&state.global);
-            self.plain_global.clone_from(&state.global);
+            scratch.predicted_global.clone_from(&state.global);
+            scratch.plain_global.clone_from(&state.global);
             #[cfg(debug_assertions)]
-            self.debug_global.clone_from(&state.global);
+            scratch.debug_global.clone_from(&state.global);
         }
         self.fixed.resize(skeleton.len(), None);
         if continued {
@@ -212,8 +243,8 @@ impl Common {
         if moved {
             state.update_global(skeleton)?;
         }
-        self.start.clear();
-        self.start.extend_from_slice(&state.pose.rotations);
+        self.scratch.start.clear();
+        self.scratch.start.extend_from_slice(&state.pose.rotations);
         self.start_translation = state.root_translation;
         resolve_targets(problem, &mut self.targets);
         if !same_problem {
@@ -353,7 +384,7 @@ impl Common {
     ) -> BodyReport {
         #[cfg(debug_assertions)]
         {
-            let check = &mut self.debug_global;
+            let check = &mut self.scratch.debug_global;
             let _ = crate::problem::forward_kinematics(
                 problem.skeleton,
                 &state.pose,
@@ -392,15 +423,15 @@ impl Common {
 
     /// Keeps `state`'s pose aside (see [`Common::restore`]).
     pub fn keep(&mut self, state: &BodyState) -> DVec3 {
-        self.kept.clear();
-        self.kept.extend_from_slice(&state.pose.rotations);
+        self.scratch.kept.clear();
+        self.scratch.kept.extend_from_slice(&state.pose.rotations);
         state.root_translation
     }
 
     /// Keeps `state`'s pose aside as the best so far (see [`Common::restore_best`]).
     pub fn keep_best(&mut self, state: &BodyState) -> DVec3 {
-        self.best.clear();
-        self.best.extend_from_slice(&state.pose.rotations);
+        self.scratch.best.clear();
+        self.scratch.best.extend_from_slice(&state.pose.rotations);
         state.root_translation
     }
 
@@ -411,7 +442,7 @@ impl Common {
         state: &mut BodyState,
         translation: DVec3,
     ) -> Result<(), IkError> {
-        put_back(&self.best, problem, state, translation)
+        put_back(&self.scratch.best, problem, state, translation)
     }
 
     /// Puts the kept pose back and recomputes forward kinematics.
@@ -421,7 +452,7 @@ impl Common {
         state: &mut BodyState,
         translation: DVec3,
     ) -> Result<(), IkError> {
-        put_back(&self.kept, problem, state, translation)
+        put_back(&self.scratch.kept, problem, state, translation)
     }
 
     /// The seed of restart number `k >= 1` after a local minimum, from the starting pose:
@@ -435,7 +466,7 @@ impl Common {
         state: &mut BodyState,
         k: usize,
     ) -> Result<(), IkError> {
-        state.pose.rotations.copy_from_slice(&self.start);
+        state.pose.rotations.copy_from_slice(&self.scratch.start);
         state.root_translation = self.start_translation;
         let mut rng = Rng::new(0x5EED_0000 + k as u64);
         for &j in self.topology.movable() {
@@ -479,7 +510,7 @@ impl Common {
         problem: &BodyProblem<'_>,
         state: &mut BodyState,
     ) -> Result<(), IkError> {
-        state.pose.rotations.copy_from_slice(&self.start);
+        state.pose.rotations.copy_from_slice(&self.scratch.start);
         state.root_translation = self.start_translation;
         for &j in self.topology.movable() {
             let limit = problem.skeleton.prepared_limit(j);
@@ -522,8 +553,8 @@ impl Common {
     ) -> Result<bool, IkError> {
         let skeleton = problem.skeleton;
         let before = self.cost(state);
-        self.kept.clear();
-        self.kept.extend_from_slice(&state.pose.rotations);
+        self.scratch.kept.clear();
+        self.scratch.kept.extend_from_slice(&state.pose.rotations);
         let kept_translation = state.root_translation;
         self.seedable.clear();
         self.nearer.clear();
@@ -618,7 +649,7 @@ impl Common {
         if self.cost(state) < before && self.pins_hold(problem, state) {
             return Ok(true);
         }
-        state.pose.rotations.copy_from_slice(&self.kept);
+        state.pose.rotations.copy_from_slice(&self.scratch.kept);
         state.root_translation = kept_translation;
         state.update_global(skeleton)?;
         Ok(false)
@@ -823,15 +854,15 @@ impl Common {
         let skeleton = problem.skeleton;
         // The state is still the one `begin` measured.
         let before = self.initial_cost;
-        self.kept.clear();
-        self.kept.extend_from_slice(&state.pose.rotations);
+        self.scratch.kept.clear();
+        self.scratch.kept.extend_from_slice(&state.pose.rotations);
         let kept_translation = state.root_translation;
         let joints = state.pose.rotations.len();
         let corrected = carried.has_correction && carried.correction.len() == joints;
-        self.first_order.clear();
-        self.first_order.resize(joints, DQuat::IDENTITY);
-        self.extrapolated.clear();
-        self.extrapolated.resize(joints, false);
+        self.scratch.first_order.clear();
+        self.scratch.first_order.resize(joints, DQuat::IDENTITY);
+        self.scratch.extrapolated.clear();
+        self.scratch.extrapolated.resize(joints, false);
         let mut moved = false;
         for &j in self.topology.movable() {
             let (now, then) = (carried.last[j], carried.before[j]);
@@ -857,8 +888,8 @@ impl Common {
             // clamped only to be dropped.)
             if matches!(limit.limit(), JointLimit::Free) || limit.keeps(next) {
                 state.pose.rotations[j] = next;
-                self.first_order[j] = first;
-                self.extrapolated[j] = true;
+                self.scratch.first_order[j] = first;
+                self.scratch.extrapolated[j] = true;
                 moved = true;
             }
         }
@@ -884,9 +915,9 @@ impl Common {
             skeleton,
             &state.pose,
             state.root_translation,
-            &mut self.predicted_global,
+            &mut self.scratch.predicted_global,
         )?;
-        let mut cost = total_cost(&self.targets, &self.predicted_global);
+        let mut cost = total_cost(&self.targets, &self.scratch.predicted_global);
         // The corrected start is nearly always far better than the first-order one (its
         // error is the motion's third difference instead of its second); where it is
         // not clearly so (after the motion or the active set changed, the correction is
@@ -899,19 +930,22 @@ impl Common {
                 skeleton,
                 &state.pose,
                 self.first_order_translation,
-                &mut self.plain_global,
+                &mut self.scratch.plain_global,
             )?;
-            let plain = total_cost(&self.targets, &self.plain_global);
+            let plain = total_cost(&self.targets, &self.scratch.plain_global);
             if plain <= cost {
                 // Kept; `first_order` now holds the corrected rotations, which the
                 // answer's correction must not be measured from.
                 for &j in self.topology.movable() {
-                    if self.extrapolated[j] {
-                        self.first_order[j] = state.pose.rotations[j];
+                    if self.scratch.extrapolated[j] {
+                        self.scratch.first_order[j] = state.pose.rotations[j];
                     }
                 }
                 state.root_translation = self.first_order_translation;
-                std::mem::swap(&mut self.predicted_global, &mut self.plain_global);
+                std::mem::swap(
+                    &mut self.scratch.predicted_global,
+                    &mut self.scratch.plain_global,
+                );
                 cost = plain;
             } else {
                 self.swap_first_order(state);
@@ -919,10 +953,10 @@ impl Common {
             }
         }
         if cost < before {
-            std::mem::swap(&mut state.global, &mut self.predicted_global);
+            std::mem::swap(&mut state.global, &mut self.scratch.predicted_global);
             return Ok(true);
         }
-        state.pose.rotations.copy_from_slice(&self.kept);
+        state.pose.rotations.copy_from_slice(&self.scratch.kept);
         state.root_translation = kept_translation;
         Ok(false)
     }
@@ -930,8 +964,11 @@ impl Common {
     /// Swaps the extrapolated joints' rotations in `state` with `first_order`.
     fn swap_first_order(&mut self, state: &mut BodyState) {
         for &j in self.topology.movable() {
-            if self.extrapolated[j] {
-                std::mem::swap(&mut state.pose.rotations[j], &mut self.first_order[j]);
+            if self.scratch.extrapolated[j] {
+                std::mem::swap(
+                    &mut state.pose.rotations[j],
+                    &mut self.scratch.first_order[j],
+                );
             }
         }
     }

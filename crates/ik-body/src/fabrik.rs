@@ -153,6 +153,13 @@ struct Passes {
 }
 
 impl TreeFabrikSolver {
+    /// Exchanges this solver's scratch buffers with `scratch` (see [`BodyBatch`]).
+    ///
+    /// [`BodyBatch`]: crate::BodyBatch
+    pub(crate) fn swap_scratch(&mut self, scratch: &mut crate::common::SolveScratch) {
+        scratch.swap_with(&mut self.common);
+    }
+
     /// The solver with default options.
     #[must_use]
     pub fn new() -> Self {
@@ -257,8 +264,8 @@ impl BodySolver for TreeFabrikSolver {
                 if self.from_prediction {
                     self.carried.record_correction(
                         state,
-                        &self.common.first_order,
-                        &self.common.extrapolated,
+                        &self.common.scratch.first_order,
+                        &self.common.scratch.extrapolated,
                         self.common.first_order_translation,
                     );
                 } else {

@@ -527,6 +527,84 @@ fn report_bits(r: &BodyReport) -> [u64; 8] {
     ]
 }
 
+/// A batch lends one set of scratch buffers to each character's solver in turn: over
+/// warm frames of characters on two skeletons of different sizes, taken in turn (so the
+/// buffers lent were last sized and filled for the other skeleton), every answer and
+/// report is, to the bit, that of a lone solver per character solving the same frames.
+#[test]
+fn a_batch_lending_its_buffers_matches_lone_solvers_over_warm_frames_of_two_skeletons() {
+    let humanoid = workload::humanoid().unwrap();
+    let arm = chain(&[DVec3::Y * 0.3; 5]);
+    let settings = SolveSettings::default();
+    let rest_humanoid = BodyState::rest(&humanoid);
+    let rest_arm = BodyState::rest(&arm);
+    let frames: Vec<[BodyEffector; 5]> = (0..workload::CLIP_FRAMES)
+        .map(|f| workload::clip_frame(&rest_humanoid.global, f))
+        .collect();
+    let characters = 10;
+    let arm_goal = |c: usize, step: usize| {
+        let a = 0.4 * step as f64 + c as f64;
+        [BodyEffector::at(
+            5,
+            DVec3::new(0.6 + 0.1 * a.sin(), 0.9, 0.2 * a.cos()),
+        )]
+    };
+    let arm_goals: Vec<Vec<[BodyEffector; 1]>> = (0..8)
+        .map(|step| (0..characters).map(|c| arm_goal(c, step)).collect())
+        .collect();
+    let problem = |c: usize, step: usize| {
+        if c.is_multiple_of(2) {
+            BodyProblem::new(&humanoid, &frames[(c * 37 + step) % frames.len()], settings)
+                .with_root_translation(true)
+        } else {
+            BodyProblem::new(&arm, &arm_goals[step][c], settings)
+        }
+    };
+    let rest = |c: usize| {
+        if c.is_multiple_of(2) {
+            rest_humanoid.clone()
+        } else {
+            rest_arm.clone()
+        }
+    };
+    // The lone solvers' answers and reports, frame by frame.
+    let steps = 8;
+    let mut expected = Vec::new();
+    let mut lone: Vec<TreeFabrikSolver> =
+        (0..characters).map(|_| TreeFabrikSolver::new()).collect();
+    let mut lone_states: Vec<BodyState> = (0..characters).map(rest).collect();
+    for step in 0..steps {
+        for c in 0..characters {
+            let report = lone[c]
+                .solve(&problem(c, step), &mut lone_states[c])
+                .unwrap();
+            assert!(
+                report.within(&settings),
+                "step {step}, character {c}: {report:?}"
+            );
+            expected.push((state_bits(&lone_states[c]), report_bits(&report)));
+        }
+    }
+    for threads in [1, 2] {
+        let mut batch = BodyBatch::new(TreeFabrikOptions::default()).unwrap();
+        let mut states: Vec<BodyState> = (0..characters).map(rest).collect();
+        let mut reports = vec![BodyReport::UNSOLVED; characters];
+        for step in 0..steps {
+            let problems: Vec<BodyProblem<'_>> =
+                (0..characters).map(|c| problem(c, step)).collect();
+            batch
+                .solve(&problems, &mut states, &mut reports, threads)
+                .unwrap();
+            for c in 0..characters {
+                let (state, report) = &expected[step * characters + c];
+                let at = format!("step {step}, character {c}, {threads} threads");
+                assert_eq!(&state_bits(&states[c]), state, "{at}");
+                assert_eq!(&report_bits(&reports[c]), report, "{at}");
+            }
+        }
+    }
+}
+
 #[test]
 fn warm_batches_on_one_and_two_threads_agree_to_the_bit() {
     let skel = workload::humanoid().unwrap();

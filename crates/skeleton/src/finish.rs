@@ -513,36 +513,70 @@ pub struct Finish {
     /// dof `k`, rows increasing.
     col_start: Vec<usize>,
     entries: Vec<(usize, f64)>,
-    /// Lower triangle of `J J^T` over every degree of freedom at the linearization point
-    /// (rows x rows, row-major); the same without the frozen and blocked ones; and its
-    /// damped Cholesky factor.
-    normal_full: Vec<f64>,
-    normal: Vec<f64>,
     /// Per movable joint: the index of its first degree of freedom (`NO_DOF` for a fixed
-    /// joint), and the world rotation vector of the current step.
+    /// joint).
     first_dof: Vec<usize>,
-    turn: Vec<DVec3>,
     /// The groups of three rows of the triples of columns (see `accumulate_normal`), and
     /// per degree of freedom that starts a triple the range of its groups (`None` when
     /// its columns do not split into groups).
     groups: Vec<Group>,
     groups_of: Vec<Option<(usize, usize)>>,
-    /// The column of one blocked direction of a joint (see `reduce`).
-    combined: Vec<(usize, f64)>,
+    /// The damped Cholesky factor of the reduced `J J^T` (see `scratch.normal`).
     factor: Vec<f64>,
     /// The transpose of `factor` (its columns as rows, for the back substitution).
     factor_t: Vec<f64>,
-    residual: Vec<f64>,
-    y: Vec<f64>,
-    step: Vec<f64>,
-    /// Per movable joint: frozen by the active set, and clamped by the last trial.
+    /// Per movable joint: frozen by the active set.
     frozen: Vec<bool>,
-    clamped: Vec<bool>,
     /// Per movable joint: the world directions of rotation the active set has blocked
-    /// (orthonormal, the first `blocked_count` of them), and the direction the last
-    /// trial's projection pulled the joint back along.
+    /// (orthonormal, the first `blocked_count` of them).
     blocked: Vec<[DVec3; 2]>,
     blocked_count: Vec<usize>,
+    /// Per target: how far from its pin a pinned effector may end (its distance at the
+    /// start of the finish, or the tolerance if larger), and how far an intermediate
+    /// step may take it (`PIN_SLACK` times more).
+    pin_allowed: Vec<f64>,
+    pin_slack: Vec<f64>,
+    /// The translation and the cost of the best pose accepted so far with every pin
+    /// within `pin_allowed` (its rotations are `scratch.best`).
+    best_translation: DVec3,
+    best_cost: f64,
+    /// Whether `factor` (of `factor_rows` rows), the columns and the active set
+    /// (`frozen`, `blocked`) belong together: set by a successful factorization, cleared
+    /// by any change of the active set and by [`Finish::forget`].
+    factor_ok: bool,
+    factor_rows: usize,
+    /// Linearizations over this finish's life (see [`Finish::linearizations`]).
+    linearizations: usize,
+    /// Whether `dofs`, `col_start`, `first_dof` and the rows of `entries` were built for
+    /// the current run (its movers and targets do not change), so that a linearization
+    /// only writes the values.
+    columns_built: bool,
+    /// The buffers a run writes before it reads them.
+    scratch: FinishScratch,
+}
+
+/// The buffers of a [`Finish`] that a run writes before it reads them, so that nothing in
+/// them carries from one run to the next: a caller that runs many finishes one after
+/// another (a batch of characters) can lend each the same ones
+/// ([`Finish::swap_scratch`]), which then stay in the processor's cache instead of each
+/// finish's own being fetched from memory. What a run reads from the last one (the
+/// factor, the columns and the active set of a chord start) stays in the [`Finish`].
+#[derive(Clone, Debug, Default)]
+pub struct FinishScratch {
+    /// Lower triangle of `J J^T` over every degree of freedom at the linearization point
+    /// (rows x rows, row-major), and the same without the frozen and blocked ones.
+    normal_full: Vec<f64>,
+    normal: Vec<f64>,
+    /// Per movable joint: the world rotation vector of the current step.
+    turn: Vec<DVec3>,
+    residual: Vec<f64>,
+    /// The column of one blocked direction of a joint (see `reduce`).
+    combined: Vec<(usize, f64)>,
+    y: Vec<f64>,
+    step: Vec<f64>,
+    /// Per movable joint: clamped by the last trial, and the direction the last trial's
+    /// projection pulled the joint back along.
+    clamped: Vec<bool>,
     pulled_back: Vec<DVec3>,
     /// Per movable joint: whether the projection may have left it on its bound (it was
     /// clamped by the last accepted trial, or the finish just started), and then the
@@ -553,32 +587,14 @@ pub struct Finish {
     /// The movable joints' local rotations and the global pose before a trial.
     saved: Vec<DQuat>,
     saved_global: GlobalPose,
-    /// Per target: how far from its pin a pinned effector may end (its distance at the
-    /// start of the finish, or the tolerance if larger), and how far an intermediate
-    /// step may take it (`PIN_SLACK` times more).
-    pin_allowed: Vec<f64>,
-    pin_slack: Vec<f64>,
-    /// The best pose accepted so far with every pin within `pin_allowed`: the movable
-    /// joints' rotations, the translation, and its cost.
+    /// The movable joints' rotations of the best pose accepted so far with every pin
+    /// within `pin_allowed`.
     best: Vec<DQuat>,
-    best_translation: DVec3,
-    best_cost: f64,
-    /// Whether `factor` (of `factor_rows` rows), the columns and the active set
-    /// (`frozen`, `blocked`) belong together: set by a successful factorization, cleared
-    /// by any change of the active set and by [`Finish::forget`].
-    factor_ok: bool,
-    factor_rows: usize,
-    /// Linearizations over this finish's life (see [`Finish::linearizations`]).
-    linearizations: usize,
     /// The cost before each step of the current run (for [`FinishJob::stall_window`]).
     history: Vec<f64>,
     /// Per movable joint: the last rotation this run's projections returned as the
     /// rotation given, by the quick inside test (see [`Finish::fixed_rotations`]).
     fixed: Vec<Option<DQuat>>,
-    /// Whether `dofs`, `col_start`, `first_dof` and the rows of `entries` were built for
-    /// the current run (its movers and targets do not change), so that a linearization
-    /// only writes the values.
-    columns_built: bool,
 }
 
 /// The finish of a chain solver: the chain's one effector, turned by the chain's movable
@@ -710,6 +726,16 @@ impl Finish {
         self.factor_ok = false;
     }
 
+    /// Exchanges this finish's scratch buffers with `scratch`: a caller running many
+    /// finishes one after another lends each the same buffers before its run and takes
+    /// them back after, so that they stay in cache. A run writes every scratch buffer
+    /// before reading it, so its results are the same to the bit whatever buffers it was
+    /// lent (of any size or content); only [`Finish::fixed_rotations`] reads the lent
+    /// buffers, and so must be read before they are taken back.
+    pub fn swap_scratch(&mut self, scratch: &mut FinishScratch) {
+        std::mem::swap(&mut self.scratch, scratch);
+    }
+
     /// How many times this finish has linearized (computed the columns and `J J^T`) over
     /// its life: the measure of its work that the number of trials is not, a chord step
     /// being a trial without a linearization.
@@ -729,7 +755,7 @@ impl Finish {
     /// [`PreparedLimit::violation_and_fixed`]: crate::limits::PreparedLimit::violation_and_fixed
     #[must_use]
     pub fn fixed_rotations(&self) -> &[Option<DQuat>] {
-        &self.fixed
+        &self.scratch.fixed
     }
 
     /// Frees every joint of the active set (which then no longer matches the factor).
@@ -783,8 +809,8 @@ impl Finish {
             });
         }
         let movable = job.movers.movable();
-        self.fixed.clear();
-        self.fixed.resize(movable.len(), None);
+        self.scratch.fixed.clear();
+        self.scratch.fixed.resize(movable.len(), None);
         self.first_row.clear();
         let mut rows = 0;
         for t in targets {
@@ -803,8 +829,10 @@ impl Finish {
         self.pin_slack.clear();
         self.pin_slack
             .extend(self.pin_allowed.iter().map(|&a| a * PIN_SLACK));
-        self.best.clear();
-        self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
+        self.scratch.best.clear();
+        self.scratch
+            .best
+            .extend(movable.iter().map(|&j| pose.rotations[j]));
         self.best_translation = *translation;
         self.best_cost = total_cost(targets, global);
         self.columns_built = false;
@@ -813,7 +841,7 @@ impl Finish {
         // goals and the next bring the pin back; an ending that has not brought it back
         // returns to the best pose that kept every pin.
         if !pins_hold(targets, global, settings.tolerance, &self.pin_allowed) {
-            for (&saved, &j) in self.best.iter().zip(movable) {
+            for (&saved, &j) in self.scratch.best.iter().zip(movable) {
                 pose.rotations[j] = saved;
             }
             *translation = self.best_translation;
@@ -854,14 +882,14 @@ impl Finish {
             self.blocked_count.clear();
             self.blocked_count.resize(movable.len(), 0);
         }
-        self.clamped.clear();
-        self.clamped.resize(movable.len(), false);
-        self.pulled_back.clear();
-        self.pulled_back.resize(movable.len(), DVec3::ZERO);
-        self.on_bound.clear();
-        self.on_bound.resize(movable.len(), true);
-        self.outward.clear();
-        self.outward.resize(movable.len(), [DVec3::ZERO; 2]);
+        self.scratch.clamped.clear();
+        self.scratch.clamped.resize(movable.len(), false);
+        self.scratch.pulled_back.clear();
+        self.scratch.pulled_back.resize(movable.len(), DVec3::ZERO);
+        self.scratch.on_bound.clear();
+        self.scratch.on_bound.resize(movable.len(), true);
+        self.scratch.outward.clear();
+        self.scratch.outward.resize(movable.len(), [DVec3::ZERO; 2]);
         // A start already within the tolerances (a closed-form seed usually is) needs no
         // outward normals: the loop below returns before its first step.
         if all_within(targets, global, settings) {
@@ -870,16 +898,16 @@ impl Finish {
                 steps: 0,
             });
         }
-        self.normal.resize(rows * rows, 0.0);
-        self.normal_full.resize(rows * rows, 0.0);
-        self.turn.clear();
-        self.turn.resize(movable.len(), DVec3::ZERO);
-        self.residual.resize(rows, 0.0);
+        self.scratch.normal.resize(rows * rows, 0.0);
+        self.scratch.normal_full.resize(rows * rows, 0.0);
+        self.scratch.turn.clear();
+        self.scratch.turn.resize(movable.len(), DVec3::ZERO);
+        self.scratch.residual.resize(rows, 0.0);
         // A blocked direction's column has at most `rows` entries: sized here, not when a
         // joint first reaches a curved bound, so that a warm run does not allocate then.
-        self.combined.clear();
-        self.combined.reserve(rows);
-        self.y.resize(rows, 0.0);
+        self.scratch.combined.clear();
+        self.scratch.combined.reserve(rows);
+        self.scratch.y.resize(rows, 0.0);
         // `run` has just measured this pose's cost as the best so far.
         let mut cost = self.best_cost;
         let mut damping = f64::NAN;
@@ -898,7 +926,7 @@ impl Finish {
         let mut chord = chord_start;
         let mut chords = 0;
         let mut outward_stale = true;
-        self.history.clear();
+        self.scratch.history.clear();
         // Whether the pose is one already found outside the tolerances: the start (tested
         // above), and again after a rejected trial (which restores the pose, the
         // translation and the global pose to their bits) or a solve again after the active
@@ -913,11 +941,11 @@ impl Finish {
             }
             known_outside = true;
             if job.stall_window > 0 {
-                while self.history.len() <= steps {
-                    self.history.push(cost);
+                while self.scratch.history.len() <= steps {
+                    self.scratch.history.push(cost);
                 }
                 if steps >= job.stall_window
-                    && cost * STALL_FACTOR > self.history[steps - job.stall_window]
+                    && cost * STALL_FACTOR > self.scratch.history[steps - job.stall_window]
                 {
                     return Ok(Finished {
                         stop: StopReason::LocalMinimum,
@@ -967,7 +995,7 @@ impl Finish {
                     });
                 }
                 if damping.is_nan() {
-                    let trace: f64 = (0..rows).map(|a| self.normal[a * rows + a]).sum();
+                    let trace: f64 = (0..rows).map(|a| self.scratch.normal[a * rows + a]).sum();
                     // Far from the goals (a cold start) a cautious first step, near them (a warm
                     // frame) a nearly Gauss-Newton one: the damping follows the cost, as in
                     // Yamashita and Fukushima's choice `lambda = |r|^2`, capped by the scale
@@ -998,7 +1026,7 @@ impl Finish {
                         if k != NO_DOF
                             && skeleton.prepared_limit(j).hinge_pushes_outwards(
                                 pose.rotations[j],
-                                self.step[k],
+                                self.scratch.step[k],
                                 AT_BOUND,
                             )
                         {
@@ -1012,8 +1040,8 @@ impl Finish {
                 // the bound's outward normal would be projected away; block that direction
                 // (the joint keeps sliding along the bound) and solve again.
                 for (m, &j) in movable.iter().enumerate() {
-                    let w = self.turn[m];
-                    if self.outward[m] == [DVec3::ZERO; 2] || w == DVec3::ZERO {
+                    let w = self.scratch.turn[m];
+                    if self.scratch.outward[m] == [DVec3::ZERO; 2] || w == DVec3::ZERO {
                         continue;
                     }
                     let parent = skeleton
@@ -1021,12 +1049,12 @@ impl Finish {
                         .map_or(DQuat::IDENTITY, |p| global.rotations[p]);
                     let local = parent.conjugate() * w;
                     for g in 0..2 {
-                        let n = self.outward[m][g];
+                        let n = self.scratch.outward[m][g];
                         if n != DVec3::ZERO && local.dot(n) > 0.0 && !self.frozen[m] {
-                            self.pulled_back[m] = parent * n;
+                            self.scratch.pulled_back[m] = parent * n;
                             self.block(skeleton.limit(j), m);
                             // Blocked once per linearization: the normal is not asked again.
-                            self.outward[m][g] = DVec3::ZERO;
+                            self.scratch.outward[m][g] = DVec3::ZERO;
                             resolving = true;
                             break;
                         }
@@ -1037,14 +1065,15 @@ impl Finish {
                 }
                 shift
             };
-            self.saved.clear();
-            self.saved
+            self.scratch.saved.clear();
+            self.scratch
+                .saved
                 .extend(movable.iter().map(|&j| pose.rotations[j]));
             let saved_translation = *translation;
             // Without a base, forward kinematics writes every joint and reads nothing of
             // the global pose it overwrites: the pose before the trial is kept by handing
             // its buffers over (swapped back on a rejection) instead of copied.
-            let mut before = std::mem::take(&mut self.saved_global);
+            let mut before = std::mem::take(&mut self.scratch.saved_global);
             if job.base.is_none() {
                 std::mem::swap(global, &mut before);
             } else {
@@ -1052,7 +1081,7 @@ impl Finish {
                 before.positions.clone_from(&global.positions);
             }
             self.apply_step(skeleton, movable, pose, &before);
-            self.saved_global = before;
+            self.scratch.saved_global = before;
             *translation += shift;
             translated_forward_kinematics(skeleton, pose, *translation, job.base, global)?;
             let trial_cost = total_cost(targets, global);
@@ -1061,8 +1090,10 @@ impl Finish {
                 if trial_cost < self.best_cost
                     && pins_hold(targets, global, settings.tolerance, &self.pin_allowed)
                 {
-                    self.best.clear();
-                    self.best.extend(movable.iter().map(|&j| pose.rotations[j]));
+                    self.scratch.best.clear();
+                    self.scratch
+                        .best
+                        .extend(movable.iter().map(|&j| pose.rotations[j]));
                     self.best_translation = *translation;
                     self.best_cost = trial_cost;
                 }
@@ -1091,7 +1122,7 @@ impl Finish {
                 rejections = 0;
                 fresh = false;
                 known_outside = false;
-                for (on, &clamped) in self.on_bound.iter_mut().zip(&self.clamped) {
+                for (on, &clamped) in self.scratch.on_bound.iter_mut().zip(&self.scratch.clamped) {
                     *on |= clamped;
                 }
                 outward_stale = true;
@@ -1108,15 +1139,19 @@ impl Finish {
                 }
                 continue;
             }
-            for (&saved, &j) in self.saved.iter().zip(movable) {
+            for (&saved, &j) in self.scratch.saved.iter().zip(movable) {
                 pose.rotations[j] = saved;
             }
             *translation = saved_translation;
             if job.base.is_none() {
-                std::mem::swap(global, &mut self.saved_global);
+                std::mem::swap(global, &mut self.scratch.saved_global);
             } else {
-                global.rotations.clone_from(&self.saved_global.rotations);
-                global.positions.clone_from(&self.saved_global.positions);
+                global
+                    .rotations
+                    .clone_from(&self.scratch.saved_global.rotations);
+                global
+                    .positions
+                    .clone_from(&self.scratch.saved_global.positions);
             }
             if chord {
                 // The chord step did not pay: linearize here, as after any accepted step.
@@ -1132,7 +1167,7 @@ impl Finish {
             let mut newly_frozen = false;
             damping *= CLAMP_GROWTH;
             for (m, &j) in movable.iter().enumerate() {
-                if self.clamped[m] && !self.frozen[m] {
+                if self.scratch.clamped[m] && !self.frozen[m] {
                     self.block(skeleton.limit(j), m);
                     newly_frozen = true;
                 }
@@ -1273,10 +1308,10 @@ impl Finish {
     fn residual_at(&mut self, targets: &[Target], global: &GlobalPose) {
         for (t, &row) in targets.iter().zip(&self.first_row) {
             let p = (t.position - global.positions[t.joint]) * t.position_weight;
-            self.residual[row..row + 3].copy_from_slice(&[p.x, p.y, p.z]);
+            self.scratch.residual[row..row + 3].copy_from_slice(&[p.x, p.y, p.z]);
             if t.has_rotation() {
                 let r = t.rotation_residual(global) * t.rotation_weight;
-                self.residual[row + 3..row + 6].copy_from_slice(&[r.x, r.y, r.z]);
+                self.scratch.residual[row + 3..row + 6].copy_from_slice(&[r.x, r.y, r.z]);
             }
         }
     }
@@ -1286,12 +1321,12 @@ impl Finish {
     /// (0 inside, growing linearly outside): zero for a joint inside its limit.
     fn find_outward(&mut self, skeleton: &Skeleton, movable: &[usize], pose: &Pose) {
         for (m, &j) in movable.iter().enumerate() {
-            self.outward[m] = [DVec3::ZERO; 2];
-            if !self.on_bound[m] {
+            self.scratch.outward[m] = [DVec3::ZERO; 2];
+            if !self.scratch.on_bound[m] {
                 continue;
             }
             let JointLimit::SwingTwist(st) = skeleton.limit(j) else {
-                self.on_bound[m] = false;
+                self.scratch.on_bound[m] = false;
                 continue;
             };
             // The swing bound and the twist range are two constraints, which can both
@@ -1306,7 +1341,7 @@ impl Finish {
             // perturbed rotation is inside): one decomposition tells, instead of six.
             // Most joints of a warm frame are.
             if st.deep_inside(&frame, local, DEEP_INSIDE) {
-                self.on_bound[m] = false;
+                self.scratch.on_bound[m] = false;
                 continue;
             }
             // The six small turns are the same every time: made once per process.
@@ -1325,9 +1360,9 @@ impl Finish {
                 normals[0] += e * (plus.0 - minus.0);
                 normals[1] += e * (plus.1 - minus.1);
             }
-            self.outward[m] = normals.map(|n| n.try_normalize().unwrap_or(DVec3::ZERO));
+            self.scratch.outward[m] = normals.map(|n| n.try_normalize().unwrap_or(DVec3::ZERO));
             // Off both bounds: no longer watched until a projection clamps it again.
-            self.on_bound[m] = self.outward[m] != [DVec3::ZERO; 2];
+            self.scratch.on_bound[m] = self.scratch.outward[m] != [DVec3::ZERO; 2];
         }
     }
 
@@ -1341,13 +1376,13 @@ impl Finish {
             self.frozen[m] = true;
             return;
         }
-        let mut d = self.pulled_back[m];
+        let mut d = self.scratch.pulled_back[m];
         for b in &self.blocked[m][..self.blocked_count[m]] {
             d -= *b * b.dot(d);
         }
         match (d.try_normalize(), self.blocked_count[m]) {
             (Some(unit), count)
-                if count < 2 && d.length() > 1e-3 * self.pulled_back[m].length() =>
+                if count < 2 && d.length() > 1e-3 * self.scratch.pulled_back[m].length() =>
             {
                 self.blocked[m][count] = unit;
                 self.blocked_count[m] = count + 1;
@@ -1379,7 +1414,7 @@ impl Finish {
     /// and a sum is `-0` only when both terms are), so the bits are those of every
     /// product added.
     fn accumulate_normal(&mut self, rows: usize) {
-        self.normal_full[..rows * rows].fill(0.0);
+        self.scratch.normal_full[..rows * rows].fill(0.0);
         self.groups.clear();
         self.groups_of.clear();
         self.groups_of.resize(self.dofs.len(), None);
@@ -1397,7 +1432,7 @@ impl Finish {
                 if gather_groups(cx, cy, cz, &mut self.groups) {
                     self.groups_of[k] = Some((first, self.groups.len()));
                     add_groups(
-                        &mut self.normal_full[..rows * rows],
+                        &mut self.scratch.normal_full[..rows * rows],
                         rows,
                         &self.groups[first..],
                     );
@@ -1405,7 +1440,7 @@ impl Finish {
                     continue;
                 }
                 for (i, ((&(a, xa), &(_, ya)), &(_, za))) in cx.iter().zip(cy).zip(cz).enumerate() {
-                    let line = &mut self.normal_full[a * rows..a * rows + a + 1];
+                    let line = &mut self.scratch.normal_full[a * rows..a * rows + a + 1];
                     for ((&(b, xb), &(_, yb)), &(_, zb)) in
                         cx[..=i].iter().zip(&cy[..=i]).zip(&cz[..=i])
                     {
@@ -1421,7 +1456,7 @@ impl Finish {
             }
             let col = &self.entries[a0..a1];
             for (i, &(a, va)) in col.iter().enumerate() {
-                let line = &mut self.normal_full[a * rows..a * rows + a + 1];
+                let line = &mut self.scratch.normal_full[a * rows..a * rows + a + 1];
                 for &(b, vb) in &col[..=i] {
                     line[b] += va * vb;
                 }
@@ -1435,7 +1470,8 @@ impl Finish {
     /// `c(b) c(b)^T` (its three world-axis columns `C` span `C C^T`, and the allowed
     /// directions `P = I - sum b b^T` leave `C P C^T`). False when nothing may move.
     fn reduce(&mut self, skeleton: &Skeleton, movable: &[usize], rows: usize) -> bool {
-        self.normal[..rows * rows].copy_from_slice(&self.normal_full[..rows * rows]);
+        self.scratch.normal[..rows * rows]
+            .copy_from_slice(&self.scratch.normal_full[..rows * rows]);
         let mut active = self.dofs.last().is_some_and(|d| d.0 == TRANSLATION);
         for (m, &j) in movable.iter().enumerate() {
             let k0 = self.first_dof[m];
@@ -1449,7 +1485,7 @@ impl Finish {
             if self.frozen[m] {
                 for k in k0..k0 + count {
                     let (a, b) = (self.col_start[k], self.col_start[k + 1]);
-                    subtract_outer(&mut self.normal, rows, &self.entries[a..b]);
+                    subtract_outer(&mut self.scratch.normal, rows, &self.entries[a..b]);
                 }
                 continue;
             }
@@ -1464,8 +1500,8 @@ impl Finish {
                 );
                 // The column of the blocked direction, made once: the outer product
                 // reads each entry as often as the column has rows.
-                self.combined.clear();
-                self.combined.extend(
+                self.scratch.combined.clear();
+                self.scratch.combined.extend(
                     self.entries[x..y]
                         .iter()
                         .zip(&self.entries[y..z])
@@ -1474,7 +1510,7 @@ impl Finish {
                             (row, d.x * vx + d.y * vy + d.z * vz)
                         }),
                 );
-                subtract_outer(&mut self.normal, rows, &self.combined);
+                subtract_outer(&mut self.scratch.normal, rows, &self.scratch.combined);
             }
         }
         active
@@ -1485,9 +1521,9 @@ impl Finish {
     /// returns the translation's step.
     fn turns(&mut self, movable: &[usize]) -> DVec3 {
         let dofs = self.dofs.len();
-        self.step.clear();
-        self.step.resize(dofs, 0.0);
-        self.turn.fill(DVec3::ZERO);
+        self.scratch.step.clear();
+        self.scratch.step.resize(dofs, 0.0);
+        self.scratch.turn.fill(DVec3::ZERO);
         let columns = Columns {
             dofs: &self.dofs,
             col_start: &self.col_start,
@@ -1501,22 +1537,22 @@ impl Finish {
         };
         let shift = steps_and_turns(
             &columns,
-            &self.y,
+            &self.scratch.y,
             &self.frozen,
-            &mut self.step,
-            &mut self.turn,
+            &mut self.scratch.step,
+            &mut self.scratch.turn,
         );
         for m in 0..movable.len() {
             for i in 0..self.blocked_count[m] {
                 let b = self.blocked[m][i];
-                let w = self.turn[m];
-                self.turn[m] = w - b * b.dot(w);
+                let w = self.scratch.turn[m];
+                self.scratch.turn[m] = w - b * b.dot(w);
             }
         }
         shift
     }
 
-    /// Solves `(J J^T + damping I) y = residual` by Cholesky into `self.y`; false when a
+    /// Solves `(J J^T + damping I) y = residual` by Cholesky into `self.scratch.y`; false when a
     /// pivot is not a positive finite number.
     fn solve(&mut self, rows: usize, damping: f64) -> bool {
         self.factorize(rows, damping) && self.substitute(rows)
@@ -1552,7 +1588,7 @@ impl Finish {
             24 => return self.factorize_rows::<24>(damping),
             _ => {}
         }
-        let n = &self.normal[..size];
+        let n = &self.scratch.normal[..size];
         let l = &mut self.factor[..size];
         let lt = &mut self.factor_t[..size];
         for b in 0..rows {
@@ -1629,7 +1665,7 @@ impl Finish {
     fn factorize_rows<const N: usize>(&mut self, damping: f64) -> bool {
         let size = N * N;
         factorize_fixed::<N>(
-            self.normal[..size].as_chunks::<N>().0,
+            self.scratch.normal[..size].as_chunks::<N>().0,
             self.factor[..size].as_chunks_mut::<N>().0,
             self.factor_t[..size].as_chunks_mut::<N>().0,
             damping,
@@ -1644,8 +1680,8 @@ impl Finish {
         let size = N * N;
         let l = &self.factor[..size].as_chunks::<N>().0[..N];
         let lt = &self.factor_t[..size].as_chunks::<N>().0[..N];
-        let r = &self.residual[..N];
-        let y = &mut self.y[..N];
+        let r = &self.scratch.residual[..N];
+        let y = &mut self.scratch.y[..N];
         let mut a = 0;
         while a + 1 < N {
             let (mut s0, mut s1) = (r[a], r[a + 1]);
@@ -1680,7 +1716,7 @@ impl Finish {
     /// only: there the column order's bookkeeping costs more than it saves, and
     /// [`Finish::substitute`] reads the columns of so small a factor in place.
     fn factorize_small(&mut self, rows: usize, damping: f64) -> bool {
-        let n = &self.normal[..rows * rows];
+        let n = &self.scratch.normal[..rows * rows];
         let l = &mut self.factor[..rows * rows];
         for a in 0..rows {
             let (above, from_a) = l.split_at_mut(a * rows);
@@ -1720,7 +1756,7 @@ impl Finish {
         }
         let l = &self.factor[..rows * rows];
         let lt = &self.factor_t[..rows * rows];
-        let y = &mut self.y[..rows];
+        let y = &mut self.scratch.y[..rows];
         // Two rows at a time: the sums over the entries both rows have share the loads of
         // `y`; the second row then takes the first's new entry. Each sum runs in the
         // same order as row by row, so the same bits.
@@ -1730,7 +1766,7 @@ impl Finish {
                 &l[a * rows..=a * rows + a],
                 &l[(a + 1) * rows..=(a + 1) * rows + a + 1],
             );
-            let (mut s0, mut s1) = (self.residual[a], self.residual[a + 1]);
+            let (mut s0, mut s1) = (self.scratch.residual[a], self.scratch.residual[a + 1]);
             for ((x0, x1), v) in row0[..a].iter().zip(&row1[..a]).zip(&y[..a]) {
                 s0 -= x0 * v;
                 s1 -= x1 * v;
@@ -1743,7 +1779,7 @@ impl Finish {
         }
         if a < rows {
             let row_a = &l[a * rows..=a * rows + a];
-            let mut sum = self.residual[a];
+            let mut sum = self.scratch.residual[a];
             for (x, v) in row_a[..a].iter().zip(&y[..a]) {
                 sum -= x * v;
             }
@@ -1784,9 +1820,9 @@ impl Finish {
         pose: &mut Pose,
         global: &GlobalPose,
     ) {
-        self.clamped.fill(false);
+        self.scratch.clamped.fill(false);
         for (m, &j) in movable.iter().enumerate() {
-            let w = self.turn[m];
+            let w = self.scratch.turn[m];
             if w == DVec3::ZERO {
                 continue;
             }
@@ -1801,12 +1837,13 @@ impl Finish {
             } else {
                 let (projected, fixed) = limit.project_and_fixed(turned);
                 if fixed {
-                    self.fixed[m] = Some(projected);
+                    self.scratch.fixed[m] = Some(projected);
                 }
                 // A rotation inside its limit comes back unchanged; only one that moved
                 // needs its angle measured.
-                self.clamped[m] = projected != turned && moved_more_than_clamped(turned, projected);
-                if self.clamped[m] {
+                self.scratch.clamped[m] =
+                    projected != turned && moved_more_than_clamped(turned, projected);
+                if self.scratch.clamped[m] {
                     // The pull-back as a world rotation vector: composed on the left in the
                     // parent's frame, then turned into the world like the step.
                     let mut back = projected * turned.conjugate();
@@ -1814,7 +1851,7 @@ impl Finish {
                         back = -back;
                     }
                     let back = back.to_scaled_axis();
-                    self.pulled_back[m] = match skeleton.parent(j) {
+                    self.scratch.pulled_back[m] = match skeleton.parent(j) {
                         Some(p) => global.rotations[p] * back,
                         None => back,
                     };
@@ -2380,11 +2417,11 @@ mod tests {
             (2, 0.25),
             (3, -1.0),
         ];
-        fin.normal_full.resize(rows * rows, 0.0);
-        fin.normal.resize(rows * rows, 0.0);
+        fin.scratch.normal_full.resize(rows * rows, 0.0);
+        fin.scratch.normal.resize(rows * rows, 0.0);
         fin.factor.resize(rows * rows, 0.0);
         fin.accumulate_normal(rows);
-        fin.normal.copy_from_slice(&fin.normal_full);
+        fin.scratch.normal.copy_from_slice(&fin.scratch.normal_full);
         // Dense J, rows x dofs.
         let mut j = [[0.0; 3]; 4];
         for k in 0..3 {
@@ -2395,24 +2432,24 @@ mod tests {
         for a in 0..rows {
             for b in 0..=a {
                 let expected: f64 = (0..3).map(|k| j[a][k] * j[b][k]).sum();
-                assert!((fin.normal[a * rows + b] - expected).abs() < 1e-15);
+                assert!((fin.scratch.normal[a * rows + b] - expected).abs() < 1e-15);
             }
         }
-        fin.residual = vec![1.0, -2.0, 0.5, 3.0];
-        fin.y.resize(rows, 0.0);
+        fin.scratch.residual = vec![1.0, -2.0, 0.5, 3.0];
+        fin.scratch.y.resize(rows, 0.0);
         let damping = 0.1;
         assert!(fin.solve(rows, damping));
         for a in 0..rows {
-            let mut back = damping * fin.y[a];
+            let mut back = damping * fin.scratch.y[a];
             for b in 0..rows {
                 let n: f64 = (0..3).map(|k| j[a][k] * j[b][k]).sum();
-                back += n * fin.y[b];
+                back += n * fin.scratch.y[b];
             }
-            assert!((back - fin.residual[a]).abs() < 1e-12, "row {a}");
+            assert!((back - fin.scratch.residual[a]).abs() < 1e-12, "row {a}");
         }
         // J J^T is singular here (rank 3 of 4): without damping there is no solution,
         // and the solve says so instead of returning NaN.
-        assert!(!fin.solve(rows, 0.0) || fin.y.iter().all(|v| v.is_finite()));
+        assert!(!fin.solve(rows, 0.0) || fin.scratch.y.iter().all(|v| v.is_finite()));
     }
 
     #[test]
@@ -2440,8 +2477,8 @@ mod tests {
         let b = DVec3::new(1.0, 2.0, -2.0) / 3.0;
         fin.blocked = vec![[b, DVec3::ZERO]];
         fin.blocked_count = vec![1];
-        fin.normal_full.resize(9, 0.0);
-        fin.normal.resize(9, 0.0);
+        fin.scratch.normal_full.resize(9, 0.0);
+        fin.scratch.normal.resize(9, 0.0);
         fin.accumulate_normal(rows);
         assert!(fin.reduce(&skel, &[0], rows));
         let column = |u: DVec3| -> [f64; 3] {
@@ -2453,7 +2490,7 @@ mod tests {
             for c in 0..=a {
                 let expected = cu[a] * cu[c] + cv[a] * cv[c];
                 assert!(
-                    (fin.normal[a * rows + c] - expected).abs() < 1e-14,
+                    (fin.scratch.normal[a * rows + c] - expected).abs() < 1e-14,
                     "{a} {c}"
                 );
             }
@@ -2461,7 +2498,7 @@ mod tests {
         // Frozen: nothing of the joint is left.
         fin.frozen = vec![true];
         assert!(!fin.reduce(&skel, &[0], rows));
-        assert!(fin.normal.iter().all(|x| x.abs() < 1e-14));
+        assert!(fin.scratch.normal.iter().all(|x| x.abs() < 1e-14));
     }
 
     /// The row-by-row textbook Cholesky factor and substitutions, for the bits of the
@@ -2516,18 +2553,19 @@ mod tests {
             let cols = rows + 2;
             let j: Vec<f64> = (0..rows * cols).map(|_| next()).collect();
             let mut fin = Finish::default();
-            fin.normal = vec![0.0; rows * rows];
+            fin.scratch.normal = vec![0.0; rows * rows];
             for a in 0..rows {
                 for b in 0..=a {
-                    fin.normal[a * rows + b] =
+                    fin.scratch.normal[a * rows + b] =
                         (0..cols).map(|k| j[a * cols + k] * j[b * cols + k]).sum();
                 }
             }
-            fin.residual = (0..rows).map(|_| next()).collect();
-            fin.y = vec![0.0; rows];
-            let expected = textbook_solve(&fin.normal, &fin.residual, rows, 0.01).expect("SPD");
+            fin.scratch.residual = (0..rows).map(|_| next()).collect();
+            fin.scratch.y = vec![0.0; rows];
+            let expected = textbook_solve(&fin.scratch.normal, &fin.scratch.residual, rows, 0.01)
+                .expect("SPD");
             assert!(fin.solve(rows, 0.01));
-            for (a, (got, want)) in fin.y.iter().zip(&expected).enumerate() {
+            for (a, (got, want)) in fin.scratch.y.iter().zip(&expected).enumerate() {
                 assert_eq!(got.to_bits(), want.to_bits(), "{rows} rows, entry {a}");
             }
             for a in (0..rows).filter(|_| rows > SMALL_ROWS) {
@@ -2535,8 +2573,10 @@ mod tests {
                     assert_eq!(fin.factor[a * rows + b], fin.factor_t[b * rows + a]);
                 }
             }
-            fin.normal[(rows - 1) * rows + rows - 1] = -1.0;
-            assert!(textbook_solve(&fin.normal, &fin.residual, rows, 0.01).is_none());
+            fin.scratch.normal[(rows - 1) * rows + rows - 1] = -1.0;
+            assert!(
+                textbook_solve(&fin.scratch.normal, &fin.scratch.residual, rows, 0.01).is_none()
+            );
             assert!(!fin.solve(rows, 0.01));
         }
     }
@@ -2567,7 +2607,7 @@ mod tests {
             fin.entries.extend([(0, next()), (2, next()), (7, next())]);
             push_translation_columns(&mut fin, [w0, 1.5, w1]);
             fin.col_start.push(fin.entries.len());
-            fin.normal_full.resize(rows * rows, 0.0);
+            fin.scratch.normal_full.resize(rows * rows, 0.0);
             fin.accumulate_normal(rows);
             let mut expected = vec![0.0f64; rows * rows];
             for k in 0..fin.dofs.len() {
@@ -2580,7 +2620,10 @@ mod tests {
             }
             for a in 0..rows {
                 for b in 0..=a {
-                    let (got, want) = (fin.normal_full[a * rows + b], expected[a * rows + b]);
+                    let (got, want) = (
+                        fin.scratch.normal_full[a * rows + b],
+                        expected[a * rows + b],
+                    );
                     assert_eq!(
                         got.to_bits(),
                         want.to_bits(),
@@ -2622,13 +2665,13 @@ mod tests {
             fin.entries.extend([(0, next()), (2, next()), (7, next())]);
             push_translation_columns(&mut fin, [w0, 1.5, w1]);
             fin.col_start.push(fin.entries.len());
-            fin.normal_full.resize(rows * rows, 0.0);
+            fin.scratch.normal_full.resize(rows * rows, 0.0);
             fin.accumulate_normal(rows);
             assert!(fin.groups_of[0].is_some() && fin.groups_of[3].is_none());
-            fin.y = (0..rows).map(|_| next()).collect();
+            fin.scratch.y = (0..rows).map(|_| next()).collect();
             if round % 3 == 0 {
-                fin.y[1] = 0.0;
-                fin.y[2] = -0.0;
+                fin.scratch.y[1] = 0.0;
+                fin.scratch.y[2] = -0.0;
             }
             fin.frozen = vec![round % 4 == 1, round % 4 == 2, round % 5 == 3];
             fin.blocked = vec![[DVec3::ZERO; 2]; 3];
@@ -2637,15 +2680,15 @@ mod tests {
                 fin.blocked[0][0] = DVec3::new(next(), next(), next()).normalize();
                 fin.blocked_count[0] = 1;
             }
-            fin.turn = vec![DVec3::ZERO; 3];
+            fin.scratch.turn = vec![DVec3::ZERO; 3];
             let shift = fin.turns(&[10, 11, 12]);
 
             let mut want_turn = [DVec3::ZERO; 3];
             let mut want_shift = DVec3::ZERO;
             for (k, &(m, u)) in fin.dofs.iter().enumerate() {
                 let col = &fin.entries[fin.col_start[k]..fin.col_start[k + 1]];
-                let step: f64 = col.iter().map(|&(row, v)| v * fin.y[row]).sum();
-                assert!(same(fin.step[k], step), "round {round}: dof {k}");
+                let step: f64 = col.iter().map(|&(row, v)| v * fin.scratch.y[row]).sum();
+                assert!(same(fin.scratch.step[k], step), "round {round}: dof {k}");
                 if m == TRANSLATION {
                     want_shift += u * step;
                 } else if !fin.frozen[m] {
@@ -2656,7 +2699,7 @@ mod tests {
                 let b = fin.blocked[0][0];
                 want_turn[0] -= b * b.dot(want_turn[0]);
             }
-            for (m, (got, want)) in fin.turn.iter().zip(&want_turn).enumerate() {
+            for (m, (got, want)) in fin.scratch.turn.iter().zip(&want_turn).enumerate() {
                 for (got, want) in got.to_array().into_iter().zip(want.to_array()) {
                     assert!(same(got, want), "round {round}: joint {m}");
                 }
