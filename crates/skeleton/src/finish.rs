@@ -521,10 +521,12 @@ pub struct Finish {
     /// its columns do not split into groups).
     groups: Vec<Group>,
     groups_of: Vec<Option<(usize, usize)>>,
-    /// The damped Cholesky factor of the reduced `J J^T` (see `scratch.normal`).
+    /// The damped Cholesky factor `L` of the reduced `J J^T` (see `scratch.normal`), rows
+    /// x rows, row-major: `L` in the lower triangle and, above the diagonal, its transpose
+    /// (`factor[a][b] = L[b][a]` for `b > a`: the columns of `L` as rows, which the back
+    /// substitution reads), one buffer rather than two so that a warm run brings in half
+    /// as much. Beyond `SMALL_ROWS` only; a smaller factor has only its lower triangle.
     factor: Vec<f64>,
-    /// The transpose of `factor` (its columns as rows, for the back substitution).
-    factor_t: Vec<f64>,
     /// Per movable joint: frozen by the active set.
     frozen: Vec<bool>,
     /// Per movable joint: the world directions of rotation the active set has blocked
@@ -1558,8 +1560,9 @@ impl Finish {
         self.factorize(rows, damping) && self.substitute(rows)
     }
 
-    /// The Cholesky factor of `normal + damping I` into `factor` (row-major) and its
-    /// transpose into `factor_t`; false when a pivot is not a positive finite number.
+    /// The Cholesky factor of `normal + damping I` into `factor`'s lower triangle
+    /// (row-major) and its transpose into the upper one; false when a pivot is not a
+    /// positive finite number.
     ///
     /// Column by column: the pivot of column `b`, then every entry below it,
     /// `L[a][b] = (N[a][b] - sum_k L[a][k] L[b][k]) / L[b][b]` with the sum over `k < b`
@@ -1570,9 +1573,8 @@ impl Finish {
     /// reads.
     fn factorize(&mut self, rows: usize, damping: f64) -> bool {
         let size = rows * rows;
-        if self.factor.len() < size || self.factor_t.len() < size {
+        if self.factor.len() < size {
             self.factor.resize(size, 0.0);
-            self.factor_t.resize(size, 0.0);
         }
         if rows <= SMALL_ROWS {
             return self.factorize_small(rows, damping);
@@ -1590,7 +1592,6 @@ impl Finish {
         }
         let n = &self.scratch.normal[..size];
         let l = &mut self.factor[..size];
-        let lt = &mut self.factor_t[..size];
         for b in 0..rows {
             let (upper, lower) = l.split_at_mut((b + 1) * rows);
             let (left_b, diagonal) = upper[b * rows..].split_at_mut(b);
@@ -1603,12 +1604,10 @@ impl Finish {
                 return false;
             }
             let pivot = sum.sqrt();
+            // Row `b` from the diagonal on: the pivot, then (the transpose, above the
+            // diagonal) column `b` of the factor below it.
             diagonal[0] = pivot;
-            // Row `b` of the transpose from the diagonal on: the pivot, then column `b`
-            // of the factor below it.
-            let column = &mut lt[b * rows + b..(b + 1) * rows];
-            column[0] = pivot;
-            let below = &mut column[1..];
+            let below = &mut diagonal[1..];
             // The rows below, four, then two, then one at a time, each sum in its own
             // register in the order of `k`.
             let mut rest = lower;
@@ -1667,7 +1666,6 @@ impl Finish {
         factorize_fixed::<N>(
             self.scratch.normal[..size].as_chunks::<N>().0,
             self.factor[..size].as_chunks_mut::<N>().0,
-            self.factor_t[..size].as_chunks_mut::<N>().0,
             damping,
         )
     }
@@ -1679,7 +1677,6 @@ impl Finish {
     fn substitute_rows<const N: usize>(&mut self) -> bool {
         let size = N * N;
         let l = &self.factor[..size].as_chunks::<N>().0[..N];
-        let lt = &self.factor_t[..size].as_chunks::<N>().0[..N];
         let r = &self.scratch.residual[..N];
         let y = &mut self.scratch.y[..N];
         let mut a = 0;
@@ -1702,12 +1699,13 @@ impl Finish {
             }
             y[a] = sum / l[a][a];
         }
+        // Above the diagonal, row `a` holds column `a` of the factor.
         for a in (0..N).rev() {
             let mut sum = y[a];
             for b in a + 1..N {
-                sum -= lt[a][b] * y[b];
+                sum -= l[a][b] * y[b];
             }
-            y[a] = sum / lt[a][a];
+            y[a] = sum / l[a][a];
         }
         y.iter().all(|v| v.is_finite())
     }
@@ -1755,7 +1753,6 @@ impl Finish {
             _ => {}
         }
         let l = &self.factor[..rows * rows];
-        let lt = &self.factor_t[..rows * rows];
         let y = &mut self.scratch.y[..rows];
         // Two rows at a time: the sums over the entries both rows have share the loads of
         // `y`; the second row then takes the first's new entry. Each sum runs in the
@@ -1797,10 +1794,11 @@ impl Finish {
             return y.iter().all(|v| v.is_finite());
         }
         for a in (0..rows).rev() {
-            // Column `a` of the factor from the diagonal down is row `a` of the transpose.
-            // (Its sum runs over the rows below in increasing order, the newest entry of
-            // `y` first, so two rows cannot share a pass here.)
-            let column = &lt[a * rows + a..(a + 1) * rows];
+            // Column `a` of the factor from the diagonal down is row `a` from the diagonal
+            // on (the transpose above it). (Its sum runs over the rows below in
+            // increasing order, the newest entry of `y` first, so two rows cannot share a
+            // pass here.)
+            let column = &l[a * rows + a..(a + 1) * rows];
             let (head, tail) = y.split_at_mut(a + 1);
             let mut sum = head[a];
             for (x, v) in column[1..].iter().zip(&*tail) {
@@ -2013,13 +2011,8 @@ fn steps_and_turns(
 // Indices rather than iterators: over rows of constant length the checks drop out, and
 // each sum reads two rows at the same index.
 #[allow(clippy::needless_range_loop)]
-fn factorize_fixed<const N: usize>(
-    n: &[[f64; N]],
-    l: &mut [[f64; N]],
-    lt: &mut [[f64; N]],
-    damping: f64,
-) -> bool {
-    let (n, l, lt) = (&n[..N], &mut l[..N], &mut lt[..N]);
+fn factorize_fixed<const N: usize>(n: &[[f64; N]], l: &mut [[f64; N]], damping: f64) -> bool {
+    let (n, l) = (&n[..N], &mut l[..N]);
     for b in 0..N {
         let mut sum = n[b][b] + damping;
         for k in 0..b {
@@ -2030,7 +2023,6 @@ fn factorize_fixed<const N: usize>(
         }
         let pivot = sum.sqrt();
         l[b][b] = pivot;
-        lt[b][b] = pivot;
         let mut a = b + 1;
         while a + 3 < N {
             let mut s = [n[a][b], n[a + 1][b], n[a + 2][b], n[a + 3][b]];
@@ -2046,7 +2038,7 @@ fn factorize_fixed<const N: usize>(
             l[a + 1][b] = v[1];
             l[a + 2][b] = v[2];
             l[a + 3][b] = v[3];
-            lt[b][a..a + 4].copy_from_slice(&v);
+            l[b][a..a + 4].copy_from_slice(&v);
             a += 4;
         }
         while a + 1 < N {
@@ -2059,8 +2051,8 @@ fn factorize_fixed<const N: usize>(
             let (v0, v1) = (s0 / pivot, s1 / pivot);
             l[a][b] = v0;
             l[a + 1][b] = v1;
-            lt[b][a] = v0;
-            lt[b][a + 1] = v1;
+            l[b][a] = v0;
+            l[b][a + 1] = v1;
             a += 2;
         }
         if a < N {
@@ -2070,7 +2062,7 @@ fn factorize_fixed<const N: usize>(
             }
             let v = s / pivot;
             l[a][b] = v;
-            lt[b][a] = v;
+            l[b][a] = v;
         }
     }
     true
@@ -2570,7 +2562,7 @@ mod tests {
             }
             for a in (0..rows).filter(|_| rows > SMALL_ROWS) {
                 for b in 0..=a {
-                    assert_eq!(fin.factor[a * rows + b], fin.factor_t[b * rows + a]);
+                    assert_eq!(fin.factor[a * rows + b], fin.factor[b * rows + a]);
                 }
             }
             fin.scratch.normal[(rows - 1) * rows + rows - 1] = -1.0;
