@@ -28,7 +28,14 @@ pub(crate) struct Carried {
     /// Whether `last` holds the answer of the last solve, of the problem below.
     valid: bool,
     fingerprint: u64,
+    /// The limits of the last solve's skeleton, and a [`Skeleton::limits_revision`] known
+    /// to stand for them: a skeleton of that revision has these limits to the bit, and
+    /// only a skeleton of another revision has its limits compared (a batch's characters
+    /// sharing one skeleton never read this copy).
+    ///
+    /// [`Skeleton::limits_revision`]: sinew_skeleton::Skeleton::limits_revision
     limits: Vec<JointLimit>,
+    limits_revision: u64,
     effectors: Vec<EffectorKey>,
     settings: Option<SolveSettings>,
     root_translates: bool,
@@ -120,9 +127,10 @@ impl Carried {
             && self.root_translates == problem.root_translates
             && self.fingerprint == skeleton.fingerprint()
             && self.limits.len() == skeleton.len()
-            && (0..skeleton.len()).fold(true, |same, j| {
-                same & same_limit_bits(&self.limits[j], skeleton.limit(j))
-            })
+            && (self.limits_revision == skeleton.limits_revision()
+                || (0..skeleton.len()).fold(true, |same, j| {
+                    same & same_limit_bits(&self.limits[j], skeleton.limit(j))
+                }))
             && self.effectors.len() == problem.effectors.len()
             && self.effectors.iter().copied().eq(key(problem))
     }
@@ -190,6 +198,9 @@ impl Carried {
             self.has_before = false;
             self.has_correction = false;
         }
+        // Of the same problem, the limits are these to the bit: the revision stands for
+        // them from now on.
+        self.limits_revision = skeleton.limits_revision();
         if !same_problem {
             self.fingerprint = skeleton.fingerprint();
             self.limits.clear();

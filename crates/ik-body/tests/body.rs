@@ -709,6 +709,45 @@ fn squat_up_to(frames: usize) -> (Skeleton, TreeFabrikSolver, BodyState) {
     (skel, solver, state)
 }
 
+/// A skeleton built again has the same limits under another revision: the carried
+/// answers are kept (the limits compared to the bit), so the next frame continues exactly
+/// as on the skeleton they were solved on, and not as a fresh solve would.
+#[test]
+fn a_skeleton_built_again_with_the_same_limits_keeps_the_carried_answers() {
+    let (skel, solver, state) = squat_up_to(40);
+    let again = workload::humanoid().unwrap();
+    assert_ne!(skel.limits_revision(), again.limits_revision());
+    let settings = SolveSettings::default();
+    let rest = BodyState::rest(&skel).global;
+    let effectors = workload::clip_frame(&rest, 40);
+    let solve = |on: &Skeleton, solver: &mut TreeFabrikSolver| {
+        let mut s = state.clone();
+        let problem = BodyProblem::new(on, &effectors, settings).with_root_translation(true);
+        let report = solver.solve(&problem, &mut s).unwrap();
+        (state_bits(&s), report_bits(&report))
+    };
+    let on_same = solve(&skel, &mut solver.clone());
+    assert_eq!(solve(&again, &mut solver.clone()), on_same);
+    assert_ne!(solve(&again, &mut TreeFabrikSolver::new()), on_same);
+    // And the next frame on the rebuilt skeleton too (its revision now stands for the
+    // carried limits).
+    let next = workload::clip_frame(&rest, 41);
+    let mut a = state.clone();
+    let mut b = state.clone();
+    let mut on_skel = solver.clone();
+    let mut on_again = solver.clone();
+    for (on, solver, s) in [
+        (&skel, &mut on_skel, &mut a),
+        (&again, &mut on_again, &mut b),
+    ] {
+        let problem = BodyProblem::new(on, &effectors, settings).with_root_translation(true);
+        solver.solve(&problem, s).unwrap();
+        let problem = BodyProblem::new(on, &next, settings).with_root_translation(true);
+        solver.solve(&problem, s).unwrap();
+    }
+    assert_eq!(state_bits(&a), state_bits(&b));
+}
+
 #[test]
 fn warm_frames_from_the_last_two_answers_take_fewer_iterations_and_keep_the_contract() {
     // Every frame of part of the squat solved twice from the same state: by the solver

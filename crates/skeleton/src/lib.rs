@@ -227,7 +227,10 @@ impl fmt::Display for SkeletonError {
 impl std::error::Error for SkeletonError {}
 
 /// A tree of joints in topological order; see the [crate docs](crate).
-#[derive(Clone, Debug, PartialEq)]
+///
+/// Two skeletons are equal (`==`) when their joints, names and limits are; their
+/// [`Skeleton::limits_revision`]s are not compared.
+#[derive(Clone, Debug)]
 pub struct Skeleton {
     parents: Vec<Option<usize>>,
     offsets: Vec<DVec3>,
@@ -244,6 +247,27 @@ pub struct Skeleton {
     /// A hash of the parents and offsets, which is what a chain's joints and bone lengths
     /// depend on; a chain keeps it to refuse a skeleton it was not built for.
     fingerprint: u64,
+    /// See [`Skeleton::limits_revision`].
+    limits_revision: u64,
+}
+
+impl PartialEq for Skeleton {
+    fn eq(&self, other: &Self) -> bool {
+        // Everything but the revision, which says where the limits came from, not what
+        // they are. (`prepared`, `span_end`, `contiguous` and `fingerprint` follow from
+        // the rest.)
+        self.parents == other.parents
+            && self.offsets == other.offsets
+            && self.names == other.names
+            && self.limits == other.limits
+    }
+}
+
+/// The next [`Skeleton::limits_revision`]: process-wide, so that no two skeletons built
+/// or changed apart share one.
+fn next_limits_revision() -> u64 {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+    NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }
 
 impl Skeleton {
@@ -347,6 +371,7 @@ impl Skeleton {
             span_end,
             contiguous,
             fingerprint,
+            limits_revision: next_limits_revision(),
         })
     }
 
@@ -422,6 +447,7 @@ impl Skeleton {
             })?;
         self.limits[i] = limit;
         self.prepared[i] = limit.prepare();
+        self.limits_revision = next_limits_revision();
         Ok(())
     }
 
@@ -477,6 +503,20 @@ impl Skeleton {
     #[must_use]
     pub fn fingerprint(&self) -> u64 {
         self.fingerprint
+    }
+
+    /// A number that changes whenever the limits may have: a skeleton gets a new one when
+    /// it is built and at every [`Skeleton::set_limit`], from a process-wide counter, and a
+    /// clone keeps its original's. So two skeletons with the same revision have the same
+    /// limits to the bit (one is the other, or a clone of it, with no limit set since);
+    /// different revisions say nothing (a limit set to the value it had, or a skeleton
+    /// built twice, gets a new one). A solver that keeps anything derived from the limits
+    /// compares it first, and compares the limits themselves only when it differs. The
+    /// value itself depends on the order skeletons were built in, so compare it, never
+    /// store or print it as a result.
+    #[must_use]
+    pub fn limits_revision(&self) -> u64 {
+        self.limits_revision
     }
 
     /// One past the largest index among the descendants of `i` (`i + 1` for a leaf):
@@ -784,6 +824,36 @@ mod tests {
         assert_eq!(chain.fingerprint(), chain.clone().fingerprint());
         let other = Skeleton::chain(DVec3::ZERO, &[DVec3::X, DVec3::Y]).unwrap();
         assert_ne!(chain.fingerprint(), other.fingerprint());
+    }
+
+    #[test]
+    fn the_limits_revision_changes_with_the_limits_and_is_kept_by_a_clone() {
+        let offsets = [DVec3::X, DVec3::X];
+        let mut a = Skeleton::chain(DVec3::ZERO, &offsets).unwrap();
+        let clone = a.clone();
+        assert_eq!(a.limits_revision(), clone.limits_revision());
+        let built_again = Skeleton::chain(DVec3::ZERO, &offsets).unwrap();
+        assert_ne!(a.limits_revision(), built_again.limits_revision());
+        assert_eq!(a, built_again, "the revision is not compared");
+        let first = a.limits_revision();
+        let hinge = JointLimit::hinge(DVec3::Z, -1.0, 1.0).unwrap();
+        a.set_limit(1, hinge).unwrap();
+        assert_ne!(a.limits_revision(), first);
+        assert_ne!(a, clone);
+        let second = a.limits_revision();
+        a.set_limit(1, hinge).unwrap();
+        assert_ne!(
+            a.limits_revision(),
+            second,
+            "a limit set again gets a new one too"
+        );
+        let third = a.limits_revision();
+        assert!(a.set_limit(7, JointLimit::Free).is_err());
+        assert_eq!(
+            a.limits_revision(),
+            third,
+            "a refused limit changes nothing"
+        );
     }
 
     #[test]
