@@ -115,6 +115,17 @@ fn same_limit_bits(a: &JointLimit, b: &JointLimit) -> bool {
 }
 
 impl Carried {
+    /// Asks the processor to bring the carried answers into its cache (a hint).
+    pub(crate) fn prefetch(&self) {
+        use sinew_skeleton::prefetch::prefetch;
+        prefetch(&self.effectors);
+        prefetch(&self.last);
+        prefetch(&self.last_global_rotations);
+        prefetch(&self.last_global_positions);
+        prefetch(&self.before);
+        prefetch(&self.correction);
+    }
+
     /// Whether `problem` has the structure of the last solve's, which was validated: the
     /// same skeleton (structure, and limits to the bit), effectors (joints, pins,
     /// weights, which have rotation goals), settings and translation freedom, only the

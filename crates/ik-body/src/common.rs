@@ -147,6 +147,15 @@ impl SolveScratch {
 }
 
 impl Common {
+    /// Asks the processor to bring what a warm solve reads first of these buffers into
+    /// its cache (a hint): the rotations known to be their own projections, the targets
+    /// and the finish's chord start.
+    pub(crate) fn prefetch(&self) {
+        sinew_skeleton::prefetch::prefetch(&self.fixed);
+        sinew_skeleton::prefetch::prefetch(&self.targets);
+        self.dls.prefetch();
+    }
+
     /// Validates the problem and the state, projects the starting pose onto the limits,
     /// resolves the targets and the topology, and exits early when every effector is
     /// already within tolerance. With `same_problem` (the problem has the structure of

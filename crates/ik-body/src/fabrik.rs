@@ -153,6 +153,17 @@ struct Passes {
 }
 
 impl TreeFabrikSolver {
+    /// Asks the processor to bring what a warm solve of `state` reads first into its
+    /// cache (a hint; see [`BodyBatch`]).
+    ///
+    /// [`BodyBatch`]: crate::BodyBatch
+    pub(crate) fn prefetch(&self, state: &crate::BodyState) {
+        self.common.prefetch();
+        self.carried.prefetch();
+        sinew_skeleton::prefetch::prefetch(&state.pose.rotations);
+        state.global.prefetch();
+    }
+
     /// Exchanges this solver's scratch buffers with `scratch` (see [`BodyBatch`]).
     ///
     /// [`BodyBatch`]: crate::BodyBatch

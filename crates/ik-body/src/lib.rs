@@ -344,9 +344,19 @@ fn solve_group(
     reports: &mut [BodyReport],
 ) -> Result<(), IkError> {
     let mut first = Ok(());
-    for (((solver, problem), state), report) in
-        solvers.iter_mut().zip(problems).zip(states).zip(reports)
-    {
+    for i in 0..problems.len() {
+        // The next character's state was last touched a batch ago: fetched while this
+        // one is solved rather than as its solve first reads it (a hint; no result
+        // depends on it).
+        if let (Some(next), Some(next_state)) = (solvers.get(i + 1), states.get(i + 1)) {
+            next.prefetch(next_state);
+        }
+        let (solver, problem, state, report) = (
+            &mut solvers[i],
+            &problems[i],
+            &mut states[i],
+            &mut reports[i],
+        );
         // The group's scratch buffers lent for this solve and taken back after it, so
         // that a character's solver owns only what carries from one frame to the next.
         solver.swap_scratch(scratch);

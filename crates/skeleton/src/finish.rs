@@ -722,6 +722,24 @@ impl ChainFinish {
 }
 
 impl Finish {
+    /// Asks the processor to bring into its cache what a run that starts with a chord
+    /// step reads first from this finish (the columns, the factor, the active set): a
+    /// hint for a caller that runs many finishes one after another, issued while the one
+    /// before runs (see [`crate::prefetch`]). Changes no result.
+    pub fn prefetch(&self) {
+        use crate::prefetch::prefetch;
+        prefetch(&self.dofs);
+        prefetch(&self.col_start);
+        prefetch(&self.entries);
+        prefetch(&self.first_dof);
+        prefetch(&self.groups);
+        prefetch(&self.groups_of);
+        prefetch(&self.factor);
+        prefetch(&self.frozen);
+        prefetch(&self.blocked);
+        prefetch(&self.blocked_count);
+    }
+
     /// Drops the factor of the last linearization, so that no later run starts with a
     /// chord step on it (for a caller whose problem changed).
     pub fn forget(&mut self) {

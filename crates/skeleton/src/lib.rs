@@ -44,6 +44,7 @@
 pub mod finish;
 pub mod ik;
 pub mod limits;
+pub mod prefetch;
 pub mod seed;
 pub mod track;
 
@@ -769,6 +770,13 @@ impl Clone for GlobalPose {
 }
 
 impl GlobalPose {
+    /// Asks the processor to bring the rotations and positions into its cache (a hint,
+    /// see [`crate::prefetch`]).
+    pub fn prefetch(&self) {
+        crate::prefetch::prefetch(&self.rotations);
+        crate::prefetch::prefetch(&self.positions);
+    }
+
     /// An empty global pose; forward kinematics sizes it.
     #[must_use]
     pub fn new() -> Self {
