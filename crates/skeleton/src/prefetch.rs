@@ -18,9 +18,12 @@ pub fn prefetch<T>(items: &[T]) {
         let start = items.as_ptr().cast::<i8>();
         // Every 64 bytes from the start, and the last byte (whose line the stride may
         // have stepped over when the start is not at a line's start).
-        for offset in (0..bytes).step_by(64).chain(std::iter::once(bytes - 1)) {
+        let mut offset = 0;
+        while offset < bytes {
             hint_line(start.wrapping_add(offset));
+            offset += 64;
         }
+        hint_line(start.wrapping_add(bytes - 1));
     }
 }
 
