@@ -62,7 +62,7 @@ pub(crate) struct Common {
     pub initial: Vec<(f64, f64)>,
     pub initial_cost: f64,
     pub dls: Finish,
-    /// The buffers a solve writes before it reads them (see [`Common::swap_scratch`]).
+    /// The buffers a solve writes before it reads them (see [`SolveScratch::swap_with`]).
     pub scratch: CommonScratch,
     /// The starting translation (the starting pose is [`CommonScratch::start`]).
     start_translation: DVec3,
@@ -93,7 +93,7 @@ pub(crate) struct Common {
 }
 
 /// The buffers of [`Common`] that a solve writes before it reads them, lent by a batch
-/// (see [`Common::swap_scratch`]).
+/// (see [`SolveScratch::swap_with`]).
 #[derive(Clone, Debug, Default)]
 pub(crate) struct CommonScratch {
     /// A pose kept while one pass is tried, and the best pose kept while a restart is
