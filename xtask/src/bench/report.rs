@@ -586,6 +586,9 @@ fn tolerance_table(records: &[Record]) -> String {
         let step = |r: &Record| metric(r, Metric::StepErrorMax).unwrap_or(f64::NAN);
         s.push_str(&tolerance_rows(&workloads, &rows, step, true));
     }
+    // A blank line ends the last table: the section's notes that follow are a paragraph,
+    // not one more row.
+    s.push('\n');
     s
 }
 
@@ -810,6 +813,8 @@ mod tests {
         );
         assert_eq!(rows[9], "| non-increasing | yes | NO |", "{text}");
         assert_eq!(rows[10], "| within the tolerance | NO | yes |", "{text}");
+        // A blank line after the last table, so the notes after it are not a row.
+        assert!(text.ends_with(" |\n\n"), "{text}");
     }
 
     #[test]
