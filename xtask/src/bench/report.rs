@@ -456,6 +456,7 @@ pub fn write(results: &Results, sections: &[Section], out: &Path) -> Result<Stri
     md.push_str(
         "\n## Criterion kernels\n\nMicro-benchmarks of the kernels stay in the crates (`cargo bench -p <crate>`); \
          their tables: [IK overview](ik.md), [CCD](ik-ccd.md) (one sweep, W1, W2, 10 000 bones), \
+         [full body](ik-body.md) (W8: cold solves, the squat, the batch of 1 000), \
          [FABRIK](ik-fabrik.md) (one pass, W1 frame, W2 solve, long chain), \
          [curves](curves.md) (table build, per-point inverse against kurbo), \
          [spring-sim](spring-sim.md) (Hessian assembly, numeric factorization, one Newton \
