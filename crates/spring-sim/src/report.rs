@@ -226,8 +226,9 @@ pub struct StepReport {
     /// Backward Euler: splits computed and then discarded because the pieces together
     /// broke the energy inequality a step of `h` keeps (`E_spring + E_gravity +
     /// 1/2 |v' - v_n|_M^2 <= E_total` at the start); the abandoned unsplit solve is
-    /// then continued from its iterate and is the step, counted in `unconverged_pieces`
-    /// only if it is still far from converged.
+    /// then continued from its iterate (and, if still far from converged, from the
+    /// pieces' end positions) and is the step, counted in `unconverged_pieces` only if
+    /// it is still far from converged.
     pub rejected_splits: usize,
     /// Particle pairs given Hessian slots during or after this step because a term
     /// (self-contact) coupled them without one; the Newton matrices from the next

@@ -455,7 +455,7 @@ impl BackwardEuler {
         if !whole_step && depth > 0 && self.last_piece_depth + 1 < depth {
             return self.split_without_attempt(system, h, scheme, depth, start);
         }
-        let (mut attempt, h_eff) = self.solve(system, h, scheme, start, None)?;
+        let (mut attempt, h_eff) = self.solve(system, h, scheme, start, Resume::Guess)?;
         let mut far = self.far_from_converged(system, &attempt, h_eff);
         let extra = self.extra_split_depth();
         if far && (depth == extra || depth == 0) && self.settings.max_split_depth > 0 {
@@ -473,7 +473,7 @@ impl BackwardEuler {
                 from.clear();
                 from.extend_from_slice(&self.x);
                 let previous = attempt;
-                attempt = self.solve(system, h, scheme, start, Some(&from))?.0;
+                attempt = self.solve(system, h, scheme, start, Resume::From(&from))?.0;
                 attempt.add_work(&previous);
                 far = self.far_from_converged(system, &attempt, h_eff);
             }
@@ -528,26 +528,49 @@ impl BackwardEuler {
             // below the energy of one step of h). The abandoned solve of h, whose every
             // iterate keeps the inequality (`g` never rises from the start state), is
             // continued from its iterate, one iteration cap at a time (at most
-            // `CONTINUED_CAPS` more), and is the step after all; only if it is
-            // still far from converged then, or its line search stalled, is it reported
+            // `CONTINUED_CAPS` more), and is the step after all. If it is still far from
+            // converged then, the solve of h starts once more from the pieces' end
+            // positions (when `g` there is no higher than at the start state, so the
+            // inequality still holds for every iterate) and is continued the same way:
+            // a stiff step's Newton iterates can wander far from the minimizer for
+            // hundreds of iterations, where the pieces end near it. Only a solve still
+            // far from converged after that, or whose line search stalled, is reported
             // so.
+            saved.split_end.clear();
+            saved.split_end.extend_from_slice(system.positions());
             system.set_state(&saved.x_n, &saved.v_n)?;
             let mut spent = attempt;
             for part in [&first, &second] {
                 spent.add_work(part);
             }
-            let (mut report, _) = self.solve(system, h, scheme, start, Some(&saved.attempt))?;
-            let mut far = self.far_from_converged(system, &report, h_eff);
-            for _ in 1..CONTINUED_CAPS {
-                if !far || report.stop != StepStop::IterationCap {
-                    break;
-                }
-                saved.attempt.copy_from_slice(&self.x);
-                spent.add_work(&report);
-                report = self
-                    .solve(system, h, scheme, start, Some(&saved.attempt))?
-                    .0;
+            let (mut report, mut far) = (StepReport::new(attempt.integrator), true);
+            for taken_up in [false, true] {
+                let resume = if taken_up {
+                    if !far {
+                        break;
+                    }
+                    spent.add_work(&report);
+                    saved.attempt.copy_from_slice(&self.x);
+                    Resume::SplitEndOr {
+                        split_end: &saved.split_end,
+                        otherwise: &saved.attempt,
+                    }
+                } else {
+                    Resume::From(&saved.attempt)
+                };
+                report = self.solve(system, h, scheme, start, resume)?.0;
                 far = self.far_from_converged(system, &report, h_eff);
+                for _ in 1..CONTINUED_CAPS {
+                    if !far || report.stop != StepStop::IterationCap {
+                        break;
+                    }
+                    saved.attempt.copy_from_slice(&self.x);
+                    spent.add_work(&report);
+                    report = self
+                        .solve(system, h, scheme, start, Resume::From(&saved.attempt))?
+                        .0;
+                    far = self.far_from_converged(system, &report, h_eff);
+                }
             }
             self.commit(system, h_eff, scheme, attempt.integrator)?;
             report.add_work(&spent);
@@ -645,16 +668,15 @@ impl BackwardEuler {
     /// Sets up and runs the minimization of one step of `scheme` from `system`'s state,
     /// leaving the minimizer in `self.x` and the system untouched; returns the report and
     /// the effective step.
-    /// With `resume_from`, the minimization starts from that iterate instead (an
-    /// earlier solve of the same step, abandoned; it has `g` no larger than at the start
-    /// state, so continuing from it keeps backward Euler's energy inequality).
+    /// `resume` says where the minimization starts: the step's own first guess, or a
+    /// point taken up again (see [`Resume`]).
     fn solve(
         &mut self,
         system: &SpringSystem,
         h: f64,
         scheme: Scheme<'_>,
         start: f64,
-        resume_from: Option<&[DVec3]>,
+        resume: Resume<'_>,
     ) -> Result<(StepReport, f64), StepError> {
         self.timing = StepTiming {
             start,
@@ -767,8 +789,49 @@ impl BackwardEuler {
                 }
             }
         }
-        if let Some(resume) = resume_from {
-            self.x.copy_from_slice(resume);
+        match resume {
+            Resume::Guess => {}
+            Resume::From(iterate) => self.x.copy_from_slice(iterate),
+            Resume::SplitEndOr {
+                split_end,
+                otherwise,
+            } => {
+                // `g(split_end) - g(x_n)`, summed term by term like the first guess's
+                // test, and the straight path from x_n admissible (a barrier term), as
+                // for the first guess.
+                let positions = system.positions();
+                for ((d, (p, x)), f) in self
+                    .dx_particles
+                    .iter_mut()
+                    .zip(split_end.iter().zip(positions))
+                    .zip(fixed)
+                {
+                    *d = if *f { DVec3::ZERO } else { *p - *x };
+                }
+                let change = change_on_pool(
+                    &self.potential,
+                    &self.pcg,
+                    &mut self.change_partials,
+                    &step,
+                    positions,
+                    &self.dx_particles,
+                );
+                let admissible = self
+                    .potential
+                    .max_step(&step, positions, &self.dx_particles)
+                    >= 1.0;
+                // A NaN compares false, so it never picks the split's end.
+                if admissible && change <= 0.0 {
+                    self.x.copy_from_slice(split_end);
+                    for (i, f) in fixed.iter().enumerate() {
+                        if *f {
+                            self.x[i] = self.y[i];
+                        }
+                    }
+                } else {
+                    self.x.copy_from_slice(otherwise);
+                }
+            }
         }
         self.potential.prepare_start(&step, &mut self.x);
         let mut report = self.minimize(system, h_eff)?;
@@ -985,7 +1048,27 @@ struct SplitSave {
     x_n: Vec<DVec3>,
     v_n: Vec<DVec3>,
     attempt: Vec<DVec3>,
+    /// The pieces' end positions, when their split was rejected.
+    split_end: Vec<DVec3>,
     energy: crate::model::Energies,
+}
+
+/// Where a solve starts.
+#[derive(Clone, Copy, Debug)]
+enum Resume<'a> {
+    /// The step's first guess (the extrapolated prediction, or x_n when that is worse).
+    Guess,
+    /// An earlier solve's iterate of the same step, abandoned at its cap; it has `g` no
+    /// larger than at the start state, so continuing from it keeps backward Euler's
+    /// energy inequality.
+    From(&'a [DVec3]),
+    /// The end positions of the step's rejected split, when `g` there is no higher than
+    /// at the start state and their straight path from x_n is admissible (so the
+    /// inequality still holds for every iterate), else `otherwise` (as in `From`).
+    SplitEndOr {
+        split_end: &'a [DVec3],
+        otherwise: &'a [DVec3],
+    },
 }
 
 /// Whether `system`, after the pieces of a step from `save`'s start state, keeps backward

@@ -79,9 +79,12 @@ pub struct NewtonSettings {
     /// is always tried first. Backward Euler checks its energy inequality for the whole
     /// step: when the pieces together break it, they are discarded and the whole step's
     /// solve is continued from its last iterate, one iteration cap at a time (at most 16
-    /// more), which keeps the inequality at every iterate. A piece at the deepest split
-    /// that stops at the cap far from converged is continued the same way; if it is still
-    /// far from converged then, it is halved up to two more times (pieces down to
+    /// more), which keeps the inequality at every iterate; if it is still far from
+    /// converged then, it starts once more from the pieces' end positions (when `g`
+    /// there is no higher than at the start state) and is continued the same way. A
+    /// piece at the deepest split that stops at the cap far from converged is continued
+    /// the same way; if it is still far from converged then, it is halved up to two
+    /// more times (pieces down to
     /// `h / 2^(max_split_depth + 2)`, the last of them continued again before it is kept),
     /// so [`crate::StepReport::split_depth`] can exceed this setting by 2. A stiff sheet
     /// buckling from compression needs that: its pieces of `h / 2^6` can stay far from
