@@ -307,8 +307,8 @@ fn splits_that_break_the_energy_inequality_are_discarded() {
 /// A rejected split whose whole-step solve is still far from converged after its
 /// continued caps is taken up once more from the pieces' end positions (where `g` is
 /// below the start state's): a compressed stiff sheet whose second step, with a cap of 3,
-/// stayed at the cap after the continuation alone (residual 2e3 against 2.3e-7) converges
-/// from there, and keeps the energy inequality.
+/// stays far from converged after the continuation alone (the test fails with the new
+/// start removed) converges from there, and keeps the energy inequality.
 #[test]
 fn a_rejected_split_is_taken_up_from_the_pieces_end() {
     let (k, h) = (1e7, 1.0 / 15.0);
