@@ -746,32 +746,16 @@ impl BackwardEuler {
         // Start from x_n when the predicted guess is worse (backward Euler only): Newton
         // with the line search never increases g from its starting point, so then every
         // step has g(x_{n+1}) <= g(x_n), which is what the energy inequality of
-        // docs/labcheck.md rests on. The test is one evaluation of the change
-        // g(guess) - g(x_n), summed term by term as in the line search, rather than two
-        // evaluations of g: half the passes, and free of the cancellation of two large
-        // totals.
-        let guess_is_no_worse = !matches!(scheme, Scheme::BackwardEuler) || {
-            let change = change_on_pool(
-                &self.potential,
-                &self.pcg,
-                &mut self.change_partials,
-                &step,
-                system.positions(),
-                &self.dx_particles,
-            );
-            // A NaN guess counts as worse, so it is never kept.
-            change <= 0.0
-        };
-        // A term with a barrier (contact) also asks that the straight path from the
-        // safe start to the guess stays admissible: a guess beyond a thin collider is
-        // outside it but was reached through it. The safe start is x_n for every scheme
-        // (the end state of backward Euler and BDF2; the midpoint z = x_n has the end
-        // state 2 z - x_n = x_n), not BDF2's x_ref, an extrapolation that may lie inside
-        // a collider. Without such a term the cap is infinite.
-        let path_is_admissible =
-            self.potential
-                .max_step(&step, system.positions(), &self.dx_particles)
-                >= 1.0;
+        // docs/labcheck.md rests on.
+        let guess_is_acceptable = start_is_acceptable(
+            &self.potential,
+            &self.pcg,
+            &mut self.change_partials,
+            &step,
+            system.positions(),
+            &self.dx_particles,
+            matches!(scheme, Scheme::BackwardEuler),
+        );
         // The Newton direction is written at the free particles only: a moving pin's
         // entry (nonzero in the midpoint scheme) must not stay behind.
         for (d, f) in self.dx_particles.iter_mut().zip(fixed) {
@@ -779,15 +763,8 @@ impl BackwardEuler {
                 *d = DVec3::ZERO;
             }
         }
-        if !(guess_is_no_worse && path_is_admissible) {
-            self.x.copy_from_slice(system.positions());
-            // Pinned particles stay at their evaluation point (it differs from the
-            // system's position only for a moving pin in the midpoint scheme).
-            for (i, f) in fixed.iter().enumerate() {
-                if *f {
-                    self.x[i] = self.y[i];
-                }
-            }
+        if !guess_is_acceptable {
+            start_at(&mut self.x, system.positions(), &self.y, fixed);
         }
         match resume {
             Resume::Guess => {}
@@ -796,9 +773,8 @@ impl BackwardEuler {
                 split_end,
                 otherwise,
             } => {
-                // `g(split_end) - g(x_n)`, summed term by term like the first guess's
-                // test, and the straight path from x_n admissible (a barrier term), as
-                // for the first guess.
+                // The same test as the first guess's, on the straight path from x_n
+                // to the pieces' end.
                 let positions = system.positions();
                 for ((d, (p, x)), f) in self
                     .dx_particles
@@ -808,26 +784,16 @@ impl BackwardEuler {
                 {
                     *d = if *f { DVec3::ZERO } else { *p - *x };
                 }
-                let change = change_on_pool(
+                if start_is_acceptable(
                     &self.potential,
                     &self.pcg,
                     &mut self.change_partials,
                     &step,
                     positions,
                     &self.dx_particles,
-                );
-                let admissible = self
-                    .potential
-                    .max_step(&step, positions, &self.dx_particles)
-                    >= 1.0;
-                // A NaN compares false, so it never picks the split's end.
-                if admissible && change <= 0.0 {
-                    self.x.copy_from_slice(split_end);
-                    for (i, f) in fixed.iter().enumerate() {
-                        if *f {
-                            self.x[i] = self.y[i];
-                        }
-                    }
+                    true,
+                ) {
+                    start_at(&mut self.x, split_end, &self.y, fixed);
                 } else {
                     self.x.copy_from_slice(otherwise);
                 }
@@ -1132,6 +1098,43 @@ fn combine_pieces(attempt: &StepReport, first: &StepReport, second: &StepReport)
     report.unconverged_pieces = first.unconverged_pieces + second.unconverged_pieces;
     report.rejected_splits = first.rejected_splits + second.rejected_splits;
     report
+}
+
+/// Whether a solve may start at `x + dx` instead of the safe start `x` (x_n): with
+/// `no_worse`, the change `g(x + dx) - g(x)` is not positive, computed once and summed
+/// term by term as in the line search (half the passes of two evaluations of `g`, and
+/// free of the cancellation of two large totals; a NaN counts as worse); and the
+/// straight path from `x` is admissible for a term with a barrier (contact): a point
+/// beyond a thin collider is outside it but was reached through it. The safe start is
+/// x_n for every scheme (the end state of backward Euler and BDF2; the midpoint
+/// `z = x_n` has the end state `2 z - x_n = x_n`), not BDF2's `x_ref`, an extrapolation
+/// that may lie inside a collider. Without such a term the cap is infinite.
+fn start_is_acceptable(
+    potential: &Potential,
+    pcg: &PcgSolver,
+    partials: &mut Vec<f64>,
+    step: &StepContext<'_>,
+    x: &[DVec3],
+    dx: &[DVec3],
+    no_worse: bool,
+) -> bool {
+    let no_higher = !no_worse || change_on_pool(potential, pcg, partials, step, x, dx) <= 0.0;
+    // Asked even when the change already refuses: a self-contact term's cap also
+    // collects its pairs along the path, state the solve that follows starts from.
+    let admissible = potential.max_step(step, x, dx) >= 1.0;
+    no_higher && admissible
+}
+
+/// Copies `from` into `x`, then puts the pinned particles at their evaluation point
+/// `y` (it differs from the system's position only for a moving pin in the midpoint
+/// scheme).
+fn start_at(x: &mut [DVec3], from: &[DVec3], y: &[DVec3], fixed: &[bool]) {
+    x.copy_from_slice(from);
+    for ((x, y), f) in x.iter_mut().zip(y).zip(fixed) {
+        if *f {
+            *x = *y;
+        }
+    }
 }
 
 /// `g(x + dx) - g(x)` on the solver's thread pool when it has one (the same bits for
