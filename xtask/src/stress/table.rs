@@ -209,7 +209,7 @@ pub fn console(results: &StressResults, failures: &[String], unconverged: &[Stri
     if !unconverged.is_empty() {
         let _ = writeln!(
             s,
-            "\ncases with a step left at Newton's cap far from converged ({}; reported, not failures unless --strict):",
+            "\ncases with a step left far from converged ({}; reported, not failures unless --strict):",
             unconverged.len()
         );
         for u in unconverged {
@@ -247,7 +247,7 @@ pub fn markdown(results: &StressResults, failures: &[String], unconverged: &[Str
     );
     let _ = writeln!(
         s,
-        "Failures (NaN, divergence, a broken invariant, a wrong report): {}. Cloth cases with a step left at Newton's cap far from converged (reported, not failures; `--strict` fails on them): {}.\n",
+        "Failures (NaN, divergence, a broken invariant, a wrong report): {}. Cases (cloth, contact, self-contact) with a step left far from converged (reported, not failures; `--strict` fails on them): {}.\n",
         if failures.is_empty() {
             "none".to_string()
         } else {
@@ -271,7 +271,7 @@ pub fn markdown(results: &StressResults, failures: &[String], unconverged: &[Str
     if !unconverged.is_empty() {
         let _ = writeln!(
             s,
-            "## Steps left far from converged\n\nThe first such step of each case (the solver reported `IterationCap` or `LineSearchStalled`; the state stayed finite and the energy inequality held):\n"
+            "## Steps left far from converged\n\nThe first such step of each case (the solver reported `IterationCap` or `LineSearchStalled`; a broken invariant of the case would be listed under Failures):\n"
         );
         for u in unconverged {
             let _ = writeln!(s, "- {u}");

@@ -351,6 +351,39 @@ pub fn energy_inequality_excess(
     (lhs.value - rhs.value - slack, slack)
 }
 
+/// The worst final residual of a case's steps against `max(tolerance, floor)`, with the
+/// floor of the springs and the inertia ([`residual_floor`]), and the steps far beyond
+/// it: the contact and self-contact cases' account of convergence. A barrier's
+/// curvature would only raise the floor, so a step within it is at round-off, while
+/// one beyond it may still be.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct FarSteps {
+    /// Largest final `residual / max(tolerance, floor)` of a step.
+    pub ratio_max: f64,
+    /// Steps above [`FAR_FACTOR`] in that ratio.
+    pub count: usize,
+    /// The first of them, as a sentence.
+    pub first: Option<String>,
+}
+
+impl FarSteps {
+    /// Notes step `step`'s final residual; `floor` is [`residual_floor`] of the state
+    /// the step ended in.
+    pub fn note(&mut self, step: usize, report: &StepReport, floor: f64) {
+        let ratio = report.residual / report.tolerance.max(floor);
+        self.ratio_max = self.ratio_max.max(ratio);
+        if ratio > FAR_FACTOR {
+            self.count += 1;
+            if self.first.is_none() {
+                self.first = Some(format!(
+                    "step {step}: stopped ({:?}) far from converged: residual {:.3e} = {ratio:.3e} x max(tolerance {:.3e}, round-off floor {floor:.3e})",
+                    report.stop, report.residual, report.tolerance
+                ));
+            }
+        }
+    }
+}
+
 /// The residual no iterate can be expected to beat: `16 EPS |x|_max (m/h^2 + sum_s k_s)`
 /// with the largest row over free particles. Moving any coordinate by one unit in the
 /// last place of `|x|_max` changes `grad g` by up to the Hessian's row sum times that
@@ -802,6 +835,8 @@ pub struct ContactOutcome {
     /// Steps that did not converge (iteration cap or stalled line search above the
     /// tolerance).
     pub unconverged_steps: usize,
+    /// The steps' final residuals against the round-off floor.
+    pub far: FarSteps,
     /// Largest Newton iteration count of a step.
     pub iterations_max: usize,
     /// Wall-clock seconds.
@@ -836,6 +871,7 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
         nan_steps: 0,
         diverged: false,
         unconverged_steps: 0,
+        far: FarSteps::default(),
         iterations_max: 0,
         seconds: 0.0,
         failures: Vec::new(),
@@ -925,6 +961,8 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
         if report.residual > report.tolerance {
             out.unconverged_steps += 1;
         }
+        out.far
+            .note(n, &report, residual_floor(sim.system(), case.dt));
         let mut inside = 0;
         for x in positions {
             let d = contact_distance(case.target, *x);
@@ -968,13 +1006,13 @@ pub fn contact_table(outcomes: &[ContactOutcome]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| case | steps | penetrations | min distance (m) | max distance from the origin (m) | NaN steps | diverged | unconverged steps | Newton max | seconds |"
+        "| case | steps | penetrations | min distance (m) | max distance from the origin (m) | NaN steps | diverged | unconverged steps | far | residual / max(tol, floor) max | Newton max | seconds |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|");
     for o in outcomes {
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {:.2e} | {:.2e} | {} | {} | {} | {} | {:.2} |",
+            "| {} | {} | {} | {:.2e} | {:.2e} | {} | {} | {} | {} | {:.2e} | {} | {:.2} |",
             o.case.label(),
             o.steps_run,
             o.penetrations,
@@ -983,6 +1021,8 @@ pub fn contact_table(outcomes: &[ContactOutcome]) -> String {
             o.nan_steps,
             if o.diverged { "yes" } else { "no" },
             o.unconverged_steps,
+            o.far.count,
+            o.far.ratio_max,
             o.iterations_max,
             o.seconds
         );
@@ -1206,6 +1246,15 @@ mod tests {
         let out = run_contact_case(&case);
         assert!(out.failures.is_empty(), "{:?}", out.failures);
         assert_eq!(out.steps_run, 4);
+        assert!(out.far.ratio_max.is_finite(), "{:?}", out.far);
+        assert_eq!(
+            out.far.ratio_max > FAR_FACTOR,
+            out.far.count > 0,
+            "{:?}",
+            out.far
+        );
+        assert_eq!(out.far.first.is_some(), out.far.count > 0, "{:?}", out.far);
+        assert!(out.far.count <= out.unconverged_steps, "{out:?}");
         // It reached the collider (the throw covers the 0.1 m gap in the first step).
         assert!(
             out.min_distance > 0.0 && out.min_distance < 1e-3,

@@ -6,6 +6,7 @@
 //! [`sinew_exact`], which shares no code with the solver; any intersection,
 //! a non-finite value or a refused step fails the case.
 
+use crate::stress::cloth::{FarSteps, residual_floor};
 use serde::Serialize;
 use sinew_exact::intersecting_pairs;
 use sinew_math::DVec3;
@@ -105,6 +106,8 @@ pub struct SelfContactOutcome {
     pub nan_steps: usize,
     /// Steps whose residual stayed above the tolerance.
     pub unconverged_steps: usize,
+    /// The steps' final residuals against the round-off floor.
+    pub far: FarSteps,
     /// Largest Newton iteration count of a step.
     pub iterations_max: usize,
     /// Wall-clock seconds.
@@ -143,6 +146,7 @@ pub fn run_self_contact_case(case: &SelfContactCase) -> SelfContactOutcome {
         active_pairs_max: 0,
         nan_steps: 0,
         unconverged_steps: 0,
+        far: FarSteps::default(),
         iterations_max: 0,
         seconds: 0.0,
         failures: Vec::new(),
@@ -254,6 +258,8 @@ pub fn run_self_contact_case(case: &SelfContactCase) -> SelfContactOutcome {
         if report.residual > report.tolerance {
             out.unconverged_steps += 1;
         }
+        out.far
+            .note(step, &report, residual_floor(&system, case.dt));
         let meeting = intersecting_pairs(system.positions(), &triangles);
         if let Some(&(a, b)) = meeting.first() {
             out.intersections += meeting.len();
@@ -274,13 +280,13 @@ pub fn self_contact_table(outcomes: &[SelfContactOutcome]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| case | steps | intersections | min gap (m) | active pairs max | NaN steps | unconverged steps | Newton max | seconds |"
+        "| case | steps | intersections | min gap (m) | active pairs max | NaN steps | unconverged steps | far | residual / max(tol, floor) max | Newton max | seconds |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
     for o in outcomes {
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {:.2e} | {} | {} | {} | {} | {:.2} |",
+            "| {} | {} | {} | {:.2e} | {} | {} | {} | {} | {:.2e} | {} | {:.2} |",
             o.case.label(),
             o.steps_run,
             o.intersections,
@@ -288,6 +294,8 @@ pub fn self_contact_table(outcomes: &[SelfContactOutcome]) -> String {
             o.active_pairs_max,
             o.nan_steps,
             o.unconverged_steps,
+            o.far.count,
+            o.far.ratio_max,
             o.iterations_max,
             o.seconds
         );
@@ -312,6 +320,15 @@ mod tests {
         assert!(out.failures.is_empty(), "{:?}", out.failures);
         assert_eq!(out.steps_run, 4);
         assert_eq!(out.intersections, 0);
+        assert!(out.far.ratio_max.is_finite(), "{:?}", out.far);
+        assert_eq!(
+            out.far.ratio_max > crate::stress::cloth::FAR_FACTOR,
+            out.far.count > 0,
+            "{:?}",
+            out.far
+        );
+        assert_eq!(out.far.first.is_some(), out.far.count > 0, "{:?}", out.far);
+        assert!(out.far.count <= out.unconverged_steps, "{out:?}");
         // At 2 m/s the free sheet covers its 2 cm in a hundredth of a second: it must
         // reach the barrier's range within the four steps, or the case tests nothing.
         assert!(out.min_gap < SELF_DHAT, "min gap {}", out.min_gap);
