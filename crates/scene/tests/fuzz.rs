@@ -243,6 +243,10 @@ fn within<T: Send + 'static>(
         .name("fuzz case".into())
         .spawn(move || {
             let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|p| {
+                if p.is::<OverTime>() {
+                    // Stopped at its time limit: reported as such, not as a panic.
+                    return OVER_TIME.to_string();
+                }
                 p.downcast_ref::<String>()
                     .cloned()
                     .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
