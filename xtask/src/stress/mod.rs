@@ -175,6 +175,26 @@ pub struct StressResults {
 }
 
 impl StressResults {
+    /// A run with no outcome yet.
+    #[must_use]
+    pub fn empty(machine: crate::machine::Machine, command: String, quick: bool) -> Self {
+        Self {
+            machine,
+            command,
+            quick,
+            cloth: Vec::new(),
+            cloth_seconds: 0.0,
+            contact: Vec::new(),
+            contact_seconds: 0.0,
+            self_contact: Vec::new(),
+            self_contact_seconds: 0.0,
+            ik: Vec::new(),
+            ik_seconds: 0.0,
+            body: Vec::new(),
+            body_seconds: 0.0,
+        }
+    }
+
     /// Every failure, as `part: case: sentence` (with `strict`, the steps left far from
     /// converged too).
     #[must_use]
@@ -333,21 +353,7 @@ pub fn run(args: &StressArgs) -> ExitCode {
     }
     let machine = crate::machine::Machine::read();
     let command = std::env::args().skip(2).collect::<Vec<_>>().join(" ");
-    let mut results = StressResults {
-        machine,
-        command,
-        quick: args.quick,
-        cloth: Vec::new(),
-        cloth_seconds: 0.0,
-        contact: Vec::new(),
-        contact_seconds: 0.0,
-        self_contact: Vec::new(),
-        self_contact_seconds: 0.0,
-        ik: Vec::new(),
-        ik_seconds: 0.0,
-        body: Vec::new(),
-        body_seconds: 0.0,
-    };
+    let mut results = StressResults::empty(machine, command, args.quick);
     let runs = |part: Part| args.only.is_none_or(|only| only == part);
     if runs(Part::Cloth) {
         let cases = args.cloth_cases();
@@ -467,19 +473,8 @@ mod tests {
 
     fn results(contact: Vec<cloth::ContactOutcome>) -> StressResults {
         StressResults {
-            machine: crate::machine::Machine::read(),
-            command: String::new(),
-            quick: true,
-            cloth: Vec::new(),
-            cloth_seconds: 0.0,
             contact,
-            contact_seconds: 0.0,
-            self_contact: Vec::new(),
-            self_contact_seconds: 0.0,
-            ik: Vec::new(),
-            ik_seconds: 0.0,
-            body: Vec::new(),
-            body_seconds: 0.0,
+            ..StressResults::empty(crate::machine::Machine::read(), String::new(), true)
         }
     }
 
