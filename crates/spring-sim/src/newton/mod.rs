@@ -1101,7 +1101,7 @@ fn combine_pieces(attempt: &StepReport, first: &StepReport, second: &StepReport)
 }
 
 /// Whether a solve may start at `x + dx` instead of the safe start `x` (x_n): with
-/// `no_worse`, the change `g(x + dx) - g(x)` is not positive, computed once and summed
+/// `check_change`, the change `g(x + dx) - g(x)` is not positive, computed once and summed
 /// term by term as in the line search (half the passes of two evaluations of `g`, and
 /// free of the cancellation of two large totals; a NaN counts as worse); and the
 /// straight path from `x` is admissible for a term with a barrier (contact): a point
@@ -1116,9 +1116,9 @@ fn start_is_acceptable(
     step: &StepContext<'_>,
     x: &[DVec3],
     dx: &[DVec3],
-    no_worse: bool,
+    check_change: bool,
 ) -> bool {
-    let no_higher = !no_worse || change_on_pool(potential, pcg, partials, step, x, dx) <= 0.0;
+    let no_higher = !check_change || change_on_pool(potential, pcg, partials, step, x, dx) <= 0.0;
     // Asked even when the change already refuses: a self-contact term's cap also
     // collects its pairs along the path, state the solve that follows starts from.
     let admissible = potential.max_step(step, x, dx) >= 1.0;
