@@ -256,6 +256,24 @@ fn bad_input_is_an_error_naming_it() {
     )
     .unwrap_err();
     assert!(err.to_string().contains("triangle 0"), "{err}");
+    // A barrier's reach (dhat plus the thickness) not below the shortest edge (0.1
+    // here) is refused, naming the edge; just below it is accepted.
+    for (dhat, thickness) in [(0.1, 0.0), (0.05, 0.05), (1e300, 0.0)] {
+        let mut be = model.backward_euler(NewtonSettings::default()).unwrap();
+        let settings = SelfContactSettings {
+            dhat,
+            thickness,
+            ..SelfContactSettings::default()
+        };
+        let err = model.enable_self_contact(&mut be, settings).unwrap_err();
+        assert!(err.to_string().contains("shortest edge"), "{err}");
+    }
+    let mut be = model.backward_euler(NewtonSettings::default()).unwrap();
+    let settings = SelfContactSettings {
+        dhat: 0.09,
+        ..SelfContactSettings::default()
+    };
+    model.enable_self_contact(&mut be, settings).unwrap();
     // Two sheets 0.5 mm apart with a 1 mm thickness: the start is refused, naming a pair.
     let (mut x2, mut t2) = grid(3, DVec3::ZERO, DVec3::X, DVec3::Z, 0.1, 0);
     let (xb, tb) = grid(3, DVec3::new(0.01, 5e-4, 0.01), DVec3::X, DVec3::Z, 0.1, 9);

@@ -282,6 +282,27 @@ impl SelfContactTerm {
         }
         let prims = Primitives::new(triangles);
         let x = system.positions();
+        // The barrier's reach must be below every edge: a vertex and a triangle at the
+        // far end of its shortest edge that does not contain it (there is one unless
+        // every triangle there does) are a pair at most that edge apart, so a longer
+        // reach puts such pairs in contact from the start whatever the motion (the sheet
+        // pushes on itself in its own plane), and a reach beyond the sheet makes every
+        // pair active at every iteration.
+        let reach = settings.dhat + settings.thickness;
+        if let Some((e, length)) = prims
+            .edges
+            .iter()
+            .map(|&[a, b]| ([a, b], (x[a] - x[b]).length()))
+            .min_by(|p, q| p.1.total_cmp(&q.1))
+            && length <= reach
+        {
+            return Err(ContactError::BadMesh {
+                item: format!(
+                    "the shortest edge {e:?} ({length:.3e}, against dhat + thickness = {reach:.3e})"
+                ),
+                reason: "is not longer than the barrier's reach; make dhat plus the thickness smaller than every edge",
+            });
+        }
         let root = settings.mollifier_ratio.sqrt();
         let edge_factor = prims
             .edges
