@@ -271,7 +271,7 @@ pub fn markdown(results: &StressResults, failures: &[String], unconverged: &[Str
     if !unconverged.is_empty() {
         let _ = writeln!(
             s,
-            "## Steps left far from converged\n\nThe first such step of each case (the solver reported `IterationCap` or `LineSearchStalled`; a broken invariant of the case would be listed under Failures):\n"
+            "## Steps left far from converged\n\nThe first such step of each case (the solver reported `IterationCap`, `LineSearchStalled` or `RoundOff`; a broken invariant of the case would be listed under Failures):\n"
         );
         for u in unconverged {
             let _ = writeln!(s, "- {u}");
@@ -314,12 +314,12 @@ fn cloth_markdown(s: &mut String, results: &StressResults) {
     }
     let _ = writeln!(
         s,
-        "<details><summary>Every cloth case</summary>\n\n| case | steps | it max | it mean | backtracks | residual/tol max | cap | stalled | at round-off | far | unconverged residual / max(tol, floor) | energy rise max | inequality excess / slack max | s |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        "<details><summary>Every cloth case</summary>\n\n| case | steps | it max | it mean | backtracks | residual/tol max | cap | stalled | round-off stop | at round-off | far | unconverged residual / max(tol, floor) | energy rise max | inequality excess / slack max | s |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     );
     for o in &results.cloth {
         let _ = writeln!(
             s,
-            "| {}{} | {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} |",
+            "| {}{} | {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} |",
             o.case.label(),
             if o.failures.is_empty() {
                 ""
@@ -333,9 +333,10 @@ fn cloth_markdown(s: &mut String, results: &StressResults) {
             sci(o.residual_ratio_max),
             o.cap_steps,
             o.stalled_steps,
+            o.roundoff_claims,
             o.roundoff_stops,
             o.far_stops,
-            if o.cap_steps + o.stalled_steps == 0 {
+            if o.cap_steps + o.stalled_steps + o.roundoff_claims == 0 {
                 "-".into()
             } else {
                 sci(o.unconverged_ratio_max)

@@ -384,18 +384,20 @@ impl FarSteps {
     }
 }
 
-/// The residual no iterate can be expected to beat: `16 EPS |x|_max (m/h^2 + sum_s k_s)`
-/// with the largest row over free particles. Moving any coordinate by one unit in the
-/// last place of `|x|_max` changes `grad g` by up to the Hessian's row sum times that
+/// The residual no iterate can be expected to beat: `16 EPS |x|_max (m/h^2 + sum_s (k_s +
+/// c/h))` with the largest row over free particles (`c` the material's damping, whose
+/// term has the curvature `c/h` along each spring). Moving any coordinate by one unit in
+/// the last place of `|x|_max` changes `grad g` by up to the Hessian's row sum times that
 /// ulp, and the gradient's own terms (`k (l - L)` from absolute positions) carry errors
 /// of the same order; the factor 16 is the one the property suite uses for a handful of
 /// rounded operations. A stall at or below this level is round-off, not a failure.
 #[must_use]
 pub fn residual_floor(system: &SpringSystem, h: f64) -> f64 {
     let mut rows: Vec<f64> = system.masses().iter().map(|m| m / (h * h)).collect();
+    let damping = system.material().damping / h;
     for s in system.springs() {
-        rows[s.a] += s.stiffness;
-        rows[s.b] += s.stiffness;
+        rows[s.a] += s.stiffness + damping;
+        rows[s.b] += s.stiffness + damping;
     }
     let row = rows
         .iter()
@@ -479,7 +481,11 @@ pub struct ClothOutcome {
     pub cap_steps: usize,
     /// Steps whose line search stalled.
     pub stalled_steps: usize,
-    /// Non-converged steps that ended at or below the round-off floor (fine).
+    /// Steps spring-sim stopped as at the round-off floor of its own Newton matrix
+    /// (`StepStop::RoundOff`), checked against this module's floor like the two above.
+    pub roundoff_claims: usize,
+    /// Non-converged steps (at the cap, stalled or claimed at round-off) that ended at or
+    /// below this module's round-off floor (fine).
     pub roundoff_stops: usize,
     /// Non-converged steps that ended above it (reported; failures with `--strict`).
     pub far_stops: usize,
@@ -517,6 +523,7 @@ impl ClothOutcome {
             residual_ratio_max: 0.0,
             cap_steps: 0,
             stalled_steps: 0,
+            roundoff_claims: 0,
             roundoff_stops: 0,
             far_stops: 0,
             unconverged_ratio_max: 0.0,
@@ -611,11 +618,14 @@ pub fn run_case(case: &ClothCase) -> ClothOutcome {
         match report.stop {
             // Velocity Verlet (under `auto`) does a fixed number of substeps.
             StepStop::Converged | StepStop::FixedWork => {}
-            StepStop::IterationCap | StepStop::LineSearchStalled => {
-                if report.stop == StepStop::IterationCap {
-                    out.cap_steps += 1;
-                } else {
-                    out.stalled_steps += 1;
+            // A round-off stop is spring-sim's own claim that the residual is at the
+            // floor of the arithmetic: it is checked against this module's floor like the
+            // other stops short of the tolerance.
+            StepStop::IterationCap | StepStop::LineSearchStalled | StepStop::RoundOff => {
+                match report.stop {
+                    StepStop::IterationCap => out.cap_steps += 1,
+                    StepStop::LineSearchStalled => out.stalled_steps += 1,
+                    _ => out.roundoff_claims += 1,
                 }
                 let floor = residual_floor(after, case.dt);
                 let r = report.residual / report.tolerance.max(floor);

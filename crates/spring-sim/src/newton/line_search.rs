@@ -14,6 +14,36 @@ use sinew_math::DVec3;
 /// 2^10 times the Newton step).
 pub(super) const MAX_EXPANSIONS: usize = 10;
 
+/// A rejected step is replaced by the minimizer of the quadratic through the slope and
+/// the change it gave when that minimizer is below this fraction of it; otherwise the
+/// step is halved.
+const JUMP_BELOW: f64 = 1.0 / 1_048_576.0;
+
+/// The next step length after `alpha` was rejected with the change `change` of `g`:
+/// half of it, or, when the change is so far above the linear prediction `alpha slope`
+/// that the quadratic model `slope t + c t^2` through it has its minimizer below
+/// [`JUMP_BELOW`] `alpha`, that minimizer. A Newton step along a direction of (almost)
+/// no curvature is huge (a flat sheet under gravity across its plane, whose springs at
+/// rest have no stiffness out of the plane, and a step of 1e12 s: a fall of 1e24), and
+/// halving it down to a step the springs allow would take more trials than the search
+/// has; the quadratic through the springs' energy there gives the right length at
+/// once. A change that is not finite (outside a barrier's domain) is halved.
+fn shorter(alpha: f64, slope: f64, change: f64) -> f64 {
+    let half = 0.5 * alpha;
+    if !change.is_finite() {
+        return half;
+    }
+    // `c alpha^2 = change - slope alpha > 0`, as the change is above `armijo slope alpha`
+    // with `slope < 0`.
+    let curvature_term = change - slope * alpha;
+    let minimizer = -slope * alpha * alpha / (2.0 * curvature_term);
+    if minimizer > 0.0 && minimizer < JUMP_BELOW * alpha {
+        minimizer
+    } else {
+        half
+    }
+}
+
 /// What one line search found.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Outcome {
@@ -65,7 +95,7 @@ pub(super) fn search(
                 break;
             }
             backtracks += 1;
-            alpha *= 0.5;
+            alpha = shorter(alpha, slope, change);
         }
     }
     let Some(mut best) = accepted else {

@@ -121,6 +121,8 @@ pub struct BackwardEuler {
     last_piece_depth: usize,
     /// The iterate a continued solve starts from (see `CONTINUED_CAPS`).
     continue_from: Vec<DVec3>,
+    /// Row sums for the round-off floor ([`Self::gradient_floor`]).
+    row_scratch: Vec<f64>,
     /// The time the next step starts at (kinematic colliders are posed from it).
     time: f64,
     /// The current solve's times and unknowns, handed to the terms.
@@ -170,6 +172,7 @@ impl BackwardEuler {
             split_saves: Vec::new(),
             last_piece_depth: 0,
             continue_from: Vec::new(),
+            row_scratch: Vec::new(),
             time: 0.0,
             timing: StepTiming {
                 start: 0.0,
@@ -629,10 +632,9 @@ impl BackwardEuler {
 
     /// Whether a solve stopped without converging (at the cap or in a stalled line
     /// search) with its residual above both its tolerance and the round-off floor
-    /// `16 eps |x|_max max_p (m_p/h^2 + sum of the stiffnesses at p)`: moving a
-    /// coordinate by one ulp of `|x|_max` changes `grad g` by up to the Newton matrix's
-    /// row sum times that ulp, so no solver can be asked for less. Only then can a
-    /// shorter step help; a solve stopped at round-off is as good as converged.
+    /// ([`Self::gradient_floor`], with the Newton matrix its last iteration assembled):
+    /// only then can a shorter step help; a solve stopped at round-off is as good as
+    /// converged.
     fn far_from_converged(&mut self, system: &SpringSystem, report: &StepReport, h: f64) -> bool {
         if !matches!(
             report.stop,
@@ -641,28 +643,42 @@ impl BackwardEuler {
         {
             return false;
         }
+        report.residual > self.gradient_floor(system, h, report.iterations > 0)
+    }
+
+    /// The round-off floor of `|grad g|_inf` at `self.x`: `16 eps |x|_max` times the
+    /// larger of `max_p (m_p/h^2 + sum of the stiffnesses at p)` over the free particles
+    /// and, when `assembled` (the current solve built a Newton matrix, in
+    /// `self.values`), that matrix's largest absolute row sum, which also holds the
+    /// damping's `d/h` and the barriers' curvature. Moving a coordinate by one ulp of
+    /// `|x|_max` changes `grad g` by up to the row sum times that ulp, and the terms'
+    /// gradients, computed from absolute positions, carry rounding of that order: no
+    /// solver can be asked for less.
+    pub(super) fn gradient_floor(&mut self, system: &SpringSystem, h: f64, assembled: bool) -> f64 {
         let x_max = self
             .x
             .iter()
             .fold(0.0f64, |m, x| m.max(x.abs().max_element()));
-        // Per-particle stiffness sums, in the gradient buffer (free until the next solve).
-        let row = &mut self.grad_particles;
-        row.fill(DVec3::ZERO);
+        let row = &mut self.row_scratch;
+        row.clear();
+        row.resize(system.len(), 0.0);
         for s in system.springs() {
-            row[s.a].x += s.stiffness;
-            row[s.b].x += s.stiffness;
+            row[s.a] += s.stiffness;
+            row[s.b] += s.stiffness;
         }
         let inv_h2 = 1.0 / (h * h);
-        let largest = system
+        let mut largest = system
             .masses()
             .iter()
             .zip(row.iter())
             .zip(system.fixed())
             .filter(|(_, f)| !**f)
-            .map(|((m, k), _)| m * inv_h2 + k.x)
+            .map(|((m, k), _)| m * inv_h2 + k)
             .fold(0.0f64, f64::max);
-        let floor = 16.0 * f64::EPSILON * x_max * largest;
-        report.residual > floor
+        if assembled {
+            largest = largest.max(self.pattern.max_abs_row_sum(&self.values, row));
+        }
+        16.0 * f64::EPSILON * x_max * largest
     }
 
     /// Sets up and runs the minimization of one step of `scheme` from `system`'s state,

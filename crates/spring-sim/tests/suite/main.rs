@@ -19,6 +19,7 @@ mod errors;
 mod explicit_bits;
 mod factor_reuse;
 mod integrators;
+mod long_steps;
 mod mesh;
 mod parallel_assembly;
 mod pins;

@@ -1,0 +1,147 @@
+//! Steps at the edges of the arithmetic: a step so long that backward Euler is a static
+//! solve, and damping so strong that the tolerance lies below the round-off of the
+//! gradient. Each must end in few iterations, unsplit, at an answer checked here from the
+//! forces themselves.
+
+use crate::common::contact_sheet;
+use sinew_spring_sim::contact::{Collider, ContactSettings};
+use sinew_spring_sim::*;
+
+/// Per free particle, the static force `sum_s k (l - L) u + m gravity` (springs pulling
+/// it, gravity), computed here from the springs, independently of the solver's terms;
+/// its largest component.
+fn static_force_inf(system: &SpringSystem) -> f64 {
+    let x = system.positions();
+    let mut force: Vec<DVec3> = system
+        .masses()
+        .iter()
+        .map(|m| *m * system.material().gravity)
+        .collect();
+    for s in system.springs() {
+        let d = x[s.b] - x[s.a];
+        let l = d.length();
+        let pull = s.stiffness * (l - s.rest_length) / l * d;
+        force[s.a] += pull;
+        force[s.b] -= pull;
+    }
+    force
+        .iter()
+        .zip(system.fixed())
+        .filter(|(_, f)| !**f)
+        .map(|(f, _)| f.abs().max_element())
+        .fold(0.0, f64::max)
+}
+
+/// A step of 1e12 s of the lab cloth (flat, at rest, undamped) is a static solve: it
+/// lands on the hanging sheet's equilibrium. The Newton step from the flat sheet is a
+/// fall of `g h^2 ~ 3e23` (springs at rest resist nothing across the sheet), which
+/// halving alone could not shorten to what the springs accept within the line search's
+/// trials: the sheet stayed flat and every step was split to its deepest level.
+#[test]
+fn a_step_of_a_trillion_seconds_lands_on_the_static_equilibrium() {
+    let mut system = SpringSystem::cloth(&ClothGrid::lab().with_damping(0.0)).unwrap();
+    let start_y = system.positions()[60].y;
+    let weight = 0.3;
+    let mut stepper = BackwardEuler::new(&system, NewtonSettings::default()).unwrap();
+    let h = 1e12;
+    let report = stepper.step(&mut system, h).unwrap();
+    assert_eq!(report.pieces, 1, "{report:?}");
+    assert!(report.iterations < 50, "{report:?}");
+    // The tolerance (1e-9 m / h^2 = 1e-33) is far below what f64 resolves here.
+    assert_eq!(report.stop, StepStop::RoundOff, "{report:?}");
+    // The centre of the sheet hangs well below where it started.
+    assert!(
+        system.positions()[60].y < start_y - 1.0,
+        "{:?}",
+        system.positions()[60]
+    );
+    // Equilibrium: the springs carry every particle's weight, to 1e-10 of it.
+    let force = static_force_inf(&system);
+    assert!(force <= 1e-10 * weight, "static force {force:e}");
+    // At equilibrium the next step has nothing left to do.
+    let before = system.positions().to_vec();
+    let report = stepper.step(&mut system, h).unwrap();
+    assert!(report.iterations <= 2, "{report:?}");
+    assert_eq!(report.pieces, 1, "{report:?}");
+    let moved = before
+        .iter()
+        .zip(system.positions())
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0, f64::max);
+    assert!(moved < 1e-12, "moved {moved:e}");
+    assert!(static_force_inf(&system) <= 1e-10 * weight);
+}
+
+/// A sheet with damping `c = 2^32` (`c/h = 2.6e11` per spring, against `m/h^2 = 0.65`)
+/// falling onto a sphere: the damping's rounding in the gradient is far above the
+/// tolerance, so no iterate can reach it. Each step must stop at the round-off floor in
+/// a handful of iterations, unsplit, with every particle outside the sphere; and each
+/// such stop is checked against a floor computed here from the springs and the damping
+/// alone (`16 eps |x|_max max_p (m_p/h^2 + sum_s (k_s + c/h))`), with no help from the
+/// solver's Newton matrix.
+#[test]
+fn huge_damping_stops_at_round_off_instead_of_splitting() {
+    let n = 10;
+    let spacing = 0.03;
+    let origin = DVec3::new(-0.135, 0.08, -0.135);
+    let mut system = contact_sheet(n, spacing, origin, DVec3::X, DVec3::Z);
+    let c = 4_294_967_296.0;
+    system.set_damping(c).unwrap();
+    let (center, radius) = (DVec3::ZERO, 0.06);
+    let settings = NewtonSettings {
+        max_iterations: 100,
+        ..NewtonSettings::default()
+    };
+    let mut sim = Simulation::new(system, Integrator::BackwardEuler(settings)).unwrap();
+    let contact = ContactSettings {
+        mu: 0.3,
+        ..ContactSettings::default()
+    };
+    sim.set_contact(vec![Collider::sphere(center, radius)], contact)
+        .unwrap();
+    let h = 1.0 / 60.0;
+    let mut round_off_stops = 0;
+    let mut touched = false;
+    for step in 0..20 {
+        let report = sim.step(h).unwrap();
+        let system = sim.system();
+        assert_eq!(report.pieces, 1, "step {step}: {report:?}");
+        assert!(report.iterations <= 20, "step {step}: {report:?}");
+        let closest = system
+            .positions()
+            .iter()
+            .map(|p| p.distance(center) - radius)
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            closest > 0.0,
+            "step {step}: a particle is inside the sphere"
+        );
+        touched |= closest < contact.dhat;
+        match report.stop {
+            StepStop::Converged => assert!(report.residual <= report.tolerance),
+            StepStop::RoundOff => {
+                round_off_stops += 1;
+                let mut rows: Vec<f64> = system.masses().iter().map(|m| m / (h * h)).collect();
+                for s in system.springs() {
+                    rows[s.a] += s.stiffness + c / h;
+                    rows[s.b] += s.stiffness + c / h;
+                }
+                let row = rows.iter().copied().fold(0.0, f64::max);
+                let x_max = system
+                    .positions()
+                    .iter()
+                    .map(|x| x.abs().max_element())
+                    .fold(0.0, f64::max);
+                let floor = 16.0 * f64::EPSILON * x_max * row;
+                assert!(
+                    report.residual <= floor,
+                    "step {step}: residual {:e} above the floor {floor:e}",
+                    report.residual
+                );
+            }
+            other => panic!("step {step}: stopped {other:?}: {report:?}"),
+        }
+    }
+    assert!(touched, "the sheet never reached the sphere");
+    assert!(round_off_stops > 0, "no step met the round-off floor");
+}
