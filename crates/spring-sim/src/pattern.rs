@@ -192,25 +192,6 @@ impl HessianPattern {
         DMat3::from_cols_array(&[a00, a10, a20, a10, a11, a21, a20, a21, a22])
     }
 
-    /// The largest absolute row sum `max_i sum_j |A_ij|` of the symmetric matrix whose
-    /// lower triangle has `values` (its infinity norm), with `rows` as scratch.
-    pub(crate) fn max_abs_row_sum(&self, values: &[f64], rows: &mut Vec<f64>) -> f64 {
-        rows.clear();
-        rows.resize(self.dim(), 0.0);
-        let col_ptr = self.symbolic.col_ptr();
-        let row_idx = self.symbolic.row_idx();
-        for j in 0..self.dim() {
-            for k in col_ptr[j]..col_ptr[j + 1] {
-                let (i, v) = (row_idx[k], values[k].abs());
-                rows[i] += v;
-                if i != j {
-                    rows[j] += v;
-                }
-            }
-        }
-        rows.iter().copied().fold(0.0, f64::max)
-    }
-
     /// `y = A x` for the symmetric matrix whose lower triangle has `values`.
     ///
     /// Column `3 p + c` holds its diagonal entry, the `2 - c` entries below it in `p`'s

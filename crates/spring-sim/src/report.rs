@@ -124,10 +124,11 @@ pub enum StepStop {
     /// The iteration cap was reached first.
     IterationCap,
     /// `|grad g|_inf` is below the round-off floor of its evaluation, `16 eps |x|_max`
-    /// times the Newton matrix's largest row sum (inertia and springs), and the last
+    /// times the largest row sum of inertia, springs and damping,
+    /// `max_p (m_p/h^2 + sum over the springs at p of (k_s + c/h))`, and the last
     /// iteration did not halve it: the tolerance lies below what the arithmetic can
-    /// resolve at this state (a tight tolerance with stiff springs, or a very long
-    /// step), and the iterate is as converged as it can be.
+    /// resolve at this state (a tight tolerance with stiff springs or strong damping, or
+    /// a very long step), and the iterate is as converged as it can be.
     RoundOff,
     /// The line search could not decrease `g` (the iterate is at round-off level of a
     /// minimum, or the direction was useless); the last accepted iterate is kept.

@@ -375,13 +375,19 @@ impl FarSteps {
         if ratio > FAR_FACTOR {
             self.count += 1;
             if self.first.is_none() {
-                self.first = Some(format!(
-                    "step {step}: stopped ({:?}) far from converged: residual {:.3e} = {ratio:.3e} x max(tolerance {:.3e}, round-off floor {floor:.3e})",
-                    report.stop, report.residual, report.tolerance
-                ));
+                self.first = Some(far_sentence(step, report, ratio, floor));
             }
         }
     }
+}
+
+/// The sentence reporting step `step` as stopped far from converged: its stop, its
+/// residual, and that as `ratio` times `max(tolerance, floor)`.
+fn far_sentence(step: usize, report: &StepReport, ratio: f64, floor: f64) -> String {
+    format!(
+        "step {step}: stopped ({:?}) far from converged: residual {:.3e} = {ratio:.3e} x max(tolerance {:.3e}, round-off floor {floor:.3e})",
+        report.stop, report.residual, report.tolerance
+    )
 }
 
 /// The residual no iterate can be expected to beat: `16 EPS |x|_max (m/h^2 + sum_s (k_s +
@@ -635,10 +641,7 @@ pub fn run_case(case: &ClothCase) -> ClothOutcome {
                 } else {
                     out.far_stops += 1;
                     if out.far_stops == 1 {
-                        out.unconverged = Some(format!(
-                            "step {n}: stopped ({:?}) far from converged: residual {:.3e} = {:.3e} x max(tolerance {:.3e}, round-off floor {:.3e})",
-                            report.stop, report.residual, r, report.tolerance, floor
-                        ));
+                        out.unconverged = Some(far_sentence(n, &report, r, floor));
                     }
                 }
             }

@@ -138,15 +138,15 @@ impl BackwardEuler {
                 report.stop = StepStop::Converged;
                 break;
             }
-            // A tolerance below the round-off floor of the gradient (inertia and springs)
-            // cannot be reached: once the residual is below that floor and an iteration
+            // A tolerance below the round-off floor of the gradient (inertia, springs and
+            // damping) cannot be reached: once the residual is below that floor and an iteration
             // no longer halves it, the iterations are moving round-off about, and the
             // step ends there rather than at the cap (which would also send it to be
             // split, for nothing). While the residual still falls fast, they go on: the
             // floor is a bound, and the rounding is often well below it.
             if report.iterations > 0
                 && residual > 0.5 * previous_residual
-                && residual <= self.gradient_floor(system, h, true)
+                && residual <= self.gradient_floor(system, h)
             {
                 report.stop = StepStop::RoundOff;
                 break;

@@ -632,9 +632,8 @@ impl BackwardEuler {
 
     /// Whether a solve stopped without converging (at the cap or in a stalled line
     /// search) with its residual above both its tolerance and the round-off floor
-    /// ([`Self::gradient_floor`], with the Newton matrix its last iteration assembled):
-    /// only then can a shorter step help; a solve stopped at round-off is as good as
-    /// converged.
+    /// ([`Self::gradient_floor`]): only then can a shorter step help; a solve stopped at
+    /// round-off is as good as converged.
     fn far_from_converged(&mut self, system: &SpringSystem, report: &StepReport, h: f64) -> bool {
         if !matches!(
             report.stop,
@@ -643,31 +642,32 @@ impl BackwardEuler {
         {
             return false;
         }
-        report.residual > self.gradient_floor(system, h, report.iterations > 0)
+        report.residual > self.gradient_floor(system, h)
     }
 
-    /// The round-off floor of `|grad g|_inf` at `self.x`: `16 eps |x|_max` times the
-    /// larger of `max_p (m_p/h^2 + sum of the stiffnesses at p)` over the free particles
-    /// and, when `assembled` (the current solve built a Newton matrix, in
-    /// `self.values`), that matrix's largest absolute row sum, which also holds the
-    /// damping's `d/h` and the barriers' curvature. Moving a coordinate by one ulp of
-    /// `|x|_max` changes `grad g` by up to the row sum times that ulp, and the terms'
-    /// gradients, computed from absolute positions, carry rounding of that order: no
-    /// solver can be asked for less.
-    pub(super) fn gradient_floor(&mut self, system: &SpringSystem, h: f64, assembled: bool) -> f64 {
+    /// The round-off floor of `|grad g|_inf` at `self.x`:
+    /// `16 eps |x|_max max_p (m_p/h^2 + sum over the springs at p of (k_s + c/h))` over the
+    /// free particles, `c` the damping (its term's curvature along each spring is `c/h`).
+    /// Moving a coordinate by one ulp of `|x|_max` changes `grad g` by up to the Newton
+    /// matrix's row sum times that ulp, and the terms' gradients, computed from absolute
+    /// positions, carry rounding of that order: no solver can be asked for less. (The
+    /// stress grid checks every stop short of the tolerance against the same bound,
+    /// computed on its own.)
+    pub(super) fn gradient_floor(&mut self, system: &SpringSystem, h: f64) -> f64 {
         let x_max = self
             .x
             .iter()
             .fold(0.0f64, |m, x| m.max(x.abs().max_element()));
+        let damping = system.material().damping / h;
         let row = &mut self.row_scratch;
         row.clear();
         row.resize(system.len(), 0.0);
         for s in system.springs() {
-            row[s.a] += s.stiffness;
-            row[s.b] += s.stiffness;
+            row[s.a] += s.stiffness + damping;
+            row[s.b] += s.stiffness + damping;
         }
         let inv_h2 = 1.0 / (h * h);
-        let mut largest = system
+        let largest = system
             .masses()
             .iter()
             .zip(row.iter())
@@ -675,9 +675,6 @@ impl BackwardEuler {
             .filter(|(_, f)| !**f)
             .map(|((m, k), _)| m * inv_h2 + k)
             .fold(0.0f64, f64::max);
-        if assembled {
-            largest = largest.max(self.pattern.max_abs_row_sum(&self.values, row));
-        }
         16.0 * f64::EPSILON * x_max * largest
     }
 
