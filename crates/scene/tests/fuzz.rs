@@ -4,7 +4,9 @@
 //! brackets nested deeply) and each mutant is read and checked. The property: a located
 //! error (file:line:col, or the task and the field) or a scene that validates, never a
 //! panic, and never longer than a time limit. The mutants of the small scenes that
-//! validate are also run, each under a time limit scaled from its original's run.
+//! validate are also run, each at a pace (time per step or frame of each task) within
+//! twenty times its original's, and stopped at a time budget scaled from its original's
+//! run (a mutant may ask for many more steps: done at pace, that is not a hang).
 //!
 //! Cases come from a fixed seed, so CI sees the same ones every time;
 //! `SINEW_FUZZ_CASES` sets how many (default 300), `SINEW_FUZZ_SEED` the seed and
@@ -233,7 +235,8 @@ fn located(error: &SceneError) -> bool {
 
 /// Runs `f` on its own thread and waits at most `limit`: `None` if it did not finish
 /// (the thread is left behind; the test fails), `Some(Err(panic message))` if it
-/// panicked.
+/// panicked; a run stopped by the test's own [`Stop`] payload is `Some(Err(...))` with
+/// that stop's words, not a panic.
 fn within<T: Send + 'static>(
     limit: Duration,
     f: impl FnOnce() -> T + Send + 'static,
@@ -243,9 +246,8 @@ fn within<T: Send + 'static>(
         .name("fuzz case".into())
         .spawn(move || {
             let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|p| {
-                if p.is::<OverTime>() {
-                    // Stopped at its time limit: reported as such, not as a panic.
-                    return OVER_TIME.to_string();
+                if let Some(stop) = p.downcast_ref::<Stop>() {
+                    return stop.words();
                 }
                 p.downcast_ref::<String>()
                     .cloned()
@@ -258,28 +260,147 @@ fn within<T: Send + 'static>(
     receive.recv_timeout(limit).ok()
 }
 
-/// The payload of the panic that stops a run over its time limit (from the progress
-/// callback, so a run that goes on too long stops instead of running on in the
-/// background).
-struct OverTime;
+/// The payload of the unwinding that stops a run from its progress callback (so a run
+/// stopped by the test does not run on in the background).
+enum Stop {
+    /// A task ran more than twenty times slower per unit of work (step, frame) than the
+    /// same task of the original: the sentence says which, and how slow.
+    OverPace(String),
+    /// The run reached its time budget at an acceptable pace: it asked for more units of
+    /// work than the original (a step count made larger) and was doing them at most
+    /// twenty times slower each. Not a failure.
+    OnPace,
+}
 
-/// What [`within`] reports for a run stopped by [`OverTime`].
-const OVER_TIME: &str = "over the time limit";
+/// What [`within`] reports for a run stopped on pace.
+const ON_PACE: &str = "stopped on pace at its time budget";
+/// The start of what [`within`] reports for a run stopped over pace.
+const OVER_PACE: &str = "over pace";
 
-/// Runs `scene` on its own thread: `Some(Ok(()))` when it finished within `limit`,
-/// `Some(Err(OVER_TIME))` when it was stopped at the first unit of work after `limit`,
-/// `Some(Err(message))` when it panicked, `None` when it did not even stop (a unit of
-/// work that never ends).
-fn run_within(scene: Scene, limit: Duration) -> Option<Result<(), String>> {
-    within(limit * 2 + Duration::from_secs(10), move || {
+impl Stop {
+    fn words(&self) -> String {
+        match self {
+            Self::OverPace(why) => format!("{OVER_PACE}: {why}"),
+            Self::OnPace => ON_PACE.to_string(),
+        }
+    }
+}
+
+/// How fast an original scene ran: per task, the time per unit of progress (the task's
+/// wall time, from the end of the task before it, over its units), and the slowest of
+/// them (for a task whose name a mutation changed).
+#[derive(Clone, Debug)]
+struct Pace {
+    per_unit: Vec<(String, Duration)>,
+    slowest: Duration,
+}
+
+impl Pace {
+    fn per_unit(&self, task: &str) -> Duration {
+        self.per_unit
+            .iter()
+            .find(|(name, _)| name == task)
+            .map_or(self.slowest, |(_, d)| *d)
+    }
+}
+
+/// A mutant's task may take this many times the original task's time per unit of work ...
+const PACE_FACTOR: u32 = 20;
+/// ... plus this (a loaded machine, a task's set-up before its first unit).
+const PACE_SLACK: Duration = Duration::from_secs(2);
+
+/// The progress seen so far by a run's callback: the current task, when it started (the
+/// end of the task before it) and the time of the last unit.
+struct Seen {
+    task: String,
+    task_start: Instant,
+    last: Instant,
+}
+
+impl Seen {
+    fn new() -> Self {
+        let now = Instant::now();
+        Self {
+            task: String::new(),
+            task_start: now,
+            last: now,
+        }
+    }
+
+    /// Notes a unit of `task` at `now` (a task seen for the first time starts at the last
+    /// unit of the one before it); returns the time since the task started.
+    fn note(&mut self, task: &str, now: Instant) -> Duration {
+        if task != self.task {
+            self.task = task.to_string();
+            self.task_start = self.last;
+        }
+        self.last = now;
+        now - self.task_start
+    }
+}
+
+/// Runs an original scene within `limit`, measuring its time and pace (`None` if it did
+/// not finish in time).
+fn measure(scene: Scene, limit: Duration) -> Option<(Duration, Pace)> {
+    let outcome = within(limit * 2 + Duration::from_secs(10), move || {
         let start = Instant::now();
-        let stop = move |_: &str, _: usize, _: usize| {
-            if start.elapsed() > limit {
-                std::panic::panic_any(OverTime);
+        let seen = std::cell::RefCell::new(Seen::new());
+        let tasks = std::cell::RefCell::new(Vec::<(String, Duration, usize)>::new());
+        let record = |task: &str, _done: usize, total: usize| {
+            let elapsed = seen.borrow_mut().note(task, Instant::now());
+            let mut tasks = tasks.borrow_mut();
+            match tasks.last_mut() {
+                Some(last) if last.0 == task => (last.1, last.2) = (elapsed, total),
+                _ => tasks.push((task.to_string(), elapsed, total)),
             }
         };
         let _ = scene.run(&RunOptions {
-            progress: Some(&stop),
+            progress: Some(&record),
+            ..RunOptions::default()
+        });
+        let per_unit: Vec<(String, Duration)> = tasks
+            .into_inner()
+            .into_iter()
+            .map(|(name, time, units)| (name, time / units.max(1) as u32))
+            .collect();
+        let slowest = per_unit.iter().map(|(_, d)| *d).max().unwrap_or_default();
+        (start.elapsed(), Pace { per_unit, slowest })
+    });
+    match outcome {
+        Some(Ok((time, pace))) if time <= limit => Some((time, pace)),
+        _ => None,
+    }
+}
+
+/// Runs a mutant on its own thread with a budget of `budget`: `Some(Ok(()))` when it
+/// finished, `Some(Err(words))` when it was stopped ([`Stop`]) or panicked, `None` when
+/// it did not even stop (a unit of work that never ends). At every unit of work, the
+/// time the current task has taken is compared with [`PACE_FACTOR`] times the original
+/// task's time per unit, times the units done, plus [`PACE_SLACK`]: above it the run is
+/// over pace. A run within pace that reaches the budget is stopped on pace: a mutant may
+/// ask for many more steps than its original, and doing them at the original's pace is
+/// not a hang.
+fn run_paced(scene: Scene, pace: Pace, budget: Duration) -> Option<Result<(), String>> {
+    within(budget * 2 + Duration::from_secs(10), move || {
+        let start = Instant::now();
+        let seen = std::cell::RefCell::new(Seen::new());
+        let check = |task: &str, done: usize, total: usize| {
+            let now = Instant::now();
+            let elapsed = seen.borrow_mut().note(task, now);
+            let allowed = pace.per_unit(task) * PACE_FACTOR * done as u32 + PACE_SLACK;
+            if elapsed > allowed {
+                std::panic::panic_any(Stop::OverPace(format!(
+                    "task {task:?}: {done} of {total} units in {elapsed:?}, allowed {allowed:?} \
+                     ({PACE_FACTOR} times the original's {:?} per unit, plus {PACE_SLACK:?})",
+                    pace.per_unit(task)
+                )));
+            }
+            if now - start > budget {
+                std::panic::panic_any(Stop::OnPace);
+            }
+        };
+        let _ = scene.run(&RunOptions {
+            progress: Some(&check),
             ..RunOptions::default()
         });
     })
@@ -316,11 +437,11 @@ fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
 }
 
 /// An original scene: its text and, for a small scene that validates, how long its
-/// unmutated run took.
+/// unmutated run took and at what pace.
 struct Original {
     path: PathBuf,
     text: String,
-    run_time: Option<Duration>,
+    run_time: Option<(Duration, Pace)>,
 }
 
 #[test]
@@ -328,11 +449,11 @@ fn mutated_scenes_give_a_located_error_or_validate_and_run_in_bounded_time() {
     let count: usize = env_or("SINEW_FUZZ_CASES", DEFAULT_CASES);
     let seed: u64 = env_or("SINEW_FUZZ_SEED", DEFAULT_SEED);
     let max_runs: usize = env_or("SINEW_FUZZ_RUNS", usize::MAX);
-    // A run stopped at its time limit unwinds with `OverTime`: that is not a panic to
-    // report, so the hook stays quiet for it (and only for it).
+    // A run stopped by the test unwinds with a `Stop`: that is not a panic to report, so
+    // the hook stays quiet for it (and only for it).
     let default_hook = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
-        if !info.payload().is::<OverTime>() {
+        if !info.payload().is::<Stop>() {
             default_hook(info);
         }
     }));
@@ -342,13 +463,9 @@ fn mutated_scenes_give_a_located_error_or_validate_and_run_in_bounded_time() {
             // One broken scene is not UTF-8 on purpose: its text is read leniently.
             let text =
                 String::from_utf8_lossy(&std::fs::read(&path).expect("a scene file")).into_owned();
-            let run_time = Scene::from_text(&path, &text).ok().and_then(|scene| {
-                let start = Instant::now();
-                match run_within(scene, SMALL_RUN) {
-                    Some(Ok(())) => Some(start.elapsed()),
-                    _ => None,
-                }
-            });
+            let run_time = Scene::from_text(&path, &text)
+                .ok()
+                .and_then(|scene| measure(scene, SMALL_RUN));
             Original {
                 path,
                 text,
@@ -365,7 +482,7 @@ fn mutated_scenes_give_a_located_error_or_validate_and_run_in_bounded_time() {
     );
 
     let mut cases = Cases(seed.max(1));
-    let (mut valid, mut located_errors, mut runs) = (0, 0, 0);
+    let (mut valid, mut located_errors, mut runs, mut on_pace) = (0, 0, 0, 0);
     let mut failures = Vec::new();
     let start = Instant::now();
     for case in 0..count {
@@ -402,21 +519,22 @@ fn mutated_scenes_give_a_located_error_or_validate_and_run_in_bounded_time() {
             Some(Ok(Ok((scene, _)))) => scene,
         };
         valid += 1;
-        let Some(base) = original.run_time.filter(|_| runs < max_runs) else {
+        let Some((base, pace)) = original.run_time.clone().filter(|_| runs < max_runs) else {
             continue;
         };
         // A mutant may ask for more work than its original (a digit flipped), within
-        // the limits; twenty times the original's time and two seconds allow for that
-        // and for a loaded machine.
-        let limit = base * 20 + Duration::from_secs(2);
+        // the limits; it runs at most twenty times the original's time and two seconds,
+        // and is judged by its pace (`run_paced`).
+        let budget = base * 20 + Duration::from_secs(2);
         runs += 1;
-        match run_within(scene, limit) {
+        match run_paced(scene, pace, budget) {
             None => {
                 failures.push(format!("{what}: the run did not stop"));
                 break;
             }
-            Some(Err(e)) if e == OVER_TIME => {
-                failures.push(format!("{what}: the run took over {limit:?}"));
+            Some(Err(e)) if e == ON_PACE => on_pace += 1,
+            Some(Err(e)) if e.starts_with(OVER_PACE) => {
+                failures.push(format!("{what}: the run was {e}"));
             }
             Some(Err(panic)) => failures.push(format!("{what}: panicked running: {panic}")),
             Some(Ok(())) => {}
@@ -424,7 +542,8 @@ fn mutated_scenes_give_a_located_error_or_validate_and_run_in_bounded_time() {
     }
     println!(
         "{count} cases from seed {seed:#x} in {:.1} s: {located_errors} located errors, \
-         {valid} validated ({runs} run), {} failures",
+         {valid} validated ({runs} run, {on_pace} of them stopped on pace at their time \
+         budget), {} failures",
         start.elapsed().as_secs_f64(),
         failures.len()
     );

@@ -7,7 +7,9 @@
 //! solver; any intersection fails the task.
 
 use super::{RunContext, TaskOutput, TaskSpec};
-use crate::limits::{MAX_ITERATIONS, MAX_PARTICLE_STEPS, MAX_PARTICLES, MAX_STEPS, at_most};
+use crate::limits::{
+    MAX_GRID_SIZE, MAX_ITERATIONS, MAX_PARTICLE_STEPS, MAX_PARTICLES, MAX_STEPS, at_most,
+};
 use crate::results::{ClothFrame, ClothPictures, Csv, MeshClothMetrics, Pictures, TaskMetrics};
 use serde::Deserialize;
 use sinew_exact::intersecting_pairs;
@@ -211,7 +213,10 @@ impl MeshClothTask {
                     if n < 2 {
                         return Err(format!("sheets[{k}]: size = {n}, must be at least 2"));
                     }
-                    at_most(&format!("sheets[{k}]: size"), n * n, MAX_PARTICLES)?;
+                    // The side first: `n * n` of a side near `usize::MAX` wraps round to a
+                    // small number in a release build (and panics in a debug one).
+                    at_most(&format!("sheets[{k}]: size"), n, MAX_GRID_SIZE)?;
+                    at_most(&format!("sheets[{k}]: vertices"), n * n, MAX_PARTICLES)?;
                     if !(spacing.is_finite() && *spacing > 0.0) {
                         return Err(format!(
                             "sheets[{k}]: spacing = {spacing}, must be finite and > 0"
