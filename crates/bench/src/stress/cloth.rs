@@ -397,8 +397,13 @@ fn far_sentence(step: usize, report: &StepReport, ratio: f64, floor: f64) -> Str
 /// ulp, and the gradient's own terms (`k (l - L)` from absolute positions) carry errors
 /// of the same order; the factor 16 is the one the property suite uses for a handful of
 /// rounded operations. A stall at or below this level is round-off, not a failure.
+///
+/// `h` is the step's finest piece, `dt / 2^split_depth` (the report's depth): a piece's
+/// solve has the inertia `m/h^2` and the damping `c/h` of its own length, and spring-sim
+/// judges it by them, so a step split in pieces is judged by its finest piece's floor.
 #[must_use]
-pub fn residual_floor(system: &SpringSystem, h: f64) -> f64 {
+pub fn residual_floor(system: &SpringSystem, dt: f64, report: &StepReport) -> f64 {
+    let h = dt / f64::from(1u32 << report.split_depth.min(30));
     let mut rows: Vec<f64> = system.masses().iter().map(|m| m / (h * h)).collect();
     let damping = system.material().damping / h;
     for s in system.springs() {
@@ -633,7 +638,7 @@ pub fn run_case(case: &ClothCase) -> ClothOutcome {
                     StepStop::LineSearchStalled => out.stalled_steps += 1,
                     _ => out.roundoff_claims += 1,
                 }
-                let floor = residual_floor(after, case.dt);
+                let floor = residual_floor(after, case.dt, &report);
                 let r = report.residual / report.tolerance.max(floor);
                 out.unconverged_ratio_max = out.unconverged_ratio_max.max(r);
                 if r <= FAR_FACTOR {
@@ -975,7 +980,7 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
             out.unconverged_steps += 1;
         }
         out.far
-            .note(n, &report, residual_floor(sim.system(), case.dt));
+            .note(n, &report, residual_floor(sim.system(), case.dt, &report));
         let mut inside = 0;
         for x in positions {
             let d = contact_distance(case.target, *x);

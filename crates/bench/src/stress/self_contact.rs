@@ -259,7 +259,7 @@ pub fn run_self_contact_case(case: &SelfContactCase) -> SelfContactOutcome {
             out.unconverged_steps += 1;
         }
         out.far
-            .note(step, &report, residual_floor(&system, case.dt));
+            .note(step, &report, residual_floor(&system, case.dt, &report));
         let meeting = intersecting_pairs(system.positions(), &triangles);
         if let Some(&(a, b)) = meeting.first() {
             out.intersections += meeting.len();

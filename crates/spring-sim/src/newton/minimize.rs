@@ -34,6 +34,15 @@ fn roundoff_floor(system: &SpringSystem, step: &StepContext<'_>, h: f64) -> f64 
     ROUNDOFF_FLOOR_ULPS * f64::EPSILON * largest
 }
 
+/// The fraction of the round-off floor (`BackwardEuler::gradient_floor`, `16 eps |x|`
+/// times the largest row sum) under which a residual that stopped falling ends the step
+/// as [`StepStop::RoundOff`]: one sixteenth, so `eps |x|` times the row sum, the rounding
+/// of a single operation on the coordinates. Between it and the floor a slow Newton goes
+/// on (to the tolerance or the cap): with the whole floor as the threshold, the contact
+/// stress cases ended steps at residuals up to 0.99 of it that a few more iterations
+/// still lowered (docs/spring-sim.md).
+const ROUNDOFF_STOP_BELOW: f64 = 1.0 / 16.0;
+
 /// The relative residual a solve preconditioned by the kept factor is taken to: tight
 /// enough that its direction stands for the exact one the factorization gives (the
 /// Newton iterations are then those of the direct solve), yet a few iterations away
@@ -139,14 +148,15 @@ impl BackwardEuler {
                 break;
             }
             // A tolerance below the round-off floor of the gradient (inertia, springs and
-            // damping) cannot be reached: once the residual is below that floor and an iteration
-            // no longer halves it, the iterations are moving round-off about, and the
-            // step ends there rather than at the cap (which would also send it to be
-            // split, for nothing). While the residual still falls fast, they go on: the
-            // floor is a bound, and the rounding is often well below it.
+            // damping) cannot be reached: once the residual is a good way below that floor
+            // (`ROUNDOFF_STOP_BELOW`) and an iteration no longer halves it, the iterations
+            // are moving round-off about, and the step ends there rather than at the cap
+            // (which would also send it to be split, for nothing). While the residual
+            // still falls fast, they go on: the floor is a bound, and the rounding is often
+            // well below it.
             if report.iterations > 0
                 && residual > 0.5 * previous_residual
-                && residual <= self.gradient_floor(system, h)
+                && residual <= ROUNDOFF_STOP_BELOW * self.gradient_floor(system, h)
             {
                 report.stop = StepStop::RoundOff;
                 break;
