@@ -48,7 +48,17 @@ pub struct Chain {
 
 impl Chain {
     /// The chain from `base` to `effector` in `skeleton`. An error when either index is
-    /// out of range or `base` is not an ancestor of `effector`.
+    /// out of range, `base` is not an ancestor of `effector`, or the bone lengths do not
+    /// have a finite sum.
+    ///
+    /// ```
+    /// use sinew_skeleton::{DVec3, Skeleton};
+    /// use sinew_skeleton::ik::Chain;
+    /// // Seven bones of 1.8e308: each offset finite, their lengths summed are not.
+    /// let huge = Skeleton::chain(DVec3::ZERO, &[DVec3::X * f64::MAX; 7]).unwrap();
+    /// let err = Chain::whole(&huge).unwrap_err();
+    /// assert!(err.to_string().starts_with("joint 7: the chain's bone lengths sum to inf"));
+    /// ```
     pub fn new(skeleton: &Skeleton, base: usize, effector: usize) -> Result<Self, SkeletonError> {
         skeleton.check_index(base)?;
         skeleton.check_index(effector)?;
@@ -77,7 +87,15 @@ impl Chain {
             .iter()
             .map(|&j| skeleton.offset(j).length())
             .collect();
-        let reach = bone_lengths.iter().sum();
+        let reach: f64 = bone_lengths.iter().sum();
+        // Bones of 1e160 and more have an infinite length (its square overflows), and
+        // finite lengths can sum past f64::MAX: the solvers' errors would be infinite.
+        if !reach.is_finite() {
+            return Err(SkeletonError::ChainTooLong {
+                effector: skeleton.label(effector),
+                reach,
+            });
+        }
         Ok(Self {
             joints,
             bone_lengths,

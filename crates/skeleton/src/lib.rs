@@ -128,6 +128,14 @@ pub enum SkeletonError {
         /// The joint, with its name when it has one.
         joint: String,
     },
+    /// A chain's bone lengths (or one of them) overflow `f64`: the chain solvers need a
+    /// finite reach.
+    ChainTooLong {
+        /// The chain's effector, with its name when it has one.
+        effector: String,
+        /// The sum of the bone lengths (infinite).
+        reach: f64,
+    },
     /// A joint index is not in the skeleton.
     JointOutOfRange {
         /// The index given.
@@ -194,6 +202,11 @@ impl fmt::Display for SkeletonError {
             Self::NonFiniteOffset { joint } => {
                 write!(f, "{joint}: offset has a NaN or infinite component")
             }
+            Self::ChainTooLong { effector, reach } => write!(
+                f,
+                "{effector}: the chain's bone lengths sum to {reach:e}: its bones are too long \
+                 for f64 (a length squared or the lengths summed overflow)"
+            ),
             Self::JointOutOfRange { index, len } => write!(
                 f,
                 "joint index {index} is out of range (the skeleton has {len} joints)"
