@@ -182,3 +182,26 @@ impl Sample for XorshiftStar {
         (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
     }
 }
+
+/// The static force `-grad (E_spring + E_gravity)` on every free particle, largest
+/// component (computed here from the springs, independently of the stepper).
+pub fn static_force(system: &SpringSystem) -> f64 {
+    let x = system.positions();
+    let mut f: Vec<DVec3> = system
+        .masses()
+        .iter()
+        .map(|m| *m * system.material().gravity)
+        .collect();
+    for s in system.springs() {
+        let d = x[s.a] - x[s.b];
+        let l = d.length();
+        let pull = s.stiffness * (l - s.rest_length) / l * d;
+        f[s.a] -= pull;
+        f[s.b] += pull;
+    }
+    f.iter()
+        .zip(system.fixed())
+        .filter(|(_, fixed)| !**fixed)
+        .map(|(f, _)| f.abs().max_element())
+        .fold(0.0, f64::max)
+}

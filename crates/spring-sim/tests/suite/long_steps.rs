@@ -3,34 +3,9 @@
 //! gradient. Each must end in few iterations, unsplit, at an answer checked here from the
 //! forces themselves.
 
-use crate::common::contact_sheet;
+use crate::common::{contact_sheet, static_force};
 use sinew_spring_sim::contact::{Collider, ContactSettings};
 use sinew_spring_sim::*;
-
-/// Per free particle, the static force `sum_s k (l - L) u + m gravity` (springs pulling
-/// it, gravity), computed here from the springs, independently of the solver's terms;
-/// its largest component.
-fn static_force_inf(system: &SpringSystem) -> f64 {
-    let x = system.positions();
-    let mut force: Vec<DVec3> = system
-        .masses()
-        .iter()
-        .map(|m| *m * system.material().gravity)
-        .collect();
-    for s in system.springs() {
-        let d = x[s.b] - x[s.a];
-        let l = d.length();
-        let pull = s.stiffness * (l - s.rest_length) / l * d;
-        force[s.a] += pull;
-        force[s.b] -= pull;
-    }
-    force
-        .iter()
-        .zip(system.fixed())
-        .filter(|(_, f)| !**f)
-        .map(|(f, _)| f.abs().max_element())
-        .fold(0.0, f64::max)
-}
 
 /// A step of 1e12 s of the lab cloth (flat, at rest, undamped) is a static solve: it
 /// lands on the hanging sheet's equilibrium. The Newton step from the flat sheet is a
@@ -56,7 +31,7 @@ fn a_step_of_a_trillion_seconds_lands_on_the_static_equilibrium() {
         system.positions()[60]
     );
     // Equilibrium: the springs carry every particle's weight, to 1e-10 of it.
-    let force = static_force_inf(&system);
+    let force = static_force(&system);
     assert!(force <= 1e-10 * weight, "static force {force:e}");
     // At equilibrium the next step has nothing left to do.
     let before = system.positions().to_vec();
@@ -69,7 +44,7 @@ fn a_step_of_a_trillion_seconds_lands_on_the_static_equilibrium() {
         .map(|(a, b)| a.distance(*b))
         .fold(0.0, f64::max);
     assert!(moved < 1e-12, "moved {moved:e}");
-    assert!(static_force_inf(&system) <= 1e-10 * weight);
+    assert!(static_force(&system) <= 1e-10 * weight);
 }
 
 /// A sheet with damping `c = 2^32` (`c/h = 2.6e11` per spring, against `m/h^2 = 0.65`)

@@ -195,29 +195,6 @@ fn w6_error_from_the_exact_step_shrinks_with_the_tolerance() {
     check_monotone("W6", 3, &errors);
 }
 
-/// The static force `-grad (E_spring + E_gravity)` on every free particle, largest
-/// component (computed here from the springs, independently of the stepper).
-fn static_force(system: &SpringSystem) -> f64 {
-    let x = system.positions();
-    let mut f: Vec<DVec3> = system
-        .masses()
-        .iter()
-        .map(|m| *m * system.material().gravity)
-        .collect();
-    for s in system.springs() {
-        let d = x[s.a] - x[s.b];
-        let l = d.length();
-        let pull = s.stiffness * (l - s.rest_length) / l * d;
-        f[s.a] -= pull;
-        f[s.b] += pull;
-    }
-    f.iter()
-        .zip(system.fixed())
-        .filter(|(_, fixed)| !**fixed)
-        .map(|(f, _)| f.abs().max_element())
-        .fold(0.0, f64::max)
-}
-
 /// A damped lab cloth settled with large steps: the extrapolated guess of a cloth at
 /// rest used to pass the test with the static force still at the tolerance (4e-9 here),
 /// freezing it there. Now iterations run until the force is at round-off.
@@ -234,7 +211,7 @@ fn a_settled_cloth_is_at_equilibrium_not_only_at_rest() {
     }
     let last = last.unwrap();
     assert_eq!(last.stop, StepStop::Converged);
-    let force = static_force(sim.system());
+    let force = crate::common::static_force(sim.system());
     let tol_abs = 1e-9 / (h * h);
     assert!(
         force < 1e-3 * tol_abs,
