@@ -123,10 +123,10 @@ pub enum StepStop {
     Converged,
     /// The iteration cap was reached first.
     IterationCap,
-    /// `|grad g|_inf` is below the round-off floor of its evaluation, `16 eps |x|_max`
-    /// times the largest row sum of inertia, springs and damping,
-    /// `max_p (m_p/h^2 + sum over the springs at p of (k_s + c/h))`, and the last
-    /// iteration did not halve it: the tolerance lies below what the arithmetic can
+    /// `|grad g|_inf` is at the rounding of its evaluation, at most `eps |x|_max` times
+    /// the largest row sum of inertia, springs and damping,
+    /// `max_p (m_p/h^2 + sum over the springs at p of (k_s + c/h))` (a sixteenth of the
+    /// round-off floor that decides a split), and the last iteration did not halve it: the tolerance lies below what the arithmetic can
     /// resolve at this state (a tight tolerance with stiff springs or strong damping, or
     /// a very long step), and the iterate is as converged as it can be.
     RoundOff,

@@ -24,7 +24,8 @@ const JUMP_BELOW: f64 = 1.0 / 1_048_576.0;
 /// that the quadratic model `slope t + c t^2` through it has its minimizer below
 /// [`JUMP_BELOW`] `alpha`, that minimizer. A Newton step along a direction of (almost)
 /// no curvature is huge (a flat sheet under gravity across its plane, whose springs at
-/// rest have no stiffness out of the plane, and a step of 1e12 s: a fall of 1e24), and
+/// rest have no stiffness out of the plane, and a step of 1e12 s: a fall of `g h^2`,
+/// 3e23 under the lab's gravity), and
 /// halving it down to a step the springs allow would take more trials than the search
 /// has; the quadratic through the springs' energy there gives the right length at
 /// once. A change that is not finite (outside a barrier's domain) is halved.
