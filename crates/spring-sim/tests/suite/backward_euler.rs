@@ -125,27 +125,6 @@ fn objective_never_increases() {
     );
 }
 
-/// Net force (springs + gravity) on each free particle.
-fn net_forces(system: &SpringSystem) -> Vec<DVec3> {
-    let x = system.positions();
-    let mut f: Vec<DVec3> = system
-        .masses()
-        .iter()
-        .map(|m| *m * system.material().gravity)
-        .collect();
-    for s in system.springs() {
-        let g = spring::gradient(x[s.a], x[s.b], s.rest_length, s.stiffness);
-        f[s.a] -= g;
-        f[s.b] += g;
-    }
-    for (fi, fixed) in f.iter_mut().zip(system.fixed()) {
-        if *fixed {
-            *fi = DVec3::ZERO;
-        }
-    }
-    f
-}
-
 fn potential(system: &SpringSystem, x: &[DVec3]) -> f64 {
     let springs: f64 = system
         .springs()
@@ -179,9 +158,7 @@ fn heavily_damped_large_steps_settle_to_the_static_equilibrium() {
         sim.step(0.25).unwrap();
     }
     let system = sim.system();
-    let force = net_forces(system)
-        .iter()
-        .fold(0.0f64, |m, f| m.max(f.abs().max_element()));
+    let force = crate::common::static_force(system);
     assert!(force <= 1e-8, "net force {force}");
     let speed = system
         .velocities()
