@@ -8,9 +8,9 @@
 //! [`Rope`], [`Material`], validation with errors naming the item), the steppers
 //! ([`Simulation`] and [`Integrator`], the one stepping call for every integrator;
 //! [`BackwardEuler`], Newton with Armijo backtracking on the incremental potential over
-//! the free particles, stopping at `|grad g|_inf <= tol m_min / h^2`; [`Bdf2`] and
-//! [`ImplicitMidpoint`] on the same minimization; [`SymplecticEuler`] and
-//! [`VelocityVerlet`] with substeps), the linear solver choice ([`LinearSolverChoice`]:
+//! the free particles, stopping when every free particle's force is at most
+//! `tol m_p / h^2`; [`Bdf2`] and [`ImplicitMidpoint`] on the same minimization;
+//! [`SymplecticEuler`] and [`VelocityVerlet`] with substeps), the linear solver choice ([`LinearSolverChoice`]:
 //! sparse Cholesky, symbolic once per topology, or block-Jacobi PCG), what a step reports
 //! ([`StepReport`]), the explicit integrators' stability bound ([`StabilityBound`], from
 //! which [`Integrator::VelocityVerlet`] and [`Integrator::Auto`] choose the substep count

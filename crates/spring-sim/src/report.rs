@@ -154,7 +154,10 @@ pub struct StepReport {
     pub integrator: IntegratorKind,
     /// Newton (or fixed) iterations.
     pub iterations: usize,
-    /// Final `|grad g|_inf` (a force); 0 for explicit integrators.
+    /// The final residual (a force): the largest entry of `grad g`, each particle's
+    /// scaled by `m_min / m_p` (`m_min` the smallest free mass), so that the tolerance
+    /// holds every particle to about the same position error; `|grad g|_inf` itself when
+    /// the free masses are equal. 0 for explicit integrators.
     pub residual: f64,
     /// The absolute tolerance `tol * m_min / h^2` the residual was held to.
     pub tolerance: f64,

@@ -7,7 +7,8 @@
 use crate::seeded::{SplitMix64, in_ball};
 use serde::Serialize;
 use sinew_labcheck::reference::springs::{
-    combine, displacement_l1, gravity_energy, spring_energy, total_energy, velocity_change_energy,
+    combine, gravity_energy, mass_weighted_displacement_l1, spring_energy, total_energy,
+    velocity_change_energy,
 };
 use sinew_math::DVec3;
 use sinew_spring_sim::{
@@ -346,8 +347,9 @@ pub fn energy_inequality_excess(
         gravity_energy(after, x, false),
         velocity_change_energy(before, after, h),
     ]);
-    let slack =
-        report.residual * displacement_l1(before, after) + rhs.allowance() + lhs.allowance();
+    let slack = report.residual * mass_weighted_displacement_l1(before, after)
+        + rhs.allowance()
+        + lhs.allowance();
     (lhs.value - rhs.value - slack, slack)
 }
 
@@ -390,9 +392,11 @@ fn far_sentence(step: usize, report: &StepReport, ratio: f64, floor: f64) -> Str
     )
 }
 
-/// The residual no iterate can be expected to beat: `16 EPS |x|_max (m/h^2 + sum_s (k_s +
-/// c/h))` with the largest row over free particles (`c` the material's damping, whose
-/// term has the curvature `c/h` along each spring). Moving any coordinate by one unit in
+/// The residual no iterate can be expected to beat: `16 EPS |x|_max m_min/m (m/h^2 +
+/// sum_s (k_s + c/h))` with the largest row over free particles (`c` the material's
+/// damping, whose term has the curvature `c/h` along each spring; each row scaled by
+/// `m_min/m`, `m_min` the smallest free mass, as spring-sim scales each particle's entries
+/// of the residual). Moving any coordinate by one unit in
 /// the last place of `|x|_max` changes `grad g` by up to the Hessian's row sum times that
 /// ulp, and the gradient's own terms (`k (l - L)` from absolute positions) carry errors
 /// of the same order; the factor 16 is the one the property suite uses for a handful of
@@ -410,12 +414,17 @@ pub fn residual_floor(system: &SpringSystem, dt: f64, report: &StepReport) -> f6
         rows[s.a] += s.stiffness + damping;
         rows[s.b] += s.stiffness + damping;
     }
-    let row = rows
-        .iter()
-        .zip(system.fixed())
-        .filter(|(_, f)| !**f)
-        .map(|(r, _)| *r)
-        .fold(0.0, f64::max);
+    let free = || {
+        system
+            .masses()
+            .iter()
+            .zip(&rows)
+            .zip(system.fixed())
+            .filter(|(_, f)| !**f)
+            .map(|(mr, _)| mr)
+    };
+    let m_min = free().map(|(m, _)| *m).fold(f64::INFINITY, f64::min);
+    let row = free().map(|(m, r)| m_min / m * r).fold(0.0, f64::max);
     let xmax = system
         .positions()
         .iter()

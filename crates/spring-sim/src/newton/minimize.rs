@@ -14,24 +14,23 @@ use sinew_math::DVec3;
 /// The round-off floor's multiple of `eps` (see [`roundoff_floor`]).
 const ROUNDOFF_FLOOR_ULPS: f64 = 16.0;
 
-/// The size below which `|grad g|_inf` is round-off: `16 eps max_i m_i (|y_i|_inf / h^2 +
+/// The size below which the residual is round-off: `16 eps m_min max_i (|y_i|_inf / h^2 +
 /// |gravity|_inf)` over the free particles, the rounding of the inertia and gravity terms
-/// (`m/h^2 (x - y)` loses `eps |y| m/h^2` in the subtraction). Springs add their own
-/// rounding, which this leaves out: a stiff system at rest may then run one Newton
+/// (`m/h^2 (x - y)` loses `eps |y| m/h^2` in the subtraction), each particle's scaled to
+/// the smallest mass as the residual is ([`BackwardEuler::mass_scales`]). Springs add their
+/// own rounding, which this leaves out: a stiff system at rest may then run one Newton
 /// iteration per step that ends in the line search, reported as converged.
 fn roundoff_floor(system: &SpringSystem, step: &StepContext<'_>, h: f64) -> f64 {
     let g = system.material().gravity.abs().max_element();
     let inv_h2 = 1.0 / (h * h);
-    let fixed = system.fixed();
-    let largest = system
-        .masses()
+    let largest = step
+        .y
         .iter()
-        .zip(step.y)
-        .zip(fixed)
+        .zip(system.fixed())
         .filter(|(_, f)| !**f)
-        .map(|((m, y), _)| m * (y.abs().max_element() * inv_h2 + g))
+        .map(|(y, _)| y.abs().max_element() * inv_h2 + g)
         .fold(0.0f64, f64::max);
-    ROUNDOFF_FLOOR_ULPS * f64::EPSILON * largest
+    ROUNDOFF_FLOOR_ULPS * f64::EPSILON * (system.min_free_mass() * largest)
 }
 
 /// The fraction of the round-off floor (`BackwardEuler::gradient_floor`, `16 eps |x|`
@@ -82,7 +81,15 @@ impl BackwardEuler {
     fn minimize_here(&mut self, system: &SpringSystem, h: f64) -> Result<StepReport, ModelError> {
         let dim = self.pattern.dim();
         let mut kind = self.choose_solver(dim)?;
-        let tol_abs = self.settings.tolerance * system.min_free_mass() / (h * h);
+        let m_min = system.min_free_mass();
+        let tol_abs = self.settings.tolerance * m_min / (h * h);
+        self.mass_scales.clear();
+        self.mass_scales.extend(
+            self.pattern
+                .free_particles
+                .iter()
+                .map(|&p| m_min / system.masses()[p]),
+        );
         let mut report = StepReport::new(IntegratorKind::BackwardEuler);
         report.linear_solver = Some(kind);
         report.tolerance = tol_abs;
@@ -403,8 +410,9 @@ impl BackwardEuler {
     }
 
     /// Writes `grad g` at `self.x` over the free unknowns into `self.grad` and its
-    /// negative into `self.rhs`, and returns `(|grad g|_inf, |grad g|_2^2, blocks
-    /// ready)`: with `blocks`, the springs' Hessian blocks in that form may be computed
+    /// negative into `self.rhs`, and returns `(residual, |grad g|_2^2, blocks ready)`,
+    /// the residual the largest entry of `grad g` with each particle's scaled by
+    /// `m_min / m_p` ([`BackwardEuler::mass_scales`]): with `blocks`, the springs' Hessian blocks in that form may be computed
     /// in the same pass (the third value says whether they were, for
     /// [`Self::assemble_hessian_with`]).
     ///
@@ -427,17 +435,18 @@ impl BackwardEuler {
         };
         let mut max = 0.0f64;
         let mut sum: f64 = std::iter::empty::<f64>().sum();
-        for ((grad, rhs), &p) in self
+        for (((grad, rhs), &p), &scale) in self
             .grad
             .chunks_exact_mut(3)
             .zip(self.rhs.chunks_exact_mut(3))
             .zip(&self.pattern.free_particles)
+            .zip(&self.mass_scales)
         {
             let g = self.grad_particles[p];
             for (c, v) in [g.x, g.y, g.z].into_iter().enumerate() {
                 grad[c] = v;
                 rhs[c] = -v;
-                max = max.max(v.abs());
+                max = max.max(v.abs() * scale);
                 sum += v * v;
             }
         }

@@ -21,9 +21,10 @@ pub enum InitialGuess {
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(default))]
 pub struct NewtonSettings {
-    /// Stop when `|grad g|_inf <= tolerance * m_min / h^2` (default 1e-9). `grad g` is a
-    /// force and `m/h^2` turns a displacement into one, so this bounds roughly the
-    /// position error of the solve in scene units. The first guess alone never passes
+    /// Stop when every free particle's entries of `grad g` are at most
+    /// `tolerance * m_p / h^2`, `m_p` its mass (default 1e-9). `grad g` is a force and
+    /// `m/h^2` turns a displacement into one, so this bounds roughly the position error
+    /// of the solve in scene units, alike for every particle. The first guess alone never passes
     /// (at least one Newton iteration runs unless its residual is at round-off), so the
     /// error from the exact step shrinks with this tolerance.
     pub tolerance: f64,
