@@ -19,7 +19,7 @@ use sinew_spring_sim::contact::self_contact::{
     Candidate, Primitives, SelfContactSettings, candidates,
 };
 use sinew_spring_sim::contact::{
-    Collider, ContactPotential, ContactSettings, ContactTerm, signed_distance,
+    Collider, ContactPotential, ContactSettings, ContactTerm, check_resolution, signed_distance,
 };
 use sinew_spring_sim::{
     Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinDriver, PinnedMotion, TriangleMesh,
@@ -97,6 +97,10 @@ fn one() -> f64 {
     1.0
 }
 
+/// How far from 1 the length of a grid sheet's direction `u` or `w` may be: the scenes
+/// write directions to six digits.
+const UNIT_TOLERANCE: f64 = 1e-6;
+
 /// One sheet of a `MeshCloth` task.
 #[derive(Debug, Deserialize)]
 pub enum SheetSpec {
@@ -109,10 +113,10 @@ pub enum SheetSpec {
         spacing: f64,
         /// The position of vertex `(0, 0)`.
         origin: DVec3,
-        /// The direction of `i` (default +x).
+        /// The direction of `i`, a unit vector (default +x).
         #[serde(default = "x_axis")]
         u: DVec3,
-        /// The direction of `j` (default +z).
+        /// The direction of `j`, a unit vector (default +z).
         #[serde(default = "z_axis")]
         w: DVec3,
         /// Pin every vertex of the border.
@@ -221,6 +225,17 @@ impl MeshClothTask {
                         return Err(format!(
                             "sheets[{k}]: spacing = {spacing}, must be finite and > 0"
                         ));
+                    }
+                    // `spacing` sets the sheet's size; a direction of another length
+                    // would scale it again, unseen.
+                    for (name, d) in [("u", u), ("w", w)] {
+                        if !(d.is_finite() && (d.length() - 1.0).abs() <= UNIT_TOLERANCE) {
+                            return Err(format!(
+                                "sheets[{k}]: {name} = {d}, must be a unit vector (to \
+                                 {UNIT_TOLERANCE:e}; its length is {})",
+                                d.length()
+                            ));
+                        }
                     }
                     for i in 0..n {
                         for j in 0..n {
@@ -339,6 +354,14 @@ impl MeshClothTask {
         self.self_contact
             .validate()
             .map_err(|e| format!("self_contact: {e}"))?;
+        // The distances' rounding, checked before the run as the library checks it when
+        // contact is added (so validation alone finds it).
+        check_resolution("dhat", self.self_contact.dhat, &a.positions)
+            .map_err(|e| format!("self_contact: {e}"))?;
+        if !self.colliders.is_empty() {
+            check_resolution("dhat", self.contact.dhat, &a.positions)
+                .map_err(|e| format!("contact: {e}"))?;
+        }
         Ok(a)
     }
 }

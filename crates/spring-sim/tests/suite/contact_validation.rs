@@ -245,3 +245,55 @@ fn projection_pushes_out_and_applies_coulomb_friction() {
         p.velocity
     );
 }
+
+/// A contact distance below the positions' rounding is refused where contact is added:
+/// `dhat` must be at least `MIN_RELATIVE_DHAT` (1e-9) of the largest coordinate, for the
+/// colliders (`Simulation::set_contact`) and for self-contact (`enable_self_contact`).
+#[test]
+fn a_contact_distance_below_the_rounding_of_the_positions_is_refused() {
+    use sinew_spring_sim::contact::MIN_RELATIVE_DHAT;
+    use sinew_spring_sim::contact::self_contact::SelfContactSettings;
+    use sinew_spring_sim::{Integrator, Simulation, TriangleMesh};
+    // A sheet 1e4 from the origin: its largest coordinate is 1e4 + 0.3, so the smallest
+    // dhat allowed is about 1e-5.
+    let origin = DVec3::new(1e4, 0.1, 0.0);
+    let scale = 1e4 + 0.1 * 3.0;
+    let system = crate::common::contact_sheet(4, 0.1, origin, DVec3::X, DVec3::Z);
+    let settings = |dhat| ContactSettings {
+        dhat,
+        ..ContactSettings::default()
+    };
+    for dhat in [5e-324, 1e-12, 0.5 * MIN_RELATIVE_DHAT * scale] {
+        let mut sim = Simulation::new(system.clone(), Integrator::default()).unwrap();
+        let err = sim
+            .set_contact(vec![Collider::ground(0.0)], settings(dhat))
+            .unwrap_err();
+        assert!(
+            matches!(err, ContactError::BelowResolution { name: "dhat", value, .. } if value == dhat),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains("dhat"), "{err}");
+    }
+    let mut sim = Simulation::new(system, Integrator::default()).unwrap();
+    sim.set_contact(vec![Collider::ground(0.0)], settings(2e-5))
+        .unwrap();
+
+    let (positions, triangles) = crate::sheets::grid(4, origin, DVec3::X, DVec3::Z, 0.1, 0);
+    let mesh = TriangleMesh::new(positions, triangles).unwrap();
+    let model = crate::sheets::cloth(Vec::new()).build(&mesh).unwrap();
+    let self_settings = |dhat| SelfContactSettings {
+        dhat,
+        ..SelfContactSettings::default()
+    };
+    let mut integrator = model.backward_euler(Default::default()).unwrap();
+    let err = model
+        .enable_self_contact(&mut integrator, self_settings(1e-6))
+        .unwrap_err();
+    assert!(
+        matches!(err, ContactError::BelowResolution { name: "dhat", .. }),
+        "{err:?}"
+    );
+    model
+        .enable_self_contact(&mut integrator, self_settings(2e-5))
+        .unwrap();
+}

@@ -282,6 +282,7 @@ impl SelfContactTerm {
         }
         let prims = Primitives::new(triangles);
         let x = system.positions();
+        crate::contact::check_resolution("dhat", settings.dhat, x)?;
         // The barrier's reach must be below every edge: a vertex and a triangle at the
         // far end of its shortest edge that does not contain it (there is one unless
         // every triangle there does) are a pair at most that edge apart, so a longer
