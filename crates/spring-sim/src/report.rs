@@ -119,16 +119,17 @@ impl IntegratorKind {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub enum StepStop {
-    /// `|grad g|_inf` reached the tolerance.
+    /// The residual reached the tolerance.
     Converged,
     /// The iteration cap was reached first.
     IterationCap,
-    /// `|grad g|_inf` is at the rounding of its evaluation, at most `eps |x|_max` times
-    /// the largest row sum of inertia, springs and damping,
-    /// `max_p (m_p/h^2 + sum over the springs at p of (k_s + c/h))` (a sixteenth of the
-    /// round-off floor that decides a split), and the last iteration did not halve it: the tolerance lies below what the arithmetic can
-    /// resolve at this state (a tight tolerance with stiff springs or strong damping, or
-    /// a very long step), and the iterate is as converged as it can be.
+    /// The residual is at the rounding of its evaluation, at most `eps |x|_max` times
+    /// the largest row sum of inertia, springs and damping, each scaled as the residual
+    /// is, `max_p m_min/m_p (m_p/h^2 + sum over the springs at p of (k_s + c/h))` (a
+    /// sixteenth of the round-off floor that decides a split), and the last iteration did
+    /// not halve it: the tolerance lies below what the arithmetic can resolve at this
+    /// state (a tight tolerance with stiff springs or strong damping, or a very long
+    /// step), and the iterate is as converged as it can be.
     RoundOff,
     /// The line search could not decrease `g` (the iterate is at round-off level of a
     /// minimum, or the direction was useless); the last accepted iterate is kept.
@@ -138,6 +139,12 @@ pub enum StepStop {
     FixedWork,
     /// A non-finite value appeared; the system was left as it was before the step.
     NonFinite,
+    /// The line search found the potential infinite (or NaN) at every step length it
+    /// tried along the Newton direction, down to `2^-max_backtracks` of it: the forces
+    /// are beyond what `f64` can hold over this step (a gravity of 1e300, say). A whole
+    /// step that stops so is refused ([`StepError::Overflow`]); splitting it could not
+    /// help, since the line search already tried shorter moves than any split makes.
+    Overflow,
 }
 
 /// The report of one step.
@@ -341,6 +348,17 @@ pub enum StepError {
         /// The step.
         dt: f64,
     },
+    /// The incremental potential was infinite (or NaN) at every step length the line
+    /// search tried along the step's first Newton direction ([`StepStop::Overflow`]):
+    /// forces or a step beyond the range of `f64` (a gravity of 1e300 makes the inertia
+    /// of a fall of `g h^2` overflow). The step was refused (not taken).
+    Overflow {
+        /// The integrator.
+        integrator: IntegratorKind,
+        /// The step's Newton iterations before the one whose line search found no finite
+        /// value.
+        iterations: usize,
+    },
     /// The prescribed move of the pinned particles (the free ones held) would bring two
     /// parts of the cloth within a tenth of their gap of crossing even when the step is
     /// cut into `pieces` equal pieces of the motion; the step was refused.
@@ -377,6 +395,14 @@ impl std::fmt::Display for StepError {
             } => write!(
                 f,
                 "{}: particle {particle} became non-finite; the step was undone",
+                integrator.name()
+            ),
+            Self::Overflow {
+                integrator,
+                iterations,
+            } => write!(
+                f,
+                "{}: the incremental potential is not finite at any step length the line search tried (after {iterations} Newton iterations): forces or a step beyond the range of f64 (gravity, stiffness or step length); the step was refused",
                 integrator.name()
             ),
             Self::PinnedMove {

@@ -52,6 +52,8 @@ pub(super) struct Outcome {
     pub(super) alpha: Option<f64>,
     /// Step halvings.
     pub(super) backtracks: usize,
+    /// No step was accepted and every change of `g` tried was infinite or NaN.
+    pub(super) none_finite: bool,
 }
 
 /// Searches along `dx` from `x` with slope `grad g . dx = slope < 0`, the changes of `g`
@@ -81,6 +83,7 @@ pub(super) fn search(
     // inertia and gravity (contact) is evaluated at the doubled step only when that step
     // is tried, so a rejected full step costs it nothing more.
     let mut doubled = None;
+    let mut none_finite = alpha > 0.0;
     if alpha > 0.0 {
         for _ in 0..=settings.max_backtracks {
             let change = if expand && alpha == 1.0 && 2.0 <= cap {
@@ -95,6 +98,7 @@ pub(super) fn search(
                 accepted = Some(change);
                 break;
             }
+            none_finite &= !change.is_finite();
             backtracks += 1;
             alpha = shorter(alpha, slope, change);
         }
@@ -103,6 +107,7 @@ pub(super) fn search(
         return Outcome {
             alpha: None,
             backtracks,
+            none_finite,
         };
     };
     if expand && alpha == 1.0 {
@@ -132,5 +137,6 @@ pub(super) fn search(
     Outcome {
         alpha: Some(alpha),
         backtracks,
+        none_finite: false,
     }
 }

@@ -299,6 +299,8 @@ impl BackwardEuler {
                 // a residual just above the round-off floor) the step is converged.
                 report.stop = if residual <= tol_abs {
                     StepStop::Converged
+                } else if outcome.none_finite {
+                    StepStop::Overflow
                 } else {
                     StepStop::LineSearchStalled
                 };

@@ -469,6 +469,21 @@ impl BackwardEuler {
             return self.split_without_attempt(system, h, scheme, depth, start);
         }
         let (mut attempt, h_eff) = self.solve(system, h, scheme, start, Resume::Guess)?;
+        if whole_step
+            && attempt.stop == StepStop::Overflow
+            && self.settings.max_backtracks >= 2 * depth
+        {
+            // Nothing is committed yet. No split can help: a piece's Newton move is at
+            // least about `4^-depth` of this one (the prediction's fall `g h^2` shrinks
+            // with the square of the piece, and its inertia `m/h^2` grows as it
+            // shortens), and the line search has already tried moves down to
+            // `2^-max_backtracks` of it.
+            self.potential.abandon_step();
+            return Err(StepError::Overflow {
+                integrator: attempt.integrator,
+                iterations: attempt.iterations.saturating_sub(1),
+            });
+        }
         let mut far = self.far_from_converged(system, &attempt, h_eff);
         let extra = self.extra_split_depth();
         if far && (depth == extra || depth == 0) && self.settings.max_split_depth > 0 {
@@ -647,7 +662,7 @@ impl BackwardEuler {
     fn far_from_converged(&mut self, system: &SpringSystem, report: &StepReport, h: f64) -> bool {
         if !matches!(
             report.stop,
-            StepStop::IterationCap | StepStop::LineSearchStalled
+            StepStop::IterationCap | StepStop::LineSearchStalled | StepStop::Overflow
         ) || report.residual <= report.tolerance
         {
             return false;

@@ -4,6 +4,7 @@
 //! forces themselves.
 
 use crate::common::{contact_sheet, static_force};
+use sinew_math::DVec3;
 use sinew_spring_sim::contact::{Collider, ContactSettings};
 use sinew_spring_sim::*;
 
@@ -119,4 +120,42 @@ fn huge_damping_stops_at_round_off_instead_of_splitting() {
     }
     assert!(touched, "the sheet never reached the sphere");
     assert!(round_off_stops > 0, "no step met the round-off floor");
+}
+
+/// A gravity of 1e300 makes the first step's fall `g h^2` (3e296 at h = 1/60) overflow
+/// the inertia's energy at every step length the line search can try: the step is refused
+/// with `StepError::Overflow` and the system is left exactly as it was (it used to be
+/// split to the deepest level, each piece stalled, and the sheet stayed frozen in place,
+/// step after step, at a hundred times the cost). A gravity of 1e100, far beyond anything
+/// physical but within range, still steps: the sheet falls by about `g h^2`.
+#[test]
+fn a_gravity_beyond_the_range_of_f64_is_refused_and_leaves_the_system_unchanged() {
+    let h = 1.0 / 60.0;
+    for integrator in [
+        Integrator::default(),
+        Integrator::BackwardEuler(NewtonSettings::default()),
+        Integrator::Bdf2(NewtonSettings::default()),
+        Integrator::ImplicitMidpoint(NewtonSettings::default()),
+    ] {
+        let mut grid = ClothGrid::lab();
+        grid.material.gravity = DVec3::new(0.0, -1e300, 0.0);
+        let system = SpringSystem::cloth(&grid).unwrap();
+        let mut sim = Simulation::new(system.clone(), integrator).unwrap();
+        let err = sim.step(h).unwrap_err();
+        assert!(
+            matches!(err, StepError::Overflow { .. }),
+            "{integrator:?}: {err:?}"
+        );
+        assert!(err.to_string().contains("not finite"), "{err}");
+        assert_eq!(sim.system().positions(), system.positions());
+        assert_eq!(sim.system().velocities(), system.velocities());
+        assert_eq!(sim.time(), 0.0);
+    }
+    let mut grid = ClothGrid::lab();
+    grid.material.gravity = DVec3::new(0.0, -1e100, 0.0);
+    let system = SpringSystem::cloth(&grid).unwrap();
+    let mut sim = Simulation::new(system.clone(), Integrator::default()).unwrap();
+    sim.step(h).unwrap();
+    let fall = system.positions()[60].y - sim.system().positions()[60].y;
+    assert!(fall > 0.5 * 1e100 * h * h, "fall {fall:e}");
 }
