@@ -14,6 +14,7 @@ use crate::results::{ClothFrame, ClothPictures, Csv, MeshClothMetrics, Pictures,
 use serde::Deserialize;
 use sinew_exact::intersecting_pairs;
 use sinew_math::DVec3;
+use sinew_spring_sim::contact::collider::validate_colliders;
 use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
 use sinew_spring_sim::contact::self_contact::{
     Candidate, Primitives, SelfContactSettings, candidates,
@@ -359,6 +360,10 @@ impl MeshClothTask {
         check_resolution("dhat", self.self_contact.dhat, &a.positions)
             .map_err(|e| format!("self_contact: {e}"))?;
         if !self.colliders.is_empty() {
+            validate_colliders(&self.colliders).map_err(|e| format!("colliders: {e}"))?;
+            self.contact
+                .validate()
+                .map_err(|e| format!("contact: {e}"))?;
             check_resolution("dhat", self.contact.dhat, &a.positions)
                 .map_err(|e| format!("contact: {e}"))?;
         }

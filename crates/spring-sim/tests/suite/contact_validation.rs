@@ -98,6 +98,7 @@ fn collider_errors_name_the_collider_and_field() {
 fn settings_errors_name_the_setting() {
     assert_eq!(ContactSettings::default().validate(), Ok(()));
     let d = ContactSettings::default();
+    assert_eq!(ContactSettings { mu: 100.0, ..d }.validate(), Ok(()));
     let cases = [
         (ContactSettings { dhat: 0.0, ..d }, "dhat"),
         (
@@ -115,6 +116,8 @@ fn settings_errors_name_the_setting() {
             "thickness",
         ),
         (ContactSettings { mu: -0.1, ..d }, "mu"),
+        (ContactSettings { mu: 100.5, ..d }, "mu"),
+        (ContactSettings { mu: 1e300, ..d }, "mu"),
         (
             ContactSettings {
                 mu: f64::INFINITY,
