@@ -667,7 +667,37 @@ impl BackwardEuler {
         {
             return false;
         }
-        report.residual > self.gradient_floor(system, h)
+        report.residual > self.gradient_floor(system, h).max(self.curvature_floor())
+    }
+
+    /// The round-off floor of the residual from the last assembled Newton matrix:
+    /// `16 eps |x|_max max_p (m_min/m_p) max_c H_(3p+c, 3p+c)` over the free particles,
+    /// the largest diagonal entry of every term's curvature, each particle's scaled as the
+    /// residual is. [`Self::gradient_floor`] counts inertia, springs and damping only; a
+    /// contact barrier or friction can be far stiffer (a twisted sheet of stiffness 1e12
+    /// in self-contact, friction with `mu` = 1e6), and its gradient carries rounding of
+    /// `eps |x|` times that stiffness: a solve stopped there is as converged as the
+    /// arithmetic allows, and splitting it only repeats the stop at every depth. For
+    /// inertia, springs and damping alone it is at most `gradient_floor` (each spring's
+    /// diagonal entries are at most its stiffness).
+    fn curvature_floor(&self) -> f64 {
+        let x_max = self
+            .x
+            .iter()
+            .fold(0.0f64, |m, x| m.max(x.abs().max_element()));
+        let largest = self
+            .pattern
+            .diag_slots
+            .iter()
+            .zip(&self.mass_scales)
+            .map(|(slots, scale)| {
+                let d = self.values[slots[0]]
+                    .max(self.values[slots[3]])
+                    .max(self.values[slots[5]]);
+                scale * d
+            })
+            .fold(0.0f64, f64::max);
+        16.0 * f64::EPSILON * x_max * largest
     }
 
     /// The round-off floor of the residual at `self.x`:

@@ -102,6 +102,27 @@ pub fn additive_ccd_from_gap(
     keep: f64,
     gap0: f64,
 ) -> f64 {
+    additive_ccd_within(kind, x, dx, thickness, keep, gap0, 1.0)
+}
+
+/// `min(limit, additive_ccd_from_gap(..))`, bit for bit, for `limit` in `[0, 1]`: the
+/// sweep stops once it has safely passed `limit` (the whole sweep would go at least that
+/// far). A line search needs the smallest fraction over all pairs, so each pair's sweep
+/// may stop at the smallest fraction found so far: the minimum over the pairs is
+/// unchanged, whatever the order they are swept in (each limit is at least that
+/// minimum). A pair
+/// sliding a long way past another at a small gap crawls in steps of `0.9 gap / l_p`; once
+/// another pair has capped the step at a small fraction, its sweep stops there.
+#[must_use]
+pub fn additive_ccd_within(
+    kind: PairKind,
+    x: &[DVec3; 4],
+    dx: &[DVec3; 4],
+    thickness: f64,
+    keep: f64,
+    gap0: f64,
+    limit: f64,
+) -> f64 {
     let lp = approach_bound(kind, dx);
     let gap_at = |t: f64| {
         let xt: [DVec3; 4] = std::array::from_fn(|k| x[k] + t * dx[k]);
@@ -116,11 +137,11 @@ pub fn additive_ccd_from_gap(
     }
     if lp <= 0.0 {
         // No relative motion: the distance does not change.
-        return 1.0;
+        return limit;
     }
     if lp <= gap0 * (1.0 - keep) {
         // Even approaching at the bound's rate the whole step closes less than allowed.
-        return 1.0;
+        return limit;
     }
     let target = keep * gap0;
     let mut t = 0.0;
@@ -129,7 +150,7 @@ pub fn additive_ccd_from_gap(
         let next = t + step;
         if next >= 1.0 {
             // The last step reaches past the end with a positive gap all the way.
-            return 1.0;
+            return limit;
         }
         let gap = gap_at(next);
         // The first step is sized to stop at the target; a later one below it ends the
@@ -140,6 +161,11 @@ pub fn additive_ccd_from_gap(
         if gap.is_nan() || gap <= 0.0 {
             // Only round-off in the distance can get here: stay at the last safe time.
             return t;
+        }
+        if next >= limit {
+            // Safe up to `next`, past the limit: the whole sweep would return at least
+            // `next`.
+            return limit;
         }
         t = next;
         step = 0.9 * gap / lp;

@@ -51,7 +51,7 @@
 //! iteration on the Newton matrix has the pairs' full blocks.
 
 use super::broad::{Candidate, CandidateCache, Primitives, candidates};
-use super::ccd::{additive_ccd_from_gap, clear_by_separation};
+use super::ccd::{additive_ccd_within, clear_by_separation};
 use super::closed::RegionForm;
 use super::distance::{
     Closest, PairKind, SEPARATION_MARGIN, mollifier, mollifier_derivatives, separation,
@@ -709,10 +709,18 @@ impl SelfContactTerm {
         let keep = 1.0 - self.settings.toi_fraction;
         let thickness = self.settings.thickness;
         let margin = self.settings.dhat + thickness;
+        // The smallest fraction found so far, shared by the sweeps (see
+        // `additive_ccd_within`: the minimum over the pairs does not depend on the order
+        // they finish in). Fractions are in [0, 1], where the order of an f64's bits is
+        // the order of its values, so an integer minimum keeps it.
+        let smallest = AtomicU64::new(1.0f64.to_bits());
         let sweep = |c: Candidate, gap0: f64| {
             let (kind, v) = self.pair(c);
             let (p, d) = (v.map(|i| x[i]), v.map(|i| dx[i]));
-            additive_ccd_from_gap(kind, &p, &d, thickness, keep, gap0)
+            let limit = f64::from_bits(smallest.load(Ordering::Relaxed));
+            let fraction = additive_ccd_within(kind, &p, &d, thickness, keep, gap0, limit);
+            smallest.fetch_min(fraction.to_bits(), Ordering::Relaxed);
+            fraction
         };
         let mut t: f64 = 1.0;
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
