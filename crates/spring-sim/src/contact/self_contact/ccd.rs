@@ -110,9 +110,9 @@ pub fn additive_ccd_from_gap(
 /// far). A line search needs the smallest fraction over all pairs, so each pair's sweep
 /// may stop at the smallest fraction found so far: the minimum over the pairs is
 /// unchanged, whatever the order they are swept in (each limit is at least that
-/// minimum). A pair
-/// sliding a long way past another at a small gap crawls in steps of `0.9 gap / l_p`; once
-/// another pair has capped the step at a small fraction, its sweep stops there.
+/// minimum). A pair sliding a long way past another at a small gap crawls in steps of
+/// `0.9 gap / l_p`; once another pair has capped the step at a small fraction, its sweep
+/// stops there.
 #[must_use]
 pub fn additive_ccd_within(
     kind: PairKind,
