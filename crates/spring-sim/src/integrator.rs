@@ -785,7 +785,7 @@ impl Simulation {
         }
         crate::contact::collider::validate_colliders(&colliders)?;
         settings.validate()?;
-        crate::contact::check_resolution("dhat", settings.dhat, self.system.positions())?;
+        crate::contact::check_contact_distance("dhat", settings.dhat, self.system.positions())?;
         let term = |time| -> Result<(ContactTerm, Arc<ContactStats>), ContactError> {
             let term = ContactTerm::new(ContactPotential::new(colliders.clone(), settings, time)?);
             let stats = term.stats();

@@ -20,7 +20,8 @@ use sinew_spring_sim::contact::self_contact::{
     Candidate, Primitives, SelfContactSettings, candidates,
 };
 use sinew_spring_sim::contact::{
-    Collider, ContactPotential, ContactSettings, ContactTerm, check_resolution, signed_distance,
+    Collider, ContactPotential, ContactSettings, ContactTerm, check_contact_distance,
+    signed_distance,
 };
 use sinew_spring_sim::{
     Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinDriver, PinnedMotion, TriangleMesh,
@@ -357,14 +358,14 @@ impl MeshClothTask {
             .map_err(|e| format!("self_contact: {e}"))?;
         // The distances' rounding, checked before the run as the library checks it when
         // contact is added (so validation alone finds it).
-        check_resolution("dhat", self.self_contact.dhat, &a.positions)
+        check_contact_distance("dhat", self.self_contact.dhat, &a.positions)
             .map_err(|e| format!("self_contact: {e}"))?;
         if !self.colliders.is_empty() {
             validate_colliders(&self.colliders).map_err(|e| format!("colliders: {e}"))?;
             self.contact
                 .validate()
                 .map_err(|e| format!("contact: {e}"))?;
-            check_resolution("dhat", self.contact.dhat, &a.positions)
+            check_contact_distance("dhat", self.contact.dhat, &a.positions)
                 .map_err(|e| format!("contact: {e}"))?;
         }
         Ok(a)

@@ -249,11 +249,12 @@ fn projection_pushes_out_and_applies_coulomb_friction() {
     );
 }
 
-/// A contact distance below the positions' rounding is refused where contact is added:
-/// `dhat` must be at least `MIN_RELATIVE_DHAT` (1e-9) of the largest coordinate, for the
-/// colliders (`Simulation::set_contact`) and for self-contact (`enable_self_contact`).
+/// A contact distance below the positions' rounding, or above the cloth's size, is refused
+/// where contact is added: `dhat` must be at least `MIN_RELATIVE_DHAT` (1e-9) of the
+/// largest coordinate, for the colliders (`Simulation::set_contact`) and for self-contact
+/// (`enable_self_contact`), and at most the diagonal of the positions' box.
 #[test]
-fn a_contact_distance_below_the_rounding_of_the_positions_is_refused() {
+fn a_contact_distance_below_the_rounding_of_the_positions_or_above_the_cloth_is_refused() {
     use sinew_spring_sim::contact::MIN_RELATIVE_DHAT;
     use sinew_spring_sim::contact::self_contact::SelfContactSettings;
     use sinew_spring_sim::{Integrator, Simulation, TriangleMesh};
@@ -277,8 +278,24 @@ fn a_contact_distance_below_the_rounding_of_the_positions_is_refused() {
         );
         assert!(err.to_string().contains("dhat"), "{err}");
     }
-    let mut sim = Simulation::new(system, Integrator::default()).unwrap();
+    let mut sim = Simulation::new(system.clone(), Integrator::default()).unwrap();
     sim.set_contact(vec![Collider::ground(0.0)], settings(2e-5))
+        .unwrap();
+    // Above the diagonal of the sheet's box (0.3 x 0 x 0.3) a barrier is a force field.
+    let diagonal = 0.3 * 2f64.sqrt();
+    for dhat in [1.001 * diagonal, 1e3] {
+        let mut sim = Simulation::new(system.clone(), Integrator::default()).unwrap();
+        let err = sim
+            .set_contact(vec![Collider::ground(0.0)], settings(dhat))
+            .unwrap_err();
+        assert!(
+            matches!(err, ContactError::BeyondExtent { name: "dhat", value, extent }
+                if value == dhat && (extent - diagonal).abs() < 1e-12),
+            "{err:?}"
+        );
+    }
+    let mut sim = Simulation::new(system, Integrator::default()).unwrap();
+    sim.set_contact(vec![Collider::ground(0.0)], settings(0.999 * diagonal))
         .unwrap();
 
     let (positions, triangles) = crate::sheets::grid(4, origin, DVec3::X, DVec3::Z, 0.1, 0);

@@ -282,7 +282,6 @@ impl SelfContactTerm {
         }
         let prims = Primitives::new(triangles);
         let x = system.positions();
-        crate::contact::check_resolution("dhat", settings.dhat, x)?;
         // The barrier's reach must be below every edge: a vertex and a triangle at the
         // far end of its shortest edge that does not contain it (there is one unless
         // every triangle there does) are a pair at most that edge apart, so a longer
@@ -304,6 +303,9 @@ impl SelfContactTerm {
                 reason: "is not longer than the barrier's reach; make dhat plus the thickness smaller than every edge",
             });
         }
+        // Below every edge, `dhat` is also below the mesh's extent: this checks it against
+        // the positions' rounding.
+        crate::contact::check_contact_distance("dhat", settings.dhat, x)?;
         let root = settings.mollifier_ratio.sqrt();
         let edge_factor = prims
             .edges
