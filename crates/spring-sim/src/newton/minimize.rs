@@ -414,9 +414,9 @@ impl BackwardEuler {
     /// Writes `grad g` at `self.x` over the free unknowns into `self.grad` and its
     /// negative into `self.rhs`, and returns `(residual, |grad g|_2^2, blocks ready)`,
     /// the residual the largest entry of `grad g` with each particle's scaled by
-    /// `m_min / m_p` ([`BackwardEuler::mass_scales`]): with `blocks`, the springs' Hessian blocks in that form may be computed
-    /// in the same pass (the third value says whether they were, for
-    /// [`Self::assemble_hessian_with`]).
+    /// `m_min / m_p` ([`BackwardEuler::mass_scales`]): with `blocks`, the springs'
+    /// Hessian blocks in that form may be computed in the same pass (the third value says
+    /// whether they were, for [`Self::assemble_hessian_with`]).
     ///
     /// One pass for the four: these run on one thread between the parallel regions, so
     /// on two threads each pass over the unknowns is time the other thread waits. The

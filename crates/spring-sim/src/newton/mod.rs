@@ -674,8 +674,8 @@ impl BackwardEuler {
     /// `16 eps |x|_max max_p (m_min/m_p) max_c H_(3p+c, 3p+c)` over the free particles,
     /// the largest diagonal entry of every term's curvature, each particle's scaled as the
     /// residual is. [`Self::gradient_floor`] counts inertia, springs and damping only; a
-    /// contact barrier or friction can be far stiffer (a twisted sheet of stiffness 1e12
-    /// in self-contact, friction with `mu` = 1e6), and its gradient carries rounding of
+    /// contact barrier or friction can be far stiffer (the self-contact of a twisting
+    /// sheet flung by a gravity of 1e8), and its gradient carries rounding of
     /// `eps |x|` times that stiffness: a solve stopped there is as converged as the
     /// arithmetic allows, and splitting it only repeats the stop at every depth. For
     /// inertia, springs and damping alone it is at most `gradient_floor` (each spring's
