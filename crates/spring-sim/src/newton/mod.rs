@@ -670,6 +670,14 @@ impl BackwardEuler {
         report.residual > self.gradient_floor(system, h).max(self.curvature_floor())
     }
 
+    /// The largest coordinate of the current iterate, in absolute value: the scale of the
+    /// rounding both round-off floors are measured in.
+    fn x_max(&self) -> f64 {
+        self.x
+            .iter()
+            .fold(0.0f64, |m, x| m.max(x.abs().max_element()))
+    }
+
     /// The round-off floor of the residual from the last assembled Newton matrix:
     /// `16 eps |x|_max max_p (m_min/m_p) max_c H_(3p+c, 3p+c)` over the free particles,
     /// the largest diagonal entry of every term's curvature, each particle's scaled as the
@@ -681,10 +689,7 @@ impl BackwardEuler {
     /// inertia, springs and damping alone it is at most `gradient_floor` (each spring's
     /// diagonal entries are at most its stiffness).
     fn curvature_floor(&self) -> f64 {
-        let x_max = self
-            .x
-            .iter()
-            .fold(0.0f64, |m, x| m.max(x.abs().max_element()));
+        let x_max = self.x_max();
         let largest = self
             .pattern
             .diag_slots
@@ -710,10 +715,7 @@ impl BackwardEuler {
     /// solver can be asked for less. (The stress grid checks every stop short of the
     /// tolerance against the same bound, computed on its own.)
     pub(super) fn gradient_floor(&mut self, system: &SpringSystem, h: f64) -> f64 {
-        let x_max = self
-            .x
-            .iter()
-            .fold(0.0f64, |m, x| m.max(x.abs().max_element()));
+        let x_max = self.x_max();
         let damping = system.material().damping / h;
         let row = &mut self.row_scratch;
         row.clear();

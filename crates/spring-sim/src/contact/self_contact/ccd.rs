@@ -37,7 +37,7 @@ pub fn additive_ccd(
     keep: f64,
 ) -> f64 {
     let gap0 = squared_distance(kind, x).sqrt() - thickness;
-    additive_ccd_from_gap(kind, x, dx, thickness, keep, gap0)
+    additive_ccd_within(kind, x, dx, thickness, keep, gap0, 1.0)
 }
 
 /// `l_p` of the module documentation: a bound on how much the gap of a pair moving by
@@ -89,25 +89,12 @@ pub fn clear_by_separation(
     }
 }
 
-/// [`additive_ccd`] with the pair's gap at `t = 0` given: `gap0` must be
-/// `squared_distance(kind, x).sqrt() - thickness`, as [`additive_ccd`] computes it, so
-/// the answer is the same; a caller that already has it (the term evaluates every pair's
-/// gap at the Newton iterate once and sweeps it twice) saves that distance.
-#[must_use]
-pub fn additive_ccd_from_gap(
-    kind: PairKind,
-    x: &[DVec3; 4],
-    dx: &[DVec3; 4],
-    thickness: f64,
-    keep: f64,
-    gap0: f64,
-) -> f64 {
-    additive_ccd_within(kind, x, dx, thickness, keep, gap0, 1.0)
-}
-
-/// `min(limit, additive_ccd_from_gap(..))`, bit for bit, for `limit` in `[0, 1]`: the
-/// sweep stops once it has safely passed `limit` (the whole sweep would go at least that
-/// far). A line search needs the smallest fraction over all pairs, so each pair's sweep
+/// [`additive_ccd`] with the pair's gap at `t = 0` given (`gap0` must be
+/// `squared_distance(kind, x).sqrt() - thickness`, as [`additive_ccd`] computes it; a
+/// caller that already has it saves that distance), and only fractions up to `limit`
+/// wanted: the answer is `min(limit, additive_ccd(..))`, bit for bit, for `limit` in
+/// `[0, 1]` (`limit` 1 gives the whole sweep's). The sweep stops once it has safely
+/// passed `limit` (the whole sweep would go at least that far). A line search needs the smallest fraction over all pairs, so each pair's sweep
 /// may stop at the smallest fraction found so far: the minimum over the pairs is
 /// unchanged, whatever the order they are swept in (each limit is at least that
 /// minimum). A pair sliding a long way past another at a small gap crawls in steps of
