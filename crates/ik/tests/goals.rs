@@ -54,3 +54,50 @@ fn the_bend_plane_turns_towards_the_pole_and_the_effector_stays() {
         }
     }
 }
+
+#[test]
+fn a_goal_too_far_to_measure_is_refused_by_every_solver() {
+    // A coordinate of 1e200 is finite, but the square of the distance overflows: no
+    // solver could report a finite error. 1e150 still squares within f64, so it is
+    // solved (out of reach: the chain is straightened towards it).
+    let skeleton = Skeleton::chain(DVec3::ZERO, &[DVec3::X * 0.5; 3]).unwrap();
+    let chain = Chain::whole(&skeleton).unwrap();
+    for (name, options) in SolverOptions::NAMED {
+        let mut solver = options.build().unwrap();
+        for far in [
+            DVec3::new(1e200, 0.0, 0.0),
+            DVec3::new(0.0, -1e300, 1.0),
+            DVec3::splat(f64::MAX),
+        ] {
+            let goals = [EffectorGoal::at(chain.effector(), far)];
+            let problem = IkProblem::new(&skeleton, &chain, &goals, SolveSettings::default());
+            let mut pose = skeleton.rest_pose();
+            let kept = pose.clone();
+            let mut global = GlobalPose::new();
+            let err = solver
+                .solve(&problem, &mut IkState::new(&mut pose, &mut global))
+                .unwrap_err();
+            let message = err.to_string();
+            assert!(
+                message.contains("goal 0: position") && message.contains("overflows"),
+                "{name}, {far}: {message}"
+            );
+            assert_eq!(pose, kept, "{name}: a refused solve leaves the pose");
+        }
+        let near = [EffectorGoal::at(
+            chain.effector(),
+            DVec3::new(1e150, 0.0, 0.0),
+        )];
+        let problem = IkProblem::new(&skeleton, &chain, &near, SolveSettings::default());
+        let mut pose = skeleton.rest_pose();
+        let mut global = GlobalPose::new();
+        let report = solver
+            .solve(&problem, &mut IkState::new(&mut pose, &mut global))
+            .unwrap();
+        assert!(report.error.is_finite(), "{name}: {report:?}");
+        assert!(
+            (report.error - (1e150 - 1.5)).abs() <= 1e135,
+            "{name}: {report:?}"
+        );
+    }
+}

@@ -730,9 +730,11 @@ pub fn project_onto_limits(skeleton: &Skeleton, chain: &Chain, pose: &mut Pose) 
 /// The checks and early exits every solver makes first, in this order:
 ///
 /// 1. [`IkProblem::validate`], then forward kinematics of the pose into the state's
-///    global pose (which checks the pose). A chain with limits has its starting pose
-///    projected onto them ([`project_onto_limits`]), so every solve returns a pose
-///    inside the limits.
+///    global pose (which checks the pose). A goal whose distance from the chain's base
+///    or effector overflows f64 (a coordinate beyond about 1e154) is refused with
+///    [`IkError::InvalidGoal`]: no error could be reported for it. A chain with limits
+///    has its starting pose projected onto them ([`project_onto_limits`]), so every
+///    solve returns a pose inside the limits.
 /// 2. Already within both tolerances: done, 0 iterations, pose untouched.
 /// 3. Goal position at or beyond the reach of a chain without joint limits:
 ///    [`straighten_towards`], 0 iterations (the straight chain is the only pose that
@@ -748,6 +750,21 @@ pub fn begin_solve(
     // The forward kinematics below checks the pose before anything reads it.
     skeleton.forward_kinematics(state.pose, state.global)?;
     let initial = goal.errors(state.global);
+    let distance = state.global.positions[chain.base()].distance(goal.position);
+    if !(distance.is_finite() && initial.0.is_finite()) {
+        // A finite target can still be too far to measure: a coordinate of 1e300 has a
+        // distance whose square overflows f64. No solve could report a finite error, so
+        // the goal is refused rather than answered with an infinite one.
+        return Err(IkError::InvalidGoal {
+            goal: 0,
+            field: "position",
+            reason: format!(
+                "{} is too far from the chain to measure: its distance from the chain's \
+                 base or effector overflows f64",
+                goal.position
+            ),
+        });
+    }
     if chain_has_limits(skeleton, chain) && project_onto_limits(skeleton, chain, state.pose) {
         // A solve returns a pose inside the limits even when it starts outside them;
         // the initial errors stay those of the pose given.
@@ -764,7 +781,6 @@ pub fn begin_solve(
             StopReason::Converged,
         )));
     }
-    let distance = state.global.positions[chain.base()].distance(goal.position);
     if distance >= chain.reach() && !chain_has_limits(skeleton, chain) {
         // No pose comes closer than `distance - reach`. A pose already there to
         // round-off (straight, pointing at the goal) could come out of the closed form a
