@@ -786,6 +786,13 @@ impl Simulation {
         crate::contact::collider::validate_colliders(&colliders)?;
         settings.validate()?;
         crate::contact::check_contact_distance("dhat", settings.dhat, self.system.positions())?;
+        crate::contact::check_start_outside(
+            &colliders,
+            settings.thickness,
+            self.time,
+            self.system.positions(),
+            self.system.fixed(),
+        )?;
         let term = |time| -> Result<(ContactTerm, Arc<ContactStats>), ContactError> {
             let term = ContactTerm::new(ContactPotential::new(colliders.clone(), settings, time)?);
             let stats = term.stats();
@@ -921,7 +928,22 @@ impl Simulation {
             // The minimization starts from an admissible state: the step's start, with
             // particles a kinematic collider would run over carried along with it
             // (the contact term does the same to Newton's first iterate). Two colliders
-            // closing in on one particle within one step make that impossible.
+            // closing in on one particle within one step make that impossible. The step's
+            // start itself must be outside every collider: accepted states are, but a
+            // state set through `system_mut` may not be.
+            if let Some((particle, collider, distance)) = crate::contact::first_inside(
+                &contact.colliders,
+                contact.settings.thickness,
+                self.time,
+                self.system.positions(),
+                self.system.fixed(),
+            ) {
+                return Err(StepError::StartsInside {
+                    particle,
+                    collider,
+                    distance,
+                });
+            }
             contact.scratch.clear();
             contact.scratch.extend_from_slice(self.system.positions());
             crate::contact::potential::carry_with_colliders(

@@ -382,6 +382,17 @@ pub enum StepError {
         /// The collider's index.
         collider: usize,
     },
+    /// A free particle is inside or on a collider at the step's start (the state was
+    /// set there through `Simulation::system_mut`; `Simulation::set_contact` refuses
+    /// such a start with `ContactError::StartsInside`). The step was refused.
+    StartsInside {
+        /// The particle.
+        particle: usize,
+        /// The collider's index.
+        collider: usize,
+        /// Its distance to the collider's surface, less the thickness (`<= 0`).
+        distance: f64,
+    },
 }
 
 impl std::fmt::Display for StepError {
@@ -416,6 +427,16 @@ impl std::fmt::Display for StepError {
             Self::Contact { particle, collider } => write!(
                 f,
                 "particle {particle} cannot be placed outside every collider at the step's end time: carried along by the moving colliders and pushed out of each in turn, it is still inside collider {collider} (the colliders close in on it within one step and leave no room); the step was refused"
+            ),
+            Self::StartsInside {
+                particle,
+                collider,
+                distance,
+            } => write!(
+                f,
+                "particle {particle} is inside collider {collider} at the step's start (its \
+                 distance to the surface, less the thickness, is {distance:e}); the step was \
+                 refused"
             ),
             Self::BelowStabilityBound {
                 integrator,

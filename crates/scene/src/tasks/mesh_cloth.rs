@@ -21,7 +21,7 @@ use sinew_spring_sim::contact::self_contact::{
 };
 use sinew_spring_sim::contact::{
     Collider, ContactPotential, ContactSettings, ContactTerm, check_contact_distance,
-    signed_distance,
+    check_start_outside, signed_distance,
 };
 use sinew_spring_sim::{
     Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinDriver, PinnedMotion, TriangleMesh,
@@ -367,6 +367,20 @@ impl MeshClothTask {
                 .map_err(|e| format!("contact: {e}"))?;
             check_contact_distance("dhat", self.contact.dhat, &a.positions)
                 .map_err(|e| format!("contact: {e}"))?;
+            let mut fixed = vec![false; a.positions.len()];
+            for &v in &a.fixed {
+                if let Some(f) = fixed.get_mut(v) {
+                    *f = true;
+                }
+            }
+            check_start_outside(
+                &self.colliders,
+                self.contact.thickness,
+                0.0,
+                &a.positions,
+                &fixed,
+            )
+            .map_err(|e| format!("colliders: {e}"))?;
         }
         Ok(a)
     }

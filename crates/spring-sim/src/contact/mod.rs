@@ -107,6 +107,15 @@ pub enum ContactError {
         /// The diagonal of the positions' bounding box.
         extent: f64,
     },
+    /// A free particle starts inside or on a collider ([`check_start_outside`]).
+    StartsInside {
+        /// The particle.
+        particle: usize,
+        /// The collider's index.
+        collider: usize,
+        /// Its distance to the collider's surface, less the thickness (`<= 0`).
+        distance: f64,
+    },
 }
 
 impl fmt::Display for ContactError {
@@ -146,6 +155,16 @@ impl fmt::Display for ContactError {
                  box ({extent:.3e}): a barrier reaching that far acts on every particle at \
                  once",
                 Readable(*value)
+            ),
+            Self::StartsInside {
+                particle,
+                collider,
+                distance,
+            } => write!(
+                f,
+                "particle {particle} starts inside collider {collider} (its distance to the \
+                 surface, less the thickness, is {distance:e}): contact needs every free \
+                 particle outside every collider at the start"
             ),
             Self::Unsupported { what } => write!(
                 f,
@@ -297,6 +316,52 @@ pub fn check_contact_distance(
         });
     }
     Ok(())
+}
+
+/// Checks that every free particle of `positions` is outside every collider posed at time
+/// `t`: its distance to the surface, less `thickness`, is positive. The guarantee (no
+/// accepted state has a particle inside a collider) holds by induction from such a
+/// start; a particle inside at the start would be pushed out to the surface by the first
+/// step, however far that is (a sheet inside a sphere of radius 1e9 moved 1e9 m in one
+/// step), so it is refused instead ([`ContactError::StartsInside`], naming the first
+/// such particle, by collider then particle, and the collider).
+pub fn check_start_outside(
+    colliders: &[Collider],
+    thickness: f64,
+    t: f64,
+    positions: &[sinew_math::DVec3],
+    fixed: &[bool],
+) -> Result<(), ContactError> {
+    match first_inside(colliders, thickness, t, positions, fixed) {
+        Some((particle, collider, distance)) => Err(ContactError::StartsInside {
+            particle,
+            collider,
+            distance,
+        }),
+        None => Ok(()),
+    }
+}
+
+/// The first free particle (by collider, then particle) inside or on a collider posed
+/// at `t`, as `(particle, collider, distance less thickness)`.
+pub(crate) fn first_inside(
+    colliders: &[Collider],
+    thickness: f64,
+    t: f64,
+    positions: &[sinew_math::DVec3],
+    fixed: &[bool],
+) -> Option<(usize, usize, f64)> {
+    colliders.iter().enumerate().find_map(|(collider, c)| {
+        let shape = c.at(t);
+        positions.iter().enumerate().find_map(|(particle, x)| {
+            if fixed.get(particle).copied().unwrap_or(false) {
+                return None;
+            }
+            let distance = distance::distance_to(&shape, *x, thickness);
+            // A NaN distance is inside too.
+            (distance.is_nan() || distance <= 0.0).then_some((particle, collider, distance))
+        })
+    })
 }
 
 /// The share of the distance to impact a line search may close: `0 < f < 1`.

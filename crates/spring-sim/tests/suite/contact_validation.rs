@@ -317,3 +317,83 @@ fn a_contact_distance_below_the_rounding_of_the_positions_or_above_the_cloth_is_
         .enable_self_contact(&mut integrator, self_settings(2e-5))
         .unwrap();
 }
+
+#[test]
+fn a_free_particle_starting_inside_or_on_a_collider_is_refused() {
+    use sinew_spring_sim::{Integrator, Particle, Simulation, SpringSystem, StepError};
+    // Two particles joined by a spring, 0.1 apart along x at height `y`; the sphere of
+    // radius 0.2 about (0, 0.1, 0) holds the first when y = 0.1.
+    let system = |y: f64, first_fixed: bool| {
+        let mut a = Particle::at_rest(DVec3::new(0.0, y, 0.0), 0.01);
+        a.fixed = first_fixed;
+        let b = Particle::at_rest(DVec3::new(1.0, y, 0.0), 0.01);
+        SpringSystem::new(
+            &[a, b],
+            &[sinew_spring_sim::SpringSpec::between(0, 1)],
+            crate::common::contact_material(),
+        )
+        .unwrap()
+    };
+    let sphere = Collider::sphere(DVec3::new(0.0, 0.1, 0.0), 0.2);
+    let settings = ContactSettings::default();
+    let contact = |sys: SpringSystem, colliders: Vec<Collider>, s: ContactSettings| {
+        Simulation::new(sys, Integrator::default())
+            .unwrap()
+            .set_contact(colliders, s)
+    };
+    // Inside the sphere, collider 1 of the list: named with its distance (-0.2).
+    let err = contact(
+        system(0.1, false),
+        vec![Collider::ground(-1.0), sphere],
+        settings,
+    )
+    .unwrap_err();
+    match err {
+        ContactError::StartsInside {
+            particle: 0,
+            collider: 1,
+            distance,
+        } => assert!((distance + 0.2).abs() < 1e-15, "{distance}"),
+        other => panic!("{other:?}"),
+    }
+    assert!(
+        message(err).contains("particle 0 starts inside collider 1"),
+        "the message names both"
+    );
+    // On the ground exactly (distance 0), and within the thickness of it: refused.
+    let err = contact(system(0.0, false), vec![Collider::ground(0.0)], settings).unwrap_err();
+    assert!(
+        matches!(err, ContactError::StartsInside { particle: 0, distance, .. } if distance == 0.0),
+        "{err:?}"
+    );
+    let thick = ContactSettings {
+        thickness: 0.01,
+        ..settings
+    };
+    let err = contact(system(0.005, false), vec![Collider::ground(0.0)], thick).unwrap_err();
+    assert!(matches!(err, ContactError::StartsInside { .. }), "{err:?}");
+    // Just outside: accepted; a pinned particle inside is not checked (it never moves).
+    contact(system(0.02, false), vec![Collider::ground(0.0)], thick).unwrap();
+    contact(system(0.1, true), vec![sphere], settings).unwrap();
+
+    // A state moved inside through `system_mut` after contact was set: the next step is
+    // refused, naming the particle, and the system is left as it was.
+    let mut sim = Simulation::new(system(0.5, false), Integrator::default()).unwrap();
+    sim.set_contact(vec![Collider::ground(0.0)], settings)
+        .unwrap();
+    sim.step(0.01).unwrap();
+    let mut positions = sim.system().positions().to_vec();
+    positions[1].y = -0.25;
+    let velocities = sim.system().velocities().to_vec();
+    sim.system_mut().set_state(&positions, &velocities).unwrap();
+    let err = sim.step(0.01).unwrap_err();
+    assert!(
+        matches!(err, StepError::StartsInside { particle: 1, collider: 0, distance } if distance == -0.25),
+        "{err:?}"
+    );
+    assert!(
+        err.to_string().contains("particle 1 is inside collider 0"),
+        "{err}"
+    );
+    assert_eq!(sim.system().positions(), &positions[..]);
+}
