@@ -640,6 +640,8 @@ fn mutated_scenes_give_a_located_error_or_validate_and_run_in_bounded_time() {
             Some(Err(e)) if e == ON_PACE => on_pace += 1,
             Some(Err(e)) if e.starts_with(OVER_PACE) => {
                 if report_slow {
+                    // Printed as found too, so a deep run stopped early still lists them.
+                    println!("over pace, reported: {what}: the run was {e}");
                     slow.push(format!("{what}: the run was {e}"));
                 } else {
                     failures.push(format!("{what}: the run was {e}"));
@@ -660,7 +662,7 @@ fn mutated_scenes_give_a_located_error_or_validate_and_run_in_bounded_time() {
         slow.len()
     );
     for case in &slow {
-        println!("over pace, reported: {case}");
+        println!("over pace (listed again): {case}");
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
     assert_eq!(located_errors + valid, count);
