@@ -71,8 +71,8 @@ pub use linear::{
 pub use mesh::{Bending, EdgeHinge, MeshCloth, MeshClothModel, MeshError, TriangleMesh};
 pub use metrics::{DIVERGENCE_RADIUS, RunMetrics, run, run_observed};
 pub use model::{
-    ClothGrid, Energies, Material, ModelError, Particle, Rope, SettingsError, Spring, SpringSpec,
-    SpringSystem, Topology,
+    ClothGrid, Energies, MAX_TIME_STEP, MIN_TIME_STEP, Material, ModelError, Particle, Rope,
+    SettingsError, Spring, SpringSpec, SpringSystem, Topology, check_time_step,
 };
 pub use newton::{BackwardEuler, InitialGuess, NewtonSettings, newton_matrix_triplets};
 pub use pattern::HessianPattern;

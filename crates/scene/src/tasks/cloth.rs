@@ -140,6 +140,7 @@ impl ClothTask {
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(format!("dt = {}, must be finite and > 0", self.dt));
         }
+        sinew_spring_sim::check_time_step(self.dt).map_err(|e| format!("dt: {e}"))?;
         self.check_work(&system)?;
         let mut sim =
             Simulation::new(system, self.integrator).map_err(|e| format!("integrator: {e}"))?;

@@ -342,6 +342,7 @@ impl MeshClothTask {
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(format!("dt = {}, must be finite and > 0", self.dt));
         }
+        sinew_spring_sim::check_time_step(self.dt).map_err(|e| format!("dt: {e}"))?;
         let work = a.positions.len() as f64 * self.steps as f64 * self.max_iterations as f64;
         if work > MAX_PARTICLE_STEPS {
             return Err(format!(

@@ -188,3 +188,42 @@ fn a_solver_failure_keeps_faers_error_as_its_source() {
         }
     }
 }
+
+/// A time step whose square is not a normal f64 is refused by every step (the implicit
+/// integrators weigh the inertia by 1/h^2 and the forces by h^2); the bounds themselves
+/// are accepted, and the message gives them.
+#[test]
+fn a_time_step_whose_square_is_not_normal_is_refused() {
+    use sinew_spring_sim::{MAX_TIME_STEP, MIN_TIME_STEP, check_time_step};
+    // The bounds are the tightest: just beyond either, the square is not normal.
+    let (min, max) = (
+        std::hint::black_box(MIN_TIME_STEP),
+        std::hint::black_box(MAX_TIME_STEP),
+    );
+    assert!(min * min >= f64::MIN_POSITIVE);
+    assert!((max * max).is_finite());
+    assert!((max * (1.0 + f64::EPSILON)).powi(2).is_infinite());
+    assert!((min * (1.0 - f64::EPSILON)).powi(2) < f64::MIN_POSITIVE);
+    check_time_step(MIN_TIME_STEP).unwrap();
+    check_time_step(MAX_TIME_STEP).unwrap();
+    for dt in [f64::MAX, 1e155, 1e-155, 5e-324] {
+        let err = check_time_step(dt).unwrap_err();
+        assert!(
+            err.to_string().contains("its square is not a normal f64"),
+            "{dt}: {err}"
+        );
+        for integrator in [
+            Integrator::default(),
+            Integrator::SymplecticEuler { substeps: 1 },
+        ] {
+            let mut sim = Simulation::new(lab(), integrator).unwrap();
+            let before = sim.system().positions().to_vec();
+            let err = sim.step(dt).unwrap_err();
+            assert!(
+                matches!(err, StepError::Invalid(ModelError::BadTimeStep { .. })),
+                "{dt}: {err:?}"
+            );
+            assert_eq!(sim.system().positions(), before.as_slice());
+        }
+    }
+}
