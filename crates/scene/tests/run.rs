@@ -137,3 +137,30 @@ fn progress_is_told_every_frame() {
         [("pts".to_string(), 1, 2), ("pts".to_string(), 2, 2)]
     );
 }
+
+/// A limb whose bone is 1.8e308 long validates (its rest pose's forward kinematics is
+/// finite) and is solved, but the pose returned for a turned target has no finite
+/// forward kinematics: the task fails at that frame with the reason, without a panic
+/// (the timed solves, which start from the returned pose, used to expect success).
+#[test]
+fn a_two_bone_limb_too_long_to_turn_fails_its_frame_without_a_panic() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/ik-two-bone.ron");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let huge = text.replacen(
+        "(name: \"knee\", parent: 1, offset: (0.0,",
+        "(name: \"knee\", parent: 1, offset: (1.7976931348623157e308,",
+        1,
+    );
+    assert_ne!(huge, text, "the knee's offset is in the scene");
+    let results = Scene::from_text(&path, &huge)
+        .unwrap()
+        .run(&RunOptions::default());
+    let failed: Vec<&TaskResult> = results.tasks.iter().filter(|t| !t.ok).collect();
+    assert!(!failed.is_empty(), "a frame's forward kinematics overflows");
+    for task in failed {
+        let error = task.error.as_deref().unwrap_or_default();
+        assert!(error.starts_with("frame "), "{error}");
+        assert!(error.contains("not finite"), "{error}");
+    }
+}

@@ -223,10 +223,20 @@ impl TaskSpec for TwoBoneTask {
             // the median over frames is reported.
             let mut scratch_pose = pose.clone();
             let mut scratch_global = global.clone();
+            // The timed solves start from the pose just returned, not the one given: a
+            // limb whose forward kinematics overflows there (a bone of 1.8e308, turned) is
+            // refused by the warm solve, and that is the frame's error, not a panic.
+            let mut timed_error = None;
             times.push(median_time_ns(0.2, || {
-                job.run(&skeleton, &mut scratch_pose, &mut scratch_global)
-                    .expect("validated job");
+                if let Err(e) = job.run(&skeleton, &mut scratch_pose, &mut scratch_global) {
+                    timed_error.get_or_insert(e);
+                }
             }));
+            if let Some(e) = timed_error {
+                return Err(format!(
+                    "frame {frame}: solving again from the returned pose: {e}"
+                ));
+            }
 
             // Independent checks, from the returned pose only.
             let mut check = GlobalPose::new();
