@@ -27,6 +27,7 @@ use std::time::Instant;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(rename_all = "snake_case"))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub enum Integrator {
     /// Backward Euler solved by Newton (the default).
     BackwardEuler(NewtonSettings),
@@ -70,6 +71,7 @@ pub enum Integrator {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(default))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct AutoSettings {
     /// Numerical damping wanted (settling to rest): always backward Euler (default false).
     pub settle: bool,

@@ -277,6 +277,7 @@ pub type EdgeHinge = ([usize; 2], [usize; 2]);
 /// How a mesh cloth resists bending.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub enum Bending {
     /// No bending resistance: stretch springs only.
     None,
@@ -328,6 +329,7 @@ pub enum Bending {
 /// ```
 #[derive(Clone, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct MeshCloth {
     /// Mass per unit area; each vertex gets a third of the area of its triangles times it.
     pub areal_density: f64,

@@ -14,6 +14,7 @@ use std::fmt;
 /// One particle: its state and mass, and whether it is fixed in place.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct Particle {
     /// Position in scene units.
     pub position: DVec3,
@@ -43,6 +44,7 @@ impl Particle {
 /// A spring as the user describes it: rest length and stiffness may be left to defaults.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct SpringSpec {
     /// The two particle indices.
     pub particles: [usize; 2],
@@ -83,6 +85,7 @@ pub struct Spring {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(default))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct Material {
     /// Default spring stiffness, used by springs that do not give their own.
     pub stiffness: f64,
@@ -919,6 +922,7 @@ impl Energies {
 #[derive(Clone, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(default))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct ClothGrid {
     /// Particles per side (the lab: 11).
     pub size: usize,
@@ -1073,6 +1077,7 @@ impl ClothGrid {
 /// `segment_length` apart, neighbours joined by springs, particle 0 fixed.
 #[derive(Clone, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct Rope {
     /// Number of springs.
     pub segments: usize,

@@ -209,6 +209,7 @@ pub fn balanced_kappa(energy_gradient: &[DVec3], barrier_gradient: &[DVec3]) -> 
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(default))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct KappaSettings {
     /// `kappa_max = max_ratio * kappa_min` (default 100, IPC's).
     pub max_ratio: f64,

@@ -16,6 +16,7 @@ use sinew_math::{DQuat, DVec3};
 /// given time).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub enum Shape {
     /// The half-space `{x : normal . (x - point) <= 0}`: the solid lies below the plane
     /// through `point`, and `normal` (unit) points out of it, into free space.
@@ -72,6 +73,7 @@ impl Shape {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(default))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct Motion {
     /// Velocity of the reference point, scene units per second.
     pub linear_velocity: DVec3,
@@ -90,6 +92,7 @@ impl Motion {
 /// A collider: a shape in its pose at time 0 and its motion.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct Collider {
     /// The shape at time 0.
     pub shape: Shape,

@@ -195,6 +195,7 @@ impl fmt::Display for Readable {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(default))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct ContactSettings {
     /// Contact distance `dhat`: the barrier acts where the (thickness-offset) distance
     /// is below it (default 1e-3, a millimetre in SI scenes).

@@ -20,6 +20,7 @@ pub enum InitialGuess {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(default))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct NewtonSettings {
     /// Stop when every free particle's entries of `grad g` are at most
     /// `tolerance * m_p / h^2`, `m_p` its mass (default 1e-9). `grad g` is a force and
@@ -132,6 +133,16 @@ impl NewtonSettings {
                 "NewtonSettings",
                 "tolerance",
                 "must be positive and finite",
+            ));
+        }
+        if self.max_iterations == 0 {
+            // No iteration cannot move the step; the split and continuation rules would
+            // then spend their whole budget on pieces that do nothing (a fuzzed scene:
+            // 0.8 s a step, the sheet frozen).
+            return Err(SettingsError::new(
+                "NewtonSettings",
+                "max_iterations",
+                "must be at least 1",
             ));
         }
         if !(self.pcg_forcing > 0.0 && self.pcg_forcing < 1.0) {

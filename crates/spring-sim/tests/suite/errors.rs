@@ -46,6 +46,14 @@ fn every_bad_setting_is_named_with_its_settings_and_field() {
         ),
         (
             newton(NewtonSettings {
+                max_iterations: 0,
+                ..NewtonSettings::default()
+            }),
+            "NewtonSettings",
+            "max_iterations",
+        ),
+        (
+            newton(NewtonSettings {
                 pcg_forcing: 1.5,
                 ..NewtonSettings::default()
             }),

@@ -78,6 +78,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(default))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct SelfContactSettings {
     /// The barrier's reach `dhat`: it acts where a pair's gap is below it (default 1e-3).
     pub dhat: f64,
