@@ -403,8 +403,8 @@ pub const MAX_TIME_STEP: f64 = 1.3407807929942596e154;
 /// Checks a time step: positive, finite, and with a square that is a normal `f64`
 /// (between [`MIN_TIME_STEP`] and [`MAX_TIME_STEP`]). The implicit integrators weigh the
 /// inertia by `1 / h^2` and the forces by `h^2`: with `h^2` infinite or zero one of the two
-/// is lost, and a mesh sheet given `dt = f64::MAX` by the scene fuzzing spent 24 s on its
-/// first step before stopping.
+/// is lost, and a mesh sheet given `dt = f64::MAX` by the scene fuzzing ended its first
+/// step only 24.5 s into its run (set-up included), against 0.34 s for its whole original.
 pub fn check_time_step(dt: f64) -> Result<(), ModelError> {
     if dt.is_finite() && (MIN_TIME_STEP..=MAX_TIME_STEP).contains(&dt) {
         Ok(())
