@@ -5,7 +5,7 @@ mod common;
 
 use common::metric_keys;
 use sinew_scene::results::Pictures;
-use sinew_scene::{RunOptions, Scene, TaskMetrics, TaskResult};
+use sinew_scene::{RunOptions, Scene, SceneError, TaskMetrics, TaskResult};
 
 fn scene(text: &str) -> Scene {
     Scene::from_text("test.ron", text).unwrap_or_else(|e| panic!("{e}"))
@@ -138,12 +138,12 @@ fn progress_is_told_every_frame() {
     );
 }
 
-/// A limb whose bone is 1.8e308 long validates (its rest pose's forward kinematics is
-/// finite) and is solved, but the pose returned for a turned target has no finite
-/// forward kinematics: the task fails at that frame with the reason, without a panic
-/// (the timed solves, which start from the returned pose, used to expect success).
+/// A limb whose bone is 1.8e308 long: its rest pose's forward kinematics is finite, but
+/// any pose that turns the bone overflows. The scene is refused at validation, naming the
+/// joint (it used to validate, and a frame's forward kinematics then had no finite
+/// position).
 #[test]
-fn a_two_bone_limb_too_long_to_turn_fails_its_frame_without_a_panic() {
+fn a_two_bone_limb_too_long_to_turn_is_refused_at_validation() {
     let path =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/ik-two-bone.ron");
     let text = std::fs::read_to_string(&path).unwrap();
@@ -153,14 +153,15 @@ fn a_two_bone_limb_too_long_to_turn_fails_its_frame_without_a_panic() {
         1,
     );
     assert_ne!(huge, text, "the knee's offset is in the scene");
-    let results = Scene::from_text(&path, &huge)
-        .unwrap()
-        .run(&RunOptions::default());
-    let failed: Vec<&TaskResult> = results.tasks.iter().filter(|t| !t.ok).collect();
-    assert!(!failed.is_empty(), "a frame's forward kinematics overflows");
-    for task in failed {
-        let error = task.error.as_deref().unwrap_or_default();
-        assert!(error.starts_with("frame "), "{error}");
-        assert!(error.contains("not finite"), "{error}");
+    match Scene::from_text(&path, &huge) {
+        Err(SceneError::Invalid { message, .. }) => {
+            assert!(message.contains("\"knee\""), "{message}");
+            assert!(
+                message.contains("forward kinematics could overflow"),
+                "{message}"
+            );
+        }
+        Err(other) => panic!("refused for another reason: {other}"),
+        Ok(_) => panic!("a skeleton beyond MAX_REACH was accepted"),
     }
 }

@@ -54,8 +54,9 @@ impl Chain {
     /// ```
     /// use sinew_skeleton::{DVec3, Skeleton};
     /// use sinew_skeleton::ik::Chain;
-    /// // Seven bones of 1.8e308: each offset finite, their lengths summed are not.
-    /// let huge = Skeleton::chain(DVec3::ZERO, &[DVec3::X * f64::MAX; 7]).unwrap();
+    /// // Seven bones of 1e200: the skeleton is within `MAX_REACH`, but a bone length's
+    /// // square overflows, so the chain solvers could not measure it.
+    /// let huge = Skeleton::chain(DVec3::ZERO, &[DVec3::X * 1e200; 7]).unwrap();
     /// let err = Chain::whole(&huge).unwrap_err();
     /// assert!(err.to_string().starts_with("joint 7: the chain's bone lengths sum to inf"));
     /// ```
@@ -88,8 +89,9 @@ impl Chain {
             .map(|&j| skeleton.offset(j).length())
             .collect();
         let reach: f64 = bone_lengths.iter().sum();
-        // Bones of 1e160 and more have an infinite length (its square overflows), and
-        // finite lengths can sum past f64::MAX: the solvers' errors would be infinite.
+        // Bones of 1e160 and more have an infinite length here (its square overflows): the
+        // solvers square lengths and distances, so such a chain is refused. (The skeleton's
+        // own bound, `MAX_REACH`, keeps the lengths' sum finite.)
         if !reach.is_finite() {
             return Err(SkeletonError::ChainTooLong {
                 effector: skeleton.label(effector),

@@ -128,6 +128,15 @@ pub enum SkeletonError {
         /// The joint, with its name when it has one.
         joint: String,
     },
+    /// A joint's distance from the world origin along the skeleton (the lengths of the
+    /// offsets from its root to it, summed; a root's offset is its position) is above
+    /// [`MAX_REACH`]: forward kinematics could overflow to an infinite position.
+    ReachTooLarge {
+        /// The joint, with its name when it has one.
+        joint: String,
+        /// The summed lengths (possibly infinite).
+        reach: f64,
+    },
     /// A chain's bone lengths (or one of them) overflow `f64`: the chain solvers need a
     /// finite reach.
     ChainTooLong {
@@ -202,6 +211,11 @@ impl fmt::Display for SkeletonError {
             Self::NonFiniteOffset { joint } => {
                 write!(f, "{joint}: offset has a NaN or infinite component")
             }
+            Self::ReachTooLarge { joint, reach } => write!(
+                f,
+                "{joint}: the offsets from its root sum to a length of {reach:e}, above \
+                 {MAX_REACH:e}: forward kinematics could overflow f64"
+            ),
             Self::ChainTooLong { effector, reach } => write!(
                 f,
                 "{effector}: the chain's bone lengths sum to {reach:e}: its bones are too long \
@@ -239,6 +253,19 @@ impl fmt::Display for SkeletonError {
 }
 
 impl std::error::Error for SkeletonError {}
+
+/// The largest distance from the world origin a joint may have along the skeleton (its
+/// offsets' lengths from its root, summed): `f64::MAX / 16`. Rotating an offset by a unit
+/// quaternion has intermediate terms of up to five times its length, and a position adds
+/// the rotated offsets of its path, so with every joint within this bound forward
+/// kinematics of any valid pose is finite (docs/ik-ccd.md, "Forward kinematics").
+pub const MAX_REACH: f64 = f64::MAX / 16.0;
+
+/// The length of `v` without the overflow of squaring a component above about 1e154.
+fn scaled_length(v: DVec3) -> f64 {
+    let m = v.abs().max_element();
+    if m == 0.0 { 0.0 } else { m * (v / m).length() }
+}
 
 /// A tree of joints in topological order; see the [crate docs](crate).
 ///
@@ -374,6 +401,20 @@ impl Skeleton {
             }
         }
         let contiguous = (0..n).all(|i| span_end[i] - i - 1 == descendants[i]);
+        // Every joint's position is a sum of rotated offsets along its path, so its size
+        // is at most the summed lengths: a bound on those keeps forward kinematics finite
+        // whatever the (valid) pose.
+        let mut reach = vec![0.0f64; n];
+        for i in 0..n {
+            let from_parent = parents[i].map_or(0.0, |p| reach[p]);
+            reach[i] = from_parent + scaled_length(offsets[i]);
+            if reach[i] > MAX_REACH {
+                return Err(SkeletonError::ReachTooLarge {
+                    joint: joint_label(i, names[i].as_deref()),
+                    reach: reach[i],
+                });
+            }
+        }
         let fingerprint = structure_fingerprint(&parents, &offsets);
         let prepared = limits.iter().map(JointLimit::prepare).collect();
         Ok(Self {

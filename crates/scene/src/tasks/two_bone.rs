@@ -223,9 +223,10 @@ impl TaskSpec for TwoBoneTask {
             // the median over frames is reported.
             let mut scratch_pose = pose.clone();
             let mut scratch_global = global.clone();
-            // The timed solves start from the pose just returned, not the one given: a
-            // limb whose forward kinematics overflows there (a bone of 1.8e308, turned) is
-            // refused by the warm solve, and that is the frame's error, not a panic.
+            // The timed solves start from the pose just returned, not the one given: if a
+            // warm solve from it is refused, that is the frame's error, not a panic. (The
+            // case found, a bone of 1.8e308 whose turned forward kinematics overflowed, is
+            // now refused with the skeleton, by `MAX_REACH`.)
             let mut timed_error = None;
             times.push(median_time_ns(0.2, || {
                 if let Err(e) = job.run(&skeleton, &mut scratch_pose, &mut scratch_global) {
