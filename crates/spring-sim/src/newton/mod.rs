@@ -486,13 +486,18 @@ impl BackwardEuler {
         }
         let mut far = self.far_from_converged(system, &attempt, h_eff);
         let extra = self.extra_split_depth();
-        if far && (depth == extra || depth == 0) && self.settings.max_split_depth > 0 {
-            // A piece at the deepest split the settings ask for (`depth == extra`), or at
-            // the last of the extra levels below it (`depth == 0`): its solve, which was
-            // still lowering `g`, is continued from its iterate one iteration cap at a
-            // time (at most `CONTINUED_CAPS` more). At the settings' depth a piece still
-            // far from converged after that is halved again (`EXTRA_SPLIT_DEPTH`); at the
-            // last level it is kept.
+        let unsplittable = far && depth > 0 && split_cannot_help(system, h_eff, depth);
+        if far
+            && (depth == extra || depth == 0 || unsplittable)
+            && self.settings.max_split_depth > 0
+        {
+            // A piece at the deepest split the settings ask for (`depth == extra`), at
+            // the last of the extra levels below it (`depth == 0`), or one whose pieces
+            // would all be static (`unsplittable`): its solve, which was still lowering
+            // `g`, is continued from its iterate one iteration cap at a time (at most
+            // `CONTINUED_CAPS` more). At the settings' depth a piece still far from
+            // converged after that is halved again (`EXTRA_SPLIT_DEPTH`); at the last
+            // level, and when unsplittable, it is kept.
             let mut from = std::mem::take(&mut self.continue_from);
             for _ in 0..CONTINUED_CAPS {
                 if !far || attempt.stop != StepStop::IterationCap {
@@ -507,7 +512,7 @@ impl BackwardEuler {
             }
             self.continue_from = from;
         }
-        if !far || depth == 0 {
+        if !far || depth == 0 || unsplittable {
             self.commit(system, h_eff, scheme, attempt.integrator)?;
             self.last_piece_depth = depth;
             let mut report = attempt;
@@ -1128,6 +1133,38 @@ fn keeps_energy_inequality(system: &SpringSystem, save: &SplitSave) -> bool {
     let scale = save.energy.scale() + after.scale() + velocity_change;
     lhs <= rhs + 64.0 * f64::EPSILON * scale
 }
+
+/// Whether splitting a step of effective length `h` down to `depth` more halvings
+/// cannot help the solve it is stuck on: even in the deepest piece (`h / 2^depth`) the
+/// inertia `m / h^2` of the heaviest free particle is below `1 / STATIC_RATIO` of the
+/// stiffness of the softest spring with a free end. Every piece is then nearly the same
+/// static problem (springs against gravity and the pins) as the whole step, so the
+/// pieces redo the static solve the abandoned attempts had begun, and the whole step's
+/// solve is continued from its iterate instead (docs/spring-sim.md, "Steps too long to
+/// split").
+fn split_cannot_help(system: &SpringSystem, h: f64, depth: usize) -> bool {
+    let fixed = system.fixed();
+    let k_min = system
+        .springs()
+        .iter()
+        .filter(|s| s.stiffness > 0.0 && !(fixed[s.a] && fixed[s.b]))
+        .map(|s| s.stiffness)
+        .fold(f64::INFINITY, f64::min);
+    let m_max = system
+        .masses()
+        .iter()
+        .zip(fixed)
+        .filter(|(_, f)| !**f)
+        .map(|(m, _)| *m)
+        .fold(0.0f64, f64::max);
+    let piece = h / 2f64.powi(depth.min(1000) as i32);
+    k_min.is_finite() && m_max > 0.0 && k_min * piece * piece >= STATIC_RATIO * m_max
+}
+
+/// See [`split_cannot_help`]: `k h^2 / m` of the deepest piece from which a split is not
+/// tried. The stress grid's stiffest steps (`k h^2 / m` up to 6.25e5 for the whole step,
+/// under 10 in its deepest pieces), which splitting made converge, stay far below it.
+const STATIC_RATIO: f64 = 1e6;
 
 /// How many more iteration caps a solve that cannot be split further is given, from its
 /// last iterate: the whole step's after its split was rejected, and a piece at the

@@ -448,3 +448,46 @@ fn a_step_far_above_the_pcg_crossover_finishes_on_the_direct_solve() {
     );
     assert_eq!(second.linear_iterations, 0, "{second:?}");
 }
+
+/// A step so long that even its deepest piece is static (the lab cloth, k = 100, mass 1,
+/// h = 1e9: `k h^2 / m` is 1.5e15 in a piece of `h / 256`) is not split: each piece would
+/// be the same static solve from the start. The whole step's solve, stopped at a cap of
+/// 5 iterations, is continued instead and converges, and its end state is the hanging
+/// sheet's equilibrium: at every free particle the spring forces, computed here from
+/// the springs, cancel gravity to 1e-9 of the particle's weight.
+#[test]
+fn a_step_whose_pieces_would_all_be_static_is_continued_not_split() {
+    let h = 1e9;
+    let mut system = cloth(11, 100.0, State::Rest);
+    let capped = NewtonSettings {
+        max_iterations: 5,
+        ..settings(6)
+    };
+    let mut be = BackwardEuler::new(&system, capped).unwrap();
+    let report = be.step(&mut system, h).unwrap();
+    assert_eq!(report.pieces, 1, "{report:?}");
+    assert_eq!(report.split_depth, 0, "{report:?}");
+    assert_eq!(report.unconverged_pieces, 0, "{report:?}");
+    // The first attempt reached its cap; the continued solve ended at the round-off
+    // floor (possibly at a cap, so the stop is not asserted: the equilibrium is).
+    assert!(report.iterations > 5, "the cap was reached: {report:?}");
+
+    let x = system.positions();
+    let gravity = system.material().gravity;
+    let mut force: Vec<DVec3> = system.masses().iter().map(|m| *m * gravity).collect();
+    for s in system.springs() {
+        let d = x[s.b] - x[s.a];
+        let pull = s.stiffness * (d.length() - s.rest_length) * d.normalize();
+        force[s.a] += pull;
+        force[s.b] -= pull;
+    }
+    for (p, f) in force.iter().enumerate() {
+        if !system.fixed()[p] {
+            let weight = system.masses()[p] * gravity.length();
+            assert!(f.length() <= 1e-9 * weight, "particle {p}: net force {f}");
+        }
+    }
+    // The sheet did swing down to hang: its lowest particle is far below the pins.
+    let lowest = x.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
+    assert!(lowest < x[0].y - 1.0, "lowest {lowest}, pin at {}", x[0].y);
+}
