@@ -53,7 +53,7 @@ use bend::{Limb, half_angle, softened};
 /// The math types targets and poses are given in, re-exported so a user of this crate
 /// does not also have to depend on sinew-math.
 pub use sinew_math::{DQuat, DVec3};
-use sinew_math::{rotation_between, try_unit};
+use sinew_math::{robust_length as length, rotation_between, try_unit};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
 use std::f64::consts::PI;
 use std::fmt;
@@ -303,22 +303,6 @@ fn unit(v: DVec3) -> Option<DVec3> {
         Some(v * (1.0 / squared.sqrt()))
     } else {
         try_unit(v)
-    }
-}
-
-/// The length of `v`, without overflow or underflow in the squares where the length
-/// itself is representable.
-#[inline]
-fn length(v: DVec3) -> f64 {
-    let fast = v.length();
-    if fast.is_finite() && fast > 1e-150 {
-        return fast;
-    }
-    let scale = v.abs().max_element();
-    if scale == 0.0 || !scale.is_finite() {
-        fast
-    } else {
-        (v / scale).length() * scale
     }
 }
 

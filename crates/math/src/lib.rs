@@ -51,6 +51,32 @@ pub fn try_unit(v: DVec3) -> Option<DVec3> {
     Some(w / w.length())
 }
 
+/// The length of `v`, without overflow or underflow in the squares where the length
+/// itself is representable: `v.length()` when that is finite and above 1e-150, else
+/// computed from `v` scaled by its largest component.
+///
+/// ```
+/// use sinew_math::{robust_length, DVec3};
+/// assert_eq!(robust_length(DVec3::new(0.0, 3.0, 4.0)), 5.0);
+/// assert_eq!(robust_length(DVec3::new(1e200, 0.0, 0.0)), 1e200);
+/// assert!((robust_length(DVec3::new(0.0, 3e-300, 4e-300)) / 5e-300 - 1.0).abs() < 1e-15);
+/// assert_eq!(robust_length(DVec3::new(f64::MAX, 0.0, 0.0)), f64::MAX);
+/// ```
+#[inline]
+#[must_use]
+pub fn robust_length(v: DVec3) -> f64 {
+    let fast = v.length();
+    if fast.is_finite() && fast > 1e-150 {
+        return fast;
+    }
+    let scale = v.abs().max_element();
+    if scale == 0.0 || !scale.is_finite() {
+        fast
+    } else {
+        (v / scale).length() * scale
+    }
+}
+
 /// The unit vector along `v`, or `fallback` when `v` has no direction (see [`try_unit`]).
 #[must_use]
 pub fn unit_or(v: DVec3, fallback: DVec3) -> DVec3 {

@@ -261,12 +261,6 @@ impl std::error::Error for SkeletonError {}
 /// kinematics of any valid pose is finite (docs/ik-ccd.md, "Forward kinematics").
 pub const MAX_REACH: f64 = f64::MAX / 16.0;
 
-/// The length of `v` without the overflow of squaring a component above about 1e154.
-fn scaled_length(v: DVec3) -> f64 {
-    let m = v.abs().max_element();
-    if m == 0.0 { 0.0 } else { m * (v / m).length() }
-}
-
 /// A tree of joints in topological order; see the [crate docs](crate).
 ///
 /// Two skeletons are equal (`==`) when their joints, names and limits are; their
@@ -407,7 +401,7 @@ impl Skeleton {
         let mut reach = vec![0.0f64; n];
         for i in 0..n {
             let from_parent = parents[i].map_or(0.0, |p| reach[p]);
-            reach[i] = from_parent + scaled_length(offsets[i]);
+            reach[i] = from_parent + sinew_math::robust_length(offsets[i]);
             if reach[i] > MAX_REACH {
                 return Err(SkeletonError::ReachTooLarge {
                     joint: joint_label(i, names[i].as_deref()),
