@@ -137,8 +137,9 @@ pub enum SkeletonError {
         /// The summed lengths (possibly infinite).
         reach: f64,
     },
-    /// A chain's bone lengths (or one of them) overflow `f64`: the chain solvers need a
-    /// finite reach.
+    /// A chain bone's length overflows `f64` when computed from its squared components
+    /// (bones from about 1.34e154; the skeleton's `MAX_REACH` keeps the sum of finite
+    /// lengths finite): the chain solvers square lengths and need a finite reach.
     ChainTooLong {
         /// The chain's effector, with its name when it has one.
         effector: String,
@@ -219,7 +220,7 @@ impl fmt::Display for SkeletonError {
             Self::ChainTooLong { effector, reach } => write!(
                 f,
                 "{effector}: the chain's bone lengths sum to {reach:e}: its bones are too long \
-                 for f64 (a length squared or the lengths summed overflow)"
+                 for f64 (a length squared overflows)"
             ),
             Self::JointOutOfRange { index, len } => write!(
                 f,
