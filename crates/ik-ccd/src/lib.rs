@@ -26,7 +26,8 @@
 //! out of reach are not straightened through the limits: CCD iterates.
 //!
 //! The finish (on by default, [`CcdOptions::finish`]): the sweeps stop at the first one
-//! that keeps more than [`SWITCH_RATIO`] of the error, and the damped least-squares finish
+//! that keeps more than [`SWITCH_RATIO`] of the error ([`PLAIN_SWITCH_RATIO`] without
+//! extrapolation), and the damped least-squares finish
 //! every sinew solver shares ([`sinew_skeleton::finish::ChainFinish`]) converges from
 //! there, sliding along the joint limits, with the same second seed; it also solves
 //! rotation goals, which plain CCD refuses. On W7 it takes CCD from 95.8% to all 2 000
@@ -94,14 +95,19 @@ use sinew_skeleton::limits::JointLimit;
 use sinew_skeleton::seed::limb_seed;
 use sinew_skeleton::{GlobalPose, Pose, Skeleton, SkeletonError};
 
-/// With the finish on, the sweeps stop once a sweep leaves more than this fraction of the
-/// error it started with: CCD's tail is linear convergence (and along a limit's bound
-/// often a crawl), where each accepted least-squares step of the finish roughly squares
-/// the error. A sweep with extrapolation that keeps up to 0.8 of the error is still
-/// cheaper than handing over: with 0.5 the finish took over from sweeps that were
-/// converging, and W1 tracking at tolerance 1e-12 took 4 308 iterations where 0.8 takes
-/// 2 829 (scan and instruction counts in `docs/ik-ccd.md`).
+/// With the finish on, the extrapolated sweeps stop once a sweep leaves more than this
+/// fraction of the error it started with: CCD's tail is linear convergence (and along a
+/// limit's bound often a crawl), where each accepted least-squares step of the finish
+/// roughly squares the error. A sweep with extrapolation that keeps up to 0.8 of the
+/// error is still cheaper than handing over: with 0.5 the finish took over from sweeps
+/// that were converging, and W1 tracking at tolerance 1e-12 took 4 308 iterations where
+/// 0.8 takes 2 829 (scan and instruction counts in `docs/ik-ccd.md`).
 pub const SWITCH_RATIO: f64 = 0.8;
+
+/// [`SWITCH_RATIO`] for sweeps without extrapolation: a plain sweep that keeps more than
+/// half of the error is already the slow tail (at 0.8 plain sweeps and the finish took
+/// W1 to 5 839 iterations, at 0.5 2 160).
+pub const PLAIN_SWITCH_RATIO: f64 = 0.5;
 
 /// The over-relaxation factor [`CcdSolver::new`] uses: none, since over-relaxation
 /// measured slower than plain CCD on W1 and W2 (`docs/bench/ik-ccd.md`).
@@ -119,7 +125,8 @@ pub struct CcdOptions {
     pub relaxation: f64,
     /// End with the damped least-squares finish every solver shares
     /// ([`sinew_skeleton::finish`], default true): the sweeps make the large move and
-    /// stop once a sweep keeps more than [`SWITCH_RATIO`] of the error, then the finish
+    /// stop once a sweep keeps more than [`SWITCH_RATIO`] of the error
+    /// ([`PLAIN_SWITCH_RATIO`] without extrapolation), then the finish
     /// converges, sliding along the joint limits, and solves rotation goals too. Off,
     /// CCD sweeps to the end and refuses a rotation goal.
     pub finish: bool,
@@ -382,7 +389,11 @@ impl IkSolver for CcdSolver {
         self.saved.resize(movable.len(), DQuat::IDENTITY);
         self.swept.clear();
         self.swept.resize(movable.len(), DQuat::IDENTITY);
-        let switch = if self.finish { SWITCH_RATIO } else { 1.0 };
+        let switch = match (self.finish, self.extrapolate) {
+            (false, _) => 1.0,
+            (true, true) => SWITCH_RATIO,
+            (true, false) => PLAIN_SWITCH_RATIO,
+        };
         // A limb (a three-degree-of-freedom base joint, then a hinge) with a position
         // goal tries its closed-form pose first, which usually reaches the target
         // outright. It is kept only when it does: started from the seed, the sweeps and
