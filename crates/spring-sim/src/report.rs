@@ -383,8 +383,9 @@ pub enum StepError {
         collider: usize,
     },
     /// A free particle is inside or on a collider at the step's start (the state was
-    /// set there through `Simulation::system_mut`; `Simulation::set_contact` refuses
-    /// such a start with `ContactError::StartsInside`). The step was refused.
+    /// set there through `Simulation::system_mut`, or by hand for a stepper given a
+    /// contact term by hand; `Simulation::set_contact` refuses such a start with
+    /// `ContactError::StartsInside`). The step was refused.
     StartsInside {
         /// The particle.
         particle: usize,

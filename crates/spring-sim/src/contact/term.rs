@@ -17,6 +17,7 @@
 use super::{ContactPotential, ContactStep};
 use crate::potential::{Gravity, HessianSink, Springs, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
+use crate::{SpringSystem, StepError};
 use sinew_math::DVec3;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -123,6 +124,26 @@ impl ContactTerm {
 impl Term for ContactTerm {
     fn name(&self) -> &'static str {
         "contact"
+    }
+
+    fn check_start(&self, system: &SpringSystem, time: f64) -> Result<(), StepError> {
+        // Every iterate is admissible by induction from an admissible start
+        // (docs/contact.md): a start inside a collider would instead be pushed out by
+        // the first iterate's carry, however far, with no error.
+        match super::first_inside(
+            self.potential.colliders(),
+            self.potential.settings().thickness,
+            time,
+            system.positions(),
+            system.fixed(),
+        ) {
+            Some((particle, collider, distance)) => Err(StepError::StartsInside {
+                particle,
+                collider,
+                distance,
+            }),
+            None => Ok(()),
+        }
     }
 
     fn begin_step(&mut self, step: &StepContext<'_>) {

@@ -416,6 +416,7 @@ impl BackwardEuler {
     ) -> Result<StepReport, StepError> {
         check_time_step(h)?;
         self.check_topology(system)?;
+        self.potential.check_start(system, self.time)?;
         if let Scheme::Bdf2 { prev_x, prev_v } = scheme
             && (prev_x.len() != system.len() || prev_v.len() != system.len())
         {

@@ -43,6 +43,7 @@ pub use sink::{HessianSink, MissingPair, SymBlock};
 pub use springs::Springs;
 
 use crate::model::SpringSystem;
+use crate::report::StepError;
 use crate::spring::Curvature;
 use fused::PerSpring;
 pub(crate) use fused::{rate_product, rate_row_sums};
@@ -120,6 +121,18 @@ pub struct StepTiming {
 pub trait Term: Any + std::fmt::Debug + Send + Sync {
     /// A short name for reports and test messages.
     fn name(&self) -> &'static str;
+
+    /// Called once per step before anything else, with the system at the step's start
+    /// and the time it starts at: refuses a start the term cannot accept (for contact a
+    /// free particle inside or on a collider, from which the barrier's guarantee cannot
+    /// follow), leaving the system untouched. Accepts every start by default.
+    ///
+    /// # Errors
+    /// The term's reason to refuse the start ([`StepError::StartsInside`] for contact).
+    fn check_start(&self, system: &SpringSystem, time: f64) -> Result<(), StepError> {
+        let _ = (system, time);
+        Ok(())
+    }
 
     /// Called once per step, before the minimization, with the state at the step's
     /// start (`step.system`): the place for per-step state (frozen damping directions,
@@ -391,6 +404,16 @@ impl Potential {
     #[must_use]
     pub fn terms(&self) -> &[Box<dyn Term>] {
         &self.terms
+    }
+
+    /// [`Term::check_start`] on every term, in order; the first refusal.
+    ///
+    /// # Errors
+    /// The first term's refusal of the start.
+    pub fn check_start(&self, system: &SpringSystem, time: f64) -> Result<(), StepError> {
+        self.terms
+            .iter()
+            .try_for_each(|t| t.check_start(system, time))
     }
 
     /// [`Term::begin_step`] on every term.

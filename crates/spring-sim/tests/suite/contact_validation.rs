@@ -397,3 +397,71 @@ fn a_free_particle_starting_inside_or_on_a_collider_is_refused() {
     );
     assert_eq!(sim.system().positions(), &positions[..]);
 }
+
+#[test]
+fn a_contact_term_added_by_hand_refuses_a_start_inside_a_collider() {
+    use sinew_spring_sim::contact::{ContactPotential, ContactTerm};
+    use sinew_spring_sim::{BackwardEuler, NewtonSettings, Particle, SpringSystem, StepError};
+    // Two free particles 1 apart at height 0.5, a spring between them, and a sphere of
+    // radius 0.2 that moves along x at 1 per second from (-2, 0.5, 0): at t = 0 it is far
+    // from both, at t = 2 it holds the first particle (distance -0.2).
+    let mut system = SpringSystem::new(
+        &[
+            Particle::at_rest(DVec3::new(0.0, 0.5, 0.0), 0.01),
+            Particle::at_rest(DVec3::new(1.0, 0.5, 0.0), 0.01),
+        ],
+        &[sinew_spring_sim::SpringSpec::between(0, 1)],
+        crate::common::contact_material(),
+    )
+    .unwrap();
+    let sphere = Collider {
+        motion: Motion {
+            linear_velocity: DVec3::X,
+            angular_velocity: DVec3::ZERO,
+        },
+        ..Collider::sphere(DVec3::new(-2.0, 0.5, 0.0), 0.2)
+    };
+    let ground = Collider::ground(0.0);
+    let mut integrator = BackwardEuler::new(&system, NewtonSettings::default()).unwrap();
+    let contact =
+        ContactPotential::new(vec![ground, sphere], ContactSettings::default(), 0.0).unwrap();
+    integrator.add_term(Box::new(ContactTerm::new(contact)));
+
+    // A free particle moved below the ground: refused, naming it, the system untouched.
+    let mut positions = system.positions().to_vec();
+    positions[1].y = -0.25;
+    let velocities = system.velocities().to_vec();
+    system.set_state(&positions, &velocities).unwrap();
+    let err = integrator.step(&mut system, 0.01).unwrap_err();
+    assert!(
+        matches!(err, StepError::StartsInside { particle: 1, collider: 0, distance } if distance == -0.25),
+        "{err:?}"
+    );
+    assert_eq!(system.positions(), &positions[..]);
+    assert_eq!(system.velocities(), &velocities[..]);
+    assert_eq!(
+        integrator.time(),
+        0.0,
+        "a refused step does not advance time"
+    );
+
+    // Back above the ground: the step runs. Posed at the stepper's time: at t = 2 the
+    // moving sphere holds particle 0 (its centre at (0, 0.5, 0)), which is refused,
+    // though the same positions at t = 0 were accepted.
+    positions[1].y = 0.5;
+    system.set_state(&positions, &velocities).unwrap();
+    let start = system.clone();
+    integrator.step(&mut system, 0.01).unwrap();
+    system = start;
+    integrator.set_time(2.0);
+    let err = integrator.step(&mut system, 0.01).unwrap_err();
+    match err {
+        StepError::StartsInside {
+            particle: 0,
+            collider: 1,
+            distance,
+        } => assert!((distance + 0.2).abs() < 1e-15, "{distance}"),
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(system.positions(), &positions[..]);
+}
