@@ -128,8 +128,8 @@ impl Term for ContactTerm {
 
     fn check_start(&self, system: &SpringSystem, time: f64) -> Result<(), StepError> {
         // Every iterate is admissible by induction from an admissible start
-        // (docs/contact.md): a start inside a collider would instead be pushed out by
-        // the first iterate's carry, however far, with no error.
+        // (docs/contact.md): from a start inside a collider the step would run with no
+        // error and without that guarantee.
         match super::first_inside(
             self.potential.colliders(),
             self.potential.settings().thickness,
