@@ -933,19 +933,13 @@ impl Simulation {
             // closing in on one particle within one step make that impossible. The step's
             // start itself must be outside every collider: accepted states are, but a
             // state set through `system_mut` may not be.
-            if let Some((particle, collider, distance)) = crate::contact::first_inside(
+            crate::contact::check_step_start(
                 &contact.colliders,
                 contact.settings.thickness,
                 self.time,
                 self.system.positions(),
                 self.system.fixed(),
-            ) {
-                return Err(StepError::StartsInside {
-                    particle,
-                    collider,
-                    distance,
-                });
-            }
+            )?;
             contact.scratch.clear();
             contact.scratch.extend_from_slice(self.system.positions());
             crate::contact::potential::carry_with_colliders(

@@ -343,6 +343,26 @@ pub fn check_start_outside(
     }
 }
 
+/// [`check_start_outside`] for a stepper: the same check, refused as
+/// [`StepError::StartsInside`](crate::StepError::StartsInside) so that a step from an
+/// inadmissible start fails before anything is written.
+pub(crate) fn check_step_start(
+    colliders: &[Collider],
+    thickness: f64,
+    t: f64,
+    positions: &[sinew_math::DVec3],
+    fixed: &[bool],
+) -> Result<(), crate::StepError> {
+    match first_inside(colliders, thickness, t, positions, fixed) {
+        Some((particle, collider, distance)) => Err(crate::StepError::StartsInside {
+            particle,
+            collider,
+            distance,
+        }),
+        None => Ok(()),
+    }
+}
+
 /// The first free particle (by collider, then particle) inside or on a collider posed
 /// at `t`, as `(particle, collider, distance less thickness)`.
 pub(crate) fn first_inside(

@@ -130,20 +130,13 @@ impl Term for ContactTerm {
         // Every iterate is admissible by induction from an admissible start
         // (docs/contact.md): from a start inside a collider the step would run with no
         // error and without that guarantee.
-        match super::first_inside(
+        super::check_step_start(
             self.potential.colliders(),
             self.potential.settings().thickness,
             time,
             system.positions(),
             system.fixed(),
-        ) {
-            Some((particle, collider, distance)) => Err(StepError::StartsInside {
-                particle,
-                collider,
-                distance,
-            }),
-            None => Ok(()),
-        }
+        )
     }
 
     fn begin_step(&mut self, step: &StepContext<'_>) {
