@@ -394,6 +394,17 @@ pub enum StepError {
         /// Its distance to the collider's surface, less the thickness (`<= 0`).
         distance: f64,
     },
+    /// Two primitives of a self-contact mesh (a vertex and a triangle, or two edges)
+    /// are within the thickness of each other, or crossed, at the step's start (the
+    /// state was set by hand, through `SpringSystem::set_state` or `Simulation::system_mut`; an
+    /// accepted state never is, and the self-contact term refuses such a state when it
+    /// is built). The step was refused.
+    SelfContactStart {
+        /// The pair, as "vertex 12 and triangle 40" or "edge [3, 4] and edge [17, 18]".
+        pair: String,
+        /// Its distance less the thickness (`<= 0`, or NaN for a degenerate pair).
+        gap: f64,
+    },
 }
 
 impl std::fmt::Display for StepError {
@@ -438,6 +449,12 @@ impl std::fmt::Display for StepError {
                 "particle {particle} is inside collider {collider} at the step's start (its \
                  distance to the surface, less the thickness, is {distance:e}); the step was \
                  refused"
+            ),
+            Self::SelfContactStart { pair, gap } => write!(
+                f,
+                "self-contact: {pair} are within the thickness of each other at the step's \
+                 start (their distance less the thickness is {gap:e}): a self-contact step \
+                 needs every pair apart at its start; the step was refused"
             ),
             Self::BelowStabilityBound {
                 integrator,

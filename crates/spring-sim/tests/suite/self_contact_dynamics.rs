@@ -12,7 +12,7 @@ use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
 use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactStats};
 use sinew_spring_sim::contact::{Collider, ContactPotential, ContactSettings, ContactTerm};
-use sinew_spring_sim::{MeshClothModel, NewtonSettings, SpringSystem, TriangleMesh};
+use sinew_spring_sim::{MeshClothModel, NewtonSettings, SpringSystem, StepError, TriangleMesh};
 use std::sync::Arc;
 
 const H: f64 = 1.0 / 60.0;
@@ -295,4 +295,60 @@ fn bad_input_is_an_error_naming_it() {
         err.to_string().contains("vertex") || err.to_string().contains("edge"),
         "{err}"
     );
+}
+
+#[test]
+fn a_step_from_a_state_set_with_a_pair_within_the_thickness_is_refused_naming_it() {
+    // Two flat 5 x 5 sheets 4 mm apart (1 cm spacing, the top one shifted so no vertex
+    // lies above a vertex), dhat 2 mm, thickness 1 mm, the lower one held at its corners.
+    let (n, s) = (5, 0.01);
+    let (x, t) = sheets::stacked(n, s, DVec3::new(0.003, 0.004, 0.004), DVec3::X, DVec3::Z, s);
+    let mesh = TriangleMesh::new(x, t.clone()).unwrap();
+    let model = sheets::cloth(vec![0, n - 1, n * (n - 1), n * n - 1])
+        .build(&mesh)
+        .unwrap();
+    let mut be = model.backward_euler(NewtonSettings::default()).unwrap();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 1e-3,
+        ..SelfContactSettings::default()
+    };
+    model.enable_self_contact(&mut be, settings).unwrap();
+    let mut system = model.system.clone();
+    // The top sheet's middle vertex set 0.5 mm above the lower sheet's plane, over the
+    // inside of a triangle (0.3 mm and 0.4 mm from the grid lines): its distance to that
+    // triangle is 0.5 mm, half the thickness.
+    let middle = n * n + n * n / 2;
+    let (x0, v0) = (system.positions().to_vec(), system.velocities().to_vec());
+    let mut x = x0.clone();
+    x[middle].y = 5e-4;
+    system.set_state(&x, &v0).unwrap();
+    let err = be.step(&mut system, H).unwrap_err();
+    let StepError::SelfContactStart { pair, gap } = &err else {
+        panic!("{err:?}");
+    };
+    assert!(
+        pair.starts_with(&format!("vertex {middle} and triangle")),
+        "{pair}"
+    );
+    assert!((gap + 5e-4).abs() < 1e-15, "{gap}");
+    assert!(err.to_string().contains("within the thickness"), "{err}");
+    // Refused before anything is written.
+    assert_eq!(system.positions(), x.as_slice());
+    assert_eq!(system.velocities(), v0.as_slice());
+    // Pushed through the lower sheet: refused as well (its vertices near the crossing are
+    // within the thickness of the top sheet's triangles).
+    x[middle].y = -5e-4;
+    system.set_state(&x, &v0).unwrap();
+    assert!(matches!(
+        be.step(&mut system, H),
+        Err(StepError::SelfContactStart { .. })
+    ));
+    // The term is not left in a bad state: from an admissible start it steps on, and
+    // the steps after it (from accepted states) are not refused.
+    system.set_state(&x0, &v0).unwrap();
+    for _ in 0..5 {
+        be.step(&mut system, H).unwrap();
+    }
+    assert!(min_gap(system.positions(), &t, 1e-3) > 0.0);
 }

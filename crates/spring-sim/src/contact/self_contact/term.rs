@@ -68,6 +68,7 @@ use crate::contact::barrier::{
 use crate::model::SpringSystem;
 use crate::newton::BackwardEuler;
 use crate::potential::{HessianSink, StepContext, SymBlock, Term};
+use crate::report::StepError;
 use crate::spring::Curvature;
 use sinew_math::{DMat3, DVec3};
 use std::collections::BTreeSet;
@@ -251,6 +252,9 @@ pub struct SelfContactTerm {
     /// hashing the mesh again. It also keeps each listed pair's gap and energy at the
     /// segment's start, which the cap's two sweeps and every trial's energy change need.
     segment: Mutex<Segment>,
+    /// The state [`Term::check_start`] last checked and its smallest gap, which the
+    /// step's [`Term::begin_step`] (at the same state) takes instead of computing it again.
+    checked_start: Mutex<Option<(Vec<DVec3>, f64)>>,
     stats: Arc<SelfContactStats>,
 }
 
@@ -327,6 +331,7 @@ impl SelfContactTerm {
             near_gaps: Vec::new(),
             active_regions: Vec::new(),
             segment: Mutex::new(Segment::default()),
+            checked_start: Mutex::new(None),
             stats: Arc::new(SelfContactStats::default()),
         };
         term.check_state(x, system.fixed())?;
@@ -478,6 +483,25 @@ impl SelfContactTerm {
     /// The smallest gap at `x` over the pairs within `dhat` (`+inf` when none).
     #[must_use]
     pub fn min_gap(&self, x: &[DVec3], fixed: &[bool]) -> f64 {
+        self.gaps_at(x, fixed).0
+    }
+
+    /// `Err` naming the first pair (in the broad phase's order) whose gap at `x` is zero
+    /// or negative.
+    pub fn check_state(&self, x: &[DVec3], fixed: &[bool]) -> Result<(), ContactError> {
+        match self.gaps_at(x, fixed).1 {
+            Some((pair, _)) => Err(ContactError::BadMesh {
+                item: pair,
+                reason: "are within the thickness of each other (or touching)",
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// The smallest gap at `x` over the pairs within `dhat` (`+inf` when none), and the
+    /// first pair (in the broad phase's order) whose gap is zero, negative or NaN, named,
+    /// with that gap.
+    fn gaps_at(&self, x: &[DVec3], fixed: &[bool]) -> (f64, Option<(String, f64)>) {
         let near = self.near(x, fixed);
         let mut gaps = Vec::new();
         spread::fill(&mut gaps, near.len(), 0.0, |i| {
@@ -487,39 +511,30 @@ impl SelfContactTerm {
                 self.gap(near[i], x)
             }
         });
+        let touching = gaps
+            .iter()
+            .position(|g| g.is_nan() || *g <= 0.0)
+            .map(|k| (self.pair_name(near[k]), gaps[k]));
         let min = gaps.into_iter().fold(f64::INFINITY, f64::min);
-        if min < self.settings.dhat {
+        let min = if min < self.settings.dhat {
             min
         } else {
             f64::INFINITY
-        }
+        };
+        (min, touching)
     }
 
-    /// `Err` naming the first pair (in the broad phase's order) whose gap at `x` is zero
-    /// or negative.
-    pub fn check_state(&self, x: &[DVec3], fixed: &[bool]) -> Result<(), ContactError> {
-        for c in self.near(x, fixed) {
-            if self.beyond_dhat(c, x) {
-                continue;
+    /// A pair as an error names it.
+    fn pair_name(&self, c: Candidate) -> String {
+        match c {
+            Candidate::PointTriangle { vertex, triangle } => {
+                format!("vertex {vertex} and triangle {triangle}")
             }
-            let gap = self.gap(c, x);
-            if gap.is_nan() || gap <= 0.0 {
-                let item = match c {
-                    Candidate::PointTriangle { vertex, triangle } => {
-                        format!("vertex {vertex} and triangle {triangle}")
-                    }
-                    Candidate::EdgeEdge { a, b } => format!(
-                        "edge {:?} and edge {:?}",
-                        self.prims.edges[a], self.prims.edges[b]
-                    ),
-                };
-                return Err(ContactError::BadMesh {
-                    item,
-                    reason: "are within the thickness of each other (or touching)",
-                });
-            }
+            Candidate::EdgeEdge { a, b } => format!(
+                "edge {:?} and edge {:?}",
+                self.prims.edges[a], self.prims.edges[b]
+            ),
         }
-        Ok(())
     }
 
     /// A pair's barrier energy at `x` (`+inf` at a gap of zero or below).
@@ -845,6 +860,23 @@ impl Term for SelfContactTerm {
         self.stats.take_missing_pairs()
     }
 
+    fn check_start(&self, system: &SpringSystem, _time: f64) -> Result<(), StepError> {
+        // The cap keeps every gap positive by induction from a start that has them
+        // (docs/contact.md); from a state set by hand with a pair within the thickness
+        // the barrier is infinite, no trial is accepted, and the step would grind
+        // through every split to an unconverged end instead of saying why.
+        let x = system.positions();
+        let (min, touching) = self.gaps_at(x, system.fixed());
+        if let Some((pair, gap)) = touching {
+            return Err(StepError::SelfContactStart { pair, gap });
+        }
+        *self
+            .checked_start
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = Some((x.to_vec(), min));
+        Ok(())
+    }
+
     fn begin_step(&mut self, step: &StepContext<'_>) {
         let s = step.system;
         let (x, fixed) = (s.positions(), s.fixed());
@@ -861,7 +893,16 @@ impl Term for SelfContactTerm {
             let kmin = minimum_kappa(dhat, mean, s.material().gravity.length(), step.h);
             self.kappa = Some(AdaptiveKappa::new(kmin, None, settings));
         }
-        let min = self.min_gap(x, fixed);
+        // A piece after the first starts where the checked state does not.
+        let checked = self
+            .checked_start
+            .get_mut()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take();
+        let min = match checked {
+            Some((at, min)) if at == x => min,
+            _ => self.min_gap(x, fixed),
+        };
         if let Some(k) = self.kappa.as_mut() {
             k.update(min, dhat);
         }
