@@ -145,6 +145,16 @@ impl HessianPattern {
     /// `None` when the pattern holds no such pair. A binary search in the column.
     #[must_use]
     pub(crate) fn off_block_slots(&self, fi: usize, fj: usize) -> Option<[usize; 9]> {
+        self.off_block_position(fi, fj)
+            .map(|(col, k)| self.off_block_slots_at(col, k))
+    }
+
+    /// Where the block below the diagonal coupling free particles `fi` and `fj` is kept:
+    /// its column particle `min(fi, fj)` and the row particle's position among that
+    /// column's neighbours, or `None` when the pattern holds no such pair (or
+    /// `fi == fj`). A binary search in the column.
+    #[must_use]
+    pub(crate) fn off_block_position(&self, fi: usize, fj: usize) -> Option<(usize, usize)> {
         let (col, row) = (fi.min(fj), fi.max(fj));
         if col == row || row >= self.free_particles.len() {
             return None;
@@ -167,14 +177,20 @@ impl HessianPattern {
         if lo == neighbours || row_idx[start + 3 * lo] != 3 * row {
             return None;
         }
-        let k = lo;
+        Some((col, lo))
+    }
+
+    /// The value slots of the block at [`Self::off_block_position`] `(col, k)`.
+    #[must_use]
+    pub(crate) fn off_block_slots_at(&self, col: usize, k: usize) -> [usize; 9] {
+        let col_ptr = self.symbolic.col_ptr();
         let mut slots = [0usize; 9];
         for c in 0..3 {
             for r in 0..3 {
                 slots[3 * c + r] = col_ptr[3 * col + c] + (3 - c) + 3 * k + r;
             }
         }
-        Some(slots)
+        slots
     }
 
     /// The diagonal block of free particle `f` read back from `values`.

@@ -39,6 +39,7 @@ pub use bending::{
 pub use damping::AxialDamping;
 pub use gravity::Gravity;
 pub use inertia::Inertia;
+pub(crate) use sink::PairPlace;
 pub use sink::{HessianSink, MissingPair, SymBlock};
 pub use springs::Springs;
 

@@ -114,6 +114,44 @@ pub struct MissingPair {
     pub j: usize,
 }
 
+/// Where the coupling block of two distinct particles goes in a values sink, looked up
+/// once ([`PairPlace::find`]) so that a term writing many blocks can look its pairs up on
+/// several threads and add them on one ([`HessianSink::add_pair_at`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) enum PairPlace {
+    /// A fixed particle: nothing is added.
+    #[default]
+    Skip,
+    /// Two free particles the pattern has no slots for.
+    Missing,
+    /// The block's place ([`HessianPattern::off_block_position`]), and whether the
+    /// stored block is the given one's transpose (the first particle's free index is
+    /// the lower one).
+    At {
+        col: usize,
+        k: usize,
+        transposed: bool,
+    },
+}
+
+impl PairPlace {
+    /// The place of the block of particles `i != j` on `pattern`.
+    pub(crate) fn find(pattern: &HessianPattern, i: usize, j: usize) -> Self {
+        let (fi, fj) = (pattern.free_index[i], pattern.free_index[j]);
+        if fi == FIXED || fj == FIXED {
+            return Self::Skip;
+        }
+        match pattern.off_block_position(fi, fj) {
+            Some((col, k)) => Self::At {
+                col,
+                k,
+                transposed: fi < fj,
+            },
+            None => Self::Missing,
+        }
+    }
+}
+
 /// The receiver of a term's Hessian blocks (see the module documentation).
 #[derive(Debug)]
 pub struct HessianSink<'a> {
@@ -332,6 +370,37 @@ impl<'a> HessianSink<'a> {
         }
     }
 
+    /// The pattern of a sink that accumulates matrix values (`None` for the other
+    /// targets).
+    pub(crate) fn values_pattern(&self) -> Option<&'a HessianPattern> {
+        match &self.target {
+            Target::Values { pattern, .. } => Some(pattern),
+            _ => None,
+        }
+    }
+
+    /// [`Self::add_pair`] of particles `i != j` with their place on this sink's pattern
+    /// already found ([`PairPlace::find`] on [`Self::values_pattern`]): the same
+    /// additions in the same order, without the look-up. A missing pair adds nothing (as
+    /// `add_pair`'s `Err`). On the other targets the place is not needed and
+    /// `add_pair` runs.
+    pub(crate) fn add_pair_at(&mut self, place: PairPlace, i: usize, j: usize, b: &DMat3) {
+        let Target::Values { pattern, values } = &mut self.target else {
+            let _ = self.add_pair(i, j, b);
+            return;
+        };
+        let PairPlace::At { col, k, transposed } = place else {
+            return;
+        };
+        let slots = pattern.off_block_slots_at(col, k);
+        let stored = if transposed { b.transpose() } else { *b };
+        for c in 0..3 {
+            for r in 0..3 {
+                values[slots[3 * c + r]] += stored.col(c)[r];
+            }
+        }
+    }
+
     /// Adds the block `b` at `(i, j)` (and `b^T` at `(j, i)`), looking the pair up in the
     /// pattern's structure. `i == j` adds the symmetric part of `b` on the diagonal.
     /// Blocks touching a fixed particle are skipped. A pair of free particles the
@@ -471,5 +540,51 @@ fn edge_product(
     }
     if !fixed[b] {
         out[b] -= t;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{ClothGrid, SpringSystem};
+
+    /// A block placed beforehand adds exactly what `add_pair` adds (every value slot to
+    /// the bit), in both orders of the particles, and places that are not there (a fixed
+    /// particle, a pair without slots) add nothing, as `add_pair` does.
+    #[test]
+    fn a_pair_added_at_its_found_place_is_add_pair_bit_for_bit() {
+        let system = SpringSystem::cloth(&ClothGrid::lab_sized(5, 0.1)).unwrap();
+        // Particles 0 and 4 are the pinned corners; (6, 18) has slots only through the
+        // extra pair, (7, 19) has none.
+        let pattern = HessianPattern::with_pairs(&system, &[[6, 18]]);
+        let block = |s: f64| {
+            DMat3::from_cols_array(&std::array::from_fn(|k| s * (k as f64 + 0.5).sin() / 3.0))
+        };
+        let pairs = [(1, 2), (2, 1), (6, 18), (18, 6), (0, 5), (7, 19), (12, 13)];
+        let (mut direct, mut placed) = (vec![0.0; pattern.nnz()], vec![0.0; pattern.nnz()]);
+        let mut sink = HessianSink::values(&pattern, &mut direct);
+        let mut missing = Vec::new();
+        for (n, &(i, j)) in pairs.iter().enumerate() {
+            if sink.add_pair(i, j, &block(1.0 + n as f64)).is_err() {
+                missing.push((i, j));
+            }
+        }
+        assert_eq!(missing, [(7, 19)]);
+        let mut sink = HessianSink::values(&pattern, &mut placed);
+        let found = sink.values_pattern().unwrap();
+        let places: Vec<PairPlace> = pairs
+            .iter()
+            .map(|&(i, j)| PairPlace::find(found, i, j))
+            .collect();
+        assert_eq!(places[4], PairPlace::Skip);
+        assert_eq!(places[5], PairPlace::Missing);
+        for (n, (&(i, j), &place)) in pairs.iter().zip(&places).enumerate() {
+            sink.add_pair_at(place, i, j, &block(1.0 + n as f64));
+        }
+        assert!(direct.iter().any(|v| *v != 0.0));
+        assert_eq!(
+            direct.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            placed.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
     }
 }

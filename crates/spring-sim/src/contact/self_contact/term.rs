@@ -67,7 +67,7 @@ use crate::contact::barrier::{
 };
 use crate::model::SpringSystem;
 use crate::newton::BackwardEuler;
-use crate::potential::{HessianSink, StepContext, SymBlock, Term};
+use crate::potential::{HessianSink, PairPlace, StepContext, SymBlock, Term};
 use crate::report::StepError;
 use crate::spring::Curvature;
 use sinew_math::{DMat3, DVec3};
@@ -255,6 +255,8 @@ pub struct SelfContactTerm {
     /// The state [`Term::check_start`] last checked and its smallest gap, which the
     /// step's [`Term::begin_step`] (at the same state) takes instead of computing it again.
     checked_start: Mutex<Option<(Vec<DVec3>, f64)>>,
+    /// Scratch for the places of the active pairs' coupling blocks in the Newton matrix.
+    places: Mutex<Vec<[PairPlace; 6]>>,
     stats: Arc<SelfContactStats>,
 }
 
@@ -332,6 +334,7 @@ impl SelfContactTerm {
             active_regions: Vec::new(),
             segment: Mutex::new(Segment::default()),
             checked_start: Mutex::new(None),
+            places: Mutex::new(Vec::new()),
             stats: Arc::new(SelfContactStats::default()),
         };
         term.check_state(x, system.fixed())?;
@@ -1124,8 +1127,34 @@ impl Term for SelfContactTerm {
         }
         let mut missing = Vec::new();
         self.with_derivatives(x, step.system.fixed(), Some(form), |pairs| {
-            for e in pairs.iter().filter(|e| e.present) {
-                scatter(&e.hessian, e.kind, e.particles, sink, &mut missing);
+            let Some(pattern) = sink.values_pattern() else {
+                for e in pairs.iter().filter(|e| e.present) {
+                    scatter(&e.hessian, e.kind, e.particles, None, sink, &mut missing);
+                }
+                return;
+            };
+            // The pattern look-ups (six binary searches a pair) on the pool, the
+            // additions on one thread in the pairs' order, so the values are the bits of
+            // the sequential scatter.
+            let mut places = self.places.lock().unwrap_or_else(PoisonError::into_inner);
+            spread::fill(&mut places, pairs.len(), [PairPlace::Skip; 6], |k| {
+                let e = &pairs[k];
+                if e.present {
+                    PARTICLE_PAIRS
+                        .map(|(a, b)| PairPlace::find(pattern, e.particles[a], e.particles[b]))
+                } else {
+                    [PairPlace::Skip; 6]
+                }
+            });
+            for (e, place) in pairs.iter().zip(places.iter()).filter(|(e, _)| e.present) {
+                scatter(
+                    &e.hessian,
+                    e.kind,
+                    e.particles,
+                    Some(place),
+                    sink,
+                    &mut missing,
+                );
             }
         });
         if !missing.is_empty() {
@@ -1209,10 +1238,13 @@ impl Default for PairDerivatives {
 /// block, else the blocks within each primitive, else the diagonal blocks (see the module
 /// documentation; for an exact, indefinite `h` the partial blocks carry no guarantee,
 /// and the matrix may then be refused and the projected blocks asked for). Particle pairs without slots are pushed to `missing`.
+/// `places`: the places of the six coupling blocks ([`PARTICLE_PAIRS`]' order) on the
+/// sink's pattern, found beforehand; `None` looks them up.
 fn scatter(
     h: &Mat12,
     kind: PairKind,
     v: [usize; 4],
+    places: Option<&[PairPlace; 6]>,
     sink: &mut HessianSink<'_>,
     missing: &mut Vec<[usize; 2]>,
 ) {
@@ -1220,20 +1252,22 @@ fn scatter(
         PairKind::PointTriangle => usize::from(k > 0),
         PairKind::EdgeEdge => usize::from(k > 1),
     };
-    let pairs = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
     // Each pattern look-up once (a binary search per pair of particles).
-    let has = pairs.map(|(a, b)| sink.has_pair(v[a], v[b]));
+    let has: [bool; 6] = match places {
+        Some(places) => places.map(|p| p != PairPlace::Missing),
+        None => PARTICLE_PAIRS.map(|(a, b)| sink.has_pair(v[a], v[b])),
+    };
     let keep_all = has.iter().all(|&h| h);
     if !keep_all {
         missing.extend(
-            pairs
+            PARTICLE_PAIRS
                 .iter()
                 .zip(has)
                 .filter(|&(_, h)| !h)
                 .map(|(&(a, b), _)| [v[a], v[b]]),
         );
     }
-    let keep_within = pairs
+    let keep_within = PARTICLE_PAIRS
         .iter()
         .zip(has)
         .filter(|&(&(a, b), _)| group(a) == group(b))
@@ -1241,13 +1275,22 @@ fn scatter(
     for (k, &i) in v.iter().enumerate() {
         sink.add_diagonal(i, SymBlock::from_lower(&block(h, k, k)));
     }
-    for (a, b) in pairs {
+    for (n, (a, b)) in PARTICLE_PAIRS.into_iter().enumerate() {
         if keep_all || (keep_within && group(a) == group(b)) {
-            // Checked above: the pattern has the pair, so this cannot fail.
-            let _ = sink.add_pair(v[a], v[b], &block(h, a, b));
+            match places {
+                Some(places) => sink.add_pair_at(places[n], v[a], v[b], &block(h, a, b)),
+                // Checked above: the pattern has the pair, so this cannot fail.
+                None => {
+                    let _ = sink.add_pair(v[a], v[b], &block(h, a, b));
+                }
+            }
         }
     }
 }
+
+/// A pair's six pairs of particles (pair-local indices), in the order its blocks are
+/// written.
+const PARTICLE_PAIRS: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
 
 /// Adds self-contact of the cloth `system` with surface `triangles` to `integrator`
 /// (see [`SelfContactTerm::new`] for the checks) and returns the term's statistics.
