@@ -140,15 +140,6 @@ impl HessianPattern {
         SparseColMatRef::new(self.symbolic.as_ref(), values)
     }
 
-    /// The value slots of the block below the diagonal coupling free particles `fi` and
-    /// `fj` (`fi != fj`; entry `(r, c)` at `3 c + r`, row particle `max(fi, fj)`), or
-    /// `None` when the pattern holds no such pair. A binary search in the column.
-    #[must_use]
-    pub(crate) fn off_block_slots(&self, fi: usize, fj: usize) -> Option<[usize; 9]> {
-        self.off_block_position(fi, fj)
-            .map(|(col, k)| self.off_block_slots_at(col, k))
-    }
-
     /// Where the block below the diagonal coupling free particles `fi` and `fj` is kept:
     /// its column particle `min(fi, fj)` and the row particle's position among that
     /// column's neighbours, or `None` when the pattern holds no such pair (or

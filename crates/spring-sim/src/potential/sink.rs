@@ -364,7 +364,7 @@ impl<'a> HessianSink<'a> {
         match &self.target {
             Target::Values { pattern, .. } | Target::Diagonal { pattern, .. } => {
                 let (fi, fj) = (pattern.free_index[i], pattern.free_index[j]);
-                i == j || fi == FIXED || fj == FIXED || pattern.off_block_slots(fi, fj).is_some()
+                i == j || fi == FIXED || fj == FIXED || pattern.off_block_position(fi, fj).is_some()
             }
             Target::RowSums { .. } | Target::Product { .. } => true,
         }
@@ -392,13 +392,7 @@ impl<'a> HessianSink<'a> {
         let PairPlace::At { col, k, transposed } = place else {
             return;
         };
-        let slots = pattern.off_block_slots_at(col, k);
-        let stored = if transposed { b.transpose() } else { *b };
-        for c in 0..3 {
-            for r in 0..3 {
-                values[slots[3 * c + r]] += stored.col(c)[r];
-            }
-        }
+        add_at(pattern, values, col, k, transposed, b);
     }
 
     /// Adds the block `b` at `(i, j)` (and `b^T` at `(j, i)`), looking the pair up in the
@@ -417,16 +411,11 @@ impl<'a> HessianSink<'a> {
                 if fi == FIXED || fj == FIXED {
                     return Ok(());
                 }
-                let Some(slots) = pattern.off_block_slots(fi, fj) else {
+                let Some((col, k)) = pattern.off_block_position(fi, fj) else {
                     return Err(MissingPair { i, j });
                 };
                 // The stored block sits below the diagonal: row particle max(fi, fj).
-                let stored = if fi > fj { *b } else { b.transpose() };
-                for c in 0..3 {
-                    for r in 0..3 {
-                        values[slots[3 * c + r]] += stored.col(c)[r];
-                    }
-                }
+                add_at(pattern, values, col, k, fi < fj, b);
             }
             Target::RowSums { fixed, rows } => {
                 if fixed[i] || fixed[j] {
@@ -447,6 +436,26 @@ impl<'a> HessianSink<'a> {
             Target::Diagonal { .. } => self.mark_coupled(),
         }
         Ok(())
+    }
+}
+
+/// Adds `b` (or `b^T` when `transposed`) to the off-diagonal block at `(col, k)` of
+/// [`HessianPattern::off_block_position`]: the one place both pair paths write, so they
+/// add the same values in the same order.
+fn add_at(
+    pattern: &HessianPattern,
+    values: &mut [f64],
+    col: usize,
+    k: usize,
+    transposed: bool,
+    b: &DMat3,
+) {
+    let slots = pattern.off_block_slots_at(col, k);
+    let stored = if transposed { b.transpose() } else { *b };
+    for c in 0..3 {
+        for r in 0..3 {
+            values[slots[3 * c + r]] += stored.col(c)[r];
+        }
     }
 }
 

@@ -303,18 +303,17 @@ fn a_step_from_a_state_set_with_a_pair_within_the_thickness_is_refused_naming_it
     // lies above a vertex), dhat 2 mm, thickness 1 mm, the lower one held at its corners.
     let (n, s) = (5, 0.01);
     let (x, t) = sheets::stacked(n, s, DVec3::new(0.003, 0.004, 0.004), DVec3::X, DVec3::Z, s);
-    let mesh = TriangleMesh::new(x, t.clone()).unwrap();
-    let model = sheets::cloth(vec![0, n - 1, n * (n - 1), n * n - 1])
-        .build(&mesh)
-        .unwrap();
-    let mut be = model.backward_euler(NewtonSettings::default()).unwrap();
     let settings = SelfContactSettings {
         dhat: 2e-3,
         thickness: 1e-3,
         ..SelfContactSettings::default()
     };
-    model.enable_self_contact(&mut be, settings).unwrap();
-    let mut system = model.system.clone();
+    let fixed = vec![0, n - 1, n * (n - 1), n * n - 1];
+    let Run {
+        mut system,
+        integrator: mut be,
+        ..
+    } = build(x, t.clone(), fixed, Vec::new(), settings);
     // The top sheet's middle vertex set 0.5 mm above the lower sheet's plane, over the
     // inside of a triangle (0.3 mm and 0.4 mm from the grid lines): its distance to that
     // triangle is 0.5 mm, half the thickness.
