@@ -19,7 +19,11 @@
 //!   opposite directions at pi/3 rad/s, 360 steps;
 //! - `stack` (C5): three 32 x 32 sheets (spacing 1 cm) 2 cm apart, the lowest 1 cm above
 //!   the ground (a collider, `dhat` 1e-3, friction 0.3), each turned 0.1 rad more than
-//!   the one below about y, gravity 9.81, 90 steps.
+//!   the one below about y, gravity 9.81, 90 steps;
+//! - `stack-workload` (C5 as the shared workload list writes it,
+//!   `scenes/long/cloth-stack-workload.ron`): three 32 x 32 sheets (spacing 5 cm) at
+//!   y = 0.3, 0.35 and 0.4, turned 0, 30 and 60 degrees about the vertical through their
+//!   common centre, falling onto the ground (the same collider), 120 steps.
 //!
 //! Prints one row per workload: steps, wall time per step (median and mean), Newton
 //! iterations (total and the largest in a step), linear (PCG) iterations, line-search
@@ -29,8 +33,8 @@
 //! workloads the triangle pairs passing through each other over the run (the exact check
 //! of `sinew-exact`, after every step, outside the timed step). Not a criterion
 //! benchmark: a table for docs/contact.md, run with
-//! `cargo bench -p sinew-spring-sim --bench contact [-- ground|drape|rotating|twist|stack
-//! [steps] [--trace] [mu=..] [eps_v=..] [solver=direct|pcg|auto] [reuse=..] [tol=..]
+//! `cargo bench -p sinew-spring-sim --bench contact [-- ground|drape|rotating|twist|stack|
+//! stack-workload [steps] [--trace] [mu=..] [eps_v=..] [solver=direct|pcg|auto] [reuse=..] [tol=..]
 //! [exact=0|1] [save=FILE] [against=FILE]]` (`--trace`: a line per step on stderr, with the step's intersecting triangle pairs for the self-contact workloads; `mu`, `eps_v`: the
 //! collider friction settings instead of the workload's; `solver`: the linear solver,
 //! `auto` by default; `reuse`: the direct solver's `factor_reuse_iterations`, 0 for a
@@ -191,7 +195,38 @@ fn workloads() -> Vec<Workload> {
             mu: 0.3,
             steps: 90,
         },
+        Workload {
+            name: "stack-workload",
+            cloth: Cloth::Mesh {
+                sheets: (0..3).map(workload_sheet).collect(),
+                gravity: Material::EARTH_GRAVITY,
+                turning: Vec::new(),
+            },
+            colliders: vec![Collider::ground(0.0)],
+            mu: 0.3,
+            steps: 120,
+        },
     ]
+}
+
+/// Sheet `k` of C5 as the workload list writes it (`scenes/long/cloth-stack-workload.ron`):
+/// 32 x 32, spacing 5 cm, at y = 0.3 + 0.05 k, turned 30 k degrees about the vertical
+/// through the sheets' common centre (0.775, y, 0.775). The origins are the scene file's,
+/// to the digits it gives.
+fn workload_sheet(k: usize) -> Sheet {
+    let (sin, cos) = (k as f64 * std::f64::consts::FRAC_PI_6).sin_cos();
+    let origins = [
+        DVec3::new(0.0, 0.3, 0.0),
+        DVec3::new(0.4913303, 0.35, -0.2836697),
+        DVec3::new(1.0586697, 0.4, -0.2836697),
+    ];
+    Sheet {
+        size: 32,
+        spacing: 0.05,
+        origin: origins[k],
+        u: DVec3::new(cos, 0.0, sin),
+        w: DVec3::new(-sin, 0.0, cos),
+    }
 }
 
 /// A workload ready to step: either the `Simulation` of a grid, or a mesh cloth's
