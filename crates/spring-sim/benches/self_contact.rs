@@ -109,8 +109,8 @@ impl Term for Traced {
     ) {
         self.inner.add_hessian(step, x, curvature, sink);
     }
-    fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
-        let cap = self.inner.max_step(step, x, dx);
+    fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], reach: f64) -> f64 {
+        let cap = self.inner.max_step(step, x, dx, reach);
         if self.last.is_some() {
             *self.cap.lock().unwrap() = Some((dx.to_vec(), cap));
         }

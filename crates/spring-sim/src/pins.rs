@@ -231,7 +231,7 @@ pub fn pinned_move_fraction(
         length: h,
         midpoint: false,
     });
-    newton.potential().max_step(&step, x, &dx)
+    newton.potential().max_step(&step, x, &dx, f64::INFINITY)
 }
 
 /// One step of length `h` of `stepper` with the pinned particles of `targets` moved to

@@ -278,9 +278,10 @@ impl Term for ContactTerm {
         true
     }
 
-    fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
+    fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], _reach: f64) -> f64 {
         // The line search may lengthen an accepted full step up to 2^10 times, so the
-        // cap is computed over that whole range; nothing near within it: no cap. The
+        // cap is computed over that whole range whatever the reach (a pass over the
+        // particles, cheap); nothing near within it: no cap. The
         // end state moves along its own direction by the same fraction alpha.
         let alpha = self.at_end(step, x, Some(dx), |w, dw, _| {
             self.potential

@@ -71,8 +71,11 @@ pub(super) fn search(
     par: bool,
     partials: &mut Vec<f64>,
 ) -> Outcome {
-    // A term with a barrier caps the step so no tried state leaves its domain.
-    let cap = potential.max_step(step, x, dx);
+    // A term with a barrier caps the step so no tried state leaves its domain; without
+    // lengthening, nothing beyond the full step is tried, and the terms need not look
+    // further.
+    let reach = if expand { f64::INFINITY } else { 1.0 };
+    let cap = potential.max_step(step, x, dx, reach);
     let mut alpha = cap.min(1.0);
     let mut backtracks = 0;
     let mut accepted = None;

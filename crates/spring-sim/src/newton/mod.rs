@@ -1231,7 +1231,7 @@ fn start_is_acceptable(
     let no_higher = !check_change || change_on_pool(potential, pcg, partials, step, x, dx) <= 0.0;
     // Asked even when the change already refuses: a self-contact term's cap also
     // collects its pairs along the path, state the solve that follows starts from.
-    let admissible = potential.max_step(step, x, dx) >= 1.0;
+    let admissible = potential.max_step(step, x, dx, 1.0) >= 1.0;
     no_higher && admissible
 }
 

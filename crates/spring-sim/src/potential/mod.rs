@@ -189,9 +189,12 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
     }
 
     /// The largest `alpha` for which every state on `x + [0, alpha] dx` is admissible
-    /// (the line search never tries beyond it); unlimited by default.
-    fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
-        let _ = (step, x, dx);
+    /// (the line search never tries beyond it); unlimited by default. The caller will
+    /// try nothing beyond `reach`, so a term may stop looking there: when the segment up
+    /// to `reach` is admissible it may answer any admissible `alpha >= reach` instead
+    /// (`reach` 1 when only the step itself is asked about, infinite for the largest).
+    fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], reach: f64) -> f64 {
+        let _ = (step, x, dx, reach);
         f64::INFINITY
     }
 
@@ -624,12 +627,12 @@ impl Potential {
         self.per_spring(step).add_hessian(step, x, curvature, sink);
     }
 
-    /// The smallest of the terms' [`Term::max_step`].
+    /// The smallest of the terms' [`Term::max_step`] (looking as far as `reach`).
     #[must_use]
-    pub fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
+    pub fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], reach: f64) -> f64 {
         self.terms
             .iter()
-            .map(|t| t.max_step(step, x, dx))
+            .map(|t| t.max_step(step, x, dx, reach))
             .fold(f64::INFINITY, f64::min)
     }
 }

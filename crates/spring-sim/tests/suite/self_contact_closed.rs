@@ -5,7 +5,8 @@
 //! exact barrier Hessian in the span against the dual numbers and against central
 //! differences of the barrier's gradient (the region chosen afresh at every state); and
 //! the Jacobi rotations (which update the two rows a rotation changes and mirror them)
-//! against the textbook update of the whole matrix, bit for bit.
+//! against the textbook update of the whole matrix, bit for bit; and the check the
+//! gradient-only path makes against the pairs the Hessians decline.
 
 // Index loops over rows and columns read as the matrix comparisons they are.
 #![allow(clippy::needless_range_loop)]
@@ -317,6 +318,51 @@ fn the_closed_form_declines_a_pair_at_zero_distance() {
     assert_eq!(form.value(), 0.0);
     assert!(form.projected_hessian(-1.0, 1.0).is_none());
     assert!(form.exact_hessian(-1.0, 1.0).is_none());
+}
+
+#[test]
+fn the_check_without_the_hessian_declines_exactly_the_pairs_the_hessians_decline() {
+    // The gradient-only path asks `has_span_hessian` where the Hessian paths write, and
+    // takes the dual numbers where they decline: the two must agree on every pair, in
+    // every region, at ordinary, degenerate and non-finite inputs.
+    let mut cases: Vec<(PairKind, [DVec3; 4])> = Vec::new();
+    for (i, (_, kind, want)) in regions().into_iter().enumerate() {
+        for pair in pairs_in(kind, want, 40, 97 + i as u64) {
+            cases.push((kind, pair));
+        }
+    }
+    let (o, x, z) = (DVec3::ZERO, DVec3::X, DVec3::Z);
+    // A point on its triangle (r = 0), a collinear triangle, parallel and crossing edges.
+    cases.push((PairKind::PointTriangle, [0.2 * x + 0.2 * z, o, x, z]));
+    cases.push((PairKind::PointTriangle, [DVec3::Y, o, x, 2.0 * x]));
+    cases.push((PairKind::EdgeEdge, [o, x, DVec3::Y, DVec3::Y + x]));
+    cases.push((PairKind::EdgeEdge, [-x, x, -z, z]));
+    let derivatives = [
+        (-1.0, 1.0),
+        (2.5e3, -7.0),
+        (0.0, 0.0),
+        (f64::INFINITY, 1.0),
+        (-1.0, f64::NAN),
+    ];
+    let mut declined = 0;
+    for (kind, pair) in &cases {
+        let form = RegionForm::of(*kind, pair);
+        for &(first, second) in &derivatives {
+            let projected = form.projected_hessian(first, second).is_some();
+            let exact = form.exact_hessian(first, second).is_some();
+            assert_eq!(projected, exact, "{kind:?} {pair:?} {first} {second}");
+            assert_eq!(
+                form.has_span_hessian(first, second),
+                projected,
+                "{kind:?} {pair:?} {first} {second}"
+            );
+            declined += usize::from(!projected);
+        }
+    }
+    // Both answers occur: the non-finite derivatives decline every pair, and the point
+    // on its triangle declines the finite ones too.
+    assert!(declined >= 2 * cases.len() + 3, "{declined}");
+    assert!(declined < derivatives.len() * cases.len(), "{declined}");
 }
 
 /// Cyclic Jacobi as first written: every rotation rotates the columns `p` and `q` of the

@@ -208,7 +208,7 @@ fn max_step_stops_a_step_through_the_other_sheet() {
             }
         })
         .collect();
-    let alpha = term.max_step(&step, &x, &dx);
+    let alpha = term.max_step(&step, &x, &dx, f64::INFINITY);
     // The gap is 1 mm (1.5 mm minus the thickness), closing at 3 mm per unit step: it
     // would vanish at 1/3, and a tenth of it is kept, so alpha = 0.9 / 3.
     assert!((alpha - 0.3).abs() < 1e-9, "{alpha}");
@@ -230,7 +230,64 @@ fn max_step_stops_a_step_through_the_other_sheet() {
             }
         })
         .collect();
-    assert!(term.max_step(&step, &x, &apart) >= 1.0);
+    assert!(term.max_step(&step, &x, &apart, f64::INFINITY) >= 1.0);
+}
+
+#[test]
+fn max_step_looks_beyond_the_full_step_only_when_asked_to() {
+    let (system, triangles) = two_sheets();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 5e-4,
+        ..SelfContactSettings::default()
+    };
+    let x = system.positions().to_vec();
+    let step = StepContext::new(&system, 1.0 / 60.0, &x, &x);
+    let begun = || {
+        let mut term = SelfContactTerm::new(&system, &triangles, settings).unwrap();
+        term.begin_step(&step);
+        term
+    };
+    let down = |by: f64| -> Vec<DVec3> {
+        (0..x.len())
+            .map(|i| {
+                if i >= 9 {
+                    DVec3::new(0.0, -by, 0.0)
+                } else {
+                    DVec3::ZERO
+                }
+            })
+            .collect()
+    };
+    // Through the other sheet: capped below the full step, the same bits at any reach.
+    let through = down(3e-3);
+    let capped = begun().max_step(&step, &x, &through, f64::INFINITY);
+    assert!(capped < 1.0, "{capped}");
+    assert_eq!(
+        capped.to_bits(),
+        begun().max_step(&step, &x, &through, 1.0).to_bits()
+    );
+    // 0.2 mm down: the full step is clear (the 1 mm gap closes to 0.8 mm) and eight of
+    // it are not (1.6 mm). Asked for the largest, the term looks along the longer path:
+    // a tenth of the gap kept, 8 (0.9 / 1.6) = 4.5 steps. Asked about the step alone, it
+    // answers the step.
+    let near = down(2e-4);
+    let longest = begun().max_step(&step, &x, &near, f64::INFINITY);
+    assert!((longest - 4.5).abs() < 1e-9, "{longest}");
+    let term = begun();
+    let moved: Vec<DVec3> = x
+        .iter()
+        .zip(&near)
+        .map(|(p, d)| *p + longest * *d)
+        .collect();
+    assert!(term.min_gap(&moved, system.fixed()) > 0.0);
+    assert_eq!(begun().max_step(&step, &x, &near, 1.0), 1.0);
+    assert_eq!(begun().max_step(&step, &x, &near, 0.5), 1.0);
+    // A reach between the two: the longer path is looked along.
+    assert_eq!(
+        begun().max_step(&step, &x, &near, 2.0).to_bits(),
+        longest.to_bits()
+    );
 }
 
 #[test]
@@ -242,8 +299,8 @@ fn one_broad_phase_serves_the_whole_line_search_segment_with_unchanged_answers()
     let fresh = || begun(&system, &triangles, settings, &step);
     let stats = term.stats();
     let before = stats.broad_phases();
-    let cap = term.max_step(&step, &x, &dx);
-    assert_eq!(cap, fresh().max_step(&step, &x, &dx));
+    let cap = term.max_step(&step, &x, &dx, f64::INFINITY);
+    assert_eq!(cap, fresh().max_step(&step, &x, &dx, f64::INFINITY));
     assert!(cap >= 1.0, "{cap}");
     // The cap hashed the mesh once for the whole segment.
     assert_eq!(stats.broad_phases(), before + 1);
@@ -280,7 +337,7 @@ fn the_next_iterations_segment_inside_the_kept_region_is_not_hashed_and_answers_
     let fresh = || begun(&system, &triangles, settings, &step);
     let stats = term.stats();
     let before = stats.broad_phases();
-    let _ = term.max_step(&step, &x, &dx);
+    let _ = term.max_step(&step, &x, &dx, f64::INFINITY);
     assert_eq!(stats.broad_phases(), before + 1);
     // Newton's next iterates: on the segment, each with a shorter direction along it, as
     // when Newton converges. Their segments lie inside the first one's region.
@@ -290,8 +347,11 @@ fn the_next_iterations_segment_inside_the_kept_region_is_not_hashed_and_answers_
         at = at.iter().zip(&dx).map(|(p, d)| *p + alpha * *d).collect();
         let next: Vec<DVec3> = dx.iter().map(|d| shrink * *d).collect();
         term.update_active_set(&step, &at);
-        let cap = term.max_step(&step, &at, &next);
-        assert_eq!(cap.to_bits(), fresh().max_step(&step, &at, &next).to_bits());
+        let cap = term.max_step(&step, &at, &next, f64::INFINITY);
+        assert_eq!(
+            cap.to_bits(),
+            fresh().max_step(&step, &at, &next, f64::INFINITY).to_bits()
+        );
         for trial in [0.25, 1.0, 2.0] {
             let change = term.energy_change(&step, &at, &next, trial);
             let reference = fresh().energy_change(&step, &at, &next, trial);

@@ -298,7 +298,7 @@ fn energy_changes_agree_with_differences_of_energies() {
                         term.name(),
                         e1 - e0
                     );
-                    assert!(term.max_step(&step, &x, &dx) == f64::INFINITY);
+                    assert!(term.max_step(&step, &x, &dx, f64::INFINITY) == f64::INFINITY);
                 }
             }
         }

@@ -227,74 +227,29 @@ impl RegionForm {
         self.span_hessian_into(first, second, false, out)
     }
 
+    /// Whether [`Self::projected_hessian`] and [`Self::exact_hessian`] would write this
+    /// pair's Hessian (the same test, without the decomposition and the 12x12 product):
+    /// for a caller that needs only the gradient now and takes the same path for the
+    /// pair as when it asks for the Hessian.
+    #[must_use]
+    pub fn has_span_hessian(&self, first: f64, second: f64) -> bool {
+        self.span(first, second).is_some()
+    }
+
     /// `B K_+ B^T` when `project`, else `B K B^T` (see the module documentation).
     // Index loops over rows and columns read as the matrix formulas they implement.
     #[allow(clippy::needless_range_loop)]
     fn span_hessian_into(&self, first: f64, second: f64, project: bool, out: &mut Mat12) -> bool {
-        let c_len = self.c.iter().map(|c| c * c).sum::<f64>().sqrt();
-        let r_len = self.r.length();
-        if !(c_len > 0.0 && r_len > 0.0 && c_len.is_finite() && r_len.is_finite()) {
+        let Some(Span {
+            k,
+            n,
+            c_hat,
+            r_hat,
+            b,
+        }) = self.span(first, second)
+        else {
             return false;
-        }
-        let c_hat = self.c.map(|c| c / c_len);
-        let r_hat = self.r / r_len;
-        // b_l: Gram-Schmidt of the a_j against c_hat and each other.
-        let mut b = [[0.0; 4]; 2];
-        let remove = |v: &mut [f64; 4], u: &[f64; 4]| {
-            let d: f64 = (0..4).map(|k| v[k] * u[k]).sum();
-            (0..4).for_each(|k| v[k] -= d * u[k]);
         };
-        for j in 0..self.m {
-            let mut v = self.a[j];
-            remove(&mut v, &c_hat);
-            for l in 0..j {
-                let u = b[l];
-                remove(&mut v, &u);
-            }
-            let len = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-            if !(len > 0.0 && len.is_finite()) {
-                return false;
-            }
-            b[j] = v.map(|x| x / len);
-        }
-        let n = 3 + self.m;
-        // The coordinates in the basis of grad s (U part 2 |c| r) and of the rows of J
-        // (U part 2 ((a_j . c_hat) r + |c| e_j), V part 2 |r| (a_j . b_l)).
-        let mut grad = [0.0; SPAN];
-        for x in 0..3 {
-            grad[x] = 2.0 * c_len * self.r[x];
-        }
-        let mut jrows = [[0.0; SPAN]; 2];
-        for j in 0..self.m {
-            let ac: f64 = (0..4).map(|k| self.a[j][k] * c_hat[k]).sum();
-            for x in 0..3 {
-                jrows[j][x] = 2.0 * (ac * self.r[x] + c_len * self.e[j][x]);
-            }
-            for l in 0..self.m {
-                let ab: f64 = (0..4).map(|k| self.a[j][k] * b[l][k]).sum();
-                jrows[j][3 + l] = 2.0 * r_len * ab;
-            }
-        }
-        let minv = self.m_inverse();
-        let mut k = [[0.0; SPAN]; SPAN];
-        for p in 0..n {
-            for q in 0..n {
-                let mut hess_s = if p == q && p < 3 {
-                    2.0 * c_len * c_len
-                } else {
-                    0.0
-                };
-                for i in 0..self.m {
-                    for j in 0..self.m {
-                        hess_s -= jrows[i][p] * minv[i][j] * jrows[j][q];
-                    }
-                }
-                k[p][q] = second * grad[p] * grad[q] + first * hess_s;
-            }
-        }
-        if !k.iter().flatten().all(|x| x.is_finite()) {
-            return false;
-        }
         let kp = if project {
             let (values, vectors) = symmetric_eigen_n(&k, n);
             // K_+ = Q diag(max(lambda, 0)) Q^T in the reduced coordinates.
@@ -342,4 +297,93 @@ impl RegionForm {
         }
         true
     }
+
+    /// The Hessian of `phi(s)` in the coordinates of the span's orthonormal basis (the
+    /// module documentation), with what the basis is built from; `None` when the pair is
+    /// degenerate (`r = 0`, a region's parametrization singular) or `K` is not finite.
+    // Index loops over rows and columns read as the matrix formulas they implement.
+    #[allow(clippy::needless_range_loop)]
+    fn span(&self, first: f64, second: f64) -> Option<Span> {
+        let c_len = self.c.iter().map(|c| c * c).sum::<f64>().sqrt();
+        let r_len = self.r.length();
+        if !(c_len > 0.0 && r_len > 0.0 && c_len.is_finite() && r_len.is_finite()) {
+            return None;
+        }
+        let c_hat = self.c.map(|c| c / c_len);
+        let r_hat = self.r / r_len;
+        // b_l: Gram-Schmidt of the a_j against c_hat and each other.
+        let mut b = [[0.0; 4]; 2];
+        let remove = |v: &mut [f64; 4], u: &[f64; 4]| {
+            let d: f64 = (0..4).map(|k| v[k] * u[k]).sum();
+            (0..4).for_each(|k| v[k] -= d * u[k]);
+        };
+        for j in 0..self.m {
+            let mut v = self.a[j];
+            remove(&mut v, &c_hat);
+            for l in 0..j {
+                let u = b[l];
+                remove(&mut v, &u);
+            }
+            let len = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if !(len > 0.0 && len.is_finite()) {
+                return None;
+            }
+            b[j] = v.map(|x| x / len);
+        }
+        let n = 3 + self.m;
+        // The coordinates in the basis of grad s (U part 2 |c| r) and of the rows of J
+        // (U part 2 ((a_j . c_hat) r + |c| e_j), V part 2 |r| (a_j . b_l)).
+        let mut grad = [0.0; SPAN];
+        for x in 0..3 {
+            grad[x] = 2.0 * c_len * self.r[x];
+        }
+        let mut jrows = [[0.0; SPAN]; 2];
+        for j in 0..self.m {
+            let ac: f64 = (0..4).map(|k| self.a[j][k] * c_hat[k]).sum();
+            for x in 0..3 {
+                jrows[j][x] = 2.0 * (ac * self.r[x] + c_len * self.e[j][x]);
+            }
+            for l in 0..self.m {
+                let ab: f64 = (0..4).map(|k| self.a[j][k] * b[l][k]).sum();
+                jrows[j][3 + l] = 2.0 * r_len * ab;
+            }
+        }
+        let minv = self.m_inverse();
+        let mut k = [[0.0; SPAN]; SPAN];
+        for p in 0..n {
+            for q in 0..n {
+                let mut hess_s = if p == q && p < 3 {
+                    2.0 * c_len * c_len
+                } else {
+                    0.0
+                };
+                for i in 0..self.m {
+                    for j in 0..self.m {
+                        hess_s -= jrows[i][p] * minv[i][j] * jrows[j][q];
+                    }
+                }
+                k[p][q] = second * grad[p] * grad[q] + first * hess_s;
+            }
+        }
+        if !k.iter().flatten().all(|x| x.is_finite()) {
+            return None;
+        }
+        Some(Span {
+            k,
+            n,
+            c_hat,
+            r_hat,
+            b,
+        })
+    }
+}
+
+/// [`RegionForm::span`]'s result: `K` (leading `n x n`), `c / |c|`, `r / |r|` and the
+/// orthonormalized `b_l`.
+struct Span {
+    k: [[f64; SPAN]; SPAN],
+    n: usize,
+    c_hat: [f64; 4],
+    r_hat: DVec3,
+    b: [[f64; 4]; 2],
 }

@@ -232,17 +232,16 @@ pub struct SelfContactTerm {
     active: Vec<Candidate>,
     active_at: Vec<DVec3>,
     /// Per active pair, with a barrier at `active_at`: its particles, energy gradient
-    /// and Hessian (computed once per iteration for both the gradient and the Hessian,
-    /// which Newton asks for at the iterate the set was collected at, in the form the
-    /// last iterate first asked for; recomputed in the other form when that is asked).
+    /// and, once Newton asks for the matrix at that iterate, its Hessian (in the form
+    /// asked for; recomputed in the other form when that is asked). The gradient comes
+    /// first and alone: an iterate whose gradient ends the step (most steps' last, and a
+    /// resting cloth's every other one) never pays for the pairs' Hessians.
     cache: Mutex<PairCache>,
     /// The form the first Hessian asked for at the current iterate had (`FORM_NONE`
     /// before one is asked), and whether the projected form was asked after the exact
     /// one there.
     first_asked: AtomicU8,
     fell_back: AtomicBool,
-    /// The form the active pairs' derivatives are computed in at the next iterate.
-    next_form: HessianForm,
     /// Scratch for the gaps of the pairs near the iterate, with their regions.
     near_gaps: Vec<(f64, Closest)>,
     /// The regions of the active pairs (in `active`'s order).
@@ -252,9 +251,10 @@ pub struct SelfContactTerm {
     /// hashing the mesh again. It also keeps each listed pair's gap and energy at the
     /// segment's start, which the cap's two sweeps and every trial's energy change need.
     segment: Mutex<Segment>,
-    /// The state [`Term::check_start`] last checked and its smallest gap, which the
-    /// step's [`Term::begin_step`] (at the same state) takes instead of computing it again.
-    checked_start: Mutex<Option<(Vec<DVec3>, f64)>>,
+    /// The state [`Term::check_start`] last checked and its smallest gap (`None` once
+    /// taken), which the step's [`Term::begin_step`] (at the same state) takes instead
+    /// of computing it again. The positions' storage is kept from step to step.
+    checked_start: Mutex<(Vec<DVec3>, Option<f64>)>,
     /// Scratch for the places of the active pairs' coupling blocks in the Newton matrix.
     places: Mutex<Vec<[PairPlace; 6]>>,
     stats: Arc<SelfContactStats>,
@@ -329,11 +329,10 @@ impl SelfContactTerm {
             cache: Mutex::new(PairCache::default()),
             first_asked: AtomicU8::new(FORM_NONE),
             fell_back: AtomicBool::new(false),
-            next_form: HessianForm::Projected,
             near_gaps: Vec::new(),
             active_regions: Vec::new(),
             segment: Mutex::new(Segment::default()),
-            checked_start: Mutex::new(None),
+            checked_start: Mutex::new((Vec::new(), None)),
             places: Mutex::new(Vec::new()),
             stats: Arc::new(SelfContactStats::default()),
         };
@@ -565,9 +564,10 @@ impl SelfContactTerm {
     }
 
     /// A pair's energy gradient and Hessian (projected, or exact for an unmollified pair
-    /// when `form` asks for it) in the pair's twelve coordinates, written into `out`
-    /// (which is marked as holding none when the pair is beyond `dhat` or not
-    /// admissible). The gradient does not depend on `form`, bit for bit.
+    /// when `form` asks for it; not written when `form` is `None`) in the pair's twelve
+    /// coordinates, written into `out` (which is marked as holding none when the pair is
+    /// beyond `dhat` or not admissible). The gradient, and whether the pair holds
+    /// derivatives, do not depend on `form`, bit for bit.
     ///
     /// Pairs without a mollifier (every vertex-triangle pair, and edge pairs far from
     /// parallel, where the mollifier is identically 1) take the closed form of
@@ -584,7 +584,7 @@ impl SelfContactTerm {
         c: Candidate,
         x: &[DVec3],
         region: Option<Closest>,
-        form: HessianForm,
+        form: Option<HessianForm>,
         out: &mut PairDerivatives,
     ) {
         let (kind, v) = self.pair(c);
@@ -596,27 +596,30 @@ impl SelfContactTerm {
             .mollifier_threshold(c)
             .is_some_and(|eps| mollifier(&p, eps) < 1.0);
         let closest = || region.unwrap_or_else(|| kind.closest(&p));
-        let exact = form == HessianForm::Exact && !mollified;
+        // The Hessian asked for: exact, projected, or none (the gradient alone).
+        let hessian = form.map(|f| f == HessianForm::Exact && !mollified);
         if !mollified
-            && let Some(present) = self.pair_derivatives_closed(kappa, closest(), &p, exact, out)
+            && let Some(present) = self.pair_derivatives_closed(kappa, closest(), &p, hessian, out)
         {
             out.present = present;
             return;
         }
         if let Some(e) = self.pair_energy_dual(kappa, c, x) {
             out.gradient = e.gradient;
-            out.hessian = if exact {
-                e.hessian
-            } else {
-                project_psd12(&e.hessian)
-            };
+            match hessian {
+                Some(true) => out.hessian = e.hessian,
+                Some(false) => out.hessian = project_psd12(&e.hessian),
+                None => {}
+            }
             out.present = true;
         }
     }
 
     /// The closed-form derivatives of an unmollified pair into `out`'s gradient and
-    /// Hessian (the exact one when `exact`, else its projection): `Some(true)` when written, `Some(false)` when the pair is beyond `dhat` or
-    /// not admissible, `None` when the closed form declines a degenerate pair. With
+    /// Hessian (the exact one when `hessian` is `Some(true)`, its projection when
+    /// `Some(false)`, none when `None`): `Some(true)` when written, `Some(false)` when the
+    /// pair is beyond `dhat` or not admissible, `None` when the closed form declines a
+    /// degenerate pair (the same pairs whichever `hessian`). With
     /// `E(s) = kappa b(sqrt(s) - xi)`, `E' = kappa b' / (2 d)` and
     /// `E'' = kappa (b'' / (4 s) - b' / (4 s d))`, `d = sqrt(s)`.
     fn pair_derivatives_closed(
@@ -624,7 +627,7 @@ impl SelfContactTerm {
         kappa: f64,
         closest: Closest,
         p: &[DVec3; 4],
-        exact: bool,
+        hessian: Option<bool>,
         out: &mut PairDerivatives,
     ) -> Option<bool> {
         let form = RegionForm::new(p, closest);
@@ -643,10 +646,10 @@ impl SelfContactTerm {
         );
         let first = kappa * b1 / (2.0 * d);
         let second = kappa * (b2 / (4.0 * s) - b1 / (4.0 * s * d));
-        let written = if exact {
-            form.exact_hessian_into(first, second, &mut out.hessian)
-        } else {
-            form.projected_hessian_into(first, second, &mut out.hessian)
+        let written = match hessian {
+            Some(true) => form.exact_hessian_into(first, second, &mut out.hessian),
+            Some(false) => form.projected_hessian_into(first, second, &mut out.hessian),
+            None => form.has_span_hessian(first, second),
         };
         if !written {
             return None;
@@ -683,9 +686,9 @@ impl SelfContactTerm {
     }
 
     /// Calls `f` with the derivatives of every pair with a barrier at `x`, their Hessians
-    /// in `form` (any form when `None`, for the gradient): the active pairs' kept slots
-    /// if the active set was collected at `x` (recomputed first if they hold the other
-    /// form), otherwise computed from the broad phase's pairs.
+    /// in `form` (not computed when `None`, for the gradient): the active pairs' kept slots
+    /// if the active set was collected at `x` (their Hessians computed first when they
+    /// do not hold `form`'s), otherwise computed from the broad phase's pairs.
     fn with_derivatives(
         &self,
         x: &[DVec3],
@@ -697,7 +700,7 @@ impl SelfContactTerm {
         if self.active_at.as_slice() == x {
             let mut cache = self.cache.lock().unwrap_or_else(PoisonError::into_inner);
             if let Some(form) = form
-                && form != cache.form
+                && cache.form != Some(form)
             {
                 // The slots are taken out while the pool fills them, so no lock is held
                 // across the parallel loop.
@@ -706,16 +709,16 @@ impl SelfContactTerm {
                 drop(cache);
                 let (active, regions) = (&self.active, &self.active_regions);
                 spread::for_each(&mut slots[..len], |i, slot| {
-                    self.pair_derivatives(kappa, active[i], x, Some(regions[i]), form, slot);
+                    let region = Some(regions[i]);
+                    self.pair_derivatives(kappa, active[i], x, region, Some(form), slot);
                 });
                 cache = self.cache.lock().unwrap_or_else(PoisonError::into_inner);
                 cache.slots = slots;
-                cache.form = form;
+                cache.form = Some(form);
             }
             f(&cache.slots[..cache.len]);
         } else {
             let near = self.near(x, fixed);
-            let form = form.unwrap_or(HessianForm::Projected);
             let mut out = vec![PairDerivatives::default(); near.len()];
             spread::for_each(&mut out, |i, slot| {
                 self.pair_derivatives(kappa, near[i], x, None, form, slot);
@@ -873,10 +876,13 @@ impl Term for SelfContactTerm {
         if let Some((pair, gap)) = touching {
             return Err(StepError::SelfContactStart { pair, gap });
         }
-        *self
+        let mut checked = self
             .checked_start
             .lock()
-            .unwrap_or_else(PoisonError::into_inner) = Some((x.to_vec(), min));
+            .unwrap_or_else(PoisonError::into_inner);
+        checked.0.clear();
+        checked.0.extend_from_slice(x);
+        checked.1 = Some(min);
         Ok(())
     }
 
@@ -900,10 +906,9 @@ impl Term for SelfContactTerm {
         let checked = self
             .checked_start
             .get_mut()
-            .unwrap_or_else(PoisonError::into_inner)
-            .take();
-        let min = match checked {
-            Some((at, min)) if at == x => min,
+            .unwrap_or_else(PoisonError::into_inner);
+        let min = match checked.1.take() {
+            Some(min) if checked.0 == x => min,
             _ => self.min_gap(x, fixed),
         };
         if let Some(k) = self.kappa.as_mut() {
@@ -946,26 +951,19 @@ impl Term for SelfContactTerm {
         }
         self.near_gaps = gaps;
         let kappa = self.kappa();
-        // The derivatives are computed in the form the last iterate's matrix first asked
-        // for: an iterate usually asks for the same form as the one before it.
-        match self.first_asked.swap(FORM_NONE, Ordering::Relaxed) {
-            FORM_EXACT => self.next_form = HessianForm::Exact,
-            FORM_PROJECTED => self.next_form = HessianForm::Projected,
-            _ => {}
-        }
+        self.first_asked.store(FORM_NONE, Ordering::Relaxed);
         self.fell_back.store(false, Ordering::Relaxed);
-        let form = self.next_form;
         let mut cache =
             std::mem::take(self.cache.get_mut().unwrap_or_else(PoisonError::into_inner));
         cache.len = 0;
-        cache.form = form;
+        cache.form = None;
         if kappa > 0.0 {
             // The slots only grow: every one in use is overwritten whole.
             if cache.slots.len() < active.len() {
                 cache.slots.resize(active.len(), PairDerivatives::default());
             }
             spread::for_each(&mut cache.slots[..active.len()], |i, slot| {
-                self.pair_derivatives(kappa, active[i], x, Some(regions[i]), form, slot);
+                self.pair_derivatives(kappa, active[i], x, Some(regions[i]), None, slot);
             });
             cache.len = active.len();
         }
@@ -1103,9 +1101,8 @@ impl Term for SelfContactTerm {
         if form == HessianForm::Exact {
             self.stats.exact_hessians.fetch_add(1, Ordering::Relaxed);
         }
-        // What the Newton iteration asked for at its iterate (the state the active set
-        // was collected at): the form to fill the next iterate's slots in, and the
-        // fallbacks.
+        // What the Newton iteration asked for first at its iterate (the state the active
+        // set was collected at), to count the fallbacks from the exact form.
         if self.active_at.as_slice() == x {
             let first = match self.first_asked.compare_exchange(
                 FORM_NONE,
@@ -1162,7 +1159,7 @@ impl Term for SelfContactTerm {
         }
     }
 
-    fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3]) -> f64 {
+    fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], reach: f64) -> f64 {
         let fixed = step.system.fixed();
         // One broad phase for the whole segment the line search may try, `x + [0,
         // LONG_STEP] dx`: the cap's two sweeps, every trial's energy change and the next
@@ -1173,6 +1170,11 @@ impl Term for SelfContactTerm {
         let t = self.ccd_fraction(x, dx, fixed);
         if t < 1.0 {
             return t;
+        }
+        // Nothing beyond the step itself will be tried (a line search that does not
+        // lengthen steps, an admissibility check): the longer sweep is not needed.
+        if reach <= 1.0 {
+            return 1.0;
         }
         // The full step is known to be safe; ACCD along the longer path stops at its own
         // conservative times, which may fall short of it, so never return less.
@@ -1196,12 +1198,12 @@ const FORM_EXACT: u8 = 2;
 
 /// The active pairs' derivatives at the iterate the active set was collected at: only
 /// the first `len` slots are this iteration's (the storage is kept from iteration to
-/// iteration), their Hessians in `form`.
+/// iteration), their Hessians in `form` (`None`: not computed yet, the gradients only).
 #[derive(Debug, Default)]
 struct PairCache {
     slots: Vec<PairDerivatives>,
     len: usize,
-    form: HessianForm,
+    form: Option<HessianForm>,
 }
 
 /// The 3x3 block of `h` at particle rows `a` and columns `b` (pair-local indices).
