@@ -237,65 +237,14 @@ impl RegionForm {
     }
 
     /// `B K_+ B^T` when `project`, else `B K B^T` (see the module documentation).
-    // Index loops over rows and columns read as the matrix formulas they implement.
-    #[allow(clippy::needless_range_loop)]
     fn span_hessian_into(&self, first: f64, second: f64, project: bool, out: &mut Mat12) -> bool {
-        let Some(Span {
-            k,
-            n,
-            c_hat,
-            r_hat,
-            b,
-        }) = self.span(first, second)
-        else {
-            return false;
-        };
-        let kp = if project {
-            let (values, vectors) = symmetric_eigen_n(&k, n);
-            // K_+ = Q diag(max(lambda, 0)) Q^T in the reduced coordinates.
-            let mut kp = [[0.0; SPAN]; SPAN];
-            for (e, &lambda) in values.iter().take(n).enumerate() {
-                if lambda <= 0.0 {
-                    continue;
-                }
-                for p in 0..n {
-                    for q in 0..n {
-                        kp[p][q] += lambda * vectors[p][e] * vectors[q][e];
-                    }
-                }
+        match self.span(first, second) {
+            Some(span) => {
+                span.hessian_into(project, out);
+                true
             }
-            kp
-        } else {
-            k
-        };
-        // The basis: column p < 3 is c_hat (x) e_p, column 3 + l is b_l (x) r_hat.
-        let basis: [[f64; SPAN]; 12] = std::array::from_fn(|i| {
-            let (vk, x) = (i / 3, i % 3);
-            let mut row = [0.0; SPAN];
-            row[x] = c_hat[vk];
-            for l in 0..self.m {
-                row[3 + l] = b[l][vk] * r_hat[x];
-            }
-            row
-        });
-        // (B K_+) then (B K_+) B^T, skipping the rows of uninvolved vertices.
-        let mut bk = [[0.0; SPAN]; 12];
-        for i in 0..12 {
-            if basis[i].iter().all(|&x| x == 0.0) {
-                continue;
-            }
-            for q in 0..n {
-                bk[i][q] = (0..n).map(|p| basis[i][p] * kp[p][q]).sum();
-            }
+            None => false,
         }
-        for i in 0..12 {
-            for l in 0..=i {
-                let v: f64 = (0..n).map(|q| bk[i][q] * basis[l][q]).sum();
-                out[i][l] = v;
-                out[l][i] = v;
-            }
-        }
-        true
     }
 
     /// The Hessian of `phi(s)` in the coordinates of the span's orthonormal basis (the
@@ -303,7 +252,7 @@ impl RegionForm {
     /// degenerate (`r = 0`, a region's parametrization singular) or `K` is not finite.
     // Index loops over rows and columns read as the matrix formulas they implement.
     #[allow(clippy::needless_range_loop)]
-    fn span(&self, first: f64, second: f64) -> Option<Span> {
+    pub(crate) fn span(&self, first: f64, second: f64) -> Option<Span> {
         let c_len = self.c.iter().map(|c| c * c).sum::<f64>().sqrt();
         let r_len = self.r.length();
         if !(c_len > 0.0 && r_len > 0.0 && c_len.is_finite() && r_len.is_finite()) {
@@ -379,11 +328,74 @@ impl RegionForm {
 }
 
 /// [`RegionForm::span`]'s result: `K` (leading `n x n`), `c / |c|`, `r / |r|` and the
-/// orthonormalized `b_l`.
-struct Span {
+/// orthonormalized `b_l`; all a pair's Hessian needs, so a caller that has the gradient
+/// now and may want the Hessian later keeps this instead of the region's form.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Span {
     k: [[f64; SPAN]; SPAN],
     n: usize,
     c_hat: [f64; 4],
     r_hat: DVec3,
     b: [[f64; 4]; 2],
+}
+
+impl Span {
+    /// `B K_+ B^T` into `out` when `project`, else `B K B^T` (every entry overwritten).
+    // Index loops over rows and columns read as the matrix formulas they implement.
+    #[allow(clippy::needless_range_loop)]
+    pub(crate) fn hessian_into(&self, project: bool, out: &mut Mat12) {
+        let Self {
+            k,
+            n,
+            c_hat,
+            r_hat,
+            b,
+        } = *self;
+        let m = n - 3;
+        let kp = if project {
+            let (values, vectors) = symmetric_eigen_n(&k, n);
+            // K_+ = Q diag(max(lambda, 0)) Q^T in the reduced coordinates.
+            let mut kp = [[0.0; SPAN]; SPAN];
+            for (e, &lambda) in values.iter().take(n).enumerate() {
+                if lambda <= 0.0 {
+                    continue;
+                }
+                for p in 0..n {
+                    for q in 0..n {
+                        kp[p][q] += lambda * vectors[p][e] * vectors[q][e];
+                    }
+                }
+            }
+            kp
+        } else {
+            k
+        };
+        // The basis: column p < 3 is c_hat (x) e_p, column 3 + l is b_l (x) r_hat.
+        let basis: [[f64; SPAN]; 12] = std::array::from_fn(|i| {
+            let (vk, x) = (i / 3, i % 3);
+            let mut row = [0.0; SPAN];
+            row[x] = c_hat[vk];
+            for l in 0..m {
+                row[3 + l] = b[l][vk] * r_hat[x];
+            }
+            row
+        });
+        // (B K_+) then (B K_+) B^T, skipping the rows of uninvolved vertices.
+        let mut bk = [[0.0; SPAN]; 12];
+        for i in 0..12 {
+            if basis[i].iter().all(|&x| x == 0.0) {
+                continue;
+            }
+            for q in 0..n {
+                bk[i][q] = (0..n).map(|p| basis[i][p] * kp[p][q]).sum();
+            }
+        }
+        for i in 0..12 {
+            for l in 0..=i {
+                let v: f64 = (0..n).map(|q| bk[i][q] * basis[l][q]).sum();
+                out[i][l] = v;
+                out[l][i] = v;
+            }
+        }
+    }
 }

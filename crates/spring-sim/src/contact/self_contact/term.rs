@@ -52,7 +52,7 @@
 
 use super::broad::{Candidate, CandidateCache, Primitives, candidates};
 use super::ccd::{additive_ccd_within, clear_by_separation};
-use super::closed::RegionForm;
+use super::closed::{RegionForm, Span};
 use super::distance::{
     Closest, PairKind, SEPARATION_MARGIN, mollifier, mollifier_derivatives, separation,
     squared_distance, squared_distance_derivatives, squared_distance_in,
@@ -592,6 +592,7 @@ impl SelfContactTerm {
         out.kind = kind;
         out.particles = v;
         out.present = false;
+        out.span = None;
         let mollified = self
             .mollifier_threshold(c)
             .is_some_and(|eps| mollifier(&p, eps) < 1.0);
@@ -646,14 +647,13 @@ impl SelfContactTerm {
         );
         let first = kappa * b1 / (2.0 * d);
         let second = kappa * (b2 / (4.0 * s) - b1 / (4.0 * s * d));
-        let written = match hessian {
-            Some(true) => form.exact_hessian_into(first, second, &mut out.hessian),
-            Some(false) => form.projected_hessian_into(first, second, &mut out.hessian),
-            None => form.has_span_hessian(first, second),
-        };
-        if !written {
-            return None;
+        // The span is kept with the gradient: a Hessian asked for later at this iterate
+        // is computed from it (the same operations as from the form).
+        let span = form.span(first, second)?;
+        if let Some(exact) = hessian {
+            span.hessian_into(!exact, &mut out.hessian);
         }
+        out.span = Some(span);
         out.gradient = form.gradient().map(|v| first * v);
         Some(true)
     }
@@ -708,9 +708,16 @@ impl SelfContactTerm {
                 let len = cache.len;
                 drop(cache);
                 let (active, regions) = (&self.active, &self.active_regions);
+                // A closed-form pair's Hessian from its kept span (such a pair is
+                // unmollified, so it takes the exact form when asked); the dual numbers'
+                // pairs are computed again; a pair without derivatives stays so.
                 spread::for_each(&mut slots[..len], |i, slot| {
-                    let region = Some(regions[i]);
-                    self.pair_derivatives(kappa, active[i], x, region, Some(form), slot);
+                    if let Some(span) = &slot.span {
+                        span.hessian_into(form == HessianForm::Projected, &mut slot.hessian);
+                    } else if slot.present {
+                        let region = Some(regions[i]);
+                        self.pair_derivatives(kappa, active[i], x, region, Some(form), slot);
+                    }
                 });
                 cache = self.cache.lock().unwrap_or_else(PoisonError::into_inner);
                 cache.slots = slots;
@@ -1222,6 +1229,9 @@ struct PairDerivatives {
     particles: [usize; 4],
     gradient: [f64; 12],
     hessian: Mat12,
+    /// A closed-form pair's Hessian in its span (`None` for the dual numbers' pairs and
+    /// pairs without derivatives), from which its Hessian is computed when asked for.
+    span: Option<Span>,
 }
 
 impl Default for PairDerivatives {
@@ -1232,6 +1242,7 @@ impl Default for PairDerivatives {
             particles: [0; 4],
             gradient: [0.0; 12],
             hessian: [[0.0; 12]; 12],
+            span: None,
         }
     }
 }
