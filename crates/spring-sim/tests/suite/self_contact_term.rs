@@ -48,6 +48,18 @@ fn two_sheets() -> (SpringSystem, Vec<[usize; 3]>) {
     (cloth.build(&mesh).unwrap().system, t)
 }
 
+/// [`two_sheets`] with `dhat` 2 mm and a thickness of 0.5 mm (the sheets' 1.5 mm apart
+/// leave a 1 mm gap).
+fn two_sheets_thick() -> (SpringSystem, Vec<[usize; 3]>, SelfContactSettings) {
+    let (system, triangles) = two_sheets();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 5e-4,
+        ..SelfContactSettings::default()
+    };
+    (system, triangles, settings)
+}
+
 /// The reuse tests' setting: the two sheets with `dhat` 2 mm and thickness 0.5 mm, and a
 /// direction that drifts the top sheet down and sideways by random amounts (at most
 /// 0.1 mm per unit step, so the whole segment up to 8 steps stays clear of the bottom
@@ -60,12 +72,7 @@ fn drifting_sheets(
     SelfContactSettings,
     Vec<DVec3>,
 ) {
-    let (system, triangles) = two_sheets();
-    let settings = SelfContactSettings {
-        dhat: 2e-3,
-        thickness: 5e-4,
-        ..SelfContactSettings::default()
-    };
+    let (system, triangles, settings) = two_sheets_thick();
     let mut rng = Rng(seed);
     let dx = (0..system.positions().len())
         .map(|i| {
@@ -188,12 +195,7 @@ fn the_term_is_one_consistent_function() {
 
 #[test]
 fn max_step_stops_a_step_through_the_other_sheet() {
-    let (system, triangles) = two_sheets();
-    let settings = SelfContactSettings {
-        dhat: 2e-3,
-        thickness: 5e-4,
-        ..SelfContactSettings::default()
-    };
+    let (system, triangles, settings) = two_sheets_thick();
     let mut term = SelfContactTerm::new(&system, &triangles, settings).unwrap();
     let x = system.positions().to_vec();
     let step = StepContext::new(&system, 1.0 / 60.0, &x, &x);
@@ -235,12 +237,7 @@ fn max_step_stops_a_step_through_the_other_sheet() {
 
 #[test]
 fn max_step_looks_beyond_the_full_step_only_when_asked_to() {
-    let (system, triangles) = two_sheets();
-    let settings = SelfContactSettings {
-        dhat: 2e-3,
-        thickness: 5e-4,
-        ..SelfContactSettings::default()
-    };
+    let (system, triangles, settings) = two_sheets_thick();
     let x = system.positions().to_vec();
     let step = StepContext::new(&system, 1.0 / 60.0, &x, &x);
     let begun = || {
