@@ -227,15 +227,6 @@ impl RegionForm {
         self.span_hessian_into(first, second, false, out)
     }
 
-    /// Whether [`Self::projected_hessian`] and [`Self::exact_hessian`] would write this
-    /// pair's Hessian (the same test, without the decomposition and the 12x12 product):
-    /// for a caller that needs only the gradient now and takes the same path for the
-    /// pair as when it asks for the Hessian.
-    #[must_use]
-    pub fn has_span_hessian(&self, first: f64, second: f64) -> bool {
-        self.span(first, second).is_some()
-    }
-
     /// `B K_+ B^T` when `project`, else `B K B^T` (see the module documentation).
     fn span_hessian_into(&self, first: f64, second: f64, project: bool, out: &mut Mat12) -> bool {
         match self.span(first, second) {
