@@ -1228,10 +1228,11 @@ fn start_is_acceptable(
     dx: &[DVec3],
     check_change: bool,
 ) -> bool {
-    let no_higher = !check_change || change_on_pool(potential, pcg, partials, step, x, dx) <= 0.0;
-    // Asked even when the change already refuses: a self-contact term's cap also
-    // collects its pairs along the path, state the solve that follows starts from.
+    // The cap first, and always: a self-contact term's cap collects its pairs along the
+    // path, state the solve that follows starts from, and keeps their values at `x`,
+    // which the change then takes instead of computing them again.
     let admissible = potential.max_step(step, x, dx, 1.0) >= 1.0;
+    let no_higher = !check_change || change_on_pool(potential, pcg, partials, step, x, dx) <= 0.0;
     no_higher && admissible
 }
 

@@ -9,7 +9,9 @@ use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactTerm};
 use sinew_spring_sim::potential::{HessianSink, StepContext, Term};
 use sinew_spring_sim::spring::Curvature;
-use sinew_spring_sim::{Bending, ClothGrid, Material, MeshCloth, SpringSystem, TriangleMesh};
+use sinew_spring_sim::{
+    Bending, ClothGrid, Material, MeshCloth, SpringSystem, StepError, TriangleMesh,
+};
 
 fn two_sheets() -> (SpringSystem, Vec<[usize; 3]>) {
     let n = 3;
@@ -360,6 +362,55 @@ fn the_next_iterations_segment_inside_the_kept_region_is_not_hashed_and_answers_
     // No iteration after the first hashed the mesh, and the pairs act.
     assert_eq!(stats.broad_phases(), before + 1);
     assert!(nonzero > 0);
+}
+
+#[test]
+fn a_step_starting_at_the_last_active_set_takes_its_values_and_answers_as_a_fresh_term() {
+    // A step starts where the last one ended, the state its last active set was
+    // collected at: the start check and the first guess's segment (cap, then energy
+    // change) take that set's gaps and separations. Every answer must be the bits of a
+    // term that kept nothing, at states with pairs within `dhat` and, last, with a pair
+    // pushed within the thickness (the check must refuse it, naming the same pair).
+    let (system, triangles, settings, dx) = drifting_sheets(91);
+    // The state each step starts from (the step's context keeps the first one).
+    let mut start = system.clone();
+    let x0 = system.positions().to_vec();
+    let v = vec![DVec3::ZERO; x0.len()];
+    let step = StepContext::new(&system, 1.0 / 60.0, &x0, &x0);
+    let mut term = begun(&system, &triangles, settings, &step);
+    let fresh = || begun(&system, &triangles, settings, &step);
+    let stats = term.stats();
+    let mut active = 0;
+    for alpha in [0.0, 3.0, 6.0] {
+        let at: Vec<DVec3> = x0.iter().zip(&dx).map(|(p, d)| *p + alpha * *d).collect();
+        term.update_active_set(&step, &at);
+        active = active.max(stats.active_pairs());
+        start.set_state(&at, &v).unwrap();
+        assert!(term.check_start(&start, 0.0).is_ok());
+        let path: Vec<DVec3> = dx.iter().map(|d| 0.5 * *d).collect();
+        let cap = term.max_step(&step, &at, &path, 1.0);
+        let change = term.energy_change(&step, &at, &path, 1.0);
+        let reference = fresh();
+        assert_eq!(
+            cap.to_bits(),
+            reference.max_step(&step, &at, &path, 1.0).to_bits()
+        );
+        assert_eq!(
+            change.to_bits(),
+            fresh().energy_change(&step, &at, &path, 1.0).to_bits()
+        );
+    }
+    assert!(active > 0, "no pair within dhat: the case tests nothing");
+    // The top sheet's first vertex (9) moved onto the bottom sheet's plane, inside
+    // its triangles: within the thickness.
+    let mut touching = x0.clone();
+    touching[9].y = 1e-4;
+    term.update_active_set(&step, &touching);
+    start.set_state(&touching, &v).unwrap();
+    let kept = term.check_start(&start, 0.0).unwrap_err();
+    let reference = fresh().check_start(&start, 0.0).unwrap_err();
+    assert!(matches!(kept, StepError::SelfContactStart { .. }), "{kept}");
+    assert_eq!(kept.to_string(), reference.to_string());
 }
 
 /// `H z` of `term` at `x` in the form `curvature` asks for.

@@ -242,8 +242,17 @@ pub struct SelfContactTerm {
     /// one there.
     first_asked: AtomicU8,
     fell_back: AtomicBool,
-    /// Scratch for the gaps of the pairs near the iterate, with their regions.
-    near_gaps: Vec<(f64, Closest)>,
+    /// The broad phase's pairs near `active_at` (sorted, as every list of pairs is) and
+    /// their values there: the line-search segment that starts at that state takes them
+    /// instead of computing them again (see [`NearValue`]).
+    near: Vec<Candidate>,
+    near_values: Vec<NearValue>,
+    /// What [`Term::check_start`] would find at `active_at`: the smallest gap within
+    /// `dhat` and the first pair (in `near`'s order) whose gap is zero, negative or NaN,
+    /// with the fixed flags the pairs were found with. A step starts where the last one
+    /// ended, at the last active set's state, so its check takes these.
+    near_summary: (f64, Option<usize>),
+    near_fixed: Vec<bool>,
     /// The regions of the active pairs (in `active`'s order).
     active_regions: Vec<Closest>,
     /// The broad phase's pairs over the last Newton step's whole line-search segment
@@ -329,7 +338,10 @@ impl SelfContactTerm {
             cache: Mutex::new(PairCache::default()),
             first_asked: AtomicU8::new(FORM_NONE),
             fell_back: AtomicBool::new(false),
-            near_gaps: Vec::new(),
+            near: Vec::new(),
+            near_values: Vec::new(),
+            near_summary: (f64::INFINITY, None),
+            near_fixed: Vec::new(),
             active_regions: Vec::new(),
             segment: Mutex::new(Segment::default()),
             checked_start: Mutex::new((Vec::new(), None)),
@@ -463,6 +475,7 @@ impl SelfContactTerm {
             // region (the steps shrink as Newton converges): its list serves as it is.
             let pairs = std::mem::take(&mut segment.pairs);
             segment.reset(pairs, x, self.kappa());
+            self.seed_from_active_set(&mut segment, x);
             return;
         }
         // The region is kept wider than the segment by up to the segment's own length
@@ -475,6 +488,36 @@ impl SelfContactTerm {
         self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
         let pairs = CandidateCache::with_slack(&self.prims, x, Some(dx), margin, slack, fixed);
         segment.reset(pairs, x, self.kappa());
+        self.seed_from_active_set(&mut segment, x);
+    }
+
+    /// Gives the segment starting at `x` the separations and gaps the active set has
+    /// just computed there, for the pairs both lists hold (a merge: both are sorted), so
+    /// the cap's sweeps and the line search's energies at `x` do not compute them again.
+    /// A gap is given only where the active set computed it (not where the separation
+    /// showed the pair beyond `dhat`), as the segment would have: the same values, so
+    /// the same answers, bit for bit.
+    fn seed_from_active_set(&self, seg: &mut Segment, x: &[DVec3]) {
+        if self.active_at.as_slice() != x {
+            return;
+        }
+        let list = seg.pairs.list();
+        let (mut i, mut j) = (0, 0);
+        while i < list.len() && j < self.near.len() {
+            match list[i].cmp(&self.near[j]) {
+                std::cmp::Ordering::Less => i += 1,
+                std::cmp::Ordering::Greater => j += 1,
+                std::cmp::Ordering::Equal => {
+                    let v = self.near_values[j];
+                    seg.separation[i] = v.separation;
+                    if !self.beyond_dhat_by(v.separation) {
+                        seg.gap[i] = v.gap;
+                    }
+                    i += 1;
+                    j += 1;
+                }
+            }
+        }
     }
 
     /// The pairs whose gap may be below `dhat` at `x` (broad phase).
@@ -767,11 +810,9 @@ impl SelfContactTerm {
             let (kept, kept_separation) = (&seg.gap, &seg.separation);
             spread::fill(&mut seg.values, found.len(), (0.0, 0.0, 0.0), |i| {
                 let (k, c) = (found[i], list[found[i]]);
-                if at_start && !kept[k].is_nan() {
-                    return (kept[k], f64::NAN, sweep(c, kept[k]));
-                }
                 // A pair the separation shows clear needs no distance; its gap stays
-                // unknown (NaN), as before it was asked for.
+                // unknown (NaN) unless it was known already. A kept gap comes with its
+                // separation (the active set and an earlier sweep keep both).
                 let sep = if at_start && !kept_separation[k].is_nan() {
                     kept_separation[k]
                 } else {
@@ -781,7 +822,11 @@ impl SelfContactTerm {
                 if clear_by_separation(kind, sep, &v.map(|i| dx[i]), thickness, keep) {
                     return (f64::NAN, sep, 1.0);
                 }
-                let gap0 = self.gap(c, x);
+                let gap0 = if at_start && !kept[k].is_nan() {
+                    kept[k]
+                } else {
+                    self.gap(c, x)
+                };
                 (gap0, sep, sweep(c, gap0))
             });
             for (&k, &(gap0, sep, fraction)) in seg.found.iter().zip(&seg.values) {
@@ -814,9 +859,30 @@ impl SelfContactTerm {
     }
 }
 
+/// A pair's values at the state the active set was collected at: its [`separation`],
+/// and, unless that shows it beyond `dhat`, its gap and the region of its closest points
+/// (else `+inf` and a placeholder region).
+#[derive(Clone, Copy, Debug)]
+struct NearValue {
+    separation: f64,
+    gap: f64,
+    closest: Closest,
+}
+
+impl Default for NearValue {
+    fn default() -> Self {
+        Self {
+            separation: f64::NAN,
+            gap: f64::INFINITY,
+            closest: Closest::PointPoint([0, 1]),
+        }
+    }
+}
+
 /// The line-search segment's kept pairs ([`CandidateCache`]) and, per kept pair, its gap
-/// and its energy at the segment's start `x` (the Newton iterate), filled as they are
-/// first asked for: the cap sweeps `x -> x + dx` and `x -> x + 8 dx` from it and every
+/// and its energy at the segment's start `x` (the Newton iterate), taken from the active
+/// set collected at `x` when there is one, else filled as they are first asked for: the
+/// cap sweeps `x -> x + dx` and `x -> x + 8 dx` from it and every
 /// trial's energy change subtracts the energy at it, so without these each pair's
 /// distance at `x` was computed two to five times per Newton iteration. A value is the
 /// one the same call computes from scratch (the same function of the same numbers), so
@@ -878,8 +944,18 @@ impl Term for SelfContactTerm {
         // (docs/contact.md); from a state set by hand with a pair within the thickness
         // the barrier is infinite, no trial is accepted, and the step would grind
         // through every split to an unconverged end instead of saying why.
-        let x = system.positions();
-        let (min, touching) = self.gaps_at(x, system.fixed());
+        let (x, fixed) = (system.positions(), system.fixed());
+        // A step starts where the last one ended: the last active set was collected at
+        // this state, with the same pairs and the same gaps (the same functions of the
+        // same numbers), so its answer is this check's.
+        let (min, touching) =
+            if self.active_at.as_slice() == x && self.near_fixed.as_slice() == fixed {
+                let (min, touching) = self.near_summary;
+                let name = |k: usize| (self.pair_name(self.near[k]), self.near_values[k].gap);
+                (min, touching.map(name))
+            } else {
+                self.gaps_at(x, fixed)
+            };
         if let Some((pair, gap)) = touching {
             return Err(StepError::SelfContactStart { pair, gap });
         }
@@ -934,29 +1010,41 @@ impl Term for SelfContactTerm {
         let mut active = std::mem::take(&mut self.active);
         active.clear();
         let near = self.near(x, fixed);
-        let mut gaps = std::mem::take(&mut self.near_gaps);
+        let mut values = std::mem::take(&mut self.near_values);
         let mut regions = std::mem::take(&mut self.active_regions);
         regions.clear();
-        spread::fill(
-            &mut gaps,
-            near.len(),
-            (0.0, Closest::PointPoint([0, 1])),
-            |i| {
-                if self.beyond_dhat(near[i], x) {
-                    (f64::INFINITY, Closest::PointPoint([0, 1]))
-                } else {
-                    self.gap_and_region(near[i], x)
+        spread::fill(&mut values, near.len(), NearValue::default(), |i| {
+            let separation = self.separation(near[i], x);
+            if self.beyond_dhat_by(separation) {
+                NearValue {
+                    separation,
+                    ..NearValue::default()
                 }
-            },
-        );
-        for (&c, &(gap, closest)) in near.iter().zip(&gaps) {
-            if gap < dhat {
+            } else {
+                let (gap, closest) = self.gap_and_region(near[i], x);
+                NearValue {
+                    separation,
+                    gap,
+                    closest,
+                }
+            }
+        });
+        let mut touching = None;
+        for (k, (&c, v)) in near.iter().zip(&values).enumerate() {
+            if v.gap < dhat {
                 active.push(c);
-                regions.push(closest);
-                min = min.min(gap);
+                regions.push(v.closest);
+                min = min.min(v.gap);
+            }
+            if touching.is_none() && (v.gap.is_nan() || v.gap <= 0.0) {
+                touching = Some(k);
             }
         }
-        self.near_gaps = gaps;
+        self.near = near;
+        self.near_values = values;
+        self.near_summary = (min, touching);
+        self.near_fixed.clear();
+        self.near_fixed.extend_from_slice(fixed);
         let kappa = self.kappa();
         self.first_asked.store(FORM_NONE, Ordering::Relaxed);
         self.fell_back.store(false, Ordering::Relaxed);
