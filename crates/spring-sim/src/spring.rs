@@ -187,10 +187,11 @@ pub enum Curvature {
     Softened(f64),
     /// [`Curvature::Softened`]`(theta)` for the springs (and bending), with the exact
     /// Hessians of the self-contact barrier's pairs instead of their projection, whose
-    /// negative curvature no `theta` removes: backward Euler tries it first once
-    /// Newton is slow, and falls back to `Softened(theta)` when the matrix is not
-    /// positive definite (docs/contact.md). Terms without an exact form read it as
-    /// `Softened(theta)`.
+    /// negative curvature no `theta` removes: backward Euler tries it first in every
+    /// iteration of a system whose terms give such Hessians (at `theta` 1, the clamped
+    /// springs, until Newton is slow), and falls back to `Softened(theta)` when the
+    /// matrix is not positive definite (docs/contact.md). Terms without an exact form
+    /// read it as `Softened(theta)`.
     ExactContact(f64),
 }
 

@@ -211,13 +211,13 @@ impl BackwardEuler {
                 0.1 * tol_abs / residual_l2
             };
             let rtol = forcing.max(floor).max(1e-13);
-            // Once Newton is slow, the contact pairs' exact Hessians are tried first as
-            // well (`Curvature::ExactContact`, for terms that have them and are set to give
-            // them): the projection drops each pair's negative curvature, and the Newton
-            // step then converges only linearly (docs/contact.md, "The exact pair Hessian
-            // first"). That negative curvature is the barrier's, which no `theta`
-            // removes, so a matrix with them that is not positive definite is replaced at
-            // once by the one with their projections, at the same `theta`.
+            // Once Newton is slow, the contact pairs' exact Hessians are tried first with
+            // the softened springs (`Curvature::ExactContact`, for terms that have them
+            // and are set to give them): the projection drops each pair's negative
+            // curvature, and the Newton step then converges only linearly (docs/contact.md,
+            // "The exact pair Hessian first"). That negative curvature is the barrier's,
+            // which no `theta` removes, so a matrix with them that is not positive definite
+            // is replaced at once by the one with their projections, at the same `theta`.
             let mut exact_contact = exact_contact_differs && softening;
             if softening {
                 let mut assembled = false;
@@ -257,6 +257,24 @@ impl BackwardEuler {
                     // Start the next iteration's attempts from the largest theta tried.
                     theta = SOFTENING_MAX_THETA;
                     self.assemble_hessian(&step, Curvature::Clamped);
+                }
+            } else if exact_contact_differs && self.potential.gives_exact_contact() {
+                // Before Newton is slow too, the contact pairs' exact Hessians first, with
+                // the springs' clamped blocks (`ExactContact(1)`: `Softened(1)` is
+                // `Clamped` bit for bit, so the blocks the gradient's pass computed serve);
+                // their projections when that matrix is refused (docs/contact.md, "The
+                // exact pair Hessian from the first iteration").
+                self.assemble_hessian_with(&step, Curvature::ExactContact(1.0), blocks_ready);
+                solved = self.unshifted_direction(kind, rtol, &mut report);
+                if !solved {
+                    saved.clear();
+                    saved.extend_from_slice(&self.values);
+                    self.assemble_hessian_with(&step, Curvature::Clamped, blocks_ready);
+                    if saved == self.values {
+                        exact_contact_differs = false;
+                    } else {
+                        report.contact_projection_fallbacks += 1;
+                    }
                 }
             } else {
                 self.assemble_hessian_with(&step, Curvature::Clamped, blocks_ready);

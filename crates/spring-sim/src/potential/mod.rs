@@ -188,6 +188,15 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
         false
     }
 
+    /// Whether the Hessian this term gives at the current active set for
+    /// [`Curvature::ExactContact`] differs from the one for [`Curvature::Softened`] at the
+    /// same `theta` (the self-contact barrier's exact pair Hessians against their
+    /// projections): the Newton iteration then tries the exact form first. `false` by
+    /// default.
+    fn gives_exact_contact(&self) -> bool {
+        false
+    }
+
     /// The largest `alpha` for which every state on `x + [0, alpha] dx` is admissible
     /// (the line search never tries beyond it); unlimited by default. The caller will
     /// try nothing beyond `reach`, so a term may stop looking there: when the segment up
@@ -625,6 +634,13 @@ impl Potential {
             self.terms[t].add_hessian(step, x, curvature, sink);
         }
         self.per_spring(step).add_hessian(step, x, curvature, sink);
+    }
+
+    /// Whether a term gives exact contact blocks that differ from their projections at
+    /// its current active set ([`Term::gives_exact_contact`]).
+    #[must_use]
+    pub fn gives_exact_contact(&self) -> bool {
+        self.terms.iter().any(|t| t.gives_exact_contact())
     }
 
     /// The smallest of the terms' [`Term::max_step`] (looking as far as `reach`).

@@ -96,7 +96,8 @@ pub struct SelfContactSettings {
     /// Whether the term gives its pairs' exact Hessians when the Newton matrix asks for
     /// them ([`Curvature::ExactContact`]); when false it always gives their projections
     /// (default true: fewer Newton iterations and less time on the stacked and twisted
-    /// sheets, docs/contact.md, "The exact pair Hessian first").
+    /// sheets, docs/contact.md, "The exact pair Hessian first" and "The exact pair
+    /// Hessian from the first iteration").
     pub exact_hessian: bool,
 }
 
@@ -1252,6 +1253,13 @@ impl Term for SelfContactTerm {
         if !missing.is_empty() {
             self.stats.note_missing(missing.into_iter());
         }
+    }
+
+    fn gives_exact_contact(&self) -> bool {
+        // A pair's exact Hessian differs from its projection (a point-plane or line-line
+        // pair has negative eigenvalues wherever the barrier pushes); with no pair active
+        // the two matrices are the same.
+        self.settings.exact_hessian && self.kappa() > 0.0 && !self.active.is_empty()
     }
 
     fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], reach: f64) -> f64 {
