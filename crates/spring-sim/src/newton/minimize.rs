@@ -114,6 +114,9 @@ impl BackwardEuler {
         let mut exact_contact_differs = true;
         // The refused matrix, kept for that comparison (allocated on the first refusal).
         let mut saved: Vec<f64> = Vec::new();
+        // Whether the iterations before Newton is slow still try the exact contact
+        // blocks first: not after one such matrix was refused in the step.
+        let mut exact_first = true;
         loop {
             // Pairs a term coupled without Hessian slots in the last iteration (self-contact
             // meeting particles no spring joins) get slots now rather than after the step:
@@ -258,7 +261,7 @@ impl BackwardEuler {
                     theta = SOFTENING_MAX_THETA;
                     self.assemble_hessian(&step, Curvature::Clamped);
                 }
-            } else if exact_contact_differs && self.potential.gives_exact_contact() {
+            } else if exact_first && exact_contact_differs && self.potential.gives_exact_contact() {
                 // Before Newton is slow too, the contact pairs' exact Hessians first, with
                 // the springs' clamped blocks (`ExactContact(1)`: `Softened(1)` is
                 // `Clamped` bit for bit, so the blocks the gradient's pass computed serve);
@@ -267,6 +270,7 @@ impl BackwardEuler {
                 self.assemble_hessian_with(&step, Curvature::ExactContact(1.0), blocks_ready);
                 solved = self.unshifted_direction(kind, rtol, &mut report);
                 if !solved {
+                    exact_first = false;
                     saved.clear();
                     saved.extend_from_slice(&self.values);
                     self.assemble_hessian_with(&step, Curvature::Clamped, blocks_ready);
