@@ -7,8 +7,9 @@
 
 use crate::sheets;
 use sinew_math::DVec3;
-use sinew_spring_sim::contact::self_contact::SelfContactSettings;
-use sinew_spring_sim::{NewtonSettings, SpringSystem, StepStop, TriangleMesh};
+use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactStats};
+use sinew_spring_sim::{BackwardEuler, NewtonSettings, SpringSystem, StepStop, TriangleMesh};
+use std::sync::Arc;
 
 const H: f64 = 1.0 / 60.0;
 
@@ -24,16 +25,20 @@ struct Outcome {
     reported_fallbacks: usize,
 }
 
-fn run(exact_hessian: bool, n: usize, steps: usize) -> Outcome {
+/// Two `n x n` sheets 1 cm apart in their grids, the top one 1.6 mm above the bottom one
+/// (its axes `u`, `w`), the bottom one held at its four corners, with self-contact
+/// (`dhat` 2 mm, thickness 1 mm, `exact_hessian` as given) and `gravity`.
+fn sheets_in_contact(
+    n: usize,
+    (u, w): (DVec3, DVec3),
+    gravity: DVec3,
+    exact_hessian: bool,
+) -> (BackwardEuler, Arc<SelfContactStats>, SpringSystem) {
     let s = 0.01;
-    let (u, w) = (
-        DVec3::new(0.995_004, 0.0, 0.099_833_4),
-        DVec3::new(-0.099_833_4, 0.0, 0.995_004),
-    );
     let (x, t) = sheets::stacked(n, s, DVec3::new(0.013, 0.0016, 0.011), u, w, s);
     let mesh = TriangleMesh::new(x, t).unwrap();
-    // The bottom sheet held at its four corners; the top one free.
-    let cloth = sheets::cloth(vec![0, n - 1, n * (n - 1), n * n - 1]);
+    let mut cloth = sheets::cloth(vec![0, n - 1, n * (n - 1), n * n - 1]);
+    cloth.material.gravity = gravity;
     let model = cloth.build(&mesh).unwrap();
     let mut integrator = model.backward_euler(NewtonSettings::default()).unwrap();
     let settings = SelfContactSettings {
@@ -45,7 +50,17 @@ fn run(exact_hessian: bool, n: usize, steps: usize) -> Outcome {
     let stats = model
         .enable_self_contact(&mut integrator, settings)
         .unwrap();
-    let mut system = model.system.clone();
+    (integrator, stats, model.system)
+}
+
+fn run(exact_hessian: bool, n: usize, steps: usize) -> Outcome {
+    // The top sheet turned a little, under gravity.
+    let turned = (
+        DVec3::new(0.995_004, 0.0, 0.099_833_4),
+        DVec3::new(-0.099_833_4, 0.0, 0.995_004),
+    );
+    let gravity = DVec3::new(0.0, -9.81, 0.0);
+    let (mut integrator, stats, mut system) = sheets_in_contact(n, turned, gravity, exact_hessian);
     let (mut iterations, mut smallest_gap, mut reported_fallbacks) = (0, f64::INFINITY, 0);
     for step in 0..steps {
         let report = integrator.step(&mut system, H).unwrap();
@@ -102,29 +117,8 @@ fn a_step_in_contact_tries_the_exact_blocks_from_its_first_iteration() {
     // pushes it off. Every iterate has pairs within `dhat`, and every Newton iteration,
     // the first included, writes a matrix with the exact blocks (the first iteration
     // would not if they were tried only once Newton is slow).
-    let (n, s) = (6, 0.01);
-    let (x, t) = sheets::stacked(
-        n,
-        s,
-        DVec3::new(0.013, 0.0016, 0.011),
-        DVec3::X,
-        DVec3::Z,
-        s,
-    );
-    let mesh = TriangleMesh::new(x, t).unwrap();
-    let mut cloth = sheets::cloth(vec![0, n - 1, n * (n - 1), n * n - 1]);
-    cloth.material.gravity = DVec3::ZERO;
-    let model = cloth.build(&mesh).unwrap();
-    let mut integrator = model.backward_euler(NewtonSettings::default()).unwrap();
-    let settings = SelfContactSettings {
-        dhat: 2e-3,
-        thickness: 1e-3,
-        ..SelfContactSettings::default()
-    };
-    let stats = model
-        .enable_self_contact(&mut integrator, settings)
-        .unwrap();
-    let mut system = model.system.clone();
+    let (mut integrator, stats, mut system) =
+        sheets_in_contact(6, (DVec3::X, DVec3::Z), DVec3::ZERO, true);
     let report = integrator.step(&mut system, H).unwrap();
     assert_eq!(report.stop, StepStop::Converged, "{report:?}");
     assert!(
