@@ -628,7 +628,6 @@ impl SelfContactTerm {
         c: Candidate,
         x: &[DVec3],
         region: Option<Closest>,
-        form: Option<HessianForm>,
         out: &mut PairDerivatives,
     ) {
         let (kind, v) = self.pair(c);
@@ -641,30 +640,49 @@ impl SelfContactTerm {
             .mollifier_threshold(c)
             .is_some_and(|eps| mollifier(&p, eps) < 1.0);
         let closest = || region.unwrap_or_else(|| kind.closest(&p));
-        // The Hessian asked for: exact, projected, or none (the gradient alone).
-        let hessian = form.map(|f| f == HessianForm::Exact && !mollified);
-        if !mollified
-            && let Some(present) = self.pair_derivatives_closed(kappa, closest(), &p, hessian, out)
+        if !mollified && let Some(present) = self.pair_derivatives_closed(kappa, closest(), &p, out)
         {
             out.present = present;
             return;
         }
         if let Some(e) = self.pair_energy_dual(kappa, c, x) {
             out.gradient = e.gradient;
-            match hessian {
-                Some(true) => out.hessian = e.hessian,
-                Some(false) => out.hessian = project_psd12(&e.hessian),
-                None => {}
-            }
             out.present = true;
         }
     }
 
-    /// The closed-form derivatives of an unmollified pair into `out`'s gradient and
-    /// Hessian (the exact one when `hessian` is `Some(true)`, its projection when
-    /// `Some(false)`, none when `None`): `Some(true)` when written, `Some(false)` when the
-    /// pair is beyond `dhat` or not admissible, `None` when the closed form declines a
-    /// degenerate pair (the same pairs whichever `hessian`). With
+    /// The Hessian in `form` of the pair whose derivatives at `x` are `pair` into `out`
+    /// (every entry overwritten when `pair` is present, else left alone): a closed-form
+    /// pair's from its span, the dual numbers' pairs' computed again. A mollified pair
+    /// takes the projected form whichever is asked.
+    fn pair_hessian(
+        &self,
+        kappa: f64,
+        c: Candidate,
+        x: &[DVec3],
+        pair: &PairDerivatives,
+        form: HessianForm,
+        out: &mut Mat12,
+    ) {
+        if let Some(span) = &pair.span {
+            span.hessian_into(form == HessianForm::Projected, out);
+        } else if pair.present
+            && let Some(e) = self.pair_energy_dual(kappa, c, x)
+        {
+            let mollified = self
+                .mollifier_threshold(c)
+                .is_some_and(|eps| mollifier(&pair.particles.map(|i| x[i]), eps) < 1.0);
+            *out = if form == HessianForm::Exact && !mollified {
+                e.hessian
+            } else {
+                project_psd12(&e.hessian)
+            };
+        }
+    }
+
+    /// The closed-form derivatives of an unmollified pair into `out`'s gradient and span:
+    /// `Some(true)` when written, `Some(false)` when the pair is beyond `dhat` or not
+    /// admissible, `None` when the closed form declines a degenerate pair. With
     /// `E(s) = kappa b(sqrt(s) - xi)`, `E' = kappa b' / (2 d)` and
     /// `E'' = kappa (b'' / (4 s) - b' / (4 s d))`, `d = sqrt(s)`.
     fn pair_derivatives_closed(
@@ -672,7 +690,6 @@ impl SelfContactTerm {
         kappa: f64,
         closest: Closest,
         p: &[DVec3; 4],
-        hessian: Option<bool>,
         out: &mut PairDerivatives,
     ) -> Option<bool> {
         let form = RegionForm::new(p, closest);
@@ -693,11 +710,7 @@ impl SelfContactTerm {
         let second = kappa * (b2 / (4.0 * s) - b1 / (4.0 * s * d));
         // The span is kept with the gradient: a Hessian asked for later at this iterate
         // is computed from it (the same operations as from the form).
-        let span = form.span(first, second)?;
-        if let Some(exact) = hessian {
-            span.hessian_into(!exact, &mut out.hessian);
-        }
-        out.span = Some(span);
+        out.span = Some(form.span(first, second)?);
         out.gradient = form.gradient().map(|v| first * v);
         Some(true)
     }
@@ -729,16 +742,19 @@ impl SelfContactTerm {
         Some(e.scale(kappa))
     }
 
-    /// Calls `f` with the derivatives of every pair with a barrier at `x`, their Hessians
-    /// in `form` (not computed when `None`, for the gradient): the active pairs' kept slots
-    /// if the active set was collected at `x` (their Hessians computed first when they
-    /// do not hold `form`'s), otherwise computed from the broad phase's pairs.
+    /// Calls `f` with the derivatives of every pair with a barrier at `x` and, when `form`
+    /// is given, their Hessians in that form (one per pair, in the same order; none when
+    /// `None`, for the gradient): the active pairs' kept slots if the active set was
+    /// collected at `x` (their Hessians computed first when they do not hold `form`'s),
+    /// otherwise computed from the broad phase's pairs. The Hessians are kept apart from
+    /// the slots: a slot is then a few cache lines that the gradient pass writes and
+    /// reads in one stream, not a twelfth of a page most of which it skips.
     fn with_derivatives(
         &self,
         x: &[DVec3],
         fixed: &[bool],
         form: Option<HessianForm>,
-        f: impl FnOnce(&[PairDerivatives]),
+        f: impl FnOnce(&[PairDerivatives], &[Mat12]),
     ) {
         let kappa = self.kappa();
         if self.active_at.as_slice() == x {
@@ -746,35 +762,45 @@ impl SelfContactTerm {
             if let Some(form) = form
                 && cache.form != Some(form)
             {
-                // The slots are taken out while the pool fills them, so no lock is held
+                // The Hessians are taken out while the pool fills them, so no lock is held
                 // across the parallel loop.
-                let mut slots = std::mem::take(&mut cache.slots);
+                let mut hessians = std::mem::take(&mut cache.hessians);
+                let slots = std::mem::take(&mut cache.slots);
                 let len = cache.len;
                 drop(cache);
-                let (active, regions) = (&self.active, &self.active_regions);
-                // A closed-form pair's Hessian from its kept span (such a pair is
-                // unmollified, so it takes the exact form when asked); the dual numbers'
-                // pairs are computed again; a pair without derivatives stays so.
-                spread::for_each(&mut slots[..len], |i, slot| {
-                    if let Some(span) = &slot.span {
-                        span.hessian_into(form == HessianForm::Projected, &mut slot.hessian);
-                    } else if slot.present {
-                        let region = Some(regions[i]);
-                        self.pair_derivatives(kappa, active[i], x, region, Some(form), slot);
-                    }
+                // The storage only grows: every Hessian in use is overwritten whole.
+                if hessians.len() < len {
+                    hessians.resize(len, [[0.0; 12]; 12]);
+                }
+                let active = &self.active;
+                spread::for_each(&mut hessians[..len], |i, h| {
+                    self.pair_hessian(kappa, active[i], x, &slots[i], form, h);
                 });
                 cache = self.cache.lock().unwrap_or_else(PoisonError::into_inner);
                 cache.slots = slots;
+                cache.hessians = hessians;
                 cache.form = Some(form);
             }
-            f(&cache.slots[..cache.len]);
+            let hessians = if form.is_some() {
+                &cache.hessians[..cache.len]
+            } else {
+                &[]
+            };
+            f(&cache.slots[..cache.len], hessians);
         } else {
             let near = self.near(x, fixed);
             let mut out = vec![PairDerivatives::default(); near.len()];
             spread::for_each(&mut out, |i, slot| {
-                self.pair_derivatives(kappa, near[i], x, None, form, slot);
+                self.pair_derivatives(kappa, near[i], x, None, slot);
             });
-            f(&out);
+            let mut hessians = Vec::new();
+            if let Some(form) = form {
+                hessians.resize(near.len(), [[0.0; 12]; 12]);
+                spread::for_each(&mut hessians, |i, h| {
+                    self.pair_hessian(kappa, near[i], x, &out[i], form, h);
+                });
+            }
+            f(&out, &hessians);
         }
     }
 
@@ -1059,7 +1085,7 @@ impl Term for SelfContactTerm {
                 cache.slots.resize(active.len(), PairDerivatives::default());
             }
             spread::for_each(&mut cache.slots[..active.len()], |i, slot| {
-                self.pair_derivatives(kappa, active[i], x, Some(regions[i]), None, slot);
+                self.pair_derivatives(kappa, active[i], x, Some(regions[i]), slot);
             });
             cache.len = active.len();
         }
@@ -1160,7 +1186,7 @@ impl Term for SelfContactTerm {
         if kappa == 0.0 {
             return;
         }
-        self.with_derivatives(x, step.system.fixed(), None, |pairs| {
+        self.with_derivatives(x, step.system.fixed(), None, |pairs, _| {
             for e in pairs.iter().filter(|e| e.present) {
                 for (k, &i) in e.particles.iter().enumerate() {
                     gradient[i] += DVec3::new(
@@ -1219,10 +1245,10 @@ impl Term for SelfContactTerm {
             }
         }
         let mut missing = Vec::new();
-        self.with_derivatives(x, step.system.fixed(), Some(form), |pairs| {
+        self.with_derivatives(x, step.system.fixed(), Some(form), |pairs, hessians| {
             let Some(pattern) = sink.values_pattern() else {
-                for e in pairs.iter().filter(|e| e.present) {
-                    scatter(&e.hessian, e.kind, e.particles, None, sink, &mut missing);
+                for (e, h) in pairs.iter().zip(hessians).filter(|(e, _)| e.present) {
+                    scatter(h, e.kind, e.particles, None, sink, &mut missing);
                 }
                 return;
             };
@@ -1239,15 +1265,9 @@ impl Term for SelfContactTerm {
                     [PairPlace::Skip; 6]
                 }
             });
-            for (e, place) in pairs.iter().zip(places.iter()).filter(|(e, _)| e.present) {
-                scatter(
-                    &e.hessian,
-                    e.kind,
-                    e.particles,
-                    Some(place),
-                    sink,
-                    &mut missing,
-                );
+            let pairs = pairs.iter().zip(hessians).zip(places.iter());
+            for ((e, h), place) in pairs.filter(|((e, _), _)| e.present) {
+                scatter(h, e.kind, e.particles, Some(place), sink, &mut missing);
             }
         });
         if !missing.is_empty() {
@@ -1300,11 +1320,13 @@ const FORM_PROJECTED: u8 = 1;
 const FORM_EXACT: u8 = 2;
 
 /// The active pairs' derivatives at the iterate the active set was collected at: only
-/// the first `len` slots are this iteration's (the storage is kept from iteration to
-/// iteration), their Hessians in `form` (`None`: not computed yet, the gradients only).
+/// the first `len` slots and Hessians are this iteration's (the storage is kept from
+/// iteration to iteration), the Hessians in `form` (`None`: not computed yet, the
+/// gradients only).
 #[derive(Debug, Default)]
 struct PairCache {
     slots: Vec<PairDerivatives>,
+    hessians: Vec<Mat12>,
     len: usize,
     form: Option<HessianForm>,
 }
@@ -1324,7 +1346,6 @@ struct PairDerivatives {
     kind: PairKind,
     particles: [usize; 4],
     gradient: [f64; 12],
-    hessian: Mat12,
     /// A closed-form pair's Hessian in its span (`None` for the dual numbers' pairs and
     /// pairs without derivatives), from which its Hessian is computed when asked for.
     span: Option<Span>,
@@ -1337,7 +1358,6 @@ impl Default for PairDerivatives {
             kind: PairKind::PointTriangle,
             particles: [0; 4],
             gradient: [0.0; 12],
-            hessian: [[0.0; 12]; 12],
             span: None,
         }
     }
