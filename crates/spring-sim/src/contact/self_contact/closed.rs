@@ -335,6 +335,46 @@ impl Span {
     // Index loops over rows and columns read as the matrix formulas they implement.
     #[allow(clippy::needless_range_loop)]
     pub(crate) fn hessian_into(&self, project: bool, out: &mut Mat12) {
+        let f = self.factors(project);
+        for i in 0..12 {
+            for l in 0..=i {
+                let v = f.entry(i, l);
+                out[i][l] = v;
+                out[l][i] = v;
+            }
+        }
+    }
+
+    /// [`Self::hessian_into`]'s blocks that a pair adds to the matrix into `out`: each
+    /// entry the same bits as the full matrix's (the same sums), without the other
+    /// half of the matrix.
+    pub(crate) fn blocks_into(&self, project: bool, out: &mut PairBlocks) {
+        let f = self.factors(project);
+        for (k, d) in out.diagonal.iter_mut().enumerate() {
+            // The lower entries (r >= c) of the diagonal block, column by column.
+            let mut n = 0;
+            for c in 0..3 {
+                for r in c..3 {
+                    d[n] = f.entry(3 * k + r, 3 * k + c);
+                    n += 1;
+                }
+            }
+        }
+        for (n, &(a, b)) in PAIR_BLOCKS.iter().enumerate() {
+            // Block (a, b), a < b, sits above the diagonal: entry (x, y) is the computed
+            // lower entry (3b + y, 3a + x).
+            out.coupling[n] = std::array::from_fn(|e| {
+                let (y, x) = (e / 3, e % 3);
+                f.entry(3 * b + y, 3 * a + x)
+            });
+        }
+    }
+
+    /// The factors `B K_+` (`project`) or `B K`, and `B`, whose products are the
+    /// Hessian's entries.
+    // Index loops over rows and columns read as the matrix formulas they implement.
+    #[allow(clippy::needless_range_loop)]
+    fn factors(&self, project: bool) -> Factors {
         let Self {
             k,
             n,
@@ -381,12 +421,68 @@ impl Span {
                 bk[i][q] = (0..n).map(|p| basis[i][p] * kp[p][q]).sum();
             }
         }
-        for i in 0..12 {
-            for l in 0..=i {
-                let v: f64 = (0..n).map(|q| bk[i][q] * basis[l][q]).sum();
-                out[i][l] = v;
-                out[l][i] = v;
+        Factors { bk, basis, n }
+    }
+}
+
+/// [`Span::factors`]: `B K` (or `B K_+`), `B` and the span's dimension.
+struct Factors {
+    bk: [[f64; SPAN]; 12],
+    basis: [[f64; SPAN]; 12],
+    n: usize,
+}
+
+impl Factors {
+    /// The Hessian's entry `(i, l)` (computed as the lower one, `l <= i`, is).
+    #[inline]
+    fn entry(&self, i: usize, l: usize) -> f64 {
+        (0..self.n).map(|q| self.bk[i][q] * self.basis[l][q]).sum()
+    }
+}
+
+/// The four particles' pairs of a pair's coupling blocks, in the order
+/// [`PairBlocks::coupling`] and the term write them.
+pub(crate) const PAIR_BLOCKS: [(usize, usize); 6] =
+    [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
+
+/// The blocks of a pair's 12x12 Hessian that its assembly adds: the lower entries of
+/// the four diagonal blocks (`(0,0), (1,0), (2,0), (1,1), (2,1), (2,2)`) and the six
+/// coupling blocks `(a, b)`, `a < b`, of [`PAIR_BLOCKS`] (entry `(r, c)` at `3 c + r`).
+/// 78 numbers where the matrix has 144: the half a term writes and reads back.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct PairBlocks {
+    pub(crate) diagonal: [[f64; 6]; 4],
+    pub(crate) coupling: [[f64; 9]; 6],
+}
+
+impl Default for PairBlocks {
+    fn default() -> Self {
+        Self {
+            diagonal: [[0.0; 6]; 4],
+            coupling: [[0.0; 9]; 6],
+        }
+    }
+}
+
+impl PairBlocks {
+    /// The blocks of the full matrix `h` (the entries [`Span::blocks_into`] writes).
+    pub(crate) fn from_matrix(h: &Mat12) -> Self {
+        let mut out = Self::default();
+        for (k, d) in out.diagonal.iter_mut().enumerate() {
+            let mut n = 0;
+            for c in 0..3 {
+                for r in c..3 {
+                    d[n] = h[3 * k + r][3 * k + c];
+                    n += 1;
+                }
             }
         }
+        for (n, &(a, b)) in PAIR_BLOCKS.iter().enumerate() {
+            out.coupling[n] = std::array::from_fn(|e| {
+                let (c, r) = (e / 3, e % 3);
+                h[3 * a + r][3 * b + c]
+            });
+        }
+        out
     }
 }

@@ -52,13 +52,13 @@
 
 use super::broad::{Candidate, CandidateCache, Primitives, candidates};
 use super::ccd::{additive_ccd_within, clear_by_separation};
-use super::closed::{RegionForm, Span};
+use super::closed::{PAIR_BLOCKS, PairBlocks, RegionForm, Span};
 use super::distance::{
     Closest, PairKind, SEPARATION_MARGIN, mollifier, mollifier_derivatives, separation,
     squared_distance, squared_distance_derivatives, squared_distance_in,
 };
 use super::dual::{Dual12, Scalar, values};
-use super::psd12::{Mat12, project_psd12};
+use super::psd12::project_psd12;
 use super::spread;
 use crate::contact::ContactError;
 use crate::contact::barrier::{
@@ -662,21 +662,21 @@ impl SelfContactTerm {
         x: &[DVec3],
         pair: &PairDerivatives,
         form: HessianForm,
-        out: &mut Mat12,
+        out: &mut PairBlocks,
     ) {
         if let Some(span) = &pair.span {
-            span.hessian_into(form == HessianForm::Projected, out);
+            span.blocks_into(form == HessianForm::Projected, out);
         } else if pair.present
             && let Some(e) = self.pair_energy_dual(kappa, c, x)
         {
             let mollified = self
                 .mollifier_threshold(c)
                 .is_some_and(|eps| mollifier(&pair.particles.map(|i| x[i]), eps) < 1.0);
-            *out = if form == HessianForm::Exact && !mollified {
+            *out = PairBlocks::from_matrix(&if form == HessianForm::Exact && !mollified {
                 e.hessian
             } else {
                 project_psd12(&e.hessian)
-            };
+            });
         }
     }
 
@@ -754,7 +754,7 @@ impl SelfContactTerm {
         x: &[DVec3],
         fixed: &[bool],
         form: Option<HessianForm>,
-        f: impl FnOnce(&[PairDerivatives], &[Mat12]),
+        f: impl FnOnce(&[PairDerivatives], &[PairBlocks]),
     ) {
         let kappa = self.kappa();
         if self.active_at.as_slice() == x {
@@ -770,7 +770,7 @@ impl SelfContactTerm {
                 drop(cache);
                 // The storage only grows: every Hessian in use is overwritten whole.
                 if hessians.len() < len {
-                    hessians.resize(len, [[0.0; 12]; 12]);
+                    hessians.resize(len, PairBlocks::default());
                 }
                 let active = &self.active;
                 spread::for_each(&mut hessians[..len], |i, h| {
@@ -795,7 +795,7 @@ impl SelfContactTerm {
             });
             let mut hessians = Vec::new();
             if let Some(form) = form {
-                hessians.resize(near.len(), [[0.0; 12]; 12]);
+                hessians.resize(near.len(), PairBlocks::default());
                 spread::for_each(&mut hessians, |i, h| {
                     self.pair_hessian(kappa, near[i], x, &out[i], form, h);
                 });
@@ -1259,7 +1259,7 @@ impl Term for SelfContactTerm {
             spread::fill(&mut places, pairs.len(), [PairPlace::Skip; 6], |k| {
                 let e = &pairs[k];
                 if e.present {
-                    PARTICLE_PAIRS
+                    PAIR_BLOCKS
                         .map(|(a, b)| PairPlace::find(pattern, e.particles[a], e.particles[b]))
                 } else {
                     [PairPlace::Skip; 6]
@@ -1326,17 +1326,14 @@ const FORM_EXACT: u8 = 2;
 #[derive(Debug, Default)]
 struct PairCache {
     slots: Vec<PairDerivatives>,
-    hessians: Vec<Mat12>,
+    hessians: Vec<PairBlocks>,
     len: usize,
     form: Option<HessianForm>,
 }
 
-/// The 3x3 block of `h` at particle rows `a` and columns `b` (pair-local indices).
-fn block(h: &Mat12, a: usize, b: usize) -> DMat3 {
-    DMat3::from_cols_array(&std::array::from_fn(|k| {
-        let (col, row) = (k / 3, k % 3);
-        h[3 * a + row][3 * b + col]
-    }))
+/// The coupling block `n` of `h` ([`PAIR_BLOCKS`]' order).
+fn coupling(h: &PairBlocks, n: usize) -> DMat3 {
+    DMat3::from_cols_array(&h.coupling[n])
 }
 
 /// A pair's derivatives at one state (`present` false: the pair has none there).
@@ -1367,10 +1364,10 @@ impl Default for PairDerivatives {
 /// block, else the blocks within each primitive, else the diagonal blocks (see the module
 /// documentation; for an exact, indefinite `h` the partial blocks carry no guarantee,
 /// and the matrix may then be refused and the projected blocks asked for). Particle pairs without slots are pushed to `missing`.
-/// `places`: the places of the six coupling blocks ([`PARTICLE_PAIRS`]' order) on the
+/// `places`: the places of the six coupling blocks ([`PAIR_BLOCKS`]' order) on the
 /// sink's pattern, found beforehand; `None` looks them up.
 fn scatter(
-    h: &Mat12,
+    h: &PairBlocks,
     kind: PairKind,
     v: [usize; 4],
     places: Option<&[PairPlace; 6]>,
@@ -1384,42 +1381,38 @@ fn scatter(
     // Each pattern look-up once (a binary search per pair of particles).
     let has: [bool; 6] = match places {
         Some(places) => places.map(|p| p != PairPlace::Missing),
-        None => PARTICLE_PAIRS.map(|(a, b)| sink.has_pair(v[a], v[b])),
+        None => PAIR_BLOCKS.map(|(a, b)| sink.has_pair(v[a], v[b])),
     };
     let keep_all = has.iter().all(|&h| h);
     if !keep_all {
         missing.extend(
-            PARTICLE_PAIRS
+            PAIR_BLOCKS
                 .iter()
                 .zip(has)
                 .filter(|&(_, h)| !h)
                 .map(|(&(a, b), _)| [v[a], v[b]]),
         );
     }
-    let keep_within = PARTICLE_PAIRS
+    let keep_within = PAIR_BLOCKS
         .iter()
         .zip(has)
         .filter(|&(&(a, b), _)| group(a) == group(b))
         .all(|(_, h)| h);
     for (k, &i) in v.iter().enumerate() {
-        sink.add_diagonal(i, SymBlock::from_lower(&block(h, k, k)));
+        sink.add_diagonal(i, SymBlock(h.diagonal[k]));
     }
-    for (n, (a, b)) in PARTICLE_PAIRS.into_iter().enumerate() {
+    for (n, (a, b)) in PAIR_BLOCKS.into_iter().enumerate() {
         if keep_all || (keep_within && group(a) == group(b)) {
             match places {
-                Some(places) => sink.add_pair_at(places[n], v[a], v[b], &block(h, a, b)),
+                Some(places) => sink.add_pair_at(places[n], v[a], v[b], &coupling(h, n)),
                 // Checked above: the pattern has the pair, so this cannot fail.
                 None => {
-                    let _ = sink.add_pair(v[a], v[b], &block(h, a, b));
+                    let _ = sink.add_pair(v[a], v[b], &coupling(h, n));
                 }
             }
         }
     }
 }
-
-/// A pair's six pairs of particles (pair-local indices), in the order its blocks are
-/// written.
-const PARTICLE_PAIRS: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
 
 /// Adds self-contact of the cloth `system` with surface `triangles` to `integrator`
 /// (see [`SelfContactTerm::new`] for the checks) and returns the term's statistics.
