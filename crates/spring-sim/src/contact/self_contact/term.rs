@@ -813,14 +813,19 @@ impl SelfContactTerm {
         // The smallest fraction found so far, shared by the sweeps (see
         // `additive_ccd_within`: the minimum over the pairs does not depend on the order
         // they finish in). Fractions are in [0, 1], where the order of an f64's bits is
-        // the order of its values, so an integer minimum keeps it.
-        let smallest = AtomicU64::new(1.0f64.to_bits());
+        // the order of its values, so an integer minimum keeps it. It is written only
+        // when a sweep ends below the limit it read (otherwise the minimum cannot
+        // change), and sits on a cache line of its own: a locked write per pair kept the
+        // line moving between the cores, and the sweeps waited on it most of their time.
+        let smallest = SharedMinimum(AtomicU64::new(1.0f64.to_bits()));
         let sweep = |c: Candidate, gap0: f64| {
             let (kind, v) = self.pair(c);
             let (p, d) = (v.map(|i| x[i]), v.map(|i| dx[i]));
-            let limit = f64::from_bits(smallest.load(Ordering::Relaxed));
+            let limit = f64::from_bits(smallest.0.load(Ordering::Relaxed));
             let fraction = additive_ccd_within(kind, &p, &d, thickness, keep, gap0, limit);
-            smallest.fetch_min(fraction.to_bits(), Ordering::Relaxed);
+            if fraction < limit {
+                smallest.0.fetch_min(fraction.to_bits(), Ordering::Relaxed);
+            }
             fraction
         };
         let mut t: f64 = 1.0;
@@ -1313,6 +1318,11 @@ enum HessianForm {
     Projected,
     Exact,
 }
+
+/// An atomic alone on its cache lines (two, for the adjacent-line prefetcher), so the
+/// threads reading it do not share a line with anything written.
+#[repr(align(128))]
+struct SharedMinimum(AtomicU64);
 
 /// [`SelfContactTerm::first_asked`]'s values.
 const FORM_NONE: u8 = 0;
