@@ -413,6 +413,68 @@ fn a_step_starting_at_the_last_active_set_takes_its_values_and_answers_as_a_fres
     assert_eq!(kept.to_string(), reference.to_string());
 }
 
+#[test]
+fn an_active_set_at_a_trials_state_takes_its_values_and_answers_as_a_fresh_term() {
+    // The line search's trials keep their pairs' values at the states they tried; an
+    // active set collected at the state of one of the two latest (the accepted step, or
+    // the full step before a refused doubled one) takes them. Its gradient, Hessians in
+    // both forms, energy, smallest gap and start check must be the bits of a term that
+    // collected the set afresh.
+    let (system, triangles, settings, dx) = drifting_sheets(57);
+    let x0 = system.positions().to_vec();
+    let v = vec![DVec3::ZERO; x0.len()];
+    let mut start = system.clone();
+    let step = StepContext::new(&system, 1.0 / 60.0, &x0, &x0);
+    let mut term = begun(&system, &triangles, settings, &step);
+    let stats = term.stats();
+    let mut rng = Rng(5);
+    let mut active = 0;
+    for (alpha, accepted) in [(3.0, 2.0), (5.0, 1.0), (6.0, 2.0)] {
+        let at: Vec<DVec3> = x0.iter().zip(&dx).map(|(p, d)| *p + alpha * *d).collect();
+        term.update_active_set(&step, &at);
+        let path: Vec<DVec3> = dx.iter().map(|d| 0.5 * *d).collect();
+        assert!(term.max_step(&step, &at, &path, 1.0) > 0.0);
+        // The full step, then the doubled one; either may be the one accepted.
+        let _ = term.energy_change(&step, &at, &path, 1.0);
+        let _ = term.energy_change(&step, &at, &path, 2.0);
+        let next: Vec<DVec3> = at
+            .iter()
+            .zip(&path)
+            .map(|(p, d)| *p + accepted * *d)
+            .collect();
+        term.update_active_set(&step, &next);
+        active = active.max(stats.active_pairs());
+        let mut reference = begun(&system, &triangles, settings, &step);
+        reference.update_active_set(&step, &next);
+        assert_eq!(stats.active_pairs(), reference.stats().active_pairs());
+        assert_eq!(
+            stats.min_gap().to_bits(),
+            reference.stats().min_gap().to_bits()
+        );
+        let (mut g, mut g_reference) = (vec![DVec3::ZERO; x0.len()], vec![DVec3::ZERO; x0.len()]);
+        term.add_gradient(&step, &next, &mut g);
+        reference.add_gradient(&step, &next, &mut g_reference);
+        assert_eq!(g, g_reference);
+        assert_eq!(
+            term.energy(&step, &next).to_bits(),
+            reference.energy(&step, &next).to_bits()
+        );
+        let z: Vec<DVec3> = (0..x0.len())
+            .map(|_| DVec3::new(rng.signed(), rng.signed(), rng.signed()))
+            .collect();
+        for curvature in [Curvature::Clamped, Curvature::ExactContact(1.0)] {
+            assert_eq!(
+                hessian_product(&term, &step, &next, curvature, &z),
+                hessian_product(&reference, &step, &next, curvature, &z)
+            );
+        }
+        start.set_state(&next, &v).unwrap();
+        assert!(term.check_start(&start, 0.0).is_ok());
+        assert!(reference.check_start(&start, 0.0).is_ok());
+    }
+    assert!(active > 0, "no pair within dhat: the case tests nothing");
+}
+
 /// `H z` of `term` at `x` in the form `curvature` asks for.
 fn hessian_product(
     term: &SelfContactTerm,

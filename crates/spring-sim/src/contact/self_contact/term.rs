@@ -424,6 +424,25 @@ impl SelfContactTerm {
         (gap, closest)
     }
 
+    /// The pair's values at `x` as the active set keeps them: its separation and, unless
+    /// that shows it beyond `dhat`, its gap and the region of its closest points.
+    fn near_value(&self, c: Candidate, x: &[DVec3]) -> NearValue {
+        let separation = self.separation(c, x);
+        if self.beyond_dhat_by(separation) {
+            NearValue {
+                separation,
+                ..NearValue::default()
+            }
+        } else {
+            let (gap, closest) = self.gap_and_region(c, x);
+            NearValue {
+                separation,
+                gap,
+                closest,
+            }
+        }
+    }
+
     /// The pair's [`separation`] at `x`: a lower bound of its distance at a few dot
     /// products.
     fn separation(&self, c: Candidate, x: &[DVec3]) -> f64 {
@@ -934,6 +953,29 @@ struct Segment {
     /// values per found pair.
     found: Vec<usize>,
     values: Vec<(f64, f64, f64)>,
+    /// The two latest line-search trials on this list (the latest first): the line
+    /// search may try a doubled step after the one it accepts.
+    trials: [Trial; 2],
+    /// Scratch: per near pair of an active set, its place in a trial's values.
+    from_trial: Vec<usize>,
+}
+
+/// A line-search trial's state and, per pair its query found (positions in the
+/// segment's list, ascending), the pair's values there and its energies at the trial's
+/// state and at the segment's start.
+#[derive(Debug, Default)]
+struct Trial {
+    at: Vec<DVec3>,
+    found: Vec<usize>,
+    values: Vec<TrialValue>,
+}
+
+/// [`Trial`]'s values of one pair.
+#[derive(Clone, Copy, Debug, Default)]
+struct TrialValue {
+    near: NearValue,
+    after: f64,
+    before: f64,
 }
 
 impl Segment {
@@ -951,10 +993,19 @@ impl Segment {
         self.energy.resize(n, f64::NAN);
         self.separation.clear();
         self.separation.resize(n, f64::NAN);
+        // The trials' positions refer to the list replaced.
+        for t in &mut self.trials {
+            t.at.clear();
+        }
     }
 
     fn starts_at(&self, x: &[DVec3]) -> bool {
         self.start.as_slice() == x
+    }
+
+    /// The latest trial made at `x` (its index in `trials`), if any.
+    fn trial_at(&self, x: &[DVec3]) -> Option<usize> {
+        (0..2).find(|&t| !self.trials[t].at.is_empty() && self.trials[t].at.as_slice() == x)
     }
 }
 
@@ -1045,22 +1096,49 @@ impl Term for SelfContactTerm {
         let mut values = std::mem::take(&mut self.near_values);
         let mut regions = std::mem::take(&mut self.active_regions);
         regions.clear();
-        spread::fill(&mut values, near.len(), NearValue::default(), |i| {
-            let separation = self.separation(near[i], x);
-            if self.beyond_dhat_by(separation) {
-                NearValue {
-                    separation,
-                    ..NearValue::default()
+        // A Newton iterate is usually the state the line search's accepted trial tried,
+        // which computed every near pair's values there already.
+        let seg = self
+            .segment
+            .get_mut()
+            .unwrap_or_else(PoisonError::into_inner);
+        let trial = seg.trial_at(x);
+        let mut from_trial = std::mem::take(&mut seg.from_trial);
+        from_trial.clear();
+        if let Some(t) = trial {
+            let (list, found) = (seg.pairs.list(), &seg.trials[t].found);
+            // Both lists are sorted (the list is, and a query keeps its order): a merge.
+            let mut j = 0;
+            from_trial.extend(near.iter().map(|c| {
+                while j < found.len() && list[found[j]] < *c {
+                    j += 1;
                 }
-            } else {
-                let (gap, closest) = self.gap_and_region(near[i], x);
-                NearValue {
-                    separation,
-                    gap,
-                    closest,
+                if j < found.len() && list[found[j]] == *c {
+                    j
+                } else {
+                    usize::MAX
                 }
-            }
-        });
+            }));
+        }
+        // The trial's values are taken out while the pool fills the active set's.
+        let kept = trial.map(|t| std::mem::take(&mut seg.trials[t].values));
+        spread::fill(
+            &mut values,
+            near.len(),
+            NearValue::default(),
+            |i| match &kept {
+                Some(kept) if from_trial[i] != usize::MAX => kept[from_trial[i]].near,
+                _ => self.near_value(near[i], x),
+            },
+        );
+        let seg = self
+            .segment
+            .get_mut()
+            .unwrap_or_else(PoisonError::into_inner);
+        if let (Some(t), Some(kept)) = (trial, kept) {
+            seg.trials[t].values = kept;
+        }
+        seg.from_trial = from_trial;
         let mut touching = None;
         for (k, (&c, v)) in near.iter().zip(&values).enumerate() {
             if v.gap < dhat {
@@ -1137,14 +1215,27 @@ impl Term for SelfContactTerm {
             // there is one, or zero when the kept separation shows the pair beyond `dhat`.
             // Each found pair's two energies on the pool, then the sum in the pairs'
             // order.
+            // Each found pair's values at the trial's state are kept with the trial (the
+            // two latest), for the active set at that state if the trial is accepted.
             let at_start = seg.starts_at(x);
             let same_kappa = kappa.to_bits() == seg.kappa.to_bits();
+            seg.trials.swap(0, 1);
+            let trial = &mut seg.trials[0];
+            trial.found.clear();
+            trial.found.extend_from_slice(&seg.found);
             let (found, list) = (&seg.found, seg.pairs.list());
             let (kept_gap, kept_energy) = (&seg.gap, &seg.energy);
             let kept_separation = &seg.separation;
-            spread::fill(&mut seg.values, found.len(), (0.0, 0.0, 0.0), |i| {
+            spread::fill(&mut trial.values, found.len(), TrialValue::default(), |i| {
                 let (k, c) = (found[i], list[found[i]]);
-                let after = self.pair_energy(kappa, c, &moved);
+                // The pair's energy at the trial's state from these values is
+                // `pair_energy`'s (the same separation test, the same gap).
+                let near = self.near_value(c, &moved);
+                let after = if self.beyond_dhat_by(near.separation) {
+                    0.0
+                } else {
+                    self.pair_energy_at_gap(kappa, c, &moved, near.gap)
+                };
                 let before = if at_start && same_kappa && !kept_energy[k].is_nan() {
                     kept_energy[k]
                 } else if at_start && !kept_gap[k].is_nan() {
@@ -1154,9 +1245,15 @@ impl Term for SelfContactTerm {
                 } else {
                     self.pair_energy(kappa, c, x)
                 };
-                (after, before, 0.0)
+                TrialValue {
+                    near,
+                    after,
+                    before,
+                }
             });
-            for (&k, &(after, before, _)) in seg.found.iter().zip(&seg.values) {
+            trial.at = moved;
+            for (&k, value) in seg.found.iter().zip(&seg.trials[0].values) {
+                let (after, before) = (value.after, value.before);
                 if at_start && same_kappa {
                     seg.energy[k] = before;
                 }
