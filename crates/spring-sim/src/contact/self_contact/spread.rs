@@ -47,15 +47,17 @@ pub(crate) fn for_each<T: Send>(out: &mut [T], f: impl Fn(usize, &mut T) + Sync 
     }
 }
 
-/// `out` cleared and refilled with `f(i)` for `i` in `0..n` (its storage reused), in
-/// chunks on the caller's pool when there is one.
+/// `out` refilled with `f(i)` for `i` in `0..n` (its storage reused), in chunks on the
+/// caller's pool when there is one. Only slots beyond the old length are first set to
+/// `blank`: every slot is overwritten, and blanking the whole list on one thread first
+/// (megabytes, for the pairs of a large contact) cost as much as a cheap pass itself.
 pub(crate) fn fill<T: Send + Clone>(
     out: &mut Vec<T>,
     n: usize,
     blank: T,
     f: impl Fn(usize) -> T + Sync + Send,
 ) {
-    out.clear();
+    out.truncate(n);
     out.resize(n, blank);
     for_each(out, |i, slot| *slot = f(i));
 }
