@@ -248,6 +248,10 @@ pub struct SelfContactTerm {
     /// instead of computing them again (see [`NearValue`]).
     near: Vec<Candidate>,
     near_values: Vec<NearValue>,
+    /// `near`'s positions in the segment's list (ascending) when they were found there,
+    /// and that list's [`Segment::list_id`] (`None`: found by hashing the mesh).
+    near_positions: Vec<usize>,
+    near_list: Option<u64>,
     /// What [`Term::check_start`] would find at `active_at`: the smallest gap within
     /// `dhat` and the first pair (in `near`'s order) whose gap is zero, negative or NaN,
     /// with the fixed flags the pairs were found with. A step starts where the last one
@@ -341,6 +345,8 @@ impl SelfContactTerm {
             fell_back: AtomicBool::new(false),
             near: Vec::new(),
             near_values: Vec::new(),
+            near_positions: Vec::new(),
+            near_list: None,
             near_summary: (f64::INFINITY, None),
             near_fixed: Vec::new(),
             active_regions: Vec::new(),
@@ -467,19 +473,36 @@ impl SelfContactTerm {
     /// filtered from the segment's list when it covers the query (the same set, see
     /// [`CandidateCache`]), else found by hashing the mesh.
     fn pairs(&self, x: &[DVec3], dx: Option<&[DVec3]>, fixed: &[bool]) -> Vec<Candidate> {
+        self.pairs_placed(x, dx, fixed, &mut Vec::new()).0
+    }
+
+    /// [`Self::pairs`], with their positions in the segment's list written to
+    /// `positions` and the list's id when they were filtered from it (`None`, and
+    /// `positions` left empty, when the mesh was hashed).
+    fn pairs_placed(
+        &self,
+        x: &[DVec3],
+        dx: Option<&[DVec3]>,
+        fixed: &[bool],
+        positions: &mut Vec<usize>,
+    ) -> (Vec<Candidate>, Option<u64>) {
         let margin = self.settings.dhat + self.settings.thickness;
+        positions.clear();
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
         let seg = &mut *segment;
         if seg
             .pairs
-            .query_indices_into(&self.prims, x, dx, margin, fixed, &mut seg.found)
+            .query_indices_into(&self.prims, x, dx, margin, fixed, positions)
         {
             let list = seg.pairs.list();
-            return seg.found.iter().map(|&k| list[k]).collect();
+            return (
+                positions.iter().map(|&k| list[k]).collect(),
+                Some(seg.list_id),
+            );
         }
         drop(segment);
         self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
-        candidates(&self.prims, x, dx, margin, fixed)
+        (candidates(&self.prims, x, dx, margin, fixed), None)
     }
 
     /// Collects the broad phase's pairs over the segment `x -> x + dx` and keeps them
@@ -508,6 +531,7 @@ impl SelfContactTerm {
         self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
         let pairs = CandidateCache::with_slack(&self.prims, x, Some(dx), margin, slack, fixed);
         segment.reset(pairs, x, self.kappa());
+        segment.list_id += 1;
         self.seed_from_active_set(&mut segment, x);
     }
 
@@ -519,6 +543,16 @@ impl SelfContactTerm {
     /// the same answers, bit for bit.
     fn seed_from_active_set(&self, seg: &mut Segment, x: &[DVec3]) {
         if self.active_at.as_slice() != x {
+            return;
+        }
+        if self.near_list == Some(seg.list_id) {
+            // The active set's pairs were filtered from this list: their positions.
+            for (&k, v) in self.near_positions.iter().zip(&self.near_values) {
+                seg.separation[k] = v.separation;
+                if !self.beyond_dhat_by(v.separation) {
+                    seg.gap[k] = v.gap;
+                }
+            }
             return;
         }
         let list = seg.pairs.list();
@@ -958,6 +992,9 @@ struct Segment {
     trials: [Trial; 2],
     /// Scratch: per near pair of an active set, its place in a trial's values.
     from_trial: Vec<usize>,
+    /// Which list `pairs` is: a new list gets a new id, so positions found in an older
+    /// one are not taken for positions in it.
+    list_id: u64,
 }
 
 /// A line-search trial's state and, per pair its query found (positions in the
@@ -1092,7 +1129,8 @@ impl Term for SelfContactTerm {
         // fault in than to fill.
         let mut active = std::mem::take(&mut self.active);
         active.clear();
-        let near = self.near(x, fixed);
+        let mut positions = std::mem::take(&mut self.near_positions);
+        let (near, near_list) = self.pairs_placed(x, None, fixed, &mut positions);
         let mut values = std::mem::take(&mut self.near_values);
         let mut regions = std::mem::take(&mut self.active_regions);
         regions.clear();
@@ -1102,18 +1140,18 @@ impl Term for SelfContactTerm {
             .segment
             .get_mut()
             .unwrap_or_else(PoisonError::into_inner);
-        let trial = seg.trial_at(x);
+        let trial = seg.trial_at(x).filter(|_| near_list == Some(seg.list_id));
         let mut from_trial = std::mem::take(&mut seg.from_trial);
         from_trial.clear();
         if let Some(t) = trial {
-            let (list, found) = (seg.pairs.list(), &seg.trials[t].found);
-            // Both lists are sorted (the list is, and a query keeps its order): a merge.
+            // Both are ascending positions in the same list: a merge.
+            let found = &seg.trials[t].found;
             let mut j = 0;
-            from_trial.extend(near.iter().map(|c| {
-                while j < found.len() && list[found[j]] < *c {
+            from_trial.extend(positions.iter().map(|&k| {
+                while j < found.len() && found[j] < k {
                     j += 1;
                 }
-                if j < found.len() && list[found[j]] == *c {
+                if j < found.len() && found[j] == k {
                     j
                 } else {
                     usize::MAX
@@ -1152,6 +1190,8 @@ impl Term for SelfContactTerm {
         }
         self.near = near;
         self.near_values = values;
+        self.near_positions = positions;
+        self.near_list = near_list;
         self.near_summary = (min, touching);
         self.near_fixed.clear();
         self.near_fixed.extend_from_slice(fixed);
