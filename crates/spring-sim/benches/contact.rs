@@ -35,13 +35,15 @@
 //! benchmark: a table for docs/contact.md, run with
 //! `cargo bench -p sinew-spring-sim --bench contact [-- ground|drape|rotating|twist|stack|
 //! stack-workload [steps] [--trace] [mu=..] [eps_v=..] [solver=direct|pcg|auto] [reuse=..] [tol=..]
-//! [exact=0|1] [save=FILE] [against=FILE]]` (`--trace`: a line per step on stderr, with the step's intersecting triangle pairs for the self-contact workloads; `mu`, `eps_v`: the
+//! [exact=0|1] [threads=N] [save=FILE] [against=FILE]]` (`--trace`: a line per step on stderr, with the step's intersecting triangle pairs for the self-contact workloads; `mu`, `eps_v`: the
 //! collider friction settings instead of the workload's; `solver`: the linear solver,
 //! `auto` by default; `reuse`: the direct solver's `factor_reuse_iterations`, 0 for a
 //! factorization every Newton iteration; `tol`: `NewtonSettings::tolerance`; `exact`:
 //! `SelfContactSettings::exact_hessian` (the self-contact pairs' exact Hessians tried
 //! first once Newton is slow, default 1 as the setting's default; the self-contact
 //! workloads print the times the term wrote them and fell back to their projections);
+//! `threads`: `NewtonSettings::threads` (0, one per core, by default; 1 gives the
+//! single-thread time beside which the default's shows what the second core buys);
 //! `save`:
 //! write the final positions and velocities to FILE; `against`: read such a file and
 //! print the largest distance of a particle's final position and velocity from it, the
@@ -504,6 +506,7 @@ fn main() {
             factor_reuse_iterations: number("reuse")
                 .map_or(defaults.factor_reuse_iterations, |r| r as usize),
             tolerance: number("tol").unwrap_or(defaults.tolerance),
+            threads: number("threads").map_or(defaults.threads, |t| t as usize),
             ..defaults
         };
         let contact = ContactSettings {
