@@ -497,12 +497,12 @@ mod tests {
     /// second derivative.
     #[test]
     fn a_pairs_blocks_are_its_full_hessians_entries_bit_for_bit() {
-        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        // Coordinates from the additive recurrence of the golden ratio (a Weyl sequence):
+        // spread over [-1, 1) without a generator's state.
+        let mut index = 0u32;
         let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+            index += 1;
+            (f64::from(index) * 0.618_033_988_749_894_9).fract() * 2.0 - 1.0
         };
         let mut compared = 0;
         for n in 0..400 {

@@ -1030,7 +1030,8 @@ impl Segment {
         self.energy.resize(n, f64::NAN);
         self.separation.clear();
         self.separation.resize(n, f64::NAN);
-        // The trials' positions refer to the list replaced.
+        // The trials' positions may refer to the list replaced (and an active set at the
+        // new start was collected before it).
         for t in &mut self.trials {
             t.at.clear();
         }
@@ -1254,8 +1255,7 @@ impl Term for SelfContactTerm {
             // the stiffness it was computed with), and computed from the kept gap when
             // there is one, or zero when the kept separation shows the pair beyond `dhat`.
             // Each found pair's two energies on the pool, then the sum in the pairs'
-            // order.
-            // Each found pair's values at the trial's state are kept with the trial (the
+            // order. The pair's values at the trial's state are kept with the trial (the
             // two latest), for the active set at that state if the trial is accepted.
             let at_start = seg.starts_at(x);
             let same_kappa = kappa.to_bits() == seg.kappa.to_bits();
