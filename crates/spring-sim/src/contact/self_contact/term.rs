@@ -473,23 +473,26 @@ impl SelfContactTerm {
     /// filtered from the segment's list when it covers the query (the same set, see
     /// [`CandidateCache`]), else found by hashing the mesh.
     fn pairs(&self, x: &[DVec3], dx: Option<&[DVec3]>, fixed: &[bool]) -> Vec<Candidate> {
-        self.pairs_placed(x, dx, fixed, &mut Vec::new()).0
+        self.pairs_placed(x, dx, fixed, None).0
     }
 
-    /// [`Self::pairs`], with their positions in the segment's list written to
-    /// `positions` and the list's id when they were filtered from it (`None`, and
-    /// `positions` left empty, when the mesh was hashed).
+    /// [`Self::pairs`] and, when they were filtered from the segment's list, that list's
+    /// id, with their positions in it written to `positions` (`None`: into the segment's
+    /// scratch, whose storage is reused; left empty when the mesh was hashed).
     fn pairs_placed(
         &self,
         x: &[DVec3],
         dx: Option<&[DVec3]>,
         fixed: &[bool],
-        positions: &mut Vec<usize>,
+        positions: Option<&mut Vec<usize>>,
     ) -> (Vec<Candidate>, Option<u64>) {
         let margin = self.settings.dhat + self.settings.thickness;
-        positions.clear();
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
         let seg = &mut *segment;
+        let positions = match positions {
+            Some(p) => p,
+            None => &mut seg.found,
+        };
         if seg
             .pairs
             .query_indices_into(&self.prims, x, dx, margin, fixed, positions)
@@ -1131,7 +1134,7 @@ impl Term for SelfContactTerm {
         let mut active = std::mem::take(&mut self.active);
         active.clear();
         let mut positions = std::mem::take(&mut self.near_positions);
-        let (near, near_list) = self.pairs_placed(x, None, fixed, &mut positions);
+        let (near, near_list) = self.pairs_placed(x, None, fixed, Some(&mut positions));
         let mut values = std::mem::take(&mut self.near_values);
         let mut regions = std::mem::take(&mut self.active_regions);
         regions.clear();
