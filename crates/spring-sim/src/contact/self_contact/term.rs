@@ -484,20 +484,23 @@ impl SelfContactTerm {
         x: &[DVec3],
         dx: Option<&[DVec3]>,
         fixed: &[bool],
-        positions: Option<&mut Vec<usize>>,
+        mut positions: Option<&mut Vec<usize>>,
     ) -> (Vec<Candidate>, Option<u64>) {
         let margin = self.settings.dhat + self.settings.thickness;
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
         let seg = &mut *segment;
-        let positions = match positions {
-            Some(p) => p,
-            None => &mut seg.found,
+        let covered = match positions.as_deref_mut() {
+            Some(p) => seg
+                .pairs
+                .query_indices_into(&self.prims, x, dx, margin, fixed, p),
+            None => seg.query_into_found(&self.prims, x, dx, margin, fixed),
         };
-        if seg
-            .pairs
-            .query_indices_into(&self.prims, x, dx, margin, fixed, positions)
-        {
+        if covered {
             let list = seg.pairs.list();
+            let positions = match positions {
+                Some(p) => &*p,
+                None => &seg.found,
+            };
             return (
                 positions.iter().map(|&k| list[k]).collect(),
                 Some(seg.list_id),
@@ -887,10 +890,7 @@ impl SelfContactTerm {
         let mut t: f64 = 1.0;
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
         let seg = &mut *segment;
-        if seg
-            .pairs
-            .query_indices_into(&self.prims, x, Some(dx), margin, fixed, &mut seg.found)
-        {
+        if seg.query_into_found(&self.prims, x, Some(dx), margin, fixed) {
             // Per found pair its gap at `x` (kept once computed) and its safe fraction,
             // on the pool; the minimum does not depend on the order.
             let at_start = seg.starts_at(x);
@@ -989,6 +989,8 @@ struct Segment {
     /// Scratch, its storage reused: a query's positions in the list, and up to three
     /// values per found pair.
     found: Vec<usize>,
+    /// The query `found` answers, when it is valid (see [`Segment::query_into_found`]).
+    asked: Asked,
     values: Vec<(f64, f64, f64)>,
     /// The two latest line-search trials on this list (the latest first): the line
     /// search may try a doubled step after the one it accepts.
@@ -1008,6 +1010,17 @@ struct Trial {
     at: Vec<DVec3>,
     found: Vec<usize>,
     values: Vec<TrialValue>,
+}
+
+/// The query whose answer [`Segment::found`] holds (the storage reused).
+#[derive(Debug, Default)]
+struct Asked {
+    valid: bool,
+    margin: f64,
+    swept: bool,
+    at: Vec<DVec3>,
+    sweep: Vec<DVec3>,
+    fixed: Vec<bool>,
 }
 
 /// [`Trial`]'s values of one pair.
@@ -1034,10 +1047,54 @@ impl Segment {
         self.separation.clear();
         self.separation.resize(n, f64::NAN);
         // The trials' positions may refer to the list replaced (and an active set at the
-        // new start was collected before it).
+        // new start was collected before it), and so may the last query's answer.
         for t in &mut self.trials {
             t.at.clear();
         }
+        self.asked.valid = false;
+    }
+
+    /// `found` set to the positions of the kept pairs the query (`x`, `dx`, `margin`,
+    /// `fixed`) meets, as [`CandidateCache::query_indices_into`] (false when the list
+    /// does not cover the query). The answer of the last query is taken again when this
+    /// one is the same: the cap's sweep of the full step and the line search's first
+    /// trial ask the same swept boxes (`alpha dx` is `dx` at `alpha = 1`), and so do the
+    /// start's admissibility check and its energy change. The same inputs give the same
+    /// boxes and so the same answer, bit for bit.
+    fn query_into_found(
+        &mut self,
+        prims: &Primitives,
+        x: &[DVec3],
+        dx: Option<&[DVec3]>,
+        margin: f64,
+        fixed: &[bool],
+    ) -> bool {
+        let a = &self.asked;
+        if a.valid
+            && a.margin.to_bits() == margin.to_bits()
+            && a.swept == dx.is_some()
+            && a.at.as_slice() == x
+            && dx.is_none_or(|d| a.sweep.as_slice() == d)
+            && a.fixed.as_slice() == fixed
+        {
+            return true;
+        }
+        let covered = self
+            .pairs
+            .query_indices_into(prims, x, dx, margin, fixed, &mut self.found);
+        let a = &mut self.asked;
+        a.valid = covered;
+        if covered {
+            a.margin = margin;
+            a.swept = dx.is_some();
+            a.at.clear();
+            a.at.extend_from_slice(x);
+            a.sweep.clear();
+            a.sweep.extend_from_slice(dx.unwrap_or(&[]));
+            a.fixed.clear();
+            a.fixed.extend_from_slice(fixed);
+        }
+        covered
     }
 
     fn starts_at(&self, x: &[DVec3]) -> bool {
@@ -1250,10 +1307,7 @@ impl Term for SelfContactTerm {
         let mut change = 0.0;
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
         let seg = &mut *segment;
-        if seg
-            .pairs
-            .query_indices_into(&self.prims, x, Some(&sweep), margin, fixed, &mut seg.found)
-        {
+        if seg.query_into_found(&self.prims, x, Some(&sweep), margin, fixed) {
             // The energy at `x` is the same for every trial of the line search: kept (for
             // the stiffness it was computed with), and computed from the kept gap when
             // there is one, or zero when the kept separation shows the pair beyond `dhat`.
