@@ -475,6 +475,59 @@ fn an_active_set_at_a_trials_state_takes_its_values_and_answers_as_a_fresh_term(
     assert!(active > 0, "no pair within dhat: the case tests nothing");
 }
 
+#[test]
+fn a_query_that_repeats_the_last_takes_its_answer_and_no_other_does() {
+    // The cap's sweep of a step and the line search's trial of the full step ask the same
+    // swept boxes, and the second takes the first's answer. The top sheet starts 5.5 mm
+    // above the bottom one and the step lowers it 0.5 mm, so the cap's segment (8 steps)
+    // reaches pairs within dhat that the step itself does not: a trial 7.5 steps long,
+    // a step from 7 steps lower, and the full step again after them must each answer as
+    // a fresh term, which a trial given the last query's answer would not.
+    let (system, triangles, settings) = two_sheets_thick();
+    let x0 = system.positions().to_vec();
+    let lift = |i: usize, by: f64| {
+        if i >= 9 {
+            DVec3::new(0.0, by, 0.0)
+        } else {
+            DVec3::ZERO
+        }
+    };
+    let at: Vec<DVec3> = x0
+        .iter()
+        .enumerate()
+        .map(|(i, p)| *p + lift(i, 4e-3))
+        .collect();
+    let path: Vec<DVec3> = (0..x0.len()).map(|i| lift(i, -5e-4)).collect();
+    let long: Vec<DVec3> = path.iter().map(|d| 7.5 * *d).collect();
+    let lower: Vec<DVec3> = at.iter().zip(&path).map(|(p, d)| *p + 7.0 * *d).collect();
+    let step = StepContext::new(&system, 1.0 / 60.0, &at, &at);
+    let mut term = begun(&system, &triangles, settings, &step);
+    term.update_active_set(&step, &at);
+    assert_eq!(term.max_step(&step, &at, &path, 1.0), 1.0);
+    let trials = [
+        (&at, &path),
+        (&at, &long),
+        (&at, &path),
+        (&lower, &path),
+        (&at, &path),
+    ];
+    let mut changes = Vec::new();
+    for (x, d) in trials {
+        let fresh = begun(&system, &triangles, settings, &step);
+        let change = term.energy_change(&step, x, d, 1.0);
+        assert_eq!(
+            change.to_bits(),
+            fresh.energy_change(&step, x, d, 1.0).to_bits()
+        );
+        changes.push(change);
+    }
+    assert_eq!(changes[0], 0.0, "the step itself comes within dhat");
+    assert!(
+        changes[1] > 0.0 && changes[3] > 0.0,
+        "{changes:?}: the case tests nothing"
+    );
+}
+
 /// `H z` of `term` at `x` in the form `curvature` asks for.
 fn hessian_product(
     term: &SelfContactTerm,
