@@ -34,7 +34,13 @@ pub struct HessianPattern {
     /// Per spring: value slots of its off-diagonal block (entry `(r, c)` at `3 c + r`),
     /// `None` unless both ends are free.
     pub(crate) off_slots: Vec<Option<[usize; 9]>>,
+    /// A number no other pattern built in this process has, so a term that keeps the
+    /// places it looked up on a pattern knows whether they still hold.
+    pub(crate) revision: u64,
 }
+
+/// The next [`HessianPattern::revision`] (from 1: 0 is never a pattern's).
+static NEXT_REVISION: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 impl HessianPattern {
     /// Builds the pattern for `system`'s topology.
@@ -119,6 +125,7 @@ impl HessianPattern {
             symbolic,
             diag_slots,
             off_slots,
+            revision: NEXT_REVISION.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         }
     }
 

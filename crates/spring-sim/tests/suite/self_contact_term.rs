@@ -10,7 +10,7 @@ use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactTe
 use sinew_spring_sim::potential::{HessianSink, StepContext, Term};
 use sinew_spring_sim::spring::Curvature;
 use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, SpringSystem, StepError, TriangleMesh,
+    Bending, ClothGrid, HessianPattern, Material, MeshCloth, SpringSystem, StepError, TriangleMesh,
 };
 
 fn two_sheets() -> (SpringSystem, Vec<[usize; 3]>) {
@@ -525,6 +525,73 @@ fn a_query_that_repeats_the_last_takes_its_answer_and_no_other_does() {
     assert!(
         changes[1] > 0.0 && changes[3] > 0.0,
         "{changes:?}: the case tests nothing"
+    );
+}
+
+#[test]
+fn the_places_kept_from_the_last_active_set_give_a_fresh_terms_matrix() {
+    // The term keeps the places its active pairs' blocks have in the Newton matrix and
+    // looks up only the pairs new to the next active set. Active sets that gain and lose
+    // pairs (the top sheet slid partly off the other and back), on a pattern with every particle pair, then
+    // on one without some (the same active set: every place is another), must give the
+    // values a fresh term gives.
+    let (system, triangles) = two_sheets();
+    let n = system.len();
+    let all: Vec<[usize; 2]> = (0..n)
+        .flat_map(|i| (i + 1..n).map(move |j| [i, j]))
+        .collect();
+    let some: Vec<[usize; 2]> = all
+        .iter()
+        .copied()
+        .filter(|[i, j]| (i + j) % 3 != 0)
+        .collect();
+    let full = HessianPattern::with_pairs(&system, &all);
+    let partial = HessianPattern::with_pairs(&system, &some);
+    let x0 = system.positions().to_vec();
+    let step = StepContext::new(&system, 1.0 / 60.0, &x0, &x0);
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        ..SelfContactSettings::default()
+    };
+    let mut term = begun(&system, &triangles, settings, &step);
+    let values = |term: &SelfContactTerm, x: &[DVec3], pattern: &HessianPattern| {
+        let mut v = vec![0.0; pattern.nnz()];
+        let mut sink = HessianSink::values(pattern, &mut v);
+        term.add_hessian(&step, x, Curvature::Clamped, &mut sink);
+        v
+    };
+    let mut counts = Vec::new();
+    for (slide, pattern) in [
+        (0.0, &full),
+        (0.07, &full),
+        (0.035, &full),
+        (0.07, &full),
+        (0.07, &partial),
+        (0.0, &partial),
+        (0.0, &full),
+    ] {
+        let x: Vec<DVec3> = x0
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                *p + if i >= 9 {
+                    DVec3::new(slide, 0.0, 0.0)
+                } else {
+                    DVec3::ZERO
+                }
+            })
+            .collect();
+        term.update_active_set(&step, &x);
+        counts.push(term.stats().active_pairs());
+        let mut fresh = begun(&system, &triangles, settings, &step);
+        fresh.update_active_set(&step, &x);
+        let v = values(&term, &x, pattern);
+        assert!(v.iter().any(|&e| e != 0.0));
+        assert_eq!(v, values(&fresh, &x, pattern), "slide {slide}");
+    }
+    assert!(
+        counts[0] != counts[1] && counts[1] != counts[2],
+        "{counts:?}: the active sets are alike"
     );
 }
 

@@ -67,6 +67,7 @@ use crate::contact::barrier::{
 };
 use crate::model::SpringSystem;
 use crate::newton::BackwardEuler;
+use crate::pattern::HessianPattern;
 use crate::potential::{HessianSink, PairPlace, StepContext, SymBlock, Term};
 use crate::report::StepError;
 use crate::spring::Curvature;
@@ -269,8 +270,9 @@ pub struct SelfContactTerm {
     /// taken), which the step's [`Term::begin_step`] (at the same state) takes instead
     /// of computing it again. The positions' storage is kept from step to step.
     checked_start: Mutex<(Vec<DVec3>, Option<f64>)>,
-    /// Scratch for the places of the active pairs' coupling blocks in the Newton matrix.
-    places: Mutex<Vec<[PairPlace; 6]>>,
+    /// The places of the active pairs' coupling blocks in the Newton matrix, kept for the
+    /// next active set (see [`KeptPlaces`]).
+    places: Mutex<KeptPlaces>,
     stats: Arc<SelfContactStats>,
 }
 
@@ -352,7 +354,7 @@ impl SelfContactTerm {
             active_regions: Vec::new(),
             segment: Mutex::new(Segment::default()),
             checked_start: Mutex::new((Vec::new(), None)),
-            places: Mutex::new(Vec::new()),
+            places: Mutex::new(KeptPlaces::default()),
             stats: Arc::new(SelfContactStats::default()),
         };
         term.check_state(x, system.fixed())?;
@@ -1451,19 +1453,12 @@ impl Term for SelfContactTerm {
                 }
                 return;
             };
-            // The pattern look-ups (six binary searches a pair) on the pool, the
-            // additions on one thread in the pairs' order, so the values are the bits of
-            // the sequential scatter.
-            let mut places = self.places.lock().unwrap_or_else(PoisonError::into_inner);
-            spread::fill(&mut places, pairs.len(), [PairPlace::Skip; 6], |k| {
-                let e = &pairs[k];
-                if e.present {
-                    PAIR_BLOCKS
-                        .map(|(a, b)| PairPlace::find(pattern, e.particles[a], e.particles[b]))
-                } else {
-                    [PairPlace::Skip; 6]
-                }
-            });
+            // The pattern look-ups (six binary searches a pair) on the pool, or taken from
+            // the last active set's for the pairs it had; the additions on one thread in
+            // the pairs' order, so the values are the bits of the sequential scatter.
+            let mut kept = self.places.lock().unwrap_or_else(PoisonError::into_inner);
+            let listed = (self.active_at.as_slice() == x).then_some(self.active.as_slice());
+            let places = kept.places_for(pattern, listed, pairs);
             let pairs = pairs.iter().zip(hessians).zip(places.iter());
             for ((e, h), place) in pairs.filter(|((e, _), _)| e.present) {
                 scatter(h, e.kind, e.particles, Some(place), sink, &mut missing);
@@ -1561,6 +1556,87 @@ impl Default for PairDerivatives {
             gradient: [0.0; 12],
             span: None,
         }
+    }
+}
+
+/// The places of the coupling blocks of a list of pairs on a pattern, kept so the next
+/// list (the next active set's, mostly the same pairs) looks up only its new pairs: on a
+/// resting stack the look-ups (six binary searches in the matrix's structure a pair,
+/// each reading a few cache lines of it) cost a quarter of the Newton matrix's assembly.
+/// A place is a function of the pair's particles and the pattern alone, so a kept one is
+/// the one a look-up would find.
+#[derive(Debug, Default)]
+struct KeptPlaces {
+    /// The pattern's [`HessianPattern::revision`] (0: nothing kept).
+    revision: u64,
+    /// The pairs (sorted) and, in the same order, their places.
+    pairs: Vec<Candidate>,
+    places: Vec<[PairPlace; 6]>,
+    /// Scratch: the new list's places, and per new pair its index in `pairs` (or
+    /// `usize::MAX`).
+    next: Vec<[PairPlace; 6]>,
+    from: Vec<usize>,
+}
+
+impl KeptPlaces {
+    /// The places of `slots`' coupling blocks on `pattern` (a pair not present gets
+    /// [`PairPlace::Skip`]); `listed`: the pairs the slots are of (sorted), when they are
+    /// the active set's, which are then kept for the next call.
+    fn places_for(
+        &mut self,
+        pattern: &HessianPattern,
+        listed: Option<&[Candidate]>,
+        slots: &[PairDerivatives],
+    ) -> &[[PairPlace; 6]] {
+        let find = |e: &PairDerivatives| {
+            PAIR_BLOCKS.map(|(a, b)| PairPlace::find(pattern, e.particles[a], e.particles[b]))
+        };
+        let Some(listed) = listed.filter(|l| l.len() == slots.len()) else {
+            spread::fill(&mut self.next, slots.len(), [PairPlace::Skip; 6], |k| {
+                let e = &slots[k];
+                if e.present {
+                    find(e)
+                } else {
+                    [PairPlace::Skip; 6]
+                }
+            });
+            return &self.next;
+        };
+        let mut from = std::mem::take(&mut self.from);
+        from.clear();
+        if self.revision == pattern.revision {
+            // Both lists are sorted: a merge.
+            let old = &self.pairs;
+            let mut j = 0;
+            from.extend(listed.iter().map(|c| {
+                while j < old.len() && old[j] < *c {
+                    j += 1;
+                }
+                if j < old.len() && old[j] == *c {
+                    j
+                } else {
+                    usize::MAX
+                }
+            }));
+        } else {
+            from.resize(listed.len(), usize::MAX);
+        }
+        let old = &self.places;
+        // Every pair's places, present or not: a pair kept for a later list may be
+        // present there.
+        spread::fill(&mut self.next, slots.len(), [PairPlace::Skip; 6], |k| {
+            if from[k] == usize::MAX {
+                find(&slots[k])
+            } else {
+                old[from[k]]
+            }
+        });
+        self.from = from;
+        std::mem::swap(&mut self.places, &mut self.next);
+        self.pairs.clear();
+        self.pairs.extend_from_slice(listed);
+        self.revision = pattern.revision;
+        &self.places
     }
 }
 
