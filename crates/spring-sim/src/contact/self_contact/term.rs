@@ -418,31 +418,50 @@ impl SelfContactTerm {
 
     /// A pair's gap (distance minus thickness) at `x`.
     fn gap(&self, c: Candidate, x: &[DVec3]) -> f64 {
+        self.gap_of(&self.placed(c, x))
+    }
+
+    /// The pair `c`'s kind, particles and positions at `x`, gathered once for the several
+    /// values a pass computes of it (each of which gathered them again before).
+    fn placed(&self, c: Candidate, x: &[DVec3]) -> Placed {
         let (kind, v) = self.pair(c);
-        squared_distance(kind, &v.map(|i| x[i])).sqrt() - self.settings.thickness
+        Placed {
+            c,
+            kind,
+            v,
+            p: v.map(|i| x[i]),
+        }
+    }
+
+    /// [`Self::gap`] of a gathered pair.
+    fn gap_of(&self, q: &Placed) -> f64 {
+        squared_distance(q.kind, &q.p).sqrt() - self.settings.thickness
     }
 
     /// [`Self::gap`] (the same operations) with the region of the closest points it
     /// found, which the pair's derivatives then need not find again.
-    fn gap_and_region(&self, c: Candidate, x: &[DVec3]) -> (f64, Closest) {
-        let (kind, v) = self.pair(c);
-        let p = v.map(|i| x[i]);
-        let closest = kind.closest(&p);
-        let gap = squared_distance_in(&values(&p), closest).sqrt() - self.settings.thickness;
+    fn gap_and_region_of(&self, q: &Placed) -> (f64, Closest) {
+        let closest = q.kind.closest(&q.p);
+        let gap = squared_distance_in(&values(&q.p), closest).sqrt() - self.settings.thickness;
         (gap, closest)
     }
 
     /// The pair's values at `x` as the active set keeps them: its separation and, unless
     /// that shows it beyond `dhat`, its gap and the region of its closest points.
     fn near_value(&self, c: Candidate, x: &[DVec3]) -> NearValue {
-        let separation = self.separation(c, x);
+        self.near_value_of(&self.placed(c, x))
+    }
+
+    /// [`Self::near_value`] of a gathered pair.
+    fn near_value_of(&self, q: &Placed) -> NearValue {
+        let separation = separation(q.kind, &q.p);
         if self.beyond_dhat_by(separation) {
             NearValue {
                 separation,
                 ..NearValue::default()
             }
         } else {
-            let (gap, closest) = self.gap_and_region(c, x);
+            let (gap, closest) = self.gap_and_region_of(q);
             NearValue {
                 separation,
                 gap,
@@ -655,16 +674,20 @@ impl SelfContactTerm {
     /// [`Self::pair_energy`] with the pair's gap at `x` given (as [`Self::gap`] computes
     /// it, so the value is the same).
     fn pair_energy_at_gap(&self, kappa: f64, c: Candidate, x: &[DVec3], gap: f64) -> f64 {
+        self.energy_at_gap_of(kappa, &self.placed(c, x), gap)
+    }
+
+    /// [`Self::pair_energy_at_gap`] of a gathered pair.
+    fn energy_at_gap_of(&self, kappa: f64, q: &Placed, gap: f64) -> f64 {
         if gap.is_nan() || gap <= 0.0 {
             return f64::INFINITY;
         }
         if gap >= self.settings.dhat {
             return 0.0;
         }
-        let (_, v) = self.pair(c);
         let m = self
-            .mollifier_threshold(c)
-            .map_or(1.0, |eps| mollifier(&v.map(|i| x[i]), eps));
+            .mollifier_threshold(q.c)
+            .map_or(1.0, |eps| mollifier(&q.p, eps));
         kappa * m * barrier(gap, self.settings.dhat)
     }
 
@@ -879,11 +902,9 @@ impl SelfContactTerm {
         // change), and sits on a cache line of its own: a locked write per pair kept the
         // line moving between the cores, and the sweeps waited on it most of their time.
         let smallest = SharedMinimum(AtomicU64::new(1.0f64.to_bits()));
-        let sweep = |c: Candidate, gap0: f64| {
-            let (kind, v) = self.pair(c);
-            let (p, d) = (v.map(|i| x[i]), v.map(|i| dx[i]));
+        let sweep = |q: &Placed, d: &[DVec3; 4], gap0: f64| {
             let limit = f64::from_bits(smallest.0.load(Ordering::Relaxed));
-            let fraction = additive_ccd_within(kind, &p, &d, thickness, keep, gap0, limit);
+            let fraction = additive_ccd_within(q.kind, &q.p, d, thickness, keep, gap0, limit);
             if fraction < limit {
                 smallest.0.fetch_min(fraction.to_bits(), Ordering::Relaxed);
             }
@@ -903,21 +924,22 @@ impl SelfContactTerm {
                 // A pair the separation shows clear needs no distance; its gap stays
                 // unknown (NaN) unless it was known already. A kept gap comes with its
                 // separation (the active set and an earlier sweep keep both).
+                let q = self.placed(c, x);
                 let sep = if at_start && !kept_separation[k].is_nan() {
                     kept_separation[k]
                 } else {
-                    self.separation(c, x)
+                    separation(q.kind, &q.p)
                 };
-                let (kind, v) = self.pair(c);
-                if clear_by_separation(kind, sep, &v.map(|i| dx[i]), thickness, keep) {
+                let d = q.v.map(|i| dx[i]);
+                if clear_by_separation(q.kind, sep, &d, thickness, keep) {
                     return (f64::NAN, sep, 1.0);
                 }
                 let gap0 = if at_start && !kept[k].is_nan() {
                     kept[k]
                 } else {
-                    self.gap(c, x)
+                    self.gap_of(&q)
                 };
-                (gap0, sep, sweep(c, gap0))
+                (gap0, sep, sweep(&q, &d, gap0))
             });
             for (&k, &(gap0, sep, fraction)) in seg.found.iter().zip(&seg.values) {
                 if at_start {
@@ -937,16 +959,26 @@ impl SelfContactTerm {
         let found = candidates(&self.prims, x, Some(dx), margin, fixed);
         let mut fractions = Vec::new();
         spread::fill(&mut fractions, found.len(), 0.0, |i| {
-            let (kind, v) = self.pair(found[i]);
-            let sep = self.separation(found[i], x);
-            if clear_by_separation(kind, sep, &v.map(|i| dx[i]), thickness, keep) {
+            let q = self.placed(found[i], x);
+            let d = q.v.map(|i| dx[i]);
+            if clear_by_separation(q.kind, separation(q.kind, &q.p), &d, thickness, keep) {
                 1.0
             } else {
-                sweep(found[i], self.gap(found[i], x))
+                sweep(&q, &d, self.gap_of(&q))
             }
         });
         fractions.into_iter().fold(t, f64::min)
     }
+}
+
+/// A pair with its kind, particles and their positions at one state
+/// ([`SelfContactTerm::placed`]).
+#[derive(Clone, Copy, Debug)]
+struct Placed {
+    c: Candidate,
+    kind: PairKind,
+    v: [usize; 4],
+    p: [DVec3; 4],
 }
 
 /// A pair's values at the state the active set was collected at: its [`separation`],
@@ -1329,11 +1361,12 @@ impl Term for SelfContactTerm {
                 let (k, c) = (found[i], list[found[i]]);
                 // The pair's energy at the trial's state from these values is
                 // `pair_energy`'s (the same separation test, the same gap).
-                let near = self.near_value(c, &moved);
+                let q = self.placed(c, &moved);
+                let near = self.near_value_of(&q);
                 let after = if self.beyond_dhat_by(near.separation) {
                     0.0
                 } else {
-                    self.pair_energy_at_gap(kappa, c, &moved, near.gap)
+                    self.energy_at_gap_of(kappa, &q, near.gap)
                 };
                 let before = if at_start && same_kappa && !kept_energy[k].is_nan() {
                     kept_energy[k]
