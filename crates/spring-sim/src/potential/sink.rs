@@ -116,7 +116,8 @@ pub struct MissingPair {
 
 /// Where the coupling block of two distinct particles goes in a values sink, looked up
 /// once ([`PairPlace::find`]) so that a term writing many blocks can look its pairs up on
-/// several threads and add them on one ([`HessianSink::add_pair_at`]).
+/// several threads, keep them, and add its blocks by parts of the matrix
+/// ([`HessianSink::values_mut`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub(crate) enum PairPlace {
     /// A fixed particle: nothing is added.
@@ -370,29 +371,13 @@ impl<'a> HessianSink<'a> {
         }
     }
 
-    /// The pattern of a sink that accumulates matrix values (`None` for the other
-    /// targets).
-    pub(crate) fn values_pattern(&self) -> Option<&'a HessianPattern> {
-        match &self.target {
-            Target::Values { pattern, .. } => Some(pattern),
+    /// The pattern and the values of a sink that accumulates matrix values (`None` for
+    /// the other targets), for a term that adds its blocks by parts of the matrix.
+    pub(crate) fn values_mut(&mut self) -> Option<(&HessianPattern, &mut [f64])> {
+        match &mut self.target {
+            Target::Values { pattern, values } => Some((pattern, values)),
             _ => None,
         }
-    }
-
-    /// [`Self::add_pair`] of particles `i != j` with their place on this sink's pattern
-    /// already found ([`PairPlace::find`] on [`Self::values_pattern`]): the same
-    /// additions in the same order, without the look-up. A missing pair adds nothing (as
-    /// `add_pair`'s `Err`). On the other targets the place is not needed and
-    /// `add_pair` runs.
-    pub(crate) fn add_pair_at(&mut self, place: PairPlace, i: usize, j: usize, b: &DMat3) {
-        let Target::Values { pattern, values } = &mut self.target else {
-            let _ = self.add_pair(i, j, b);
-            return;
-        };
-        let PairPlace::At { col, k, transposed } = place else {
-            return;
-        };
-        add_at(pattern, values, col, k, transposed, b);
     }
 
     /// Adds the block `b` at `(i, j)` (and `b^T` at `(j, i)`), looking the pair up in the
@@ -440,8 +425,7 @@ impl<'a> HessianSink<'a> {
 }
 
 /// Adds `b` (or `b^T` when `transposed`) to the off-diagonal block at `(col, k)` of
-/// [`HessianPattern::off_block_position`]: the one place both pair paths write, so they
-/// add the same values in the same order.
+/// [`HessianPattern::off_block_position`].
 fn add_at(
     pattern: &HessianPattern,
     values: &mut [f64],
@@ -549,51 +533,5 @@ fn edge_product(
     }
     if !fixed[b] {
         out[b] -= t;
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::model::{ClothGrid, SpringSystem};
-
-    /// A block placed beforehand adds exactly what `add_pair` adds (every value slot to
-    /// the bit), in both orders of the particles, and places that are not there (a fixed
-    /// particle, a pair without slots) add nothing, as `add_pair` does.
-    #[test]
-    fn a_pair_added_at_its_found_place_is_add_pair_bit_for_bit() {
-        let system = SpringSystem::cloth(&ClothGrid::lab_sized(5, 0.1)).unwrap();
-        // Particles 0 and 4 are the pinned corners; (6, 18) has slots only through the
-        // extra pair, (7, 19) has none.
-        let pattern = HessianPattern::with_pairs(&system, &[[6, 18]]);
-        let block = |s: f64| {
-            DMat3::from_cols_array(&std::array::from_fn(|k| s * (k as f64 + 0.5).sin() / 3.0))
-        };
-        let pairs = [(1, 2), (2, 1), (6, 18), (18, 6), (0, 5), (7, 19), (12, 13)];
-        let (mut direct, mut placed) = (vec![0.0; pattern.nnz()], vec![0.0; pattern.nnz()]);
-        let mut sink = HessianSink::values(&pattern, &mut direct);
-        let mut missing = Vec::new();
-        for (n, &(i, j)) in pairs.iter().enumerate() {
-            if sink.add_pair(i, j, &block(1.0 + n as f64)).is_err() {
-                missing.push((i, j));
-            }
-        }
-        assert_eq!(missing, [(7, 19)]);
-        let mut sink = HessianSink::values(&pattern, &mut placed);
-        let found = sink.values_pattern().unwrap();
-        let places: Vec<PairPlace> = pairs
-            .iter()
-            .map(|&(i, j)| PairPlace::find(found, i, j))
-            .collect();
-        assert_eq!(places[4], PairPlace::Skip);
-        assert_eq!(places[5], PairPlace::Missing);
-        for (n, (&(i, j), &place)) in pairs.iter().zip(&places).enumerate() {
-            sink.add_pair_at(place, i, j, &block(1.0 + n as f64));
-        }
-        assert!(direct.iter().any(|v| *v != 0.0));
-        assert_eq!(
-            direct.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-            placed.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
-        );
     }
 }

@@ -47,6 +47,28 @@ pub(crate) fn for_each<T: Send>(out: &mut [T], f: impl Fn(usize, &mut T) + Sync 
     }
 }
 
+/// How many parts a pass that splits its output by destination takes: the pool's
+/// threads when the caller runs on a pool (see the module documentation), else one.
+pub(crate) fn parts() -> usize {
+    #[cfg(feature = "parallel")]
+    if on_pool() {
+        return rayon::current_num_threads();
+    }
+    1
+}
+
+/// Calls `f` on every part, as tasks on the caller's pool when there is one, else in
+/// turn on the calling thread.
+pub(crate) fn each<T: Send>(parts: Vec<T>, f: impl Fn(T) + Sync + Send) {
+    #[cfg(feature = "parallel")]
+    if parts.len() > 1 && on_pool() {
+        use rayon::prelude::*;
+        parts.into_par_iter().for_each(f);
+        return;
+    }
+    parts.into_iter().for_each(f);
+}
+
 /// `out` refilled with `f(i)` for `i` in `0..n` (its storage reused), in chunks on the
 /// caller's pool when there is one. Only slots beyond the old length are first set to
 /// `blank`: every slot is overwritten, and blanking the whole list on one thread first

@@ -1480,9 +1480,9 @@ impl Term for SelfContactTerm {
         }
         let mut missing = Vec::new();
         self.with_derivatives(x, step.system.fixed(), Some(form), |pairs, hessians| {
-            let Some(pattern) = sink.values_pattern() else {
+            let Some((pattern, values)) = sink.values_mut() else {
                 for (e, h) in pairs.iter().zip(hessians).filter(|(e, _)| e.present) {
-                    scatter(h, e.kind, e.particles, None, sink, &mut missing);
+                    scatter(h, e.kind, e.particles, sink, &mut missing);
                 }
                 return;
             };
@@ -1492,10 +1492,16 @@ impl Term for SelfContactTerm {
             let mut kept = self.places.lock().unwrap_or_else(PoisonError::into_inner);
             let listed = (self.active_at.as_slice() == x).then_some(self.active.as_slice());
             let places = kept.places_for(pattern, listed, pairs);
-            let pairs = pairs.iter().zip(hessians).zip(places.iter());
-            for ((e, h), place) in pairs.filter(|((e, _), _)| e.present) {
-                scatter(h, e.kind, e.particles, Some(place), sink, &mut missing);
+            for (e, place) in pairs.iter().zip(places).filter(|(e, _)| e.present) {
+                missing.extend(
+                    PAIR_BLOCKS
+                        .iter()
+                        .zip(place)
+                        .filter(|&(_, p)| *p == PairPlace::Missing)
+                        .map(|(&(a, b), _)| [e.particles[a], e.particles[b]]),
+                );
             }
+            scatter_in_parts(pattern, values, pairs, hessians, places);
         });
         if !missing.is_empty() {
             self.stats.note_missing(missing.into_iter());
@@ -1673,56 +1679,114 @@ impl KeptPlaces {
     }
 }
 
-/// Adds a pair's Hessian `h` to `sink`: all of it when the pattern has every coupling
-/// block, else the blocks within each primitive, else the diagonal blocks (see the module
-/// documentation; for an exact, indefinite `h` the partial blocks carry no guarantee,
-/// and the matrix may then be refused and the projected blocks asked for). Particle pairs without slots are pushed to `missing`.
-/// `places`: the places of the six coupling blocks ([`PAIR_BLOCKS`]' order) on the
-/// sink's pattern, found beforehand; `None` looks them up.
-fn scatter(
-    h: &PairBlocks,
-    kind: PairKind,
-    v: [usize; 4],
-    places: Option<&[PairPlace; 6]>,
-    sink: &mut HessianSink<'_>,
-    missing: &mut Vec<[usize; 2]>,
-) {
+/// Which of a pair's six coupling blocks ([`PAIR_BLOCKS`]' order) are added, from
+/// whether the pattern has each: all when it has every one, else those within each
+/// primitive when it has all of these, else none (see the module documentation; for an
+/// exact, indefinite Hessian the partial blocks carry no guarantee, and the matrix may
+/// then be refused and the projected blocks asked for).
+fn kept_blocks(kind: PairKind, has: [bool; 6]) -> [bool; 6] {
     let group = |k: usize| match kind {
         PairKind::PointTriangle => usize::from(k > 0),
         PairKind::EdgeEdge => usize::from(k > 1),
     };
-    // Each pattern look-up once (a binary search per pair of particles).
-    let has: [bool; 6] = match places {
-        Some(places) => places.map(|p| p != PairPlace::Missing),
-        None => PAIR_BLOCKS.map(|(a, b)| sink.has_pair(v[a], v[b])),
-    };
-    let keep_all = has.iter().all(|&h| h);
-    if !keep_all {
-        missing.extend(
-            PAIR_BLOCKS
-                .iter()
-                .zip(has)
-                .filter(|&(_, h)| !h)
-                .map(|(&(a, b), _)| [v[a], v[b]]),
-        );
+    if has.iter().all(|&h| h) {
+        return [true; 6];
     }
-    let keep_within = PAIR_BLOCKS
-        .iter()
-        .zip(has)
-        .filter(|&(&(a, b), _)| group(a) == group(b))
-        .all(|(_, h)| h);
+    let within = PAIR_BLOCKS.map(|(a, b)| group(a) == group(b));
+    let keep_within = within.iter().zip(has).all(|(&w, h)| !w || h);
+    within.map(|w| keep_within && w)
+}
+
+/// [`scatter`] of every present pair, in the pairs' order, straight into the values of
+/// `pattern`, split into parts of consecutive block columns (one per thread of the
+/// caller's pool): each part adds, pair after pair, the blocks that fall in its columns
+/// (a diagonal block in its particle's, a coupling block in the lower particle's). Every
+/// value gets the same additions in the same order as from the sequential scatter, so
+/// the same bits for any number of parts; the parts share no value, so they run side by
+/// side. The scatter on one thread was an eighth of a resting stack's step.
+fn scatter_in_parts(
+    pattern: &HessianPattern,
+    values: &mut [f64],
+    pairs: &[PairDerivatives],
+    hessians: &[PairBlocks],
+    places: &[[PairPlace; 6]],
+) {
+    let columns = pattern.free_particles.len();
+    let col_ptr = pattern.symbolic.col_ptr();
+    let n = spread::parts().min(columns.max(1));
+    let mut parts = Vec::with_capacity(n);
+    let mut rest = values;
+    for p in 0..n {
+        let (first, end) = (columns * p / n, columns * (p + 1) / n);
+        let base = col_ptr[3 * first];
+        let (part, tail) = std::mem::take(&mut rest).split_at_mut(col_ptr[3 * end] - base);
+        parts.push((first..end, base, part));
+        rest = tail;
+    }
+    spread::each(parts, |(columns, base, part)| {
+        let pairs = pairs.iter().zip(hessians).zip(places);
+        for ((e, h), place) in pairs.filter(|((e, _), _)| e.present) {
+            for (k, &i) in e.particles.iter().enumerate() {
+                let f = pattern.free_index[i];
+                if columns.contains(&f) {
+                    for (slot, v) in pattern.diag_slots[f].iter().zip(h.diagonal[k]) {
+                        part[slot - base] += v;
+                    }
+                }
+            }
+            let keep = kept_blocks(e.kind, place.map(|p| p != PairPlace::Missing));
+            for (n, p) in place.iter().enumerate() {
+                let PairPlace::At { col, k, transposed } = *p else {
+                    continue;
+                };
+                if !keep[n] || !columns.contains(&col) {
+                    continue;
+                }
+                let b = &h.coupling[n];
+                for c in 0..3 {
+                    let start = col_ptr[3 * col + c] + (3 - c) + 3 * k - base;
+                    for r in 0..3 {
+                        // The stored block is the given one, or its transpose.
+                        part[start + r] += if transposed {
+                            b[3 * r + c]
+                        } else {
+                            b[3 * c + r]
+                        };
+                    }
+                }
+            }
+        }
+    });
+}
+
+/// Adds a pair's Hessian `h` to `sink` (the blocks [`kept_blocks`] keeps, and the
+/// diagonal blocks), looking each particle pair up in the sink; particle pairs without
+/// slots are pushed to `missing`. [`scatter_in_parts`] is the same additions on a
+/// sink's values with the places found beforehand.
+fn scatter(
+    h: &PairBlocks,
+    kind: PairKind,
+    v: [usize; 4],
+    sink: &mut HessianSink<'_>,
+    missing: &mut Vec<[usize; 2]>,
+) {
+    // Each pattern look-up once (a binary search per pair of particles).
+    let has: [bool; 6] = PAIR_BLOCKS.map(|(a, b)| sink.has_pair(v[a], v[b]));
+    missing.extend(
+        PAIR_BLOCKS
+            .iter()
+            .zip(has)
+            .filter(|&(_, h)| !h)
+            .map(|(&(a, b), _)| [v[a], v[b]]),
+    );
     for (k, &i) in v.iter().enumerate() {
         sink.add_diagonal(i, SymBlock(h.diagonal[k]));
     }
+    let keep = kept_blocks(kind, has);
     for (n, (a, b)) in PAIR_BLOCKS.into_iter().enumerate() {
-        if keep_all || (keep_within && group(a) == group(b)) {
-            match places {
-                Some(places) => sink.add_pair_at(places[n], v[a], v[b], &coupling(h, n)),
-                // Checked above: the pattern has the pair, so this cannot fail.
-                None => {
-                    let _ = sink.add_pair(v[a], v[b], &coupling(h, n));
-                }
-            }
+        if keep[n] {
+            // The pattern has the pair (checked above), so this cannot fail.
+            let _ = sink.add_pair(v[a], v[b], &coupling(h, n));
         }
     }
 }
@@ -1739,4 +1803,103 @@ pub fn enable_self_contact(
     let stats = term.stats();
     integrator.add_term(Box::new(term));
     Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::ClothGrid;
+
+    /// The pairs' blocks added by parts of the matrix's columns give the bits of the
+    /// sequential scatter through the sink's own look-ups (on values already holding
+    /// others, as the springs' are), on one thread and split over pools of two and three:
+    /// pairs in both orders of their particles (so some stored blocks are the
+    /// transposes), with a pinned particle, with particle pairs the pattern lacks (only
+    /// the blocks within each primitive, or only the diagonal ones, are added), and
+    /// pairs not present.
+    #[test]
+    fn blocks_added_by_parts_are_the_sequential_scatters_bit_for_bit() {
+        let system = SpringSystem::cloth(&ClothGrid::lab_sized(6, 0.1)).unwrap();
+        let n = system.len();
+        // Every particle pair (i, j) with i + j not a multiple of 7 has slots.
+        let extra: Vec<[usize; 2]> = (0..n)
+            .flat_map(|i| (i + 1..n).map(move |j| [i, j]))
+            .filter(|[i, j]| (i + j) % 7 != 0)
+            .collect();
+        let pattern = HessianPattern::with_pairs(&system, &extra);
+        // A Weyl sequence picks four distinct particles per pair.
+        let mut w = 0.0f64;
+        let mut next = |m: usize| {
+            w = (w + 0.618_033_988_749_895) % 1.0;
+            (w * m as f64) as usize
+        };
+        let mut pairs = Vec::new();
+        let mut hessians = Vec::new();
+        for k in 0..400 {
+            let mut v = [0usize; 4];
+            for s in 0..4 {
+                v[s] = loop {
+                    let p = next(n);
+                    if !v[..s].contains(&p) {
+                        break p;
+                    }
+                };
+            }
+            pairs.push(PairDerivatives {
+                kind: if k % 2 == 0 {
+                    PairKind::PointTriangle
+                } else {
+                    PairKind::EdgeEdge
+                },
+                particles: v,
+                present: k % 11 != 3,
+                ..PairDerivatives::default()
+            });
+            let mut h = PairBlocks::default();
+            for (e, x) in h.diagonal.iter_mut().flatten().enumerate() {
+                *x = ((k * 97 + e) as f64 * 0.37).sin();
+            }
+            for (e, x) in h.coupling.iter_mut().flatten().enumerate() {
+                *x = ((k * 89 + e) as f64 * 0.53).cos();
+            }
+            hessians.push(h);
+        }
+        let places: Vec<[PairPlace; 6]> = pairs
+            .iter()
+            .map(|e| {
+                PAIR_BLOCKS.map(|(a, b)| PairPlace::find(&pattern, e.particles[a], e.particles[b]))
+            })
+            .collect();
+        let start: Vec<f64> = (0..pattern.nnz())
+            .map(|k| (k as f64 * 0.11).sin())
+            .collect();
+        let mut sequential = start.clone();
+        let mut missing = Vec::new();
+        let mut sink = HessianSink::values(&pattern, &mut sequential);
+        for (e, h) in pairs.iter().zip(&hessians).filter(|(e, _)| e.present) {
+            scatter(h, e.kind, e.particles, &mut sink, &mut missing);
+        }
+        assert!(
+            !missing.is_empty(),
+            "every pair has its slots: the case tests less"
+        );
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let mut parted = start.clone();
+        scatter_in_parts(&pattern, &mut parted, &pairs, &hessians, &places);
+        assert_eq!(bits(&parted), bits(&sequential));
+        #[cfg(feature = "parallel")]
+        for threads in [2, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let mut parted = start.clone();
+            pool.install(|| {
+                assert_eq!(spread::parts(), threads);
+                scatter_in_parts(&pattern, &mut parted, &pairs, &hessians, &places);
+            });
+            assert_eq!(bits(&parted), bits(&sequential), "{threads} threads");
+        }
+        assert_ne!(bits(&sequential), bits(&start));
+    }
 }
