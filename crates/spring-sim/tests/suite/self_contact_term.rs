@@ -468,6 +468,19 @@ fn an_active_set_at_a_trials_state_takes_its_values_and_answers_as_a_fresh_term(
                 hessian_product(&reference, &step, &next, curvature, &z)
             );
         }
+        // The next line search from that state starts from the values the active set
+        // took (separations, gaps and the trial's energies).
+        let further: Vec<DVec3> = path.iter().map(|d| 0.5 * *d).collect();
+        assert_eq!(
+            term.max_step(&step, &next, &further, 1.0).to_bits(),
+            reference.max_step(&step, &next, &further, 1.0).to_bits()
+        );
+        assert_eq!(
+            term.energy_change(&step, &next, &further, 1.0).to_bits(),
+            reference
+                .energy_change(&step, &next, &further, 1.0)
+                .to_bits()
+        );
         start.set_state(&next, &v).unwrap();
         assert!(term.check_start(&start, 0.0).is_ok());
         assert!(reference.check_start(&start, 0.0).is_ok());

@@ -69,6 +69,23 @@ pub(crate) fn each<T: Send>(parts: Vec<T>, f: impl Fn(T) + Sync + Send) {
     parts.into_iter().for_each(f);
 }
 
+/// Calls `f(first, chunk)` for consecutive chunks of `out` (`first` the index of the
+/// chunk's first element), on the caller's pool when there is one, else once with the
+/// whole of `out`: `f` must treat a range alike whether it is given whole or in pieces.
+pub(crate) fn for_each_chunk<T: Send>(out: &mut [T], f: impl Fn(usize, &mut [T]) + Sync + Send) {
+    #[cfg(feature = "parallel")]
+    if out.len() > CHUNK && on_pool() {
+        use rayon::prelude::*;
+        // Chunks of a few pages: the callers' work per element is a few loads and stores.
+        const ELEMENTS: usize = 16 * CHUNK;
+        out.par_chunks_mut(ELEMENTS)
+            .enumerate()
+            .for_each(|(c, chunk)| f(c * ELEMENTS, chunk));
+        return;
+    }
+    f(0, out);
+}
+
 /// `out` refilled with `f(i)` for `i` in `0..n` (its storage reused), in chunks on the
 /// caller's pool when there is one. Only slots beyond the old length are first set to
 /// `blank`: every slot is overwritten, and blanking the whole list on one thread first

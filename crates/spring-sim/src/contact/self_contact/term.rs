@@ -253,6 +253,8 @@ pub struct SelfContactTerm {
     /// and that list's [`Segment::list_id`] (`None`: found by hashing the mesh).
     near_positions: Vec<usize>,
     near_list: Option<u64>,
+    /// The stiffness `near_values`' energies were computed with (those not NaN).
+    near_kappa: f64,
     /// What [`Term::check_start`] would find at `active_at`: the smallest gap within
     /// `dhat` and the first pair (in `near`'s order) whose gap is zero, negative or NaN,
     /// with the fixed flags the pairs were found with. A step starts where the last one
@@ -349,6 +351,7 @@ impl SelfContactTerm {
             near_values: Vec::new(),
             near_positions: Vec::new(),
             near_list: None,
+            near_kappa: f64::NAN,
             near_summary: (f64::INFINITY, None),
             near_fixed: Vec::new(),
             active_regions: Vec::new(),
@@ -466,6 +469,7 @@ impl SelfContactTerm {
                 separation,
                 gap,
                 closest,
+                ..NearValue::default()
             }
         }
     }
@@ -482,7 +486,12 @@ impl SelfContactTerm {
     /// distance, several times the cost, is not needed. Most pairs the broad phase lists
     /// along a long step are such pairs.
     fn beyond_dhat_by(&self, separation: f64) -> bool {
-        separation >= (self.settings.dhat + self.settings.thickness) * (1.0 + SEPARATION_MARGIN)
+        separation >= self.beyond_dhat_threshold()
+    }
+
+    /// The separation from which [`Self::beyond_dhat_by`] holds.
+    fn beyond_dhat_threshold(&self) -> f64 {
+        (self.settings.dhat + self.settings.thickness) * (1.0 + SEPARATION_MARGIN)
     }
 
     /// [`Self::beyond_dhat_by`] the pair's separation at `x`.
@@ -544,8 +553,7 @@ impl SelfContactTerm {
             // A later Newton iteration's segment usually lies inside the last one's
             // region (the steps shrink as Newton converges): its list serves as it is.
             let pairs = std::mem::take(&mut segment.pairs);
-            segment.reset(pairs, x, self.kappa());
-            self.seed_from_active_set(&mut segment, x);
+            self.reset_from_active_set(&mut segment, pairs, x);
             return;
         }
         // The region is kept wider than the segment by up to the segment's own length
@@ -557,29 +565,32 @@ impl SelfContactTerm {
             .min(margin);
         self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
         let pairs = CandidateCache::with_slack(&self.prims, x, Some(dx), margin, slack, fixed);
-        segment.reset(pairs, x, self.kappa());
         segment.list_id += 1;
-        self.seed_from_active_set(&mut segment, x);
+        self.reset_from_active_set(&mut segment, pairs, x);
     }
 
-    /// Gives the segment starting at `x` the separations and gaps the active set has
-    /// just computed there, for the pairs both lists hold (a merge: both are sorted), so
-    /// the cap's sweeps and the line search's energies at `x` do not compute them again.
-    /// A gap is given only where the active set computed it (not where the separation
-    /// showed the pair beyond `dhat`), as the segment would have: the same values, so
-    /// the same answers, bit for bit.
-    fn seed_from_active_set(&self, seg: &mut Segment, x: &[DVec3]) {
-        if self.active_at.as_slice() != x {
+    /// Resets the segment to `pairs` from `x`, with the separations, gaps and (when
+    /// computed with the segment's stiffness) energies the active set has just computed
+    /// there, for the pairs both lists hold, so the cap's sweeps and the line search's
+    /// energies at `x` do not compute them again: the active set's positions in the list
+    /// when it was filtered from it (the usual case: the list serves several Newton
+    /// iterations), else a merge (both lists are sorted). The same values, so the same
+    /// answers, bit for bit.
+    fn reset_from_active_set(&self, seg: &mut Segment, pairs: CandidateCache, x: &[DVec3]) {
+        let kappa = self.kappa();
+        let at_active = self.active_at.as_slice() == x;
+        let seed = Seed {
+            positions: &self.near_positions,
+            values: &self.near_values,
+            energies: self.near_kappa.to_bits() == kappa.to_bits(),
+            beyond: self.beyond_dhat_threshold(),
+        };
+        if at_active && self.near_list == Some(seg.list_id) {
+            seg.reset_seeded(pairs, x, kappa, Some(seed));
             return;
         }
-        if self.near_list == Some(seg.list_id) {
-            // The active set's pairs were filtered from this list: their positions.
-            for (&k, v) in self.near_positions.iter().zip(&self.near_values) {
-                seg.separation[k] = v.separation;
-                if !self.beyond_dhat_by(v.separation) {
-                    seg.gap[k] = v.gap;
-                }
-            }
+        seg.reset(pairs, x, kappa);
+        if !at_active {
             return;
         }
         let list = seg.pairs.list();
@@ -589,11 +600,7 @@ impl SelfContactTerm {
                 std::cmp::Ordering::Less => i += 1,
                 std::cmp::Ordering::Greater => j += 1,
                 std::cmp::Ordering::Equal => {
-                    let v = self.near_values[j];
-                    seg.separation[i] = v.separation;
-                    if !self.beyond_dhat_by(v.separation) {
-                        seg.gap[i] = v.gap;
-                    }
+                    seg.kept[i] = seed.kept(&self.near_values[j]);
                     i += 1;
                     j += 1;
                 }
@@ -917,16 +924,15 @@ impl SelfContactTerm {
             // Per found pair its gap at `x` (kept once computed) and its safe fraction,
             // on the pool; the minimum does not depend on the order.
             let at_start = seg.starts_at(x);
-            let (found, list) = (&seg.found, seg.pairs.list());
-            let (kept, kept_separation) = (&seg.gap, &seg.separation);
+            let (found, list, kept) = (&seg.found, seg.pairs.list(), &seg.kept);
             spread::fill(&mut seg.values, found.len(), (0.0, 0.0, 0.0), |i| {
                 let (k, c) = (found[i], list[found[i]]);
                 // A pair the separation shows clear needs no distance; its gap stays
                 // unknown (NaN) unless it was known already. A kept gap comes with its
                 // separation (the active set and an earlier sweep keep both).
                 let q = self.placed(c, x);
-                let sep = if at_start && !kept_separation[k].is_nan() {
-                    kept_separation[k]
+                let sep = if at_start && !kept[k].separation.is_nan() {
+                    kept[k].separation
                 } else {
                     separation(q.kind, &q.p)
                 };
@@ -934,8 +940,8 @@ impl SelfContactTerm {
                 if clear_by_separation(q.kind, sep, &d, thickness, keep) {
                     return (f64::NAN, sep, 1.0);
                 }
-                let gap0 = if at_start && !kept[k].is_nan() {
-                    kept[k]
+                let gap0 = if at_start && !kept[k].gap.is_nan() {
+                    kept[k].gap
                 } else {
                     self.gap_of(&q)
                 };
@@ -944,10 +950,10 @@ impl SelfContactTerm {
             for (&k, &(gap0, sep, fraction)) in seg.found.iter().zip(&seg.values) {
                 if at_start {
                     if !gap0.is_nan() {
-                        seg.gap[k] = gap0;
+                        seg.kept[k].gap = gap0;
                     }
                     if !sep.is_nan() {
-                        seg.separation[k] = sep;
+                        seg.kept[k].separation = sep;
                     }
                 }
                 t = t.min(fraction);
@@ -989,6 +995,9 @@ struct NearValue {
     separation: f64,
     gap: f64,
     closest: Closest,
+    /// The pair's energy there when a line-search trial computed it (with the stiffness
+    /// the trial kept), else NaN.
+    energy: f64,
 }
 
 impl Default for NearValue {
@@ -997,6 +1006,7 @@ impl Default for NearValue {
             separation: f64::NAN,
             gap: f64::INFINITY,
             closest: Closest::PointPoint([0, 1]),
+            energy: f64::NAN,
         }
     }
 }
@@ -1015,11 +1025,8 @@ struct Segment {
     start: Vec<DVec3>,
     /// The barrier stiffness the energies were computed with.
     kappa: f64,
-    /// NaN where not computed yet (a NaN gap is recomputed every time, as before).
-    gap: Vec<f64>,
-    energy: Vec<f64>,
-    /// Each pair's [`separation`] at the start (NaN where not computed yet).
-    separation: Vec<f64>,
+    /// Per listed pair, its values at the start (NaN where not computed yet).
+    kept: Vec<Kept>,
     /// Scratch, its storage reused: a query's positions in the list, and up to three
     /// values per found pair.
     found: Vec<usize>,
@@ -1036,12 +1043,59 @@ struct Segment {
     list_id: u64,
 }
 
+/// A listed pair's values at the segment's start: its [`separation`], its gap (NaN where
+/// not computed, or where the separation showed the pair beyond `dhat`) and its energy
+/// (NaN where not computed).
+#[derive(Clone, Copy, Debug)]
+struct Kept {
+    separation: f64,
+    gap: f64,
+    energy: f64,
+}
+
+impl Default for Kept {
+    fn default() -> Self {
+        Self {
+            separation: f64::NAN,
+            gap: f64::NAN,
+            energy: f64::NAN,
+        }
+    }
+}
+
+/// The values an active set computed at a segment's start, for the pairs at `positions`
+/// (ascending) of the segment's list: each pair's separation and gap, and its energy
+/// when `energies` (the values' energies were computed with the segment's stiffness).
+struct Seed<'a> {
+    positions: &'a [usize],
+    values: &'a [NearValue],
+    energies: bool,
+    /// [`SelfContactTerm::beyond_dhat_by`]'s threshold.
+    beyond: f64,
+}
+
+impl Seed<'_> {
+    /// The kept values of a pair whose active-set values are `v`: a gap only where the
+    /// active set computed it (not where the separation showed the pair beyond `dhat`),
+    /// as the segment would have.
+    fn kept(&self, v: &NearValue) -> Kept {
+        let beyond = v.separation >= self.beyond;
+        Kept {
+            separation: v.separation,
+            gap: if beyond { f64::NAN } else { v.gap },
+            energy: if self.energies { v.energy } else { f64::NAN },
+        }
+    }
+}
+
 /// A line-search trial's state and, per pair its query found (positions in the
 /// segment's list, ascending), the pair's values there and its energies at the trial's
 /// state and at the segment's start.
 #[derive(Debug, Default)]
 struct Trial {
     at: Vec<DVec3>,
+    /// The stiffness the trial's energies were computed with.
+    kappa: f64,
     found: Vec<usize>,
     values: Vec<TrialValue>,
 }
@@ -1057,11 +1111,11 @@ struct Asked {
     fixed: Vec<bool>,
 }
 
-/// [`Trial`]'s values of one pair.
+/// [`Trial`]'s values of one pair: its values at the trial's state (with its energy
+/// there) and its energy at the segment's start.
 #[derive(Clone, Copy, Debug, Default)]
 struct TrialValue {
     near: NearValue,
-    after: f64,
     before: f64,
 }
 
@@ -1069,17 +1123,43 @@ impl Segment {
     /// Keeps `pairs`, collected from `start`, with no values yet; the arrays' storage is
     /// reused.
     fn reset(&mut self, pairs: CandidateCache, start: &[DVec3], kappa: f64) {
+        self.reset_seeded(pairs, start, kappa, None);
+    }
+
+    /// [`Self::reset`] with the values of `seed`, when given, for the listed pairs at
+    /// its positions (ascending) in the list: written in the same pass over the kept
+    /// values, on the pool, instead of blanking every value on one thread and then
+    /// writing the seed's one by one.
+    fn reset_seeded(
+        &mut self,
+        pairs: CandidateCache,
+        start: &[DVec3],
+        kappa: f64,
+        seed: Option<Seed<'_>>,
+    ) {
         let n = pairs.len();
         self.pairs = pairs;
         self.start.clear();
         self.start.extend_from_slice(start);
         self.kappa = kappa;
-        self.gap.clear();
-        self.gap.resize(n, f64::NAN);
-        self.energy.clear();
-        self.energy.resize(n, f64::NAN);
-        self.separation.clear();
-        self.separation.resize(n, f64::NAN);
+        // Every value is overwritten below.
+        self.kept.truncate(n);
+        self.kept.resize(n, Kept::default());
+        spread::for_each_chunk(&mut self.kept, |first, chunk| {
+            let Some(seed) = &seed else {
+                chunk.fill(Kept::default());
+                return;
+            };
+            let mut j = seed.positions.partition_point(|&k| k < first);
+            for (k, kept) in (first..).zip(chunk.iter_mut()) {
+                *kept = if seed.positions.get(j) == Some(&k) {
+                    j += 1;
+                    seed.kept(&seed.values[j - 1])
+                } else {
+                    Kept::default()
+                };
+            }
+        });
         // The trials' positions may refer to the list replaced (and an active set at the
         // new start was collected before it), and so may the last query's answer.
         for t in &mut self.trials {
@@ -1253,7 +1333,9 @@ impl Term for SelfContactTerm {
                 }
             }));
         }
-        // The trial's values are taken out while the pool fills the active set's.
+        // The trial's values are taken out while the pool fills the active set's; their
+        // energies were computed with the trial's stiffness.
+        self.near_kappa = trial.map_or(f64::NAN, |t| seg.trials[t].kappa);
         let kept = trial.map(|t| std::mem::take(&mut seg.trials[t].values));
         spread::fill(
             &mut values,
@@ -1354,40 +1436,36 @@ impl Term for SelfContactTerm {
             let trial = &mut seg.trials[0];
             trial.found.clear();
             trial.found.extend_from_slice(&seg.found);
-            let (found, list) = (&seg.found, seg.pairs.list());
-            let (kept_gap, kept_energy) = (&seg.gap, &seg.energy);
-            let kept_separation = &seg.separation;
+            let (found, list, kept) = (&seg.found, seg.pairs.list(), &seg.kept);
             spread::fill(&mut trial.values, found.len(), TrialValue::default(), |i| {
                 let (k, c) = (found[i], list[found[i]]);
                 // The pair's energy at the trial's state from these values is
                 // `pair_energy`'s (the same separation test, the same gap).
                 let q = self.placed(c, &moved);
-                let near = self.near_value_of(&q);
-                let after = if self.beyond_dhat_by(near.separation) {
+                let mut near = self.near_value_of(&q);
+                near.energy = if self.beyond_dhat_by(near.separation) {
                     0.0
                 } else {
                     self.energy_at_gap_of(kappa, &q, near.gap)
                 };
-                let before = if at_start && same_kappa && !kept_energy[k].is_nan() {
-                    kept_energy[k]
-                } else if at_start && !kept_gap[k].is_nan() {
-                    self.pair_energy_at_gap(kappa, c, x, kept_gap[k])
-                } else if at_start && self.beyond_dhat_by(kept_separation[k]) {
+                let kept = &kept[k];
+                let before = if at_start && same_kappa && !kept.energy.is_nan() {
+                    kept.energy
+                } else if at_start && !kept.gap.is_nan() {
+                    self.pair_energy_at_gap(kappa, c, x, kept.gap)
+                } else if at_start && self.beyond_dhat_by(kept.separation) {
                     0.0
                 } else {
                     self.pair_energy(kappa, c, x)
                 };
-                TrialValue {
-                    near,
-                    after,
-                    before,
-                }
+                TrialValue { near, before }
             });
             trial.at = moved;
+            trial.kappa = kappa;
             for (&k, value) in seg.found.iter().zip(&seg.trials[0].values) {
-                let (after, before) = (value.after, value.before);
+                let (after, before) = (value.near.energy, value.before);
                 if at_start && same_kappa {
-                    seg.energy[k] = before;
+                    seg.kept[k].energy = before;
                 }
                 if after == f64::INFINITY {
                     return f64::INFINITY;
