@@ -127,12 +127,9 @@ pub(crate) enum PairPlace {
     Missing,
     /// The block's place ([`HessianPattern::off_block_position`]), and whether the
     /// stored block is the given one's transpose (the first particle's free index is
-    /// the lower one).
-    At {
-        col: usize,
-        k: usize,
-        transposed: bool,
-    },
+    /// the lower one). Kept in 32 bits each: a term keeps six per pair for tens of
+    /// thousands of pairs, and reads them all at every assembly.
+    At { col: u32, k: u32, transposed: bool },
 }
 
 impl PairPlace {
@@ -143,10 +140,16 @@ impl PairPlace {
             return Self::Skip;
         }
         match pattern.off_block_position(fi, fj) {
-            Some((col, k)) => Self::At {
-                col,
-                k,
-                transposed: fi < fj,
+            // A pattern's columns and blocks per column fit 32 bits (the matrix's
+            // dimension does, for faer's indices); a place that did not would be looked
+            // up as missing rather than wrapped.
+            Some((col, k)) => match (u32::try_from(col), u32::try_from(k)) {
+                (Ok(col), Ok(k)) => Self::At {
+                    col,
+                    k,
+                    transposed: fi < fj,
+                },
+                _ => Self::Missing,
             },
             None => Self::Missing,
         }
