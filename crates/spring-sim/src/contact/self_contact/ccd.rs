@@ -83,10 +83,15 @@ pub fn clear_by_separation(
 ) -> bool {
     // A NaN separation fails the first test.
     let lower = separation * (1.0 - SEPARATION_MARGIN) - thickness;
-    lower > 0.0 && {
-        let lp = approach_bound(kind, dx);
-        lp.is_finite() && lp <= lower * (1.0 - keep)
-    }
+    lower > 0.0 && clear_with_bound(separation, approach_bound(kind, dx), thickness, keep)
+}
+
+/// [`clear_by_separation`] with the pair's [`approach_bound`] `lp` given (a caller that
+/// sweeps the pair when it is not clear computes the bound once for both).
+#[must_use]
+pub fn clear_with_bound(separation: f64, lp: f64, thickness: f64, keep: f64) -> bool {
+    let lower = separation * (1.0 - SEPARATION_MARGIN) - thickness;
+    lower > 0.0 && lp.is_finite() && lp <= lower * (1.0 - keep)
 }
 
 /// [`additive_ccd`] with the pair's gap at `t = 0` given (`gap0` must be
@@ -110,7 +115,31 @@ pub fn additive_ccd_within(
     gap0: f64,
     limit: f64,
 ) -> f64 {
-    let lp = approach_bound(kind, dx);
+    additive_ccd_with_bound(
+        kind,
+        x,
+        dx,
+        approach_bound(kind, dx),
+        thickness,
+        keep,
+        gap0,
+        limit,
+    )
+}
+
+/// [`additive_ccd_within`] with the pair's [`approach_bound`] `lp` given.
+#[allow(clippy::too_many_arguments)]
+#[must_use]
+pub fn additive_ccd_with_bound(
+    kind: PairKind,
+    x: &[DVec3; 4],
+    dx: &[DVec3; 4],
+    lp: f64,
+    thickness: f64,
+    keep: f64,
+    gap0: f64,
+    limit: f64,
+) -> f64 {
     let gap_at = |t: f64| {
         let xt: [DVec3; 4] = std::array::from_fn(|k| x[k] + t * dx[k]);
         squared_distance(kind, &xt).sqrt() - thickness

@@ -51,7 +51,7 @@
 //! iteration on the Newton matrix has the pairs' full blocks.
 
 use super::broad::{Candidate, CandidateCache, Primitives, candidates};
-use super::ccd::{additive_ccd_within, clear_by_separation};
+use super::ccd::{additive_ccd_with_bound, approach_bound, clear_with_bound};
 use super::closed::{PAIR_BLOCKS, PairBlocks, RegionForm, Span};
 use super::distance::{
     Closest, PairKind, SEPARATION_MARGIN, mollifier, mollifier_derivatives, separation,
@@ -909,9 +909,10 @@ impl SelfContactTerm {
         // change), and sits on a cache line of its own: a locked write per pair kept the
         // line moving between the cores, and the sweeps waited on it most of their time.
         let smallest = SharedMinimum(AtomicU64::new(1.0f64.to_bits()));
-        let sweep = |q: &Placed, d: &[DVec3; 4], gap0: f64| {
+        let sweep = |q: &Placed, d: &[DVec3; 4], lp: f64, gap0: f64| {
             let limit = f64::from_bits(smallest.0.load(Ordering::Relaxed));
-            let fraction = additive_ccd_within(q.kind, &q.p, d, thickness, keep, gap0, limit);
+            let fraction =
+                additive_ccd_with_bound(q.kind, &q.p, d, lp, thickness, keep, gap0, limit);
             if fraction < limit {
                 smallest.0.fetch_min(fraction.to_bits(), Ordering::Relaxed);
             }
@@ -937,7 +938,8 @@ impl SelfContactTerm {
                     separation(q.kind, &q.p)
                 };
                 let d = q.v.map(|i| dx[i]);
-                if clear_by_separation(q.kind, sep, &d, thickness, keep) {
+                let lp = approach_bound(q.kind, &d);
+                if clear_with_bound(sep, lp, thickness, keep) {
                     return (f64::NAN, sep, 1.0);
                 }
                 let gap0 = if at_start && !kept[k].gap.is_nan() {
@@ -945,7 +947,7 @@ impl SelfContactTerm {
                 } else {
                     self.gap_of(&q)
                 };
-                (gap0, sep, sweep(&q, &d, gap0))
+                (gap0, sep, sweep(&q, &d, lp, gap0))
             });
             for (&k, &(gap0, sep, fraction)) in seg.found.iter().zip(&seg.values) {
                 if at_start {
@@ -967,10 +969,11 @@ impl SelfContactTerm {
         spread::fill(&mut fractions, found.len(), 0.0, |i| {
             let q = self.placed(found[i], x);
             let d = q.v.map(|i| dx[i]);
-            if clear_by_separation(q.kind, separation(q.kind, &q.p), &d, thickness, keep) {
+            let lp = approach_bound(q.kind, &d);
+            if clear_with_bound(separation(q.kind, &q.p), lp, thickness, keep) {
                 1.0
             } else {
-                sweep(&q, &d, self.gap_of(&q))
+                sweep(&q, &d, lp, self.gap_of(&q))
             }
         });
         fractions.into_iter().fold(t, f64::min)
