@@ -244,32 +244,13 @@ impl RegionForm {
     // Index loops over rows and columns read as the matrix formulas they implement.
     #[allow(clippy::needless_range_loop)]
     pub(crate) fn span(&self, first: f64, second: f64) -> Option<Span> {
-        let c_len = self.c.iter().map(|c| c * c).sum::<f64>().sqrt();
-        let r_len = self.r.length();
-        if !(c_len > 0.0 && r_len > 0.0 && c_len.is_finite() && r_len.is_finite()) {
-            return None;
-        }
-        let c_hat = self.c.map(|c| c / c_len);
-        let r_hat = self.r / r_len;
-        // b_l: Gram-Schmidt of the a_j against c_hat and each other.
-        let mut b = [[0.0; 4]; 2];
-        let remove = |v: &mut [f64; 4], u: &[f64; 4]| {
-            let d: f64 = (0..4).map(|k| v[k] * u[k]).sum();
-            (0..4).for_each(|k| v[k] -= d * u[k]);
-        };
-        for j in 0..self.m {
-            let mut v = self.a[j];
-            remove(&mut v, &c_hat);
-            for l in 0..j {
-                let u = b[l];
-                remove(&mut v, &u);
-            }
-            let len = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-            if !(len > 0.0 && len.is_finite()) {
-                return None;
-            }
-            b[j] = v.map(|x| x / len);
-        }
+        let Basis {
+            c_len,
+            r_len,
+            c_hat,
+            r_hat,
+            b,
+        } = self.basis()?;
         let n = 3 + self.m;
         // The coordinates in the basis of grad s (U part 2 |c| r) and of the rows of J
         // (U part 2 ((a_j . c_hat) r + |c| e_j), V part 2 |r| (a_j . b_l)).
@@ -315,6 +296,90 @@ impl RegionForm {
             r_hat,
             b,
         })
+    }
+}
+
+/// What [`RegionForm::span`] builds its basis from: `|c|`, `|r|`, `c / |c|`, `r / |r|`
+/// and the `b_l`, the `a_j` orthonormalized against `c / |c|` and each other.
+struct Basis {
+    c_len: f64,
+    r_len: f64,
+    c_hat: [f64; 4],
+    r_hat: DVec3,
+    b: [[f64; 4]; 2],
+}
+
+/// The bound below which every factor of `K` keeps its products finite. With every
+/// factor below it (and the unit vectors' components at most 1), a row of `J` is below
+/// `1e61`, so `second grad grad^T` is below `4e150` and `first J^T M^-1 J` (four
+/// terms) below `4e182`: `K` is finite, far from the largest `f64` (about `1.8e308`).
+const FACTOR_BOUND: f64 = 1e30;
+
+impl RegionForm {
+    /// [`RegionForm::span`]'s basis, `None` when the pair is degenerate (`r = 0`, or a
+    /// region's parametrization singular).
+    // Index loops over the four weights read as the formulas they implement.
+    #[allow(clippy::needless_range_loop)]
+    fn basis(&self) -> Option<Basis> {
+        let c_len = self.c.iter().map(|c| c * c).sum::<f64>().sqrt();
+        let r_len = self.r.length();
+        if !(c_len > 0.0 && r_len > 0.0 && c_len.is_finite() && r_len.is_finite()) {
+            return None;
+        }
+        let c_hat = self.c.map(|c| c / c_len);
+        let r_hat = self.r / r_len;
+        // b_l: Gram-Schmidt of the a_j against c_hat and each other.
+        let mut b = [[0.0; 4]; 2];
+        let remove = |v: &mut [f64; 4], u: &[f64; 4]| {
+            let d: f64 = (0..4).map(|k| v[k] * u[k]).sum();
+            (0..4).for_each(|k| v[k] -= d * u[k]);
+        };
+        for j in 0..self.m {
+            let mut v = self.a[j];
+            remove(&mut v, &c_hat);
+            for l in 0..j {
+                let u = b[l];
+                remove(&mut v, &u);
+            }
+            let len = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if !(len > 0.0 && len.is_finite()) {
+                return None;
+            }
+            b[j] = v.map(|x| x / len);
+        }
+        Some(Basis {
+            c_len,
+            r_len,
+            c_hat,
+            r_hat,
+            b,
+        })
+    }
+
+    /// Whether [`Self::span`] certainly returns `Some` for `first` and `second`, decided
+    /// without building `K`: the basis exists, and every factor `K` is built from (the
+    /// weights and vectors of the form, `|c|`, `|r|`, `M^-1`, `first` and `second`) is
+    /// finite and below [`FACTOR_BOUND`], so no entry of `K` can overflow or be NaN. A
+    /// caller that has the gradient now and may want the Hessian later keeps the inputs
+    /// and builds the span then, the same function of the same numbers.
+    pub(crate) fn spans_certainly(&self, first: f64, second: f64) -> bool {
+        let small = |x: f64| x.abs() < FACTOR_BOUND;
+        let Some(basis) = self.basis() else {
+            return false;
+        };
+        let minv = self.m_inverse();
+        small(first)
+            && small(second)
+            && small(basis.c_len)
+            && small(basis.r_len)
+            && self.c.iter().all(|&x| small(x))
+            && self.a.iter().flatten().all(|&x| small(x))
+            && self
+                .e
+                .iter()
+                .all(|e| e.to_array().iter().all(|&x| small(x)))
+            && self.r.to_array().iter().all(|&x| small(x))
+            && minv.iter().flatten().all(|&x| small(x))
     }
 }
 
@@ -541,5 +606,55 @@ mod tests {
             }
         }
         assert!(compared > 700, "only {compared} spans compared");
+    }
+
+    /// Where `spans_certainly` holds, `span` gives a span (the caller then builds it only
+    /// when a Hessian is asked for): over random pairs of both kinds at unit scale, the
+    /// same pairs scaled up to 1e20 and 1e100 (where it may not hold, and `K` may
+    /// overflow), degenerate pairs (a point on the triangle's plane, parallel edges,
+    /// coincident vertices) and barrier derivatives from 1e-3 to 1e150.
+    #[test]
+    fn a_span_certain_from_its_inputs_is_built() {
+        let mut index = 0u32;
+        let mut next = move || {
+            index += 1;
+            (f64::from(index) * 0.618_033_988_749_894_9).fract() * 2.0 - 1.0
+        };
+        let (mut certain, mut declined, mut uncertain_built) = (0, 0, 0);
+        for n in 0..600 {
+            let kind = if n % 2 == 0 {
+                PairKind::PointTriangle
+            } else {
+                PairKind::EdgeEdge
+            };
+            let scale = [1.0, 1e20, 1e100][n % 3];
+            let mut p: [DVec3; 4] =
+                std::array::from_fn(|_| scale * DVec3::new(next(), next(), next()));
+            match n % 7 {
+                // The point in the triangle's plane, or the second edge parallel to the
+                // first.
+                0 => p[0] = 0.25 * (p[1] + p[2]) + 0.5 * p[3],
+                1 => p[3] = p[2] + 2.0 * (p[1] - p[0]),
+                2 => p[1] = p[0],
+                _ => {}
+            }
+            let magnitude = [1e-3, 1.0, 1e10, 1e28, 1e150][n % 5];
+            let (first, second) = (next() * magnitude, next() * magnitude);
+            let form = RegionForm::new(&p, kind.closest(&p));
+            let span = form.span(first, second);
+            if form.spans_certainly(first, second) {
+                assert!(span.is_some(), "pair {n}: certain, but no span");
+                certain += 1;
+            } else if span.is_some() {
+                uncertain_built += 1;
+            } else {
+                declined += 1;
+            }
+        }
+        assert!(certain > 150, "only {certain} certain");
+        assert!(
+            declined > 0 && uncertain_built > 0,
+            "{declined} declined, {uncertain_built} built without certainty"
+        );
     }
 }

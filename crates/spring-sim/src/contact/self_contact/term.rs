@@ -52,7 +52,7 @@
 
 use super::broad::{Candidate, CandidateCache, Primitives, candidates};
 use super::ccd::{additive_ccd_with_bound, approach_bound, clear_with_bound};
-use super::closed::{PAIR_BLOCKS, PairBlocks, RegionForm, Span};
+use super::closed::{PAIR_BLOCKS, PairBlocks, RegionForm};
 use super::distance::{
     Closest, PairKind, SEPARATION_MARGIN, mollifier, mollifier_derivatives, separation,
     squared_distance, squared_distance_derivatives, squared_distance_in,
@@ -726,7 +726,7 @@ impl SelfContactTerm {
         out.kind = kind;
         out.particles = v;
         out.present = false;
-        out.span = None;
+        out.closed = None;
         let mollified = self
             .mollifier_threshold(c)
             .is_some_and(|eps| mollifier(&p, eps) < 1.0);
@@ -755,9 +755,18 @@ impl SelfContactTerm {
         form: HessianForm,
         out: &mut PairBlocks,
     ) {
-        if let Some(span) = &pair.span {
-            span.blocks_into(form == HessianForm::Projected, out);
-        } else if pair.present
+        if let Some(closed) = pair.closed {
+            // The span built now from the gradient's inputs at the same state is the one
+            // the gradient's pass found (the same function of the same numbers).
+            let p = pair.particles.map(|i| x[i]);
+            if let Some(span) =
+                RegionForm::new(&p, closed.closest).span(closed.first, closed.second)
+            {
+                span.blocks_into(form == HessianForm::Projected, out);
+                return;
+            }
+        }
+        if pair.present
             && let Some(e) = self.pair_energy_dual(kappa, c, x)
         {
             let mollified = self
@@ -799,9 +808,19 @@ impl SelfContactTerm {
         );
         let first = kappa * b1 / (2.0 * d);
         let second = kappa * (b2 / (4.0 * s) - b1 / (4.0 * s * d));
-        // The span is kept with the gradient: a Hessian asked for later at this iterate
-        // is computed from it (the same operations as from the form).
-        out.span = Some(form.span(first, second)?);
+        // The closed form declines the pairs whose span is `None` (to the dual numbers,
+        // for the gradient too). The span itself is built only when a Hessian is asked
+        // for at this iterate, from the inputs kept here: most iterates whose gradient
+        // ends the step never ask, and a slot without it is a third of the size. Where
+        // the span is not certain from its inputs it is built here to decide.
+        if !form.spans_certainly(first, second) {
+            form.span(first, second)?;
+        }
+        out.closed = Some(ClosedInputs {
+            closest,
+            first,
+            second,
+        });
         out.gradient = form.gradient().map(|v| first * v);
         Some(true)
     }
@@ -1653,9 +1672,20 @@ struct PairDerivatives {
     kind: PairKind,
     particles: [usize; 4],
     gradient: [f64; 12],
-    /// A closed-form pair's Hessian in its span (`None` for the dual numbers' pairs and
-    /// pairs without derivatives), from which its Hessian is computed when asked for.
-    span: Option<Span>,
+    /// A closed-form pair's region and derivatives of its barrier in the squared
+    /// distance (`None` for the dual numbers' pairs and pairs without derivatives), from
+    /// which its Hessian is computed when asked for.
+    closed: Option<ClosedInputs>,
+}
+
+/// What a closed-form pair's Hessian is built from at the state its gradient was:
+/// the region of its closest points and `phi'(s)`, `phi''(s)` (see
+/// [`RegionForm::span`]).
+#[derive(Clone, Copy, Debug)]
+struct ClosedInputs {
+    closest: Closest,
+    first: f64,
+    second: f64,
 }
 
 impl Default for PairDerivatives {
@@ -1665,7 +1695,7 @@ impl Default for PairDerivatives {
             kind: PairKind::PointTriangle,
             particles: [0; 4],
             gradient: [0.0; 12],
-            span: None,
+            closed: None,
         }
     }
 }
