@@ -513,6 +513,13 @@ impl CandidateCache {
         inside.then_some(boxes)
     }
 
+    /// Whether the list was built for the fixed flags `skip` (a query with others is
+    /// never covered).
+    #[must_use]
+    pub fn skips(&self, skip: &[bool]) -> bool {
+        self.skip.as_slice() == skip
+    }
+
     /// The number of pairs kept.
     #[must_use]
     pub fn len(&self) -> usize {

@@ -1058,8 +1058,6 @@ struct Segment {
     /// The two latest line-search trials on this list (the latest first): the line
     /// search may try a doubled step after the one it accepts.
     trials: [Trial; 2],
-    /// Scratch: per near pair of an active set, its place in a trial's values.
-    from_trial: Vec<usize>,
     /// Which list `pairs` is: a new list gets a new id, so positions found in an older
     /// one are not taken for positions in it.
     list_id: u64,
@@ -1327,55 +1325,48 @@ impl Term for SelfContactTerm {
         let mut active = std::mem::take(&mut self.active);
         active.clear();
         let mut positions = std::mem::take(&mut self.near_positions);
-        let (near, near_list) = self.pairs_placed(x, None, fixed, Some(&mut positions));
         let mut values = std::mem::take(&mut self.near_values);
         let mut regions = std::mem::take(&mut self.active_regions);
         regions.clear();
         // A Newton iterate is usually the state the line search's accepted trial tried,
-        // which computed every near pair's values there already.
+        // which computed its values there for every pair its query found: the pairs
+        // whose boxes met along the trial's step, which hold every pair whose boxes meet
+        // at its end (the near pairs' query here). Those are taken as the near pairs: the
+        // ones more are farther than `dhat + thickness` (their boxes at `x`, grown by
+        // half of that each, do not meet), so not active and not touching, and the
+        // active set, its smallest gap and its first touching pair are the ones the
+        // query's pairs give, bit for bit; the segment seeded from them gets the values
+        // it would compute. The trial's query was on the segment's list (trials are
+        // dropped with it) with these fixed flags (the list's).
         let seg = self
             .segment
             .get_mut()
             .unwrap_or_else(PoisonError::into_inner);
-        let trial = seg.trial_at(x).filter(|_| near_list == Some(seg.list_id));
-        let mut from_trial = std::mem::take(&mut seg.from_trial);
-        from_trial.clear();
-        if let Some(t) = trial {
-            // Both are ascending positions in the same list: a merge.
-            let found = &seg.trials[t].found;
-            let mut j = 0;
-            from_trial.extend(positions.iter().map(|&k| {
-                while j < found.len() && found[j] < k {
-                    j += 1;
-                }
-                if j < found.len() && found[j] == k {
-                    j
-                } else {
-                    usize::MAX
-                }
-            }));
-        }
-        // The trial's values are taken out while the pool fills the active set's; their
-        // energies were computed with the trial's stiffness.
-        self.near_kappa = trial.map_or(f64::NAN, |t| seg.trials[t].kappa);
-        let kept = trial.map(|t| std::mem::take(&mut seg.trials[t].values));
-        spread::fill(
-            &mut values,
-            near.len(),
-            NearValue::default(),
-            |i| match &kept {
-                Some(kept) if from_trial[i] != usize::MAX => kept[from_trial[i]].near,
-                _ => self.near_value(near[i], x),
-            },
-        );
-        let seg = self
-            .segment
-            .get_mut()
-            .unwrap_or_else(PoisonError::into_inner);
-        if let (Some(t), Some(kept)) = (trial, kept) {
-            seg.trials[t].values = kept;
-        }
-        seg.from_trial = from_trial;
+        let trial = seg.trial_at(x).filter(|_| seg.pairs.skips(fixed));
+        let (near, near_list) = if let Some(t) = trial {
+            let trial = &seg.trials[t];
+            positions.clear();
+            positions.extend_from_slice(&trial.found);
+            let list = seg.pairs.list();
+            let mut near = std::mem::take(&mut self.near);
+            near.clear();
+            near.extend(positions.iter().map(|&k| list[k]));
+            // Their energies were computed with the trial's stiffness.
+            self.near_kappa = trial.kappa;
+            let kept = &trial.values;
+            spread::fill(&mut values, kept.len(), NearValue::default(), |i| {
+                kept[i].near
+            });
+            (near, Some(seg.list_id))
+        } else {
+            self.near_kappa = f64::NAN;
+            let placed = self.pairs_placed(x, None, fixed, Some(&mut positions));
+            let near = &placed.0;
+            spread::fill(&mut values, near.len(), NearValue::default(), |i| {
+                self.near_value(near[i], x)
+            });
+            placed
+        };
         let mut touching = None;
         for (k, (&c, v)) in near.iter().zip(&values).enumerate() {
             if v.gap < dhat {
