@@ -128,6 +128,46 @@ pub(crate) fn filter_indices(
     out.extend((0..n).filter(|&i| keep(i)));
 }
 
+/// `f(range)` for the consecutive ranges of `chunk` indices covering `0..n`, in the
+/// ranges' order: as tasks on the caller's pool when there is one, else the whole range
+/// at once (one result). So a caller combining the results must get the same from the
+/// pieces of a range as from the range whole.
+pub(crate) fn map_chunks<R: Send>(
+    n: usize,
+    chunk: usize,
+    f: impl Fn(std::ops::Range<usize>) -> R + Sync + Send,
+) -> Vec<R> {
+    #[cfg(feature = "parallel")]
+    if n > chunk && on_pool() {
+        use rayon::prelude::*;
+        return (0..n.div_ceil(chunk))
+            .into_par_iter()
+            .map(|c| f(c * chunk..((c + 1) * chunk).min(n)))
+            .collect();
+    }
+    let _ = chunk;
+    vec![f(0..n)]
+}
+
+/// Calls `f(i, &mut out[positions[i]])` for every `i`, `positions` ascending and
+/// distinct: the writes of a sparse set of slots, spread over the pool by chunks of
+/// `out` (each chunk finds its first position by bisection), else in turn.
+pub(crate) fn for_each_at<T: Send>(
+    out: &mut [T],
+    positions: &[usize],
+    f: impl Fn(usize, &mut T) + Sync + Send,
+) {
+    for_each_chunk(out, |first, chunk| {
+        let mut i = positions.partition_point(|&k| k < first);
+        while let Some(&k) = positions.get(i)
+            && k < first + chunk.len()
+        {
+            f(i, &mut chunk[k - first]);
+            i += 1;
+        }
+    });
+}
+
 /// `out` extended by what `f(range, part)` appends to `part` for the consecutive ranges of
 /// `chunk` indices covering `0..n`, in the ranges' order: the ranges as tasks on the
 /// caller's pool when there is one (each appends to its own list, joined in order), else
@@ -157,4 +197,47 @@ pub(crate) fn concat_chunks<T: Send>(
     }
     let _ = chunk;
     f(0..n, out);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The sparse writes and the chunks' results are the same on a pool of two or three
+    /// threads as on the calling thread: every position written once with its own index,
+    /// the others untouched, and the chunks' results joined in order cover `0..n` in
+    /// order (positions near the chunks' edges included).
+    #[test]
+    fn sparse_writes_and_chunk_results_do_not_depend_on_the_threads() {
+        let n = 40 * CHUNK + 17;
+        let positions: Vec<usize> = (0..n).filter(|k| k % 7 == 3 || k % 4096 == 0).collect();
+        let run = || {
+            let mut out = vec![usize::MAX; n];
+            for_each_at(&mut out, &positions, |i, slot| *slot = i);
+            let parts = map_chunks(n, 1000, |range| {
+                range.filter(|k| k % 5 == 1).collect::<Vec<_>>()
+            });
+            (out, parts.concat())
+        };
+        let (out, picked) = run();
+        for (i, &k) in positions.iter().enumerate() {
+            assert_eq!(out[k], i);
+        }
+        assert_eq!(
+            out.iter().filter(|&&v| v != usize::MAX).count(),
+            positions.len()
+        );
+        assert_eq!(picked, (0..n).filter(|k| k % 5 == 1).collect::<Vec<_>>());
+        #[cfg(feature = "parallel")]
+        for threads in [2, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            assert_eq!(
+                pool.install(|| (on_pool(), run())),
+                (true, (out.clone(), picked.clone()))
+            );
+        }
+    }
 }

@@ -937,7 +937,7 @@ impl SelfContactTerm {
             }
             fraction
         };
-        let mut t: f64 = 1.0;
+        let t: f64 = 1.0;
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
         let seg = &mut *segment;
         if seg.query_into_found(&self.prims, x, Some(dx), margin, fixed) {
@@ -968,18 +968,22 @@ impl SelfContactTerm {
                 };
                 (gap0, sep, sweep(&q, &d, lp, gap0))
             });
-            for (&k, &(gap0, sep, fraction)) in seg.found.iter().zip(&seg.values) {
-                if at_start {
+            if at_start {
+                let values = &seg.values;
+                spread::for_each_at(&mut seg.kept, &seg.found, |i, kept| {
+                    let (gap0, sep, _) = values[i];
                     if !gap0.is_nan() {
-                        seg.kept[k].gap = gap0;
+                        kept.gap = gap0;
                     }
                     if !sep.is_nan() {
-                        seg.kept[k].separation = sep;
+                        kept.separation = sep;
                     }
-                }
-                t = t.min(fraction);
+                });
             }
-            return t;
+            // The shared minimum is the smallest fraction: a sweep that did not write it
+            // returned the limit it read, which is at least the final minimum, and a pair
+            // shown clear gave 1, where it starts.
+            return t.min(f64::from_bits(smallest.0.load(Ordering::Relaxed)));
         }
         drop(segment);
         self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
@@ -1049,9 +1053,10 @@ struct Segment {
     kappa: f64,
     /// Per listed pair, its values at the start (NaN where not computed yet).
     kept: Vec<Kept>,
-    /// Scratch, its storage reused: a query's positions in the list, and up to three
-    /// values per found pair.
+    /// Scratch, its storage reused: a query's positions in the list, up to three values
+    /// per found pair, and a trial's change of energy per found pair.
     found: Vec<usize>,
+    changes: Vec<f64>,
     /// The query `found` answers, when it is valid (see [`Segment::query_into_found`]).
     asked: Asked,
     values: Vec<(f64, f64, f64)>,
@@ -1241,6 +1246,9 @@ impl Segment {
     }
 }
 
+/// Near pairs per task of an active set's selection of its pairs within `dhat`.
+const ACTIVE_CHUNK: usize = 4096;
+
 /// The longest multiple of the Newton step the cap looks along when the full step is
 /// clear: the line search may lengthen an accepted step, and this lets it up to 8 times.
 const LONG_STEP: f64 = 8.0;
@@ -1367,16 +1375,31 @@ impl Term for SelfContactTerm {
             });
             placed
         };
+        // The pairs within `dhat` in order, their smallest gap and the first pair at a
+        // gap of zero or below (or NaN), by chunks on the pool, joined in order (the
+        // minimum does not depend on the order).
+        let parts = spread::map_chunks(near.len(), ACTIVE_CHUNK, |range| {
+            let (mut pairs, mut closest) = (Vec::new(), Vec::new());
+            let (mut min, mut touching) = (f64::INFINITY, None);
+            for k in range {
+                let v = &values[k];
+                if v.gap < dhat {
+                    pairs.push(near[k]);
+                    closest.push(v.closest);
+                    min = min.min(v.gap);
+                }
+                if touching.is_none() && (v.gap.is_nan() || v.gap <= 0.0) {
+                    touching = Some(k);
+                }
+            }
+            (pairs, closest, min, touching)
+        });
         let mut touching = None;
-        for (k, (&c, v)) in near.iter().zip(&values).enumerate() {
-            if v.gap < dhat {
-                active.push(c);
-                regions.push(v.closest);
-                min = min.min(v.gap);
-            }
-            if touching.is_none() && (v.gap.is_nan() || v.gap <= 0.0) {
-                touching = Some(k);
-            }
+        for (pairs, closest, part_min, part_touching) in parts {
+            active.extend_from_slice(&pairs);
+            regions.extend_from_slice(&closest);
+            min = min.min(part_min);
+            touching = touching.or(part_touching);
         }
         self.near = near;
         self.near_values = values;
@@ -1475,15 +1498,28 @@ impl Term for SelfContactTerm {
             });
             trial.at = moved;
             trial.kappa = kappa;
-            for (&k, value) in seg.found.iter().zip(&seg.trials[0].values) {
-                let (after, before) = (value.near.energy, value.before);
-                if at_start && same_kappa {
-                    seg.kept[k].energy = before;
-                }
+            let values = &trial.values;
+            if at_start && same_kappa {
+                spread::for_each_at(&mut seg.kept, &seg.found, |i, kept| {
+                    kept.energy = values[i].before;
+                });
+            }
+            // Each pair's change on the pool (`+inf` where its energy after is, which
+            // ends the sum), then the sum in the pairs' order on one thread over those
+            // alone: the same additions as over the pairs' values.
+            spread::fill(&mut seg.changes, values.len(), 0.0, |i| {
+                let (after, before) = (values[i].near.energy, values[i].before);
                 if after == f64::INFINITY {
+                    f64::INFINITY
+                } else {
+                    after - before
+                }
+            });
+            for &d in &seg.changes {
+                if d == f64::INFINITY {
                     return f64::INFINITY;
                 }
-                change += after - before;
+                change += d;
             }
             return change;
         }
