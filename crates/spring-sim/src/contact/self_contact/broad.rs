@@ -654,11 +654,8 @@ mod tests {
             assert!(!fast.is_empty());
             #[cfg(feature = "parallel")]
             for threads in [2, 3] {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
-                let on_pool = pool.install(|| candidates(&prims, &x, sweep, 3e-3, &skip));
+                let on_pool = super::super::spread::pool(threads)
+                    .install(|| candidates(&prims, &x, sweep, 3e-3, &skip));
                 assert_eq!(
                     on_pool,
                     slow,

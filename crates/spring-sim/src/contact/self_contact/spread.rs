@@ -199,6 +199,16 @@ pub(crate) fn concat_chunks<T: Send>(
     f(0..n, out);
 }
 
+/// A pool of `threads` threads for the tests that compare a pass on pools of several
+/// sizes with the calling thread's.
+#[cfg(all(test, feature = "parallel"))]
+pub(crate) fn pool(threads: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("a test's thread pool")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -230,14 +240,8 @@ mod tests {
         assert_eq!(picked, (0..n).filter(|k| k % 5 == 1).collect::<Vec<_>>());
         #[cfg(feature = "parallel")]
         for threads in [2, 3] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            assert_eq!(
-                pool.install(|| (on_pool(), run())),
-                (true, (out.clone(), picked.clone()))
-            );
+            let on = pool(threads).install(|| (on_pool(), run()));
+            assert_eq!(on, (true, (out.clone(), picked.clone())));
         }
     }
 }

@@ -2029,39 +2029,23 @@ mod tests {
             "every pair has its slots: the case tests less"
         );
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        let mut parted = start.clone();
-        let mut parted_missing = Vec::new();
-        scatter_in_parts(
-            &pattern,
-            &mut parted,
-            &pairs,
-            &hessians,
-            &places,
-            &mut parted_missing,
-        );
-        assert_eq!(bits(&parted), bits(&sequential));
-        assert_eq!(parted_missing, missing);
+        let parted = || {
+            let (mut values, mut missing) = (start.clone(), Vec::new());
+            scatter_in_parts(
+                &pattern,
+                &mut values,
+                &pairs,
+                &hessians,
+                &places,
+                &mut missing,
+            );
+            (bits(&values), missing)
+        };
+        assert_eq!(parted(), (bits(&sequential), missing.clone()));
         #[cfg(feature = "parallel")]
         for threads in [2, 3] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            let mut parted = start.clone();
-            let mut parted_missing = Vec::new();
-            pool.install(|| {
-                assert_eq!(spread::parts(), threads);
-                scatter_in_parts(
-                    &pattern,
-                    &mut parted,
-                    &pairs,
-                    &hessians,
-                    &places,
-                    &mut parted_missing,
-                );
-            });
-            assert_eq!(bits(&parted), bits(&sequential), "{threads} threads");
-            assert_eq!(parted_missing, missing);
+            let on_pool = spread::pool(threads).install(|| (spread::parts(), parted()));
+            assert_eq!(on_pool, (threads, (bits(&sequential), missing.clone())));
         }
         assert_ne!(bits(&sequential), bits(&start));
     }
