@@ -219,7 +219,7 @@ mod tests {
     /// order (positions near the chunks' edges included).
     #[test]
     fn sparse_writes_and_chunk_results_do_not_depend_on_the_threads() {
-        let n = 40 * CHUNK + 17;
+        let n = 40 * 256 + 17;
         let positions: Vec<usize> = (0..n).filter(|k| k % 7 == 3 || k % 4096 == 0).collect();
         let run = || {
             let mut out = vec![usize::MAX; n];
