@@ -1730,7 +1730,7 @@ impl Default for PairDerivatives {
 /// The places of the coupling blocks of a list of pairs on a pattern, kept so the next
 /// list (the next active set's, mostly the same pairs) looks up only its new pairs: on a
 /// resting stack the look-ups (six binary searches in the matrix's structure a pair,
-/// each reading a few cache lines of it) cost a quarter of the Newton matrix's assembly.
+/// each reading a few cache lines of it) cost a fifth of the Newton matrix's assembly.
 /// A place is a function of the pair's particles and the pattern alone, so a kept one is
 /// the one a look-up would find.
 #[derive(Debug, Default)]
@@ -1832,7 +1832,7 @@ fn kept_blocks(kind: PairKind, has: [bool; 6]) -> [bool; 6] {
 /// (a diagonal block in its particle's, a coupling block in the lower particle's). Every
 /// value gets the same additions in the same order as from the sequential scatter, so
 /// the same bits for any number of parts; the parts share no value, so they run side by
-/// side. The scatter on one thread was an eighth of a resting stack's step.
+/// side. The scatter on one thread was 8% of a resting stack's step.
 fn scatter_in_parts(
     pattern: &HessianPattern,
     values: &mut [f64],
