@@ -937,7 +937,6 @@ impl SelfContactTerm {
             }
             fraction
         };
-        let t: f64 = 1.0;
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
         let seg = &mut *segment;
         if seg.query_into_found(&self.prims, x, Some(dx), margin, fixed) {
@@ -980,10 +979,10 @@ impl SelfContactTerm {
                     }
                 });
             }
-            // The shared minimum is the smallest fraction: a sweep that did not write it
-            // returned the limit it read, which is at least the final minimum, and a pair
-            // shown clear gave 1, where it starts.
-            return t.min(f64::from_bits(smallest.0.load(Ordering::Relaxed)));
+            // The shared minimum is the smallest fraction (and at most 1, where it
+            // starts): a sweep that did not write it returned the limit it read, which is
+            // at least the final minimum, and a pair shown clear gave 1.
+            return f64::from_bits(smallest.0.load(Ordering::Relaxed));
         }
         drop(segment);
         self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
@@ -999,7 +998,7 @@ impl SelfContactTerm {
                 sweep(&q, &d, lp, self.gap_of(&q))
             }
         });
-        fractions.into_iter().fold(t, f64::min)
+        fractions.into_iter().fold(1.0, f64::min)
     }
 }
 
@@ -1614,8 +1613,9 @@ impl Term for SelfContactTerm {
                 return;
             };
             // The pattern look-ups (six binary searches a pair) on the pool, or taken from
-            // the last active set's for the pairs it had; the additions on one thread in
-            // the pairs' order, so the values are the bits of the sequential scatter.
+            // the last active set's for the pairs it had; the additions by parts of the
+            // matrix, each value's in the pairs' order, so the values are the bits of the
+            // sequential scatter.
             let mut kept = self.places.lock().unwrap_or_else(PoisonError::into_inner);
             let listed = (self.active_at.as_slice() == x).then_some(self.active.as_slice());
             let places = kept.places_for(pattern, listed, pairs);
@@ -1888,16 +1888,15 @@ fn scatter_in_parts(
                     continue;
                 }
                 let b = &h.coupling[n];
-                for c in 0..3 {
-                    let start = col_ptr[3 * col + c] + (3 - c) + 3 * k - base;
-                    for r in 0..3 {
-                        // The stored block is the given one, or its transpose.
-                        part[start + r] += if transposed {
-                            b[3 * r + c]
-                        } else {
-                            b[3 * c + r]
-                        };
-                    }
+                // The stored block (entry (r, c) at 3 c + r) is the given one, or its
+                // transpose.
+                for (e, slot) in pattern.off_block_slots_at(col, k).into_iter().enumerate() {
+                    let (c, r) = (e / 3, e % 3);
+                    part[slot - base] += if transposed {
+                        b[3 * r + c]
+                    } else {
+                        b[3 * c + r]
+                    };
                 }
             }
         }
