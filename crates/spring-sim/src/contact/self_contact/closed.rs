@@ -397,30 +397,35 @@ pub(crate) struct Span {
 
 impl Span {
     /// `B K_+ B^T` into `out` when `project`, else `B K B^T` (every entry overwritten).
-    // Index loops over rows and columns read as the matrix formulas they implement.
-    #[allow(clippy::needless_range_loop)]
     pub(crate) fn hessian_into(&self, project: bool, out: &mut Mat12) {
         let f = self.factors(project);
-        for i in 0..12 {
-            for l in 0..=i {
-                let v = f.entry(i, l);
-                out[i][l] = v;
-                out[l][i] = v;
+        for i in 0..4 {
+            for j in 0..=i {
+                let block = f.lower_block(i, j);
+                for (y, row) in block.iter().enumerate() {
+                    // A diagonal block gives its lower entries, mirrored like the rest.
+                    let columns = if i == j { y + 1 } else { 3 };
+                    for (x, &v) in row.iter().enumerate().take(columns) {
+                        out[3 * i + y][3 * j + x] = v;
+                        out[3 * j + x][3 * i + y] = v;
+                    }
+                }
             }
         }
     }
 
     /// [`Self::hessian_into`]'s blocks that a pair adds to the matrix into `out`: each
-    /// entry the same bits as the full matrix's (the same sums), without the other
+    /// entry the same bits as the full matrix's (the same products), without the other
     /// half of the matrix.
     pub(crate) fn blocks_into(&self, project: bool, out: &mut PairBlocks) {
         let f = self.factors(project);
         for (k, d) in out.diagonal.iter_mut().enumerate() {
             // The lower entries (r >= c) of the diagonal block, column by column.
+            let block = f.lower_block(k, k);
             let mut n = 0;
             for c in 0..3 {
-                for r in c..3 {
-                    d[n] = f.entry(3 * k + r, 3 * k + c);
+                for row in &block[c..] {
+                    d[n] = row[c];
                     n += 1;
                 }
             }
@@ -428,80 +433,110 @@ impl Span {
         for (n, &(a, b)) in PAIR_BLOCKS.iter().enumerate() {
             // Block (a, b), a < b, sits above the diagonal: entry (x, y) is the computed
             // lower entry (3b + y, 3a + x).
-            out.coupling[n] = std::array::from_fn(|e| {
-                let (y, x) = (e / 3, e % 3);
-                f.entry(3 * b + y, 3 * a + x)
-            });
+            let block = f.lower_block(b, a);
+            out.coupling[n] = std::array::from_fn(|e| block[e / 3][e % 3]);
         }
     }
 
-    /// The factors `B K_+` (`project`) or `B K`, and `B`, whose products are the
-    /// Hessian's entries.
+    /// `K_+` (`project`) or `K`: the Hessian in the span's coordinates.
+    // Index loops over rows and columns read as the matrix formulas they implement.
+    #[allow(clippy::needless_range_loop)]
+    fn reduced(&self, project: bool) -> [[f64; SPAN]; SPAN] {
+        let (k, n) = (self.k, self.n);
+        if !project {
+            return k;
+        }
+        let (values, vectors) = symmetric_eigen_n(&k, n);
+        // K_+ = Q diag(max(lambda, 0)) Q^T in the reduced coordinates.
+        let mut kp = [[0.0; SPAN]; SPAN];
+        for (e, &lambda) in values.iter().take(n).enumerate() {
+            if lambda <= 0.0 {
+                continue;
+            }
+            for p in 0..n {
+                for q in 0..n {
+                    kp[p][q] += lambda * vectors[p][e] * vectors[q][e];
+                }
+            }
+        }
+        kp
+    }
+
+    /// What the Hessian's 3x3 blocks are made of: [`Self::reduced`] split along the
+    /// basis' two kinds of columns (see [`Factors`]).
     // Index loops over rows and columns read as the matrix formulas they implement.
     #[allow(clippy::needless_range_loop)]
     fn factors(&self, project: bool) -> Factors {
-        let Self {
-            k,
-            n,
-            c_hat,
-            r_hat,
-            b,
-        } = *self;
-        let m = n - 3;
-        let kp = if project {
-            let (values, vectors) = symmetric_eigen_n(&k, n);
-            // K_+ = Q diag(max(lambda, 0)) Q^T in the reduced coordinates.
-            let mut kp = [[0.0; SPAN]; SPAN];
-            for (e, &lambda) in values.iter().take(n).enumerate() {
-                if lambda <= 0.0 {
-                    continue;
-                }
-                for p in 0..n {
-                    for q in 0..n {
-                        kp[p][q] += lambda * vectors[p][e] * vectors[q][e];
-                    }
-                }
-            }
-            kp
-        } else {
-            k
-        };
-        // The basis: column p < 3 is c_hat (x) e_p, column 3 + l is b_l (x) r_hat.
-        let basis: [[f64; SPAN]; 12] = std::array::from_fn(|i| {
-            let (vk, x) = (i / 3, i % 3);
-            let mut row = [0.0; SPAN];
-            row[x] = c_hat[vk];
+        let (m, b) = (self.n - 3, self.b);
+        let kp = self.reduced(project);
+        let mut uu = [[0.0; 3]; 3];
+        for (y, row) in uu.iter_mut().enumerate() {
+            row.copy_from_slice(&kp[y][..3]);
+        }
+        // Per vertex a: g_a = K_UV beta_a and t_a = K_VV beta_a, beta_a = (b_l[a])_l.
+        let mut g = [[0.0; 3]; 4];
+        let mut t = [[0.0; 2]; 4];
+        let mut beta = [[0.0; 2]; 4];
+        for a in 0..4 {
             for l in 0..m {
-                row[3 + l] = b[l][vk] * r_hat[x];
+                beta[a][l] = b[l][a];
             }
-            row
-        });
-        // (B K_+) then (B K_+) B^T, skipping the rows of uninvolved vertices.
-        let mut bk = [[0.0; SPAN]; 12];
-        for i in 0..12 {
-            if basis[i].iter().all(|&x| x == 0.0) {
-                continue;
+            for y in 0..3 {
+                g[a][y] = (0..m).map(|l| kp[y][3 + l] * beta[a][l]).sum();
             }
-            for q in 0..n {
-                bk[i][q] = (0..n).map(|p| basis[i][p] * kp[p][q]).sum();
+            for l in 0..m {
+                t[a][l] = (0..m).map(|q| kp[3 + l][3 + q] * beta[a][q]).sum();
             }
         }
-        Factors { bk, basis, n }
+        Factors {
+            uu,
+            c: self.c_hat,
+            g,
+            t,
+            beta,
+            r: self.r_hat.to_array(),
+        }
     }
 }
 
-/// [`Span::factors`]: `B K` (or `B K_+`), `B` and the span's dimension.
+/// [`Span::factors`]. The basis is a Kronecker product: vertex `a`'s rows of its columns
+/// are `c_a I_3` (the three `c_hat (x) e_p`) and `r_hat beta_a^T` (the `b_l (x) r_hat`,
+/// `beta_a = (b_l[a])_l`). So the Hessian's block `(a, b)` of `B K B^T` is
+///
+/// `c_a c_b K_UU + c_a (K_UV beta_b) r_hat^T + c_b r_hat (K_UV beta_a)^T
+///  + (beta_a . K_VV beta_b) r_hat r_hat^T`,
+///
+/// a few operations per entry, where the product through the 12 x 5 basis took two
+/// sums of five per entry.
 struct Factors {
-    bk: [[f64; SPAN]; 12],
-    basis: [[f64; SPAN]; 12],
-    n: usize,
+    /// `K_UU`, the span's leading 3x3.
+    uu: [[f64; 3]; 3],
+    /// `c_hat`.
+    c: [f64; 4],
+    /// `K_UV beta_a` per vertex.
+    g: [[f64; 3]; 4],
+    /// `K_VV beta_a` per vertex.
+    t: [[f64; 2]; 4],
+    /// `beta_a` per vertex (zero beyond the span's `m`).
+    beta: [[f64; 2]; 4],
+    /// `r_hat`.
+    r: [f64; 3],
 }
 
 impl Factors {
-    /// The Hessian's entry `(i, l)` (computed as the lower one, `l <= i`, is).
+    /// The Hessian's block `(i, j)`, `i >= j`: entry `[y][x]` is the matrix's
+    /// `(3 i + y, 3 j + x)`.
     #[inline]
-    fn entry(&self, i: usize, l: usize) -> f64 {
-        (0..self.n).map(|q| self.bk[i][q] * self.basis[l][q]).sum()
+    fn lower_block(&self, i: usize, j: usize) -> [[f64; 3]; 3] {
+        let (ci, cj) = (self.c[i], self.c[j]);
+        let (gi, gj, r) = (self.g[i], self.g[j], self.r);
+        let s = self.beta[i][0] * self.t[j][0] + self.beta[i][1] * self.t[j][1];
+        let cc = ci * cj;
+        std::array::from_fn(|y| {
+            std::array::from_fn(|x| {
+                cc * self.uu[y][x] + ci * gj[y] * r[x] + cj * r[y] * gi[x] + s * r[y] * r[x]
+            })
+        })
     }
 }
 
@@ -606,6 +641,87 @@ mod tests {
             }
         }
         assert!(compared > 700, "only {compared} spans compared");
+    }
+
+    /// The blocks from the basis' Kronecker form are `B K B^T` and `B K_+ B^T` computed
+    /// through the whole 12 x n basis (written out here, entry by entry), to round-off
+    /// of the largest entry, for random pairs of both kinds, every region the random
+    /// states fall in, and barrier derivatives of both signs over four decades.
+    #[test]
+    fn the_blocks_of_the_kronecker_form_are_the_product_through_the_whole_basis() {
+        let mut index = 0u32;
+        let mut next = move || {
+            index += 1;
+            (f64::from(index) * 0.618_033_988_749_894_9).fract() * 2.0 - 1.0
+        };
+        let (mut compared, mut worst) = (0, 0.0f64);
+        let mut spans = [0; 3];
+        for n in 0..600 {
+            let kind = if n % 2 == 0 {
+                PairKind::PointTriangle
+            } else {
+                PairKind::EdgeEdge
+            };
+            let mut p: [DVec3; 4] = std::array::from_fn(|_| DVec3::new(next(), next(), next()));
+            if n % 4 == 2 {
+                // The point in the Voronoi region of the triangle's first vertex (a
+                // point-point pair, span 3).
+                let out = (p[1] - p[2]).normalize() + (p[1] - p[3]).normalize();
+                p[0] = p[1] + (0.5 + next().abs()) * out;
+            }
+            let magnitude = [1e-2, 1.0, 1e2][n % 3];
+            let (first, second) = (next() * magnitude, next() * 50.0 * magnitude);
+            let Some(span) = RegionForm::new(&p, kind.closest(&p)).span(first, second) else {
+                continue;
+            };
+            spans[span.n - 3] += 1;
+            let basis: [[f64; SPAN]; 12] = std::array::from_fn(|i| {
+                let (vk, x) = (i / 3, i % 3);
+                let mut row = [0.0; SPAN];
+                row[x] = span.c_hat[vk];
+                for l in 0..span.n - 3 {
+                    row[3 + l] = span.b[l][vk] * span.r_hat[x];
+                }
+                row
+            });
+            for project in [false, true] {
+                let k = span.reduced(project);
+                let mut want = [[0.0; 12]; 12];
+                for (i, row) in want.iter_mut().enumerate() {
+                    for (l, v) in row.iter_mut().enumerate() {
+                        for p in 0..span.n {
+                            for q in 0..span.n {
+                                *v += basis[i][p] * k[p][q] * basis[l][q];
+                            }
+                        }
+                    }
+                }
+                let mut got = [[f64::NAN; 12]; 12];
+                span.hessian_into(project, &mut got);
+                let scale = want.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+                for i in 0..12 {
+                    for l in 0..12 {
+                        // A projection of a negative definite K is zero, entry by entry.
+                        let error = (got[i][l] - want[i][l]).abs() / scale.max(f64::MIN_POSITIVE);
+                        assert!(
+                            error <= 1e-14,
+                            "pair {n}, project {project}: entry ({i}, {l}) {} against {}",
+                            got[i][l],
+                            want[i][l]
+                        );
+                        worst = worst.max(error);
+                    }
+                }
+                compared += 1;
+            }
+        }
+        assert!(compared > 1000, "only {compared} spans compared");
+        // Every span size the regions give: point-point 3, point-edge 4, the rest 5.
+        assert!(spans.iter().all(|&s| s > 0), "span sizes seen: {spans:?}");
+        assert!(
+            worst > 0.0,
+            "no round-off at all: the oracle is not independent"
+        );
     }
 
     /// Where `spans_certainly` holds, `span` gives a span (the caller then builds it only
