@@ -47,11 +47,12 @@ pub fn additive_ccd(
 pub fn approach_bound(kind: PairKind, dx: &[DVec3; 4]) -> f64 {
     let mean = (dx[0] + dx[1] + dx[2] + dx[3]) / 4.0;
     let p = dx.map(|d| d - mean);
+    // The largest length is the root of the largest squared length (the root is
+    // monotone and correctly rounded: the same bits), two roots where there were four.
+    let s = p.map(DVec3::length_squared);
     match kind {
-        PairKind::PointTriangle => {
-            p[0].length() + p[1].length().max(p[2].length()).max(p[3].length())
-        }
-        PairKind::EdgeEdge => p[0].length().max(p[1].length()) + p[2].length().max(p[3].length()),
+        PairKind::PointTriangle => s[0].sqrt() + s[1].max(s[2]).max(s[3]).sqrt(),
+        PairKind::EdgeEdge => s[0].max(s[1]).sqrt() + s[2].max(s[3]).sqrt(),
     }
 }
 
