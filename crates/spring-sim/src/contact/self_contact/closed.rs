@@ -591,19 +591,23 @@ impl PairBlocks {
 mod tests {
     use super::*;
 
+    /// Coordinates from the additive recurrence of the golden ratio (a Weyl sequence):
+    /// spread over [-1, 1) without a generator's state.
+    fn weyl() -> impl FnMut() -> f64 {
+        let mut index = 0u32;
+        move || {
+            index += 1;
+            (f64::from(index) * 0.618_033_988_749_894_9).fract() * 2.0 - 1.0
+        }
+    }
+
     /// The blocks a pair adds, written straight from its span, are the entries of its
     /// full Hessian (`B K B^T` and `B K_+ B^T`) bit for bit, for random pairs of both
     /// kinds (every region the random states fall in) and both signs of the barrier's
     /// second derivative.
     #[test]
     fn a_pairs_blocks_are_its_full_hessians_entries_bit_for_bit() {
-        // Coordinates from the additive recurrence of the golden ratio (a Weyl sequence):
-        // spread over [-1, 1) without a generator's state.
-        let mut index = 0u32;
-        let mut next = move || {
-            index += 1;
-            (f64::from(index) * 0.618_033_988_749_894_9).fract() * 2.0 - 1.0
-        };
+        let mut next = weyl();
         let mut compared = 0;
         for n in 0..400 {
             let kind = if n % 2 == 0 {
@@ -649,11 +653,7 @@ mod tests {
     /// states fall in, and barrier derivatives of both signs over four decades.
     #[test]
     fn the_blocks_of_the_kronecker_form_are_the_product_through_the_whole_basis() {
-        let mut index = 0u32;
-        let mut next = move || {
-            index += 1;
-            (f64::from(index) * 0.618_033_988_749_894_9).fract() * 2.0 - 1.0
-        };
+        let mut next = weyl();
         let (mut compared, mut worst) = (0, 0.0f64);
         let mut spans = [0; 3];
         for n in 0..600 {
@@ -731,11 +731,7 @@ mod tests {
     /// coincident vertices) and barrier derivatives from 1e-3 to 1e150.
     #[test]
     fn a_span_certain_from_its_inputs_is_built() {
-        let mut index = 0u32;
-        let mut next = move || {
-            index += 1;
-            (f64::from(index) * 0.618_033_988_749_894_9).fract() * 2.0 - 1.0
-        };
+        let mut next = weyl();
         let (mut certain, mut declined, mut uncertain_built) = (0, 0, 0);
         for n in 0..600 {
             let kind = if n % 2 == 0 {
