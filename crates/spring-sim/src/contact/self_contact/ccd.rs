@@ -69,26 +69,18 @@ pub fn clear_without_distance(
     thickness: f64,
     keep: f64,
 ) -> bool {
-    clear_by_separation(kind, separation(kind, x), dx, thickness, keep)
+    clear_with_bound(
+        separation(kind, x),
+        approach_bound(kind, dx),
+        thickness,
+        keep,
+    )
 }
 
-/// [`clear_without_distance`] with the pair's [`separation`] at `x` given (a caller that
-/// sweeps the pair along two steps from the same state computes it once).
-#[must_use]
-pub fn clear_by_separation(
-    kind: PairKind,
-    separation: f64,
-    dx: &[DVec3; 4],
-    thickness: f64,
-    keep: f64,
-) -> bool {
-    // A NaN separation fails the first test.
-    let lower = separation * (1.0 - SEPARATION_MARGIN) - thickness;
-    lower > 0.0 && clear_with_bound(separation, approach_bound(kind, dx), thickness, keep)
-}
-
-/// [`clear_by_separation`] with the pair's [`approach_bound`] `lp` given (a caller that
-/// sweeps the pair when it is not clear computes the bound once for both).
+/// [`clear_without_distance`] with the pair's [`separation`] at `x` and its
+/// [`approach_bound`] `lp` given (a caller that sweeps the pair when it is not clear
+/// computes the bound once for both, and one that sweeps it along two steps from the
+/// same state computes the separation once). A NaN separation fails the first test.
 #[must_use]
 pub fn clear_with_bound(separation: f64, lp: f64, thickness: f64, keep: f64) -> bool {
     let lower = separation * (1.0 - SEPARATION_MARGIN) - thickness;
