@@ -19,6 +19,7 @@
 use crate::pattern::HessianPattern;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::perm::PermRef;
 use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
@@ -168,6 +169,80 @@ pub const FACTOR_ENTRY_WEIGHT: f64 = 19.0;
 /// product, so 1).
 pub const SOLVE_WEIGHT: f64 = 1.0;
 
+/// The free particles' graph (the Newton matrix's 3x3 blocks as single entries, lower
+/// triangle) and its approximate minimum degree ordering (faer's AMD): the fill-reducing
+/// order of both the cost model's analysis and the direct solver's factorization.
+///
+/// The scalar matrix's AMD finds each particle's three unknowns indistinguishable and
+/// orders them together anyway; the particle graph has a ninth of the entries, so its
+/// ordering costs about a third less of the symbolic factorization, which a contact run
+/// pays again each time contact widens the pattern (docs/spring-sim.md).
+struct ParticleOrdering {
+    graph: SymbolicSparseColMat<usize>,
+    /// `perm[new] = old`, as faer's orderings.
+    perm: Vec<usize>,
+    perm_inv: Vec<usize>,
+}
+
+impl ParticleOrdering {
+    /// The ordering of `pattern`'s free particles (at least one).
+    fn of(pattern: &HessianPattern) -> Result<Self, SolverError> {
+        let particles = pattern.free_particles.len();
+        // Column p holds p, then every neighbour below it, read from the first scalar
+        // column of p's block column (its diagonal block's three entries, then three rows
+        // per neighbour).
+        let col_ptr = pattern.symbolic.col_ptr();
+        let row_idx = pattern.symbolic.row_idx();
+        let mut block_col_ptr = Vec::with_capacity(particles + 1);
+        let mut block_rows = Vec::with_capacity(pattern.nnz() / 9 + particles);
+        block_col_ptr.push(0usize);
+        for p in 0..particles {
+            block_rows.push(p);
+            let (start, end) = (col_ptr[3 * p] + 3, col_ptr[3 * p + 1]);
+            block_rows.extend(row_idx[start..end].iter().step_by(3).map(|r| r / 3));
+            block_col_ptr.push(block_rows.len());
+        }
+        let graph = SymbolicSparseColMat::new_checked(
+            particles,
+            particles,
+            block_col_ptr,
+            None,
+            block_rows,
+        );
+        let mut perm = vec![0usize; particles];
+        let mut perm_inv = vec![0usize; particles];
+        let mut work = MemBuffer::new(amd::order_scratch::<usize>(
+            particles,
+            graph.row_idx().len(),
+        ));
+        amd::order(
+            &mut perm,
+            &mut perm_inv,
+            graph.as_ref(),
+            amd::Control::default(),
+            MemStack::new(&mut work),
+        )
+        .map_err(SolverError::Ordering)?;
+        Ok(Self {
+            graph,
+            perm,
+            perm_inv,
+        })
+    }
+
+    /// The ordering of the unknowns, forward and inverse: each particle's three in the
+    /// particle's place, in their own order.
+    fn unknowns(&self) -> (Vec<usize>, Vec<usize>) {
+        let spread = |order: &[usize]| -> Vec<usize> {
+            order
+                .iter()
+                .flat_map(|&p| [3 * p, 3 * p + 1, 3 * p + 2])
+                .collect()
+        };
+        (spread(&self.perm), spread(&self.perm_inv))
+    }
+}
+
 /// The counts the automatic linear-solver choice is made from, for one Newton matrix
 /// pattern.
 ///
@@ -209,41 +284,9 @@ impl SolverCosts {
                 factor_multiply_adds: 0.0,
             });
         }
-        // The particle graph, lower triangle: column p holds p, then every neighbour
-        // below it, read from the first scalar column of p's block column (its diagonal
-        // block's three entries, then three rows per neighbour).
-        let col_ptr = pattern.symbolic.col_ptr();
-        let row_idx = pattern.symbolic.row_idx();
-        let mut block_col_ptr = Vec::with_capacity(particles + 1);
-        let mut block_rows = Vec::with_capacity(pattern.nnz() / 9 + particles);
-        block_col_ptr.push(0usize);
-        for p in 0..particles {
-            block_rows.push(p);
-            let (start, end) = (col_ptr[3 * p] + 3, col_ptr[3 * p + 1]);
-            block_rows.extend(row_idx[start..end].iter().step_by(3).map(|r| r / 3));
-            block_col_ptr.push(block_rows.len());
-        }
-        let graph = SymbolicSparseColMat::new_checked(
-            particles,
-            particles,
-            block_col_ptr,
-            None,
-            block_rows,
-        );
-        let mut perm = vec![0usize; particles];
-        let mut perm_inv = vec![0usize; particles];
-        let mut work = MemBuffer::new(amd::order_scratch::<usize>(
-            particles,
-            graph.row_idx().len(),
-        ));
-        amd::order(
-            &mut perm,
-            &mut perm_inv,
-            graph.as_ref(),
-            amd::Control::default(),
-            MemStack::new(&mut work),
-        )
-        .map_err(SolverError::Ordering)?;
+        let ParticleOrdering {
+            graph, perm_inv, ..
+        } = ParticleOrdering::of(pattern)?;
         // The permuted graph's upper triangle (what the column counts read).
         let mut columns: Vec<Vec<usize>> = vec![Vec::new(); particles];
         for p in 0..particles {
@@ -493,19 +536,27 @@ impl DirectSolver {
             supernodal_flop_ratio_threshold: threshold,
             ..Default::default()
         };
-        let symbolic = factorize_symbolic_cholesky(
-            pattern.symbolic.as_ref(),
-            Side::Lower,
-            SymmetricOrdering::Amd,
-            params,
-        )
-        .map_err(SolverError::SymbolicFactorization)?;
+        let n = pattern.dim();
+        // The particles' ordering spread to their unknowns (`ParticleOrdering`); an empty
+        // system has nothing to order.
+        let order = match n {
+            0 => None,
+            _ => Some(ParticleOrdering::of(pattern)?.unknowns()),
+        };
+        let ordering = match &order {
+            Some((forward, inverse)) => {
+                SymmetricOrdering::Custom(PermRef::new_checked(forward, inverse, n))
+            }
+            None => SymmetricOrdering::Identity,
+        };
+        let symbolic =
+            factorize_symbolic_cholesky(pattern.symbolic.as_ref(), Side::Lower, ordering, params)
+                .map_err(SolverError::SymbolicFactorization)?;
         let factor_values = vec![0.0; symbolic.len_val()];
         let factor_work = MemBuffer::new(
             symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
         );
         let solve_work = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
-        let n = pattern.dim();
         let permuted = PermutedMatrix::new(pattern, &symbolic);
         Ok(Self {
             symbolic,
@@ -1773,6 +1824,37 @@ mod tests {
                     .zip(&faers)
                     .all(|(a, b)| a.to_bits() == b.to_bits())
             );
+        }
+    }
+
+    /// The direct solver orders the unknowns by the particle graph's ordering, each
+    /// particle's three together in their own order, so its factor is the one the cost
+    /// model analyses: a simplicial factor holds exactly the analysis' entries below the
+    /// diagonal plus the diagonal, and the supernodal solver takes the same order.
+    #[test]
+    fn the_factor_follows_the_particle_ordering_the_costs_analyse() {
+        for n in [3, 11, 31] {
+            let system = SpringSystem::cloth(&ClothGrid::lab_sized(n, 0.05)).unwrap();
+            let far: Vec<[usize; 2]> = (0..n).map(|i| [i, n * n - 1 - i]).collect();
+            for pattern in [
+                HessianPattern::new(&system),
+                HessianPattern::with_pairs(&system, &far),
+            ] {
+                let costs = SolverCosts::analyze(&pattern).unwrap();
+                let solver = DirectSolver::new(&pattern, FactorStructure::Simplicial).unwrap();
+                assert_eq!(
+                    solver.factor_len() as f64,
+                    costs.factor_nonzeros + costs.dim as f64,
+                    "{n}"
+                );
+                let (forward, _) = solver.symbolic.perm().unwrap().arrays();
+                let particles = ParticleOrdering::of(&pattern).unwrap();
+                for (k, &old) in forward.iter().enumerate() {
+                    assert_eq!(old, 3 * particles.perm[k / 3] + k % 3, "{n}: unknown {k}");
+                }
+                let supernodal = DirectSolver::new(&pattern, FactorStructure::Supernodal).unwrap();
+                assert_eq!(supernodal.symbolic.perm().unwrap().arrays().0, forward);
+            }
         }
     }
 
