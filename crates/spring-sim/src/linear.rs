@@ -39,8 +39,8 @@ pub enum SolverError {
     /// faer's symbolic Cholesky factorization of the Newton matrix's pattern failed
     /// (an index overflow or an allocation failure).
     SymbolicFactorization(FaerError),
-    /// faer's approximate minimum degree ordering of the particle graph, for the
-    /// automatic solver choice's cost counts, failed.
+    /// faer's approximate minimum degree ordering of the particle graph failed (the order
+    /// of the direct solver's factor and of the automatic solver choice's cost counts).
     Ordering(FaerError),
     /// The thread pool of `threads` threads could not be started.
     ThreadPool {
@@ -85,7 +85,7 @@ impl std::fmt::Display for SolverError {
                 "linear_solver: the symbolic Cholesky factorization of the Newton matrix failed",
             ),
             Self::Ordering(_) => f.write_str(
-                "linear_solver: the ordering of the particle graph for the solver's cost model failed",
+                "linear_solver: the ordering of the particle graph (the direct solver's and the cost model's) failed",
             ),
             Self::ThreadPool { threads, .. } => {
                 write!(f, "threads: a pool of {threads} threads could not be started")
@@ -174,9 +174,10 @@ pub const SOLVE_WEIGHT: f64 = 1.0;
 /// order of both the cost model's analysis and the direct solver's factorization.
 ///
 /// The scalar matrix's AMD finds each particle's three unknowns indistinguishable and
-/// orders them together anyway; the particle graph has a ninth of the entries, so its
-/// ordering costs about a third less of the symbolic factorization, which a contact run
-/// pays again each time contact widens the pattern (docs/spring-sim.md).
+/// orders them together anyway; the particle graph has a ninth of the entries, and the
+/// whole symbolic set-up on it took about a third less time on 50 x 50 and 61 x 61 lab
+/// sheets, a set-up a contact run pays again each time contact widens the pattern
+/// (docs/spring-sim.md).
 struct ParticleOrdering {
     graph: SymbolicSparseColMat<usize>,
     /// `perm[new] = old`, as faer's orderings.
