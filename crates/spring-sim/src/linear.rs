@@ -1,8 +1,9 @@
 //! Linear solvers for the Newton system `H dx = -grad g`, behind one interface.
 //!
 //! - [`DirectSolver`]: faer's sparse Cholesky through the low-level API, with the
-//!   symbolic factorization (AMD ordering, simplicial or supernodal structure) computed
-//!   once per topology and the factor values and workspaces allocated once and reused.
+//!   symbolic factorization (the AMD ordering of the particle graph, simplicial or
+//!   supernodal structure) computed once per topology and the factor values and
+//!   workspaces allocated once and reused.
 //!   A failed factorization is retried on `H + sigma I` with a growing shift; the shifts
 //!   are counted for the step report. The supernodal path writes the matrix straight
 //!   into the ordering's positions through a slot map built once, and the last factor
