@@ -6,7 +6,9 @@
 
 use crate::common::{Sample, Xorshift as Rng};
 use sinew_math::DVec3;
-use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactTerm};
+use sinew_spring_sim::contact::self_contact::{
+    Candidate, PairKind, SelfContactSettings, SelfContactTerm, additive_ccd, candidates,
+};
 use sinew_spring_sim::potential::{HessianSink, StepContext, Term};
 use sinew_spring_sim::spring::Curvature;
 use sinew_spring_sim::{
@@ -14,6 +16,11 @@ use sinew_spring_sim::{
 };
 
 fn two_sheets() -> (SpringSystem, Vec<[usize; 3]>) {
+    two_sheets_fixing(vec![0])
+}
+
+/// [`two_sheets`] with the particles `fixed` pinned.
+fn two_sheets_fixing(fixed: Vec<usize>) -> (SpringSystem, Vec<[usize; 3]>) {
     let n = 3;
     let grid = ClothGrid {
         size: n,
@@ -45,7 +52,7 @@ fn two_sheets() -> (SpringSystem, Vec<[usize; 3]>) {
             gravity: DVec3::new(0.0, -9.81, 0.0),
         },
         bending: Bending::None,
-        fixed: vec![0],
+        fixed,
     };
     (cloth.build(&mesh).unwrap().system, t)
 }
@@ -287,6 +294,87 @@ fn max_step_looks_beyond_the_full_step_only_when_asked_to() {
         begun().max_step(&step, &x, &near, 2.0).to_bits(),
         longest.to_bits()
     );
+}
+
+/// The smallest safe fraction of `x -> x + dx` over every pair the broad phase lists,
+/// each swept by `additive_ccd` (1 when none caps it): what `max_step` answers for the
+/// step itself.
+fn swept_over_every_pair(term: &SelfContactTerm, x: &[DVec3], dx: &[DVec3], fixed: &[bool]) -> f64 {
+    let s = term.settings();
+    let prims = term.primitives();
+    let pairs = candidates(prims, x, Some(dx), s.dhat + s.thickness, fixed);
+    assert!(!pairs.is_empty());
+    pairs
+        .iter()
+        .map(|&c| {
+            let (kind, v) = match c {
+                Candidate::PointTriangle { vertex, triangle } => {
+                    let [a, b, t] = prims.triangles[triangle];
+                    (PairKind::PointTriangle, [vertex, a, b, t])
+                }
+                Candidate::EdgeEdge { a, b } => {
+                    let (ea, eb) = (prims.edges[a], prims.edges[b]);
+                    (PairKind::EdgeEdge, [ea[0], ea[1], eb[0], eb[1]])
+                }
+            };
+            additive_ccd(
+                kind,
+                &v.map(|i| x[i]),
+                &v.map(|i| dx[i]),
+                s.thickness,
+                1.0 - s.toi_fraction,
+            )
+        })
+        .fold(1.0, f64::min)
+}
+
+#[test]
+fn a_move_of_pinned_particles_alone_is_capped_as_every_pair_caps_it() {
+    // The top sheet's first row (particles 9, 10, 11) is pinned and moved alone; the
+    // term sweeps only the pairs touching it, and must answer what sweeping every
+    // listed pair answers.
+    let (system, triangles) = two_sheets_fixing(vec![0, 9, 10, 11]);
+    let settings = two_sheets_thick().2;
+    let x = system.positions().to_vec();
+    let fixed = system.fixed();
+    let step = StepContext::new(&system, 1.0 / 60.0, &x, &x);
+    let pins_down = |by: DVec3| -> Vec<DVec3> {
+        (0..x.len())
+            .map(|i| {
+                if (9..12).contains(&i) {
+                    by
+                } else {
+                    DVec3::ZERO
+                }
+            })
+            .collect()
+    };
+    // Down through the bottom sheet (its 1 mm gap closes at 3 mm per unit step) and
+    // sideways: capped below a third, the bits of every pair's sweep, at any reach.
+    let through = pins_down(DVec3::new(0.002, -3e-3, 0.001));
+    let term = begun(&system, &triangles, settings, &step);
+    let stats = term.stats();
+    let before = stats.broad_phases();
+    let capped = term.max_step(&step, &x, &through, f64::INFINITY);
+    assert!(capped > 0.0 && capped < 1.0 / 3.0, "{capped}");
+    let every = swept_over_every_pair(&term, &x, &through, fixed);
+    assert_eq!(capped.to_bits(), every.to_bits());
+    assert_eq!(
+        term.max_step(&step, &x, &through, 1.0).to_bits(),
+        every.to_bits()
+    );
+    // Each sweep of the move is a broad phase of its own (the first capped the step,
+    // so it did not look along the longer one).
+    assert_eq!(stats.broad_phases(), before + 2);
+    // A short move: the full step is clear, and along eight of it the term answers
+    // every pair's sweep of the longer step, times eight.
+    let near = pins_down(DVec3::new(0.0, -2e-4, 0.0));
+    let longest = term.max_step(&step, &x, &near, f64::INFINITY);
+    let long: Vec<DVec3> = near.iter().map(|d| 8.0 * *d).collect();
+    let every_long = 8.0 * swept_over_every_pair(&term, &x, &long, fixed);
+    assert!(longest > 1.0 && longest < 8.0, "{longest}");
+    assert_eq!(longest.to_bits(), every_long.to_bits());
+    assert_eq!(term.max_step(&step, &x, &near, 1.0), 1.0);
 }
 
 #[test]

@@ -337,6 +337,93 @@ pub fn candidates(
     out
 }
 
+/// The pairs of [`candidates`]`(prims, x, dx, margin, skip)` that have a vertex in
+/// `moving` (indexed by vertex), in the same order, without hashing the whole mesh
+/// against itself: for a step that moves a few vertices (the pinned particles of a
+/// driven move), only the boxes of the primitives touching a moving vertex are hashed,
+/// and every other primitive looks them up (a moving vertex, triangle or edge met by a
+/// query is then tested exactly as [`candidates`] tests it). Runs on the calling thread:
+/// the moving primitives are few.
+#[must_use]
+pub fn candidates_touching(
+    prims: &Primitives,
+    x: &[DVec3],
+    dx: Option<&[DVec3]>,
+    margin: f64,
+    skip: &[bool],
+    moving: &[bool],
+) -> Vec<Candidate> {
+    let boxes = Boxes::new(prims, x, dx, margin);
+    if prims.triangles.is_empty() {
+        return Vec::new();
+    }
+    let cell = cell_size(&boxes.triangle);
+    let mut out = Vec::new();
+    // A vertex that moves against every triangle: its box hashed, each triangle's box
+    // looking it up.
+    let vertices: Vec<usize> = prims
+        .vertices
+        .iter()
+        .copied()
+        .filter(|&v| moving[v])
+        .collect();
+    let vertex_boxes: Vec<Aabb> = vertices.iter().map(|&v| boxes.vertex[v]).collect();
+    let grid = Grid::new(&vertex_boxes, cell);
+    let mut found = Found::new(vertices.len());
+    for (t, b) in boxes.triangle.iter().enumerate() {
+        grid.query(b, vertices.len(), |k| {
+            found.meet(k, t, || {
+                point_triangle_kept(prims, &boxes, skip, vertices[k], t)
+            });
+        });
+        out.extend(found.kept.drain(..).map(|k| Candidate::PointTriangle {
+            vertex: vertices[k],
+            triangle: t,
+        }));
+    }
+    // A vertex that stands still against every triangle that moves.
+    let triangles: Vec<usize> = (0..prims.triangles.len())
+        .filter(|&t| prims.triangles[t].iter().any(|&v| moving[v]))
+        .collect();
+    let triangle_boxes: Vec<Aabb> = triangles.iter().map(|&t| boxes.triangle[t]).collect();
+    let grid = Grid::new(&triangle_boxes, cell);
+    let mut found = Found::new(triangles.len());
+    for &v in prims.vertices.iter().filter(|&&v| !moving[v]) {
+        grid.query(&boxes.vertex[v], triangles.len(), |k| {
+            found.meet(k, v, || {
+                point_triangle_kept(prims, &boxes, skip, v, triangles[k])
+            });
+        });
+        out.extend(found.kept.drain(..).map(|k| Candidate::PointTriangle {
+            vertex: v,
+            triangle: triangles[k],
+        }));
+    }
+    // Every edge against the edges that move (a pair of two moving edges is met from
+    // both, and kept once).
+    let edges: Vec<usize> = (0..prims.edges.len())
+        .filter(|&e| prims.edges[e].iter().any(|&v| moving[v]))
+        .collect();
+    let edge_boxes: Vec<Aabb> = edges.iter().map(|&e| boxes.edge[e]).collect();
+    let grid = Grid::new(&edge_boxes, cell);
+    let mut found = Found::new(edges.len());
+    for (a, b) in boxes.edge.iter().enumerate() {
+        grid.query(b, edges.len(), |k| {
+            let (lo, hi) = (a.min(edges[k]), a.max(edges[k]));
+            found.meet(k, a, || {
+                lo != hi && edge_edge_kept(prims, &boxes, skip, lo, hi)
+            });
+        });
+        out.extend(found.kept.drain(..).map(|k| Candidate::EdgeEdge {
+            a: a.min(edges[k]),
+            b: a.max(edges[k]),
+        }));
+    }
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
 /// One task's record of the boxes its queries met: a box is met once per shared cell
 /// (and per bucket collision), and `seen[i]` holds the last query that met box `i`, so
 /// each pair is tested once without sorting the hits; the kept ones of the current query
@@ -664,6 +751,66 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The vertices of a pair (a vertex and a triangle's three, or two edges' four).
+    fn pair_vertices(prims: &Primitives, c: Candidate) -> Vec<usize> {
+        match c {
+            Candidate::PointTriangle { vertex, triangle } => {
+                let mut v = prims.triangles[triangle].to_vec();
+                v.push(vertex);
+                v
+            }
+            Candidate::EdgeEdge { a, b } => [prims.edges[a], prims.edges[b]].concat(),
+        }
+    }
+
+    #[test]
+    fn the_pairs_touching_a_moving_vertex_are_the_full_lists_pairs_that_touch_one() {
+        let (x, dx, triangles) = stacked_sheets();
+        let prims = Primitives::new(&triangles);
+        // The lower sheet's first row and a scattered few of the upper sheet's vertices
+        // move; one vertex of the upper sheet is skipped (fixed) too.
+        let mut moving = vec![false; x.len()];
+        for v in (0..24).chain((600..x.len()).step_by(37)) {
+            moving[v] = true;
+        }
+        let mut skip = vec![false; x.len()];
+        skip[600] = true;
+        skip[0] = true;
+        for sweep in [None, Some(dx.as_slice())] {
+            let all = candidates(&prims, &x, sweep, 3e-3, &skip);
+            let touching: Vec<Candidate> = all
+                .iter()
+                .copied()
+                .filter(|&c| pair_vertices(&prims, c).iter().any(|&v| moving[v]))
+                .collect();
+            let fast = candidates_touching(&prims, &x, sweep, 3e-3, &skip, &moving);
+            assert!(
+                fast == touching,
+                "sweep {}: {} pairs against {}",
+                sweep.is_some(),
+                fast.len(),
+                touching.len()
+            );
+            assert!(fast.len() < all.len());
+            for kind in [0, 1] {
+                assert!(
+                    fast.iter()
+                        .any(|c| matches!(c, Candidate::PointTriangle { .. }) == (kind == 0)),
+                    "sweep {}: no pair of kind {kind}",
+                    sweep.is_some()
+                );
+            }
+        }
+        // Nothing moving: no pair; everything moving: every pair.
+        let none = vec![false; x.len()];
+        assert!(candidates_touching(&prims, &x, Some(&dx), 3e-3, &skip, &none).is_empty());
+        let every = vec![true; x.len()];
+        assert_eq!(
+            candidates_touching(&prims, &x, Some(&dx), 3e-3, &skip, &every),
+            candidates(&prims, &x, Some(&dx), 3e-3, &skip)
+        );
     }
 
     #[test]

@@ -50,7 +50,7 @@
 //! ([`crate::potential::Term::take_missing_pairs`]) and widens its pattern, so from that
 //! iteration on the Newton matrix has the pairs' full blocks.
 
-use super::broad::{Candidate, CandidateCache, Primitives, candidates};
+use super::broad::{Candidate, CandidateCache, Primitives, candidates, candidates_touching};
 use super::ccd::{additive_ccd_with_bound, approach_bound, clear_with_bound};
 use super::closed::{PAIR_BLOCKS, PairBlocks, RegionForm};
 use super::distance::{
@@ -929,13 +929,7 @@ impl SelfContactTerm {
         // line moving between the cores, and the sweeps waited on it most of their time.
         let smallest = SharedMinimum(AtomicU64::new(1.0f64.to_bits()));
         let sweep = |q: &Placed, d: &[DVec3; 4], lp: f64, gap0: f64| {
-            let limit = f64::from_bits(smallest.0.load(Ordering::Relaxed));
-            let fraction =
-                additive_ccd_with_bound(q.kind, &q.p, d, lp, thickness, keep, gap0, limit);
-            if fraction < limit {
-                smallest.0.fetch_min(fraction.to_bits(), Ordering::Relaxed);
-            }
-            fraction
+            smallest.sweep(q, d, lp, gap0, thickness, keep)
         };
         let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
         let seg = &mut *segment;
@@ -987,6 +981,21 @@ impl SelfContactTerm {
         drop(segment);
         self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
         let found = candidates(&self.prims, x, Some(dx), margin, fixed);
+        self.ccd_fraction_of(&found, x, dx, &smallest)
+    }
+
+    /// The smallest safe fraction of the step `x -> x + dx` over the pairs `found`
+    /// (at most 1), each pair's sweep stopping at `smallest`, the minimum found so far,
+    /// which it lowers.
+    fn ccd_fraction_of(
+        &self,
+        found: &[Candidate],
+        x: &[DVec3],
+        dx: &[DVec3],
+        smallest: &SharedMinimum,
+    ) -> f64 {
+        let keep = 1.0 - self.settings.toi_fraction;
+        let thickness = self.settings.thickness;
         let mut fractions = Vec::new();
         spread::fill(&mut fractions, found.len(), 0.0, |i| {
             let q = self.placed(found[i], x);
@@ -995,10 +1004,32 @@ impl SelfContactTerm {
             if clear_with_bound(separation(q.kind, &q.p), lp, thickness, keep) {
                 1.0
             } else {
-                sweep(&q, &d, lp, self.gap_of(&q))
+                smallest.sweep(&q, &d, lp, self.gap_of(&q), thickness, keep)
             }
         });
         fractions.into_iter().fold(1.0, f64::min)
+    }
+
+    /// [`Term::max_step`] for a move of pinned particles alone (the driver's move of the
+    /// pins before a step): only the pairs touching a moving particle are hashed and
+    /// swept, since a pair whose particles all stand still keeps its distance and caps
+    /// nothing. The segment's list is left as it was: no line search follows along
+    /// this move.
+    fn pinned_max_step(&self, x: &[DVec3], dx: &[DVec3], reach: f64, fixed: &[bool]) -> f64 {
+        let margin = self.settings.dhat + self.settings.thickness;
+        let moving: Vec<bool> = dx.iter().map(|d| *d != DVec3::ZERO).collect();
+        let fraction = |dx: &[DVec3]| {
+            self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
+            let found = candidates_touching(&self.prims, x, Some(dx), margin, fixed, &moving);
+            let smallest = SharedMinimum(AtomicU64::new(1.0f64.to_bits()));
+            self.ccd_fraction_of(&found, x, dx, &smallest)
+        };
+        let t = fraction(dx);
+        if t < 1.0 || reach <= 1.0 {
+            return t;
+        }
+        let long: Vec<DVec3> = dx.iter().map(|d| LONG_STEP * *d).collect();
+        (LONG_STEP * fraction(&long)).max(1.0)
     }
 }
 
@@ -1635,6 +1666,9 @@ impl Term for SelfContactTerm {
 
     fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], reach: f64) -> f64 {
         let fixed = step.system.fixed();
+        if dx.iter().zip(fixed).all(|(d, &f)| f || *d == DVec3::ZERO) {
+            return self.pinned_max_step(x, dx, reach, fixed);
+        }
         // One broad phase for the whole segment the line search may try, `x + [0,
         // LONG_STEP] dx`: the cap's two sweeps, every trial's energy change and the next
         // iterate's active set are queries inside it (docs/contact.md, "One broad phase
@@ -1669,6 +1703,27 @@ enum HessianForm {
 /// threads reading it do not share a line with anything written.
 #[repr(align(128))]
 struct SharedMinimum(AtomicU64);
+
+impl SharedMinimum {
+    /// The pair's safe fraction of its step `d` up to the minimum so far (see
+    /// `additive_ccd_within`), lowering the minimum when it is below it.
+    fn sweep(
+        &self,
+        q: &Placed,
+        d: &[DVec3; 4],
+        lp: f64,
+        gap0: f64,
+        thickness: f64,
+        keep: f64,
+    ) -> f64 {
+        let limit = f64::from_bits(self.0.load(Ordering::Relaxed));
+        let fraction = additive_ccd_with_bound(q.kind, &q.p, d, lp, thickness, keep, gap0, limit);
+        if fraction < limit {
+            self.0.fetch_min(fraction.to_bits(), Ordering::Relaxed);
+        }
+        fraction
+    }
+}
 
 /// [`SelfContactTerm::first_asked`]'s values.
 const FORM_NONE: u8 = 0;
