@@ -7,8 +7,8 @@ use crate::common::{Sample, Xorshift as Rng};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::distance::{
     Closest, PairKind, beyond, edge_edge_closest, mollifier, mollifier_derivatives,
-    point_triangle_closest, separation, squared_distance, squared_distance_derivatives,
-    squared_distance_in,
+    mollifier_gradient, point_triangle_closest, separation, squared_distance,
+    squared_distance_derivatives, squared_distance_gradient, squared_distance_in,
 };
 use sinew_spring_sim::contact::self_contact::dual::values;
 use sinew_spring_sim::contact::self_contact::psd12::{project_psd12, symmetric_eigen12};
@@ -314,6 +314,45 @@ fn gradients_and_hessians_match_finite_differences_in_every_region() {
             check_derivatives(*kind, &pair);
         }
     }
+}
+
+/// The same bits in `f64`s, so `-0.0` and `0.0` differ and a NaN fails.
+fn bits(values: &[f64]) -> Vec<u64> {
+    values.iter().map(|v| v.to_bits()).collect()
+}
+
+#[test]
+fn the_first_order_duals_give_the_second_order_ones_value_and_gradient_bit_for_bit() {
+    let mut checked = 0;
+    for (seed, kind) in [PairKind::PointTriangle, PairKind::EdgeEdge]
+        .into_iter()
+        .enumerate()
+    {
+        for pair in pairs_in(kind, |_| true, 200, 40 + seed as u64) {
+            let full = squared_distance_derivatives(kind, &pair);
+            let first = squared_distance_gradient(kind, &pair);
+            assert_eq!(first.value.to_bits(), full.value.to_bits());
+            assert_eq!(
+                bits(&first.gradient),
+                bits(&full.gradient),
+                "{kind:?} {pair:?}"
+            );
+            checked += 1;
+        }
+    }
+    // The mollifier below its threshold (every random pair of edges is, at 100), where
+    // its derivatives are not constant.
+    let mut rng = Rng(47);
+    for _ in 0..200 {
+        let pair: [DVec3; 4] = std::array::from_fn(|_| rng.vec(1.0));
+        let full = mollifier_derivatives(&pair, 100.0);
+        let first = mollifier_gradient(&pair, 100.0);
+        assert!(full.value < 1.0 && full.gradient.iter().any(|g| *g != 0.0));
+        assert_eq!(first.value.to_bits(), full.value.to_bits());
+        assert_eq!(bits(&first.gradient), bits(&full.gradient), "{pair:?}");
+        checked += 1;
+    }
+    assert_eq!(checked, 600);
 }
 
 #[test]

@@ -18,7 +18,7 @@
 //! boundary two forms agree to first order), which is what the barrier and the line
 //! search need. Derivations and the region rules: docs/contact.md.
 
-use super::dual::{Dual12, Scalar, Vec3, values, variables};
+use super::dual::{Dual12, Gradient12, Scalar, Vec3, gradient_variables, values, variables};
 use sinew_math::DVec3;
 
 /// The region of the closest points of a pair: which closed form, on which of the pair's
@@ -261,4 +261,18 @@ pub fn mollifier(v: &[DVec3; 4], eps_x: f64) -> f64 {
 #[must_use]
 pub fn mollifier_derivatives(v: &[DVec3; 4], eps_x: f64) -> Dual12 {
     mollifier_in(&variables(v), eps_x)
+}
+
+/// The squared distance of the pair `v` with its exact gradient alone: the value and
+/// gradient of [`squared_distance_derivatives`], bit for bit.
+#[must_use]
+pub fn squared_distance_gradient(kind: PairKind, v: &[DVec3; 4]) -> Gradient12 {
+    squared_distance_in(&gradient_variables(v), kind.closest(v))
+}
+
+/// The mollifier of the edge pair `v` with its exact gradient alone: the value and
+/// gradient of [`mollifier_derivatives`], bit for bit.
+#[must_use]
+pub fn mollifier_gradient(v: &[DVec3; 4], eps_x: f64) -> Gradient12 {
+    mollifier_in(&gradient_variables(v), eps_x)
 }

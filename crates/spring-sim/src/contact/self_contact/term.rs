@@ -54,10 +54,11 @@ use super::broad::{Candidate, CandidateCache, Primitives, candidates, candidates
 use super::ccd::{additive_ccd_with_bound, approach_bound, clear_with_bound};
 use super::closed::{PAIR_BLOCKS, PairBlocks, RegionForm};
 use super::distance::{
-    Closest, PairKind, SEPARATION_MARGIN, mollifier, mollifier_derivatives, separation,
-    squared_distance, squared_distance_derivatives, squared_distance_in,
+    Closest, PairKind, SEPARATION_MARGIN, mollifier, mollifier_derivatives, mollifier_gradient,
+    separation, squared_distance, squared_distance_derivatives, squared_distance_gradient,
+    squared_distance_in,
 };
-use super::dual::{Dual12, Scalar, values};
+use super::dual::{Dual12, Gradient12, Scalar, values};
 use super::psd12::project_psd12;
 use super::spread;
 use crate::contact::ContactError;
@@ -736,7 +737,7 @@ impl SelfContactTerm {
             out.present = present;
             return;
         }
-        if let Some(e) = self.pair_energy_dual(kappa, c, x) {
+        if let Some(e) = self.pair_energy_dual::<Gradient12>(kappa, c, x) {
             out.gradient = e.gradient;
             out.present = true;
         }
@@ -767,7 +768,7 @@ impl SelfContactTerm {
             }
         }
         if pair.present
-            && let Some(e) = self.pair_energy_dual(kappa, c, x)
+            && let Some(e) = self.pair_energy_dual::<Dual12>(kappa, c, x)
         {
             let mollified = self
                 .mollifier_threshold(c)
@@ -825,31 +826,31 @@ impl SelfContactTerm {
         Some(true)
     }
 
-    /// A pair's energy with its exact gradient and Hessian in the pair's twelve
-    /// coordinates (`None` when the pair is beyond `dhat` or not admissible).
-    fn pair_energy_dual(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> Option<Dual12> {
+    /// A pair's energy with its exact derivatives in the pair's twelve coordinates, the
+    /// gradient alone ([`Gradient12`]) or with the Hessian ([`Dual12`]), the same bits
+    /// for what both hold (`None` when the pair is beyond `dhat` or not admissible).
+    fn pair_energy_dual<D: PairDual>(&self, kappa: f64, c: Candidate, x: &[DVec3]) -> Option<D> {
         let (kind, v) = self.pair(c);
         let p = v.map(|i| x[i]);
-        let s = squared_distance_derivatives(kind, &p);
-        if s.value <= 0.0 {
+        let s = D::squared_distance(kind, &p);
+        if s.value() <= 0.0 {
             return None;
         }
-        let mut gap = s.sqrt();
-        gap.value -= self.settings.thickness;
-        let (g, dhat) = (gap.value, self.settings.dhat);
+        let gap = s.sqrt().less(self.settings.thickness);
+        let (g, dhat) = (gap.value(), self.settings.dhat);
         if g.is_nan() || g <= 0.0 || g >= dhat {
             return None;
         }
-        let b = gap.chain(
+        let b = gap.chain_to(
             barrier(g, dhat),
             barrier_first_derivative(g, dhat),
             barrier_second_derivative(g, dhat),
         );
         let e = match self.mollifier_threshold(c) {
-            Some(eps) => mollifier_derivatives(&p, eps) * b,
+            Some(eps) => D::mollifier(&p, eps) * b,
             None => b,
         };
-        Some(e.scale(kappa))
+        Some(e.scaled(kappa))
     }
 
     /// Calls `f` with the derivatives of every pair with a barrier at `x` and, when `form`
@@ -1687,6 +1688,58 @@ impl Term for SelfContactTerm {
         // The full step is known to be safe; ACCD along the longer path stops at its own
         // conservative times, which may fall short of it, so never return less.
         (LONG_STEP * self.ccd_fraction(x, &long, fixed)).max(1.0)
+    }
+}
+
+/// The dual numbers a pair's energy is differentiated with
+/// ([`SelfContactTerm::pair_energy_dual`]): the same operations on both, so the
+/// gradient of [`Gradient12`] is [`Dual12`]'s, bit for bit.
+trait PairDual: Scalar {
+    fn squared_distance(kind: PairKind, p: &[DVec3; 4]) -> Self;
+    fn mollifier(p: &[DVec3; 4], eps_x: f64) -> Self;
+    /// `phi(self)` given `phi`, `phi'` and `phi''` there.
+    fn chain_to(&self, value: f64, first: f64, second: f64) -> Self;
+    /// `self * s` for a constant `s`.
+    fn scaled(&self, s: f64) -> Self;
+    /// `self - c` for a constant `c` (the derivatives as they are).
+    fn less(self, c: f64) -> Self;
+}
+
+impl PairDual for Dual12 {
+    fn squared_distance(kind: PairKind, p: &[DVec3; 4]) -> Self {
+        squared_distance_derivatives(kind, p)
+    }
+    fn mollifier(p: &[DVec3; 4], eps_x: f64) -> Self {
+        mollifier_derivatives(p, eps_x)
+    }
+    fn chain_to(&self, value: f64, first: f64, second: f64) -> Self {
+        self.chain(value, first, second)
+    }
+    fn scaled(&self, s: f64) -> Self {
+        self.scale(s)
+    }
+    fn less(mut self, c: f64) -> Self {
+        self.value -= c;
+        self
+    }
+}
+
+impl PairDual for Gradient12 {
+    fn squared_distance(kind: PairKind, p: &[DVec3; 4]) -> Self {
+        squared_distance_gradient(kind, p)
+    }
+    fn mollifier(p: &[DVec3; 4], eps_x: f64) -> Self {
+        mollifier_gradient(p, eps_x)
+    }
+    fn chain_to(&self, value: f64, first: f64, _second: f64) -> Self {
+        self.chain(value, first)
+    }
+    fn scaled(&self, s: f64) -> Self {
+        self.scale(s)
+    }
+    fn less(mut self, c: f64) -> Self {
+        self.value -= c;
+        self
     }
 }
 
