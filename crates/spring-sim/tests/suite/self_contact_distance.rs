@@ -10,8 +10,10 @@ use sinew_spring_sim::contact::self_contact::distance::{
     mollifier_gradient, point_triangle_closest, separation, squared_distance,
     squared_distance_derivatives, squared_distance_gradient, squared_distance_in,
 };
-use sinew_spring_sim::contact::self_contact::dual::values;
-use sinew_spring_sim::contact::self_contact::psd12::{project_psd12, symmetric_eigen12};
+use sinew_spring_sim::contact::self_contact::dual::{Scalar, values};
+use sinew_spring_sim::contact::self_contact::psd12::{
+    project_psd12, project_psd12_pair, symmetric_eigen12,
+};
 
 fn v(x: f64, y: f64, z: f64) -> DVec3 {
     DVec3::new(x, y, z)
@@ -400,6 +402,65 @@ fn the_mollifier_vanishes_for_parallel_edges_and_is_one_beyond_its_threshold() {
             assert!((fd - dual.hessian[i][j]).abs() < 1e-4, "{i},{j}");
         }
     }
+}
+
+/// A barrier-like energy of a pair, `m(x) b(d)` with `b(d) = -ln(d)` of the squared
+/// distance's root, so its Hessian has negative eigenvalues where `b' < 0` bends it and
+/// (for edges below `eps_x`) the mollifier's over all twelve coordinates.
+fn pair_energy_hessian(kind: PairKind, pair: &[DVec3; 4], eps_x: Option<f64>) -> [[f64; 12]; 12] {
+    let d = squared_distance_derivatives(kind, pair).sqrt();
+    let b = d.chain(-d.value.ln(), -1.0 / d.value, 1.0 / (d.value * d.value));
+    match eps_x {
+        Some(eps) => (mollifier_derivatives(pair, eps) * b).hessian,
+        None => b.hessian,
+    }
+}
+
+// Index loops read as the matrix formulas.
+#[allow(clippy::needless_range_loop)]
+#[test]
+fn a_pairs_hessian_projected_in_the_nine_directions_beside_translation_is_the_full_projection() {
+    let mut indefinite = 0;
+    let mut reduced = 0;
+    for (seed, kind, eps_x) in [
+        (61, PairKind::EdgeEdge, Some(100.0)),
+        (62, PairKind::EdgeEdge, None),
+        (63, PairKind::PointTriangle, None),
+    ] {
+        for pair in pairs_in(kind, |_| true, 100, seed) {
+            let m = pair_energy_hessian(kind, &pair, eps_x);
+            let full = project_psd12(&m);
+            let nine = project_psd12_pair(&m);
+            let every_row = m.iter().all(|row| row.iter().any(|&x| x != 0.0));
+            let scale = m.iter().flatten().fold(0.0f64, |a, x| a.max(x.abs()));
+            for i in 0..12 {
+                for j in 0..12 {
+                    assert!(
+                        (nine[i][j] - full[i][j]).abs() <= 1e-10 * scale,
+                        "{kind:?} {i},{j}: {} against {}",
+                        nine[i][j],
+                        full[i][j]
+                    );
+                    if every_row {
+                        assert_eq!(nine[i][j].to_bits(), nine[j][i].to_bits());
+                    }
+                }
+            }
+            // A common translation of the four vertices is in the result's null space.
+            for c in 0..3 {
+                for i in 0..12 {
+                    let row: f64 = (0..4).map(|k| nine[i][3 * k + c]).sum();
+                    assert!(row.abs() <= 1e-12 * scale, "{row}");
+                }
+            }
+            let (values, _) = symmetric_eigen12(&m);
+            indefinite += usize::from(values.iter().any(|&v| v < -1e-9 * scale));
+            reduced += usize::from(every_row);
+        }
+    }
+    // The cases are not vacuous: every Hessian is indefinite, and more than half have
+    // every row (the nine-direction path, not the fallback for a vertex left out).
+    assert!(indefinite == 300 && reduced > 150, "{indefinite} {reduced}");
 }
 
 // Index loops read as the matrix formulas.

@@ -59,7 +59,7 @@ use super::distance::{
     squared_distance_in,
 };
 use super::dual::{Dual12, Gradient12, Scalar, values};
-use super::psd12::project_psd12;
+use super::psd12::project_psd12_pair;
 use super::spread;
 use crate::contact::ContactError;
 use crate::contact::barrier::{
@@ -776,7 +776,7 @@ impl SelfContactTerm {
             *out = PairBlocks::from_matrix(&if form == HessianForm::Exact && !mollified {
                 e.hessian
             } else {
-                project_psd12(&e.hessian)
+                project_psd12_pair(&e.hessian)
             });
         }
     }
