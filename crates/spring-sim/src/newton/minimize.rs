@@ -72,7 +72,15 @@ impl BackwardEuler {
     ) -> Result<StepReport, ModelError> {
         #[cfg(feature = "parallel")]
         if let Some(pool) = self.pcg.pool().cloned() {
-            return pool.install(|| self.minimize_here(system, h));
+            return pool.install(|| {
+                let report = self.minimize_here(system, h);
+                // A direct solver still being set up (an iteration that widened the
+                // pattern and ended without a direct solve) is taken on the pool, so
+                // none is left pending once the minimization returns.
+                let settled = self.settle_direct();
+                let report = report?;
+                settled.map(|()| report)
+            });
         }
         self.minimize_here(system, h)
     }
@@ -124,7 +132,7 @@ impl BackwardEuler {
             // coupling and Newton converges only linearly, typically to the iteration cap.
             let missing = self.potential.take_missing_pairs();
             if !missing.is_empty() {
-                self.add_coupled_pairs(system, &missing)?;
+                self.widen(system, &missing, true)?;
                 report.pattern_pairs_added += missing.len();
             }
             self.potential.update_active_set(&step, &self.x);
@@ -234,6 +242,7 @@ impl BackwardEuler {
                         self.assemble_hessian(&step, curvature);
                     }
                     assembled = false;
+                    self.settle_direct()?;
                     solved = self.unshifted_direction(kind, rtol, &mut report);
                     if solved {
                         break;
@@ -268,6 +277,7 @@ impl BackwardEuler {
                 // their projections when that matrix is refused (docs/contact.md, "The
                 // exact pair Hessian from the first iteration").
                 self.assemble_hessian_with(&step, Curvature::ExactContact(1.0), blocks_ready);
+                self.settle_direct()?;
                 solved = self.unshifted_direction(kind, rtol, &mut report);
                 if !solved {
                     exact_first = false;
@@ -283,6 +293,7 @@ impl BackwardEuler {
             } else {
                 self.assemble_hessian_with(&step, Curvature::Clamped, blocks_ready);
             }
+            self.settle_direct()?;
             if !solved && kind == LinearSolverKind::Direct && self.direct.is_some() {
                 solved = self.direct_direction(true, &mut report);
             }

@@ -44,6 +44,9 @@ use crate::report::{IntegratorKind, StepError, StepReport, StepStop};
 use crate::spring::Curvature;
 use sinew_math::DVec3;
 use solver_choice::SolverChooser;
+use std::sync::Arc;
+#[cfg(feature = "parallel")]
+use std::sync::{Mutex, PoisonError};
 
 /// Which one-step (or two-step) implicit scheme a minimization implements.
 #[derive(Clone, Copy, Debug)]
@@ -90,8 +93,12 @@ pub(crate) enum Scheme<'a> {
 #[derive(Debug)]
 pub struct BackwardEuler {
     settings: NewtonSettings,
-    pattern: HessianPattern,
+    pattern: Arc<HessianPattern>,
     direct: Option<DirectSolver>,
+    /// The direct solver of a pattern widened within a step, being set up on the pool
+    /// (`None` outside a minimization: it is always taken before one returns).
+    #[cfg(feature = "parallel")]
+    pending_direct: Option<PendingDirect>,
     pcg: PcgSolver,
     values: Vec<f64>,
     grad: Vec<f64>,
@@ -193,8 +200,10 @@ impl BackwardEuler {
             spring_energies: Vec::new(),
             #[cfg(feature = "parallel")]
             gather: None,
+            #[cfg(feature = "parallel")]
+            pending_direct: None,
             direct,
-            pattern,
+            pattern: Arc::new(pattern),
         })
     }
 
@@ -216,6 +225,17 @@ impl BackwardEuler {
         // A second factor's memory only where the kept factor is used.
         direct.set_keep_factor(settings.factor_reuse_iterations > 0);
         Ok(direct)
+    }
+
+    /// Takes the direct solver being set up in the background ([`Self::widen`]), waiting
+    /// for it (or setting it up on this thread if no other thread has begun it); an
+    /// `Err` when its set-up failed. Nothing to do without one.
+    pub(super) fn settle_direct(&mut self) -> Result<(), ModelError> {
+        #[cfg(feature = "parallel")]
+        if let Some(pending) = self.pending_direct.take() {
+            self.direct = Some(pending.wait()?);
+        }
+        Ok(())
     }
 
     /// The threads PCG's work, the springs' part of the assembly and the line search run
@@ -304,6 +324,25 @@ impl BackwardEuler {
         system: &SpringSystem,
         pairs: &[[usize; 2]],
     ) -> Result<(), ModelError> {
+        self.widen(system, pairs, false)
+    }
+
+    /// [`Self::add_coupled_pairs`]; with `in_background`, when the caller runs on a pool
+    /// of more than one thread and a direct solver exists, that solver's set-up for the
+    /// widened pattern (its ordering and symbolic factorization, sequential work) runs as
+    /// a job on the pool while the caller goes on with the iteration (the active set, the
+    /// gradient, the Newton matrix), and is taken by [`Self::settle_direct`] before the
+    /// first direct solve. The solver is the same whichever thread sets it up and
+    /// whenever, so the results do not depend on it. A set-up that fails is then
+    /// reported by `settle_direct`, with the pattern already widened (and no direct
+    /// solver until one is built again).
+    pub(super) fn widen(
+        &mut self,
+        system: &SpringSystem,
+        pairs: &[[usize; 2]],
+        in_background: bool,
+    ) -> Result<(), ModelError> {
+        self.settle_direct()?;
         self.check_topology(system)?;
         if pairs.iter().flatten().any(|&p| p >= system.len()) {
             return Err(ModelError::BadParameter {
@@ -313,12 +352,19 @@ impl BackwardEuler {
         }
         let mut coupled = self.coupled_pairs.clone();
         coupled.extend_from_slice(pairs);
-        let pattern = HessianPattern::with_pairs(system, &coupled);
+        let pattern = Arc::new(HessianPattern::with_pairs(system, &coupled));
+        #[cfg(feature = "parallel")]
+        let background = in_background && self.direct.is_some() && PendingDirect::possible();
+        #[cfg(not(feature = "parallel"))]
+        let background = {
+            let _ = in_background;
+            false
+        };
         // Both solvers are built before either is replaced, so an error leaves the
-        // integrator as it was.
+        // integrator as it was (except for a set-up in the background, see above).
         let direct = match self.direct {
-            Some(_) => Some(Self::build_direct(&pattern, &self.settings)?),
-            None => None,
+            Some(_) if !background => Some(Self::build_direct(&pattern, &self.settings)?),
+            _ => None,
         };
         // The new PCG solver runs on the old one's thread pool: the dimension is the
         // same, and starting a pool (and stopping the old one) at every widening is
@@ -330,6 +376,11 @@ impl BackwardEuler {
         self.pcg = pcg;
         if direct.is_some() {
             self.direct = direct;
+        }
+        #[cfg(feature = "parallel")]
+        if background {
+            self.direct = None;
+            self.pending_direct = Some(PendingDirect::spawn(Arc::clone(&pattern), self.settings));
         }
         self.coupled_pairs = coupled;
         self.values = vec![0.0; pattern.nnz()];
@@ -345,6 +396,7 @@ impl BackwardEuler {
     /// factorization first if needed); false if it is not positive definite (a kernel for
     /// benchmarks).
     pub fn factor_newton_matrix(&mut self) -> Result<bool, ModelError> {
+        self.settle_direct()?;
         if self.direct.is_none() {
             self.direct = Some(Self::build_direct(&self.pattern, &self.settings)?);
         }
@@ -1048,6 +1100,7 @@ impl BackwardEuler {
         let kind = self
             .chooser
             .choose(choice, self.settings.reprobe_interval, costs.as_ref());
+        self.settle_direct()?;
         if kind == LinearSolverKind::Direct && self.direct.is_none() && dim > 0 {
             self.direct = Some(Self::build_direct(&self.pattern, &self.settings)?);
         }
@@ -1078,10 +1131,63 @@ impl BackwardEuler {
         {
             return Ok(kind);
         }
+        self.settle_direct()?;
         if self.direct.is_none() {
             self.direct = Some(Self::build_direct(&self.pattern, &self.settings)?);
         }
         Ok(LinearSolverKind::Direct)
+    }
+}
+
+/// A direct solver being set up by a job on the caller's thread pool
+/// ([`BackwardEuler::widen`]): the job writes its result into the shared slot.
+#[cfg(feature = "parallel")]
+struct PendingDirect {
+    result: Arc<Mutex<Option<Result<DirectSolver, ModelError>>>>,
+}
+
+#[cfg(feature = "parallel")]
+impl std::fmt::Debug for PendingDirect {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("PendingDirect")
+    }
+}
+
+#[cfg(feature = "parallel")]
+impl PendingDirect {
+    /// Whether the caller runs on a pool with another thread to take the job.
+    fn possible() -> bool {
+        rayon::current_thread_index().is_some() && rayon::current_num_threads() > 1
+    }
+
+    /// The set-up of the direct solver of `pattern` as a job on the caller's pool.
+    fn spawn(pattern: Arc<HessianPattern>, settings: NewtonSettings) -> Self {
+        let result = Arc::new(Mutex::new(None));
+        let slot = Arc::clone(&result);
+        rayon::spawn(move || {
+            let built = BackwardEuler::build_direct(&pattern, &settings);
+            *slot.lock().unwrap_or_else(PoisonError::into_inner) = Some(built);
+        });
+        Self { result }
+    }
+
+    /// The job's result, once it has run: while it has not, this thread runs pending
+    /// jobs of its pool (the set-up itself, when no other thread has taken it) or
+    /// yields to the thread running it.
+    fn wait(self) -> Result<DirectSolver, ModelError> {
+        loop {
+            if let Some(built) = self
+                .result
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .take()
+            {
+                return built;
+            }
+            if rayon::yield_now() != Some(rayon::Yield::Executed) {
+                std::thread::yield_now();
+            }
+        }
     }
 }
 

@@ -6,12 +6,14 @@
 //! first iteration, more than one chunk of the term's spread loops (gaps, derivatives,
 //! energies, CCD, the kept list's box tests). Positions, velocities, Newton iterations and
 //! the contact statistics must agree to the bit, with the pairs' projected Hessians and
-//! with their exact ones tried first (`SelfContactSettings::exact_hessian`).
+//! with their exact ones tried first (`SelfContactSettings::exact_hessian`), and on the
+//! direct solver, whose set-up for a widened pattern runs as a job on the pool while the
+//! iteration goes on.
 
 use crate::sheets;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
-use sinew_spring_sim::{NewtonSettings, SpringSystem, TriangleMesh};
+use sinew_spring_sim::{LinearSolverChoice, NewtonSettings, SpringSystem, TriangleMesh};
 
 const H: f64 = 1.0 / 60.0;
 const N: usize = 33;
@@ -21,7 +23,7 @@ const N: usize = 33;
 /// written and the fallbacks to the projected ones so far.
 type Outcome = (SpringSystem, Vec<usize>, Vec<(usize, u64)>);
 
-fn run(threads: usize, steps: usize, exact_hessian: bool) -> Outcome {
+fn run(threads: usize, steps: usize, exact_hessian: bool, solver: LinearSolverChoice) -> Outcome {
     let s = 0.01;
     let (u, w) = (
         DVec3::new(0.995_004, 0.0, 0.099_833_4),
@@ -34,6 +36,7 @@ fn run(threads: usize, steps: usize, exact_hessian: bool) -> Outcome {
     let model = cloth.build(&mesh).unwrap();
     let newton = NewtonSettings {
         threads,
+        linear_solver: solver,
         ..NewtonSettings::default()
     };
     let mut integrator = model.backward_euler(newton).unwrap();
@@ -51,6 +54,9 @@ fn run(threads: usize, steps: usize, exact_hessian: bool) -> Outcome {
         .enable_self_contact(&mut integrator, settings)
         .unwrap();
     let mut system = model.system.clone();
+    if solver == LinearSolverChoice::Direct {
+        assert!(integrator.direct_solver().is_some());
+    }
     let mut iterations = Vec::new();
     let mut contact = Vec::new();
     let mut widened = 0;
@@ -63,6 +69,10 @@ fn run(threads: usize, steps: usize, exact_hessian: bool) -> Outcome {
             stats.projected_after_exact(),
         ));
         widened += report.pattern_pairs_added;
+        // No direct solver is left being set up once a step returns.
+        if solver == LinearSolverChoice::Direct {
+            assert!(integrator.direct_solver().is_some());
+        }
     }
     // Contact widened the Hessian pattern (which rebuilds the linear solvers), and the
     // integrator still runs on its threads.
@@ -79,7 +89,7 @@ fn run(threads: usize, steps: usize, exact_hessian: bool) -> Outcome {
 fn self_contact_steps_alike_on_one_two_and_three_threads() {
     let steps = 1;
     for exact in [false, true] {
-        let one = run(1, steps, exact);
+        let one = run(1, steps, exact, LinearSolverChoice::Auto);
         assert!(
             one.1.iter().all(|&k| k > 0),
             "a step without Newton iterations: {:?}",
@@ -92,13 +102,21 @@ fn self_contact_steps_alike_on_one_two_and_three_threads() {
         );
         let written = one.2.last().map_or(0, |&(written, _)| written);
         assert_eq!(written > 0, exact, "exact blocks written {written} times");
-        compare_threads(&one, steps, exact);
+        compare_threads(&one, steps, exact, LinearSolverChoice::Auto);
     }
 }
 
-fn compare_threads(one: &Outcome, steps: usize, exact: bool) {
+#[test]
+fn self_contact_on_the_direct_solver_steps_alike_on_one_two_and_three_threads() {
+    // The pattern widens within the step (asserted in `run`), so on two and three
+    // threads the widened pattern's direct solver is set up by a job on the pool.
+    let one = run(1, 1, false, LinearSolverChoice::Direct);
+    compare_threads(&one, 1, false, LinearSolverChoice::Direct);
+}
+
+fn compare_threads(one: &Outcome, steps: usize, exact: bool, solver: LinearSolverChoice) {
     for threads in [2, 3] {
-        let other = run(threads, steps, exact);
+        let other = run(threads, steps, exact, solver);
         assert_eq!(other.1, one.1, "{threads} threads: Newton iterations");
         assert_eq!(
             other.2, one.2,
