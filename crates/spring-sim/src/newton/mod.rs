@@ -366,24 +366,36 @@ impl BackwardEuler {
             Some(_) if !background => Some(Self::build_direct(&pattern, &self.settings)?),
             _ => None,
         };
+        // The background set-up starts first, so the PCG solver is built beside it.
+        #[cfg(feature = "parallel")]
+        let pending = background.then(|| PendingDirect::spawn(Arc::clone(&pattern), self.settings));
         // The new PCG solver runs on the old one's thread pool: the dimension is the
         // same, and starting a pool (and stopping the old one) at every widening is
         // thread creation a contact step would pay several times.
         let mut pcg = PcgSolver::new(&pattern);
-        if !pcg.share_threads(&self.pcg) {
-            pcg.set_threads(self.settings.threads)?;
+        if !pcg.share_threads(&self.pcg)
+            && let Err(error) = pcg.set_threads(self.settings.threads)
+        {
+            // The pattern is not taken: the job's solver is waited for and dropped.
+            #[cfg(feature = "parallel")]
+            if let Some(pending) = pending {
+                let _ = pending.wait();
+            }
+            return Err(error.into());
         }
         self.pcg = pcg;
         if direct.is_some() {
             self.direct = direct;
         }
         #[cfg(feature = "parallel")]
-        if background {
+        if pending.is_some() {
             self.direct = None;
-            self.pending_direct = Some(PendingDirect::spawn(Arc::clone(&pattern), self.settings));
+            self.pending_direct = pending;
         }
         self.coupled_pairs = coupled;
-        self.values = vec![0.0; pattern.nnz()];
+        // Zeroed at the new size, the storage reused.
+        self.values.clear();
+        self.values.resize(pattern.nnz(), 0.0);
         self.pattern = pattern;
         // The solver choice's counts were those of the narrower pattern: the widened one
         // has more entries to factor, so they are analysed again when a choice next
