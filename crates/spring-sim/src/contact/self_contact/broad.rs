@@ -297,11 +297,7 @@ pub fn candidates(
     }
     let cell = cell_size(&boxes.triangle);
     let mut out = Vec::new();
-    // The two tables are built side by side: each is one thread's pass over its boxes.
-    let (triangles, edges) = super::spread::join(
-        || Grid::new(&boxes.triangle, cell),
-        || Grid::new(&boxes.edge, cell),
-    );
+    let triangles = Grid::new(&boxes.triangle, cell);
     super::spread::concat_chunks(
         &mut out,
         prims.vertices.len(),
@@ -319,6 +315,7 @@ pub fn candidates(
             }
         },
     );
+    let edges = Grid::new(&boxes.edge, cell);
     let mut edge_pairs = Vec::new();
     super::spread::concat_chunks(
         &mut edge_pairs,

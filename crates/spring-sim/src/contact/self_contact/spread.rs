@@ -27,19 +27,6 @@ fn on_pool() -> bool {
     rayon::current_thread_index().is_some() && rayon::current_num_threads() > 1
 }
 
-/// `(a(), b())`, the two side by side on the caller's pool when there is one, else in
-/// turn on the calling thread.
-pub(crate) fn join<A: Send, B: Send>(
-    a: impl FnOnce() -> A + Send,
-    b: impl FnOnce() -> B + Send,
-) -> (A, B) {
-    #[cfg(feature = "parallel")]
-    if on_pool() {
-        return rayon::join(a, b);
-    }
-    (a(), b())
-}
-
 /// Calls `f(i, &mut out[i])` for every `i`, in chunks on the caller's pool when there is
 /// one.
 pub(crate) fn for_each<T: Send>(out: &mut [T], f: impl Fn(usize, &mut T) + Sync + Send) {
