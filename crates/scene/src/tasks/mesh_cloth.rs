@@ -15,10 +15,8 @@ use serde::Deserialize;
 use sinew_exact::intersecting_pairs;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::collider::validate_colliders;
-use sinew_spring_sim::contact::self_contact::distance::{PairKind, squared_distance};
-use sinew_spring_sim::contact::self_contact::{
-    Candidate, Primitives, SelfContactSettings, candidates,
-};
+use sinew_spring_sim::contact::self_contact::distance::squared_distance;
+use sinew_spring_sim::contact::self_contact::{Primitives, SelfContactSettings, candidates};
 use sinew_spring_sim::contact::{
     Collider, ContactPotential, ContactSettings, ContactTerm, check_contact_distance,
     check_start_outside, signed_distance,
@@ -393,17 +391,8 @@ fn min_pair_distance(prims: &Primitives, x: &[DVec3], reach: f64, skip: &[bool])
     candidates(prims, x, None, reach, skip)
         .into_iter()
         .map(|c| {
-            let v = match c {
-                Candidate::PointTriangle { vertex, triangle } => {
-                    let [a, b, t] = prims.triangles[triangle];
-                    (PairKind::PointTriangle, [vertex, a, b, t])
-                }
-                Candidate::EdgeEdge { a, b } => {
-                    let (ea, eb) = (prims.edges[a], prims.edges[b]);
-                    (PairKind::EdgeEdge, [ea[0], ea[1], eb[0], eb[1]])
-                }
-            };
-            squared_distance(v.0, &v.1.map(|i| x[i])).sqrt()
+            let (kind, v) = c.kind_and_particles(prims);
+            squared_distance(kind, &v.map(|i| x[i])).sqrt()
         })
         .filter(|&d| d < reach)
         .reduce(f64::min)

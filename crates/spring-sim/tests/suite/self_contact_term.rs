@@ -7,7 +7,7 @@
 use crate::common::{Sample, Xorshift as Rng};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::{
-    Candidate, PairKind, SelfContactSettings, SelfContactTerm, additive_ccd, candidates,
+    SelfContactSettings, SelfContactTerm, additive_ccd, candidates,
 };
 use sinew_spring_sim::potential::{HessianSink, StepContext, Term};
 use sinew_spring_sim::spring::Curvature;
@@ -307,16 +307,7 @@ fn swept_over_every_pair(term: &SelfContactTerm, x: &[DVec3], dx: &[DVec3], fixe
     pairs
         .iter()
         .map(|&c| {
-            let (kind, v) = match c {
-                Candidate::PointTriangle { vertex, triangle } => {
-                    let [a, b, t] = prims.triangles[triangle];
-                    (PairKind::PointTriangle, [vertex, a, b, t])
-                }
-                Candidate::EdgeEdge { a, b } => {
-                    let (ea, eb) = (prims.edges[a], prims.edges[b]);
-                    (PairKind::EdgeEdge, [ea[0], ea[1], eb[0], eb[1]])
-                }
-            };
+            let (kind, v) = c.kind_and_particles(prims);
             additive_ccd(
                 kind,
                 &v.map(|i| x[i]),

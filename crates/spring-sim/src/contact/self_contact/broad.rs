@@ -26,6 +26,7 @@
 //! depend on the threads). The result is sorted and free of duplicates, and is exactly
 //! the set [`candidates_brute_force`] finds by testing every pair.
 
+use super::distance::PairKind;
 use sinew_math::DVec3;
 
 /// A box touching more cells than this is not hashed (see the module documentation).
@@ -48,6 +49,25 @@ pub enum Candidate {
         /// The second edge.
         b: usize,
     },
+}
+
+impl Candidate {
+    /// The pair's kind and its four particles in the order the distance functions take
+    /// them: the vertex, then the triangle's three; or the first edge's two, then the
+    /// second's.
+    #[must_use]
+    pub fn kind_and_particles(self, prims: &Primitives) -> (PairKind, [usize; 4]) {
+        match self {
+            Candidate::PointTriangle { vertex, triangle } => {
+                let [a, b, t] = prims.triangles[triangle];
+                (PairKind::PointTriangle, [vertex, a, b, t])
+            }
+            Candidate::EdgeEdge { a, b } => {
+                let (ea, eb) = (prims.edges[a], prims.edges[b]);
+                (PairKind::EdgeEdge, [ea[0], ea[1], eb[0], eb[1]])
+            }
+        }
+    }
 }
 
 /// An axis-aligned box.
@@ -275,6 +295,22 @@ fn cell_size(boxes: &[Aabb]) -> DVec3 {
     }
 }
 
+/// The primitives' boxes and the hash's cell (see [`candidates`]), or `None` when the
+/// mesh has no triangle (no pair).
+fn boxes_and_cell(
+    prims: &Primitives,
+    x: &[DVec3],
+    dx: Option<&[DVec3]>,
+    margin: f64,
+) -> Option<(Boxes, DVec3)> {
+    if prims.triangles.is_empty() {
+        return None;
+    }
+    let boxes = Boxes::new(prims, x, dx, margin);
+    let cell = cell_size(&boxes.triangle);
+    Some((boxes, cell))
+}
+
 /// Queries per task when the broad phase runs on a pool: a query costs about a
 /// microsecond, so a task is a few hundred microseconds.
 const QUERIES_PER_TASK: usize = 512;
@@ -291,11 +327,9 @@ pub fn candidates(
     margin: f64,
     skip: &[bool],
 ) -> Vec<Candidate> {
-    let boxes = Boxes::new(prims, x, dx, margin);
-    if prims.triangles.is_empty() {
+    let Some((boxes, cell)) = boxes_and_cell(prims, x, dx, margin) else {
         return Vec::new();
-    }
-    let cell = cell_size(&boxes.triangle);
+    };
     let mut out = Vec::new();
     let triangles = Grid::new(&boxes.triangle, cell);
     super::spread::concat_chunks(
@@ -353,11 +387,9 @@ pub fn candidates_touching(
     skip: &[bool],
     moving: &[bool],
 ) -> Vec<Candidate> {
-    let boxes = Boxes::new(prims, x, dx, margin);
-    if prims.triangles.is_empty() {
+    let Some((boxes, cell)) = boxes_and_cell(prims, x, dx, margin) else {
         return Vec::new();
-    }
-    let cell = cell_size(&boxes.triangle);
+    };
     let mut out = Vec::new();
     // A vertex that moves against every triangle: its box hashed, each triangle's box
     // looking it up.

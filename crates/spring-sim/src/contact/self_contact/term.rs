@@ -400,16 +400,7 @@ impl SelfContactTerm {
 
     /// A pair's kind and its four particles.
     fn pair(&self, c: Candidate) -> (PairKind, [usize; 4]) {
-        match c {
-            Candidate::PointTriangle { vertex, triangle } => {
-                let [a, b, t] = self.prims.triangles[triangle];
-                (PairKind::PointTriangle, [vertex, a, b, t])
-            }
-            Candidate::EdgeEdge { a, b } => {
-                let (ea, eb) = (self.prims.edges[a], self.prims.edges[b]);
-                (PairKind::EdgeEdge, [ea[0], ea[1], eb[0], eb[1]])
-            }
-        }
+        c.kind_and_particles(&self.prims)
     }
 
     fn mollifier_threshold(&self, c: Candidate) -> Option<f64> {
