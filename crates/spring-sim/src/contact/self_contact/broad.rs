@@ -399,9 +399,7 @@ pub fn candidates_touching(
         .copied()
         .filter(|&v| moving[v])
         .collect();
-    let vertex_boxes: Vec<Aabb> = vertices.iter().map(|&v| boxes.vertex[v]).collect();
-    let grid = Grid::new(&vertex_boxes, cell);
-    let mut found = Found::new(vertices.len());
+    let (grid, mut found) = hash_some(&vertices, &boxes.vertex, cell);
     for (t, b) in boxes.triangle.iter().enumerate() {
         grid.query(b, vertices.len(), |k| {
             found.meet(k, t, || {
@@ -417,9 +415,7 @@ pub fn candidates_touching(
     let triangles: Vec<usize> = (0..prims.triangles.len())
         .filter(|&t| prims.triangles[t].iter().any(|&v| moving[v]))
         .collect();
-    let triangle_boxes: Vec<Aabb> = triangles.iter().map(|&t| boxes.triangle[t]).collect();
-    let grid = Grid::new(&triangle_boxes, cell);
-    let mut found = Found::new(triangles.len());
+    let (grid, mut found) = hash_some(&triangles, &boxes.triangle, cell);
     for &v in prims.vertices.iter().filter(|&&v| !moving[v]) {
         grid.query(&boxes.vertex[v], triangles.len(), |k| {
             found.meet(k, v, || {
@@ -436,9 +432,7 @@ pub fn candidates_touching(
     let edges: Vec<usize> = (0..prims.edges.len())
         .filter(|&e| prims.edges[e].iter().any(|&v| moving[v]))
         .collect();
-    let edge_boxes: Vec<Aabb> = edges.iter().map(|&e| boxes.edge[e]).collect();
-    let grid = Grid::new(&edge_boxes, cell);
-    let mut found = Found::new(edges.len());
+    let (grid, mut found) = hash_some(&edges, &boxes.edge, cell);
     for (a, b) in boxes.edge.iter().enumerate() {
         grid.query(b, edges.len(), |k| {
             let (lo, hi) = (a.min(edges[k]), a.max(edges[k]));
@@ -454,6 +448,13 @@ pub fn candidates_touching(
     out.sort_unstable();
     out.dedup();
     out
+}
+
+/// The boxes `all[i]` for `i` in `index` hashed (a query's hits are positions in
+/// `index`), with a record of the boxes queries meet.
+fn hash_some(index: &[usize], all: &[Aabb], cell: DVec3) -> (Grid, Found) {
+    let some: Vec<Aabb> = index.iter().map(|&i| all[i]).collect();
+    (Grid::new(&some, cell), Found::new(index.len()))
 }
 
 /// One task's record of the boxes its queries met: a box is met once per shared cell
