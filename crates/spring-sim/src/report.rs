@@ -251,6 +251,10 @@ pub struct StepReport {
     /// (self-contact) coupled them without one; the Newton matrices from the next
     /// iteration on have their full blocks.
     pub pattern_pairs_added: usize,
+    /// Particle pairs whose Hessian slots were dropped at the start of this step (or of
+    /// one of its pieces) because their blocks had stayed zero for several steps (pairs
+    /// in contact earlier that have separated); a pair that comes back is added again.
+    pub pattern_pairs_dropped: usize,
 }
 
 impl StepReport {
@@ -270,6 +274,7 @@ impl StepReport {
         self.exact_hessian_iterations += part.exact_hessian_iterations;
         self.contact_projection_fallbacks += part.contact_projection_fallbacks;
         self.pattern_pairs_added += part.pattern_pairs_added;
+        self.pattern_pairs_dropped += part.pattern_pairs_dropped;
     }
 
     /// An empty report for `integrator`.
@@ -304,6 +309,7 @@ impl StepReport {
             unconverged_pieces: 0,
             rejected_splits: 0,
             pattern_pairs_added: 0,
+            pattern_pairs_dropped: 0,
         }
     }
 

@@ -3,7 +3,7 @@
 //! Hessian, solving with the chosen linear solver and searching along the step
 //! ([`super::line_search`]).
 
-use super::{BackwardEuler, line_search};
+use super::{BackwardEuler, Kept, line_search};
 use crate::linear::{KeptFactorStatus, LinearSolverKind, PcgOutcome, dot};
 use crate::model::{ModelError, SpringSystem};
 use crate::potential::{HessianSink, StepContext};
@@ -87,6 +87,9 @@ impl BackwardEuler {
 
     /// [`Self::minimize`] on the current thread.
     fn minimize_here(&mut self, system: &SpringSystem, h: f64) -> Result<StepReport, ModelError> {
+        // Transient couplings idle for long enough leave the pattern (see `couplings`);
+        // the direct solver's set-up runs beside the first iteration's work.
+        let dropped = self.narrow_if_due(system, true)?;
         let dim = self.pattern.dim();
         let mut kind = self.choose_solver(dim)?;
         let m_min = system.min_free_mass();
@@ -101,6 +104,7 @@ impl BackwardEuler {
         let mut report = StepReport::new(IntegratorKind::BackwardEuler);
         report.linear_solver = Some(kind);
         report.tolerance = tol_abs;
+        report.pattern_pairs_dropped = dropped;
         self.objective_trace.clear();
         let y = std::mem::take(&mut self.y);
         let x_ref = std::mem::take(&mut self.x_ref);
@@ -132,7 +136,7 @@ impl BackwardEuler {
             // coupling and Newton converges only linearly, typically to the iteration cap.
             let missing = self.potential.take_missing_pairs();
             if !missing.is_empty() {
-                self.widen(system, &missing, true)?;
+                self.widen(system, &missing, Kept::WhileUsed, true)?;
                 report.pattern_pairs_added += missing.len();
             }
             self.potential.update_active_set(&step, &self.x);
@@ -503,13 +507,13 @@ impl BackwardEuler {
         curvature: Curvature,
         blocks_ready: bool,
     ) {
-        if self.hessian_on_pool(step, curvature, blocks_ready) {
-            return;
+        if !self.hessian_on_pool(step, curvature, blocks_ready) {
+            self.values.fill(0.0);
+            let mut sink = HessianSink::values(&self.pattern, &mut self.values);
+            self.potential
+                .add_hessian(step, &self.x, curvature, &mut sink);
         }
-        self.values.fill(0.0);
-        let mut sink = HessianSink::values(&self.pattern, &mut self.values);
-        self.potential
-            .add_hessian(step, &self.x, curvature, &mut sink);
+        self.transient.mark_used(&self.values);
     }
     /// With a thread pool (on systems above one PCG chunk), the gradient's per-spring
     /// part runs as a pass over the springs and a gather per particle

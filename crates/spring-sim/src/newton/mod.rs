@@ -27,6 +27,7 @@
 //! decrease `g` any more.
 //! The derivation and the rules are in docs/spring-sim.md.
 
+mod couplings;
 mod line_search;
 mod minimize;
 mod settings;
@@ -42,6 +43,7 @@ use crate::pattern::{FIXED, HessianPattern};
 use crate::potential::{HessianSink, Potential, StepContext, StepTiming, Term};
 use crate::report::{IntegratorKind, StepError, StepReport, StepStop};
 use crate::spring::Curvature;
+use couplings::TransientCouplings;
 use sinew_math::DVec3;
 use solver_choice::SolverChooser;
 use std::sync::Arc;
@@ -123,6 +125,9 @@ pub struct BackwardEuler {
     topology: Topology,
     /// Particle pairs coupled by terms other than the springs, in the pattern too.
     coupled_pairs: Vec<[usize; 2]>,
+    /// Pairs coupled during the run by terms that reported them missing, in the pattern
+    /// until they have been idle for a while (see [`couplings`]).
+    transient: TransientCouplings,
     /// Per split depth, what a split step falls back on (allocated at the first split).
     split_saves: Vec<SplitSave>,
     /// The remaining split depth of the last piece the current step kept (the step's
@@ -185,6 +190,7 @@ impl BackwardEuler {
             objective_trace: Vec::new(),
             topology: system.topology(),
             coupled_pairs: Vec::new(),
+            transient: TransientCouplings::default(),
             split_saves: Vec::new(),
             last_piece_depth: 0,
             continue_from: Vec::new(),
@@ -324,15 +330,15 @@ impl BackwardEuler {
         system: &SpringSystem,
         pairs: &[[usize; 2]],
     ) -> Result<(), ModelError> {
-        self.widen(system, pairs, false)
+        self.widen(system, pairs, Kept::ForGood, false)
     }
 
-    /// [`Self::add_coupled_pairs`]; with `in_background`, when the caller runs on a pool
-    /// of more than one thread and a direct solver exists, that solver's set-up for the
-    /// widened pattern (its ordering and symbolic factorization, sequential work) runs as
-    /// a job on the pool while the caller goes on with the iteration (the active set, the
-    /// gradient, the Newton matrix), and is taken by [`Self::settle_direct`] before the
-    /// first direct solve. The solver is the same whichever thread sets it up and
+    /// [`Self::add_coupled_pairs`], the pairs kept as `kept` says; with `in_background`,
+    /// when the caller runs on a pool of more than one thread and a direct solver
+    /// exists, that solver's set-up for the widened pattern (its ordering and symbolic
+    /// factorization, sequential work) runs as a job on the pool while the caller goes
+    /// on with the iteration (the active set, the gradient, the Newton matrix), and is
+    /// taken by [`Self::settle_direct`] before the first direct solve. The solver is the same whichever thread sets it up and
     /// whenever, so the results do not depend on it. A set-up that fails is then
     /// reported by `settle_direct`, with the pattern already widened (and no direct
     /// solver until one is built again).
@@ -340,6 +346,7 @@ impl BackwardEuler {
         &mut self,
         system: &SpringSystem,
         pairs: &[[usize; 2]],
+        kept: Kept,
         in_background: bool,
     ) -> Result<(), ModelError> {
         self.settle_direct()?;
@@ -350,9 +357,44 @@ impl BackwardEuler {
                 reason: "a coupled particle index is out of range",
             });
         }
-        let mut coupled = self.coupled_pairs.clone();
-        coupled.extend_from_slice(pairs);
-        let pattern = Arc::new(HessianPattern::with_pairs(system, &coupled));
+        let (coupled, transient) = match kept {
+            Kept::ForGood => (
+                [&self.coupled_pairs[..], pairs].concat(),
+                self.transient.clone(),
+            ),
+            Kept::WhileUsed => (self.coupled_pairs.clone(), self.transient.with_added(pairs)),
+        };
+        self.rebuild_pattern(system, coupled, transient, in_background)
+    }
+
+    /// Rebuilds the pattern without the transient pairs that have been idle long enough
+    /// (see [`couplings`]) when they are many; returns how many were dropped.
+    pub(super) fn narrow_if_due(
+        &mut self,
+        system: &SpringSystem,
+        in_background: bool,
+    ) -> Result<usize, ModelError> {
+        if !self.transient.narrowing_due() {
+            return Ok(0);
+        }
+        self.settle_direct()?;
+        let (transient, dropped) = self.transient.without_idle();
+        self.rebuild_pattern(system, self.coupled_pairs.clone(), transient, in_background)?;
+        Ok(dropped)
+    }
+
+    /// The pattern of the springs, `coupled` and `transient`'s pairs, with the linear
+    /// solvers rebuilt on it (see [`Self::widen`] for `in_background`).
+    fn rebuild_pattern(
+        &mut self,
+        system: &SpringSystem,
+        coupled: Vec<[usize; 2]>,
+        mut transient: TransientCouplings,
+        in_background: bool,
+    ) -> Result<(), ModelError> {
+        let all: Vec<[usize; 2]> = coupled.iter().chain(transient.pairs()).copied().collect();
+        let pattern = Arc::new(HessianPattern::with_pairs(system, &all));
+        transient.locate(&pattern);
         #[cfg(feature = "parallel")]
         let background = in_background && self.direct.is_some() && PendingDirect::possible();
         #[cfg(not(feature = "parallel"))]
@@ -393,6 +435,7 @@ impl BackwardEuler {
             self.pending_direct = pending;
         }
         self.coupled_pairs = coupled;
+        self.transient = transient;
         // Zeroed at the new size, the storage reused.
         self.values.clear();
         self.values.resize(pattern.nnz(), 0.0);
@@ -501,11 +544,12 @@ impl BackwardEuler {
         report.energy_before = energy_before;
         report.energy_after = self.energies(system);
         // Pairs a term coupled without Hessian slots (self-contact between particles no
-        // spring joins) get slots for the next steps: the pattern only grows, and a step
-        // that found none rebuilds nothing.
+        // spring joins) get slots for the next steps, and a step that found none
+        // rebuilds nothing; pairs that have left are counted idle (see `couplings`).
+        self.transient.end_step();
         let missing = self.potential.take_missing_pairs();
         if !missing.is_empty() {
-            self.add_coupled_pairs(system, &missing)?;
+            self.widen(system, &missing, Kept::WhileUsed, false)?;
             report.pattern_pairs_added += missing.len();
         }
         Ok(report)
@@ -1464,6 +1508,15 @@ const BOUND_MARGIN: f64 = 0.99;
 /// Springs per task of the report's energies on the pool.
 #[cfg(feature = "parallel")]
 const ENERGY_CHUNK: usize = 4096;
+
+/// How long the pairs of a widening keep their slots.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Kept {
+    /// For the rest of the run (a term's fixed couplings, a caller's pairs).
+    ForGood,
+    /// While their blocks are used (pairs a term reported missing, see [`couplings`]).
+    WhileUsed,
+}
 
 fn fixed_at(pattern: &HessianPattern, particle: usize) -> bool {
     pattern.free_index[particle] == FIXED

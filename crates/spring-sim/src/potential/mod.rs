@@ -216,7 +216,8 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
     /// The particle pairs (`[low, high]`) this term coupled since the last call without a
     /// slot in the Hessian pattern (it then wrote only the blocks the pattern has). The
     /// Newton loop takes them at the start of every iteration and widens its pattern, so
-    /// the next iteration's matrix has the pairs' full blocks; none by default.
+    /// the next iteration's matrix has the pairs' full blocks, and drops their slots again
+    /// once the blocks have stayed zero for several steps; none by default.
     fn take_missing_pairs(&mut self) -> Vec<[usize; 2]> {
         Vec::new()
     }

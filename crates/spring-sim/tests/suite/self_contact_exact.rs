@@ -28,7 +28,7 @@ struct Outcome {
 /// Two `n x n` sheets 1 cm apart in their grids, the top one 1.6 mm above the bottom one
 /// (its axes `u`, `w`), the bottom one held at its four corners, with self-contact
 /// (`dhat` 2 mm, thickness 1 mm, `exact_hessian` as given) and `gravity`.
-fn sheets_in_contact(
+pub(crate) fn sheets_in_contact(
     n: usize,
     (u, w): (DVec3, DVec3),
     gravity: DVec3,
