@@ -216,6 +216,43 @@ mod tests {
     }
 
     #[test]
+    fn every_entry_of_a_pairs_block_marks_it_used_and_no_other_entry_does() {
+        let system = chain();
+        let mut t = TransientCouplings::default().with_added(&[[1, 6], [4, 8]]);
+        let pattern = HessianPattern::with_pairs(&system, t.pairs());
+        t.locate(&pattern);
+        // Each of the nine entries of [1, 6]'s block alone, either way round.
+        for (i, j) in [(1, 6), (6, 1)] {
+            for entry in 0..9 {
+                let mut values = vec![0.0; pattern.nnz()];
+                let mut block = DMat3::ZERO;
+                block.col_mut(entry / 3)[entry % 3] = -1e-300;
+                HessianSink::values(&pattern, &mut values)
+                    .add_pair(i, j, &block)
+                    .unwrap();
+                t.end_step();
+                t.mark_used(&values);
+                assert_eq!(t.used, [true, false], "({i}, {j}) entry {entry}");
+            }
+        }
+        // Everything but the two pairs' blocks nonzero: neither is used.
+        let mut values = vec![0.0; pattern.nnz()];
+        {
+            let mut sink = HessianSink::values(&pattern, &mut values);
+            for i in 0..10 {
+                sink.add_diagonal(i, SymBlock::scaled_identity(2.0));
+            }
+            for i in 0..9 {
+                sink.add_pair(i, i + 1, &DMat3::from_cols_array(&[1.0; 9]))
+                    .unwrap();
+            }
+        }
+        t.end_step();
+        t.mark_used(&values);
+        assert_eq!(t.used, [false, false]);
+    }
+
+    #[test]
     fn the_pattern_narrows_only_when_idle_pairs_are_many() {
         let pairs: Vec<[usize; 2]> = (0..400).map(|i| [i, i + 1000]).collect();
         // Used in the step they were added, then idle for `IDLE_STEPS` steps.
