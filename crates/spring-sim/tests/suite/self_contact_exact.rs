@@ -30,9 +30,20 @@ struct Outcome {
 /// (`dhat` 2 mm, thickness 1 mm, `exact_hessian` as given) and `gravity`.
 pub(crate) fn sheets_in_contact(
     n: usize,
+    axes: (DVec3, DVec3),
+    gravity: DVec3,
+    exact_hessian: bool,
+) -> (BackwardEuler, Arc<SelfContactStats>, SpringSystem) {
+    sheets_in_contact_with(n, axes, gravity, exact_hessian, NewtonSettings::default())
+}
+
+/// [`sheets_in_contact`] with the integrator's settings `newton`.
+pub(crate) fn sheets_in_contact_with(
+    n: usize,
     (u, w): (DVec3, DVec3),
     gravity: DVec3,
     exact_hessian: bool,
+    newton: NewtonSettings,
 ) -> (BackwardEuler, Arc<SelfContactStats>, SpringSystem) {
     let s = 0.01;
     let (x, t) = sheets::stacked(n, s, DVec3::new(0.013, 0.0016, 0.011), u, w, s);
@@ -40,7 +51,7 @@ pub(crate) fn sheets_in_contact(
     let mut cloth = sheets::cloth(vec![0, n - 1, n * (n - 1), n * n - 1]);
     cloth.material.gravity = gravity;
     let model = cloth.build(&mesh).unwrap();
-    let mut integrator = model.backward_euler(NewtonSettings::default()).unwrap();
+    let mut integrator = model.backward_euler(newton).unwrap();
     let settings = SelfContactSettings {
         dhat: 2e-3,
         thickness: 1e-3,

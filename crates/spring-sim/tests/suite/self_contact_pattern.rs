@@ -3,9 +3,9 @@
 //! (the pattern narrows back), so a long run does not factor the zero blocks of every
 //! pair that ever touched.
 
-use crate::self_contact_exact::sheets_in_contact;
+use crate::self_contact_exact::{sheets_in_contact, sheets_in_contact_with};
 use sinew_math::DVec3;
-use sinew_spring_sim::StepStop;
+use sinew_spring_sim::{LinearSolverChoice, NewtonSettings, StepStop};
 
 const H: f64 = 1.0 / 60.0;
 
@@ -45,4 +45,54 @@ fn the_slots_of_pairs_that_left_contact_are_dropped_and_the_pattern_is_the_sprin
     // springs' (and hinges') once more.
     assert_eq!(dropped, added);
     assert_eq!(integrator.pattern().nnz(), springs_only);
+}
+
+#[test]
+fn the_pattern_narrows_alike_on_one_and_two_threads() {
+    // Two 33 x 33 sheets (2 178 particles, so the integrator's pool runs the step) pushed
+    // apart as above, on the direct solver, whose set-up for a narrowed pattern runs as a
+    // job on the pool: which pairs are dropped, and when, is a function of the Newton
+    // matrices' values, so the runs agree to the bit.
+    let run = |threads: usize| {
+        let newton = NewtonSettings {
+            threads,
+            linear_solver: LinearSolverChoice::Direct,
+            ..NewtonSettings::default()
+        };
+        let (mut integrator, _, mut system) =
+            sheets_in_contact_with(33, (DVec3::X, DVec3::Z), DVec3::ZERO, true, newton);
+        assert_eq!(
+            integrator.threads(),
+            crate::common::expected_threads(threads)
+        );
+        let mut counts = Vec::new();
+        // The pairs leave `dhat` within the first steps; they are dropped at steps 16
+        // and 17.
+        for step in 0..20 {
+            let report = integrator.step(&mut system, H).unwrap();
+            assert_eq!(report.stop, StepStop::Converged, "step {step}: {report:?}");
+            counts.push((
+                report.iterations,
+                report.pattern_pairs_added,
+                report.pattern_pairs_dropped,
+            ));
+        }
+        (system, counts, integrator.pattern().nnz())
+    };
+    let (one, one_counts, one_nnz) = run(1);
+    let dropped: usize = one_counts.iter().map(|c| c.2).sum();
+    assert!(dropped > 0, "no pair was dropped: the case tests nothing");
+    let (two, two_counts, two_nnz) = run(2);
+    assert_eq!(one_counts, two_counts);
+    assert_eq!(one_nnz, two_nnz);
+    let same = |a: &[DVec3], b: &[DVec3]| {
+        a.iter()
+            .zip(b)
+            .all(|(p, q)| p.to_array().map(f64::to_bits) == q.to_array().map(f64::to_bits))
+    };
+    assert!(same(one.positions(), two.positions()), "positions differ");
+    assert!(
+        same(one.velocities(), two.velocities()),
+        "velocities differ"
+    );
 }
