@@ -338,10 +338,10 @@ impl BackwardEuler {
     /// exists, that solver's set-up for the widened pattern (its ordering and symbolic
     /// factorization, sequential work) runs as a job on the pool while the caller goes
     /// on with the iteration (the active set, the gradient, the Newton matrix), and is
-    /// taken by [`Self::settle_direct`] before the first direct solve. The solver is the same whichever thread sets it up and
-    /// whenever, so the results do not depend on it. A set-up that fails is then
-    /// reported by `settle_direct`, with the pattern already widened (and no direct
-    /// solver until one is built again).
+    /// taken by [`Self::settle_direct`] before the first direct solve. The solver is the
+    /// same whichever thread sets it up and whenever, so the results do not depend on
+    /// it. A set-up that fails is then reported by `settle_direct`, with the pattern
+    /// already widened (and no direct solver until one is built again).
     pub(super) fn widen(
         &mut self,
         system: &SpringSystem,
