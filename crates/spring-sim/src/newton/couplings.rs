@@ -93,7 +93,6 @@ impl TransientCouplings {
     /// Finds each pair's block in `pattern` (built with slots for every pair).
     pub(super) fn locate(&mut self, pattern: &HessianPattern) {
         let free_index = &pattern.free_index;
-        let col_ptr = pattern.symbolic.col_ptr();
         self.slots = self
             .pairs
             .iter()
@@ -103,11 +102,9 @@ impl TransientCouplings {
                     return None;
                 }
                 let (col, k) = pattern.off_block_position(fa, fb)?;
-                // Column `3 col + c` holds `3 - c` diagonal-block entries, then three rows
-                // per neighbour.
-                Some(std::array::from_fn(|c| {
-                    col_ptr[3 * col + c] + (3 - c) + 3 * k
-                }))
+                // The block's columns' rows are consecutive: each column's first slot.
+                let slots = pattern.off_block_slots_at(col, k);
+                Some([slots[0], slots[3], slots[6]])
             })
             .collect();
     }
