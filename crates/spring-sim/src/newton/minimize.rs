@@ -89,7 +89,7 @@ impl BackwardEuler {
     fn minimize_here(&mut self, system: &SpringSystem, h: f64) -> Result<StepReport, ModelError> {
         // Transient couplings idle for long enough leave the pattern (see `couplings`);
         // the direct solver's set-up runs beside the first iteration's work.
-        let dropped = self.narrow_if_due(system, true)?;
+        let dropped = self.narrow_if_due(system)?;
         let dim = self.pattern.dim();
         let mut kind = self.choose_solver(dim)?;
         let m_min = system.min_free_mass();

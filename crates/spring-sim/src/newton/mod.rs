@@ -368,18 +368,15 @@ impl BackwardEuler {
     }
 
     /// Rebuilds the pattern without the transient pairs that have been idle long enough
-    /// (see [`couplings`]) when they are many; returns how many were dropped.
-    pub(super) fn narrow_if_due(
-        &mut self,
-        system: &SpringSystem,
-        in_background: bool,
-    ) -> Result<usize, ModelError> {
+    /// (see [`couplings`]) when they are many, the direct solver's set-up in the
+    /// background (see [`Self::widen`]); returns how many were dropped.
+    pub(super) fn narrow_if_due(&mut self, system: &SpringSystem) -> Result<usize, ModelError> {
         if !self.transient.narrowing_due() {
             return Ok(0);
         }
         self.settle_direct()?;
         let (transient, dropped) = self.transient.without_idle();
-        self.rebuild_pattern(system, self.coupled_pairs.clone(), transient, in_background)?;
+        self.rebuild_pattern(system, self.coupled_pairs.clone(), transient, true)?;
         Ok(dropped)
     }
 
