@@ -7,7 +7,9 @@
 //! "faer's own threads for the factorization"). Two supernodes in disjoint subtrees of
 //! the supernodal elimination tree never read each other's columns, so the tree's lower
 //! part splits into two groups of whole subtrees, one per thread, and the supernodes
-//! above them (the top separators) follow on the calling thread.
+//! above them (the top separators) follow in order, each taking its two groups'
+//! updates side by side. docs/spring-sim.md, "The factorization's subtrees on two
+//! threads", has the plan's cost model and the measurements.
 //!
 //! The algorithm is faer's left-looking one (each supernode gathers its matrix columns,
 //! subtracts the updates of its descendants in ascending order, factors its diagonal
@@ -58,7 +60,7 @@ pub(crate) struct TreePlan {
     /// ascending order; `None` when the tree does not split usefully.
     split: Option<Split>,
     /// Per supernode: in the split's first group (0), its second (1), or neither
-    /// ([`TOP`], also every supernode when there is no split).
+    /// ([`TOP`]; every supernode when there is no split).
     group: Vec<u8>,
     /// The largest dense update (rows times columns) and diagonal block.
     max_update: usize,
@@ -67,11 +69,12 @@ pub(crate) struct TreePlan {
 
 #[derive(Clone, Debug)]
 struct Split {
-    /// Supernodes `groups[g].0..groups[g].1` (each the union of whole subtrees,
-    /// interleaved with none of the other group's).
+    /// Group `g` is whole subtrees whose supernodes lie in `groups[g].0..groups[g].1`
+    /// (the range also holds the top supernodes between those subtrees, which the group
+    /// skips; the two ranges are disjoint).
     groups: [(usize, usize); 2],
-    /// The supernodes outside both groups, ascending (every one an ancestor of a
-    /// group's supernode or in another tree of the forest).
+    /// The supernodes outside both groups, ascending: each an ancestor of some group's
+    /// supernodes.
     top: Vec<usize>,
 }
 
@@ -369,34 +372,16 @@ pub(crate) fn factorize(
 ) -> bool {
     let shape = Shape { symbolic };
     for work in works.iter_mut() {
-        if work.local.len() != symbolic.nrows() {
+        if work.local.len() != symbolic.nrows() || work.update.len() < plan.max_update {
             *work = Work::new(symbolic.nrows(), plan);
         }
     }
     l.fill(0.0);
-    let Some(split) = &plan.split else {
-        let work = &mut works[0];
-        return (0..shape.len()).all(|s| {
-            let (v0, v1) = shape.values(s);
-            let (head, tail) = l.split_at_mut(v0);
-            let ls = &mut tail[..v1 - v0];
-            prepare(&shape, s, work);
-            assemble(&shape, a, s, ls, work);
-            let updates = plan.update_ptr[s]..plan.update_ptr[s + 1];
-            apply_updates(&shape, plan, updates, head, 0, s, ls, work);
-            finish(&shape, s, ls, work)
-        });
-    };
-    let [(a0, a1), (b0, b1)] = split.groups;
-    let (va0, va1) = (shape.values(a0).0, shape.values(a1 - 1).1);
-    let (vb0, vb1) = (shape.values(b0).0, shape.values(b1 - 1).1);
-    {
-        let (low, rest) = l.split_at_mut(vb0);
-        let group_a = &mut low[va0..va1];
-        let group_b = &mut rest[..vb1 - vb0];
-        let [work_a, work_b] = works;
-        let run = |(s0, s1): (usize, usize), base: usize, values: &mut [f64], work: &mut Work| {
-            (s0..s1).filter(|&s| plan.group[s] != TOP).all(|s| {
+    // The supernodes `s0..s1` of group `g` in order, each whole, into `values` (the
+    // factor's values from offset `base`, holding them and their descendants).
+    let run =
+        |(s0, s1): (usize, usize), g: u8, base: usize, values: &mut [f64], work: &mut Work| {
+            (s0..s1).filter(|&s| plan.group[s] == g).all(|s| {
                 let (v0, v1) = shape.values(s);
                 let (head, tail) = values.split_at_mut(v0 - base);
                 let ls = &mut tail[..v1 - v0];
@@ -407,10 +392,21 @@ pub(crate) fn factorize(
                 finish(&shape, s, ls, work)
             })
         };
+    let Some(split) = &plan.split else {
+        return run((0, shape.len()), TOP, 0, l, &mut works[0]);
+    };
+    let [(a0, a1), (b0, b1)] = split.groups;
+    let (va0, va1) = (shape.values(a0).0, shape.values(a1 - 1).1);
+    let (vb0, vb1) = (shape.values(b0).0, shape.values(b1 - 1).1);
+    {
+        let (low, rest) = l.split_at_mut(vb0);
+        let group_a = &mut low[va0..va1];
+        let group_b = &mut rest[..vb1 - vb0];
+        let [work_a, work_b] = works;
         let (ok_a, ok_b) = both(
             parallel,
-            || run((a0, a1), va0, group_a, work_a),
-            || run((b0, b1), vb0, group_b, work_b),
+            || run((a0, a1), 0, va0, group_a, work_a),
+            || run((b0, b1), 1, vb0, group_b, work_b),
         );
         if !(ok_a && ok_b) {
             return false;
