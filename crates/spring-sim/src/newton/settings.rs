@@ -60,11 +60,13 @@ pub struct NewtonSettings {
     pub reprobe_interval: usize,
     /// Record `g` at every iterate (costs one energy pass per iteration; for tests).
     pub record_objective: bool,
-    /// Threads for the PCG work, the springs' part of the assembly and the line search
-    /// of systems above 6 144 unknowns (2 048 particles)
+    /// Threads for the PCG work, the springs' part of the assembly, the line search and
+    /// the direct solver's factorization (two subtrees of its elimination tree side by
+    /// side) of systems above 6 144 unknowns (2 048 particles)
     /// (default 0: one per core; 1: the calling thread only). The results are bitwise
-    /// the same for every value (fixed chunks, sums in chunk order); without the
-    /// `parallel` feature it is ignored.
+    /// the same for every value (fixed chunks, sums in chunk order, a factorization
+    /// plan fixed by the matrix's structure); without the `parallel` feature it is
+    /// ignored.
     pub threads: usize,
     /// How many times a step may be halved when its solve does not converge (default
     /// 6: pieces down to `h/64`; 0 turns splitting off).
