@@ -467,6 +467,7 @@ pub struct DirectSolver {
     /// Whether `factor_values` holds the factor of a positive definite matrix.
     has_factor: bool,
     shifted_values: Vec<f64>,
+    /// faer's numeric factorization's scratch (empty when `permuted` factors instead).
     factor_work: MemBuffer,
     solve_work: MemBuffer,
     /// The conjugate-gradient vectors of the preconditioned solve: iterate, residual,
@@ -575,11 +576,14 @@ impl DirectSolver {
             factorize_symbolic_cholesky(pattern.symbolic.as_ref(), Side::Lower, ordering, params)
                 .map_err(SolverError::SymbolicFactorization)?;
         let factor_values = vec![0.0; symbolic.len_val()];
-        let factor_work = MemBuffer::new(
-            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
-        );
-        let solve_work = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
         let permuted = PermutedMatrix::new(pattern, &symbolic);
+        // faer's numeric factorization runs only where `tree_llt` does not: its scratch
+        // is needed only then.
+        let factor_work = MemBuffer::new(match permuted {
+            Some(_) => faer::dyn_stack::StackReq::EMPTY,
+            None => symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+        });
+        let solve_work = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
         Ok(Self {
             symbolic,
             trial_values: Vec::new(),
@@ -1830,7 +1834,13 @@ mod tests {
             let mut mapped = b.clone();
             assert!(solver.solve_unshifted(&pattern, &values, &mut mapped));
             let factor = solver.factor_values.clone();
+            // faer's own path, with the scratch it needs (the solver sized none for it).
             solver.permuted = None;
+            solver.factor_work = MemBuffer::new(
+                solver
+                    .symbolic
+                    .factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+            );
             let mut faers = b.clone();
             assert!(solver.solve_unshifted(&pattern, &values, &mut faers));
             let largest = |v: &[f64]| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));

@@ -53,8 +53,10 @@ pub(crate) struct TreePlan {
     update_ptr: Vec<usize>,
     /// The updating supernode `d` (ascending within each `s`) ...
     update_from: Vec<usize>,
-    /// ... and the position in `d`'s row pattern of its first row inside `s`.
+    /// ... the position in `d`'s row pattern of its first row inside `s` ...
     update_at: Vec<usize>,
+    /// ... and how many of `d`'s rows fall inside `s`.
+    update_inside: Vec<usize>,
     /// Two groups of whole subtrees (supernode ranges, each contiguous in the
     /// factor's values) factored side by side, then the supernodes above them in
     /// ascending order; `None` when the tree does not split usefully.
@@ -144,6 +146,7 @@ impl TreePlan {
         let total = update_ptr[ns];
         let mut update_from = vec![0usize; total];
         let mut update_at = vec![0usize; total];
+        let mut update_inside = vec![0usize; total];
         let mut update_cost = vec![0.0f64; total];
         let mut next = update_ptr.clone();
         for d in 0..ns {
@@ -155,6 +158,7 @@ impl TreePlan {
                 let run = pattern[k..].partition_point(|&r| owner[r] == s);
                 update_from[next[s]] = d;
                 update_at[next[s]] = k;
+                update_inside[next[s]] = run;
                 update_cost[next[s]] = ((pattern.len() - k) * run * (b - a)) as f64;
                 next[s] += 1;
                 k += run;
@@ -184,6 +188,7 @@ impl TreePlan {
             update_ptr,
             update_from,
             update_at,
+            update_inside,
             split,
             group,
             max_update,
@@ -519,7 +524,7 @@ fn apply_updates(
         let dn = d1 - d0;
         let dpat = shape.pattern(d);
         let drows = dn + dpat.len();
-        let inside = dpat[at..].partition_point(|&r| r < s1);
+        let inside = plan.update_inside[u];
         let m = dpat.len() - at;
         let (w0, w1) = shape.values(d);
         let ld = MatRef::from_column_major_slice(&head[w0 - base..w1 - base], drows, dn);
@@ -682,7 +687,11 @@ mod tests {
             LltRegularization::default(),
             symbolic,
             Par::Seq,
-            MemStack::new(&mut solver.factor_work),
+            MemStack::new(&mut MemBuffer::new(
+                solver
+                    .symbolic
+                    .factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+            )),
             Default::default(),
         )
         .is_ok();
