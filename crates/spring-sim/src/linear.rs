@@ -491,7 +491,7 @@ struct PermutedMatrix {
     values: Vec<f64>,
     /// The numeric factorization's plan (see [`tree_llt`]).
     plan: tree_llt::TreePlan,
-    /// The factorization's scratch, one per thread.
+    /// The factorization's scratch, one per thread (built with the plan).
     works: [tree_llt::Work; 2],
 }
 
@@ -526,12 +526,13 @@ impl PermutedMatrix {
         // The structure exactly as faer's path produces it before factoring (the
         // unsorted constructor checks the bounds without asking for sorted rows).
         let symbolic = SymbolicSparseColMat::new_unsorted_checked(n, n, col_ptr, None, row_idx);
+        let works = std::array::from_fn(|_| tree_llt::Work::new(n, &plan));
         Some(Self {
             symbolic,
             slots,
             values,
             plan,
-            works: tree_llt::Work::pair(),
+            works,
         })
     }
 }

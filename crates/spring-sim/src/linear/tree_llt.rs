@@ -333,7 +333,8 @@ pub(crate) struct Work {
 }
 
 impl Work {
-    fn new(n: usize, plan: &TreePlan) -> Self {
+    /// The scratch of one thread for the factorizations of `plan` (`n` unknowns).
+    pub(crate) fn new(n: usize, plan: &TreePlan) -> Self {
         Self {
             local: vec![NONE; n],
             update: vec![0.0; plan.max_update],
@@ -375,12 +376,8 @@ pub(crate) fn factorize(
     works: &mut [Work; 2],
     parallel: bool,
 ) -> bool {
+    debug_assert!(works.iter().all(|w| w.local.len() == symbolic.nrows()));
     let shape = Shape { symbolic };
-    for work in works.iter_mut() {
-        if work.local.len() != symbolic.nrows() || work.update.len() < plan.max_update {
-            *work = Work::new(symbolic.nrows(), plan);
-        }
-    }
     l.fill(0.0);
     // The supernodes `s0..s1` of group `g` in order, each whole, into `values` (the
     // factor's values from offset `base`, holding them and their descendants).
@@ -602,19 +599,6 @@ fn finish(shape: &Shape<'_>, s: usize, ls: &mut [f64], work: &mut Work) -> bool 
     }
     reset(shape, s, work);
     factored
-}
-
-impl Work {
-    /// Two empty scratches (sized at the first factorization).
-    pub(crate) fn pair() -> [Self; 2] {
-        std::array::from_fn(|_| Self {
-            local: Vec::new(),
-            update: Vec::new(),
-            rows: Vec::new(),
-            gathered: Vec::new(),
-            chol: MemBuffer::new(faer::dyn_stack::StackReq::EMPTY),
-        })
-    }
 }
 
 #[cfg(test)]
