@@ -7,8 +7,8 @@
 //!   A failed factorization is retried on `H + sigma I` with a growing shift; the shifts
 //!   are counted for the step report. The supernodal path writes the matrix straight
 //!   into the ordering's positions through a slot map built once, factors it on faer's
-//!   symbolic structure with two subtrees of the elimination tree side by side
-//!   (`tree_llt`), and the last factor can precondition conjugate gradients on a later
+//!   symbolic structure with two subtrees of the elimination tree side by side and the
+//!   separators above them by panels on both threads (`tree_llt`), and the last factor can precondition conjugate gradients on a later
 //!   matrix instead of a factorization.
 //! - [`PcgSolver`]: conjugate gradients preconditioned by the inverse 3x3 diagonal blocks
 //!   (block Jacobi), to a relative residual, on the same assembled matrix.

@@ -903,7 +903,7 @@ mod tests {
     use crate::linear::{DirectSolver, FactorStructure};
     use crate::model::{ClothGrid, SpringSystem};
     use crate::newton::newton_matrix_triplets;
-    use crate::pattern::HessianPattern;
+    use crate::pattern::{FIXED, HessianPattern};
     use faer::linalg::cholesky::llt::factor::LltRegularization;
     use faer::sparse::linalg::cholesky::{SymbolicCholeskyRaw, supernodal};
 
@@ -911,8 +911,18 @@ mod tests {
     /// widened by `pairs`, each pair given a spring-like block `c (I, -I; -I, I)` so the
     /// matrix stays positive definite: its pattern and values.
     fn matrix(n: usize, pairs: &[[usize; 2]]) -> (HessianPattern, Vec<f64>) {
+        matrix_fixing(n, Vec::new(), pairs)
+    }
+
+    /// [`matrix`] with the particles `fixed` (row, column) held, so without unknowns;
+    /// `pairs` are particle indices, those with a held end left out.
+    fn matrix_fixing(
+        n: usize,
+        fixed: Vec<(usize, usize)>,
+        pairs: &[[usize; 2]],
+    ) -> (HessianPattern, Vec<f64>) {
         let grid = ClothGrid {
-            fixed: Vec::new(),
+            fixed,
             ..ClothGrid::lab_sized(n, 2.0 / (n as f64 - 1.0))
         };
         let mut system = SpringSystem::cloth(&grid.with_damping(0.2)).unwrap();
@@ -931,7 +941,11 @@ mod tests {
         for (i, j, value) in newton_matrix_triplets(&system, 1.0 / 60.0) {
             values[slot(i, j)] += value;
         }
+        let free = |p: usize| Some(pattern.free_index[p]).filter(|&f| f != FIXED);
         for &[p, q] in pairs {
+            let (Some(p), Some(q)) = (free(p), free(q)) else {
+                continue;
+            };
             for k in 0..3 {
                 values[slot(3 * p + k, 3 * p + k)] += 50.0;
                 values[slot(3 * q + k, 3 * q + k)] += 50.0;
@@ -1028,26 +1042,37 @@ mod tests {
         }
     }
 
-    /// A matrix with a negative pivot in either group or in the top is refused on one
-    /// thread and on two, as faer refuses it; the good matrix factored after it gives the
+    /// A matrix with a negative pivot in either group or in the top (its first panel or
+    /// its last) is refused on one thread and on two, as faer refuses it; the good matrix factored after it gives the
     /// same bits as before (no scratch state is left behind by a failure).
     #[test]
     fn a_matrix_that_is_not_positive_definite_is_refused_and_leaves_nothing_behind() {
         let (pattern, values) = matrix(31, &[]);
         let mut solver = DirectSolver::new(&pattern, FactorStructure::Supernodal).unwrap();
         let good = factors(&mut solver, &values)[1].clone().unwrap();
-        let (plan, begins) = {
+        let (plan, begins, ends) = {
             let SymbolicCholeskyRaw::Supernodal(symbolic) = solver.symbolic.raw() else {
                 unreachable!()
             };
             let plan = solver.permuted.as_ref().unwrap().plan.clone();
-            (plan, symbolic.supernode_begin().to_vec())
+            let [begins, ends] = [symbolic.supernode_begin(), symbolic.supernode_end()];
+            (plan, begins.to_vec(), ends.to_vec())
         };
         let perm = solver.symbolic.perm().unwrap().arrays().0.to_vec();
-        // One column in each place: the first group, the second and the top.
-        for g in [0, 1, TOP] {
-            let s = (0..plan.group.len()).find(|&s| plan.group[s] == g).unwrap();
-            let column = perm[begins[s]];
+        // One column in each place: the first group's first supernode, the second's, the
+        // first top supernode's first column, and the last column of the last top
+        // supernode (its last panel, which waits for the panels before it).
+        let first = |g: u8| (0..plan.group.len()).find(|&s| plan.group[s] == g).unwrap();
+        let last = plan.group.len() - 1;
+        assert!(plan.group[last] == TOP && ends[last] - begins[last] > PANEL);
+        let places = [
+            (0, begins[first(0)]),
+            (1, begins[first(1)]),
+            (TOP, begins[first(TOP)]),
+            (TOP, ends[last] - 1),
+        ];
+        for (g, permuted_column) in places {
+            let column = perm[permuted_column];
             let mut bad = values.clone();
             let diagonal = pattern.symbolic.col_ptr()[column];
             assert_eq!(pattern.symbolic.row_idx()[diagonal], column);
@@ -1100,6 +1125,59 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Random sheets of 18 to 37 particles a side, widened by pairs near each other and
+    /// a few far apart, every other one cut in two by two held middle rows (a forest of
+    /// two trees, as separate sheets give): the factor is faer's to round-off and the
+    /// same bits on one thread and on two, on the plans that split and those that do not.
+    #[test]
+    fn random_sheets_factor_alike_on_one_and_two_threads() {
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = |m: usize| {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 33) as usize % m
+        };
+        let mut split = 0;
+        for case in 0..10 {
+            let n = 18 + next(20);
+            let cut = (case % 2 == 1).then(|| n / 3 + next(n / 3));
+            let fixed: Vec<(usize, usize)> = cut
+                .iter()
+                .flat_map(|&r| (0..n).flat_map(move |c| [(r, c), (r + 1, c)]))
+                .collect();
+            let mut pairs = Vec::new();
+            for _ in 0..next(n * n / 2) {
+                let p = next(n * n);
+                pairs.push([p, (p + 1 + next(3 * n)) % (n * n)]);
+            }
+            for _ in 0..next(6) {
+                pairs.push([next(n * n), next(n * n)]);
+            }
+            // A cut sheet keeps its pairs on one side or the other: two trees.
+            let side = |p: usize| cut.map(|r| p / n > r);
+            pairs.retain(|&[p, q]| p != q && side(p) == side(q));
+            let (pattern, values) = matrix_fixing(n, fixed, &pairs);
+            let mut solver = DirectSolver::new(&pattern, FactorStructure::Supernodal).unwrap();
+            split += usize::from(solver.permuted.as_ref().unwrap().plan.splits());
+            let [faer_l, one, two] = factors(&mut solver, &values);
+            let (faer_l, one, two) = (faer_l.unwrap(), one.unwrap(), two.unwrap());
+            let scale = largest(&faer_l);
+            let diff = faer_l
+                .iter()
+                .zip(&one)
+                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+            assert!(diff <= 1e-13 * scale, "case {case}: {diff:e} of {scale:e}");
+            assert!(
+                one.iter()
+                    .zip(&two)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "case {case}: one and two threads differ"
+            );
+        }
+        assert!(split >= 5, "{split} of 10 split");
     }
 
     /// A top supernode may lie inside the second group's range (between its subtrees):

@@ -62,7 +62,8 @@ pub struct NewtonSettings {
     pub record_objective: bool,
     /// Threads for the PCG work, the springs' part of the assembly, the line search and
     /// the direct solver's factorization (two subtrees of its elimination tree side by
-    /// side) of systems above 6 144 unknowns (2 048 particles)
+    /// side, then the separators above them by panels) of systems above 6 144 unknowns
+    /// (2 048 particles)
     /// (default 0: one per core; 1: the calling thread only). The results are bitwise
     /// the same for every value (fixed chunks, sums in chunk order, a factorization
     /// plan fixed by the matrix's structure); without the `parallel` feature it is
