@@ -597,7 +597,7 @@ fn top_by_panels(
             }
             if ok {
                 let block = MatMut::from_column_major_slice_mut(panel, rows, w);
-                ok = factor_panel(block.subrows_mut(c0, rows - c0), work);
+                ok = factor_block(block.subrows_mut(c0, rows - c0), work);
             }
             if !ok {
                 failed.store(true, Ordering::Release);
@@ -612,9 +612,9 @@ fn top_by_panels(
     !failed.load(Ordering::Acquire)
 }
 
-/// The panel `block` (its diagonal block on top, then the rows below) factored in
-/// place: false on a non-positive pivot.
-fn factor_panel(block: MatMut<'_, f64>, work: &mut Work) -> bool {
+/// `block` (a supernode's or a panel's columns: the diagonal block on top, then the rows
+/// below) factored in place: false on a non-positive pivot.
+fn factor_block(block: MatMut<'_, f64>, work: &mut Work) -> bool {
     let w = block.ncols();
     let (mut top, mut bottom) = block.split_at_row_mut(w);
     let factored = cholesky_in_place(
@@ -876,23 +876,7 @@ fn finish(shape: &Shape<'_>, s: usize, ls: &mut [f64], work: &mut Work) -> bool 
     let (s0, s1) = shape.cols(s);
     let sn = s1 - s0;
     let rows = sn + shape.pattern(s).len();
-    let mut lmat = MatMut::from_column_major_slice_mut(ls, rows, sn);
-    let (mut top, mut bottom) = lmat.as_mut().split_at_row_mut(sn);
-    let factored = cholesky_in_place(
-        top.as_mut(),
-        LltRegularization::default(),
-        Par::Seq,
-        MemStack::new(&mut work.chol),
-        Default::default(),
-    )
-    .is_ok();
-    if factored {
-        solve_lower_triangular_in_place(
-            top.as_ref().conjugate(),
-            bottom.as_mut().transpose_mut(),
-            Par::Seq,
-        );
-    }
+    let factored = factor_block(MatMut::from_column_major_slice_mut(ls, rows, sn), work);
     reset(shape, s, work);
     factored
 }
@@ -1017,6 +1001,24 @@ mod tests {
         values.iter().fold(0.0, |m, v| m.max(v.abs()))
     }
 
+    /// The three factors of [`factors`] exist, this module's is faer's to 1e-13 of its
+    /// largest entry, and it is the same to the bit on one thread and on two.
+    fn assert_alike([faer_l, one, two]: [Option<Vec<f64>>; 3], what: &str) {
+        let (faer_l, one, two) = (faer_l.unwrap(), one.unwrap(), two.unwrap());
+        let scale = largest(&faer_l);
+        let diff = faer_l
+            .iter()
+            .zip(&one)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        assert!(diff <= 1e-13 * scale, "{what}: {diff:e} of {scale:e}");
+        assert!(
+            one.iter()
+                .zip(&two)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{what}: one and two threads differ"
+        );
+    }
+
     /// On a sheet's matrix and on one widened by far pairs, the plan splits, the factor
     /// is faer's to round-off, and it is the same to the bit on one thread and on two.
     #[test]
@@ -1025,26 +1027,14 @@ mod tests {
             let (pattern, values) = matrix(n, &pairs);
             let mut solver = DirectSolver::new(&pattern, FactorStructure::Supernodal).unwrap();
             assert!(solver.permuted.as_ref().unwrap().plan.splits(), "{n}");
-            let [faer_l, one, two] = factors(&mut solver, &values);
-            let (faer_l, one, two) = (faer_l.unwrap(), one.unwrap(), two.unwrap());
-            let scale = largest(&faer_l);
-            let diff = faer_l
-                .iter()
-                .zip(&one)
-                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-            assert!(diff <= 1e-13 * scale, "{n}: {diff:e} of {scale:e}");
-            assert!(
-                one.iter()
-                    .zip(&two)
-                    .all(|(a, b)| a.to_bits() == b.to_bits()),
-                "{n}: one and two threads differ"
-            );
+            assert_alike(factors(&mut solver, &values), &format!("{n}"));
         }
     }
 
     /// A matrix with a negative pivot in either group or in the top (its first panel or
-    /// its last) is refused on one thread and on two, as faer refuses it; the good matrix factored after it gives the
-    /// same bits as before (no scratch state is left behind by a failure).
+    /// its last) is refused on one thread and on two, as faer refuses it; the good
+    /// matrix factored after it gives the same bits as before (no scratch state is left
+    /// behind by a failure).
     #[test]
     fn a_matrix_that_is_not_positive_definite_is_refused_and_leaves_nothing_behind() {
         let (pattern, values) = matrix(31, &[]);
@@ -1162,20 +1152,7 @@ mod tests {
             let (pattern, values) = matrix_fixing(n, fixed, &pairs);
             let mut solver = DirectSolver::new(&pattern, FactorStructure::Supernodal).unwrap();
             split += usize::from(solver.permuted.as_ref().unwrap().plan.splits());
-            let [faer_l, one, two] = factors(&mut solver, &values);
-            let (faer_l, one, two) = (faer_l.unwrap(), one.unwrap(), two.unwrap());
-            let scale = largest(&faer_l);
-            let diff = faer_l
-                .iter()
-                .zip(&one)
-                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-            assert!(diff <= 1e-13 * scale, "case {case}: {diff:e} of {scale:e}");
-            assert!(
-                one.iter()
-                    .zip(&two)
-                    .all(|(a, b)| a.to_bits() == b.to_bits()),
-                "case {case}: one and two threads differ"
-            );
+            assert_alike(factors(&mut solver, &values), &format!("case {case}"));
         }
         assert!(split >= 5, "{split} of 10 split");
     }
@@ -1224,20 +1201,7 @@ mod tests {
         assert!(vb.contains(&v0) && plan.group[t] == TOP && plan.group[x + 1] == 1);
         permuted.works = std::array::from_fn(|_| Work::new(symbolic.nrows(), &plan));
         permuted.plan = plan;
-        let [faer_l, one, two] = factors(&mut solver, &values);
-        let (faer_l, one, two) = (faer_l.unwrap(), one.unwrap(), two.unwrap());
-        let scale = largest(&faer_l);
-        assert!(
-            faer_l
-                .iter()
-                .zip(&one)
-                .all(|(a, b)| (a - b).abs() <= 1e-13 * scale)
-        );
-        assert!(
-            one.iter()
-                .zip(&two)
-                .all(|(a, b)| a.to_bits() == b.to_bits())
-        );
+        assert_alike(factors(&mut solver, &values), "");
     }
 
     /// A small matrix is not worth a second thread: no split, and faer's factor.
@@ -1246,19 +1210,6 @@ mod tests {
         let (pattern, values) = matrix(6, &[]);
         let mut solver = DirectSolver::new(&pattern, FactorStructure::Supernodal).unwrap();
         assert!(!solver.permuted.as_ref().unwrap().plan.splits());
-        let [faer_l, one, two] = factors(&mut solver, &values);
-        let (faer_l, one, two) = (faer_l.unwrap(), one.unwrap(), two.unwrap());
-        let scale = largest(&faer_l);
-        assert!(
-            faer_l
-                .iter()
-                .zip(&one)
-                .all(|(a, b)| (a - b).abs() <= 1e-13 * scale)
-        );
-        assert!(
-            one.iter()
-                .zip(&two)
-                .all(|(a, b)| a.to_bits() == b.to_bits())
-        );
+        assert_alike(factors(&mut solver, &values), "");
     }
 }
