@@ -533,8 +533,9 @@ pub(crate) fn factorize(
 /// earlier panel's, waiting for that panel to be factored, and factors itself (its
 /// diagonal block and the rows below). Every panel does the same arithmetic whichever
 /// thread claims it, so the factor is the same on one thread and on two; a thread
-/// waits only for panels claimed before its own, which a running thread holds, so the
-/// two never wait on each other. False on a non-positive pivot.
+/// waits only for panels claimed before its own, each held by a running thread that
+/// waits only for earlier ones, so no wait is for work that is not under way (and one
+/// thread alone claims every panel in order). False on a non-positive pivot.
 #[allow(clippy::too_many_arguments)]
 fn top_by_panels(
     shape: &Shape<'_>,
