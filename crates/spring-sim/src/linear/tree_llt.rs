@@ -30,7 +30,7 @@ use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
 use faer::sparse::SparseColMatRef;
 use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
 use faer::{Accum, MatMut, MatRef, Par};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Mutex, OnceLock};
 
 /// Updates at least this wide compute only the lower half of their square top.
@@ -527,11 +527,11 @@ pub(crate) fn factorize(
 }
 
 /// Finishes top supernode `s` (the group updates already in `ls` and in `buffer`, the
-/// other thread's) by panels of [`PANEL`] columns, claimed in order by the two threads:
-/// a panel adds its columns of `buffer`, subtracts the top descendants' updates of its
-/// columns (their values in `head`, the factor's values before `s`'s) and then each
-/// earlier panel's, waiting for that panel to be factored, and factors itself (its
-/// diagonal block and the rows below). Every panel does the same arithmetic whichever
+/// other thread's) by panels of [`PANEL`] columns, which the two threads take in order
+/// from a shared iterator: a panel adds its columns of `buffer`, subtracts the top
+/// descendants' updates of its columns (their values in `head`, the factor's values
+/// before `s`'s) and then each earlier panel's, waiting for that panel to be factored,
+/// and factors itself (its diagonal block and the rows below). Every panel does the same arithmetic whichever
 /// thread claims it, so the factor is the same on one thread and on two; a thread
 /// waits only for panels claimed before its own, each held by a running thread that
 /// waits only for earlier ones, so no wait is for work that is not under way (and one
@@ -550,24 +550,21 @@ fn top_by_panels(
     let (s0, s1) = shape.cols(s);
     let sn = s1 - s0;
     let rows = sn + shape.pattern(s).len();
-    let unclaimed: Vec<Mutex<Option<&mut [f64]>>> = ls
-        .chunks_mut(PANEL * rows)
-        .map(|panel| Mutex::new(Some(panel)))
-        .collect();
-    let factored: Vec<OnceLock<&[f64]>> = unclaimed.iter().map(|_| OnceLock::new()).collect();
-    let next = AtomicUsize::new(0);
+    // The panels in order, each handed out once; a claimed panel is published here once
+    // factored, for the later panels to read.
+    let unclaimed = Mutex::new(ls.chunks_mut(PANEL * rows).enumerate());
+    let factored: Vec<OnceLock<&[f64]>> =
+        (0..sn.div_ceil(PANEL)).map(|_| OnceLock::new()).collect();
     let failed = AtomicBool::new(false);
     let updates = plan.update_ptr[s]..plan.update_ptr[s + 1];
     let worker = |work: &mut Work| {
         prepare(shape, s, work);
         while !failed.load(Ordering::Acquire) {
-            let p = next.fetch_add(1, Ordering::Relaxed);
-            let Some(slot) = unclaimed.get(p) else { break };
-            let panel = slot
+            let claimed = unclaimed
                 .lock()
                 .unwrap_or_else(|poisoned| poisoned.into_inner())
-                .take()
-                .expect("each panel is claimed once");
+                .next();
+            let Some((p, panel)) = claimed else { break };
             let c0 = p * PANEL;
             let w = panel.len() / rows;
             for c in 0..w {
