@@ -526,7 +526,7 @@ impl PermutedMatrix {
         // The structure exactly as faer's path produces it before factoring (the
         // unsorted constructor checks the bounds without asking for sorted rows).
         let symbolic = SymbolicSparseColMat::new_unsorted_checked(n, n, col_ptr, None, row_idx);
-        let works = std::array::from_fn(|_| tree_llt::Work::new(n, &plan));
+        let works = std::array::from_fn(|thread| tree_llt::Work::new(n, &plan, thread));
         Some(Self {
             symbolic,
             slots,

@@ -86,10 +86,15 @@ struct Split {
     /// The supernodes outside both groups, ascending: each an ancestor of some group's
     /// supernodes.
     top: Vec<usize>,
-    /// Where each top supernode's values start in a thread's buffer, and the buffer's
-    /// length (the top supernodes' values).
+    /// Per top supernode, the thread whose slice of the factor holds its values (1 when
+    /// they lie in the second group's range, between its subtrees, else 0: they follow
+    /// the first group's); it assembles the supernode there, and the other thread
+    /// subtracts its updates into its buffer ...
+    held_by: Vec<u8>,
+    /// ... from this place ...
     at: Vec<usize>,
-    buffer: usize,
+    /// ... whose length, per thread, is the values of the top supernodes it does not hold.
+    buffer: [usize; 2],
 }
 
 /// The supernodes' row patterns and column ranges, read from faer's symbolic factor.
@@ -205,7 +210,8 @@ impl TreePlan {
     }
 
     /// The plan with `split` (groups and top supernodes chosen by [`Split::choose`] or
-    /// by a test): each supernode's group and the top supernodes' buffer places.
+    /// by a test): each supernode's group, and which thread holds each top supernode
+    /// and where the other buffers its updates.
     fn with_split(
         mut self,
         symbolic: &SymbolicSupernodalCholesky<usize>,
@@ -214,12 +220,18 @@ impl TreePlan {
         let shape = Shape { symbolic };
         self.group.fill(TOP);
         if let Some(split) = &mut split {
+            let [_, (b0, b1)] = split.groups;
+            let second = shape.values(b0).0..shape.values(b1 - 1).1;
+            split.held_by.clear();
             split.at.clear();
-            split.buffer = 0;
+            split.buffer = [0; 2];
             for &s in &split.top {
                 let (v0, v1) = shape.values(s);
-                split.at.push(split.buffer);
-                split.buffer += v1 - v0;
+                let holder = u8::from(second.contains(&v0));
+                let other = usize::from(1 - holder);
+                split.held_by.push(holder);
+                split.at.push(split.buffer[other]);
+                split.buffer[other] += v1 - v0;
             }
             for (g, &(s0, s1)) in split.groups.iter().enumerate() {
                 for s in s0..s1 {
@@ -340,8 +352,9 @@ impl Split {
                         Self {
                             groups: [range(&frontier[..c]), range(&frontier[c..])],
                             top: sorted,
+                            held_by: Vec::new(),
                             at: Vec::new(),
-                            buffer: 0,
+                            buffer: [0; 2],
                         },
                     ));
                 }
@@ -375,13 +388,14 @@ pub(crate) struct Work {
 }
 
 impl Work {
-    /// The scratch of one thread for the factorizations of `plan` (`n` unknowns).
-    pub(crate) fn new(n: usize, plan: &TreePlan) -> Self {
+    /// The scratch of thread `thread` (0 or 1) for the factorizations of `plan` (`n`
+    /// unknowns).
+    pub(crate) fn new(n: usize, plan: &TreePlan, thread: usize) -> Self {
         Self {
             local: vec![NONE; n],
             update: vec![0.0; plan.max_update],
             rows: Vec::new(),
-            buffer: vec![0.0; plan.split.as_ref().map_or(0, |split| split.buffer)],
+            buffer: vec![0.0; plan.split.as_ref().map_or(0, |split| split.buffer[thread])],
             chol: MemBuffer::new(cholesky_in_place_scratch::<f64>(
                 plan.max_cols,
                 Par::Seq,
@@ -451,11 +465,9 @@ pub(crate) fn factorize(
     let [(a0, a1), (b0, b1)] = split.groups;
     let (va0, va1) = (shape.values(a0).0, shape.values(a1 - 1).1);
     let (vb0, vb1) = (shape.values(b0).0, shape.values(b1 - 1).1);
-    // A top supernode's values lie in the second group's range or after the first's
-    // (it is an ancestor of a grouped supernode); the thread whose slice holds them
-    // assembles them and subtracts its group's updates there, the other thread
-    // subtracts its group's into its buffer.
-    let in_b = |s: usize| (vb0..vb1).contains(&shape.values(s).0);
+    // The thread whose slice holds a top supernode assembles it and subtracts its
+    // group's updates there, the other subtracts its group's into its buffer.
+    let tops = || split.top.iter().zip(&split.held_by).zip(&split.at);
     {
         let (front, rest) = l.split_at_mut(vb0);
         let (mid, back) = rest.split_at_mut(vb1 - vb0);
@@ -465,9 +477,9 @@ pub(crate) fn factorize(
             || {
                 run((a0, a1), 0, va0, &mut front[va0..va1], work_a) && {
                     let mut buffer = std::mem::take(&mut work_a.buffer);
-                    for (&s, &at) in split.top.iter().zip(&split.at) {
+                    for ((&s, &holder), &at) in tops() {
                         let (v0, v1) = shape.values(s);
-                        let (head, target) = if in_b(s) {
+                        let (head, target) = if holder == 1 {
                             (&*front, Target::Buffer(&mut buffer[at..][..v1 - v0]))
                         } else if v0 < vb0 {
                             let (head, tail) = front.split_at_mut(v0);
@@ -484,9 +496,9 @@ pub(crate) fn factorize(
             || {
                 run((b0, b1), 1, vb0, mid, work_b) && {
                     let mut buffer = std::mem::take(&mut work_b.buffer);
-                    for (&s, &at) in split.top.iter().zip(&split.at) {
+                    for ((&s, &holder), &at) in tops() {
                         let (v0, v1) = shape.values(s);
-                        let (head, target) = if in_b(s) {
+                        let (head, target) = if holder == 1 {
                             let (head, tail) = mid.split_at_mut(v0 - vb0);
                             (&*head, Target::Own(&mut tail[..v1 - v0]))
                         } else {
@@ -505,10 +517,10 @@ pub(crate) fn factorize(
     }
 
     // Then each top supernode in order, by panels of its columns.
-    split.top.iter().zip(&split.at).all(|(&s, &at)| {
+    tops().all(|((&s, &holder), &at)| {
         let (v0, v1) = shape.values(s);
         let (head, tail) = l.split_at_mut(v0);
-        let other = if in_b(s) { 0 } else { 1 };
+        let other = usize::from(1 - holder);
         let buffer = std::mem::take(&mut works[other].buffer);
         let buffer_s = &buffer[at..][..v1 - v0];
         let factored = top_by_panels(
@@ -1189,15 +1201,17 @@ mod tests {
         let split = Split {
             groups: [(0, x + 1), (x + 1, q)],
             top,
+            held_by: Vec::new(),
             at: Vec::new(),
-            buffer: 0,
+            buffer: [0; 2],
         };
         let permuted = solver.permuted.as_mut().unwrap();
         let plan = permuted.plan.clone().with_split(symbolic, Some(split));
         let v0 = symbolic.col_ptr_for_val()[t];
         let vb = symbolic.col_ptr_for_val()[x + 1]..symbolic.col_ptr_for_val()[q];
         assert!(vb.contains(&v0) && plan.group[t] == TOP && plan.group[x + 1] == 1);
-        permuted.works = std::array::from_fn(|_| Work::new(symbolic.nrows(), &plan));
+        assert_eq!(plan.split.as_ref().unwrap().held_by, [1, 0]);
+        permuted.works = std::array::from_fn(|g| Work::new(symbolic.nrows(), &plan, g));
         permuted.plan = plan;
         assert_alike(factors(&mut solver, &values), "");
     }
