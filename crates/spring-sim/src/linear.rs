@@ -8,8 +8,9 @@
 //!   are counted for the step report. The supernodal path writes the matrix straight
 //!   into the ordering's positions through a slot map built once, factors it on faer's
 //!   symbolic structure with two subtrees of the elimination tree side by side and the
-//!   separators above them by panels on both threads (`tree_llt`), and the last factor can precondition conjugate gradients on a later
-//!   matrix instead of a factorization.
+//!   separators above them by panels on both threads (`tree_llt`), and solves with the
+//!   factor by the same split; the last factor can precondition conjugate gradients on
+//!   a later matrix instead of a factorization.
 //! - [`PcgSolver`]: conjugate gradients preconditioned by the inverse 3x3 diagonal blocks
 //!   (block Jacobi), to a relative residual, on the same assembled matrix.
 //!
@@ -491,8 +492,10 @@ struct PermutedMatrix {
     values: Vec<f64>,
     /// The numeric factorization's plan (see [`tree_llt`]).
     plan: tree_llt::TreePlan,
-    /// The factorization's scratch, one per thread (built with the plan).
+    /// The factorization's and the solve's scratch, one per thread (built with the plan).
     works: [tree_llt::Work; 2],
+    /// The solve's right-hand side in the factorization's order.
+    solve_x: Vec<f64>,
 }
 
 impl PermutedMatrix {
@@ -533,6 +536,7 @@ impl PermutedMatrix {
             values,
             plan,
             works,
+            solve_x: Vec::new(),
         })
     }
 }
@@ -682,13 +686,38 @@ impl DirectSolver {
         factored
     }
 
-    /// `rhs = F^-1 rhs` with the kept factor `F` (which must exist).
+    /// `rhs = F^-1 rhs` with the kept factor `F` (which must exist): by [`tree_llt`]'s
+    /// solve when its plan splits the tree (two groups side by side, on a pool), else
+    /// by faer's.
     fn apply_factor(
         symbolic: &SymbolicCholesky<usize>,
+        permuted: &mut Option<PermutedMatrix>,
         factor_values: &[f64],
         solve_work: &mut MemBuffer,
         rhs: &mut [f64],
     ) {
+        if let (Some(permuted), SymbolicCholeskyRaw::Supernodal(supernodal), Some(perm)) =
+            (permuted.as_mut(), symbolic.raw(), symbolic.perm())
+            && permuted.plan.splits()
+        {
+            // `perm[new] = old`: the solve runs in the factorization's order.
+            let (order, _) = perm.arrays();
+            let x = &mut permuted.solve_x;
+            x.clear();
+            x.extend(order.iter().map(|&old| rhs[old]));
+            tree_llt::solve(
+                supernodal,
+                &permuted.plan,
+                factor_values,
+                x,
+                &mut permuted.works,
+                tree_parallel(),
+            );
+            for (&old, &v) in order.iter().zip(x.iter()) {
+                rhs[old] = v;
+            }
+            return;
+        }
         let llt = LltRef::new(symbolic, factor_values);
         let n = rhs.len();
         llt.solve_in_place_with_conj(
@@ -719,6 +748,7 @@ impl DirectSolver {
         }
         Self::apply_factor(
             &self.symbolic,
+            &mut self.permuted,
             &self.factor_values,
             &mut self.solve_work,
             rhs,
@@ -763,6 +793,7 @@ impl DirectSolver {
             if factored {
                 Self::apply_factor(
                     &self.symbolic,
+                    &mut self.permuted,
                     &self.factor_values,
                     &mut self.solve_work,
                     rhs,
@@ -814,7 +845,13 @@ impl DirectSolver {
         x.fill(0.0);
         r.copy_from_slice(rhs);
         z.copy_from_slice(rhs);
-        Self::apply_factor(&self.symbolic, &self.factor_values, &mut self.solve_work, z);
+        Self::apply_factor(
+            &self.symbolic,
+            &mut self.permuted,
+            &self.factor_values,
+            &mut self.solve_work,
+            z,
+        );
         p.copy_from_slice(z);
         let mut rz = dot(r, z);
         outcome.status = KeptFactorStatus::OverBudget;
@@ -841,7 +878,13 @@ impl DirectSolver {
                 break;
             }
             z.copy_from_slice(r);
-            Self::apply_factor(&self.symbolic, &self.factor_values, &mut self.solve_work, z);
+            Self::apply_factor(
+                &self.symbolic,
+                &mut self.permuted,
+                &self.factor_values,
+                &mut self.solve_work,
+                z,
+            );
             let rz_new = dot(r, z);
             let beta = rz_new / rz;
             rz = rz_new;
@@ -1858,6 +1901,63 @@ mod tests {
                 off <= 1e-12 * largest(&faers),
                 "{n}: the solutions differ by {off:e}"
             );
+        }
+    }
+
+    /// A stretched sheet's pattern, Newton matrix values and triplets.
+    type Stretched = (HessianPattern, Vec<f64>, Vec<(usize, usize, f64)>);
+
+    /// With a plan that splits the tree, the direct solve (factorization and triangular
+    /// solves, `tree_llt`) gives the same bits on one thread and on a pool of two, its
+    /// residual against the matrix is round-off, and the scratch the solves share with
+    /// the factorization leaves nothing behind: one solver solving two matrices in turn
+    /// (the second sheet stretched further) gives each the bits a fresh solver gives.
+    #[test]
+    fn the_split_direct_solve_is_the_same_on_one_and_two_threads() {
+        for (n, spacing) in [(31, 0.04), (46, 0.03)] {
+            let first = stretched(n, spacing);
+            let second = stretched_by(n, spacing, 1.3);
+            let b = rhs(first.0.dim());
+            let solve = |systems: &[&Stretched]| {
+                let mut solver = DirectSolver::new(&first.0, FactorStructure::Supernodal).unwrap();
+                assert!(solver.permuted.as_ref().unwrap().plan.splits());
+                let mut answers = Vec::new();
+                for (pattern, values, _) in systems {
+                    let mut x = b.clone();
+                    assert!(solver.solve_unshifted(pattern, values, &mut x));
+                    answers.push(x);
+                }
+                answers
+            };
+            let on_pool = |systems: &[&Stretched]| {
+                #[cfg(feature = "parallel")]
+                return rayon::ThreadPoolBuilder::new()
+                    .num_threads(2)
+                    .build()
+                    .unwrap()
+                    .install(|| solve(systems));
+                #[cfg(not(feature = "parallel"))]
+                solve(systems)
+            };
+            let in_turn = solve(&[&first, &second]);
+            let runs = [
+                in_turn.clone(),
+                on_pool(&[&first, &second]),
+                [solve(&[&first]), solve(&[&second])].concat(),
+            ];
+            for run in &runs[1..] {
+                assert!(
+                    run.iter()
+                        .flatten()
+                        .zip(in_turn.iter().flatten())
+                        .all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "{n}: the runs differ"
+                );
+            }
+            for (x, (_, _, triplets)) in in_turn.iter().zip([&first, &second]) {
+                let residual = relative_residual(triplets, &b, x);
+                assert!(residual < 1e-12, "{n}: {residual:e}");
+            }
         }
     }
 

@@ -19,6 +19,9 @@
 //! supernode (every panel of a top one) does the same arithmetic whichever thread runs
 //! it and whether or not another runs beside it: the factor is the same to the bit on
 //! one thread and on two.
+//!
+//! The triangular solves with the factor ([`solve`]) split the same way: forward, the two
+//! groups side by side and then the top; backward, the top and then the two groups.
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::{
@@ -26,7 +29,9 @@ use faer::linalg::cholesky::llt::factor::{
 };
 use faer::linalg::matmul::matmul;
 use faer::linalg::matmul::triangular::{self, BlockStructure};
-use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
+use faer::linalg::triangular_solve::{
+    solve_lower_triangular_in_place, solve_upper_triangular_in_place,
+};
 use faer::sparse::SparseColMatRef;
 use faer::sparse::linalg::cholesky::supernodal::SymbolicSupernodalCholesky;
 use faer::{Accum, MatMut, MatRef, Par};
@@ -246,7 +251,6 @@ impl TreePlan {
     }
 
     /// Whether the plan factors two groups of subtrees side by side when it can.
-    #[cfg(test)]
     pub(crate) fn splits(&self) -> bool {
         self.split.is_some()
     }
@@ -376,14 +380,21 @@ impl Split {
     }
 }
 
-/// Scratch of one thread: the row map, the dense update, a buffer for its group's
-/// updates of the top supernodes held by the other thread, and the diagonal block's
-/// factorization.
+/// Scratch of one thread: for the factorization the row map, the dense update, a
+/// buffer for its group's updates of the top supernodes held by the other thread, and
+/// the diagonal block's factorization; for the triangular solves the vectors below.
 pub(crate) struct Work {
     local: Vec<usize>,
     update: Vec<f64>,
     rows: Vec<usize>,
     buffer: Vec<f64>,
+    /// The solve's subtractions from rows outside the thread's group (zero between
+    /// solves) ...
+    gathered: Vec<f64>,
+    /// ... a supernode's products with its rows below its diagonal block ...
+    below: Vec<f64>,
+    /// ... and the first thread's copy of the solution for the backward solve.
+    copy: Vec<f64>,
     chol: MemBuffer,
 }
 
@@ -396,6 +407,9 @@ impl Work {
             update: vec![0.0; plan.max_update],
             rows: Vec::new(),
             buffer: vec![0.0; plan.split.as_ref().map_or(0, |split| split.buffer[thread])],
+            gathered: Vec::new(),
+            below: Vec::new(),
+            copy: Vec::new(),
             chol: MemBuffer::new(cholesky_in_place_scratch::<f64>(
                 plan.max_cols,
                 Par::Seq,
@@ -891,6 +905,226 @@ fn finish(shape: &Shape<'_>, s: usize, ls: &mut [f64], work: &mut Work) -> bool 
     factored
 }
 
+/// Solves `L L^T x = b` in place (`x` holds `b` on entry), `L` the factor `l` computed
+/// with the same plan, in the factorization's order (the caller applies the ordering).
+/// With a split, the forward solve runs the two groups side by side, then the top; the
+/// backward solve runs the top, then the two groups side by side. A group's supernode
+/// subtracts from its rows below the diagonal block, which are its ancestors' columns:
+/// its own group's, which lie in the group's range of `x`, and top supernodes', which
+/// may lie anywhere (between another group's subtrees too). A group subtracts from rows
+/// inside its range in `x` and from the others in its own buffer, and the buffers are
+/// added to the top supernodes' rows after both groups, the first's then the second's.
+/// Backward, each group reads the top's rows, final by then, from a copy. As in
+/// [`factorize`], the arithmetic is the plan's alone, so the solution is the same on
+/// one thread and on two.
+pub(crate) fn solve(
+    symbolic: &SymbolicSupernodalCholesky<usize>,
+    plan: &TreePlan,
+    l: &[f64],
+    x: &mut [f64],
+    works: &mut [Work; 2],
+    parallel: bool,
+) {
+    let shape = Shape { symbolic };
+    let n = x.len();
+    let Some(split) = &plan.split else {
+        let all = (0, shape.len());
+        forward(
+            &shape,
+            plan,
+            l,
+            all,
+            TOP,
+            x,
+            0,
+            &mut [],
+            &mut works[0].below,
+        );
+        backward(&shape, plan, l, all, TOP, x, 0, &[], &mut works[0].below);
+        return;
+    };
+    let [(a0, a1), (b0, b1)] = split.groups;
+    let cols = |(s0, s1): (usize, usize)| (shape.cols(s0).0, shape.cols(s1 - 1).1);
+    let ((ca0, ca1), (cb0, cb1)) = (cols((a0, a1)), cols((b0, b1)));
+    let [work_a, work_b] = works;
+    // The buffers are zero outside a solve: each top row is taken back to zero below.
+    for work in [&mut *work_a, &mut *work_b] {
+        if work.gathered.len() != n {
+            work.gathered.clear();
+            work.gathered.resize(n, 0.0);
+        }
+    }
+    {
+        let (low, rest) = x.split_at_mut(cb0);
+        let (xa, xb) = (&mut low[ca0..ca1], &mut rest[..cb1 - cb0]);
+        let (
+            Work {
+                gathered: acc_a,
+                below: tmp_a,
+                ..
+            },
+            Work {
+                gathered: acc_b,
+                below: tmp_b,
+                ..
+            },
+        ) = (&mut *work_a, &mut *work_b);
+        both(
+            parallel,
+            || forward(&shape, plan, l, (a0, a1), 0, xa, ca0, acc_a, tmp_a),
+            || forward(&shape, plan, l, (b0, b1), 1, xb, cb0, acc_b, tmp_b),
+        );
+    }
+    // Only top rows get another group's subtractions (a group's buffer stays zero at
+    // its own rows, and at the other group's: no supernode of one group is an ancestor
+    // of one of the other's).
+    for &s in &split.top {
+        let (c0, c1) = shape.cols(s);
+        let (from_a, from_b) = (&mut work_a.gathered[c0..c1], &mut work_b.gathered[c0..c1]);
+        for ((x, a), b) in x[c0..c1].iter_mut().zip(from_a).zip(from_b) {
+            *x += std::mem::take(a);
+            *x += std::mem::take(b);
+        }
+    }
+    for &s in &split.top {
+        forward(
+            &shape,
+            plan,
+            l,
+            (s, s + 1),
+            TOP,
+            x,
+            0,
+            &mut [],
+            &mut work_a.below,
+        );
+    }
+    for &s in split.top.iter().rev() {
+        backward(
+            &shape,
+            plan,
+            l,
+            (s, s + 1),
+            TOP,
+            x,
+            0,
+            &[],
+            &mut work_a.below,
+        );
+    }
+    let copy = &mut work_a.copy;
+    copy.clear();
+    copy.extend_from_slice(x);
+    let (low, rest) = x.split_at_mut(cb0);
+    let (xa, xb) = (&mut low[ca0..ca1], &mut rest[..cb1 - cb0]);
+    let (copy, tmp_a, tmp_b) = (&*copy, &mut work_a.below, &mut work_b.below);
+    both(
+        parallel,
+        || backward(&shape, plan, l, (a0, a1), 0, xa, ca0, copy, tmp_a),
+        || backward(&shape, plan, l, (b0, b1), 1, xb, cb0, copy, tmp_b),
+    );
+}
+
+/// The supernode's factor block: its diagonal block and the rows below it.
+fn blocks<'a>(shape: &Shape<'_>, l: &'a [f64], s: usize) -> (MatRef<'a, f64>, MatRef<'a, f64>) {
+    let (c0, c1) = shape.cols(s);
+    let sn = c1 - c0;
+    let (v0, v1) = shape.values(s);
+    let ls = MatRef::from_column_major_slice(&l[v0..v1], sn + shape.pattern(s).len(), sn);
+    ls.split_at_row(sn)
+}
+
+/// The forward solve `L y = b` over the supernodes `s0..s1` of group `g`, in order:
+/// `x` holds the rows from `col0` on; a row outside it is subtracted from in `acc`
+/// (indexed by row).
+#[allow(clippy::too_many_arguments)]
+fn forward(
+    shape: &Shape<'_>,
+    plan: &TreePlan,
+    l: &[f64],
+    (s0, s1): (usize, usize),
+    g: u8,
+    x: &mut [f64],
+    col0: usize,
+    acc: &mut [f64],
+    tmp: &mut Vec<f64>,
+) {
+    for s in (s0..s1).filter(|&s| plan.group[s] == g) {
+        let (c0, c1) = shape.cols(s);
+        let (top, below) = blocks(shape, l, s);
+        let xs = &mut x[c0 - col0..c1 - col0];
+        let xs_len = xs.len();
+        solve_lower_triangular_in_place(
+            top,
+            MatMut::from_column_major_slice_mut(xs, xs_len, 1),
+            Par::Seq,
+        );
+        let pattern = shape.pattern(s);
+        tmp.clear();
+        tmp.resize(pattern.len(), 0.0);
+        let xs = MatRef::from_column_major_slice(&x[c0 - col0..c1 - col0], xs_len, 1);
+        matmul(
+            MatMut::from_column_major_slice_mut(tmp, pattern.len(), 1),
+            Accum::Replace,
+            below,
+            xs,
+            1.0,
+            Par::Seq,
+        );
+        let end = col0 + x.len();
+        for (&r, &v) in pattern.iter().zip(tmp.iter()) {
+            if (col0..end).contains(&r) {
+                x[r - col0] -= v;
+            } else {
+                acc[r] -= v;
+            }
+        }
+    }
+}
+
+/// The backward solve `L^T x = y` over the supernodes `s0..s1` of group `g`, in reverse
+/// order: `x` holds the rows from `col0` on; a row outside it is read from `outside`
+/// (indexed by row).
+#[allow(clippy::too_many_arguments)]
+fn backward(
+    shape: &Shape<'_>,
+    plan: &TreePlan,
+    l: &[f64],
+    (s0, s1): (usize, usize),
+    g: u8,
+    x: &mut [f64],
+    col0: usize,
+    outside: &[f64],
+    tmp: &mut Vec<f64>,
+) {
+    let end = col0 + x.len();
+    for s in (s0..s1).rev().filter(|&s| plan.group[s] == g) {
+        let (c0, c1) = shape.cols(s);
+        let (top, below) = blocks(shape, l, s);
+        let pattern = shape.pattern(s);
+        tmp.clear();
+        tmp.extend(pattern.iter().map(|&r| {
+            if (col0..end).contains(&r) {
+                x[r - col0]
+            } else {
+                outside[r]
+            }
+        }));
+        let xs = &mut x[c0 - col0..c1 - col0];
+        let xs_len = xs.len();
+        let mut xs = MatMut::from_column_major_slice_mut(xs, xs_len, 1);
+        matmul(
+            xs.as_mut(),
+            Accum::Add,
+            below.transpose(),
+            MatRef::from_column_major_slice(tmp, pattern.len(), 1),
+            -1.0,
+            Par::Seq,
+        );
+        solve_upper_triangular_in_place(top.transpose(), xs, Par::Seq);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -898,6 +1132,7 @@ mod tests {
     use crate::model::{ClothGrid, SpringSystem};
     use crate::newton::newton_matrix_triplets;
     use crate::pattern::{FIXED, HessianPattern};
+    use faer::Conj;
     use faer::linalg::cholesky::llt::factor::LltRegularization;
     use faer::sparse::linalg::cholesky::{SymbolicCholeskyRaw, supernodal};
 
@@ -1012,8 +1247,12 @@ mod tests {
     }
 
     /// The three factors of [`factors`] exist, this module's is faer's to 1e-13 of its
-    /// largest entry, and it is the same to the bit on one thread and on two.
-    fn assert_alike([faer_l, one, two]: [Option<Vec<f64>>; 3], what: &str) {
+    /// largest entry, and it is the same to the bit on one thread and on two; and so
+    /// are the solutions of a system with each (faer's solve with faer's factor, this
+    /// module's on one thread and on two with its own), to 1e-10 of the largest entry
+    /// of faer's solution.
+    fn assert_alike(solver: &mut DirectSolver, values: &[f64], what: &str) {
+        let [faer_l, one, two] = factors(solver, values);
         let (faer_l, one, two) = (faer_l.unwrap(), one.unwrap(), two.unwrap());
         let scale = largest(&faer_l);
         let diff = faer_l
@@ -1027,6 +1266,58 @@ mod tests {
                 .all(|(a, b)| a.to_bits() == b.to_bits()),
             "{what}: one and two threads differ"
         );
+        let SymbolicCholeskyRaw::Supernodal(symbolic) = solver.symbolic.raw() else {
+            unreachable!("the structure is supernodal");
+        };
+        let permuted = solver.permuted.as_mut().unwrap();
+        let n = symbolic.nrows();
+        let b: Vec<f64> = (0..n).map(|i| ((i * 7 + 3) % 11) as f64 - 5.0).collect();
+        let mut by_faer = b.clone();
+        supernodal::SupernodalLltRef::new(symbolic, &faer_l).solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(&mut by_faer, n, 1),
+            Par::Seq,
+            MemStack::new(&mut MemBuffer::new(
+                symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
+            )),
+        );
+        let mut run = |parallel: bool| {
+            let mut x = b.clone();
+            solve(
+                symbolic,
+                &permuted.plan,
+                &one,
+                &mut x,
+                &mut permuted.works,
+                parallel,
+            );
+            x
+        };
+        let alone = run(false);
+        #[cfg(feature = "parallel")]
+        let paired = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap()
+            .install(|| run(true));
+        #[cfg(not(feature = "parallel"))]
+        let paired = run(true);
+        let scale = largest(&by_faer);
+        let diff = by_faer
+            .iter()
+            .zip(&alone)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        assert!(
+            diff <= 1e-10 * scale,
+            "{what}: solution {diff:e} of {scale:e}"
+        );
+        assert!(
+            alone
+                .iter()
+                .zip(&paired)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{what}: the solutions on one and two threads differ"
+        );
     }
 
     /// On a sheet's matrix and on one widened by far pairs, the plan splits, the factor
@@ -1037,7 +1328,7 @@ mod tests {
             let (pattern, values) = matrix(n, &pairs);
             let mut solver = DirectSolver::new(&pattern, FactorStructure::Supernodal).unwrap();
             assert!(solver.permuted.as_ref().unwrap().plan.splits(), "{n}");
-            assert_alike(factors(&mut solver, &values), &format!("{n}"));
+            assert_alike(&mut solver, &values, &format!("{n}"));
         }
     }
 
@@ -1162,17 +1453,19 @@ mod tests {
             let (pattern, values) = matrix_fixing(n, fixed, &pairs);
             let mut solver = DirectSolver::new(&pattern, FactorStructure::Supernodal).unwrap();
             split += usize::from(solver.permuted.as_ref().unwrap().plan.splits());
-            assert_alike(factors(&mut solver, &values), &format!("case {case}"));
+            assert_alike(&mut solver, &values, &format!("case {case}"));
         }
         assert!(split >= 5, "{split} of 10 split");
     }
 
     /// A top supernode may lie inside the second group's range (between its subtrees):
     /// that group's thread then assembles it and the first group's updates of it go to
-    /// a buffer. Such a split, built by hand (the search picks none on these sheets): the
-    /// factor is faer's to round-off and the same bits on one thread and on two.
+    /// a buffer, and in the forward solve the first group's subtractions from its rows
+    /// too. Such a split, built by hand (the search picks none on these sheets): the
+    /// factor and a solution are faer's to round-off and the same bits on one thread
+    /// and on two.
     #[test]
-    fn a_top_supernode_inside_the_second_group_is_factored_alike() {
+    fn a_top_supernode_inside_the_second_group_is_factored_and_solved_alike() {
         let (pattern, values) = matrix(31, &[]);
         let mut solver = DirectSolver::new(&pattern, FactorStructure::Supernodal).unwrap();
         let SymbolicCholeskyRaw::Supernodal(symbolic) = solver.symbolic.raw() else {
@@ -1213,7 +1506,7 @@ mod tests {
         assert_eq!(plan.split.as_ref().unwrap().held_by, [1, 0]);
         permuted.works = std::array::from_fn(|g| Work::new(symbolic.nrows(), &plan, g));
         permuted.plan = plan;
-        assert_alike(factors(&mut solver, &values), "");
+        assert_alike(&mut solver, &values, "");
     }
 
     /// A small matrix is not worth a second thread: no split, and faer's factor.
@@ -1222,6 +1515,6 @@ mod tests {
         let (pattern, values) = matrix(6, &[]);
         let mut solver = DirectSolver::new(&pattern, FactorStructure::Supernodal).unwrap();
         assert!(!solver.permuted.as_ref().unwrap().plan.splits());
-        assert_alike(factors(&mut solver, &values), "");
+        assert_alike(&mut solver, &values, "");
     }
 }
