@@ -925,26 +925,21 @@ pub(crate) fn solve(
     works: &mut [Work; 2],
     parallel: bool,
 ) {
-    let shape = Shape { symbolic };
+    let f = Factor {
+        shape: Shape { symbolic },
+        l,
+    };
     let n = x.len();
     let Some(split) = &plan.split else {
-        let all = (0, shape.len());
-        forward(
-            &shape,
-            plan,
-            l,
-            all,
-            TOP,
-            x,
-            0,
-            &mut [],
-            &mut works[0].below,
-        );
-        backward(&shape, plan, l, all, TOP, x, 0, &[], &mut works[0].below);
+        let all = 0..f.shape.len();
+        let tmp = &mut works[0].below;
+        forward(&f, all.clone(), Rows { x, col0: 0 }, &mut [], tmp);
+        backward(&f, all.rev(), Rows { x, col0: 0 }, &[], tmp);
         return;
     };
     let [(a0, a1), (b0, b1)] = split.groups;
-    let cols = |(s0, s1): (usize, usize)| (shape.cols(s0).0, shape.cols(s1 - 1).1);
+    let in_group = |g: u8| move |s: &usize| plan.group[*s] == g;
+    let cols = |(s0, s1): (usize, usize)| (f.shape.cols(s0).0, f.shape.cols(s1 - 1).1);
     let ((ca0, ca1), (cb0, cb1)) = (cols((a0, a1)), cols((b0, b1)));
     let [work_a, work_b] = works;
     // The buffers are zero outside a solve: each top row is taken back to zero below.
@@ -956,163 +951,152 @@ pub(crate) fn solve(
     }
     {
         let (low, rest) = x.split_at_mut(cb0);
-        let (xa, xb) = (&mut low[ca0..ca1], &mut rest[..cb1 - cb0]);
-        let (
-            Work {
-                gathered: acc_a,
-                below: tmp_a,
-                ..
-            },
-            Work {
-                gathered: acc_b,
-                below: tmp_b,
-                ..
-            },
-        ) = (&mut *work_a, &mut *work_b);
+        let rows_a = Rows {
+            x: &mut low[ca0..ca1],
+            col0: ca0,
+        };
+        let rows_b = Rows {
+            x: &mut rest[..cb1 - cb0],
+            col0: cb0,
+        };
+        let (acc_a, tmp_a) = (&mut work_a.gathered, &mut work_a.below);
+        let (acc_b, tmp_b) = (&mut work_b.gathered, &mut work_b.below);
         both(
             parallel,
-            || forward(&shape, plan, l, (a0, a1), 0, xa, ca0, acc_a, tmp_a),
-            || forward(&shape, plan, l, (b0, b1), 1, xb, cb0, acc_b, tmp_b),
+            || forward(&f, (a0..a1).filter(in_group(0)), rows_a, acc_a, tmp_a),
+            || forward(&f, (b0..b1).filter(in_group(1)), rows_b, acc_b, tmp_b),
         );
     }
     // Only top rows get another group's subtractions (a group's buffer stays zero at
     // its own rows, and at the other group's: no supernode of one group is an ancestor
     // of one of the other's).
     for &s in &split.top {
-        let (c0, c1) = shape.cols(s);
+        let (c0, c1) = f.shape.cols(s);
         let (from_a, from_b) = (&mut work_a.gathered[c0..c1], &mut work_b.gathered[c0..c1]);
         for ((x, a), b) in x[c0..c1].iter_mut().zip(from_a).zip(from_b) {
             *x += std::mem::take(a);
             *x += std::mem::take(b);
         }
     }
-    for &s in &split.top {
-        forward(
-            &shape,
-            plan,
-            l,
-            (s, s + 1),
-            TOP,
-            x,
-            0,
-            &mut [],
-            &mut work_a.below,
-        );
-    }
-    for &s in split.top.iter().rev() {
-        backward(
-            &shape,
-            plan,
-            l,
-            (s, s + 1),
-            TOP,
-            x,
-            0,
-            &[],
-            &mut work_a.below,
-        );
-    }
+    let top = split.top.iter().copied();
+    let tmp = &mut work_a.below;
+    forward(&f, top.clone(), Rows { x, col0: 0 }, &mut [], tmp);
+    backward(&f, top.rev(), Rows { x, col0: 0 }, &[], tmp);
     let copy = &mut work_a.copy;
     copy.clear();
     copy.extend_from_slice(x);
     let (low, rest) = x.split_at_mut(cb0);
-    let (xa, xb) = (&mut low[ca0..ca1], &mut rest[..cb1 - cb0]);
+    let rows_a = Rows {
+        x: &mut low[ca0..ca1],
+        col0: ca0,
+    };
+    let rows_b = Rows {
+        x: &mut rest[..cb1 - cb0],
+        col0: cb0,
+    };
     let (copy, tmp_a, tmp_b) = (&*copy, &mut work_a.below, &mut work_b.below);
     both(
         parallel,
-        || backward(&shape, plan, l, (a0, a1), 0, xa, ca0, copy, tmp_a),
-        || backward(&shape, plan, l, (b0, b1), 1, xb, cb0, copy, tmp_b),
+        || backward(&f, (a0..a1).rev().filter(in_group(0)), rows_a, copy, tmp_a),
+        || backward(&f, (b0..b1).rev().filter(in_group(1)), rows_b, copy, tmp_b),
     );
 }
 
-/// The supernode's factor block: its diagonal block and the rows below it.
-fn blocks<'a>(shape: &Shape<'_>, l: &'a [f64], s: usize) -> (MatRef<'a, f64>, MatRef<'a, f64>) {
-    let (c0, c1) = shape.cols(s);
-    let sn = c1 - c0;
-    let (v0, v1) = shape.values(s);
-    let ls = MatRef::from_column_major_slice(&l[v0..v1], sn + shape.pattern(s).len(), sn);
-    ls.split_at_row(sn)
+/// A factor to solve with: its supernodes' shapes and its values.
+struct Factor<'a> {
+    shape: Shape<'a>,
+    l: &'a [f64],
 }
 
-/// The forward solve `L y = b` over the supernodes `s0..s1` of group `g`, in order:
-/// `x` holds the rows from `col0` on; a row outside it is subtracted from in `acc`
-/// (indexed by row).
-#[allow(clippy::too_many_arguments)]
-fn forward(
-    shape: &Shape<'_>,
-    plan: &TreePlan,
-    l: &[f64],
-    (s0, s1): (usize, usize),
-    g: u8,
-    x: &mut [f64],
+impl Factor<'_> {
+    /// Supernode `s`'s diagonal block and its rows below it.
+    fn blocks(&self, s: usize) -> (MatRef<'_, f64>, MatRef<'_, f64>) {
+        let (c0, c1) = self.shape.cols(s);
+        let sn = c1 - c0;
+        let (v0, v1) = self.shape.values(s);
+        let rows = sn + self.shape.pattern(s).len();
+        MatRef::from_column_major_slice(&self.l[v0..v1], rows, sn).split_at_row(sn)
+    }
+}
+
+/// The rows `col0..col0 + x.len()` of the solution: a group's range of the unknowns, or
+/// all of them.
+struct Rows<'a> {
+    x: &'a mut [f64],
     col0: usize,
+}
+
+impl Rows<'_> {
+    /// Where row `r` is in `x`, if it is there.
+    fn at(&self, r: usize) -> Option<usize> {
+        r.checked_sub(self.col0).filter(|&i| i < self.x.len())
+    }
+}
+
+/// The forward solve `L y = b` over `supernodes` (ascending), on `rows` holding their
+/// columns: a subtraction from a row outside `rows` goes to `acc` (indexed by row).
+fn forward(
+    f: &Factor<'_>,
+    supernodes: impl Iterator<Item = usize>,
+    rows: Rows<'_>,
     acc: &mut [f64],
     tmp: &mut Vec<f64>,
 ) {
-    for s in (s0..s1).filter(|&s| plan.group[s] == g) {
-        let (c0, c1) = shape.cols(s);
-        let (top, below) = blocks(shape, l, s);
-        let xs = &mut x[c0 - col0..c1 - col0];
-        let xs_len = xs.len();
+    for s in supernodes {
+        let (c0, c1) = f.shape.cols(s);
+        let (top, below) = f.blocks(s);
+        let width = c1 - c0;
+        let xs = &mut rows.x[c0 - rows.col0..c1 - rows.col0];
         solve_lower_triangular_in_place(
             top,
-            MatMut::from_column_major_slice_mut(xs, xs_len, 1),
+            MatMut::from_column_major_slice_mut(xs, width, 1),
             Par::Seq,
         );
-        let pattern = shape.pattern(s);
+        let pattern = f.shape.pattern(s);
         tmp.clear();
         tmp.resize(pattern.len(), 0.0);
-        let xs = MatRef::from_column_major_slice(&x[c0 - col0..c1 - col0], xs_len, 1);
         matmul(
             MatMut::from_column_major_slice_mut(tmp, pattern.len(), 1),
             Accum::Replace,
             below,
-            xs,
+            MatRef::from_column_major_slice(xs, width, 1),
             1.0,
             Par::Seq,
         );
-        let end = col0 + x.len();
         for (&r, &v) in pattern.iter().zip(tmp.iter()) {
-            if (col0..end).contains(&r) {
-                x[r - col0] -= v;
-            } else {
-                acc[r] -= v;
+            match rows.at(r) {
+                Some(i) => rows.x[i] -= v,
+                None => acc[r] -= v,
             }
         }
     }
 }
 
-/// The backward solve `L^T x = y` over the supernodes `s0..s1` of group `g`, in reverse
-/// order: `x` holds the rows from `col0` on; a row outside it is read from `outside`
-/// (indexed by row).
-#[allow(clippy::too_many_arguments)]
+/// The backward solve `L^T x = y` over `supernodes` (descending), on `rows` holding
+/// their columns: a row outside `rows` is read from `outside` (indexed by row).
 fn backward(
-    shape: &Shape<'_>,
-    plan: &TreePlan,
-    l: &[f64],
-    (s0, s1): (usize, usize),
-    g: u8,
-    x: &mut [f64],
-    col0: usize,
+    f: &Factor<'_>,
+    supernodes: impl Iterator<Item = usize>,
+    rows: Rows<'_>,
     outside: &[f64],
     tmp: &mut Vec<f64>,
 ) {
-    let end = col0 + x.len();
-    for s in (s0..s1).rev().filter(|&s| plan.group[s] == g) {
-        let (c0, c1) = shape.cols(s);
-        let (top, below) = blocks(shape, l, s);
-        let pattern = shape.pattern(s);
+    for s in supernodes {
+        let (c0, c1) = f.shape.cols(s);
+        let (top, below) = f.blocks(s);
+        let pattern = f.shape.pattern(s);
         tmp.clear();
-        tmp.extend(pattern.iter().map(|&r| {
-            if (col0..end).contains(&r) {
-                x[r - col0]
-            } else {
-                outside[r]
-            }
-        }));
-        let xs = &mut x[c0 - col0..c1 - col0];
-        let xs_len = xs.len();
-        let mut xs = MatMut::from_column_major_slice_mut(xs, xs_len, 1);
+        tmp.extend(
+            pattern
+                .iter()
+                .map(|&r| rows.at(r).map_or_else(|| outside[r], |i| rows.x[i])),
+        );
+        let width = c1 - c0;
+        let mut xs = MatMut::from_column_major_slice_mut(
+            &mut rows.x[c0 - rows.col0..c1 - rows.col0],
+            width,
+            1,
+        );
         matmul(
             xs.as_mut(),
             Accum::Add,
