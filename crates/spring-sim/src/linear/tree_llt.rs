@@ -950,15 +950,7 @@ pub(crate) fn solve(
         }
     }
     {
-        let (low, rest) = x.split_at_mut(cb0);
-        let rows_a = Rows {
-            x: &mut low[ca0..ca1],
-            col0: ca0,
-        };
-        let rows_b = Rows {
-            x: &mut rest[..cb1 - cb0],
-            col0: cb0,
-        };
+        let [rows_a, rows_b] = Rows::pair(x, (ca0, ca1), (cb0, cb1));
         let (acc_a, tmp_a) = (&mut work_a.gathered, &mut work_a.below);
         let (acc_b, tmp_b) = (&mut work_b.gathered, &mut work_b.below);
         both(
@@ -985,15 +977,7 @@ pub(crate) fn solve(
     let copy = &mut work_a.copy;
     copy.clear();
     copy.extend_from_slice(x);
-    let (low, rest) = x.split_at_mut(cb0);
-    let rows_a = Rows {
-        x: &mut low[ca0..ca1],
-        col0: ca0,
-    };
-    let rows_b = Rows {
-        x: &mut rest[..cb1 - cb0],
-        col0: cb0,
-    };
+    let [rows_a, rows_b] = Rows::pair(x, (ca0, ca1), (cb0, cb1));
     let (copy, tmp_a, tmp_b) = (&*copy, &mut work_a.below, &mut work_b.below);
     both(
         parallel,
@@ -1026,7 +1010,22 @@ struct Rows<'a> {
     col0: usize,
 }
 
-impl Rows<'_> {
+impl<'a> Rows<'a> {
+    /// The rows `a0..a1` and `b0..b1` of `x` (`a1 <= b0`).
+    fn pair(x: &'a mut [f64], (a0, a1): (usize, usize), (b0, b1): (usize, usize)) -> [Self; 2] {
+        let (low, rest) = x.split_at_mut(b0);
+        [
+            Rows {
+                x: &mut low[a0..a1],
+                col0: a0,
+            },
+            Rows {
+                x: &mut rest[..b1 - b0],
+                col0: b0,
+            },
+        ]
+    }
+
     /// Where row `r` is in `x`, if it is there.
     fn at(&self, r: usize) -> Option<usize> {
         r.checked_sub(self.col0).filter(|&i| i < self.x.len())
@@ -1202,7 +1201,7 @@ mod tests {
             Default::default(),
         )
         .is_ok();
-        let mut run = |parallel: bool| {
+        let run = |parallel: bool| {
             let mut l = vec![0.0; symbolic.len_val()];
             factorize(
                 symbolic,
@@ -1214,20 +1213,40 @@ mod tests {
             )
             .then_some(l)
         };
-        let one = run(false);
+        let (one, two) = alone_and_paired(run);
+        [faer_ok.then_some(faer_l), one, two]
+    }
+
+    /// `run(false)` on the calling thread, then `run(true)` on a pool of two threads.
+    fn alone_and_paired<T: Send>(mut run: impl FnMut(bool) -> T + Send) -> (T, T) {
+        let alone = run(false);
         #[cfg(feature = "parallel")]
-        let two = rayon::ThreadPoolBuilder::new()
+        let paired = rayon::ThreadPoolBuilder::new()
             .num_threads(2)
             .build()
             .unwrap()
             .install(|| run(true));
         #[cfg(not(feature = "parallel"))]
-        let two = run(true);
-        [faer_ok.then_some(faer_l), one, two]
+        let paired = run(true);
+        (alone, paired)
     }
 
     fn largest(values: &[f64]) -> f64 {
         values.iter().fold(0.0, |m, v| m.max(v.abs()))
+    }
+
+    /// `b` is `a` to `tolerance` of `a`'s largest entry, and `c` is `b` to the bit.
+    fn assert_close_then_same(a: &[f64], b: &[f64], c: &[f64], tolerance: f64, what: &str) {
+        let scale = largest(a);
+        let diff = a
+            .iter()
+            .zip(b)
+            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+        assert!(diff <= tolerance * scale, "{what}: {diff:e} of {scale:e}");
+        assert!(
+            b.iter().zip(c).all(|(x, y)| x.to_bits() == y.to_bits()),
+            "{what}: one and two threads differ"
+        );
     }
 
     /// The three factors of [`factors`] exist, this module's is faer's to 1e-13 of its
@@ -1238,18 +1257,7 @@ mod tests {
     fn assert_alike(solver: &mut DirectSolver, values: &[f64], what: &str) {
         let [faer_l, one, two] = factors(solver, values);
         let (faer_l, one, two) = (faer_l.unwrap(), one.unwrap(), two.unwrap());
-        let scale = largest(&faer_l);
-        let diff = faer_l
-            .iter()
-            .zip(&one)
-            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-        assert!(diff <= 1e-13 * scale, "{what}: {diff:e} of {scale:e}");
-        assert!(
-            one.iter()
-                .zip(&two)
-                .all(|(a, b)| a.to_bits() == b.to_bits()),
-            "{what}: one and two threads differ"
-        );
+        assert_close_then_same(&faer_l, &one, &two, 1e-13, &format!("{what}: factor"));
         let SymbolicCholeskyRaw::Supernodal(symbolic) = solver.symbolic.raw() else {
             unreachable!("the structure is supernodal");
         };
@@ -1265,42 +1273,18 @@ mod tests {
                 symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
             )),
         );
-        let mut run = |parallel: bool| {
+        let (alone, paired) = alone_and_paired(|parallel| {
             let mut x = b.clone();
-            solve(
-                symbolic,
-                &permuted.plan,
-                &one,
-                &mut x,
-                &mut permuted.works,
-                parallel,
-            );
+            let works = &mut permuted.works;
+            solve(symbolic, &permuted.plan, &one, &mut x, works, parallel);
             x
-        };
-        let alone = run(false);
-        #[cfg(feature = "parallel")]
-        let paired = rayon::ThreadPoolBuilder::new()
-            .num_threads(2)
-            .build()
-            .unwrap()
-            .install(|| run(true));
-        #[cfg(not(feature = "parallel"))]
-        let paired = run(true);
-        let scale = largest(&by_faer);
-        let diff = by_faer
-            .iter()
-            .zip(&alone)
-            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-        assert!(
-            diff <= 1e-10 * scale,
-            "{what}: solution {diff:e} of {scale:e}"
-        );
-        assert!(
-            alone
-                .iter()
-                .zip(&paired)
-                .all(|(a, b)| a.to_bits() == b.to_bits()),
-            "{what}: the solutions on one and two threads differ"
+        });
+        assert_close_then_same(
+            &by_faer,
+            &alone,
+            &paired,
+            1e-10,
+            &format!("{what}: solution"),
         );
     }
 
