@@ -687,8 +687,9 @@ impl DirectSolver {
     }
 
     /// `rhs = F^-1 rhs` with the kept factor `F` (which must exist): by [`tree_llt`]'s
-    /// solve when its plan splits the tree (two groups side by side, on a pool), else
-    /// by faer's.
+    /// solve when its plan splits the tree (the two groups side by side on a pool, in
+    /// turn on one thread: the same bits either way, as for the factor), else by
+    /// faer's.
     fn apply_factor(
         symbolic: &SymbolicCholesky<usize>,
         permuted: &mut Option<PermutedMatrix>,
