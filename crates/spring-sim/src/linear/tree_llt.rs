@@ -128,6 +128,12 @@ impl Shape<'_> {
         self.symbolic.supernode(s).pattern()
     }
 
+    /// The rows of supernode `s`'s block of the factor: its diagonal block's, then the
+    /// rows below it.
+    fn rows(&self, s: usize) -> usize {
+        self.width(s) + self.pattern(s).len()
+    }
+
     fn values(&self, s: usize) -> (usize, usize) {
         let ptr = self.symbolic.col_ptr_for_val();
         (ptr[s], ptr[s + 1])
@@ -575,7 +581,7 @@ fn top_by_panels(
 ) -> bool {
     let (s0, s1) = shape.cols(s);
     let sn = s1 - s0;
-    let rows = sn + shape.pattern(s).len();
+    let rows = shape.rows(s);
     // The panels in order, each handed out once; a claimed panel is published here once
     // factored, for the later panels to read.
     let unclaimed = Mutex::new(ls.chunks_mut(PANEL * rows).enumerate());
@@ -735,7 +741,7 @@ fn take_updates(
         }
         Target::Buffer(buffer) => {
             let (s0, s1) = shape.cols(s);
-            let rows = s1 - s0 + shape.pattern(s).len();
+            let rows = shape.rows(s);
             for_lower(s1 - s0, rows, |k| buffer[k] = 0.0);
             buffer
         }
@@ -798,7 +804,7 @@ fn assemble(
     work: &Work,
 ) {
     let (s0, s1) = shape.cols(s);
-    let rows = s1 - s0 + shape.pattern(s).len();
+    let rows = shape.rows(s);
     ls.fill(0.0);
     for j in s0..s1 {
         let col = &mut ls[(j - s0) * rows..][..rows];
@@ -827,15 +833,14 @@ fn apply_updates(
     target: &mut [f64],
     work: &mut Work,
 ) {
-    let (s0, s1) = shape.cols(s);
-    let rows = s1 - s0 + shape.pattern(s).len();
+    let rows = shape.rows(s);
     for u in updates {
         let d = plan.update_from[u];
         let at = plan.update_at[u];
         let (d0, d1) = shape.cols(d);
         let dn = d1 - d0;
         let dpat = shape.pattern(d);
-        let drows = dn + dpat.len();
+        let drows = shape.rows(d);
         let inside = plan.update_inside[u];
         work.rows.clear();
         work.rows.extend(dpat[at..].iter().map(|&r| work.local[r]));
@@ -899,7 +904,7 @@ fn apply_updates(
 fn finish(shape: &Shape<'_>, s: usize, ls: &mut [f64], work: &mut Work) -> bool {
     let (s0, s1) = shape.cols(s);
     let sn = s1 - s0;
-    let rows = sn + shape.pattern(s).len();
+    let rows = shape.rows(s);
     let factored = factor_block(MatMut::from_column_major_slice_mut(ls, rows, sn), work);
     reset(shape, s, work);
     factored
@@ -998,7 +1003,7 @@ impl Factor<'_> {
         let (c0, c1) = self.shape.cols(s);
         let sn = c1 - c0;
         let (v0, v1) = self.shape.values(s);
-        let rows = sn + self.shape.pattern(s).len();
+        let rows = self.shape.rows(s);
         MatRef::from_column_major_slice(&self.l[v0..v1], rows, sn).split_at_row(sn)
     }
 }
