@@ -454,11 +454,20 @@ pub(crate) fn factorize(
 ) -> bool {
     debug_assert!(works.iter().all(|w| w.local.len() == symbolic.nrows()));
     let shape = Shape { symbolic };
+    // Set by the first group to meet a non-positive pivot: the other group stops at its
+    // next supernode instead of factoring the rest of its subtrees for nothing (under
+    // contact, about one factorization in five to nine is refused: the softened Newton
+    // matrix tries the springs' exact curvature first). Whether the factorization is
+    // refused does not depend on when the other group stops.
+    let refused = AtomicBool::new(false);
     // The supernodes `s0..s1` of group `g` in order, each whole, into `values` (the
     // factor's values from offset `base`, holding them and their descendants).
     let run =
         |(s0, s1): (usize, usize), g: u8, base: usize, values: &mut [f64], work: &mut Work| {
             (s0..s1).filter(|&s| plan.group[s] == g).all(|s| {
+                if refused.load(Ordering::Relaxed) {
+                    return false;
+                }
                 let (v0, v1) = shape.values(s);
                 let (head, tail) = values.split_at_mut(v0 - base);
                 let ls = &mut tail[..v1 - v0];
@@ -476,7 +485,11 @@ pub(crate) fn factorize(
                     ls,
                     work,
                 );
-                finish(&shape, s, ls, work)
+                let factored = finish(&shape, s, ls, work);
+                if !factored {
+                    refused.store(true, Ordering::Relaxed);
+                }
+                factored
             })
         };
     let Some(split) = &plan.split else {
