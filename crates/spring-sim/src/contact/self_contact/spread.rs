@@ -57,6 +57,19 @@ pub(crate) fn parts() -> usize {
     1
 }
 
+/// `(a(), b())`, side by side on the caller's pool when there is one (the calling thread
+/// runs `a`, then helps with what `b` spread over the pool), else in turn.
+pub(crate) fn both<A: Send, B: Send>(
+    a: impl FnOnce() -> A + Send,
+    b: impl FnOnce() -> B + Send,
+) -> (A, B) {
+    #[cfg(feature = "parallel")]
+    if on_pool() {
+        return rayon::join(a, b);
+    }
+    (a(), b())
+}
+
 /// Calls `f` on every part, as tasks on the caller's pool when there is one, else in
 /// turn on the calling thread.
 pub(crate) fn each<T: Send>(parts: Vec<T>, f: impl Fn(T) + Sync + Send) {
