@@ -335,14 +335,14 @@ pub fn candidates(
 
 /// [`candidates`] for the primitives' `boxes` and the hash's `cell`.
 fn candidates_of(prims: &Primitives, boxes: &Boxes, cell: DVec3, skip: &[bool]) -> Vec<Candidate> {
-    let mut out = Vec::new();
-    let triangles = Grid::new(&boxes.triangle, cell);
-    // The edges' hash, which nothing reads before the vertices' queries end, is built
-    // while the pool's other thread starts on them (the two hashes built one after the
-    // other were 5% of the twisted sheet's minimizing thread, with the other idle).
-    let (edges, ()) = super::spread::both(
-        || Grid::new(&boxes.edge, cell),
+    // The vertex-triangle pairs and the edge-edge pairs side by side, each hash built
+    // by one thread while the other builds its own (built one after the other, the two
+    // hashes were 5% of the twisted sheet's minimizing thread, the other thread idle),
+    // then the queries of both shared.
+    let (mut out, mut edge_pairs) = super::spread::both(
         || {
+            let triangles = Grid::new(&boxes.triangle, cell);
+            let mut out = Vec::new();
             super::spread::concat_chunks(
                 &mut out,
                 prims.vertices.len(),
@@ -360,23 +360,28 @@ fn candidates_of(prims: &Primitives, boxes: &Boxes, cell: DVec3, skip: &[bool]) 
                     }
                 },
             );
+            out
         },
-    );
-    let mut edge_pairs = Vec::new();
-    super::spread::concat_chunks(
-        &mut edge_pairs,
-        prims.edges.len(),
-        QUERIES_PER_TASK,
-        |range, part| {
-            let mut found = Found::new(prims.edges.len());
-            for a in range {
-                edges.query(&boxes.edge[a], prims.edges.len(), |b| {
-                    if b > a {
-                        found.meet(b, a, || edge_edge_kept(prims, boxes, skip, a, b));
+        || {
+            let edges = Grid::new(&boxes.edge, cell);
+            let mut out = Vec::new();
+            super::spread::concat_chunks(
+                &mut out,
+                prims.edges.len(),
+                QUERIES_PER_TASK,
+                |range, part| {
+                    let mut found = Found::new(prims.edges.len());
+                    for a in range {
+                        edges.query(&boxes.edge[a], prims.edges.len(), |b| {
+                            if b > a {
+                                found.meet(b, a, || edge_edge_kept(prims, boxes, skip, a, b));
+                            }
+                        });
+                        found.append(part, |b| Candidate::EdgeEdge { a, b });
                     }
-                });
-                found.append(part, |b| Candidate::EdgeEdge { a, b });
-            }
+                },
+            );
+            out
         },
     );
     out.append(&mut edge_pairs);
