@@ -64,30 +64,59 @@ impl HessianPattern {
             }
         }
         let nfree = free_particles.len();
-        // For each free particle, the free neighbours with a larger free index: the
-        // block rows below its diagonal block.
-        let mut below: Vec<Vec<usize>> = vec![Vec::new(); nfree];
-        let spring_pairs = system.springs().iter().map(|s| [s.a, s.b]);
-        for [a, b] in spring_pairs.chain(pairs.iter().copied()) {
-            let (fa, fb) = (free_index[a], free_index[b]);
-            if fa != FIXED && fb != FIXED && fa != fb {
-                below[fa.min(fb)].push(fa.max(fb));
+        // For each free particle, the free neighbours with a larger free index (the
+        // block rows below its diagonal block), sorted and distinct: `neighbours[ptr[p]..
+        // ptr[p + 1]]` for particle `p`, laid out by a counting sort in one vector (the
+        // integrator rebuilds the pattern whenever contact couples new pairs, and a list
+        // per particle was thousands of allocations each time).
+        let links = || {
+            let spring_pairs = system.springs().iter().map(|s| [s.a, s.b]);
+            spring_pairs
+                .chain(pairs.iter().copied())
+                .filter_map(|[a, b]| {
+                    let (fa, fb) = (free_index[a], free_index[b]);
+                    (fa != FIXED && fb != FIXED && fa != fb).then(|| (fa.min(fb), fa.max(fb)))
+                })
+        };
+        let mut ptr = vec![0usize; nfree + 1];
+        for (lo, _) in links() {
+            ptr[lo + 1] += 1;
+        }
+        for p in 0..nfree {
+            ptr[p + 1] += ptr[p];
+        }
+        let mut next = ptr.clone();
+        let mut neighbours = vec![0usize; ptr[nfree]];
+        for (lo, hi) in links() {
+            neighbours[next[lo]] = hi;
+            next[lo] += 1;
+        }
+        // Each list sorted and its repeats dropped, compacted towards the front.
+        let mut kept = 0;
+        for p in 0..nfree {
+            let (from, to) = (ptr[p], ptr[p + 1]);
+            neighbours[from..to].sort_unstable();
+            ptr[p] = kept;
+            for i in from..to {
+                if i == from || neighbours[i] != neighbours[i - 1] {
+                    neighbours[kept] = neighbours[i];
+                    kept += 1;
+                }
             }
         }
-        for list in &mut below {
-            list.sort_unstable();
-            list.dedup();
-        }
+        ptr[nfree] = kept;
+        neighbours.truncate(kept);
+        let below = |p: usize| &neighbours[ptr[p]..ptr[p + 1]];
         let n = 3 * nfree;
         let mut col_ptr = Vec::with_capacity(n + 1);
-        let mut row_idx = Vec::new();
+        let mut row_idx = Vec::with_capacity(6 * nfree + 9 * kept);
         col_ptr.push(0usize);
-        for (p, list) in below.iter().enumerate() {
+        for p in 0..nfree {
             for c in 0..3 {
                 for r in c..3 {
                     row_idx.push(3 * p + r);
                 }
-                for &q in list {
+                for &q in below(p) {
                     for r in 0..3 {
                         row_idx.push(3 * q + r);
                     }
@@ -108,7 +137,7 @@ impl HessianPattern {
                 }
                 let (col, row) = (fa.min(fb), fa.max(fb));
                 // The neighbour list was built from these very springs.
-                let k = below[col].binary_search(&row).unwrap_or(0);
+                let k = below(col).binary_search(&row).unwrap_or(0);
                 let mut slots = [0usize; 9];
                 for c in 0..3 {
                     for r in 0..3 {
