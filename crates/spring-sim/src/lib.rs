@@ -55,6 +55,7 @@ mod model;
 mod newton;
 mod pattern;
 mod pins;
+mod pool;
 pub mod potential;
 pub mod reference;
 mod report;

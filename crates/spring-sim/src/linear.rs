@@ -38,15 +38,6 @@ use std::sync::Arc;
 
 mod tree_llt;
 
-/// Whether the caller runs on a rayon pool with a second thread to share the
-/// factorization's subtrees with (see [`tree_llt`]).
-fn tree_parallel() -> bool {
-    #[cfg(feature = "parallel")]
-    return rayon::current_thread_index().is_some() && rayon::current_num_threads() > 1;
-    #[cfg(not(feature = "parallel"))]
-    false
-}
-
 /// A linear solver that could not be set up, with faer's (or the thread pool's) own
 /// error as its `source`, so a caller can reach the structured cause.
 #[derive(Clone, Debug)]
@@ -661,7 +652,7 @@ impl DirectSolver {
                     SparseColMatRef::new(permuted.symbolic.as_ref(), &permuted.values),
                     target,
                     &mut permuted.works,
-                    tree_parallel(),
+                    crate::pool::shared(),
                 )
             }
             _ => self
@@ -712,7 +703,7 @@ impl DirectSolver {
                 factor_values,
                 x,
                 &mut permuted.works,
-                tree_parallel(),
+                crate::pool::shared(),
             );
             for (&old, &v) in order.iter().zip(x.iter()) {
                 rhs[old] = v;

@@ -23,6 +23,7 @@
 //! The triangular solves with the factor ([`solve`]) split the same way: forward, the two
 //! groups side by side and then the top; backward, the top and then the two groups.
 
+use crate::pool::join_if;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::{
     LltRegularization, cholesky_in_place, cholesky_in_place_scratch,
@@ -425,20 +426,6 @@ impl Work {
     }
 }
 
-/// Runs `a` and `b`, side by side on the caller's pool when `parallel`.
-fn both<A: Send, B: Send>(
-    parallel: bool,
-    a: impl FnOnce() -> A + Send,
-    b: impl FnOnce() -> B + Send,
-) -> (A, B) {
-    #[cfg(feature = "parallel")]
-    if parallel {
-        return rayon::join(a, b);
-    }
-    let _ = parallel;
-    (a(), b())
-}
-
 /// Factors `a` (the lower triangle of the permuted matrix, on `symbolic`'s structure)
 /// into `l` (`symbolic.len_val()` values). Returns false when a pivot is not positive
 /// (the matrix is not numerically positive definite); `l` is then unspecified. With
@@ -505,7 +492,7 @@ pub(crate) fn factorize(
         let (front, rest) = l.split_at_mut(vb0);
         let (mid, back) = rest.split_at_mut(vb1 - vb0);
         let [work_a, work_b] = works;
-        let (ok_a, ok_b) = both(
+        let (ok_a, ok_b) = join_if(
             parallel,
             || {
                 run((a0, a1), 0, va0, &mut front[va0..va1], work_a) && {
@@ -651,7 +638,7 @@ fn top_by_panels(
         reset(shape, s, work);
     };
     let [work_a, work_b] = works;
-    both(parallel, || worker(work_a), || worker(work_b));
+    join_if(parallel, || worker(work_a), || worker(work_b));
     !failed.load(Ordering::Acquire)
 }
 
@@ -971,7 +958,7 @@ pub(crate) fn solve(
         let [rows_a, rows_b] = Rows::pair(x, (ca0, ca1), (cb0, cb1));
         let (acc_a, tmp_a) = (&mut work_a.gathered, &mut work_a.below);
         let (acc_b, tmp_b) = (&mut work_b.gathered, &mut work_b.below);
-        both(
+        join_if(
             parallel,
             || forward(&f, (a0..a1).filter(in_group(0)), rows_a, acc_a, tmp_a),
             || forward(&f, (b0..b1).filter(in_group(1)), rows_b, acc_b, tmp_b),
@@ -997,7 +984,7 @@ pub(crate) fn solve(
     copy.extend_from_slice(x);
     let [rows_a, rows_b] = Rows::pair(x, (ca0, ca1), (cb0, cb1));
     let (copy, tmp_a, tmp_b) = (&*copy, &mut work_a.below, &mut work_b.below);
-    both(
+    join_if(
         parallel,
         || backward(&f, (a0..a1).rev().filter(in_group(0)), rows_a, copy, tmp_a),
         || backward(&f, (b0..b1).rev().filter(in_group(1)), rows_b, copy, tmp_b),

@@ -393,7 +393,7 @@ impl BackwardEuler {
         let pattern = Arc::new(HessianPattern::with_pairs(system, &all));
         transient.locate(&pattern);
         #[cfg(feature = "parallel")]
-        let background = in_background && self.direct.is_some() && PendingDirect::possible();
+        let background = in_background && self.direct.is_some() && crate::pool::shared();
         #[cfg(not(feature = "parallel"))]
         let background = {
             let _ = in_background;
@@ -1208,11 +1208,6 @@ impl std::fmt::Debug for PendingDirect {
 
 #[cfg(feature = "parallel")]
 impl PendingDirect {
-    /// Whether the caller runs on a pool with another thread to take the job.
-    fn possible() -> bool {
-        rayon::current_thread_index().is_some() && rayon::current_num_threads() > 1
-    }
-
     /// The set-up of the direct solver of `pattern` as a job on the caller's pool.
     fn spawn(pattern: Arc<HessianPattern>, settings: NewtonSettings) -> Self {
         let result = Arc::new(Mutex::new(None));

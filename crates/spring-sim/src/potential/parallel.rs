@@ -26,6 +26,7 @@ use super::lanes::{self, Instance};
 use super::{Pointwise, Potential, StepContext, SymBlock, gravity, inertia};
 use crate::model::SpringSystem;
 use crate::pattern::{FIXED, HessianPattern};
+use crate::pool::join_if;
 use crate::spring::Curvature;
 use rayon::prelude::*;
 use sinew_math::DVec3;
@@ -83,17 +84,6 @@ fn for_particle_chunks<T: Send>(
         data.par_chunks_mut(PARTICLE_CHUNK).enumerate().for_each(f);
     } else {
         data.chunks_mut(PARTICLE_CHUNK).enumerate().for_each(f);
-    }
-}
-
-/// `a` and `b`, side by side on the current thread pool when `par`, else one after the
-/// other on the calling thread (they write disjoint data, so the order changes nothing).
-fn join_if(par: bool, a: impl FnOnce() + Send, b: impl FnOnce() + Send) {
-    if par {
-        rayon::join(a, b);
-    } else {
-        a();
-        b();
     }
 }
 

@@ -339,18 +339,17 @@ fn candidates_of(prims: &Primitives, boxes: &Boxes, cell: DVec3, skip: &[bool]) 
     // by one thread while the other builds its own (built one after the other, the two
     // hashes were 5% of the twisted sheet's minimizing thread, the other thread idle),
     // then the queries of both shared.
-    let (mut out, mut edge_pairs) = super::spread::both(
+    let (mut out, mut edge_pairs) = crate::pool::join_if(
+        crate::pool::shared(),
         || {
-            let triangles = Grid::new(&boxes.triangle, cell);
-            let mut out = Vec::new();
-            super::spread::concat_chunks(
-                &mut out,
+            hashed_queries(
+                &boxes.triangle,
+                cell,
                 prims.vertices.len(),
-                QUERIES_PER_TASK,
-                |range, part| {
+                |grid, range, part| {
                     let mut found = Found::new(prims.triangles.len());
                     for &v in &prims.vertices[range] {
-                        triangles.query(&boxes.vertex[v], prims.triangles.len(), |t| {
+                        grid.query(&boxes.vertex[v], prims.triangles.len(), |t| {
                             found.meet(t, v, || point_triangle_kept(prims, boxes, skip, v, t));
                         });
                         found.append(part, |t| Candidate::PointTriangle {
@@ -359,32 +358,40 @@ fn candidates_of(prims: &Primitives, boxes: &Boxes, cell: DVec3, skip: &[bool]) 
                         });
                     }
                 },
-            );
-            out
+            )
         },
         || {
-            let edges = Grid::new(&boxes.edge, cell);
-            let mut out = Vec::new();
-            super::spread::concat_chunks(
-                &mut out,
-                prims.edges.len(),
-                QUERIES_PER_TASK,
-                |range, part| {
-                    let mut found = Found::new(prims.edges.len());
-                    for a in range {
-                        edges.query(&boxes.edge[a], prims.edges.len(), |b| {
-                            if b > a {
-                                found.meet(b, a, || edge_edge_kept(prims, boxes, skip, a, b));
-                            }
-                        });
-                        found.append(part, |b| Candidate::EdgeEdge { a, b });
-                    }
-                },
-            );
-            out
+            hashed_queries(&boxes.edge, cell, prims.edges.len(), |grid, range, part| {
+                let mut found = Found::new(prims.edges.len());
+                for a in range {
+                    grid.query(&boxes.edge[a], prims.edges.len(), |b| {
+                        if b > a {
+                            found.meet(b, a, || edge_edge_kept(prims, boxes, skip, a, b));
+                        }
+                    });
+                    found.append(part, |b| Candidate::EdgeEdge { a, b });
+                }
+            })
         },
     );
     out.append(&mut edge_pairs);
+    out
+}
+
+/// `hashed` hashed with `cell`, then what `scan(grid, range, part)` appends for the
+/// consecutive ranges of [`QUERIES_PER_TASK`] queries covering `0..queries`, in order
+/// (as tasks on the caller's pool when there is one, see `spread::concat_chunks`).
+fn hashed_queries(
+    hashed: &[Aabb],
+    cell: DVec3,
+    queries: usize,
+    scan: impl Fn(&Grid, std::ops::Range<usize>, &mut Vec<Candidate>) + Sync + Send,
+) -> Vec<Candidate> {
+    let grid = Grid::new(hashed, cell);
+    let mut out = Vec::new();
+    super::spread::concat_chunks(&mut out, queries, QUERIES_PER_TASK, |range, part| {
+        scan(&grid, range, part);
+    });
     out
 }
 

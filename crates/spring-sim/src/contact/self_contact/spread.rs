@@ -20,12 +20,9 @@
 const CHUNK: usize = 256;
 
 /// Whether the caller runs on a thread pool of more than one thread (see the module
-/// documentation); without the `parallel` feature there is none.
+/// documentation).
 #[cfg(feature = "parallel")]
-#[must_use]
-fn on_pool() -> bool {
-    rayon::current_thread_index().is_some() && rayon::current_num_threads() > 1
-}
+use crate::pool::shared as on_pool;
 
 /// Calls `f(i, &mut out[i])` for every `i`, in chunks on the caller's pool when there is
 /// one.
@@ -55,19 +52,6 @@ pub(crate) fn parts() -> usize {
         return rayon::current_num_threads();
     }
     1
-}
-
-/// `(a(), b())`, side by side on the caller's pool when there is one (the calling thread
-/// runs `a`, then helps with what `b` spread over the pool), else in turn.
-pub(crate) fn both<A: Send, B: Send>(
-    a: impl FnOnce() -> A + Send,
-    b: impl FnOnce() -> B + Send,
-) -> (A, B) {
-    #[cfg(feature = "parallel")]
-    if on_pool() {
-        return rayon::join(a, b);
-    }
-    (a(), b())
 }
 
 /// Calls `f` on every part, as tasks on the caller's pool when there is one, else in
