@@ -1673,18 +1673,21 @@ impl Term for SelfContactTerm {
         // per Newton iteration").
         let long: Vec<DVec3> = dx.iter().map(|d| LONG_STEP * *d).collect();
         self.collect_segment(x, &long, fixed);
-        let t = self.ccd_fraction(x, dx, fixed);
-        if t < 1.0 {
-            return t;
+        if reach > 1.0 {
+            // The longer path first: when it is clear for at least the full step (nearly
+            // every iteration) its answer is the cap, and the step's own sweep, which
+            // costs about as much (a sweep's cost follows the pairs listed more than the
+            // path's length), is not needed.
+            let longer = LONG_STEP * self.ccd_fraction(x, &long, fixed);
+            if longer >= 1.0 {
+                return longer;
+            }
         }
         // Nothing beyond the step itself will be tried (a line search that does not
-        // lengthen steps, an admissibility check): the longer sweep is not needed.
-        if reach <= 1.0 {
-            return 1.0;
-        }
-        // The full step is known to be safe; ACCD along the longer path stops at its own
-        // conservative times, which may fall short of it, so never return less.
-        (LONG_STEP * self.ccd_fraction(x, &long, fixed)).max(1.0)
+        // lengthen steps, an admissibility check), or ACCD along the longer path stopped
+        // short of the full step: its conservative times may fall short of the step's
+        // own, so the step itself is swept.
+        self.ccd_fraction(x, dx, fixed).min(1.0)
     }
 }
 
