@@ -1674,10 +1674,10 @@ impl Term for SelfContactTerm {
         let long: Vec<DVec3> = dx.iter().map(|d| LONG_STEP * *d).collect();
         self.collect_segment(x, &long, fixed);
         if reach > 1.0 {
-            // The longer path first: when it is clear for at least the full step (nearly
-            // every iteration) its answer is the cap, and the step's own sweep, which
-            // costs about as much (a sweep's cost follows the pairs listed more than the
-            // path's length), is not needed.
+            // The longer path first: when it is clear for at least the full step (three
+            // caps in four or more on the twist) its answer is the cap, and the step's
+            // own sweep, which costs about as much (a sweep's cost follows the pairs
+            // listed more than the path's length), is not needed.
             let longer = LONG_STEP * self.ccd_fraction(x, &long, fixed);
             if longer >= 1.0 {
                 return longer;
