@@ -35,9 +35,11 @@
 //! Hessian blocks: each pair's 12x12 Hessian is projected to be positive semidefinite
 //! and scattered into its 4x4 particle blocks; asked for [`Curvature::ExactContact`] (or
 //! [`Curvature::Exact`]) and with [`SelfContactSettings::exact_hessian`] set, the exact
-//! Hessian of every unmollified pair is scattered instead (mollified edge pairs stay
-//! projected), which is cheaper per pair (no eigen-decomposition) and restores the
-//! quadratic convergence the projection loses, but may make the Newton matrix
+//! Hessian of every pair is scattered instead (mollified edge pairs included: with
+//! theirs projected the Newton matrix is not the potential's Hessian, and a wound sheet,
+//! whose layers lie edge along edge, converges only linearly), which is cheaper per pair
+//! (no eigen-decomposition) and restores the quadratic convergence the projection
+//! loses, but may make the Newton matrix
 //! indefinite: backward Euler then falls back to the projected blocks at once. A pair couples particles no spring joins,
 //! and the Hessian pattern has slots only for the springs' pairs (and pairs added with
 //! [`crate::BackwardEuler::add_coupled_term`]); when some of a pair's blocks have no
@@ -696,8 +698,8 @@ impl SelfContactTerm {
         kappa * m * barrier(gap, self.settings.dhat)
     }
 
-    /// A pair's energy gradient and Hessian (projected, or exact for an unmollified pair
-    /// when `form` asks for it; not written when `form` is `None`) in the pair's twelve
+    /// A pair's energy gradient and Hessian (projected, or exact when `form` asks for
+    /// it; not written when `form` is `None`) in the pair's twelve
     /// coordinates, written into `out` (which is marked as holding none when the pair is
     /// beyond `dhat` or not admissible). The gradient, and whether the pair holds
     /// derivatives, do not depend on `form`, bit for bit.
@@ -705,8 +707,8 @@ impl SelfContactTerm {
     /// Pairs without a mollifier (every vertex-triangle pair, and edge pairs far from
     /// parallel, where the mollifier is identically 1) take the closed form of
     /// [`RegionForm`]; mollified edge pairs, and the degenerate pairs the closed form
-    /// declines, take the dual numbers and the full 12x12 projection (or, for a
-    /// degenerate unmollified pair in the exact form, the dual numbers' Hessian). `region` is the
+    /// declines, take the dual numbers and the full 12x12 projection (or, in the exact
+    /// form, the dual numbers' Hessian). `region` is the
     /// region of the closest points at `x` when the caller has it (found by the same
     /// rules, so the same). The results are written in place: a pair's derivatives are
     /// over a kilobyte, and the lists of a few ten thousand pairs are refilled at every
@@ -742,8 +744,9 @@ impl SelfContactTerm {
 
     /// The Hessian in `form` of the pair whose derivatives at `x` are `pair` into `out`
     /// (every entry overwritten when `pair` is present, else left alone): a closed-form
-    /// pair's from its span, the dual numbers' pairs' computed again. A mollified pair
-    /// takes the projected form whichever is asked.
+    /// pair's from its span, the dual numbers' pairs' (mollified edge pairs and the
+    /// degenerate pairs the closed form declines) computed again, the exact form being
+    /// their full Hessian, the mollifier's curvature included.
     fn pair_hessian(
         &self,
         kappa: f64,
@@ -767,13 +770,9 @@ impl SelfContactTerm {
         if pair.present
             && let Some(e) = self.pair_energy_dual::<Dual12>(kappa, c, x)
         {
-            let mollified = self
-                .mollifier_threshold(c)
-                .is_some_and(|eps| mollifier(&pair.particles.map(|i| x[i]), eps) < 1.0);
-            *out = PairBlocks::from_matrix(&if form == HessianForm::Exact && !mollified {
-                e.hessian
-            } else {
-                project_psd12_pair(&e.hessian)
+            *out = PairBlocks::from_matrix(&match form {
+                HessianForm::Exact => e.hessian,
+                HessianForm::Projected => project_psd12_pair(&e.hessian),
             });
         }
     }
@@ -1744,7 +1743,7 @@ impl PairDual for Gradient12 {
 }
 
 /// Which Hessian of a pair is asked for: its projection onto positive semidefinite
-/// matrices, or the exact one (mollified pairs stay projected).
+/// matrices, or the exact one.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 enum HessianForm {
     #[default]
