@@ -43,18 +43,25 @@ fn two_sheets_fixing(fixed: Vec<usize>) -> (SpringSystem, Vec<[usize; 3]>) {
             );
         }
     }
-    let mesh = TriangleMesh::new(x, t.clone()).unwrap();
+    let system = cloth_on(x, &t, DVec3::new(0.0, -9.81, 0.0), fixed);
+    (system, t)
+}
+
+/// The tests' cloth on the mesh `(x, t)`: areal density 0.2, edge springs of stiffness
+/// 100, no damping or bending, `gravity`, the particles `fixed` pinned.
+fn cloth_on(x: Vec<DVec3>, t: &[[usize; 3]], gravity: DVec3, fixed: Vec<usize>) -> SpringSystem {
+    let mesh = TriangleMesh::new(x, t.to_vec()).unwrap();
     let cloth = MeshCloth {
         areal_density: 0.2,
         material: Material {
             stiffness: 100.0,
             damping: 0.0,
-            gravity: DVec3::new(0.0, -9.81, 0.0),
+            gravity,
         },
         bending: Bending::None,
         fixed,
     };
-    (cloth.build(&mesh).unwrap().system, t)
+    cloth.build(&mesh).unwrap().system
 }
 
 /// [`two_sheets`] with `dhat` 2 mm and a thickness of 0.5 mm (the sheets' 1.5 mm apart
@@ -808,18 +815,7 @@ fn near_parallel_edges() -> (SpringSystem, Vec<[usize; 3]>) {
         DVec3::new(0.025, 0.03, 0.0),
     ];
     let t = vec![[0, 1, 2], [3, 4, 5]];
-    let mesh = TriangleMesh::new(x, t.clone()).unwrap();
-    let cloth = MeshCloth {
-        areal_density: 0.2,
-        material: Material {
-            stiffness: 100.0,
-            damping: 0.0,
-            gravity: DVec3::ZERO,
-        },
-        bending: Bending::None,
-        fixed: Vec::new(),
-    };
-    (cloth.build(&mesh).unwrap().system, t)
+    (cloth_on(x, &t, DVec3::ZERO, Vec::new()), t)
 }
 
 /// The exact form is the Hessian of the term's energy for mollified edge pairs too: on
