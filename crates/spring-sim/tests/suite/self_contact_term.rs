@@ -5,15 +5,14 @@
 //! thickness.
 
 use crate::common::{Sample, Xorshift as Rng};
+use crate::sheets;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::{
     SelfContactSettings, SelfContactTerm, additive_ccd, candidates,
 };
 use sinew_spring_sim::potential::{HessianSink, StepContext, Term};
 use sinew_spring_sim::spring::Curvature;
-use sinew_spring_sim::{
-    Bending, ClothGrid, HessianPattern, Material, MeshCloth, SpringSystem, StepError, TriangleMesh,
-};
+use sinew_spring_sim::{ClothGrid, HessianPattern, SpringSystem, StepError, TriangleMesh};
 
 fn two_sheets() -> (SpringSystem, Vec<[usize; 3]>) {
     two_sheets_fixing(vec![0])
@@ -43,25 +42,9 @@ fn two_sheets_fixing(fixed: Vec<usize>) -> (SpringSystem, Vec<[usize; 3]>) {
             );
         }
     }
-    let system = cloth_on(x, &t, DVec3::new(0.0, -9.81, 0.0), fixed);
-    (system, t)
-}
-
-/// The tests' cloth on the mesh `(x, t)`: areal density 0.2, edge springs of stiffness
-/// 100, no damping or bending, `gravity`, the particles `fixed` pinned.
-fn cloth_on(x: Vec<DVec3>, t: &[[usize; 3]], gravity: DVec3, fixed: Vec<usize>) -> SpringSystem {
-    let mesh = TriangleMesh::new(x, t.to_vec()).unwrap();
-    let cloth = MeshCloth {
-        areal_density: 0.2,
-        material: Material {
-            stiffness: 100.0,
-            damping: 0.0,
-            gravity,
-        },
-        bending: Bending::None,
-        fixed,
-    };
-    cloth.build(&mesh).unwrap().system
+    // The term sees the masses (areal density 0.2) and gravity alone, not the springs.
+    let mesh = TriangleMesh::new(x, t.clone()).unwrap();
+    (sheets::cloth(fixed).build(&mesh).unwrap().system, t)
 }
 
 /// [`two_sheets`] with `dhat` 2 mm and a thickness of 0.5 mm (the sheets' 1.5 mm apart
@@ -815,7 +798,10 @@ fn near_parallel_edges() -> (SpringSystem, Vec<[usize; 3]>) {
         DVec3::new(0.025, 0.03, 0.0),
     ];
     let t = vec![[0, 1, 2], [3, 4, 5]];
-    (cloth_on(x, &t, DVec3::ZERO, Vec::new()), t)
+    let mesh = TriangleMesh::new(x, t.clone()).unwrap();
+    let mut cloth = sheets::cloth(Vec::new());
+    cloth.material.gravity = DVec3::ZERO;
+    (cloth.build(&mesh).unwrap().system, t)
 }
 
 /// The exact form is the Hessian of the term's energy for mollified edge pairs too: on
