@@ -129,6 +129,9 @@ impl BackwardEuler {
         // Whether the iterations before Newton is slow still try the exact contact
         // blocks first: not after one such matrix was refused in the step.
         let mut exact_first = true;
+        // Whether the last iteration's matrix with the exact contact blocks was refused:
+        // this iteration then asks for the projected blocks at once (see below).
+        let mut exact_refused_last = false;
         loop {
             // Pairs a term coupled without Hessian slots in the last iteration (self-contact
             // meeting particles no spring joins) get slots now rather than after the step:
@@ -233,7 +236,13 @@ impl BackwardEuler {
             // "The exact pair Hessian first"). That negative curvature is the barrier's,
             // which no `theta` removes, so a matrix with them that is not positive definite
             // is replaced at once by the one with their projections, at the same `theta`.
-            let mut exact_contact = exact_contact_differs && softening;
+            // A refusal is usually followed by another at the next iterate (seven times in
+            // eight on the wound twist), each a factorization that fails and an assembly
+            // for nothing, so the iteration after a refusal skips the exact blocks and the
+            // one after that tries them again (docs/contact.md, "A refused exact matrix
+            // skips the next iteration's").
+            let mut exact_contact =
+                exact_contact_differs && softening && !std::mem::take(&mut exact_refused_last);
             if softening {
                 let mut assembled = false;
                 while theta <= SOFTENING_MAX_THETA {
@@ -255,6 +264,7 @@ impl BackwardEuler {
                         exact_contact = false;
                         if self.reassembled_differs(&step, Curvature::Softened(theta), &mut saved) {
                             report.contact_projection_fallbacks += 1;
+                            exact_refused_last = true;
                             assembled = true;
                             continue;
                         }

@@ -126,8 +126,9 @@ fn refused_exact_blocks_fall_back_to_the_projection_and_the_steps_converge() {
 fn a_step_in_contact_tries_the_exact_blocks_from_its_first_iteration() {
     // Without gravity, a free sheet 0.6 mm (within `dhat`) above a held one: the barrier
     // pushes it off. Every iterate has pairs within `dhat`, and every Newton iteration,
-    // the first included, writes a matrix with the exact blocks (the first iteration
-    // would not if they were tried only once Newton is slow).
+    // the first included, writes a matrix with the exact blocks except one that follows
+    // a refused one (the first iteration would not if they were tried only once Newton
+    // is slow).
     let (mut integrator, stats, mut system) =
         sheets_in_contact(6, (DVec3::X, DVec3::Z), DVec3::ZERO, true);
     let report = integrator.step(&mut system, H).unwrap();
@@ -137,10 +138,49 @@ fn a_step_in_contact_tries_the_exact_blocks_from_its_first_iteration() {
         "the sheets left contact: the case tests nothing"
     );
     assert!(
-        stats.exact_hessians() >= report.iterations as u64,
-        "{} exact matrices in {} iterations",
+        stats.exact_hessians() + report.contact_projection_fallbacks as u64
+            >= report.iterations as u64,
+        "{} exact matrices and {} refusals in {} iterations",
         stats.exact_hessians(),
+        report.contact_projection_fallbacks,
         report.iterations
+    );
+    assert!(stats.min_gap() > 0.0);
+}
+
+#[test]
+fn the_iteration_after_a_refused_exact_matrix_asks_for_the_projection_at_once() {
+    // The turned sheet of the first test falling onto the held one: several steps refuse
+    // the exact blocks more than once. Each Newton iteration writes at most one matrix
+    // with the exact blocks, and one that follows a refusal writes none, so a step with
+    // `r` refusals in `n` iterations writes at most `n - (r - 1)` of them (its last
+    // refusal may be in its last iteration). Trying them in every iteration would write
+    // `n` with `r` up to `n`.
+    let turned = (
+        DVec3::new(0.995_004, 0.0, 0.099_833_4),
+        DVec3::new(-0.099_833_4, 0.0, 0.995_004),
+    );
+    let gravity = DVec3::new(0.0, -9.81, 0.0);
+    let (mut integrator, stats, mut system) = sheets_in_contact(9, turned, gravity, true);
+    let mut repeated = 0;
+    for step in 0..12 {
+        let before = stats.exact_hessians();
+        let report = integrator.step(&mut system, H).unwrap();
+        assert_eq!(report.stop, StepStop::Converged, "step {step}: {report:?}");
+        let (exact, refused) = (
+            stats.exact_hessians() - before,
+            report.contact_projection_fallbacks,
+        );
+        assert!(
+            exact as usize + refused <= report.iterations + 1,
+            "step {step}: {exact} exact matrices and {refused} refusals in {} iterations",
+            report.iterations
+        );
+        repeated += usize::from(refused >= 2);
+    }
+    assert!(
+        repeated > 0,
+        "no step refused the exact blocks twice: the case tests nothing"
     );
     assert!(stats.min_gap() > 0.0);
 }
