@@ -64,14 +64,22 @@ pub(crate) fn sheets_in_contact_with(
     (integrator, stats, model.system)
 }
 
-fn run(exact_hessian: bool, n: usize, steps: usize) -> Outcome {
-    // The top sheet turned a little, under gravity.
+/// [`sheets_in_contact`] with the top sheet turned a little, under gravity: it falls onto
+/// the held one.
+fn turned_sheets_falling(
+    n: usize,
+    exact_hessian: bool,
+) -> (BackwardEuler, Arc<SelfContactStats>, SpringSystem) {
     let turned = (
         DVec3::new(0.995_004, 0.0, 0.099_833_4),
         DVec3::new(-0.099_833_4, 0.0, 0.995_004),
     );
     let gravity = DVec3::new(0.0, -9.81, 0.0);
-    let (mut integrator, stats, mut system) = sheets_in_contact(n, turned, gravity, exact_hessian);
+    sheets_in_contact(n, turned, gravity, exact_hessian)
+}
+
+fn run(exact_hessian: bool, n: usize, steps: usize) -> Outcome {
+    let (mut integrator, stats, mut system) = turned_sheets_falling(n, exact_hessian);
     let (mut iterations, mut smallest_gap, mut reported_fallbacks) = (0, f64::INFINITY, 0);
     for step in 0..steps {
         let report = integrator.step(&mut system, H).unwrap();
@@ -156,12 +164,7 @@ fn the_iteration_after_a_refused_exact_matrix_asks_for_the_projection_at_once() 
     // `r` refusals in `n` iterations writes at most `n - (r - 1)` of them (its last
     // refusal may be in its last iteration). Trying them in every iteration would write
     // `n` with `r` up to `n`.
-    let turned = (
-        DVec3::new(0.995_004, 0.0, 0.099_833_4),
-        DVec3::new(-0.099_833_4, 0.0, 0.995_004),
-    );
-    let gravity = DVec3::new(0.0, -9.81, 0.0);
-    let (mut integrator, stats, mut system) = sheets_in_contact(9, turned, gravity, true);
+    let (mut integrator, stats, mut system) = turned_sheets_falling(9, true);
     let mut repeated = 0;
     for step in 0..12 {
         let before = stats.exact_hessians();
