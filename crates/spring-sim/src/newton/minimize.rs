@@ -237,10 +237,10 @@ impl BackwardEuler {
             // which no `theta` removes, so a matrix with them that is not positive definite
             // is replaced at once by the one with their projections, at the same `theta`.
             // A refusal is usually followed by another at the next iterate (seven times in
-            // eight on the wound twist), each a factorization that fails and an assembly
-            // for nothing, so the iteration after a refusal skips the exact blocks and the
-            // one after that tries them again (docs/contact.md, "A refused exact matrix
-            // skips the next iteration's").
+            // eight on the wound twist), each a failed solve (a factorization, or PCG meeting
+            // non-positive curvature) and an assembly for nothing, so the iteration after a
+            // refusal skips the exact blocks and the one after that tries them again
+            // (docs/contact.md, "A refused exact matrix skips the next iteration's").
             let mut exact_contact =
                 exact_contact_differs && softening && !std::mem::take(&mut exact_refused_last);
             if softening {
