@@ -35,10 +35,13 @@
 //! benchmark: a table for docs/contact.md, run with
 //! `cargo bench -p sinew-spring-sim --bench contact [-- ground|drape|rotating|twist|stack|
 //! stack-workload [steps] [--trace] [mu=..] [eps_v=..] [solver=direct|pcg|auto] [reuse=..] [tol=..]
-//! [exact=0|1] [threads=N] [save=FILE] [against=FILE]]` (`--trace`: a line per step on stderr, with the step's intersecting triangle pairs for the self-contact workloads; `mu`, `eps_v`: the
+//! [exact=0|1] [threads=N] [cap=N] [split=N] [save=FILE] [against=FILE]]` (`--trace`: a line per step on stderr, with the step's intersecting triangle pairs for the self-contact workloads; `mu`, `eps_v`: the
 //! collider friction settings instead of the workload's; `solver`: the linear solver,
 //! `auto` by default; `reuse`: the direct solver's `factor_reuse_iterations`, 0 for a
-//! factorization every Newton iteration; `tol`: `NewtonSettings::tolerance`; `exact`:
+//! factorization every Newton iteration; `tol`: `NewtonSettings::tolerance`; `cap`:
+//! `NewtonSettings::max_iterations` (100 by default); `split`:
+//! `NewtonSettings::max_split_depth` (the library's default; `cap=2 split=0` is a fixed
+//! budget of two Newton iterations a step, docs/contact.md); `exact`:
 //! `SelfContactSettings::exact_hessian` (the self-contact pairs' exact Hessians tried
 //! first once Newton is slow, default 1 as the setting's default; the self-contact
 //! workloads print the times the term wrote them and fell back to their projections);
@@ -473,7 +476,10 @@ fn main() {
     // `key=value` overrides of the workloads' settings, for experiments: `mu=`, `eps_v=`
     // (friction), `solver=direct|pcg|auto` (the linear solver), `reuse=` (the iterations
     // preconditioned by a kept factor before a factorization), `tol=` (the Newton
-    // tolerance); `save=` and `against=` write and compare final states.
+    // tolerance), `cap=` (the Newton iteration cap, default 100) and `split=` (how many
+    // times a step may be halved, default the library's; 0 with a small cap is a fixed
+    // budget of Newton iterations a step); `save=` and `against=` write and compare
+    // final states.
     let value = |key: &str| {
         args.iter()
             .find_map(|a| a.strip_prefix(key).and_then(|v| v.strip_prefix('=')))
@@ -501,7 +507,8 @@ fn main() {
         let steps = steps_override.unwrap_or(w.steps);
         let defaults = NewtonSettings::default();
         let settings = NewtonSettings {
-            max_iterations: 100,
+            max_iterations: number("cap").map_or(100, |c| c as usize),
+            max_split_depth: number("split").map_or(defaults.max_split_depth, |d| d as usize),
             linear_solver: solver,
             factor_reuse_iterations: number("reuse")
                 .map_or(defaults.factor_reuse_iterations, |r| r as usize),
