@@ -445,6 +445,7 @@ fn merge(first: &StepReport, second: &StepReport) -> StepReport {
     r.pieces += first.pieces;
     r.split_depth = 1 + first.split_depth.max(second.split_depth);
     r.unconverged_pieces += first.unconverged_pieces;
+    r.swept_passes += first.swept_passes;
     r.rejected_splits += first.rejected_splits;
     // The piece furthest from its tolerance speaks for the step's convergence.
     if first.residual / first.tolerance > second.residual / second.tolerance {

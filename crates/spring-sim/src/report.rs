@@ -240,6 +240,13 @@ pub struct StepReport {
     /// every piece converged or stopped at round-off. The step's `stop` then says why the
     /// worst one stopped (the iteration cap or a stalled line search).
     pub unconverged_pieces: usize,
+    /// Pieces kept although a particle's straight path from the piece's start to its
+    /// end went through a moving collider (deeper than
+    /// [`crate::contact::swept_allowance`]), because the split was at its deepest level
+    /// or splitting is off: 0 when no collider passed a particle. Such a step is split
+    /// like one far from converged (docs/contact.md, "A kinematic collider passing the
+    /// cloth within a step").
+    pub swept_passes: usize,
     /// Backward Euler: splits computed and then discarded because the pieces together
     /// broke the energy inequality a step of `h` keeps (`E_spring + E_gravity +
     /// 1/2 |v' - v_n|_M^2 <= E_total` at the start); the abandoned unsplit solve is
@@ -307,6 +314,7 @@ impl StepReport {
             pieces: 1,
             split_depth: 0,
             unconverged_pieces: 0,
+            swept_passes: 0,
             rejected_splits: 0,
             pattern_pairs_added: 0,
             pattern_pairs_dropped: 0,

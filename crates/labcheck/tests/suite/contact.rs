@@ -23,6 +23,14 @@ static STEPS_REFUSED: AtomicUsize = AtomicUsize::new(0);
 static STEPS_IN_CONTACT: AtomicUsize = AtomicUsize::new(0);
 /// Accepted steps during which the barrier stiffness grew.
 static STEPS_KAPPA_GREW: AtomicUsize = AtomicUsize::new(0);
+/// Accepted steps the integrator reported as keeping a collider's pass through a
+/// particle (`StepReport::swept_passes`: splitting could not resolve it).
+static STEPS_PASSED: AtomicUsize = AtomicUsize::new(0);
+/// Accepted steps taken whole (not split) with a moving collider, whose particles'
+/// paths were checked.
+static STEPS_PATHS_CHECKED: AtomicUsize = AtomicUsize::new(0);
+/// Samples along each particle's straight path from one accepted state to the next.
+const PATH_SAMPLES: usize = 64;
 
 /// The distance from `x` to the collider `c` at time `t`, from its fields alone: the
 /// pose follows `r(t) = r_0 + v t` and a turn by `omega t` about `r(t)`; the half-space's
@@ -90,6 +98,7 @@ proptest! {
         let mass = AREAL_DENSITY * case.spacing * case.spacing;
         let mut kappa = expected_initial_kappa(mass, contact.dhat, case.h);
         for n in 0..case.steps {
+            let before = sim.system().positions().to_vec();
             let result = sim.step(case.h);
             STEPS_TAKEN.fetch_add(1, Ordering::Relaxed);
             let report = match result {
@@ -126,6 +135,39 @@ proptest! {
                 STEPS_IN_CONTACT.fetch_add(1, Ordering::Relaxed);
             }
 
+            // No moving collider passed through a particle within the step: every
+            // particle's straight path from its previous state, sampled against the
+            // collider posed at the same times, goes no deeper into it than dhat (at
+            // most half its radius), unless the step reports the pass it kept. The
+            // promise is per piece of a split step, whose inner states are not seen
+            // here, so only steps taken whole are checked.
+            if report.swept_passes > 0 {
+                STEPS_PASSED.fetch_add(1, Ordering::Relaxed);
+            } else if report.pieces == 1 {
+                if colliders.iter().any(Collider::moves_surface) {
+                    STEPS_PATHS_CHECKED.fetch_add(1, Ordering::Relaxed);
+                }
+                let t0 = t - case.h;
+                for (ci, c) in colliders.iter().enumerate().filter(|(_, c)| c.moves_surface()) {
+                    let allowance = match c.shape {
+                        Shape::HalfSpace { .. } => contact.dhat,
+                        Shape::Sphere { radius, .. } | Shape::Capsule { radius, .. } => {
+                            contact.dhat.min(0.5 * radius)
+                        }
+                    };
+                    for (i, (&p, &q)) in before.iter().zip(sim.system().positions()).enumerate() {
+                        for k in 1..PATH_SAMPLES {
+                            let s = k as f64 / PATH_SAMPLES as f64;
+                            let d = independent_distance(c, t0 + s * case.h, p.lerp(q, s));
+                            prop_assert!(
+                                d > -allowance,
+                                "step {n}: particle {i}'s path {d:e} deep in collider {ci} at {s} of the step"
+                            );
+                        }
+                    }
+                }
+            }
+
             // g never increases over the iterates, as long as kappa (which changes the
             // function) stayed put during the step. kappa only grows (doubling), so an
             // unchanged value means it never moved within the step.
@@ -156,8 +198,10 @@ proptest! {
         let in_contact = STEPS_IN_CONTACT.load(Ordering::Relaxed);
         if std::env::var_os("SINEW_CONTACT_COUNTS").is_some() {
             eprintln!(
-                "steps {taken}, refused {refused}, in contact {in_contact}, kappa grew {}",
-                STEPS_KAPPA_GREW.load(Ordering::Relaxed)
+                "steps {taken}, refused {refused}, in contact {in_contact}, kappa grew {}, passes kept {}, paths checked {}",
+                STEPS_KAPPA_GREW.load(Ordering::Relaxed),
+                STEPS_PASSED.load(Ordering::Relaxed),
+                STEPS_PATHS_CHECKED.load(Ordering::Relaxed)
             );
         }
         // Not vacuous: at least one accepted step in five ends with the barrier acting.

@@ -150,6 +150,17 @@ impl Collider {
         self.motion.linear_velocity == DVec3::ZERO && self.motion.angular_velocity == DVec3::ZERO
     }
 
+    /// Whether the collider's surface moves: it translates, or it turns about an axis
+    /// that does not map its surface onto itself (a sphere spinning about its centre, a
+    /// half-space about its normal, a capsule about its own axis leave their surface in
+    /// place). Only such a collider can run into a particle that stays still.
+    #[must_use]
+    pub fn moves_surface(&self) -> bool {
+        let omega = self.motion.angular_velocity;
+        self.motion.linear_velocity != DVec3::ZERO
+            || !(omega == DVec3::ZERO || spin_keeps_surface(&self.shape, omega))
+    }
+
     /// Checks every field: all finite, radius positive, the half-space's normal of unit
     /// length to within 1e-9. The error names the shape and the field; use
     /// [`validate_colliders`] to have it name the collider's index too.
@@ -251,6 +262,16 @@ impl Collider {
                 .motion
                 .angular_velocity
                 .cross(point - self.reference_point_at(t))
+    }
+}
+
+/// Whether turning about the reference point with angular velocity `omega` maps the
+/// shape's surface onto itself (then only the translation matters).
+pub(crate) fn spin_keeps_surface(shape: &Shape, omega: DVec3) -> bool {
+    match *shape {
+        Shape::Sphere { .. } => true,
+        Shape::HalfSpace { normal, .. } => omega.cross(normal) == DVec3::ZERO,
+        Shape::Capsule { a, b, .. } => a == b || omega.cross(b - a) == DVec3::ZERO,
     }
 }
 

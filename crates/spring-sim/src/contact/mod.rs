@@ -42,7 +42,7 @@ pub use barrier::{AdaptiveKappa, KappaSettings, PointBarrier, point_barrier};
 pub use collider::{Collider, Motion, Shape};
 pub use distance::{SignedDistance, signed_distance};
 pub use friction::FrictionContact;
-pub use potential::{ContactPotential, ContactStep};
+pub use potential::{ContactPotential, ContactStep, swept_allowance};
 pub use projection::{ProjectedParticle, project_particle};
 pub use term::{ContactStats, ContactTerm};
 pub use toi::time_of_impact;

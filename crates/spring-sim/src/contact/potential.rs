@@ -583,6 +583,59 @@ impl ContactPotential {
         }
         alpha * horizon
     }
+
+    /// The first free particle, and the index of the collider, for which the particle's
+    /// straight path from `x_n` (the step's start) to `x` (its end) goes deeper than
+    /// [`swept_allowance`] into a collider whose surface moves
+    /// ([`Collider::moves_surface`]), the collider following its motion from the step's
+    /// start time to its end time along the path. The minimization sees the colliders
+    /// posed at the step's end only, so a collider that travels about its own size in
+    /// a step can pass a particle that ends outside it; the integrators split such a
+    /// step (docs/contact.md, "A kinematic collider passing the cloth within a step").
+    /// Static colliders and colliders whose motion leaves their surface in place are
+    /// not checked: a particle cannot be passed by a surface that stays where it is
+    /// (the line search's iterates go around such a collider, never through it).
+    #[must_use]
+    pub fn first_swept_pass(
+        &self,
+        x_n: &[DVec3],
+        x: &[DVec3],
+        fixed: &[bool],
+    ) -> Option<(usize, usize)> {
+        let (t0, t1) = (self.step_start, self.clock);
+        for (c, collider) in self.colliders.iter().enumerate() {
+            if !collider.moves_surface() {
+                continue;
+            }
+            // The path is measured against the collider shrunk by the allowance: a
+            // particle sliding along a moving curved surface cuts its chords by the
+            // sagitta, which is no pass.
+            let inset =
+                self.settings.thickness - swept_allowance(&collider.shape, self.settings.dhat);
+            for (i, (&p, &q)) in x_n.iter().zip(x).enumerate() {
+                if fixed[i] {
+                    continue;
+                }
+                // The fraction 1 asks for the first time the distance reaches 0.
+                if time_of_impact(collider, p, q - p, t0, t1, inset, 1.0) < 1.0 {
+                    return Some((i, c));
+                }
+            }
+        }
+        None
+    }
+}
+
+/// How deep a particle's straight path between two states may go into a moving
+/// collider before the step counts as passing through it
+/// ([`ContactPotential::first_swept_pass`]): `dhat`, at most half the collider's radius
+/// (so the shrunk shape stays a shape).
+#[must_use]
+pub fn swept_allowance(shape: &Shape, dhat: f64) -> f64 {
+    match *shape {
+        Shape::HalfSpace { .. } => dhat,
+        Shape::Sphere { radius, .. } | Shape::Capsule { radius, .. } => dhat.min(0.5 * radius),
+    }
 }
 
 /// Moves a first iterate `x` so that the kinematic colliders do not run over it: with the

@@ -293,4 +293,19 @@ impl Term for ContactTerm {
             alpha
         }
     }
+
+    fn does_work(&self) -> bool {
+        self.potential
+            .colliders()
+            .iter()
+            .any(super::Collider::moves_surface)
+    }
+
+    fn first_swept_pass(&self, step: &StepContext<'_>, x: &[DVec3]) -> Option<(usize, usize)> {
+        // The path that matters is the end state's, from x_n.
+        self.at_end(step, x, None, |w, _, _| {
+            self.potential
+                .first_swept_pass(step.system.positions(), w, step.system.fixed())
+        })
+    }
 }

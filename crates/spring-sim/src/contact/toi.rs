@@ -24,7 +24,7 @@
 //!
 //! Derivations and the guarantee's argument: docs/contact.md.
 
-use super::collider::{Collider, Shape};
+use super::collider::{Collider, Shape, spin_keeps_surface};
 use super::distance::distance_to;
 use sinew_math::DVec3;
 
@@ -67,16 +67,6 @@ pub fn time_of_impact(
         return translating(&start, x, relative, d0, target, thickness);
     }
     advance(collider, x, dx, t0, dt, relative, d0, target, thickness)
-}
-
-/// Whether turning about the reference point with angular velocity `omega` maps the
-/// shape's surface onto itself (then only the translation matters).
-fn spin_keeps_surface(shape: &Shape, omega: DVec3) -> bool {
-    match *shape {
-        Shape::Sphere { .. } => true,
-        Shape::HalfSpace { normal, .. } => omega.cross(normal) == DVec3::ZERO,
-        Shape::Capsule { a, b, .. } => a == b || omega.cross(b - a) == DVec3::ZERO,
-    }
 }
 
 /// The closed form against a shape fixed at `shape` for the relative displacement

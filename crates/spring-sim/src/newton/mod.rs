@@ -618,11 +618,16 @@ impl BackwardEuler {
             }
             self.continue_from = from;
         }
-        if !far || depth == 0 || unsplittable {
+        // A kinematic collider that passed a particle within the step (the solve sees it
+        // posed at the step's end only) is resolved by shorter pieces, over which it
+        // travels less: the collider meets the particle at a piece's end and carries it.
+        let passed = self.swept_pass(system, h_eff);
+        if (!far && !passed) || depth == 0 || (unsplittable && !passed) {
             self.commit(system, h_eff, scheme, attempt.integrator)?;
             self.last_piece_depth = depth;
             let mut report = attempt;
             report.unconverged_pieces = usize::from(far);
+            report.swept_passes = usize::from(passed);
             return Ok(report);
         }
         // The attempt is abandoned: the terms forget what its solve adapted (contact's
@@ -637,7 +642,11 @@ impl BackwardEuler {
         // Backward Euler promises its energy inequality for the step asked for (below),
         // not for each piece: it is checked once, for the whole step, with the start
         // state and the abandoned iterate kept to fall back on.
-        let guard = whole_step && matches!(scheme, Scheme::BackwardEuler);
+        // Not checked when a kinematic collider does work on the cloth (a step split
+        // because one passed a particle would otherwise fall back on the pass), since
+        // the inequality holds for a system that no outside motion drives.
+        let guard =
+            whole_step && matches!(scheme, Scheme::BackwardEuler) && !self.potential.does_work();
         let mut save = if guard {
             let mut save = self.take_split_save(depth);
             save.x_n.clear();
@@ -719,6 +728,14 @@ impl BackwardEuler {
         };
         self.split_saves[depth - 1] = save.take().expect("guarded");
         Ok(report)
+    }
+
+    /// Whether a term reports a particle passed by a moving collider on the straight
+    /// path from the step's start to the end state of the current iterate `self.x`
+    /// ([`Potential::first_swept_pass`]), for the step the last solve set up.
+    fn swept_pass(&self, system: &SpringSystem, h_eff: f64) -> bool {
+        let step = StepContext::new(system, h_eff, &self.y, &self.x_ref).with_timing(self.timing);
+        self.potential.first_swept_pass(&step, &self.x).is_some()
     }
 
     /// The levels of halving below `NewtonSettings::max_split_depth` that a piece still
@@ -1360,6 +1377,7 @@ fn combine_pieces(attempt: &StepReport, first: &StepReport, second: &StepReport)
     report.pieces = first.pieces + second.pieces;
     report.split_depth = 1 + first.split_depth.max(second.split_depth);
     report.unconverged_pieces = first.unconverged_pieces + second.unconverged_pieces;
+    report.swept_passes = first.swept_passes + second.swept_passes;
     report.rejected_splits = first.rejected_splits + second.rejected_splits;
     report
 }

@@ -221,6 +221,23 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
     fn take_missing_pairs(&mut self) -> Vec<[usize; 2]> {
         Vec::new()
     }
+
+    /// A free particle, and a collider, such that the particle's straight path from the
+    /// step's start to the end state of the iterate `x` goes through the collider as it
+    /// moves over the step (contact: see
+    /// [`crate::contact::ContactPotential::first_swept_pass`]); the integrators split
+    /// such a step. `None` by default.
+    fn first_swept_pass(&self, step: &StepContext<'_>, x: &[DVec3]) -> Option<(usize, usize)> {
+        let _ = (step, x);
+        None
+    }
+
+    /// Whether a prescribed motion in this term does work on the system (a kinematic
+    /// collider whose surface moves): backward Euler's energy inequality then does not
+    /// hold, and a split step is not checked against it. `false` by default.
+    fn does_work(&self) -> bool {
+        false
+    }
 }
 
 /// The terms of one minimization, evaluated in order and summed.
@@ -651,6 +668,18 @@ impl Potential {
             .iter()
             .map(|t| t.max_step(step, x, dx, reach))
             .fold(f64::INFINITY, f64::min)
+    }
+
+    /// The first term's [`Term::first_swept_pass`] at `x`, if any.
+    #[must_use]
+    pub fn first_swept_pass(&self, step: &StepContext<'_>, x: &[DVec3]) -> Option<(usize, usize)> {
+        self.terms.iter().find_map(|t| t.first_swept_pass(step, x))
+    }
+
+    /// Whether a term's prescribed motion does work on the system ([`Term::does_work`]).
+    #[must_use]
+    pub fn does_work(&self) -> bool {
+        self.terms.iter().any(|t| t.does_work())
     }
 }
 

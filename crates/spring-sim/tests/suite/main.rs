@@ -13,6 +13,7 @@ mod contact_kernels;
 mod contact_potential;
 mod contact_schemes;
 mod contact_squeeze;
+mod contact_sweep;
 mod contact_toi;
 mod contact_validation;
 mod errors;
