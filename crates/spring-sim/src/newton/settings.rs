@@ -103,7 +103,13 @@ pub struct NewtonSettings {
     /// split into midpoint steps; a BDF2 step into midpoint steps (its own starting
     /// step), after which BDF2 restarts its history. Steps with kinematic colliders are
     /// split too: each piece is given its own start time, from which the contact term
-    /// poses the colliders, and an abandoned solve's barrier stiffness is rewound.
+    /// poses the colliders, and an abandoned solve's barrier stiffness is rewound. A
+    /// solve whose end state leaves a particle passed by a kinematic collider (its
+    /// straight path from the step's start goes through the collider as it moves) is
+    /// split the same way, and the energy inequality is not checked when a collider's
+    /// surface moves (it does work on the cloth); a pass left at the deepest split is
+    /// counted in [`crate::StepReport::swept_passes`] (docs/contact.md, "A kinematic
+    /// collider passing the cloth within a step").
     pub max_split_depth: usize,
 }
 
