@@ -238,6 +238,13 @@ pub struct ContactMetrics {
     pub contact_pairs_max: usize,
     /// The barrier stiffness used.
     pub kappa: Option<f64>,
+    /// Pieces the integrator kept although a kinematic collider passed a particle in
+    /// them (`StepReport::swept_passes`, summed over the run; must be 0).
+    pub swept_passes: usize,
+    /// The deepest any particle's straight path between two consecutive states went into
+    /// a collider whose surface moves, sampled by the runner (positive: inside); `None`
+    /// without such a collider.
+    pub max_path_depth: Option<f64>,
 }
 
 /// A `MeshCloth` task's metrics: the work, the self-contact statistics, and the checks
@@ -271,6 +278,11 @@ pub struct MeshClothMetrics {
     pub min_distance: Option<f64>,
     /// Vertex-collider pairs at distance <= 0 over the run (must be 0).
     pub penetrations: usize,
+    /// Pieces kept although a kinematic collider passed a vertex in them (must be 0).
+    pub swept_passes: usize,
+    /// The deepest any vertex's straight path between two consecutive states went into a
+    /// collider whose surface moves (positive: inside); `None` without such a collider.
+    pub max_path_depth: Option<f64>,
     /// The self-contact barrier stiffness at the end.
     pub kappa: f64,
 }

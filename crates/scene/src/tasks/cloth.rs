@@ -264,6 +264,9 @@ impl TaskSpec for ClothTask {
         let mut min_distance = f64::INFINITY;
         let mut penetrations = 0usize;
         let mut contact_pairs_max = 0usize;
+        let mut swept_passes = 0usize;
+        let mut max_path_depth: Option<f64> = None;
+        let mut previous = sim.system().positions().to_vec();
         let mut progress = ctx.progress(&self.name, self.steps);
         let metrics = run_observed(&mut sim, dt, self.steps, |step, report, system| {
             progress.inc();
@@ -302,6 +305,19 @@ impl TaskSpec for ClothTask {
                     }
                 }
                 contact_pairs_max = contact_pairs_max.max(pairs);
+                swept_passes += report.swept_passes;
+                let paths = super::deepest_swept_path(
+                    &colliders,
+                    settings.thickness,
+                    (time - dt, dt),
+                    &previous,
+                    system.positions(),
+                    system.fixed(),
+                );
+                if let Some(d) = paths {
+                    max_path_depth = Some(max_path_depth.map_or(d, |m| m.max(d)));
+                    previous.copy_from_slice(system.positions());
+                }
             }
             let last = step + 1 == self.steps;
             if ctx.keep_frames && ((step + 1) % frame_every == 0 || last) {
@@ -361,6 +377,11 @@ impl TaskSpec for ClothTask {
                 "{penetrations} particle-collider pairs at distance <= 0 over the run"
             ));
         }
+        if swept_passes > 0 {
+            failures.push(format!(
+                "{swept_passes} piece(s) kept with a particle passed by a moving collider"
+            ));
+        }
         if metrics.diverged {
             failures.push(format!(
                 "diverged: {}",
@@ -380,6 +401,8 @@ impl TaskSpec for ClothTask {
             penetrations,
             contact_pairs_max,
             kappa: sim.contact_kappa(),
+            swept_passes,
+            max_path_depth,
         });
         let out = ClothMetrics {
             run: metrics.clone(),

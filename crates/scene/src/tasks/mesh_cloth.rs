@@ -483,6 +483,9 @@ impl TaskSpec for MeshClothTask {
         let mut min_self_distance: Option<f64> = None;
         let mut min_collider_distance: Option<f64> = None;
         let mut penetrations = 0usize;
+        let mut swept_passes = 0usize;
+        let mut max_path_depth: Option<f64> = None;
+        let mut previous = system.positions().to_vec();
         let mut progress = ctx.progress(&self.name, self.steps);
         for step in 0..self.steps {
             let started = Instant::now();
@@ -520,6 +523,19 @@ impl TaskSpec for MeshClothTask {
                         Some(min_collider_distance.map_or(d, |m: f64| m.min(d)));
                     penetrations += usize::from(d <= 0.0);
                 }
+            }
+            swept_passes += report.swept_passes;
+            let paths = super::deepest_swept_path(
+                &self.colliders,
+                self.contact.thickness,
+                (time - self.dt, self.dt),
+                &previous,
+                x,
+                system.fixed(),
+            );
+            if let Some(d) = paths {
+                max_path_depth = Some(max_path_depth.map_or(d, |m| m.max(d)));
+                previous.copy_from_slice(x);
             }
             csv.push_str(&format!(
                 "{},{time},{},{},{},{},{}\n",
@@ -563,6 +579,11 @@ impl TaskSpec for MeshClothTask {
                 "{penetrations} vertex-collider pairs at distance <= 0 over the run"
             ));
         }
+        if swept_passes > 0 {
+            failures.push(format!(
+                "{swept_passes} piece(s) kept with a vertex passed by a moving collider"
+            ));
+        }
         let metrics = MeshClothMetrics {
             vertices,
             triangles: triangles.len(),
@@ -576,6 +597,8 @@ impl TaskSpec for MeshClothTask {
             min_self_distance,
             min_distance: min_collider_distance,
             penetrations,
+            swept_passes,
+            max_path_depth,
             kappa: stats.kappa(),
         };
         let headline = format!(

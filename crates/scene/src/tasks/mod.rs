@@ -139,6 +139,46 @@ pub fn max_distance(a: &[sinew_math::DVec3], b: &[sinew_math::DVec3]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// Samples along each particle's straight path in [`deepest_swept_path`].
+const PATH_SAMPLES: usize = 64;
+
+/// How deep the deepest free particle's straight path from `before` (at `t0`) to
+/// `after` (at `t0 + dt`) goes into a collider whose surface moves, the collider posed at
+/// the same times, sampled at `PATH_SAMPLES - 1` inner points (positive: inside); `None`
+/// when no collider's surface moves. The runner's own check of what the integrators
+/// promise for every step taken whole: no deeper than `min(dhat, r/2)` (docs/contact.md,
+/// "A kinematic collider passing the cloth within a step").
+pub fn deepest_swept_path(
+    colliders: &[sinew_spring_sim::contact::Collider],
+    thickness: f64,
+    (t0, dt): (f64, f64),
+    before: &[sinew_math::DVec3],
+    after: &[sinew_math::DVec3],
+    fixed: &[bool],
+) -> Option<f64> {
+    let mut deepest: Option<f64> = None;
+    for c in colliders.iter().filter(|c| c.moves_surface()) {
+        let mut depth = f64::NEG_INFINITY;
+        for k in 1..PATH_SAMPLES {
+            let s = k as f64 / PATH_SAMPLES as f64;
+            let shape = c.at(t0 + s * dt);
+            for ((p, q), pinned) in before.iter().zip(after).zip(fixed) {
+                if !*pinned {
+                    let d = sinew_spring_sim::contact::signed_distance(
+                        &shape,
+                        p.lerp(*q, s),
+                        thickness,
+                    )
+                    .distance;
+                    depth = depth.max(-d);
+                }
+            }
+        }
+        deepest = Some(deepest.map_or(depth, |m| m.max(depth)));
+    }
+    deepest
+}
+
 /// The median of `values` (sorted in place); NaN for an empty slice.
 pub fn median(values: &mut [f64]) -> f64 {
     if values.is_empty() {
