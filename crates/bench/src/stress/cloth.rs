@@ -724,6 +724,9 @@ pub enum ContactTarget {
     Ground,
     /// A sphere of radius [`CONTACT_SPHERE_RADIUS`] with its top at `y = 0`.
     Sphere,
+    /// The same sphere rising at [`RISING_SPHERE_SPEED`] into the sheet: a kinematic
+    /// collider that travels more than its size in a step of 1/60 s or longer.
+    RisingSphere,
 }
 
 impl ContactTarget {
@@ -733,9 +736,39 @@ impl ContactTarget {
         match self {
             Self::Ground => "ground",
             Self::Sphere => "sphere",
+            Self::RisingSphere => "rising-sphere",
+        }
+    }
+
+    /// The collider, posed at time 0.
+    #[must_use]
+    pub fn collider(self) -> sinew_spring_sim::contact::Collider {
+        use sinew_spring_sim::contact::Collider;
+        let centre = DVec3::new(0.0, -CONTACT_SPHERE_RADIUS, 0.0);
+        match self {
+            Self::Ground => Collider::ground(0.0),
+            Self::Sphere => Collider::sphere(centre, CONTACT_SPHERE_RADIUS),
+            Self::RisingSphere => Collider::sphere(centre, CONTACT_SPHERE_RADIUS)
+                .moving(DVec3::new(0.0, RISING_SPHERE_SPEED, 0.0), DVec3::ZERO),
+        }
+    }
+
+    /// How fast the collider's surface moves, m/s (0 for the static ones).
+    #[must_use]
+    pub fn speed(self) -> f64 {
+        match self {
+            Self::Ground | Self::Sphere => 0.0,
+            Self::RisingSphere => RISING_SPHERE_SPEED,
         }
     }
 }
+
+/// Speed of [`ContactTarget::RisingSphere`], m/s (upwards): 20 cm a step of 1/60 s, half
+/// its diameter, and 3 m a step of 1/4 s.
+pub const RISING_SPHERE_SPEED: f64 = 12.0;
+/// Samples along each particle's straight path between two states in the rising-sphere
+/// cases' check of the paths.
+const PATH_SAMPLES: usize = 64;
 
 /// Radius of the contact cases' sphere, m.
 pub const CONTACT_SPHERE_RADIUS: f64 = 0.2;
@@ -760,6 +793,20 @@ pub const CONTACT_GRAVITY: f64 = 9.81;
 #[must_use]
 pub fn contact_motion_radius(start_extent: f64, speed: f64, gravity: f64, t: f64) -> f64 {
     start_extent + speed.abs() * t + 0.5 * gravity.abs() * t * t + DIVERGENCE_RADIUS
+}
+
+/// [`contact_motion_radius`] for a case whose collider moves at `collider_speed`: a
+/// particle the collider strikes may leave at up to twice the collider's speed (an
+/// elastic rebound off a moving wall), so that much more distance is allowed.
+#[must_use]
+pub fn struck_motion_radius(
+    start_extent: f64,
+    speed: f64,
+    gravity: f64,
+    collider_speed: f64,
+    t: f64,
+) -> f64 {
+    contact_motion_radius(start_extent, speed, gravity, t) + 2.0 * collider_speed.abs() * t
 }
 
 /// The first particle farther than `radius` from the origin (a NaN counts as beyond), if
@@ -804,9 +851,10 @@ impl ContactCase {
     }
 }
 
-/// The contact cases: stiffness x time step x drop speed x collider. Quick: 8 x 8,
-/// stiffness 1e2 and 1e6, dt 1/60 and 1/4, speed 0 and 20 m/s, 15 steps (16 cases). Full:
-/// 16 x 16, stiffness 1e1, 1e3, 1e5, 1e7, dt 1/960, 1/60, 1/4, speed 0, 2, 20 m/s, 60 steps.
+/// The contact cases: stiffness x time step x drop speed x collider (the ground, the
+/// sphere, the sphere rising). Quick: 8 x 8, stiffness 1e2 and 1e6, dt 1/60 and 1/4,
+/// speed 0 and 20 m/s, 15 steps (24 cases). Full: 16 x 16, stiffness 1e1, 1e3, 1e5, 1e7,
+/// dt 1/960, 1/60, 1/4, speed 0, 2, 20 m/s, 60 steps (108 cases).
 #[must_use]
 pub fn contact_cases(quick: bool) -> Vec<ContactCase> {
     let (grid, stiffnesses, dts, speeds, steps): (usize, &[f64], &[f64], &[f64], usize) = if quick {
@@ -821,7 +869,11 @@ pub fn contact_cases(quick: bool) -> Vec<ContactCase> {
         )
     };
     let mut cases = Vec::new();
-    for target in [ContactTarget::Ground, ContactTarget::Sphere] {
+    for target in [
+        ContactTarget::Ground,
+        ContactTarget::Sphere,
+        ContactTarget::RisingSphere,
+    ] {
         for &stiffness in stiffnesses {
             for &dt in dts {
                 for &speed in speeds {
@@ -868,26 +920,47 @@ pub struct ContactOutcome {
     pub iterations_max: usize,
     /// Wall-clock seconds.
     pub seconds: f64,
-    /// Broken invariants, as sentences (penetration, NaN, divergence, a refused step).
+    /// Rising sphere: the deepest a particle's straight path between two states went
+    /// into the sphere on a step taken whole (sampled; positive inside; `-inf` when no
+    /// step was checked or for a static collider).
+    pub path_depth_max: f64,
+    /// Broken invariants, as sentences (penetration, NaN, divergence, a refused step, a
+    /// pass by the rising sphere kept or found on a path).
     pub failures: Vec<String>,
 }
 
-/// The distance from `x` to the case's collider, written out here (height above the
-/// ground; distance to the sphere's centre minus its radius) so the check does not rely
-/// on the integrator's own distance function.
-fn contact_distance(target: ContactTarget, x: DVec3) -> f64 {
+/// The distance from `x` to the case's collider at time `t`, written out here (height
+/// above the ground; distance to the sphere's centre, raised by `v t` for the rising one,
+/// minus its radius) so the check does not rely on the integrator's own distance
+/// function.
+fn contact_distance(target: ContactTarget, x: DVec3, t: f64) -> f64 {
     match target {
         ContactTarget::Ground => x.y,
-        ContactTarget::Sphere => {
-            (x - DVec3::new(0.0, -CONTACT_SPHERE_RADIUS, 0.0)).length() - CONTACT_SPHERE_RADIUS
+        ContactTarget::Sphere | ContactTarget::RisingSphere => {
+            let centre = DVec3::new(0.0, -CONTACT_SPHERE_RADIUS + target.speed() * t, 0.0);
+            (x - centre).length() - CONTACT_SPHERE_RADIUS
         }
     }
+}
+
+/// The deepest any particle's straight path from `before` (at `t0`) to `after` (at
+/// `t0 + dt`) goes into the case's collider posed at the same times, sampled at
+/// `PATH_SAMPLES - 1` inner points (positive: inside).
+fn deepest_path(target: ContactTarget, before: &[DVec3], after: &[DVec3], t0: f64, dt: f64) -> f64 {
+    let mut deepest = f64::NEG_INFINITY;
+    for (p, q) in before.iter().zip(after) {
+        for k in 1..PATH_SAMPLES {
+            let s = k as f64 / PATH_SAMPLES as f64;
+            deepest = deepest.max(-contact_distance(target, p.lerp(*q, s), t0 + s * dt));
+        }
+    }
+    deepest
 }
 
 /// Runs one contact case.
 #[must_use]
 pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
-    use sinew_spring_sim::contact::{Collider, ContactSettings};
+    use sinew_spring_sim::contact::ContactSettings;
     let started = Instant::now();
     let mut out = ContactOutcome {
         case: *case,
@@ -901,6 +974,7 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
         far: FarSteps::default(),
         iterations_max: 0,
         seconds: 0.0,
+        path_depth_max: f64::NEG_INFINITY,
         failures: Vec::new(),
     };
     let width = CONTACT_SPACING * (case.grid - 1) as f64;
@@ -946,13 +1020,7 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
             return out;
         }
     };
-    let collider = match case.target {
-        ContactTarget::Ground => Collider::ground(0.0),
-        ContactTarget::Sphere => Collider::sphere(
-            DVec3::new(0.0, -CONTACT_SPHERE_RADIUS, 0.0),
-            CONTACT_SPHERE_RADIUS,
-        ),
-    };
+    let collider = case.target.collider();
     let contact = ContactSettings {
         dhat: 1e-3,
         mu: 0.3,
@@ -962,6 +1030,7 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
         out.failures.push(format!("could not set contact: {e}"));
         return out;
     }
+    let mut before = sim.system().positions().to_vec();
     for n in 0..case.steps {
         let report = match sim.step(case.dt) {
             Ok(r) => r,
@@ -990,9 +1059,10 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
         }
         out.far
             .note(n, &report, residual_floor(sim.system(), case.dt, &report));
+        let (t0, t1) = (case.dt * n as f64, case.dt * (n + 1) as f64);
         let mut inside = 0;
         for x in positions {
-            let d = contact_distance(case.target, *x);
+            let d = contact_distance(case.target, *x, t1);
             out.min_distance = out.min_distance.min(d);
             if d <= 0.0 {
                 inside += 1;
@@ -1004,14 +1074,36 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
                 "step {n}: {inside} particle(s) inside or on the collider"
             ));
         }
+        if case.target.speed() != 0.0 {
+            // No pass by the moving sphere: none kept by the integrator, and on a step
+            // taken whole (the promise is per piece) no straight path deeper than the
+            // allowance min(dhat, r/2) = dhat.
+            if report.swept_passes > 0 {
+                out.failures.push(format!(
+                    "step {n}: {} piece(s) kept with a particle passed by the sphere",
+                    report.swept_passes
+                ));
+            }
+            if report.pieces == 1 {
+                let depth = deepest_path(case.target, &before, positions, t0, case.dt);
+                out.path_depth_max = out.path_depth_max.max(depth);
+                if depth > contact.dhat {
+                    out.failures.push(format!(
+                        "step {n}: a straight path {depth:.3e} m deep into the moving sphere"
+                    ));
+                }
+            }
+            before.copy_from_slice(positions);
+        }
         for x in positions {
             out.max_extent = out.max_extent.max(x.length());
         }
-        let radius = contact_motion_radius(
+        let radius = struck_motion_radius(
             start_extent,
             case.speed,
             CONTACT_GRAVITY,
-            case.dt * (n + 1) as f64,
+            case.target.speed(),
+            t1,
         );
         if let Some(p) = first_beyond(positions, radius) {
             out.diverged = true;
@@ -1033,17 +1125,22 @@ pub fn contact_table(outcomes: &[ContactOutcome]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| case | steps | penetrations | min distance (m) | max distance from the origin (m) | NaN steps | diverged | unconverged steps | far | residual / max(tol, floor) max | Newton max | seconds |"
+        "| case | steps | penetrations | min distance (m) | deepest path into the moving sphere (m) | max distance from the origin (m) | NaN steps | diverged | unconverged steps | far | residual / max(tol, floor) max | Newton max | seconds |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for o in outcomes {
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {:.2e} | {:.2e} | {} | {} | {} | {} | {:.2e} | {} | {:.2} |",
+            "| {} | {} | {} | {:.2e} | {} | {:.2e} | {} | {} | {} | {} | {:.2e} | {} | {:.2} |",
             o.case.label(),
             o.steps_run,
             o.penetrations,
             o.min_distance,
+            if o.path_depth_max.is_finite() {
+                format!("{:.2e}", o.path_depth_max)
+            } else {
+                "-".to_string()
+            },
             o.max_extent,
             o.nan_steps,
             if o.diverged { "yes" } else { "no" },
@@ -1291,6 +1388,27 @@ mod tests {
     }
 
     #[test]
+    fn a_sheet_struck_by_the_rising_sphere_is_carried_not_passed() {
+        // The sphere rises 20 cm a step into a stiff sheet falling onto it: no
+        // penetration, no pass kept or found on a path, and the sheet is carried up
+        // (after 6 steps the sphere's top is 1.2 m up; the sheet started within 0.3 m of
+        // the origin).
+        let case = ContactCase {
+            grid: 4,
+            stiffness: 1e6,
+            dt: 1.0 / 60.0,
+            speed: 0.0,
+            target: ContactTarget::RisingSphere,
+            steps: 6,
+        };
+        let out = run_contact_case(&case);
+        assert!(out.failures.is_empty(), "{:?}", out.failures);
+        assert_eq!(out.steps_run, 6);
+        assert!(out.max_extent > 1.0, "{out:?}");
+        assert!(out.min_distance > 0.0 && out.min_distance < 1e-3, "{out:?}");
+    }
+
+    #[test]
     fn a_sheet_that_misses_the_sphere_falls_without_diverging() {
         // The full grid's case that the fixed radius of 100 called a divergence: a soft
         // sheet thrown at 20 m/s misses the sphere and keeps falling. By step 17 it is
@@ -1336,14 +1454,27 @@ mod tests {
     #[test]
     fn contact_distance_is_exact_on_hand_cases() {
         assert_eq!(
-            contact_distance(ContactTarget::Ground, DVec3::new(3.0, 0.25, -1.0)),
+            contact_distance(ContactTarget::Ground, DVec3::new(3.0, 0.25, -1.0), 0.0),
             0.25
         );
         let top = DVec3::new(0.0, 0.5, 0.0);
-        assert!((contact_distance(ContactTarget::Sphere, top) - 0.5).abs() < 1e-15);
+        assert!((contact_distance(ContactTarget::Sphere, top, 0.0) - 0.5).abs() < 1e-15);
         let centre = DVec3::new(0.0, -CONTACT_SPHERE_RADIUS, 0.0);
         assert_eq!(
-            contact_distance(ContactTarget::Sphere, centre),
+            contact_distance(ContactTarget::Sphere, centre, 1.0),
+            -CONTACT_SPHERE_RADIUS
+        );
+        // The rising sphere's centre after 0.25 s is 3 m up: a point 0.5 m above its
+        // start centre is then 2.5 m below the centre, 2.3 m from its surface.
+        let below = centre + DVec3::new(0.0, 0.5, 0.0);
+        assert!(
+            (contact_distance(ContactTarget::RisingSphere, below, 0.25)
+                - (2.5 - CONTACT_SPHERE_RADIUS))
+                .abs()
+                < 1e-15
+        );
+        assert_eq!(
+            contact_distance(ContactTarget::RisingSphere, centre, 0.0),
             -CONTACT_SPHERE_RADIUS
         );
     }
