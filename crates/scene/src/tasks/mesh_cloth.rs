@@ -54,6 +54,10 @@ pub struct MeshClothTask {
     /// Newton's tolerance (default sinew-spring-sim's, `NewtonSettings::tolerance`).
     #[serde(default = "tolerance")]
     pub tolerance: f64,
+    /// How many times a step may be halved (default sinew-spring-sim's,
+    /// `NewtonSettings::max_split_depth`; 0 turns splitting off, for a fixed cost per step).
+    #[serde(default = "max_split_depth")]
+    pub max_split_depth: usize,
     /// Self-contact settings (`dhat`, thickness, ...; defaults: sinew-spring-sim's).
     #[serde(default)]
     pub self_contact: SelfContactSettings,
@@ -83,6 +87,10 @@ fn max_iterations() -> usize {
 
 fn tolerance() -> f64 {
     NewtonSettings::default().tolerance
+}
+
+fn max_split_depth() -> usize {
+    NewtonSettings::default().max_split_depth
 }
 
 fn x_axis() -> DVec3 {
@@ -327,6 +335,17 @@ impl MeshClothTask {
         Ok(a)
     }
 
+    /// Newton's settings for the task: the library's defaults with the task's cap,
+    /// tolerance and split depth.
+    fn newton_settings(&self) -> NewtonSettings {
+        NewtonSettings {
+            max_iterations: self.max_iterations,
+            tolerance: self.tolerance,
+            max_split_depth: self.max_split_depth,
+            ..NewtonSettings::default()
+        }
+    }
+
     fn check(&self) -> Result<Assembled, String> {
         let a = self.assemble()?;
         at_most("steps", self.steps, MAX_STEPS)?;
@@ -337,6 +356,11 @@ impl MeshClothTask {
                 self.tolerance
             ));
         }
+        // The library's own check of its settings names the field (a split depth past
+        // its limit).
+        self.newton_settings()
+            .validate()
+            .map_err(|e| e.to_string())?;
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(format!("dt = {}, must be finite and > 0", self.dt));
         }
@@ -424,11 +448,7 @@ impl TaskSpec for MeshClothTask {
         }
         .build(&mesh)
         .map_err(|e| format!("cloth: {e}"))?;
-        let newton = NewtonSettings {
-            max_iterations: self.max_iterations,
-            tolerance: self.tolerance,
-            ..NewtonSettings::default()
-        };
+        let newton = self.newton_settings();
         let mut integrator = model
             .backward_euler(newton)
             .map_err(|e| format!("integrator: {e}"))?;
