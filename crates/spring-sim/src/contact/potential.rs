@@ -26,7 +26,7 @@ use super::barrier::{
 use super::collider::{Collider, Shape, validate_colliders};
 use super::distance::{distance_change, distance_to, signed_distance};
 use super::friction::FrictionContact;
-use super::toi::time_of_impact;
+use super::toi::{time_of_impact, time_of_impact_from};
 use super::{ContactError, ContactSettings};
 use crate::spring::outer;
 use sinew_math::{DMat3, DVec3};
@@ -612,12 +612,15 @@ impl ContactPotential {
             // sagitta, which is no pass.
             let inset =
                 self.settings.thickness - swept_allowance(&collider.shape, self.settings.dhat);
+            // Posed once for all the particles.
+            let start = collider.at(t0);
             for (i, (&p, &q)) in x_n.iter().zip(x).enumerate() {
                 if fixed[i] {
                     continue;
                 }
                 // The fraction 1 asks for the first time the distance reaches 0.
-                if time_of_impact(collider, p, q - p, t0, t1, inset, 1.0) < 1.0 {
+                let alpha = time_of_impact_from(collider, &start, p, q - p, (t0, t1), inset, 1.0);
+                if alpha < 1.0 {
                     return Some((i, c));
                 }
             }

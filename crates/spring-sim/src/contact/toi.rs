@@ -54,8 +54,29 @@ pub fn time_of_impact(
     thickness: f64,
     fraction: f64,
 ) -> f64 {
-    let start = collider.at(t0);
-    let d0 = distance_to(&start, x, thickness);
+    time_of_impact_from(
+        collider,
+        &collider.at(t0),
+        x,
+        dx,
+        (t0, t1),
+        thickness,
+        fraction,
+    )
+}
+
+/// [`time_of_impact`] with the collider already posed at `t0` (`start`), for a caller
+/// that asks about many particles against one collider over the same interval.
+pub(crate) fn time_of_impact_from(
+    collider: &Collider,
+    start: &Shape,
+    x: DVec3,
+    dx: DVec3,
+    (t0, t1): (f64, f64),
+    thickness: f64,
+    fraction: f64,
+) -> f64 {
+    let d0 = distance_to(start, x, thickness);
     if d0 <= 0.0 || d0.is_nan() {
         return 0.0;
     }
@@ -63,8 +84,8 @@ pub fn time_of_impact(
     let dt = t1 - t0;
     let relative = dx - collider.motion.linear_velocity * dt;
     let omega = collider.motion.angular_velocity;
-    if omega == DVec3::ZERO || spin_keeps_surface(&start, omega) {
-        return translating(&start, x, relative, d0, target, thickness);
+    if omega == DVec3::ZERO || spin_keeps_surface(start, omega) {
+        return translating(start, x, relative, d0, target, thickness);
     }
     advance(collider, x, dx, t0, dt, relative, d0, target, thickness)
 }
