@@ -86,19 +86,16 @@ pub fn independent_distance(collider: &Collider, t: f64, x: DVec3) -> f64 {
         Shape::HalfSpace { point, normal } => (x - point).dot(normal),
         Shape::Sphere { center, radius } => (x - center).length() - radius,
         Shape::Capsule { a, b, radius } => {
-            // The closest point on the segment by ternary search: the distance along the
-            // segment is convex.
-            let (mut lo, mut hi) = (0.0f64, 1.0f64);
-            for _ in 0..200 {
-                let m1 = lo + (hi - lo) / 3.0;
-                let m2 = hi - (hi - lo) / 3.0;
-                if (x - a.lerp(b, m1)).length() < (x - a.lerp(b, m2)).length() {
-                    hi = m2;
-                } else {
-                    lo = m1;
-                }
-            }
-            (x - a.lerp(b, 0.5 * (lo + hi))).length() - radius
+            // The closest point on the segment: the projection onto its line, clamped
+            // to the segment (a point for a = b).
+            let ab = b - a;
+            let len2 = ab.length_squared();
+            let s = if len2 > 0.0 {
+                ((x - a).dot(ab) / len2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            (x - (a + s * ab)).length() - radius
         }
     }
 }

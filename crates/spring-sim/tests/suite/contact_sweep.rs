@@ -5,8 +5,9 @@
 //! the same times (distances from the shape's fields), and must not go deeper into it
 //! than the allowance the integrators grant (`dhat`).
 
+use crate::common::independent_distance;
 use sinew_math::DVec3;
-use sinew_spring_sim::contact::{Collider, ContactSettings, Shape};
+use sinew_spring_sim::contact::{Collider, ContactSettings};
 use sinew_spring_sim::{
     ClothGrid, Integrator, Material, NewtonSettings, Particle, Simulation, SpringSystem,
 };
@@ -47,20 +48,6 @@ fn sheet() -> SpringSystem {
     SpringSystem::new(&particles, &ClothGrid::spring_pattern(n), material).unwrap()
 }
 
-/// The signed distance from `x` to the collider's shape posed at `t` (closed forms here:
-/// the point minus the centre, or minus the nearest point of the capsule's segment).
-fn distance(collider: &Collider, t: f64, x: DVec3) -> f64 {
-    match collider.at(t) {
-        Shape::HalfSpace { point, normal } => (x - point).dot(normal),
-        Shape::Sphere { center, radius } => (x - center).length() - radius,
-        Shape::Capsule { a, b, radius } => {
-            let ab = b - a;
-            let s = ((x - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
-            (x - (a + s * ab)).length() - radius
-        }
-    }
-}
-
 /// The deepest any particle's straight path from `from` (at `t0`) to `to` (at `t0 + h`)
 /// goes into `collider` posed at the same times (negative inside), and the particle.
 fn deepest_on_paths(collider: &Collider, t0: f64, from: &[DVec3], to: &[DVec3]) -> (f64, usize) {
@@ -68,7 +55,7 @@ fn deepest_on_paths(collider: &Collider, t0: f64, from: &[DVec3], to: &[DVec3]) 
     for (i, (&p, &q)) in from.iter().zip(to).enumerate() {
         for k in 0..=SAMPLES {
             let s = k as f64 / SAMPLES as f64;
-            let d = distance(collider, t0 + s * H, p.lerp(q, s));
+            let d = independent_distance(collider, t0 + s * H, p.lerp(q, s));
             if d < deepest.0 {
                 deepest = (d, i);
             }
@@ -96,7 +83,7 @@ fn run(
         let report = sim.step(H).unwrap();
         let after = sim.system().positions();
         for (i, &x) in after.iter().enumerate() {
-            let d = distance(&collider, sim.time(), x);
+            let d = independent_distance(&collider, sim.time(), x);
             assert!(
                 d > 0.0,
                 "{name}, step {step}: particle {i} inside (d = {d})"
