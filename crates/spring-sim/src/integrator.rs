@@ -17,7 +17,7 @@ use crate::model::{ModelError, SettingsError, SpringSystem};
 use crate::newton::{BackwardEuler, NewtonSettings};
 use crate::pins::{PIN_SPLIT_DEPTH, PinDriver, PinnedMotion, PinnedStepper, step_to_targets};
 use crate::reference::flawed_report_method::FlawedReportMethod;
-use crate::report::{AutoReason, IntegratorKind, StepError, StepReport};
+use crate::report::{AutoReason, IntegratorKind, PieceEnds, StepError, StepReport};
 use crate::stability::{StabilityBound, StabilityMonitor};
 use sinew_math::DVec3;
 use std::sync::Arc;
@@ -908,11 +908,61 @@ impl Simulation {
         self.step_inner(dt, None)
     }
 
+    /// The Newton workspace of backward Euler, BDF2 or the implicit midpoint rule.
+    fn newton_workspace_mut(&mut self) -> Option<&mut BackwardEuler> {
+        match &mut self.stepper {
+            Stepper::BackwardEuler(be) => Some(be),
+            Stepper::Bdf2(b) => Some(b.newton_mut()),
+            Stepper::Midpoint(m) => Some(m.newton_mut()),
+            _ => None,
+        }
+    }
+
+    /// The Newton workspace of backward Euler, BDF2 or the implicit midpoint rule.
+    fn newton_workspace(&self) -> Option<&BackwardEuler> {
+        match &self.stepper {
+            Stepper::BackwardEuler(be) => Some(be),
+            Stepper::Bdf2(b) => Some(b.newton()),
+            Stepper::Midpoint(m) => Some(m.newton()),
+            _ => None,
+        }
+    }
+
+    /// Starts (`true`) or stops recording the end state of every piece of each step
+    /// ([`PieceEnds`]): what an independent check of the collider guarantees needs, since
+    /// a step split in pieces promises them for each piece's straight path. Backward
+    /// Euler, BDF2 and the implicit midpoint rule only: the explicit integrators (whose
+    /// projection promises nothing) and `auto` are refused.
+    pub fn record_piece_ends(&mut self, on: bool) -> Result<(), ModelError> {
+        let newton = match self.newton_workspace_mut() {
+            Some(newton) => newton,
+            None => {
+                return Err(ModelError::BadParameter {
+                    name: "integrator",
+                    reason: "piece ends are recorded by backward Euler, BDF2 and the implicit midpoint rule only",
+                });
+            }
+        };
+        newton.record_piece_ends(on);
+        Ok(())
+    }
+
+    /// The end states of the pieces of the last step, in order (one for a step taken
+    /// whole, the last being the step's end state; none after a refused step); `None`
+    /// when not recording ([`Self::record_piece_ends`]).
+    #[must_use]
+    pub fn piece_ends(&self) -> Option<&PieceEnds> {
+        self.newton_workspace().and_then(BackwardEuler::piece_ends)
+    }
+
     fn step_inner(
         &mut self,
         dt: f64,
         targets: Option<&[(usize, DVec3)]>,
     ) -> Result<StepReport, StepError> {
+        if let Some(newton) = self.newton_workspace_mut() {
+            newton.clear_piece_ends();
+        }
         crate::model::check_time_step(dt)?;
         self.topology.check(&self.system.topology())?;
         // The implicit integrators' step starts at the simulation's time (their terms
@@ -953,7 +1003,17 @@ impl Simulation {
             )
             .map_err(|(particle, collider)| StepError::Contact { particle, collider })?;
         }
-        let report = self.step_integrator(dt, targets)?;
+        let report = match self.step_integrator(dt, targets) {
+            Ok(report) => report,
+            Err(e) => {
+                // A refused pinned move may have kept pieces before the one refused
+                // (the system is rewound to the step's start; so is the record).
+                if let Some(newton) = self.newton_workspace_mut() {
+                    newton.clear_piece_ends();
+                }
+                return Err(e);
+            }
+        };
         self.time += dt;
         if let Some(contact) = &mut self.contact
             && contact.stats.is_none()

@@ -80,7 +80,7 @@ pub use pattern::HessianPattern;
 pub use pins::{
     PIN_SPLIT_DEPTH, PinDriver, PinnedMotion, PinnedStepper, pinned_move_fraction, step_to_targets,
 };
-pub use report::{AutoReason, IntegratorKind, StepError, StepReport, StepStop};
+pub use report::{AutoReason, IntegratorKind, PieceEnds, StepError, StepReport, StepStop};
 /// The vector type positions, velocities and forces are given in, re-exported so a user
 /// of this crate does not also have to depend on sinew-math.
 pub use sinew_math::DVec3;

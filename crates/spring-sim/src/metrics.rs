@@ -50,14 +50,15 @@ pub fn run(sim: &mut Simulation, dt: f64, steps: usize) -> Result<RunMetrics, St
     run_observed(sim, dt, steps, |_, _, _| {})
 }
 
-/// [`run`], calling `observe(step_index, report, system)` after every step that
-/// succeeded (for pictures and per-step plots). The observer runs outside the timed
-/// part, so it cannot change `time_per_step_ms_median`, and it only reads.
+/// [`run`], calling `observe(step_index, report, sim)` after every step that succeeded
+/// (for pictures, per-step plots and checks of the state, or of the pieces the step
+/// recorded: [`Simulation::piece_ends`]). The observer runs outside the timed part, so
+/// it cannot change `time_per_step_ms_median`, and it only reads.
 pub fn run_observed(
     sim: &mut Simulation,
     dt: f64,
     steps: usize,
-    mut observe: impl FnMut(usize, &StepReport, &crate::model::SpringSystem),
+    mut observe: impl FnMut(usize, &StepReport, &Simulation),
 ) -> Result<RunMetrics, StepError> {
     crate::model::check_time_step(dt)?;
     let energies = sim.system().energies();
@@ -98,7 +99,7 @@ pub fn run_observed(
         let rise = (report.energy_after.total() - report.energy_before.total()) / scale;
         metrics.energy_increase_max = metrics.energy_increase_max.max(rise);
         metrics.energy_end = report.energy_after.total();
-        observe(metrics.steps - 1, &report, sim.system());
+        observe(metrics.steps - 1, &report, sim);
         if sim
             .system()
             .positions()

@@ -512,3 +512,66 @@ impl From<crate::linear::SolverError> for StepError {
         Self::Solver(e)
     }
 }
+
+/// The end states of the pieces of the steps taken while recording is on
+/// ([`crate::BackwardEuler::record_piece_ends`], [`crate::Simulation::record_piece_ends`]):
+/// for each piece a step kept, in order, the time it ends at and every particle's
+/// position then. A step taken whole adds one entry (its end state); a step split in
+/// pieces (`StepReport::pieces`) adds one per piece, the last being the step's end state.
+/// The straight path from one entry to the next (from the step's start state to the
+/// first) is the path of a solve, the one the collider guarantees are made for, so an
+/// independent check of those guarantees reads them here (docs/contact.md, "Checking
+/// every piece").
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PieceEnds {
+    times: Vec<f64>,
+    positions: Vec<crate::DVec3>,
+}
+
+impl PieceEnds {
+    /// The number of pieces recorded.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.times.len()
+    }
+
+    /// Whether no piece is recorded.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.times.is_empty()
+    }
+
+    /// Piece `k`'s end time and positions.
+    #[must_use]
+    pub fn get(&self, k: usize) -> Option<(f64, &[crate::DVec3])> {
+        let t = *self.times.get(k)?;
+        let n = self.positions.len() / self.times.len();
+        Some((t, &self.positions[k * n..(k + 1) * n]))
+    }
+
+    /// The pieces in order: end time and positions.
+    pub fn iter(&self) -> impl Iterator<Item = (f64, &[crate::DVec3])> + Clone {
+        (0..self.len()).filter_map(|k| self.get(k))
+    }
+
+    /// Forgets every piece (the buffers are kept).
+    pub fn clear(&mut self) {
+        self.times.clear();
+        self.positions.clear();
+    }
+
+    /// Appends a piece ending at `time` with `positions`.
+    pub(crate) fn push(&mut self, time: f64, positions: &[crate::DVec3]) {
+        self.times.push(time);
+        self.positions.extend_from_slice(positions);
+    }
+
+    /// Keeps the first `len` pieces (a split whose pieces were discarded).
+    pub(crate) fn truncate(&mut self, len: usize) {
+        if len < self.times.len() {
+            let n = self.positions.len() / self.times.len();
+            self.times.truncate(len);
+            self.positions.truncate(len * n);
+        }
+    }
+}

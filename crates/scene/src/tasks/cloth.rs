@@ -268,7 +268,16 @@ impl TaskSpec for ClothTask {
         let mut max_path_depth: Option<f64> = None;
         let mut previous = sim.system().positions().to_vec();
         let mut progress = ctx.progress(&self.name, self.steps);
-        let metrics = run_observed(&mut sim, dt, self.steps, |step, report, system| {
+        // The paths a moving collider must not cross are those of each piece of a step
+        // (one piece for a step taken whole): the implicit integrators record the
+        // pieces' end states for this check; the explicit ones, and `auto`, promise
+        // nothing, and their steps' straight paths are checked whole.
+        let moving = colliders.iter().any(Collider::moves_surface);
+        if moving {
+            let _ = sim.record_piece_ends(true);
+        }
+        let metrics = run_observed(&mut sim, dt, self.steps, |step, report, sim| {
+            let system = sim.system();
             progress.inc();
             if step + 1 == one_second {
                 at_one_second = Some(system.positions().to_vec());
@@ -306,14 +315,23 @@ impl TaskSpec for ClothTask {
                 }
                 contact_pairs_max = contact_pairs_max.max(pairs);
                 swept_passes += report.swept_passes;
-                let paths = super::deepest_swept_path(
-                    &colliders,
-                    settings.thickness,
-                    (time - dt, dt),
-                    &previous,
-                    system.positions(),
-                    system.fixed(),
-                );
+                let whole = [(time, system.positions())];
+                let paths = match sim.piece_ends() {
+                    Some(pieces) => super::deepest_swept_path(
+                        &colliders,
+                        settings.thickness,
+                        (time - dt, &previous),
+                        pieces.iter(),
+                        system.fixed(),
+                    ),
+                    None => super::deepest_swept_path(
+                        &colliders,
+                        settings.thickness,
+                        (time - dt, &previous),
+                        whole.iter().copied(),
+                        system.fixed(),
+                    ),
+                };
                 if let Some(d) = paths {
                     max_path_depth = Some(max_path_depth.map_or(d, |m| m.max(d)));
                     previous.copy_from_slice(system.positions());

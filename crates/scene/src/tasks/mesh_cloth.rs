@@ -506,8 +506,14 @@ impl TaskSpec for MeshClothTask {
         let mut swept_passes = 0usize;
         let mut max_path_depth: Option<f64> = None;
         let mut previous = system.positions().to_vec();
+        // The paths a moving collider must not cross are those of each piece of a step
+        // (one piece for a step taken whole), whose end states the integrator records
+        // for this check.
+        let moving = self.colliders.iter().any(Collider::moves_surface);
+        integrator.record_piece_ends(moving);
         let mut progress = ctx.progress(&self.name, self.steps);
         for step in 0..self.steps {
+            integrator.clear_piece_ends();
             let started = Instant::now();
             let report = match &mut pins {
                 Some(driver) => driver.step(&mut integrator, &mut system, self.dt),
@@ -545,14 +551,15 @@ impl TaskSpec for MeshClothTask {
                 }
             }
             swept_passes += report.swept_passes;
-            let paths = super::deepest_swept_path(
-                &self.colliders,
-                self.contact.thickness,
-                (time - self.dt, self.dt),
-                &previous,
-                x,
-                system.fixed(),
-            );
+            let paths = integrator.piece_ends().and_then(|pieces| {
+                super::deepest_swept_path(
+                    &self.colliders,
+                    self.contact.thickness,
+                    (time - self.dt, &previous),
+                    pieces.iter(),
+                    system.fixed(),
+                )
+            });
             if let Some(d) = paths {
                 max_path_depth = Some(max_path_depth.map_or(d, |m| m.max(d)));
                 previous.copy_from_slice(x);

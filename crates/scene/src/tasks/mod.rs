@@ -142,37 +142,42 @@ pub fn max_distance(a: &[sinew_math::DVec3], b: &[sinew_math::DVec3]) -> f64 {
 /// Samples along each particle's straight path in [`deepest_swept_path`].
 const PATH_SAMPLES: usize = 64;
 
-/// How deep the deepest free particle's straight path from `before` (at `t0`) to
-/// `after` (at `t0 + dt`) goes into a collider whose surface moves, the collider posed at
-/// the same times, sampled at `PATH_SAMPLES - 1` inner points (positive: inside); `None`
-/// when no collider's surface moves. The runner's own check of what the integrators
-/// promise for every step taken whole: no deeper than `min(dhat, r/2)` (docs/contact.md,
-/// "A kinematic collider passing the cloth within a step").
-pub fn deepest_swept_path(
+/// How deep the deepest free particle's straight path goes into a collider whose surface
+/// moves, over a step from `before` at `t0` through the end states of its `pieces` (each
+/// its end time and positions; the step's own end alone for a step taken whole), the
+/// collider posed at the same times, sampled at `PATH_SAMPLES - 1` inner points of each
+/// piece and at its end (positive: inside); `None` when no collider's surface moves.
+/// The runner's own check of what the implicit integrators promise for every piece of a
+/// step: no deeper than `min(dhat, r/2)` (docs/contact.md, "A kinematic collider passing
+/// the cloth within a step").
+pub fn deepest_swept_path<'a>(
     colliders: &[sinew_spring_sim::contact::Collider],
     thickness: f64,
-    (t0, dt): (f64, f64),
-    before: &[sinew_math::DVec3],
-    after: &[sinew_math::DVec3],
+    (t0, before): (f64, &'a [sinew_math::DVec3]),
+    pieces: impl Iterator<Item = (f64, &'a [sinew_math::DVec3])> + Clone,
     fixed: &[bool],
 ) -> Option<f64> {
     let mut deepest: Option<f64> = None;
     for c in colliders.iter().filter(|c| c.moves_surface()) {
         let mut depth = f64::NEG_INFINITY;
-        for k in 1..PATH_SAMPLES {
-            let s = k as f64 / PATH_SAMPLES as f64;
-            let shape = c.at(t0 + s * dt);
-            for ((p, q), pinned) in before.iter().zip(after).zip(fixed) {
-                if !*pinned {
-                    let d = sinew_spring_sim::contact::signed_distance(
-                        &shape,
-                        p.lerp(*q, s),
-                        thickness,
-                    )
-                    .distance;
-                    depth = depth.max(-d);
+        let (mut start, mut from) = (t0, before);
+        for (end, to) in pieces.clone() {
+            for k in 1..=PATH_SAMPLES {
+                let s = k as f64 / PATH_SAMPLES as f64;
+                let shape = c.at(start + s * (end - start));
+                for ((p, q), pinned) in from.iter().zip(to).zip(fixed) {
+                    if !*pinned {
+                        let d = sinew_spring_sim::contact::signed_distance(
+                            &shape,
+                            p.lerp(*q, s),
+                            thickness,
+                        )
+                        .distance;
+                        depth = depth.max(-d);
+                    }
                 }
             }
+            (start, from) = (end, to);
         }
         deepest = Some(deepest.map_or(depth, |m| m.max(depth)));
     }

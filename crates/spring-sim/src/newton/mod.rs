@@ -41,7 +41,7 @@ use crate::linear::{
 use crate::model::{ModelError, SpringSystem, Topology, check_time_step};
 use crate::pattern::{FIXED, HessianPattern};
 use crate::potential::{HessianSink, Potential, StepContext, StepTiming, Term};
-use crate::report::{IntegratorKind, StepError, StepReport, StepStop};
+use crate::report::{IntegratorKind, PieceEnds, StepError, StepReport, StepStop};
 use crate::spring::Curvature;
 use couplings::TransientCouplings;
 use sinew_math::DVec3;
@@ -135,6 +135,8 @@ pub struct BackwardEuler {
     last_piece_depth: usize,
     /// The iterate a continued solve starts from (see `CONTINUED_CAPS`).
     continue_from: Vec<DVec3>,
+    /// The end states of the pieces kept, while recording ([`Self::record_piece_ends`]).
+    piece_ends: Option<PieceEnds>,
     /// Row sums for the round-off floor ([`Self::gradient_floor`]).
     row_scratch: Vec<f64>,
     /// `m_min / m_p` for each free particle `p` (in the pattern's order), set at the
@@ -194,6 +196,7 @@ impl BackwardEuler {
             split_saves: Vec::new(),
             last_piece_depth: 0,
             continue_from: Vec::new(),
+            piece_ends: None,
             row_scratch: Vec::new(),
             mass_scales: Vec::new(),
             time: 0.0,
@@ -470,6 +473,32 @@ impl BackwardEuler {
         self.time = time;
     }
 
+    /// Starts (`true`) or stops recording the end state of every piece each step keeps
+    /// ([`PieceEnds`]), for a check of the paths between them; off by default, and
+    /// stopping forgets what was recorded. The record grows with every step until
+    /// [`Self::clear_piece_ends`] (a [`crate::Simulation`] clears it at the start of
+    /// each of its steps): one copy of the positions per piece kept.
+    pub fn record_piece_ends(&mut self, on: bool) {
+        match (on, &self.piece_ends) {
+            (true, None) => self.piece_ends = Some(PieceEnds::default()),
+            (false, _) => self.piece_ends = None,
+            (true, Some(_)) => {}
+        }
+    }
+
+    /// The pieces recorded since the record was last cleared, `None` when not recording.
+    #[must_use]
+    pub fn piece_ends(&self) -> Option<&PieceEnds> {
+        self.piece_ends.as_ref()
+    }
+
+    /// Forgets the pieces recorded so far (recording goes on).
+    pub fn clear_piece_ends(&mut self) {
+        if let Some(record) = &mut self.piece_ends {
+            record.clear();
+        }
+    }
+
     /// Forgets the velocity history used by the extrapolated first guess (call after
     /// changing the state by hand).
     pub fn reset_history(&mut self) {
@@ -536,7 +565,17 @@ impl BackwardEuler {
         let depth = self.settings.max_split_depth + self.extra_split_depth();
         let start = self.time;
         self.last_piece_depth = depth;
-        let mut report = self.step_in_pieces(system, h, scheme, depth, true, start)?;
+        let recorded = self.piece_ends.as_ref().map_or(0, PieceEnds::len);
+        let mut report = match self.step_in_pieces(system, h, scheme, depth, true, start) {
+            Ok(report) => report,
+            Err(e) => {
+                // The pieces of a refused step are not in the record.
+                if let Some(record) = &mut self.piece_ends {
+                    record.truncate(recorded);
+                }
+                return Err(e);
+            }
+        };
         self.time = start + h;
         report.energy_before = energy_before;
         report.energy_after = self.energies(system);
@@ -623,7 +662,7 @@ impl BackwardEuler {
         // travels less: the collider meets the particle at a piece's end and carries it.
         let passed = self.swept_pass(system, h_eff);
         if (!far && !passed) || depth == 0 || (unsplittable && !passed) {
-            self.commit(system, h_eff, scheme, attempt.integrator)?;
+            self.commit(system, (h_eff, start + h), scheme, attempt.integrator)?;
             self.last_piece_depth = depth;
             let mut report = attempt;
             report.unconverged_pieces = usize::from(far);
@@ -660,6 +699,7 @@ impl BackwardEuler {
         } else {
             None
         };
+        let recorded = self.piece_ends.as_ref().map_or(0, PieceEnds::len);
         let first = self.step_in_pieces(system, 0.5 * h, piece, depth - 1, false, start)?;
         let second =
             self.step_in_pieces(system, 0.5 * h, piece, depth - 1, false, start + 0.5 * h)?;
@@ -687,6 +727,9 @@ impl BackwardEuler {
             saved.split_end.clear();
             saved.split_end.extend_from_slice(system.positions());
             system.set_state(&saved.x_n, &saved.v_n)?;
+            if let Some(record) = &mut self.piece_ends {
+                record.truncate(recorded);
+            }
             let mut spent = attempt;
             for part in [&first, &second] {
                 spent.add_work(part);
@@ -720,7 +763,7 @@ impl BackwardEuler {
                     far = self.far_from_converged(system, &report, h_eff);
                 }
             }
-            self.commit(system, h_eff, scheme, attempt.integrator)?;
+            self.commit(system, (h_eff, start + h), scheme, attempt.integrator)?;
             report.add_work(&spent);
             report.unconverged_pieces = usize::from(far);
             report.rejected_splits = 1 + first.rejected_splits + second.rejected_splits;
@@ -1006,11 +1049,12 @@ impl BackwardEuler {
     }
 
     /// Writes the minimizer in `self.x` to `system` as the end of a step of `scheme`
-    /// with effective step `h_eff`, and moves the velocity history on.
+    /// with effective step `h_eff`, ending at time `end`, and moves the velocity history
+    /// on.
     fn commit(
         &mut self,
         system: &mut SpringSystem,
-        h_eff: f64,
+        (h_eff, end): (f64, f64),
         scheme: Scheme<'_>,
         kind: IntegratorKind,
     ) -> Result<(), StepError> {
@@ -1044,6 +1088,9 @@ impl BackwardEuler {
             update,
         );
         self.have_prev_velocity = true;
+        if let Some(record) = &mut self.piece_ends {
+            record.push(end, system.positions());
+        }
         Ok(())
     }
 

@@ -282,11 +282,20 @@ fn splits_that_break_the_energy_inequality_are_discarded() {
     let (k, h) = (1e7, 1.0 / 4.0);
     let mut system = cloth(11, k, State::Stretched);
     let mut be = BackwardEuler::new(&system, NewtonSettings::default()).unwrap();
+    // The pieces' record keeps what the step kept: the pieces of a kept split, or the
+    // whole step alone where the split was discarded.
+    be.record_piece_ends(true);
     let mut rejected = 0;
     let mut split = 0;
     for n in 0..4 {
         let before = system.clone();
+        be.clear_piece_ends();
         let report = be.step(&mut system, h).unwrap();
+        let record = be.piece_ends().unwrap();
+        assert_eq!(record.len(), report.pieces, "step {n}: {report:?}");
+        let (end, last) = record.get(record.len() - 1).unwrap();
+        assert_eq!(last, system.positions(), "step {n}");
+        assert!((end - be.time()).abs() <= 1e-12, "step {n}: {end}");
         rejected += report.rejected_splits;
         split += usize::from(report.pieces > 1);
         if report.rejected_splits > 0 {
