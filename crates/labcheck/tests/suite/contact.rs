@@ -1,7 +1,9 @@
 //! The contact guarantee of sinew-spring-sim's backward Euler (IPC barrier, line search
 //! capped by the time of impact), checked independently: after every accepted step no
 //! free particle is inside or on any collider, with the distances computed here from the
-//! colliders' fields and prescribed motion (not by the crate's `signed_distance`); the
+//! colliders' fields and prescribed motion (not by the crate's `signed_distance`), nor
+//! after any piece of a step split in pieces, and no particle's straight path over a
+//! piece goes deeper than the allowance into a moving collider; the
 //! incremental potential never increases over a step's Newton iterations while the
 //! barrier stiffness is unchanged; no NaN; a refused step is a named error, counted, and
 //! rare. The properties are described in docs/labcheck.md.
@@ -23,9 +25,10 @@ static STEPS_REFUSED: AtomicUsize = AtomicUsize::new(0);
 static STEPS_IN_CONTACT: AtomicUsize = AtomicUsize::new(0);
 /// Accepted steps during which the barrier stiffness grew.
 static STEPS_KAPPA_GREW: AtomicUsize = AtomicUsize::new(0);
-/// Accepted steps taken whole (not split) with a moving collider, whose particles'
-/// paths were checked.
+/// Accepted steps with a moving collider, whose pieces' paths were checked.
 static STEPS_PATHS_CHECKED: AtomicUsize = AtomicUsize::new(0);
+/// Accepted steps split in pieces (each piece's end state and path checked).
+static STEPS_SPLIT: AtomicUsize = AtomicUsize::new(0);
 /// Samples along each particle's straight path from one accepted state to the next.
 const PATH_SAMPLES: usize = 64;
 
@@ -92,6 +95,8 @@ proptest! {
         let contact = case.settings();
         sim.set_contact(colliders.clone(), contact)
             .map_err(|e| TestCaseError::fail(e.to_string()))?;
+        sim.record_piece_ends(true)
+            .map_err(|e| TestCaseError::fail(e.to_string()))?;
         let mass = AREAL_DENSITY * case.spacing * case.spacing;
         let mut kappa = expected_initial_kappa(mass, contact.dhat, case.h);
         for n in 0..case.steps {
@@ -133,18 +138,33 @@ proptest! {
             }
 
             // No moving collider passed through a particle within the step: the
-            // integrator kept no pass (splitting resolved every one), and every
-            // particle's straight path from its previous state, sampled against the
-            // collider posed at the same times, goes no deeper into it than dhat (at
-            // most half its radius). The promise is per piece of a split step, whose
-            // inner states are not seen here, so the paths of steps taken whole are
-            // checked.
+            // integrator kept no pass (splitting resolved every one), every piece of the
+            // step (one for a step taken whole) ends with every particle outside every
+            // collider, and every particle's straight path from one piece's end to the
+            // next (from the step's start to the first), sampled against the collider
+            // posed at the same times, goes no deeper into it than dhat (at most half
+            // its radius): the promise is per piece, the path of one solve.
             prop_assert_eq!(report.swept_passes, 0, "step {}: a pass kept", n);
-            if report.pieces == 1 {
-                if colliders.iter().any(Collider::moves_surface) {
-                    STEPS_PATHS_CHECKED.fetch_add(1, Ordering::Relaxed);
+            let record = sim.piece_ends().expect("recording");
+            prop_assert_eq!(record.len(), report.pieces, "step {}: pieces recorded", n);
+            if colliders.iter().any(Collider::moves_surface) {
+                STEPS_PATHS_CHECKED.fetch_add(1, Ordering::Relaxed);
+            }
+            if report.pieces > 1 {
+                STEPS_SPLIT.fetch_add(1, Ordering::Relaxed);
+            }
+            let (mut t0, mut from) = (t - case.h, before.as_slice());
+            for (k, (end, to)) in record.iter().enumerate() {
+                prop_assert!(end > t0, "step {n}, piece {k}: ends at {end}, before {t0}");
+                for (ci, c) in colliders.iter().enumerate() {
+                    for (i, &x) in to.iter().enumerate() {
+                        let d = independent_distance(c, end, x);
+                        prop_assert!(
+                            d > 0.0,
+                            "step {n}, piece {k}: particle {i} at distance {d:e} from collider {ci}"
+                        );
+                    }
                 }
-                let t0 = t - case.h;
                 for (ci, c) in colliders.iter().enumerate().filter(|(_, c)| c.moves_surface()) {
                     let allowance = match c.shape {
                         Shape::HalfSpace { .. } => contact.dhat,
@@ -152,18 +172,21 @@ proptest! {
                             contact.dhat.min(0.5 * radius)
                         }
                     };
-                    for (i, (&p, &q)) in before.iter().zip(sim.system().positions()).enumerate() {
-                        for k in 1..PATH_SAMPLES {
-                            let s = k as f64 / PATH_SAMPLES as f64;
-                            let d = independent_distance(c, t0 + s * case.h, p.lerp(q, s));
+                    for (i, (&p, &q)) in from.iter().zip(to).enumerate() {
+                        for j in 1..PATH_SAMPLES {
+                            let s = j as f64 / PATH_SAMPLES as f64;
+                            let d = independent_distance(c, t0 + s * (end - t0), p.lerp(q, s));
                             prop_assert!(
                                 d > -allowance,
-                                "step {n}: particle {i}'s path {d:e} deep in collider {ci} at {s} of the step"
+                                "step {n}, piece {k}: particle {i}'s path {d:e} deep in collider {ci} at {s} of the piece"
                             );
                         }
                     }
                 }
+                (t0, from) = (end, to);
             }
+            prop_assert!((t0 - t).abs() <= 1e-12 * t.abs().max(1.0), "step {n}: pieces end at {t0}");
+            prop_assert!(from == sim.system().positions(), "step {n}: the last piece is not the step's end");
 
             // g never increases over the iterates, as long as kappa (which changes the
             // function) stayed put during the step. kappa only grows (doubling), so an
@@ -195,9 +218,10 @@ proptest! {
         let in_contact = STEPS_IN_CONTACT.load(Ordering::Relaxed);
         if std::env::var_os("SINEW_CONTACT_COUNTS").is_some() {
             eprintln!(
-                "steps {taken}, refused {refused}, in contact {in_contact}, kappa grew {}, paths checked {}",
+                "steps {taken}, refused {refused}, in contact {in_contact}, kappa grew {}, with a moving collider {}, split {}",
                 STEPS_KAPPA_GREW.load(Ordering::Relaxed),
-                STEPS_PATHS_CHECKED.load(Ordering::Relaxed)
+                STEPS_PATHS_CHECKED.load(Ordering::Relaxed),
+                STEPS_SPLIT.load(Ordering::Relaxed)
             );
         }
         // Not vacuous: at least one accepted step in five ends with the barrier acting.
