@@ -899,8 +899,9 @@ pub struct ContactOutcome {
     pub case: ContactCase,
     /// Steps completed.
     pub steps_run: usize,
-    /// Particle-step pairs found at distance `<= 0` from the collider, measured here
-    /// (not by the integrator); any is a failure.
+    /// Particle-state pairs found at distance `<= 0` from the collider (the states at
+    /// the steps' ends, and for the moving sphere at the ends of a split step's inner
+    /// pieces), measured here (not by the integrator); any is a failure.
     pub penetrations: usize,
     /// Smallest distance from a particle to the collider over the accepted states.
     pub min_distance: f64,
@@ -920,9 +921,9 @@ pub struct ContactOutcome {
     pub iterations_max: usize,
     /// Wall-clock seconds.
     pub seconds: f64,
-    /// Rising sphere: the deepest a particle's straight path between two states went
-    /// into the sphere on a step taken whole (sampled; positive inside; `-inf` when no
-    /// step was checked or for a static collider).
+    /// Rising sphere: the deepest a particle's straight path over a piece of a step
+    /// (the whole step when it was not split) went into the sphere (sampled; positive
+    /// inside; `-inf` for a static collider).
     pub path_depth_max: f64,
     /// Broken invariants, as sentences (penetration, NaN, divergence, a refused step, a
     /// pass by the rising sphere kept or found on a path).
@@ -943,16 +944,26 @@ fn contact_distance(target: ContactTarget, x: DVec3, t: f64) -> f64 {
     }
 }
 
-/// The deepest any particle's straight path from `before` (at `t0`) to `after` (at
-/// `t0 + dt`) goes into the case's collider posed at the same times, sampled at
-/// `PATH_SAMPLES - 1` inner points (positive: inside).
-fn deepest_path(target: ContactTarget, before: &[DVec3], after: &[DVec3], t0: f64, dt: f64) -> f64 {
+/// The deepest any particle's straight path goes into the case's collider posed at the
+/// same times, over a step from `before` at `t0` through the end states of its pieces
+/// (each its end time and positions), sampled at `PATH_SAMPLES - 1` inner points of each
+/// piece and at its end (positive: inside).
+fn deepest_path<'a>(
+    target: ContactTarget,
+    (t0, before): (f64, &'a [DVec3]),
+    pieces: impl Iterator<Item = (f64, &'a [DVec3])>,
+) -> f64 {
     let mut deepest = f64::NEG_INFINITY;
-    for (p, q) in before.iter().zip(after) {
-        for k in 1..PATH_SAMPLES {
-            let s = k as f64 / PATH_SAMPLES as f64;
-            deepest = deepest.max(-contact_distance(target, p.lerp(*q, s), t0 + s * dt));
+    let (mut start, mut from) = (t0, before);
+    for (end, to) in pieces {
+        for (p, q) in from.iter().zip(to) {
+            for k in 1..=PATH_SAMPLES {
+                let s = k as f64 / PATH_SAMPLES as f64;
+                let t = start + s * (end - start);
+                deepest = deepest.max(-contact_distance(target, p.lerp(*q, s), t));
+            }
         }
+        (start, from) = (end, to);
     }
     deepest
 }
@@ -1031,6 +1042,15 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
         return out;
     }
     let mut before = sim.system().positions().to_vec();
+    // The moving sphere's promise is per piece of a step: the pieces' end states are
+    // recorded for the check of their paths.
+    if case.target.speed() != 0.0
+        && let Err(e) = sim.record_piece_ends(true)
+    {
+        out.failures
+            .push(format!("could not record the pieces: {e}"));
+        return out;
+    }
     for n in 0..case.steps {
         let report = match sim.step(case.dt) {
             Ok(r) => r,
@@ -1075,21 +1095,44 @@ pub fn run_contact_case(case: &ContactCase) -> ContactOutcome {
             ));
         }
         if case.target.speed() != 0.0 {
-            // No pass by the moving sphere: none kept by the integrator, and on a step
-            // taken whole (the promise is per piece) no straight path deeper than the
-            // allowance min(dhat, r/2) = dhat.
+            // No pass by the moving sphere: none kept by the integrator, and no
+            // particle's straight path over a piece of the step (the whole step when
+            // it was not split) deeper than the allowance min(dhat, r/2) = dhat, nor a
+            // piece's end state inside.
             if report.swept_passes > 0 {
                 out.failures.push(format!(
                     "step {n}: {} piece(s) kept with a particle passed by the sphere",
                     report.swept_passes
                 ));
             }
-            if report.pieces == 1 {
-                let depth = deepest_path(case.target, &before, positions, t0, case.dt);
-                out.path_depth_max = out.path_depth_max.max(depth);
-                if depth > contact.dhat {
+            let pieces = sim.piece_ends().expect("recording");
+            if pieces.len() != report.pieces {
+                out.failures.push(format!(
+                    "step {n}: {} pieces recorded, {} reported",
+                    pieces.len(),
+                    report.pieces
+                ));
+            }
+            let depth = deepest_path(case.target, (t0, &before), pieces.iter());
+            out.path_depth_max = out.path_depth_max.max(depth);
+            if depth > contact.dhat {
+                out.failures.push(format!(
+                    "step {n}: a straight path {depth:.3e} m deep into the moving sphere"
+                ));
+            }
+            for (k, (end, to)) in pieces
+                .iter()
+                .enumerate()
+                .take(pieces.len().saturating_sub(1))
+            {
+                let inside = to
+                    .iter()
+                    .filter(|x| contact_distance(case.target, **x, end) <= 0.0)
+                    .count();
+                if inside > 0 {
+                    out.penetrations += inside;
                     out.failures.push(format!(
-                        "step {n}: a straight path {depth:.3e} m deep into the moving sphere"
+                        "step {n}: piece {k} ends with {inside} particle(s) inside the sphere"
                     ));
                 }
             }
@@ -1404,6 +1447,12 @@ mod tests {
         let out = run_contact_case(&case);
         assert!(out.failures.is_empty(), "{:?}", out.failures);
         assert_eq!(out.steps_run, 6);
+        // Every piece's paths were sampled (the deepest is finite) and stayed within
+        // the allowance.
+        assert!(
+            out.path_depth_max.is_finite() && out.path_depth_max < 1e-3,
+            "{out:?}"
+        );
         assert!(out.max_extent > 1.0, "{out:?}");
         assert!(out.min_distance > 0.0 && out.min_distance < 1e-3, "{out:?}");
     }
