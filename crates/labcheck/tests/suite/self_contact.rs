@@ -2,7 +2,8 @@
 //! independently on random crumpled sheets dropped onto the ground with large steps: no
 //! two triangles that share no vertex ever meet (the exact check of
 //! `sinew_exact`, robust's orientation predicates, no code shared with the
-//! solver), the incremental potential never increases over a step's Newton iterates
+//! solver) and no vertex is on or under the ground, after every step and after every
+//! piece of a step split in pieces, the incremental potential never increases over a step's Newton iterates
 //! while the barrier stiffnesses stay put (the self-contact one changes only between
 //! steps; the ground's may double between iterates, and those steps are counted, not
 //! checked), and nothing is NaN.
@@ -30,6 +31,8 @@ static STEPS: AtomicUsize = AtomicUsize::new(0);
 static STEPS_IN_CONTACT: AtomicUsize = AtomicUsize::new(0);
 /// Accepted steps during which the ground's barrier stiffness grew (g not checked).
 static KAPPA_GREW: AtomicUsize = AtomicUsize::new(0);
+/// Accepted steps split in pieces (each inner piece's end state checked too).
+static STEPS_SPLIT: AtomicUsize = AtomicUsize::new(0);
 
 const SPACING: f64 = 0.03;
 const DHAT: f64 = 2e-3;
@@ -114,15 +117,30 @@ proptest! {
         let stats = model.enable_self_contact(&mut integrator, settings).expect("a valid start");
         let mut system = model.system.clone();
         prop_assert!(intersecting_pairs(system.positions(), &triangles).is_empty(), "the start intersects");
+        // A step split in pieces keeps the guarantee at every piece's end, which the
+        // step does not return: the integrator records them for this check.
+        integrator.record_piece_ends(true);
         for step in 0..c.steps {
             let kappa_before = ground_stats.kappa();
+            integrator.clear_piece_ends();
             let report = integrator.step(&mut system, c.h)
                 .map_err(|e| TestCaseError::fail(format!("step {step} refused: {e}")))?;
+            let pieces = integrator.piece_ends().expect("recording");
+            prop_assert_eq!(pieces.len(), report.pieces, "step {}: pieces recorded", step);
+            if report.pieces > 1 {
+                STEPS_SPLIT.fetch_add(1, Ordering::Relaxed);
+                for (k, (_, x)) in pieces.iter().enumerate().take(pieces.len() - 1) {
+                    let bad = intersecting_pairs(x, &triangles);
+                    prop_assert!(bad.is_empty(), "step {step}, piece {k}: triangles {bad:?} meet");
+                    prop_assert!(x.iter().all(|p| p.y > 0.0), "step {step}, piece {k}: a vertex on or under the ground");
+                }
+            }
             prop_assert!(report.stop != StepStop::NonFinite, "step {step}: non-finite");
             prop_assert!(system.positions().iter().all(|x| x.is_finite()), "step {step}: NaN position");
             prop_assert!(system.velocities().iter().all(|v| v.is_finite()), "step {step}: NaN velocity");
             let bad = intersecting_pairs(system.positions(), &triangles);
             prop_assert!(bad.is_empty(), "step {step}: triangles {bad:?} meet");
+            prop_assert!(system.positions().iter().all(|p| p.y > 0.0), "step {step}: a vertex on or under the ground");
             let trace = integrator.objective_trace();
             prop_assert!(!trace.is_empty() && trace.iter().all(|g| g.is_finite()));
             // The ground's barrier stiffness may grow between iterates (it doubles when a
@@ -149,6 +167,13 @@ proptest! {
         }
         // Not vacuous: over the run so far, the barrier acted in a good share of steps.
         let (steps, contact) = (STEPS.load(Ordering::Relaxed), STEPS_IN_CONTACT.load(Ordering::Relaxed));
+        if std::env::var_os("SINEW_CONTACT_COUNTS").is_some() {
+            eprintln!(
+                "steps {steps}, self-contact acting in {contact}, the ground's kappa grew in {}, split {}",
+                KAPPA_GREW.load(Ordering::Relaxed),
+                STEPS_SPLIT.load(Ordering::Relaxed)
+            );
+        }
         if steps >= 30 {
             prop_assert!(4 * contact >= steps, "self-contact acted in only {contact} of {steps} steps");
             let grew = KAPPA_GREW.load(Ordering::Relaxed);
