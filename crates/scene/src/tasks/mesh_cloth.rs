@@ -506,11 +506,10 @@ impl TaskSpec for MeshClothTask {
         let mut swept_passes = 0usize;
         let mut max_path_depth: Option<f64> = None;
         let mut previous = system.positions().to_vec();
-        // The paths a moving collider must not cross are those of each piece of a step
-        // (one piece for a step taken whole), whose end states the integrator records
-        // for this check.
-        let moving = self.colliders.iter().any(Collider::moves_surface);
-        integrator.record_piece_ends(moving);
+        // The guarantees hold at every piece's end state, and the paths a moving
+        // collider must not cross are those of each piece (one piece for a step taken
+        // whole): the integrator records the pieces' end states for these checks.
+        integrator.record_piece_ends(true);
         let mut progress = ctx.progress(&self.name, self.steps);
         for step in 0..self.steps {
             integrator.clear_piece_ends();
@@ -529,7 +528,12 @@ impl TaskSpec for MeshClothTask {
             if x.iter().any(|p| !p.is_finite()) {
                 return Err(format!("step {step}: a non-finite position"));
             }
-            let meeting = intersecting_pairs(x, &triangles);
+            let pieces = integrator.piece_ends().expect("recording");
+            let mut meeting = Vec::new();
+            for (_, y) in pieces.iter().take(pieces.len().saturating_sub(1)) {
+                meeting.extend(intersecting_pairs(y, &triangles));
+            }
+            meeting.extend(intersecting_pairs(x, &triangles));
             if let Some(&pair) = meeting.first() {
                 first_intersection.get_or_insert((step, pair));
             }
@@ -538,28 +542,29 @@ impl TaskSpec for MeshClothTask {
                 min_self_distance = Some(min_self_distance.map_or(d, |m: f64| m.min(d)));
             }
             let time = (step + 1) as f64 * self.dt;
-            for c in &self.colliders {
-                let shape = c.at(time);
-                for (p, pinned) in x.iter().zip(system.fixed()) {
-                    if *pinned {
-                        continue;
+            // Every piece's end state (the step's own end is the last piece's).
+            for (end, y) in pieces.iter() {
+                for c in &self.colliders {
+                    let shape = c.at(end);
+                    for (p, pinned) in y.iter().zip(system.fixed()) {
+                        if *pinned {
+                            continue;
+                        }
+                        let d = signed_distance(&shape, *p, self.contact.thickness).distance;
+                        min_collider_distance =
+                            Some(min_collider_distance.map_or(d, |m: f64| m.min(d)));
+                        penetrations += usize::from(d <= 0.0);
                     }
-                    let d = signed_distance(&shape, *p, self.contact.thickness).distance;
-                    min_collider_distance =
-                        Some(min_collider_distance.map_or(d, |m: f64| m.min(d)));
-                    penetrations += usize::from(d <= 0.0);
                 }
             }
             swept_passes += report.swept_passes;
-            let paths = integrator.piece_ends().and_then(|pieces| {
-                super::deepest_swept_path(
-                    &self.colliders,
-                    self.contact.thickness,
-                    (time - self.dt, &previous),
-                    pieces.iter(),
-                    system.fixed(),
-                )
-            });
+            let paths = super::deepest_swept_path(
+                &self.colliders,
+                self.contact.thickness,
+                (time - self.dt, &previous),
+                pieces.iter(),
+                system.fixed(),
+            );
             if let Some(d) = paths {
                 max_path_depth = Some(max_path_depth.map_or(d, |m| m.max(d)));
                 previous.copy_from_slice(x);
