@@ -29,6 +29,9 @@ static STEPS_KAPPA_GREW: AtomicUsize = AtomicUsize::new(0);
 static STEPS_PATHS_CHECKED: AtomicUsize = AtomicUsize::new(0);
 /// Accepted steps split in pieces (each piece's end state and path checked).
 static STEPS_SPLIT: AtomicUsize = AtomicUsize::new(0);
+/// Stretches of one function's iterates checked for descent (every minimization of every
+/// step, cut where the barrier stiffness changed).
+static SLICES_CHECKED: AtomicUsize = AtomicUsize::new(0);
 /// Samples along each particle's straight path from one accepted state to the next.
 const PATH_SAMPLES: usize = 64;
 
@@ -212,16 +215,32 @@ proptest! {
                 prop_assert!(after > kappa, "step {n}: kappa fell from {kappa} to {after}");
             }
             kappa = after;
+            // Every minimization of every step, each cut where kappa changed its
+            // function (the library's slices): a split step's abandoned attempts and its
+            // pieces' solves too, and the steps in which kappa grew.
+            let be = sim.backward_euler().expect("backward Euler");
+            for (m, trace) in be.step_objective_traces().enumerate() {
+                SLICES_CHECKED.fetch_add(1, Ordering::Relaxed);
+                let scale = trace.iter().fold(0.0f64, |m, g| m.max(g.abs()));
+                let allowance = 1e-12 * scale.max(f64::MIN_POSITIVE);
+                for (k, pair) in trace.windows(2).enumerate() {
+                    prop_assert!(
+                        pair[1] <= pair[0] + allowance,
+                        "step {n}, slice {m}, iteration {k}: g rose from {} to {}", pair[0], pair[1]
+                    );
+                }
+            }
         }
         let taken = STEPS_TAKEN.load(Ordering::Relaxed);
         let refused = STEPS_REFUSED.load(Ordering::Relaxed);
         let in_contact = STEPS_IN_CONTACT.load(Ordering::Relaxed);
         if std::env::var_os("SINEW_CONTACT_COUNTS").is_some() {
             eprintln!(
-                "steps {taken}, refused {refused}, in contact {in_contact}, kappa grew {}, with a moving collider {}, split {}",
+                "steps {taken}, refused {refused}, in contact {in_contact}, kappa grew {}, with a moving collider {}, split {}, slices of g checked {}",
                 STEPS_KAPPA_GREW.load(Ordering::Relaxed),
                 STEPS_PATHS_CHECKED.load(Ordering::Relaxed),
-                STEPS_SPLIT.load(Ordering::Relaxed)
+                STEPS_SPLIT.load(Ordering::Relaxed),
+                SLICES_CHECKED.load(Ordering::Relaxed)
             );
         }
         // Not vacuous: at least one accepted step in five ends with the barrier acting.

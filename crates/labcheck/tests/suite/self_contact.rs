@@ -160,6 +160,17 @@ proptest! {
             } else {
                 KAPPA_GREW.fetch_add(1, Ordering::Relaxed);
             }
+            // Every minimization of every step, cut by the library where the ground's
+            // stiffness changed the function: a split step's abandoned attempts and
+            // pieces too, and the steps in which the stiffness grew.
+            for (m, w) in integrator.step_objective_traces().enumerate() {
+                for (k, w) in w.windows(2).enumerate() {
+                    prop_assert!(
+                        w[1] <= w[0] + 1e-12 * w[0].abs().max(f64::MIN_POSITIVE),
+                        "step {step}, slice {m}, iterate {k}: g rose from {} to {}", w[0], w[1]
+                    );
+                }
+            }
             STEPS.fetch_add(1, Ordering::Relaxed);
             if stats.min_gap() < DHAT {
                 STEPS_IN_CONTACT.fetch_add(1, Ordering::Relaxed);

@@ -106,6 +106,9 @@ impl BackwardEuler {
         report.tolerance = tol_abs;
         report.pattern_pairs_dropped = dropped;
         self.objective_trace.clear();
+        if self.settings.record_objective {
+            self.step_trace_starts.push(self.step_traces.len());
+        }
         let y = std::mem::take(&mut self.y);
         let x_ref = std::mem::take(&mut self.x_ref);
         let step = StepContext::new(system, h, &y, &x_ref).with_timing(self.timing);
@@ -142,10 +145,21 @@ impl BackwardEuler {
                 self.widen(system, &missing, Kept::WhileUsed, true)?;
                 report.pattern_pairs_added += missing.len();
             }
+            // With the trace recorded, `g` is also evaluated before the active set's
+            // update: a term that changed the function there (the contact barrier's
+            // stiffness doubled) starts a new slice of the step's traces, so each slice
+            // is one function's descent. (The same function at the same point gives
+            // the same bits.)
+            let before = (self.settings.record_objective && report.iterations > 0)
+                .then(|| self.potential.energy(&step, &self.x));
             self.potential.update_active_set(&step, &self.x);
             if self.settings.record_objective {
-                self.objective_trace
-                    .push(self.potential.energy(&step, &self.x));
+                let g = self.potential.energy(&step, &self.x);
+                if before.is_some_and(|b| b.to_bits() != g.to_bits()) {
+                    self.step_trace_starts.push(self.step_traces.len());
+                }
+                self.objective_trace.push(g);
+                self.step_traces.push(g);
             }
             // The step's first Newton iteration follows its first gradient (unless that
             // is at the round-off floor) and assembles the projected Hessian at the same

@@ -121,6 +121,9 @@ pub struct BackwardEuler {
     /// The counts of the automatic solver choice, analysed the first time it needs them.
     costs: Option<SolverCosts>,
     objective_trace: Vec<f64>,
+    /// Every minimization's trace in the last step, back to back, and where each starts.
+    step_traces: Vec<f64>,
+    step_trace_starts: Vec<usize>,
     /// The fingerprint of the system this workspace was built for, compared on each step.
     topology: Topology,
     /// Particle pairs coupled by terms other than the springs, in the pattern too.
@@ -190,6 +193,8 @@ impl BackwardEuler {
             chooser: SolverChooser::default(),
             costs: None,
             objective_trace: Vec::new(),
+            step_traces: Vec::new(),
+            step_trace_starts: Vec::new(),
             topology: system.topology(),
             coupled_pairs: Vec::new(),
             transient: TransientCouplings::default(),
@@ -278,6 +283,26 @@ impl BackwardEuler {
     #[must_use]
     pub fn objective_trace(&self) -> &[f64] {
         &self.objective_trace
+    }
+
+    /// `g` at every iterate of every minimization the last step ran, in the order run,
+    /// when `record_objective` is set, one slice per stretch of iterates over which the
+    /// function stayed the same: a step taken whole has one per minimization; a split
+    /// step also has its abandoned attempts (each stopped far from converged, or passed
+    /// by a moving collider) and each piece's solve; a continued solve
+    /// (`CONTINUED_CAPS`) is a minimization of its own, from the iterate the last one
+    /// stopped at; and a minimization in which a term changed the function between two
+    /// iterates (the contact barrier's stiffness doubled: `g` at the same iterate before
+    /// and after the term's update differs) is cut there into two slices. So each slice
+    /// may be checked for descent on its own. The record of `Self::objective_trace` is
+    /// kept as it was (the last minimization's, uncut).
+    pub fn step_objective_traces(&self) -> impl Iterator<Item = &[f64]> {
+        let starts = &self.step_trace_starts;
+        let all = &self.step_traces;
+        (0..starts.len()).map(move |k| {
+            let end = starts.get(k + 1).copied().unwrap_or(all.len());
+            &all[starts[k]..end]
+        })
     }
 
     /// Assembles the (PSD-projected) Newton matrix at the system's current positions into
@@ -559,6 +584,8 @@ impl BackwardEuler {
             .into());
         }
         let energy_before = self.energies(system);
+        self.step_traces.clear();
+        self.step_trace_starts.clear();
         // Every piece is given its own start time (kinematic colliders are posed from
         // it) and the terms rewind what an abandoned solve changed, so any step may be
         // redone in pieces, moving colliders included.

@@ -503,3 +503,47 @@ fn a_step_whose_pieces_would_all_be_static_is_continued_not_split() {
     let lowest = x.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
     assert!(lowest < x[0].y - 1.0, "lowest {lowest}, pin at {}", x[0].y);
 }
+
+/// With `record_objective`, a split step's traces hold every minimization it ran: the
+/// abandoned whole-step attempt (at the cap) and each piece's solve, each descending,
+/// the last one the `objective_trace` of the last piece.
+#[test]
+fn a_split_steps_traces_hold_every_minimization_each_descending() {
+    let (k, inv_dt, state) = HARD_FIRST_STEPS[0];
+    let h = 1.0 / inv_dt;
+    let mut system = cloth(11, k, state);
+    let newton = NewtonSettings {
+        record_objective: true,
+        ..settings(6)
+    };
+    let mut be = BackwardEuler::new(&system, newton).unwrap();
+    let report = be.step(&mut system, h).unwrap();
+    assert!(report.pieces > 1, "{report:?}");
+    let traces: Vec<&[f64]> = be.step_objective_traces().collect();
+    // At least the abandoned attempt and one solve per piece (no contact here, so no
+    // minimization is cut by a change of its function).
+    assert!(traces.len() > report.pieces, "{} traces", traces.len());
+    // One value per iteration, and one more where a minimization stopped converged
+    // (its last iterate is recorded before the test that stops it).
+    let iterates: usize = traces.iter().map(|t| t.len()).sum();
+    assert!(
+        iterates >= report.iterations && iterates <= report.iterations + traces.len(),
+        "{iterates} values, {report:?}"
+    );
+    assert!(traces.first().unwrap().len() >= newton.max_iterations);
+    assert_eq!(*traces.last().unwrap(), be.objective_trace());
+    for (m, t) in traces.iter().enumerate() {
+        for w in t.windows(2) {
+            assert!(w[1] <= w[0] + 1e-12 * w[0].abs(), "minimization {m}: {w:?}");
+        }
+    }
+    // The next step starts its own.
+    let report = be.step(&mut system, h).unwrap();
+    let count: usize = be.step_objective_traces().map(<[f64]>::len).sum();
+    let slices = be.step_objective_traces().count();
+    assert!(count >= report.iterations && count <= report.iterations + slices);
+    assert_eq!(
+        be.step_objective_traces().last(),
+        Some(be.objective_trace())
+    );
+}
