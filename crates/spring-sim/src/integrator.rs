@@ -347,6 +347,9 @@ struct AutoStepper {
     /// Backward Euler, which redoes a step whose Verlet attempt ran away (built at the
     /// first such step).
     fallback: Option<Box<BackwardEuler>>,
+    /// The pieces of the last step, while recording: copied from the implicit
+    /// integrator that took it, or the Verlet step's end state.
+    pieces: Option<PieceEnds>,
 }
 
 impl AutoStepper {
@@ -380,7 +383,46 @@ impl AutoStepper {
             pending_contact: None,
             time: 0.0,
             fallback: None,
+            pieces: None,
         })
+    }
+
+    /// Starts or stops recording the pieces of each step (every implicit workspace
+    /// records, those built later too; see [`Simulation::record_piece_ends`]).
+    fn record_piece_ends(&mut self, on: bool) {
+        match (on, &self.pieces) {
+            (true, None) => self.pieces = Some(PieceEnds::default()),
+            (false, _) => self.pieces = None,
+            (true, Some(_)) => {}
+        }
+        for newton in [
+            self.settle.as_deref_mut(),
+            self.fallback.as_deref_mut(),
+            self.bdf2.as_deref_mut().map(Bdf2::newton_mut),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            newton.record_piece_ends(on);
+        }
+    }
+
+    /// The last step's pieces into `record`, when recording: `newton`'s, the workspace
+    /// that took the step, or (`None`) the Verlet step's end state.
+    fn note_pieces(
+        record: &mut Option<PieceEnds>,
+        newton: Option<&BackwardEuler>,
+        end: f64,
+        system: &SpringSystem,
+    ) {
+        let Some(record) = record else {
+            return;
+        };
+        record.clear();
+        match newton.and_then(BackwardEuler::piece_ends) {
+            Some(taken) => record.extend_from(taken),
+            None => record.push(end, system.positions()),
+        }
     }
 
     /// Adds the contact term to the implicit integrator that will take every step from
@@ -531,9 +573,12 @@ impl AutoStepper {
 
     fn step(&mut self, system: &mut SpringSystem, h: f64) -> Result<StepReport, StepError> {
         crate::model::check_time_step(h)?;
+        let end = self.time + h;
         if let Some(be) = &mut self.settle {
+            be.clear_piece_ends();
             let mut report = be.step(system, h)?;
             report.auto_reason = Some(AutoReason::Settle);
+            Self::note_pieces(&mut self.pieces, Some(be), end, system);
             return Ok(report);
         }
         let bound = self.monitor.update(system, h);
@@ -572,6 +617,7 @@ impl AutoStepper {
             if self.fallback.is_none() {
                 let mut be = Box::new(BackwardEuler::new(system, self.settings.newton)?);
                 be.set_time(self.time);
+                be.record_piece_ends(self.pieces.is_some());
                 self.fallback = Some(be);
             }
             let be = self.fallback.as_mut().expect("built above");
@@ -579,6 +625,7 @@ impl AutoStepper {
                 // Coming from another integrator: the first guess's history is stale.
                 be.reset_history();
             }
+            be.clear_piece_ends();
             let report = be.step(system, h)?;
             if let Some(started) = started {
                 self.implicit_time.record(started.elapsed().as_secs_f64());
@@ -590,6 +637,7 @@ impl AutoStepper {
             if self.bdf2.is_none() {
                 let mut bdf2 = Box::new(Bdf2::new(system, self.settings.newton)?);
                 bdf2.newton_mut().set_time(self.time);
+                bdf2.newton_mut().record_piece_ends(self.pieces.is_some());
                 if let Some(term) = self.pending_contact.take() {
                     bdf2.newton_mut().add_term(Box::new(term));
                 }
@@ -600,6 +648,7 @@ impl AutoStepper {
                 // Coming from Verlet or a backward Euler redo: the BDF2 history is stale.
                 bdf2.reset_history();
             }
+            bdf2.newton_mut().clear_piece_ends();
             let report = bdf2.step(system, h)?;
             if let Some(started) = started {
                 self.implicit_time.record(started.elapsed().as_secs_f64());
@@ -612,6 +661,12 @@ impl AutoStepper {
             self.current = Some(IntegratorKind::Bdf2);
             report
         };
+        let newton = match self.current {
+            Some(IntegratorKind::BackwardEuler) => self.fallback.as_deref(),
+            Some(IntegratorKind::Bdf2) => self.bdf2.as_deref().map(Bdf2::newton),
+            _ => None,
+        };
+        Self::note_pieces(&mut self.pieces, newton, end, system);
         report.auto_reason = Some(reason);
         report.auto_costs = costs;
         report.omega_max = bound.omega_max();
@@ -931,15 +986,20 @@ impl Simulation {
     /// Starts (`true`) or stops recording the end state of every piece of each step
     /// ([`PieceEnds`]): what an independent check of the collider guarantees needs, since
     /// a step split in pieces promises them for each piece's straight path. Backward
-    /// Euler, BDF2 and the implicit midpoint rule only: the explicit integrators (whose
-    /// projection promises nothing) and `auto` are refused.
+    /// Euler, BDF2, the implicit midpoint rule and `auto` (the pieces of whichever
+    /// integrator took the step; a Verlet step is one piece, its end state); the
+    /// explicit integrators, whose projection promises nothing, are refused.
     pub fn record_piece_ends(&mut self, on: bool) -> Result<(), ModelError> {
+        if let Stepper::Auto(a) = &mut self.stepper {
+            a.record_piece_ends(on);
+            return Ok(());
+        }
         let newton = match self.newton_workspace_mut() {
             Some(newton) => newton,
             None => {
                 return Err(ModelError::BadParameter {
                     name: "integrator",
-                    reason: "piece ends are recorded by backward Euler, BDF2 and the implicit midpoint rule only",
+                    reason: "piece ends are recorded by backward Euler, BDF2, the implicit midpoint rule and auto only",
                 });
             }
         };
@@ -947,11 +1007,26 @@ impl Simulation {
         Ok(())
     }
 
+    /// Empties the record of pieces, if recording.
+    fn clear_piece_ends(&mut self) {
+        if let Stepper::Auto(a) = &mut self.stepper
+            && let Some(record) = &mut a.pieces
+        {
+            record.clear();
+        }
+        if let Some(newton) = self.newton_workspace_mut() {
+            newton.clear_piece_ends();
+        }
+    }
+
     /// The end states of the pieces of the last step, in order (one for a step taken
     /// whole, the last being the step's end state; none after a refused step); `None`
     /// when not recording ([`Self::record_piece_ends`]).
     #[must_use]
     pub fn piece_ends(&self) -> Option<&PieceEnds> {
+        if let Stepper::Auto(a) = &self.stepper {
+            return a.pieces.as_ref();
+        }
         self.newton_workspace().and_then(BackwardEuler::piece_ends)
     }
 
@@ -960,9 +1035,7 @@ impl Simulation {
         dt: f64,
         targets: Option<&[(usize, DVec3)]>,
     ) -> Result<StepReport, StepError> {
-        if let Some(newton) = self.newton_workspace_mut() {
-            newton.clear_piece_ends();
-        }
+        self.clear_piece_ends();
         crate::model::check_time_step(dt)?;
         self.topology.check(&self.system.topology())?;
         // The implicit integrators' step starts at the simulation's time (their terms
@@ -1008,9 +1081,7 @@ impl Simulation {
             Err(e) => {
                 // A refused pinned move may have kept pieces before the one refused
                 // (the system is rewound to the step's start; so is the record).
-                if let Some(newton) = self.newton_workspace_mut() {
-                    newton.clear_piece_ends();
-                }
+                self.clear_piece_ends();
                 return Err(e);
             }
         };

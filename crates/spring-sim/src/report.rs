@@ -566,6 +566,12 @@ impl PieceEnds {
         self.positions.extend_from_slice(positions);
     }
 
+    /// Appends `other`'s pieces.
+    pub(crate) fn extend_from(&mut self, other: &PieceEnds) {
+        self.times.extend_from_slice(&other.times);
+        self.positions.extend_from_slice(&other.positions);
+    }
+
     /// Keeps the first `len` pieces (a split whose pieces were discarded).
     pub(crate) fn truncate(&mut self, len: usize) {
         if len < self.times.len() {

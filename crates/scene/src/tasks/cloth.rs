@@ -269,9 +269,9 @@ impl TaskSpec for ClothTask {
         let mut previous = sim.system().positions().to_vec();
         let mut progress = ctx.progress(&self.name, self.steps);
         // The paths a moving collider must not cross are those of each piece of a step
-        // (one piece for a step taken whole): the implicit integrators record the
-        // pieces' end states for this check; the explicit ones, and `auto`, promise
-        // nothing, and their steps' straight paths are checked whole.
+        // (one piece for a step taken whole): the implicit integrators and `auto` record
+        // the pieces' end states for this check; the explicit ones promise nothing, and
+        // their steps' straight paths are checked whole.
         let moving = colliders.iter().any(Collider::moves_surface);
         if moving {
             let _ = sim.record_piece_ends(true);

@@ -11,7 +11,8 @@ use crate::common::independent_distance;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::{Collider, ContactSettings};
 use sinew_spring_sim::{
-    ClothGrid, Integrator, Material, NewtonSettings, Particle, Simulation, SpringSystem,
+    AutoSettings, ClothGrid, Integrator, IntegratorKind, Material, NewtonSettings, Particle,
+    Simulation, SpringSystem,
 };
 
 const H: f64 = 1.0 / 60.0;
@@ -314,4 +315,37 @@ fn piece_ends_are_recorded_when_asked_and_only_by_the_implicit_integrators() {
     let explicit = Simulation::new(sheet(), Integrator::VelocityVerlet { substeps: None });
     let err = explicit.unwrap().record_piece_ends(true).unwrap_err();
     assert!(err.to_string().contains("integrator"), "{err}");
+}
+
+#[test]
+fn auto_records_the_pieces_of_whichever_integrator_took_the_step() {
+    // With contact every step of `auto` is BDF2: its pieces, as for BDF2 itself.
+    let mut sim = Simulation::new(sheet(), Integrator::Auto(AutoSettings::default())).unwrap();
+    sim.set_contact(vec![rising_sphere(60.0)], ContactSettings::default())
+        .unwrap();
+    sim.record_piece_ends(true).unwrap();
+    let mut bdf2 =
+        Simulation::new(sheet(), Integrator::Bdf2(AutoSettings::default().newton)).unwrap();
+    bdf2.set_contact(vec![rising_sphere(60.0)], ContactSettings::default())
+        .unwrap();
+    bdf2.record_piece_ends(true).unwrap();
+    for step in 0..2 {
+        let report = sim.step(H).unwrap();
+        assert_eq!(report.integrator, IntegratorKind::Bdf2);
+        bdf2.step(H).unwrap();
+        let record = sim.piece_ends().unwrap();
+        assert_eq!(record.len(), report.pieces, "step {step}");
+        assert_eq!(Some(record), bdf2.piece_ends(), "step {step}");
+    }
+    assert!(sim.piece_ends().unwrap().len() > 1);
+    // Without contact, a Verlet step is one piece: its end state.
+    let mut sim = Simulation::new(sheet(), Integrator::Auto(AutoSettings::default())).unwrap();
+    sim.record_piece_ends(true).unwrap();
+    let report = sim.step(H).unwrap();
+    assert_eq!(report.integrator, IntegratorKind::VelocityVerlet);
+    let record = sim.piece_ends().unwrap();
+    assert_eq!(record.len(), 1);
+    let (end, x) = record.get(0).unwrap();
+    assert!((end - sim.time()).abs() <= 1e-15);
+    assert_eq!(x, sim.system().positions());
 }
