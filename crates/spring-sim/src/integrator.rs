@@ -407,8 +407,9 @@ impl AutoStepper {
         }
     }
 
-    /// The last step's pieces into `record`, when recording: `newton`'s, the workspace
-    /// that took the step, or (`None`) the Verlet step's end state.
+    /// The last step's pieces into `record` (emptied at the step's start by
+    /// [`Simulation`]), when recording: `newton`'s, the workspace that took the step, or
+    /// (`None`) the Verlet step's end state.
     fn note_pieces(
         record: &mut Option<PieceEnds>,
         newton: Option<&BackwardEuler>,
@@ -418,7 +419,6 @@ impl AutoStepper {
         let Some(record) = record else {
             return;
         };
-        record.clear();
         match newton.and_then(BackwardEuler::piece_ends) {
             Some(taken) => record.extend_from(taken),
             None => record.push(end, system.positions()),
@@ -575,7 +575,6 @@ impl AutoStepper {
         crate::model::check_time_step(h)?;
         let end = self.time + h;
         if let Some(be) = &mut self.settle {
-            be.clear_piece_ends();
             let mut report = be.step(system, h)?;
             report.auto_reason = Some(AutoReason::Settle);
             Self::note_pieces(&mut self.pieces, Some(be), end, system);
@@ -625,7 +624,6 @@ impl AutoStepper {
                 // Coming from another integrator: the first guess's history is stale.
                 be.reset_history();
             }
-            be.clear_piece_ends();
             let report = be.step(system, h)?;
             if let Some(started) = started {
                 self.implicit_time.record(started.elapsed().as_secs_f64());
@@ -648,7 +646,6 @@ impl AutoStepper {
                 // Coming from Verlet or a backward Euler redo: the BDF2 history is stale.
                 bdf2.reset_history();
             }
-            bdf2.newton_mut().clear_piece_ends();
             let report = bdf2.step(system, h)?;
             if let Some(started) = started {
                 self.implicit_time.record(started.elapsed().as_secs_f64());
@@ -1007,15 +1004,16 @@ impl Simulation {
         Ok(())
     }
 
-    /// Empties the record of pieces, if recording.
-    fn clear_piece_ends(&mut self) {
+    /// Forgets the last step's records, so a step refused before its integrator runs
+    /// leaves none (each implicit step starts its own afresh; `auto`'s is kept here).
+    fn clear_step_records(&mut self) {
         if let Stepper::Auto(a) = &mut self.stepper
             && let Some(record) = &mut a.pieces
         {
             record.clear();
         }
         if let Some(newton) = self.newton_workspace_mut() {
-            newton.clear_piece_ends();
+            newton.clear_step_records();
         }
     }
 
@@ -1035,7 +1033,7 @@ impl Simulation {
         dt: f64,
         targets: Option<&[(usize, DVec3)]>,
     ) -> Result<StepReport, StepError> {
-        self.clear_piece_ends();
+        self.clear_step_records();
         crate::model::check_time_step(dt)?;
         self.topology.check(&self.system.topology())?;
         // The implicit integrators' step starts at the simulation's time (their terms
@@ -1076,15 +1074,7 @@ impl Simulation {
             )
             .map_err(|(particle, collider)| StepError::Contact { particle, collider })?;
         }
-        let report = match self.step_integrator(dt, targets) {
-            Ok(report) => report,
-            Err(e) => {
-                // A refused pinned move may have kept pieces before the one refused
-                // (the system is rewound to the step's start; so is the record).
-                self.clear_piece_ends();
-                return Err(e);
-            }
-        };
+        let report = self.step_integrator(dt, targets)?;
         self.time += dt;
         if let Some(contact) = &mut self.contact
             && contact.stats.is_none()

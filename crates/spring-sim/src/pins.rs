@@ -156,6 +156,14 @@ fn check_members(
 pub trait PinnedStepper {
     /// The Newton workspace (its terms check the pinned move).
     fn newton(&self) -> &BackwardEuler;
+    /// Marks the start of a step taken as several calls to [`Self::take_step`] (pieces of
+    /// the pinned motion): the step's records ([`BackwardEuler::piece_ends`],
+    /// [`BackwardEuler::step_objective_traces`]) span the calls. Nothing by default.
+    fn begin_joined_step(&mut self) {}
+    /// Marks its end; a refused step (`refused`) leaves no records. Nothing by default.
+    fn end_joined_step(&mut self, refused: bool) {
+        let _ = refused;
+    }
     /// The time the next step starts at.
     fn time(&self) -> f64 {
         self.newton().time()
@@ -170,6 +178,12 @@ impl PinnedStepper for BackwardEuler {
     fn newton(&self) -> &BackwardEuler {
         self
     }
+    fn begin_joined_step(&mut self) {
+        BackwardEuler::begin_joined_step(self);
+    }
+    fn end_joined_step(&mut self, refused: bool) {
+        BackwardEuler::end_joined_step(self, refused);
+    }
     fn set_time(&mut self, time: f64) {
         BackwardEuler::set_time(self, time);
     }
@@ -182,6 +196,12 @@ impl PinnedStepper for Bdf2 {
     fn newton(&self) -> &BackwardEuler {
         Bdf2::newton(self)
     }
+    fn begin_joined_step(&mut self) {
+        self.newton_mut().begin_joined_step();
+    }
+    fn end_joined_step(&mut self, refused: bool) {
+        self.newton_mut().end_joined_step(refused);
+    }
     fn set_time(&mut self, time: f64) {
         self.newton_mut().set_time(time);
     }
@@ -193,6 +213,12 @@ impl PinnedStepper for Bdf2 {
 impl PinnedStepper for ImplicitMidpoint {
     fn newton(&self) -> &BackwardEuler {
         ImplicitMidpoint::newton(self)
+    }
+    fn begin_joined_step(&mut self) {
+        self.newton_mut().begin_joined_step();
+    }
+    fn end_joined_step(&mut self, refused: bool) {
+        self.newton_mut().end_joined_step(refused);
     }
     fn set_time(&mut self, time: f64) {
         self.newton_mut().set_time(time);
@@ -362,6 +388,8 @@ fn step_along<S: PinnedStepper + ?Sized>(
     let x0 = system.positions().to_vec();
     let v0 = system.velocities().to_vec();
     let time = stepper.time();
+    // The pieces of the pinned motion are one step: its records span them.
+    stepper.begin_joined_step();
     let result = advance(
         stepper,
         system,
@@ -371,6 +399,7 @@ fn step_along<S: PinnedStepper + ?Sized>(
         (0.0, 1.0),
         max_split_depth,
     );
+    stepper.end_joined_step(result.is_err());
     if result.is_err() {
         let (x, v) = system.state_mut();
         x.copy_from_slice(&x0);

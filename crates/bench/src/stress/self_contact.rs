@@ -238,7 +238,6 @@ pub fn run_self_contact_case(case: &SelfContactCase) -> SelfContactOutcome {
     // does not return: the integrator records them for the exact check.
     integrator.record_piece_ends(true);
     for step in 0..case.steps {
-        integrator.clear_piece_ends();
         let report = match integrator.step(&mut system, case.dt) {
             Ok(r) => r,
             Err(e) => {

@@ -122,7 +122,6 @@ proptest! {
         integrator.record_piece_ends(true);
         for step in 0..c.steps {
             let kappa_before = ground_stats.kappa();
-            integrator.clear_piece_ends();
             let report = integrator.step(&mut system, c.h)
                 .map_err(|e| TestCaseError::fail(format!("step {step} refused: {e}")))?;
             let pieces = integrator.piece_ends().expect("recording");

@@ -315,23 +315,18 @@ impl TaskSpec for ClothTask {
                 }
                 contact_pairs_max = contact_pairs_max.max(pairs);
                 swept_passes += report.swept_passes;
-                let whole = [(time, system.positions())];
-                let paths = match sim.piece_ends() {
-                    Some(pieces) => super::deepest_swept_path(
-                        &colliders,
-                        settings.thickness,
-                        (time - dt, &previous),
-                        pieces.iter(),
-                        system.fixed(),
-                    ),
-                    None => super::deepest_swept_path(
-                        &colliders,
-                        settings.thickness,
-                        (time - dt, &previous),
-                        whole.iter().copied(),
-                        system.fixed(),
-                    ),
+                // Without a record (the explicit integrators) the step is one piece.
+                let pieces: Vec<(f64, &[DVec3])> = match sim.piece_ends() {
+                    Some(record) => record.iter().collect(),
+                    None => vec![(time, system.positions())],
                 };
+                let paths = super::deepest_swept_path(
+                    &colliders,
+                    settings.thickness,
+                    (time - dt, &previous),
+                    pieces.iter().copied(),
+                    system.fixed(),
+                );
                 if let Some(d) = paths {
                     max_path_depth = Some(max_path_depth.map_or(d, |m| m.max(d)));
                     previous.copy_from_slice(system.positions());

@@ -512,7 +512,6 @@ impl TaskSpec for MeshClothTask {
         integrator.record_piece_ends(true);
         let mut progress = ctx.progress(&self.name, self.steps);
         for step in 0..self.steps {
-            integrator.clear_piece_ends();
             let started = Instant::now();
             let report = match &mut pins {
                 Some(driver) => driver.step(&mut integrator, &mut system, self.dt),

@@ -140,6 +140,9 @@ pub struct BackwardEuler {
     continue_from: Vec<DVec3>,
     /// The end states of the pieces kept, while recording ([`Self::record_piece_ends`]).
     piece_ends: Option<PieceEnds>,
+    /// Whether the current step is taken as several calls (a pinned move in pieces,
+    /// [`Self::begin_joined_step`]): the step's records then span the calls.
+    joined_step: bool,
     /// Row sums for the round-off floor ([`Self::gradient_floor`]).
     row_scratch: Vec<f64>,
     /// `m_min / m_p` for each free particle `p` (in the pattern's order), set at the
@@ -202,6 +205,7 @@ impl BackwardEuler {
             last_piece_depth: 0,
             continue_from: Vec::new(),
             piece_ends: None,
+            joined_step: false,
             row_scratch: Vec::new(),
             mass_scales: Vec::new(),
             time: 0.0,
@@ -285,7 +289,8 @@ impl BackwardEuler {
         &self.objective_trace
     }
 
-    /// `g` at every iterate of every minimization the last step ran, in the order run,
+    /// `g` at every iterate of every minimization the last step ran (a step with moving
+    /// pins taken in pieces of the pinned motion is one step), in the order run,
     /// when `record_objective` is set, one slice per stretch of iterates over which the
     /// function stayed the same: a step taken whole has one per minimization; a split
     /// step also has its abandoned attempts (each stopped far from converged, or passed
@@ -500,27 +505,47 @@ impl BackwardEuler {
 
     /// Starts (`true`) or stops recording the end state of every piece each step keeps
     /// ([`PieceEnds`]), for a check of the paths between them; off by default, and
-    /// stopping forgets what was recorded. The record grows with every step until
-    /// [`Self::clear_piece_ends`] (a [`crate::Simulation`] clears it at the start of
-    /// each of its steps): one copy of the positions per piece kept.
+    /// stopping forgets what was recorded. Each step starts the record afresh (a step
+    /// with moving pins taken in pieces of the pinned motion is one step), so it holds
+    /// the last step's pieces: one copy of the positions per piece kept.
     pub fn record_piece_ends(&mut self, on: bool) {
-        match (on, &self.piece_ends) {
-            (true, None) => self.piece_ends = Some(PieceEnds::default()),
-            (false, _) => self.piece_ends = None,
-            (true, Some(_)) => {}
+        if on {
+            self.piece_ends.get_or_insert_with(PieceEnds::default);
+        } else {
+            self.piece_ends = None;
         }
     }
 
-    /// The pieces recorded since the record was last cleared, `None` when not recording.
+    /// The pieces of the last step (none after a refused one), `None` when not
+    /// recording.
     #[must_use]
     pub fn piece_ends(&self) -> Option<&PieceEnds> {
         self.piece_ends.as_ref()
     }
 
-    /// Forgets the pieces recorded so far (recording goes on).
-    pub fn clear_piece_ends(&mut self) {
+    /// Forgets the last step's records (its pieces and its traces of `g`).
+    pub(crate) fn clear_step_records(&mut self) {
         if let Some(record) = &mut self.piece_ends {
             record.clear();
+        }
+        self.step_traces.clear();
+        self.step_trace_starts.clear();
+    }
+
+    /// Starts a step taken as several calls to the stepper (a pinned move in pieces of
+    /// its motion): the records are cleared now and span the calls until
+    /// [`Self::end_joined_step`].
+    pub(crate) fn begin_joined_step(&mut self) {
+        self.clear_step_records();
+        self.joined_step = true;
+    }
+
+    /// Ends what [`Self::begin_joined_step`] began; a refused step (`refused`) leaves
+    /// no records.
+    pub(crate) fn end_joined_step(&mut self, refused: bool) {
+        self.joined_step = false;
+        if refused {
+            self.clear_step_records();
         }
     }
 
@@ -572,6 +597,9 @@ impl BackwardEuler {
         h: f64,
         scheme: Scheme<'_>,
     ) -> Result<StepReport, StepError> {
+        if !self.joined_step {
+            self.clear_step_records();
+        }
         check_time_step(h)?;
         self.check_topology(system)?;
         self.potential.check_start(system, self.time)?;
@@ -584,8 +612,6 @@ impl BackwardEuler {
             .into());
         }
         let energy_before = self.energies(system);
-        self.step_traces.clear();
-        self.step_trace_starts.clear();
         // Every piece is given its own start time (kinematic colliders are posed from
         // it) and the terms rewind what an abandoned solve changed, so any step may be
         // redone in pieces, moving colliders included.

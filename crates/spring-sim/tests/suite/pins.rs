@@ -347,6 +347,9 @@ fn a_pinned_sheet_pushed_through_a_free_sheet_never_crosses_it() {
         )],
     )
     .unwrap();
+    // The pieces of the pinned motion are one step: the record holds all of them, and
+    // each piece's end state is checked too.
+    be.record_piece_ends(true);
     let mut split = false;
     let mut refused = false;
     for step in 0..60 {
@@ -357,6 +360,13 @@ fn a_pinned_sheet_pushed_through_a_free_sheet_never_crosses_it() {
                 let x = system.positions();
                 let bad = intersecting_pairs(x, &triangles);
                 assert!(bad.is_empty(), "step {step}: triangles {bad:?} meet");
+                let record = be.piece_ends().unwrap();
+                assert_eq!(record.len(), report.pieces, "step {step}");
+                assert_eq!(record.get(record.len() - 1).unwrap().1, x, "step {step}");
+                for (k, (_, y)) in record.iter().enumerate() {
+                    let bad = intersecting_pairs(y, &triangles);
+                    assert!(bad.is_empty(), "step {step}, piece {k}: {bad:?} meet");
+                }
             }
             Err(e) => {
                 assert!(
@@ -369,6 +379,10 @@ fn a_pinned_sheet_pushed_through_a_free_sheet_never_crosses_it() {
                     "step {step}: state changed"
                 );
                 assert_eq!(system.velocities(), &before.1[..]);
+                assert!(
+                    be.piece_ends().unwrap().is_empty(),
+                    "step {step}: refused, recorded"
+                );
                 refused = true;
                 break;
             }

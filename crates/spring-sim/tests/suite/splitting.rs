@@ -289,7 +289,6 @@ fn splits_that_break_the_energy_inequality_are_discarded() {
     let mut split = 0;
     for n in 0..4 {
         let before = system.clone();
-        be.clear_piece_ends();
         let report = be.step(&mut system, h).unwrap();
         let record = be.piece_ends().unwrap();
         assert_eq!(record.len(), report.pieces, "step {n}: {report:?}");
