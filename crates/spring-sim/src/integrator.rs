@@ -390,10 +390,10 @@ impl AutoStepper {
     /// Starts or stops recording the pieces of each step (every implicit workspace
     /// records, those built later too; see [`Simulation::record_piece_ends`]).
     fn record_piece_ends(&mut self, on: bool) {
-        match (on, &self.pieces) {
-            (true, None) => self.pieces = Some(PieceEnds::default()),
-            (false, _) => self.pieces = None,
-            (true, Some(_)) => {}
+        if on {
+            self.pieces.get_or_insert_with(PieceEnds::default);
+        } else {
+            self.pieces = None;
         }
         for newton in [
             self.settle.as_deref_mut(),
