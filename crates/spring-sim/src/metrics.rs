@@ -4,6 +4,7 @@
 //! `time_per_step_ms_median`, `diverged`), computed one way for every integrator.
 
 use crate::integrator::Simulation;
+use crate::model::Energies;
 use crate::report::{StepError, StepReport};
 use std::time::Instant;
 
@@ -61,9 +62,8 @@ pub fn run_observed(
     mut observe: impl FnMut(usize, &StepReport, &Simulation),
 ) -> Result<RunMetrics, StepError> {
     crate::model::check_time_step(dt)?;
-    let energies = sim.system().energies();
-    let energy_start = energies.total();
-    let scale = energies.scale();
+    let start = sim.system().energies();
+    let energy_start = start.total();
     let mut metrics = RunMetrics {
         steps: 0,
         integrator: String::new(),
@@ -96,7 +96,7 @@ pub fn run_observed(
         metrics.newton_iterations_total += report.iterations;
         metrics.newton_iterations_max = metrics.newton_iterations_max.max(report.iterations);
         metrics.residual_max = metrics.residual_max.max(report.residual);
-        let rise = (report.energy_after.total() - report.energy_before.total()) / scale;
+        let rise = Energies::relative_rise(&start, &report.energy_before, &report.energy_after);
         metrics.energy_increase_max = metrics.energy_increase_max.max(rise);
         metrics.energy_end = report.energy_after.total();
         observe(metrics.steps - 1, &report, sim);

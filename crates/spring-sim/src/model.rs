@@ -911,7 +911,43 @@ impl Energies {
     /// ```
     #[must_use]
     pub fn scale(&self) -> f64 {
-        (self.kinetic + self.spring + self.gravity.abs()).max(f64::MIN_POSITIVE)
+        self.size().max(f64::MIN_POSITIVE)
+    }
+
+    /// kinetic + spring + |gravity|, zero exactly when every energy is.
+    fn size(&self) -> f64 {
+        self.kinetic + self.spring + self.gravity.abs()
+    }
+
+    /// The rise of the total energy over one step, from `before` to `after`, relative to
+    /// a run's scale: the [`Self::scale`] of the run's start `start` or, when every
+    /// energy of the start is zero (a cloth at rest, unstretched, at the height where
+    /// gravity's energy is zero), the larger scale of the step's two ends. Against
+    /// the start's scale alone such a run's rises were divided by `f64::MIN_POSITIVE`, a
+    /// round-off rise of 1e-17 reading as 1e291; a step whose ends have no energy
+    /// either has no rise (0). The one definition of the runner's, the benchmark's and
+    /// the stress grid's rise (docs/scenes.md, "Energy rise").
+    ///
+    /// ```
+    /// use sinew_spring_sim::Energies;
+    /// let zero = Energies { kinetic: 0.0, spring: 0.0, gravity: 0.0 };
+    /// let start = Energies { kinetic: 1.0, spring: 2.0, gravity: -3.0 };
+    /// let fell = Energies { kinetic: 1.5, spring: 2.0, gravity: -3.0 };
+    /// // Measured against the start's scale, 6.
+    /// assert_eq!(Energies::relative_rise(&start, &start, &fell), 0.5 / 6.0);
+    /// // A run that started with no energy: against the step's larger scale, 6.5.
+    /// assert_eq!(Energies::relative_rise(&zero, &start, &fell), 0.5 / 6.5);
+    /// assert_eq!(Energies::relative_rise(&zero, &zero, &zero), 0.0);
+    /// ```
+    #[must_use]
+    pub fn relative_rise(start: &Energies, before: &Energies, after: &Energies) -> f64 {
+        let rise = after.total() - before.total();
+        let scale = if start.size() > 0.0 {
+            start.size()
+        } else {
+            before.size().max(after.size())
+        };
+        if scale > 0.0 { rise / scale } else { rise }
     }
 }
 

@@ -18,7 +18,7 @@ use sinew_scene::workloads::{w1_skeleton, w1_targets};
 use sinew_skeleton::GlobalPose;
 use sinew_skeleton::ik::{Chain, SolveSettings};
 use sinew_spring_sim::{
-    AutoSettings, ClothGrid, DIVERGENCE_RADIUS, Integrator, IntegratorKind, Simulation,
+    AutoSettings, ClothGrid, DIVERGENCE_RADIUS, Energies, Integrator, IntegratorKind, Simulation,
 };
 use std::time::Instant;
 
@@ -113,7 +113,7 @@ pub fn run_cloth(steps: usize, damping: f64) -> ClothSoak {
             out.failures.push(format!("step {n}: a non-finite energy"));
             break;
         }
-        let rise = (after - before) / scale;
+        let rise = Energies::relative_rise(&start, &report.energy_before, &report.energy_after);
         out.rise_max = out.rise_max.max(rise);
         out.above_start_max = out.above_start_max.max((after - e0) / scale);
         out.end_change = (after - e0) / scale;

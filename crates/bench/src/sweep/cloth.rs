@@ -22,8 +22,8 @@ use sinew_math::DVec3;
 use sinew_spring_sim::DIVERGENCE_RADIUS;
 use sinew_spring_sim::StabilityBound;
 use sinew_spring_sim::{
-    AutoSettings, Integrator, LinearSolverChoice, NewtonSettings, Simulation, SpringSystem,
-    StepStop,
+    AutoSettings, Energies, Integrator, LinearSolverChoice, NewtonSettings, Simulation,
+    SpringSystem, StepStop,
 };
 use std::time::Instant;
 
@@ -156,8 +156,8 @@ fn one_second_step(w: &Workload) -> Option<usize> {
 fn simulate(w: &Workload, integrator: Integrator) -> Result<Run, String> {
     let mut sim = Simulation::new(w.system.clone(), integrator).map_err(|e| e.to_string())?;
     let one_second = one_second_step(w);
-    // The scene runner's scale (docs/scenes.md, "Energy rise").
-    let scale = sim.system().energies().scale();
+    // The scene runner's rise (docs/scenes.md, "Energy rise").
+    let start = sim.system().energies();
     let mut run = Run {
         at_one_second: None,
         end: Vec::new(),
@@ -201,7 +201,7 @@ fn simulate(w: &Workload, integrator: Integrator) -> Result<Run, String> {
                 .residual_over_tolerance_max
                 .max(report.residual / report.tolerance);
         }
-        let rise = (report.energy_after.total() - report.energy_before.total()) / scale;
+        let rise = Energies::relative_rise(&start, &report.energy_before, &report.energy_after);
         run.energy_increase_max = run.energy_increase_max.max(rise);
         if Some(step + 1) == one_second {
             run.at_one_second = Some(sim.system().positions().to_vec());
