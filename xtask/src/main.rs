@@ -13,10 +13,14 @@
 //! invariant. `cargo xtask scale` runs backward Euler on cloths from 11 x 11 to
 //! 1000 x 1000 particles on one thread and on every core and writes
 //! `docs/bench/scale.md` (time, memory and the speed-up per size) and a plot of the cost
-//! per particle. All three re-run themselves in release, except with `--quick` (a smoke
-//! run).
+//! per particle. `cargo xtask goals` runs the contact workloads' speed goals (C1, C3,
+//! C4, C5) through the scene runner in rounds and writes `docs/bench/goals.md` (each
+//! run's median time per step, the load at its start, the ratio to the goal, the
+//! guarantees' counts). All four re-run themselves in release, except with `--quick` (a
+//! smoke run).
 
 mod bench;
+mod goals;
 mod machine;
 mod report;
 mod scale;
@@ -50,6 +54,9 @@ enum Command {
     /// (writes docs/bench/scale.md, scale.json and plots/scale.svg; exits 1 when two
     /// thread counts end in different states).
     Scale(scale::ScaleArgs),
+    /// The contact workloads' speed goals (C1, C3, C4, C5), each scene run in rounds
+    /// (writes docs/bench/goals.md and goals.json).
+    Goals(goals::GoalsArgs),
 }
 
 #[derive(clap::Args)]
@@ -91,6 +98,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => bench::run(&args),
         Command::Stress(args) => stress::run(&args),
         Command::Scale(args) => scale::run(&args),
+        Command::Goals(args) => goals::run(&args),
     }
 }
 
