@@ -4,22 +4,31 @@
 //!
 //! Every goal's scene runs `--runs` times (default 3), in rounds (every goal once, then
 //! again), so a burst of load on a shared machine spreads over the goals rather than
-//! landing on one goal's runs. A run's figure is its task's `time_per_step_ms_median`
-//! (the scene runner's, docs/scenes.md); a goal's figure is the median of its runs'
-//! figures, quoted with every run's figure and the load at its start, and the ratio to
-//! the goal. The counts (Newton iterations, penetrations, intersections) are the last
-//! run's, and the runs must agree on them: a scene is deterministic (docs/scenes.md), so
-//! runs that differ fail the command. Written: `goals.md` and `goals.json` (default
-//! `docs/bench/`; `--quick` runs the committed short scenes once each in the dev build
-//! and writes to `target/goals-quick/`, figures not for quoting).
+//! landing on one goal's runs. Each run is a process of its own, this same binary's
+//! `run-scene <scene> --json --no-render --quiet`, as a user runs a scene. A run's figure
+//! is its task's `time_per_step_ms_median` (the scene runner's, docs/scenes.md); a goal's
+//! figure is the median of its runs' figures, quoted with every run's figure and the
+//! load at its start, and the ratio to the goal. The counts (Newton iterations,
+//! penetrations, intersections) are the last run's, and the runs must agree on them: a
+//! scene is deterministic (docs/scenes.md), so runs that differ fail the command.
+//!
+//! `--baseline <xtask binary>` (another build's, e.g. main's) runs that build's
+//! `run-scene` on the same scene files beside every run of this one, alternated (the
+//! baseline first in the first round, second in the next, and so on), and the page adds
+//! its runs, its median and the ratio of this build's median to it: the comparison of a
+//! change against main in the same hour. Its counts may differ from this build's (a
+//! change may take another path); the page shows both.
+//!
+//! Written: `goals.md` and `goals.json` (default `docs/bench/`; `--quick` runs the
+//! committed short scenes once each in the dev build and writes to
+//! `target/goals-quick/`, figures not for quoting).
 
 use crate::machine::Machine;
 use serde::Serialize;
-use sinew_scene::results::TaskMetrics;
-use sinew_scene::{RunOptions, Scene};
+use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::process::ExitCode;
+use std::process::{Command, ExitCode};
 
 /// `cargo xtask goals` flags.
 #[derive(clap::Args)]
@@ -38,6 +47,10 @@ pub struct GoalsArgs {
     /// scenes/long/*.ron) once each in the dev profile; the figures are not the goals'.
     #[arg(long)]
     quick: bool,
+    /// Another build's xtask binary (e.g. main's `target/release/xtask`): its runs of
+    /// the same scenes alternate with this build's, and the page compares the two.
+    #[arg(long)]
+    baseline: Option<PathBuf>,
 }
 
 /// A speed goal: the committed scene and task that hold its workload.
@@ -127,7 +140,54 @@ impl Measured {
     }
 }
 
-/// A goal's runs.
+/// One build's runs of a goal.
+#[derive(Clone, Debug, Default, Serialize)]
+struct Series {
+    runs: Vec<Measured>,
+    /// The 1-minute load average at each run's start (`None` where unknown).
+    loads: Vec<Option<f64>>,
+    /// The median of the runs' figures, milliseconds per step.
+    median_ms: f64,
+}
+
+impl Series {
+    /// Adds a run, unless its counts differ from the first run's (a scene is
+    /// deterministic): then the error says how.
+    fn push(&mut self, m: Measured, load: Option<f64>) -> Result<(), String> {
+        if let Some(first) = self.runs.first()
+            && first.counts() != m.counts()
+        {
+            return Err(format!(
+                "the counts {:?} differ from the first run's {:?}, and a scene is deterministic",
+                m.counts(),
+                first.counts()
+            ));
+        }
+        self.runs.push(m);
+        self.loads.push(load);
+        self.median_ms = median(&self.runs.iter().map(|m| m.ms_per_step).collect::<Vec<_>>());
+        Ok(())
+    }
+
+    /// `figure (load)` for every run, comma-separated.
+    fn runs_cell(&self) -> String {
+        let runs: Vec<String> = self
+            .runs
+            .iter()
+            .zip(&self.loads)
+            .map(|(m, l)| {
+                format!(
+                    "{:.2} ({})",
+                    m.ms_per_step,
+                    l.map_or("?".into(), |l| format!("{l:.1}"))
+                )
+            })
+            .collect();
+        runs.join(", ")
+    }
+}
+
+/// A goal's runs, this build's and the baseline's.
 #[derive(Clone, Debug, Serialize)]
 struct GoalResult {
     id: &'static str,
@@ -135,58 +195,75 @@ struct GoalResult {
     scene: &'static str,
     task: &'static str,
     goal_ms: f64,
-    runs: Vec<Measured>,
-    /// The 1-minute load average at each run's start (`None` where unknown).
-    loads: Vec<Option<f64>>,
-    /// The median of the runs' figures, milliseconds per step.
-    median_ms: f64,
-    /// `median_ms / goal_ms`: at most 1 meets the goal.
+    /// This build's runs.
+    this: Series,
+    /// The baseline build's runs (with `--baseline`).
+    baseline: Option<Series>,
+    /// This build's median over the goal: at most 1 meets it.
     ratio: f64,
+    /// This build's median over the baseline's.
+    against_baseline: Option<f64>,
 }
 
 #[derive(Serialize)]
 struct Report<'a> {
     machine: &'a Machine,
     quick: bool,
+    baseline: Option<String>,
     goals: &'a [GoalResult],
 }
 
-/// The task `task` of a run's results: its figure and counts, or why there are none.
-fn measured(results: &sinew_scene::results::SceneResults, task: &str) -> Result<Measured, String> {
-    let t = results
-        .tasks
-        .iter()
-        .find(|t| t.name == task)
+/// The task `task` of a scene run's results as `run-scene --json` prints them: its
+/// figure and counts, or why there are none.
+fn measured_from(results: &Value, task: &str) -> Result<Measured, String> {
+    let t = results["tasks"]
+        .as_array()
+        .and_then(|tasks| tasks.iter().find(|t| t["name"] == task))
         .ok_or_else(|| format!("the scene has no task `{task}`"))?;
-    if !t.ok {
-        let why = t.error.clone().unwrap_or_else(|| t.failures.join("; "));
+    if t["ok"] != true {
+        let why = t["error"]
+            .as_str()
+            .unwrap_or("an expectation of the scene failed");
         return Err(format!("task `{task}` failed: {why}"));
     }
-    match &t.metrics {
-        TaskMetrics::Cloth(m) => {
-            let contact = m
-                .contact
-                .as_ref()
-                .ok_or_else(|| format!("task `{task}` has no contact metrics"))?;
-            Ok(Measured {
-                ms_per_step: m.run.time_per_step_ms_median,
-                steps: m.run.steps,
-                vertices: None,
-                newton_iterations: m.run.newton_iterations_total,
-                penetrations: contact.penetrations,
-                intersections: None,
-            })
-        }
-        TaskMetrics::MeshCloth(m) => Ok(Measured {
-            ms_per_step: m.time_per_step_ms_median,
-            steps: m.steps,
-            vertices: Some(m.vertices),
-            newton_iterations: m.newton_iterations_total,
-            penetrations: m.penetrations,
-            intersections: Some(m.intersections),
-        }),
-        _ => Err(format!("task `{task}` is neither Cloth nor MeshCloth")),
+    let m = &t["metrics"];
+    let count = |key: &str| m[key].as_u64().map(|v| v as usize);
+    let need = |key: &str| count(key).ok_or_else(|| format!("task `{task}` has no `{key}`"));
+    let kind = t["kind"].as_str().unwrap_or("");
+    if kind != "Cloth" && kind != "MeshCloth" {
+        return Err(format!("task `{task}` is neither Cloth nor MeshCloth"));
     }
+    Ok(Measured {
+        ms_per_step: m["time_per_step_ms_median"]
+            .as_f64()
+            .ok_or_else(|| format!("task `{task}` has no `time_per_step_ms_median`"))?,
+        steps: need("steps")?,
+        vertices: count("vertices"),
+        newton_iterations: need("newton_iterations_total")?,
+        penetrations: need("penetrations")?,
+        intersections: count("intersections"),
+    })
+}
+
+/// Runs `exe run-scene <scene> --json` (outputs written below `out`) and returns what it
+/// printed.
+fn run_scene(exe: &Path, scene: &Path, out: &Path) -> Result<Value, String> {
+    let output = Command::new(exe)
+        .arg("run-scene")
+        .arg(scene)
+        .args(["--json", "--no-render", "--quiet", "--out"])
+        .arg(out)
+        .output()
+        .map_err(|e| format!("{}: {e}", exe.display()))?;
+    serde_json::from_slice(&output.stdout).map_err(|e| {
+        format!(
+            "{} run-scene {}: no metrics on its output ({e}; {}): {}",
+            exe.display(),
+            scene.display(),
+            output.status,
+            String::from_utf8_lossy(&output.stderr).trim()
+        )
+    })
 }
 
 /// The median of `values` (the mean of the two middle ones for an even count).
@@ -228,20 +305,28 @@ fn chosen(only: &[String]) -> Result<Vec<Goal>, String> {
         .collect()
 }
 
-/// Runs every goal `runs` times in rounds; an error names the goal and run.
+/// Which builds run in round `round`, in order: this build alone, or with a baseline
+/// the baseline first in even rounds and second in odd ones, so neither build always
+/// runs just after the other's.
+fn order(round: usize, with_baseline: bool) -> Vec<bool> {
+    match (with_baseline, round % 2) {
+        (false, _) => vec![false],
+        (true, 0) => vec![true, false],
+        (true, _) => vec![false, true],
+    }
+}
+
+/// Runs every goal `runs` times in rounds (and the baseline beside it); an error names
+/// the goal, the build and the run.
 fn measure_all(
     goals: &[Goal],
     runs: usize,
     quick: bool,
+    baseline: Option<&Path>,
     root: &Path,
 ) -> Result<Vec<GoalResult>, String> {
-    let scenes = goals
-        .iter()
-        .map(|g| {
-            let file = root.join(if quick { g.quick_scene } else { g.scene });
-            Scene::from_file(&file).map_err(|e| format!("{}: {e}", g.id))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+    let this_exe = std::env::current_exe().map_err(|e| format!("this binary's path: {e}"))?;
+    let outputs = root.join("target/goals-runs");
     let mut results: Vec<GoalResult> = goals
         .iter()
         .map(|g| GoalResult {
@@ -250,49 +335,58 @@ fn measure_all(
             scene: if quick { g.quick_scene } else { g.scene },
             task: g.task,
             goal_ms: g.goal_ms,
-            runs: Vec::new(),
-            loads: Vec::new(),
-            median_ms: f64::NAN,
+            this: Series::default(),
+            baseline: baseline.map(|_| Series::default()),
             ratio: f64::NAN,
+            against_baseline: None,
         })
         .collect();
     for round in 0..runs {
-        for ((g, scene), out) in goals.iter().zip(&scenes).zip(&mut results) {
-            let load = load_average();
-            eprintln!(
-                "goals: {} run {} of {runs} (load {})",
-                g.id,
-                round + 1,
-                load.map_or("unknown".into(), |l| format!("{l:.2}"))
-            );
-            let run = scene.run(&RunOptions::default());
-            let m =
-                measured(&run, g.task).map_err(|e| format!("{} run {}: {e}", g.id, round + 1))?;
-            if let Some(first) = out.runs.first()
-                && first.counts() != m.counts()
-            {
-                return Err(format!(
-                    "{} run {}: the counts {:?} differ from the first run's {:?}, and a scene is deterministic",
+        for (g, out) in goals.iter().zip(&mut results) {
+            let scene = root.join(out.scene);
+            for is_baseline in order(round, baseline.is_some()) {
+                let (exe, build) = match baseline {
+                    Some(b) if is_baseline => (b, "baseline"),
+                    _ => (this_exe.as_path(), "this build"),
+                };
+                let load = load_average();
+                eprintln!(
+                    "goals: {} run {} of {runs}, {build} (load {})",
                     g.id,
                     round + 1,
-                    m.counts(),
-                    first.counts()
-                ));
+                    load.map_or("unknown".into(), |l| format!("{l:.2}"))
+                );
+                let name = format!("{}-{}", g.id, if is_baseline { "baseline" } else { "this" });
+                let printed = run_scene(exe, &scene, &outputs.join(name))?;
+                let series = match (is_baseline, out.baseline.as_mut()) {
+                    (true, Some(s)) => s,
+                    _ => &mut out.this,
+                };
+                measured_from(&printed, g.task)
+                    .and_then(|m| series.push(m, load))
+                    .map_err(|e| format!("{} run {}, {build}: {e}", g.id, round + 1))?;
             }
-            out.runs.push(m);
-            out.loads.push(load);
         }
     }
     for r in &mut results {
-        let figures: Vec<f64> = r.runs.iter().map(|m| m.ms_per_step).collect();
-        r.median_ms = median(&figures);
-        r.ratio = r.median_ms / r.goal_ms;
+        r.ratio = r.this.median_ms / r.goal_ms;
+        r.against_baseline = r.baseline.as_ref().map(|b| r.this.median_ms / b.median_ms);
     }
     Ok(results)
 }
 
+/// A count, or `-` where the task has none.
+fn cell(count: Option<usize>) -> String {
+    count.map_or("-".into(), |c| c.to_string())
+}
+
 /// The goals as a markdown page.
-fn markdown(machine: &Machine, quick: bool, goals: &[GoalResult]) -> String {
+fn markdown(
+    machine: &Machine,
+    quick: bool,
+    baseline: Option<&str>,
+    goals: &[GoalResult],
+) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# Speed goals of the contact workloads\n");
     let _ = writeln!(
@@ -317,19 +411,7 @@ fn markdown(machine: &Machine, quick: bool, goals: &[GoalResult]) -> String {
     );
     let _ = writeln!(s, "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|");
     for g in goals {
-        let runs: Vec<String> = g
-            .runs
-            .iter()
-            .zip(&g.loads)
-            .map(|(m, l)| {
-                format!(
-                    "{:.2} ({})",
-                    m.ms_per_step,
-                    l.map_or("?".into(), |l| format!("{l:.1}"))
-                )
-            })
-            .collect();
-        let last = g.runs.last();
+        let last = g.this.runs.last();
         let _ = writeln!(
             s,
             "| {} | {} | `{}` ({}) | {} | {:.2} | {} | {} | {} | {} | {} | {} |",
@@ -337,8 +419,8 @@ fn markdown(machine: &Machine, quick: bool, goals: &[GoalResult]) -> String {
             g.what,
             g.scene,
             g.task,
-            runs.join(", "),
-            g.median_ms,
+            g.this.runs_cell(),
+            g.this.median_ms,
             g.goal_ms,
             // A short scene's figure is not the workload's: no ratio to its goal.
             if quick {
@@ -349,9 +431,39 @@ fn markdown(machine: &Machine, quick: bool, goals: &[GoalResult]) -> String {
             last.map_or(0, |m| m.steps),
             last.map_or(0, |m| m.newton_iterations),
             last.map_or(0, |m| m.penetrations),
-            last.and_then(|m| m.intersections)
-                .map_or("-".into(), |i| i.to_string()),
+            cell(last.and_then(|m| m.intersections)),
         );
+    }
+    if let Some(path) = baseline {
+        let _ = writeln!(
+            s,
+            "\nAgainst the baseline build `{path}`, its runs alternated with this build's in every round (the baseline first in the first round):\n"
+        );
+        let _ = writeln!(
+            s,
+            "| goal | this build: runs (load) | median | baseline: runs (load) | median | this / baseline | Newton iterations (this, baseline) | penetrations | intersections |"
+        );
+        let _ = writeln!(s, "|---|---|---:|---|---:|---:|---:|---:|---:|");
+        for g in goals {
+            let Some(b) = &g.baseline else { continue };
+            let (this, base) = (g.this.runs.last(), b.runs.last());
+            let pair = |f: fn(&Measured) -> Option<usize>| {
+                format!("{}, {}", cell(this.and_then(f)), cell(base.and_then(f)))
+            };
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:.2} | {} | {:.2} | {:.3} | {} | {} | {} |",
+                g.id,
+                g.this.runs_cell(),
+                g.this.median_ms,
+                b.runs_cell(),
+                b.median_ms,
+                g.against_baseline.unwrap_or(f64::NAN),
+                pair(|m| Some(m.newton_iterations)),
+                pair(|m| Some(m.penetrations)),
+                pair(|m| m.intersections),
+            );
+        }
     }
     s
 }
@@ -374,6 +486,12 @@ pub fn run(args: &GoalsArgs) -> ExitCode {
         eprintln!("error: --runs must be at least 1");
         return ExitCode::from(2);
     }
+    if let Some(b) = &args.baseline
+        && !b.is_file()
+    {
+        eprintln!("error: --baseline {}: no such file", b.display());
+        return ExitCode::from(2);
+    }
     let root = crate::project_root();
     let out = args.out.clone().unwrap_or_else(|| {
         root.join(if args.quick {
@@ -383,18 +501,20 @@ pub fn run(args: &GoalsArgs) -> ExitCode {
         })
     });
     let machine = Machine::read();
-    let results = match measure_all(&goals, runs, args.quick, &root) {
+    let results = match measure_all(&goals, runs, args.quick, args.baseline.as_deref(), &root) {
         Ok(r) => r,
         Err(e) => {
             eprintln!("error: {e}");
             return ExitCode::FAILURE;
         }
     };
-    let page = markdown(&machine, args.quick, &results);
+    let baseline = args.baseline.as_ref().map(|b| b.display().to_string());
+    let page = markdown(&machine, args.quick, baseline.as_deref(), &results);
     print!("{page}");
     let json = serde_json::to_string_pretty(&Report {
         machine: &machine,
         quick: args.quick,
+        baseline,
         goals: &results,
     })
     .expect("the report serializes");
@@ -412,6 +532,7 @@ pub fn run(args: &GoalsArgs) -> ExitCode {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sinew_scene::{RunOptions, Scene};
 
     #[test]
     fn median_of_odd_and_even_counts() {
@@ -433,6 +554,16 @@ mod tests {
         assert!(err.contains("`C2`") && err.contains("C1, C3"), "{err}");
     }
 
+    /// The baseline runs first in even rounds and second in odd ones.
+    #[test]
+    fn the_builds_alternate_from_round_to_round() {
+        assert_eq!(order(0, false), [false]);
+        assert_eq!(order(1, false), [false]);
+        assert_eq!(order(0, true), [true, false]);
+        assert_eq!(order(1, true), [false, true]);
+        assert_eq!(order(2, true), [true, false]);
+    }
+
     /// Every goal's scenes exist, parse, and hold the goal's task.
     #[test]
     fn every_goal_names_a_task_of_its_scenes() {
@@ -451,10 +582,11 @@ mod tests {
         }
     }
 
-    /// A Cloth contact task and a MeshCloth task give their figures and counts; a task
-    /// that is missing, or of another kind, is an error naming it.
+    /// A Cloth contact task and a MeshCloth task give their figures and counts from the
+    /// JSON `run-scene --json` prints (the results serialized as the runner serializes
+    /// them); a task that is missing, of another kind or failed is an error naming it.
     #[test]
-    fn a_runs_figures_and_counts_are_the_tasks() {
+    fn a_runs_figures_and_counts_are_read_from_the_runners_json() {
         let scene = Scene::from_text(
             "goals-test.ron",
             r#"Scene(
@@ -475,14 +607,20 @@ mod tests {
             )"#,
         )
         .unwrap();
-        let run = scene.run(&RunOptions::default());
-        let ground = measured(&run, "ground").unwrap();
+        let results = scene.run(&RunOptions::default());
+        let printed = serde_json::to_value(&results).unwrap();
+        let ground = measured_from(&printed, "ground").unwrap();
         assert_eq!(
-            (ground.steps, ground.penetrations, ground.intersections),
-            (6, 0, None)
+            (
+                ground.steps,
+                ground.vertices,
+                ground.penetrations,
+                ground.intersections
+            ),
+            (6, None, 0, None)
         );
         assert!(ground.newton_iterations >= 6 && ground.ms_per_step > 0.0);
-        let stack = measured(&run, "stack").unwrap();
+        let stack = measured_from(&printed, "stack").unwrap();
         assert_eq!(
             (
                 stack.steps,
@@ -494,27 +632,61 @@ mod tests {
         );
         assert!(stack.newton_iterations >= 4 && stack.ms_per_step > 0.0);
         assert!(
-            measured(&run, "absent")
+            measured_from(&printed, "absent")
                 .unwrap_err()
                 .contains("no task `absent`")
         );
         assert!(
-            measured(&run, "curve")
+            measured_from(&printed, "curve")
                 .unwrap_err()
                 .contains("neither Cloth nor MeshCloth")
         );
+        let mut failed = printed.clone();
+        failed["tasks"][0]["ok"] = Value::Bool(false);
+        failed["tasks"][0]["error"] = Value::String("the solver stopped".into());
+        assert!(
+            measured_from(&failed, "ground")
+                .unwrap_err()
+                .contains("task `ground` failed: the solver stopped")
+        );
     }
 
+    /// A run whose counts differ from the first run's is refused.
     #[test]
-    fn the_page_lists_every_run_and_the_ratio() {
-        let machine = Machine::read();
-        let m = |ms: f64| Measured {
+    fn a_series_refuses_runs_that_count_differently() {
+        let m = |ms: f64, newton: usize| Measured {
             ms_per_step: ms,
             steps: 120,
             vertices: Some(3072),
-            newton_iterations: 165,
+            newton_iterations: newton,
             penetrations: 0,
             intersections: Some(0),
+        };
+        let mut s = Series::default();
+        s.push(m(33.0, 165), Some(0.4)).unwrap();
+        s.push(m(27.0, 165), None).unwrap();
+        let err = s.push(m(30.0, 166), None).unwrap_err();
+        assert!(err.contains("differ"), "{err}");
+        assert_eq!((s.runs.len(), s.median_ms), (2, 30.0));
+    }
+
+    #[test]
+    fn the_page_lists_every_run_the_ratio_and_the_baseline() {
+        let machine = Machine::read();
+        let m = |ms: f64, newton: usize| Measured {
+            ms_per_step: ms,
+            steps: 120,
+            vertices: Some(3072),
+            newton_iterations: newton,
+            penetrations: 0,
+            intersections: Some(0),
+        };
+        let series = |figures: &[f64], newton: usize, loads: &[Option<f64>]| {
+            let mut s = Series::default();
+            for (&f, &l) in figures.iter().zip(loads) {
+                s.push(m(f, newton), l).unwrap();
+            }
+            s
         };
         let goal = GoalResult {
             id: "C5",
@@ -522,20 +694,36 @@ mod tests {
             scene: "scenes/long/cloth-stack-workload.ron",
             task: "stack",
             goal_ms: 30.0,
-            runs: vec![m(33.0), m(27.0), m(36.0)],
-            loads: vec![Some(0.4), None, Some(1.25)],
-            median_ms: 33.0,
+            this: series(&[33.0, 27.0, 36.0], 165, &[Some(0.4), None, Some(1.25)]),
+            baseline: Some(series(
+                &[40.0, 44.0, 42.0],
+                170,
+                &[Some(1.0), Some(1.0), Some(1.0)],
+            )),
             ratio: 1.1,
+            against_baseline: Some(33.0 / 42.0),
         };
-        let page = markdown(&machine, false, std::slice::from_ref(&goal));
+        let page = markdown(
+            &machine,
+            false,
+            Some("/main/xtask"),
+            std::slice::from_ref(&goal),
+        );
         assert!(
             page.contains("| C5 | w | `scenes/long/cloth-stack-workload.ron` (stack) | 33.00 (0.4), 27.00 (?), 36.00 (1.2) | 33.00 | 30 | 1.10 | 120 | 165 | 0 | 0 |"),
             "{page}"
         );
-        // A smoke run's short scenes give no ratio.
-        let quick = markdown(&machine, true, &[goal]);
         assert!(
-            quick.contains("| 33.00 | 30 | - | 120 |") && quick.contains("no ratio"),
+            page.contains("`/main/xtask`")
+                && page.contains("| C5 | 33.00 (0.4), 27.00 (?), 36.00 (1.2) | 33.00 | 40.00 (1.0), 44.00 (1.0), 42.00 (1.0) | 42.00 | 0.786 | 165, 170 | 0, 0 | 0, 0 |"),
+            "{page}"
+        );
+        // A smoke run's short scenes give no ratio, and without a baseline no second table.
+        let quick = markdown(&machine, true, None, &[goal]);
+        assert!(
+            quick.contains("| 33.00 | 30 | - | 120 |")
+                && quick.contains("no ratio")
+                && !quick.contains("baseline"),
             "{quick}"
         );
     }
