@@ -23,7 +23,7 @@
 //! committed short scenes once each in the dev build and writes to
 //! `target/goals-quick/`, figures not for quoting).
 
-use crate::machine::Machine;
+use crate::machine::{Machine, load_average};
 use serde::Serialize;
 use serde_json::Value;
 use std::fmt::Write as _;
@@ -279,11 +279,6 @@ fn median(values: &[f64]) -> f64 {
     } else {
         0.5 * (v[n / 2 - 1] + v[n / 2])
     }
-}
-
-fn load_average() -> Option<f64> {
-    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
-    text.split_whitespace().next()?.parse().ok()
 }
 
 /// The goals named in `only` (all when empty), or the unknown name.
