@@ -375,6 +375,28 @@ fn cell(count: Option<usize>) -> String {
     count.map_or("-".into(), |c| c.to_string())
 }
 
+/// How a table's column is aligned.
+#[derive(Clone, Copy)]
+enum Align {
+    Left,
+    Right,
+}
+use Align::{Left, Right};
+
+/// A markdown table's header and the separator line it implies.
+fn head(s: &mut String, columns: &[(&str, Align)]) {
+    let names: Vec<&str> = columns.iter().map(|(name, _)| *name).collect();
+    let rules: Vec<&str> = columns
+        .iter()
+        .map(|(_, align)| match align {
+            Left => "---",
+            Right => "---:",
+        })
+        .collect();
+    let _ = writeln!(s, "| {} |", names.join(" | "));
+    let _ = writeln!(s, "|{}|", rules.join("|"));
+}
+
 /// The goals as a markdown page.
 fn markdown(
     machine: &Machine,
@@ -400,11 +422,22 @@ fn markdown(
         s,
         "Each figure is the scene runner's median time per step of the task (ms); a goal's figure is the median of its runs, quoted with each run's figure and the 1-minute load at its start.\n"
     );
-    let _ = writeln!(
-        s,
-        "| goal | workload | scene (task) | runs, ms per step (load) | median | goal | ratio | steps | Newton iterations | penetrations | intersections |"
+    head(
+        &mut s,
+        &[
+            ("goal", Left),
+            ("workload", Left),
+            ("scene (task)", Left),
+            ("runs, ms per step (load)", Left),
+            ("median", Right),
+            ("goal", Right),
+            ("ratio", Right),
+            ("steps", Right),
+            ("Newton iterations", Right),
+            ("penetrations", Right),
+            ("intersections", Right),
+        ],
     );
-    let _ = writeln!(s, "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|");
     for g in goals {
         let last = g.this.runs.last();
         let _ = writeln!(
@@ -434,11 +467,20 @@ fn markdown(
             s,
             "\nAgainst the baseline build `{path}`, its runs alternated with this build's in every round (the baseline first in the first round):\n"
         );
-        let _ = writeln!(
-            s,
-            "| goal | this build: runs (load) | median | baseline: runs (load) | median | this / baseline | Newton iterations (this, baseline) | penetrations | intersections |"
+        head(
+            &mut s,
+            &[
+                ("goal", Left),
+                ("this build: runs (load)", Left),
+                ("median", Right),
+                ("baseline: runs (load)", Left),
+                ("median", Right),
+                ("this / baseline", Right),
+                ("Newton iterations (this, baseline)", Right),
+                ("penetrations", Right),
+                ("intersections", Right),
+            ],
         );
-        let _ = writeln!(s, "|---|---|---:|---|---:|---:|---:|---:|---:|");
         for g in goals {
             let Some(b) = &g.baseline else { continue };
             let (this, base) = (g.this.runs.last(), b.runs.last());
@@ -646,21 +688,26 @@ mod tests {
         );
     }
 
-    /// A run whose counts differ from the first run's is refused.
-    #[test]
-    fn a_series_refuses_runs_that_count_differently() {
-        let m = |ms: f64, newton: usize| Measured {
+    /// A run of C5 as written with its counts, taking `ms` a step and `newton` Newton
+    /// iterations.
+    fn stack_run(ms: f64, newton: usize) -> Measured {
+        Measured {
             ms_per_step: ms,
             steps: 120,
             vertices: Some(3072),
             newton_iterations: newton,
             penetrations: 0,
             intersections: Some(0),
-        };
+        }
+    }
+
+    /// A run whose counts differ from the first run's is refused.
+    #[test]
+    fn a_series_refuses_runs_that_count_differently() {
         let mut s = Series::default();
-        s.push(m(33.0, 165), Some(0.4)).unwrap();
-        s.push(m(27.0, 165), None).unwrap();
-        let err = s.push(m(30.0, 166), None).unwrap_err();
+        s.push(stack_run(33.0, 165), Some(0.4)).unwrap();
+        s.push(stack_run(27.0, 165), None).unwrap();
+        let err = s.push(stack_run(30.0, 166), None).unwrap_err();
         assert!(err.contains("differ"), "{err}");
         assert_eq!((s.runs.len(), s.median_ms), (2, 30.0));
     }
@@ -668,18 +715,10 @@ mod tests {
     #[test]
     fn the_page_lists_every_run_the_ratio_and_the_baseline() {
         let machine = Machine::read();
-        let m = |ms: f64, newton: usize| Measured {
-            ms_per_step: ms,
-            steps: 120,
-            vertices: Some(3072),
-            newton_iterations: newton,
-            penetrations: 0,
-            intersections: Some(0),
-        };
         let series = |figures: &[f64], newton: usize, loads: &[Option<f64>]| {
             let mut s = Series::default();
             for (&f, &l) in figures.iter().zip(loads) {
-                s.push(m(f, newton), l).unwrap();
+                s.push(stack_run(f, newton), l).unwrap();
             }
             s
         };
@@ -711,6 +750,15 @@ mod tests {
         assert!(
             page.contains("`/main/xtask`")
                 && page.contains("| C5 | 33.00 (0.4), 27.00 (?), 36.00 (1.2) | 33.00 | 40.00 (1.0), 44.00 (1.0), 42.00 (1.0) | 42.00 | 0.786 | 165, 170 | 0, 0 | 0, 0 |"),
+            "{page}"
+        );
+        // The headers and the separators they imply, as the committed page has them.
+        assert!(
+            page.contains("| goal | workload | scene (task) | runs, ms per step (load) | median | goal | ratio | steps | Newton iterations | penetrations | intersections |\n|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|\n"),
+            "{page}"
+        );
+        assert!(
+            page.contains("| goal | this build: runs (load) | median | baseline: runs (load) | median | this / baseline | Newton iterations (this, baseline) | penetrations | intersections |\n|---|---|---:|---|---:|---:|---:|---:|---:|\n"),
             "{page}"
         );
         // A smoke run's short scenes give no ratio, and without a baseline no second table.

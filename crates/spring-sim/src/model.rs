@@ -923,11 +923,10 @@ impl Energies {
     /// a run's scale: kinetic + spring + |gravity| of the run's start `start` (its
     /// [`Self::scale`]) or, when every energy of the start is zero (a cloth at rest,
     /// unstretched, at the height where gravity's energy is zero), the larger of the
-    /// step's two ends'. Against
-    /// the start's scale alone such a run's rises were divided by `f64::MIN_POSITIVE`, a
-    /// round-off rise of 1e-17 reading as 1e291; a step whose ends have no energy
-    /// either has no rise (0). The one definition of the runner's, the benchmark's and
-    /// the stress grid's rise (docs/scenes.md, "Energy rise").
+    /// step's two ends'. Against the start's scale alone such a run's rises were divided
+    /// by `f64::MIN_POSITIVE`, a round-off rise of 1e-17 reading as 1e291; a step whose
+    /// ends have no energy either has no rise (0). The one definition of the runner's,
+    /// the benchmark's and the stress grid's rise (docs/scenes.md, "Energy rise").
     ///
     /// ```
     /// use sinew_spring_sim::Energies;
