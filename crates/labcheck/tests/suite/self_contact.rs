@@ -12,7 +12,8 @@
 //! towards +z, its lower edge 5 mm above the ground, crumpled by a random displacement of
 //! every vertex along z (up to a third of the spacing). It collapses under gravity at a
 //! step of 1/30 to 1/4 s, folding onto itself on the ground, which is where
-//! self-contact acts.
+//! self-contact acts. Half the cases have friction between the sheet's own primitives
+//! (`mu` 0.4), which is part of the potential the iterates descend.
 
 use proptest::prelude::*;
 use sinew_exact::intersecting_pairs;
@@ -33,6 +34,9 @@ static STEPS_IN_CONTACT: AtomicUsize = AtomicUsize::new(0);
 static KAPPA_GREW: AtomicUsize = AtomicUsize::new(0);
 /// Accepted steps split in pieces (each inner piece's end state checked too).
 static STEPS_SPLIT: AtomicUsize = AtomicUsize::new(0);
+/// Accepted steps with friction between the sheet's primitives lagged (some pair within
+/// `dhat` at the start of the step's last minimization).
+static STEPS_WITH_FRICTION: AtomicUsize = AtomicUsize::new(0);
 
 const SPACING: f64 = 0.03;
 const DHAT: f64 = 2e-3;
@@ -44,21 +48,30 @@ struct Case {
     lean: f64,
     h: f64,
     stiffness: f64,
+    mu: f64,
     crumple: Vec<f64>,
     steps: usize,
 }
 
 fn case() -> impl Strategy<Value = Case> {
-    (5usize..=7, 0.05f64..0.4, 0usize..3, 0usize..2).prop_flat_map(|(n, lean, h, k)| {
-        prop::collection::vec(-1.0f64..1.0, n * n).prop_map(move |crumple| Case {
-            n,
-            lean,
-            h: [1.0 / 30.0, 0.1, 0.25][h],
-            stiffness: [1e2, 1e4][k],
-            crumple,
-            steps: 8,
+    (
+        5usize..=7,
+        0.05f64..0.4,
+        0usize..3,
+        0usize..2,
+        any::<bool>(),
+    )
+        .prop_flat_map(|(n, lean, h, k, f)| {
+            prop::collection::vec(-1.0f64..1.0, n * n).prop_map(move |crumple| Case {
+                n,
+                lean,
+                h: [1.0 / 30.0, 0.1, 0.25][h],
+                stiffness: [1e2, 1e4][k],
+                mu: if f { 0.4 } else { 0.0 },
+                crumple,
+                steps: 8,
+            })
         })
-    })
 }
 
 /// The hanging sheet's positions: grid row `i` at height `5 mm + i s cos(lean)`, leaning
@@ -113,7 +126,7 @@ proptest! {
         let ground = ContactTerm::new(ground);
         let ground_stats = ground.stats();
         integrator.add_term(Box::new(ground));
-        let settings = SelfContactSettings { dhat: DHAT, thickness: THICKNESS, ..SelfContactSettings::default() };
+        let settings = SelfContactSettings { dhat: DHAT, thickness: THICKNESS, mu: c.mu, ..SelfContactSettings::default() };
         let stats = model.enable_self_contact(&mut integrator, settings).expect("a valid start");
         let mut system = model.system.clone();
         prop_assert!(intersecting_pairs(system.positions(), &triangles).is_empty(), "the start intersects");
@@ -171,6 +184,10 @@ proptest! {
                 }
             }
             STEPS.fetch_add(1, Ordering::Relaxed);
+            if stats.friction_pairs() > 0 {
+                STEPS_WITH_FRICTION.fetch_add(1, Ordering::Relaxed);
+            }
+            prop_assert!(c.mu > 0.0 || stats.friction_pairs() == 0, "step {step}: friction without mu");
             if stats.min_gap() < DHAT {
                 STEPS_IN_CONTACT.fetch_add(1, Ordering::Relaxed);
             }
@@ -179,15 +196,18 @@ proptest! {
         let (steps, contact) = (STEPS.load(Ordering::Relaxed), STEPS_IN_CONTACT.load(Ordering::Relaxed));
         if std::env::var_os("SINEW_CONTACT_COUNTS").is_some() {
             eprintln!(
-                "steps {steps}, self-contact acting in {contact}, the ground's kappa grew in {}, split {}",
+                "steps {steps}, self-contact acting in {contact}, the ground's kappa grew in {}, split {}, with friction {}",
                 KAPPA_GREW.load(Ordering::Relaxed),
-                STEPS_SPLIT.load(Ordering::Relaxed)
+                STEPS_SPLIT.load(Ordering::Relaxed),
+                STEPS_WITH_FRICTION.load(Ordering::Relaxed)
             );
         }
         if steps >= 30 {
             prop_assert!(4 * contact >= steps, "self-contact acted in only {contact} of {steps} steps");
             let grew = KAPPA_GREW.load(Ordering::Relaxed);
             prop_assert!(2 * grew <= steps, "g was checked in only {} of {steps} steps", steps - grew);
+            let friction = STEPS_WITH_FRICTION.load(Ordering::Relaxed);
+            prop_assert!(10 * friction >= steps, "friction acted in only {friction} of {steps} steps");
         }
     }
 }

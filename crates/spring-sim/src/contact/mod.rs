@@ -261,6 +261,22 @@ pub(crate) fn check_gap_settings(dhat: f64, thickness: f64) -> Result<(), Contac
     Ok(())
 }
 
+/// The checks every friction's settings share: `0 <= mu <=` [`MAX_MU`] and `eps_v > 0`,
+/// both finite; the error names the setting.
+pub(crate) fn check_friction_settings(mu: f64, eps_v: f64) -> Result<(), ContactError> {
+    let bad = ContactError::bad_setting;
+    if !(mu.is_finite() && mu >= 0.0) {
+        return bad("mu", mu, "must be non-negative and finite");
+    }
+    if mu > MAX_MU {
+        return bad("mu", mu, "must be at most 100 (MAX_MU)");
+    }
+    if !(eps_v.is_finite() && eps_v > 0.0) {
+        return bad("eps_v", eps_v, "must be positive and finite");
+    }
+    Ok(())
+}
+
 /// The largest friction coefficient `mu`: 100, a slope of 89.4 degrees held by friction.
 /// Real pairs of materials stay below about 5. Far above, friction's curvature
 /// (`mu lambda / (eps_v h)`, about `mu g h / eps_v` times the inertia's) sets the
@@ -402,17 +418,8 @@ impl ContactSettings {
     /// Checks every setting: `dhat > 0`, `thickness >= 0`, `0 <= mu <= MAX_MU`, `eps_v > 0`,
     /// `0 < toi_fraction < 1`, all finite. The error names the setting.
     pub fn validate(&self) -> Result<(), ContactError> {
-        let bad = ContactError::bad_setting;
         check_gap_settings(self.dhat, self.thickness)?;
-        if !(self.mu.is_finite() && self.mu >= 0.0) {
-            return bad("mu", self.mu, "must be non-negative and finite");
-        }
-        if self.mu > MAX_MU {
-            return bad("mu", self.mu, "must be at most 100 (MAX_MU)");
-        }
-        if !(self.eps_v.is_finite() && self.eps_v > 0.0) {
-            return bad("eps_v", self.eps_v, "must be positive and finite");
-        }
+        check_friction_settings(self.mu, self.eps_v)?;
         check_toi_fraction(self.toi_fraction)?;
         Ok(())
     }

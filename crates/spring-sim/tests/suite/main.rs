@@ -30,6 +30,7 @@ mod self_contact_closed;
 mod self_contact_distance;
 mod self_contact_dynamics;
 mod self_contact_exact;
+mod self_contact_friction;
 mod self_contact_pattern;
 mod self_contact_term;
 mod self_contact_threads;

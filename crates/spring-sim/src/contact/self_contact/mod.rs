@@ -13,6 +13,7 @@
 //!   projection of the barrier's Hessian in the few dimensions it spans (the hot path).
 //! - [`broad`]: the broad phase, a spatial hash over the primitives' (swept) boxes.
 //! - [`ccd`]: additive continuous collision detection over a linear step.
+//! - [`friction`]: lagged, smoothed Coulomb friction between the pairs within `dhat`.
 //! - [`psd12`]: the positive semidefinite projection of a pair's 12x12 Hessian.
 //! - `spread`: the term's per-pair loops on the integrator's thread pool.
 //! - [`term`]: [`SelfContactTerm`], the barrier as a term of backward Euler's
@@ -25,6 +26,7 @@ pub mod ccd;
 pub mod closed;
 pub mod distance;
 pub mod dual;
+pub mod friction;
 pub mod psd12;
 mod spread;
 pub mod term;

@@ -61,6 +61,7 @@ use super::distance::{
     squared_distance_in,
 };
 use super::dual::{Dual12, Gradient12, Scalar, values};
+use super::friction::FrictionPair;
 use super::psd12::project_psd12_pair;
 use super::spread;
 use crate::contact::ContactError;
@@ -95,6 +96,14 @@ pub struct SelfContactSettings {
     /// IPC's mollifier threshold ratio: an edge pair is mollified where
     /// `|e_a x e_b|^2 < ratio |e_a|^2 |e_b|^2` at rest (default 1e-3, IPC's).
     pub mollifier_ratio: f64,
+    /// Coulomb friction coefficient between the cloth's own primitives, `0 <= mu <=`
+    /// [`crate::contact::MAX_MU`] (default 0, frictionless): lagged, smoothed friction
+    /// on every pair within `dhat` at a step's start ([`super::friction`]).
+    pub mu: f64,
+    /// Friction's velocity threshold `eps_v` (scene units per second, default 1e-3):
+    /// below this relative tangential speed friction is smoothed (static friction is a
+    /// very slow creep), above it it is exactly Coulomb.
+    pub eps_v: f64,
     /// The adaptive stiffness rule's constants.
     pub kappa: KappaSettings,
     /// Whether the term gives its pairs' exact Hessians when the Newton matrix asks for
@@ -112,6 +121,8 @@ impl Default for SelfContactSettings {
             thickness: 0.0,
             toi_fraction: 0.9,
             mollifier_ratio: 1e-3,
+            mu: 0.0,
+            eps_v: 1e-3,
             kappa: KappaSettings::default(),
             exact_hessian: true,
         }
@@ -120,11 +131,13 @@ impl Default for SelfContactSettings {
 
 impl SelfContactSettings {
     /// Checks every setting (`dhat > 0`, `thickness >= 0`, `0 < toi_fraction < 1`,
-    /// `mollifier_ratio > 0`, all finite); the error names the setting.
+    /// `mollifier_ratio > 0`, `0 <= mu <= MAX_MU`, `eps_v > 0`, the stiffness rule's
+    /// constants, all finite); the error names the setting.
     pub fn validate(&self) -> Result<(), ContactError> {
         let bad = ContactError::bad_setting;
         crate::contact::check_gap_settings(self.dhat, self.thickness)?;
         crate::contact::check_toi_fraction(self.toi_fraction)?;
+        crate::contact::check_friction_settings(self.mu, self.eps_v)?;
         if !(self.mollifier_ratio.is_finite() && self.mollifier_ratio > 0.0) {
             return bad(
                 "mollifier_ratio",
@@ -163,6 +176,7 @@ pub struct SelfContactStats {
     broad_phases: AtomicU64,
     exact_hessians: AtomicU64,
     projected_after_exact: AtomicU64,
+    friction_pairs: AtomicU64,
     /// Particle pairs a contact pair coupled that the Hessian pattern had no slots for.
     missing: Mutex<BTreeSet<[usize; 2]>>,
 }
@@ -206,6 +220,13 @@ impl SelfContactStats {
     #[must_use]
     pub fn projected_after_exact(&self) -> u64 {
         self.projected_after_exact.load(Ordering::Relaxed)
+    }
+
+    /// The number of pairs whose friction the current (or last) step lagged (0 without
+    /// friction).
+    #[must_use]
+    pub fn friction_pairs(&self) -> usize {
+        self.friction_pairs.load(Ordering::Relaxed) as usize
     }
 
     /// Takes the particle pairs (`[low, high]`, sorted) that contact pairs coupled since
@@ -278,6 +299,8 @@ pub struct SelfContactTerm {
     /// The places of the active pairs' coupling blocks in the Newton matrix, kept for the
     /// next active set (see [`KeptPlaces`]).
     places: Mutex<KeptPlaces>,
+    /// The friction pairs lagged at the step's start (empty without friction).
+    friction: Vec<FrictionPair>,
     stats: Arc<SelfContactStats>,
 }
 
@@ -361,6 +384,7 @@ impl SelfContactTerm {
             segment: Mutex::new(Segment::default()),
             checked_start: Mutex::new((Vec::new(), None)),
             places: Mutex::new(KeptPlaces::default()),
+            friction: Vec::new(),
             stats: Arc::new(SelfContactStats::default()),
         };
         term.check_state(x, system.fixed())?;
@@ -911,6 +935,101 @@ impl SelfContactTerm {
         }
     }
 
+    /// Lags the friction of every pair within `dhat` at the step's start (see
+    /// [`super::friction`]), in the pairs' order: the active set's pairs and regions when
+    /// it was collected at this state with these fixed flags (a step starts where the
+    /// last one ended), else the broad phase's. Nothing without friction or stiffness.
+    fn lag_friction(&mut self, step: &StepContext<'_>) {
+        let mut friction = std::mem::take(&mut self.friction);
+        friction.clear();
+        let kappa = self.kappa();
+        let (x, fixed) = (step.system.positions(), step.system.fixed());
+        if self.settings.mu > 0.0 && kappa > 0.0 {
+            let near: Vec<(Candidate, Closest)> =
+                if self.active_at.as_slice() == x && self.near_fixed.as_slice() == fixed {
+                    self.active
+                        .iter()
+                        .copied()
+                        .zip(self.active_regions.iter().copied())
+                        .collect()
+                } else {
+                    let near = self.near(x, fixed);
+                    let mut values = Vec::new();
+                    spread::fill(&mut values, near.len(), NearValue::default(), |i| {
+                        self.near_value(near[i], x)
+                    });
+                    near.iter()
+                        .zip(&values)
+                        .filter(|(_, v)| v.gap < self.settings.dhat)
+                        .map(|(c, v)| (*c, v.closest))
+                        .collect()
+                };
+            let mut lagged = Vec::new();
+            spread::fill(&mut lagged, near.len(), None, |i| {
+                self.lag_pair(kappa, near[i].0, near[i].1, step)
+            });
+            friction.extend(lagged.into_iter().flatten());
+        }
+        self.stats
+            .friction_pairs
+            .store(friction.len() as u64, Ordering::Relaxed);
+        self.friction = friction;
+    }
+
+    /// The friction of the pair `c`, whose closest points at the step's start lie in
+    /// `closest`: the barrier's normal force there, `-kappa m b'(gap)`, times `mu`
+    /// (`None` when the pair's particles are all fixed or it exerts no force).
+    fn lag_pair(
+        &self,
+        kappa: f64,
+        c: Candidate,
+        closest: Closest,
+        step: &StepContext<'_>,
+    ) -> Option<FrictionPair> {
+        let (x, fixed) = (step.system.positions(), step.system.fixed());
+        let q = self.placed(c, x);
+        if q.v.iter().all(|&i| fixed[i]) {
+            return None;
+        }
+        let (dhat, settings) = (self.settings.dhat, &self.settings);
+        let gap = squared_distance_in(&values(&q.p), closest).sqrt() - settings.thickness;
+        if !(gap > 0.0 && gap < dhat) {
+            return None;
+        }
+        let m = self
+            .mollifier_threshold(c)
+            .map_or(1.0, |eps| mollifier(&q.p, eps));
+        let lambda = -kappa * m * barrier_first_derivative(gap, dhat);
+        FrictionPair::lagged(
+            q.kind,
+            q.v,
+            closest,
+            x,
+            step.x_ref,
+            settings.mu * lambda,
+            settings.eps_v * step.h,
+        )
+    }
+
+    /// The friction pairs' energy at `x`, summed in their order.
+    fn friction_energy(&self, x: &[DVec3]) -> f64 {
+        let mut energies = Vec::new();
+        spread::fill(&mut energies, self.friction.len(), 0.0, |i| {
+            self.friction[i].energy(x)
+        });
+        energies.into_iter().sum()
+    }
+
+    /// The friction pairs' energy change from `x` to `x + alpha dx`, summed in their
+    /// order.
+    fn friction_change(&self, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
+        let mut changes = Vec::new();
+        spread::fill(&mut changes, self.friction.len(), 0.0, |i| {
+            self.friction[i].energy_change(x, dx, alpha)
+        });
+        changes.into_iter().sum()
+    }
+
     /// The largest safe fraction of the step `x -> x + dx` (see [`additive_ccd`]) over
     /// every pair the swept broad phase finds, 1 when none comes close.
     fn ccd_fraction(&self, x: &[DVec3], dx: &[DVec3], fixed: &[bool]) -> f64 {
@@ -1280,6 +1399,192 @@ const ACTIVE_CHUNK: usize = 4096;
 /// clear: the line search may lengthen an accepted step, and this lets it up to 8 times.
 const LONG_STEP: f64 = 8.0;
 
+impl SelfContactTerm {
+    /// The barrier's part of [`Term::energy_change`].
+    fn barrier_change(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
+        let kappa = self.kappa();
+        if kappa == 0.0 {
+            return 0.0;
+        }
+        let moved: Vec<DVec3> = x.iter().zip(dx).map(|(p, d)| *p + alpha * *d).collect();
+        let sweep: Vec<DVec3> = dx.iter().map(|d| alpha * *d).collect();
+        // Every pair within dhat at either end: the swept boxes contain both ends.
+        let fixed = step.system.fixed();
+        let margin = self.settings.dhat + self.settings.thickness;
+        let mut change = 0.0;
+        let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
+        let seg = &mut *segment;
+        if seg.query_into_found(&self.prims, x, Some(&sweep), margin, fixed) {
+            // The energy at `x` is the same for every trial of the line search: kept (for
+            // the stiffness it was computed with), and computed from the kept gap when
+            // there is one, or zero when the kept separation shows the pair beyond `dhat`.
+            // Each found pair's two energies on the pool, then the sum in the pairs'
+            // order. The pair's values at the trial's state are kept with the trial (the
+            // two latest), for the active set at that state if the trial is accepted.
+            let at_start = seg.starts_at(x);
+            let same_kappa = kappa.to_bits() == seg.kappa.to_bits();
+            seg.trials.swap(0, 1);
+            let trial = &mut seg.trials[0];
+            trial.found.clear();
+            trial.found.extend_from_slice(&seg.found);
+            let (found, list, kept) = (&seg.found, seg.pairs.list(), &seg.kept);
+            spread::fill(&mut trial.values, found.len(), TrialValue::default(), |i| {
+                let (k, c) = (found[i], list[found[i]]);
+                // The pair's energy at the trial's state from these values is
+                // `pair_energy`'s (the same separation test, the same gap).
+                let q = self.placed(c, &moved);
+                let mut near = self.near_value_of(&q);
+                near.energy = if self.beyond_dhat_by(near.separation) {
+                    0.0
+                } else {
+                    self.energy_at_gap_of(kappa, &q, near.gap)
+                };
+                let kept = &kept[k];
+                let before = if at_start && same_kappa && !kept.energy.is_nan() {
+                    kept.energy
+                } else if at_start && !kept.gap.is_nan() {
+                    self.pair_energy_at_gap(kappa, c, x, kept.gap)
+                } else if at_start && self.beyond_dhat_by(kept.separation) {
+                    0.0
+                } else {
+                    self.pair_energy(kappa, c, x)
+                };
+                TrialValue { near, before }
+            });
+            trial.at = moved;
+            trial.kappa = kappa;
+            let values = &trial.values;
+            if at_start && same_kappa {
+                spread::for_each_at(&mut seg.kept, &seg.found, |i, kept| {
+                    kept.energy = values[i].before;
+                });
+            }
+            // Each pair's change on the pool (`+inf` where its energy after is, which
+            // ends the sum), then the sum in the pairs' order on one thread over those
+            // alone: the same additions as over the pairs' values.
+            spread::fill(&mut seg.changes, values.len(), 0.0, |i| {
+                let (after, before) = (values[i].near.energy, values[i].before);
+                if after == f64::INFINITY {
+                    f64::INFINITY
+                } else {
+                    after - before
+                }
+            });
+            for &d in &seg.changes {
+                if d == f64::INFINITY {
+                    return f64::INFINITY;
+                }
+                change += d;
+            }
+            return change;
+        }
+        drop(segment);
+        self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
+        let found = candidates(&self.prims, x, Some(&sweep), margin, fixed);
+        let mut values = Vec::new();
+        spread::fill(&mut values, found.len(), (0.0, 0.0), |i| {
+            (
+                self.pair_energy(kappa, found[i], &moved),
+                self.pair_energy(kappa, found[i], x),
+            )
+        });
+        for (after, before) in values {
+            if after == f64::INFINITY {
+                return f64::INFINITY;
+            }
+            change += after - before;
+        }
+        change
+    }
+
+    /// The barrier's part of [`Term::add_gradient`].
+    fn add_barrier_gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
+        let kappa = self.kappa();
+        if kappa == 0.0 {
+            return;
+        }
+        self.with_derivatives(x, step.system.fixed(), None, |pairs, _| {
+            for e in pairs.iter().filter(|e| e.present) {
+                for (k, &i) in e.particles.iter().enumerate() {
+                    gradient[i] += DVec3::new(
+                        e.gradient[3 * k],
+                        e.gradient[3 * k + 1],
+                        e.gradient[3 * k + 2],
+                    );
+                }
+            }
+        });
+    }
+
+    /// The barrier's part of [`Term::add_hessian`].
+    fn add_barrier_hessian(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        curvature: Curvature,
+        sink: &mut HessianSink<'_>,
+    ) {
+        let kappa = self.kappa();
+        if kappa == 0.0 {
+            return;
+        }
+        let form = match curvature {
+            Curvature::Exact | Curvature::ExactContact(_) if self.settings.exact_hessian => {
+                HessianForm::Exact
+            }
+            _ => HessianForm::Projected,
+        };
+        let code = match form {
+            HessianForm::Exact => FORM_EXACT,
+            HessianForm::Projected => FORM_PROJECTED,
+        };
+        if form == HessianForm::Exact {
+            self.stats.exact_hessians.fetch_add(1, Ordering::Relaxed);
+        }
+        // What the Newton iteration asked for first at its iterate (the state the active
+        // set was collected at), to count the fallbacks from the exact form.
+        if self.active_at.as_slice() == x {
+            let first = match self.first_asked.compare_exchange(
+                FORM_NONE,
+                code,
+                Ordering::Relaxed,
+                Ordering::Relaxed,
+            ) {
+                Ok(_) => code,
+                Err(earlier) => earlier,
+            };
+            if form == HessianForm::Projected
+                && first == FORM_EXACT
+                && !self.fell_back.swap(true, Ordering::Relaxed)
+            {
+                self.stats
+                    .projected_after_exact
+                    .fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        let mut missing = Vec::new();
+        self.with_derivatives(x, step.system.fixed(), Some(form), |pairs, hessians| {
+            let Some((pattern, values)) = sink.values_mut() else {
+                for (e, h) in pairs.iter().zip(hessians).filter(|(e, _)| e.present) {
+                    scatter(h, e.kind, e.particles, sink, &mut missing);
+                }
+                return;
+            };
+            // The pattern look-ups (six binary searches a pair) on the pool, or taken from
+            // the last active set's for the pairs it had; the additions by parts of the
+            // matrix, each value's in the pairs' order, so the values are the bits of the
+            // sequential scatter.
+            let mut kept = self.places.lock().unwrap_or_else(PoisonError::into_inner);
+            let listed = (self.active_at.as_slice() == x).then_some(self.active.as_slice());
+            let places = kept.places_for(pattern, listed, pairs);
+            scatter_in_parts(pattern, values, pairs, hessians, places, &mut missing);
+        });
+        if !missing.is_empty() {
+            self.stats.note_missing(missing.into_iter());
+        }
+    }
+}
+
 impl Term for SelfContactTerm {
     fn name(&self) -> &'static str {
         "self-contact"
@@ -1348,6 +1653,7 @@ impl Term for SelfContactTerm {
             k.update(min, dhat);
         }
         self.publish(min);
+        self.lag_friction(step);
     }
 
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
@@ -1470,121 +1776,37 @@ impl Term for SelfContactTerm {
         spread::fill(&mut energies, near.len(), 0.0, |i| {
             self.pair_energy(kappa, near[i], x)
         });
-        energies.into_iter().sum()
+        let barrier: f64 = energies.into_iter().sum();
+        if self.friction.is_empty() {
+            barrier
+        } else {
+            barrier + self.friction_energy(x)
+        }
     }
 
     fn energy_change(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
-        let kappa = self.kappa();
-        if kappa == 0.0 {
-            return 0.0;
+        let barrier = self.barrier_change(step, x, dx, alpha);
+        if self.friction.is_empty() || barrier == f64::INFINITY {
+            barrier
+        } else {
+            barrier + self.friction_change(x, dx, alpha)
         }
-        let moved: Vec<DVec3> = x.iter().zip(dx).map(|(p, d)| *p + alpha * *d).collect();
-        let sweep: Vec<DVec3> = dx.iter().map(|d| alpha * *d).collect();
-        // Every pair within dhat at either end: the swept boxes contain both ends.
-        let fixed = step.system.fixed();
-        let margin = self.settings.dhat + self.settings.thickness;
-        let mut change = 0.0;
-        let mut segment = self.segment.lock().unwrap_or_else(PoisonError::into_inner);
-        let seg = &mut *segment;
-        if seg.query_into_found(&self.prims, x, Some(&sweep), margin, fixed) {
-            // The energy at `x` is the same for every trial of the line search: kept (for
-            // the stiffness it was computed with), and computed from the kept gap when
-            // there is one, or zero when the kept separation shows the pair beyond `dhat`.
-            // Each found pair's two energies on the pool, then the sum in the pairs'
-            // order. The pair's values at the trial's state are kept with the trial (the
-            // two latest), for the active set at that state if the trial is accepted.
-            let at_start = seg.starts_at(x);
-            let same_kappa = kappa.to_bits() == seg.kappa.to_bits();
-            seg.trials.swap(0, 1);
-            let trial = &mut seg.trials[0];
-            trial.found.clear();
-            trial.found.extend_from_slice(&seg.found);
-            let (found, list, kept) = (&seg.found, seg.pairs.list(), &seg.kept);
-            spread::fill(&mut trial.values, found.len(), TrialValue::default(), |i| {
-                let (k, c) = (found[i], list[found[i]]);
-                // The pair's energy at the trial's state from these values is
-                // `pair_energy`'s (the same separation test, the same gap).
-                let q = self.placed(c, &moved);
-                let mut near = self.near_value_of(&q);
-                near.energy = if self.beyond_dhat_by(near.separation) {
-                    0.0
-                } else {
-                    self.energy_at_gap_of(kappa, &q, near.gap)
-                };
-                let kept = &kept[k];
-                let before = if at_start && same_kappa && !kept.energy.is_nan() {
-                    kept.energy
-                } else if at_start && !kept.gap.is_nan() {
-                    self.pair_energy_at_gap(kappa, c, x, kept.gap)
-                } else if at_start && self.beyond_dhat_by(kept.separation) {
-                    0.0
-                } else {
-                    self.pair_energy(kappa, c, x)
-                };
-                TrialValue { near, before }
-            });
-            trial.at = moved;
-            trial.kappa = kappa;
-            let values = &trial.values;
-            if at_start && same_kappa {
-                spread::for_each_at(&mut seg.kept, &seg.found, |i, kept| {
-                    kept.energy = values[i].before;
-                });
-            }
-            // Each pair's change on the pool (`+inf` where its energy after is, which
-            // ends the sum), then the sum in the pairs' order on one thread over those
-            // alone: the same additions as over the pairs' values.
-            spread::fill(&mut seg.changes, values.len(), 0.0, |i| {
-                let (after, before) = (values[i].near.energy, values[i].before);
-                if after == f64::INFINITY {
-                    f64::INFINITY
-                } else {
-                    after - before
-                }
-            });
-            for &d in &seg.changes {
-                if d == f64::INFINITY {
-                    return f64::INFINITY;
-                }
-                change += d;
-            }
-            return change;
-        }
-        drop(segment);
-        self.stats.broad_phases.fetch_add(1, Ordering::Relaxed);
-        let found = candidates(&self.prims, x, Some(&sweep), margin, fixed);
-        let mut values = Vec::new();
-        spread::fill(&mut values, found.len(), (0.0, 0.0), |i| {
-            (
-                self.pair_energy(kappa, found[i], &moved),
-                self.pair_energy(kappa, found[i], x),
-            )
-        });
-        for (after, before) in values {
-            if after == f64::INFINITY {
-                return f64::INFINITY;
-            }
-            change += after - before;
-        }
-        change
     }
 
     fn add_gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
-        let kappa = self.kappa();
-        if kappa == 0.0 {
+        self.add_barrier_gradient(step, x, gradient);
+        if self.friction.is_empty() {
             return;
         }
-        self.with_derivatives(x, step.system.fixed(), None, |pairs, _| {
-            for e in pairs.iter().filter(|e| e.present) {
-                for (k, &i) in e.particles.iter().enumerate() {
-                    gradient[i] += DVec3::new(
-                        e.gradient[3 * k],
-                        e.gradient[3 * k + 1],
-                        e.gradient[3 * k + 2],
-                    );
-                }
-            }
+        let mut pair_gradients = Vec::new();
+        spread::fill(&mut pair_gradients, self.friction.len(), DVec3::ZERO, |i| {
+            self.friction[i].gradient(x)
         });
+        for (pair, g) in self.friction.iter().zip(pair_gradients) {
+            for (&i, &w) in pair.particles.iter().zip(&pair.weights) {
+                gradient[i] += w * g;
+            }
+        }
     }
 
     fn add_hessian(
@@ -1594,61 +1816,26 @@ impl Term for SelfContactTerm {
         curvature: Curvature,
         sink: &mut HessianSink<'_>,
     ) {
-        let kappa = self.kappa();
-        if kappa == 0.0 {
+        self.add_barrier_hessian(step, x, curvature, sink);
+        if self.friction.is_empty() {
             return;
         }
-        let form = match curvature {
-            Curvature::Exact | Curvature::ExactContact(_) if self.settings.exact_hessian => {
-                HessianForm::Exact
-            }
-            _ => HessianForm::Projected,
-        };
-        let code = match form {
-            HessianForm::Exact => FORM_EXACT,
-            HessianForm::Projected => FORM_PROJECTED,
-        };
-        if form == HessianForm::Exact {
-            self.stats.exact_hessians.fetch_add(1, Ordering::Relaxed);
-        }
-        // What the Newton iteration asked for first at its iterate (the state the active
-        // set was collected at), to count the fallbacks from the exact form.
-        if self.active_at.as_slice() == x {
-            let first = match self.first_asked.compare_exchange(
-                FORM_NONE,
-                code,
-                Ordering::Relaxed,
-                Ordering::Relaxed,
-            ) {
-                Ok(_) => code,
-                Err(earlier) => earlier,
-            };
-            if form == HessianForm::Projected
-                && first == FORM_EXACT
-                && !self.fell_back.swap(true, Ordering::Relaxed)
-            {
-                self.stats
-                    .projected_after_exact
-                    .fetch_add(1, Ordering::Relaxed);
-            }
-        }
+        // Each pair's `w w^T (x) H`, positive semidefinite as it is (see
+        // `super::friction`), scattered as the barrier's pairs are.
+        let mut blocks = Vec::new();
+        spread::fill(
+            &mut blocks,
+            self.friction.len(),
+            PairBlocks::default(),
+            |i| {
+                let pair = &self.friction[i];
+                friction_blocks(&pair.weights, &pair.hessian(x))
+            },
+        );
         let mut missing = Vec::new();
-        self.with_derivatives(x, step.system.fixed(), Some(form), |pairs, hessians| {
-            let Some((pattern, values)) = sink.values_mut() else {
-                for (e, h) in pairs.iter().zip(hessians).filter(|(e, _)| e.present) {
-                    scatter(h, e.kind, e.particles, sink, &mut missing);
-                }
-                return;
-            };
-            // The pattern look-ups (six binary searches a pair) on the pool, or taken from
-            // the last active set's for the pairs it had; the additions by parts of the
-            // matrix, each value's in the pairs' order, so the values are the bits of the
-            // sequential scatter.
-            let mut kept = self.places.lock().unwrap_or_else(PoisonError::into_inner);
-            let listed = (self.active_at.as_slice() == x).then_some(self.active.as_slice());
-            let places = kept.places_for(pattern, listed, pairs);
-            scatter_in_parts(pattern, values, pairs, hessians, places, &mut missing);
-        });
+        for (pair, h) in self.friction.iter().zip(&blocks) {
+            scatter(h, pair.kind, pair.particles, sink, &mut missing);
+        }
         if !missing.is_empty() {
             self.stats.note_missing(missing.into_iter());
         }
@@ -2008,6 +2195,28 @@ fn scatter_in_parts(
             }
         }
     });
+}
+
+/// The blocks of a friction pair's Hessian `w w^T (x) h`: block `(k, l)` is
+/// `w_k w_l h`.
+fn friction_blocks(w: &[f64; 4], h: &DMat3) -> PairBlocks {
+    let mut out = PairBlocks::default();
+    let entries = h.to_cols_array();
+    for (k, d) in out.diagonal.iter_mut().enumerate() {
+        let w2 = w[k] * w[k];
+        let mut n = 0;
+        for c in 0..3 {
+            for r in c..3 {
+                d[n] = w2 * entries[3 * c + r];
+                n += 1;
+            }
+        }
+    }
+    for (n, &(a, b)) in PAIR_BLOCKS.iter().enumerate() {
+        let wab = w[a] * w[b];
+        out.coupling[n] = entries.map(|e| wab * e);
+    }
+    out
 }
 
 /// Adds a pair's Hessian `h` to `sink` (the blocks [`kept_blocks`] keeps, and the
