@@ -267,6 +267,12 @@ pub struct MeshClothMetrics {
     pub time_per_vertex_step_us_median: f64,
     /// Most self-contact pairs within `dhat` at a Newton iterate's start, over the run.
     pub self_contact_pairs_max: usize,
+    /// Most self-contact pairs with friction lagged at a step's start, over the run (0
+    /// without `self_contact.mu`).
+    pub self_friction_pairs_max: usize,
+    /// The mean distance of the free vertices' end positions from their start
+    /// positions, m (0 when every vertex is pinned).
+    pub free_mean_displacement: f64,
     /// Pairs of triangles sharing no vertex that meet, summed over the states after
     /// every step, by an exact check sharing no code with the solver (must be 0).
     pub intersections: usize,

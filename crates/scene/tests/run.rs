@@ -165,3 +165,34 @@ fn a_two_bone_limb_too_long_to_turn_is_refused_at_validation() {
         Ok(_) => panic!("a skeleton beyond MAX_REACH was accepted"),
     }
 }
+
+/// The committed incline scene: the top sheet held by friction with the pinned sheet
+/// below it (mu 0.8 > tan 30 deg) stays within a few millimetres of where it started, and
+/// slides a quarter of a metre down the slope with mu 0.2 (Coulomb's `g (sin - mu cos)`
+/// over 0.4 s is 0.26 m; without friction it would be 0.39 m); both with friction pairs
+/// and no intersection.
+#[test]
+fn friction_between_sheets_holds_or_lets_slide_as_mu_says() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes/cloth-sheet-incline.ron");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let scene = Scene::from_text(&path, &text).unwrap_or_else(|e| panic!("{e}"));
+    let results = scene.run(&RunOptions::default());
+    let travel: Vec<(String, f64)> = results
+        .tasks
+        .iter()
+        .map(|t| {
+            assert!(t.ok, "{}: {:?}", t.name, t.error);
+            let TaskMetrics::MeshCloth(m) = &t.metrics else {
+                panic!("{}: {:?}", t.name, t.metrics);
+            };
+            assert!(m.self_friction_pairs_max > 0, "{}", t.name);
+            assert_eq!(m.intersections, 0, "{}", t.name);
+            (t.name.clone(), m.free_mean_displacement)
+        })
+        .collect();
+    assert_eq!(travel[0].0, "holds");
+    assert!(travel[0].1 < 2e-3, "{travel:?}");
+    assert_eq!(travel[1].0, "slides");
+    assert!(travel[1].1 > 0.2 && travel[1].1 < 0.3, "{travel:?}");
+}

@@ -130,6 +130,9 @@ pub enum SheetSpec {
         /// Pin every vertex of the border.
         #[serde(default)]
         pin_border: bool,
+        /// Pin every vertex: a fixed surface for the other sheets to lie on.
+        #[serde(default)]
+        pin_all: bool,
         /// Initial velocity of every vertex, m/s.
         #[serde(default)]
         velocity: DVec3,
@@ -219,6 +222,7 @@ impl MeshClothTask {
                     u,
                     w,
                     pin_border,
+                    pin_all,
                     velocity,
                 } => {
                     let n = *size;
@@ -251,7 +255,7 @@ impl MeshClothTask {
                                 .push(*origin + *spacing * (i as f64 * *u + j as f64 * *w));
                             a.velocities.push(*velocity);
                             let border = i == 0 || j == 0 || i == n - 1 || j == n - 1;
-                            if *pin_border && border {
+                            if *pin_all || (*pin_border && border) {
                                 a.fixed.push(offset + i * n + j);
                             }
                         }
@@ -498,6 +502,7 @@ impl TaskSpec for MeshClothTask {
         let mut step_ms = Vec::with_capacity(self.steps);
         let (mut iterations_total, mut iterations_max) = (0usize, 0usize);
         let mut pairs_max = 0usize;
+        let mut friction_pairs_max = 0usize;
         let mut intersections = 0usize;
         let mut first_intersection: Option<(usize, (usize, usize))> = None;
         let mut min_self_distance: Option<f64> = None;
@@ -523,6 +528,7 @@ impl TaskSpec for MeshClothTask {
             iterations_total += report.iterations;
             iterations_max = iterations_max.max(report.iterations);
             pairs_max = pairs_max.max(stats.active_pairs());
+            friction_pairs_max = friction_pairs_max.max(stats.friction_pairs());
             let x = system.positions();
             if x.iter().any(|p| !p.is_finite()) {
                 return Err(format!("step {step}: a non-finite position"));
@@ -589,6 +595,19 @@ impl TaskSpec for MeshClothTask {
         }
         drop(progress);
         let vertices = system.len();
+        let free: Vec<f64> = system
+            .positions()
+            .iter()
+            .zip(&start)
+            .zip(system.fixed())
+            .filter(|(_, pinned)| !**pinned)
+            .map(|((x, x0), _)| (*x - *x0).length())
+            .collect();
+        let free_mean_displacement = if free.is_empty() {
+            0.0
+        } else {
+            free.iter().sum::<f64>() / free.len() as f64
+        };
         let median = {
             let mut sorted = step_ms.clone();
             sorted.sort_by(f64::total_cmp);
@@ -624,6 +643,8 @@ impl TaskSpec for MeshClothTask {
             time_per_step_ms_median: median,
             time_per_vertex_step_us_median: 1e3 * median / vertices as f64,
             self_contact_pairs_max: pairs_max,
+            self_friction_pairs_max: friction_pairs_max,
+            free_mean_displacement,
             intersections,
             min_self_distance,
             min_distance: min_collider_distance,

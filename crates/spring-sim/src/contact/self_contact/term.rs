@@ -32,6 +32,12 @@
 //! potential is then one function throughout a step, and Newton with its line search
 //! never increases it within the step.
 //!
+//! With [`SelfContactSettings::mu`] above 0 the term also holds the friction of the pairs
+//! within `dhat` at the step's start, lagged there with the step's stiffness
+//! ([`super::friction`]): their energy, its change, gradient and (positive
+//! semidefinite) Hessian are added to the barrier's, and the potential stays one
+//! function within the step.
+//!
 //! Hessian blocks: each pair's 12x12 Hessian is projected to be positive semidefinite
 //! and scattered into its 4x4 particle blocks; asked for [`Curvature::ExactContact`] (or
 //! [`Curvature::Exact`]) and with [`SelfContactSettings::exact_hessian`] set, the exact
