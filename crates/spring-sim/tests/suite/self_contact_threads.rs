@@ -6,8 +6,9 @@
 //! first iteration, more than one chunk of the term's spread loops (gaps, derivatives,
 //! energies, CCD, the kept list's box tests). Positions, velocities, Newton iterations and
 //! the contact statistics must agree to the bit, with the pairs' projected Hessians and
-//! with their exact ones tried first (`SelfContactSettings::exact_hessian`), and on the
-//! direct solver, whose set-up for a widened pattern runs as a job on the pool while the
+//! with their exact ones tried first (`SelfContactSettings::exact_hessian`), with
+//! friction between the sheets (its pairs' loops split in chunks too), and on the direct
+//! solver, whose set-up for a widened pattern runs as a job on the pool while the
 //! iteration goes on.
 
 use crate::sheets;
@@ -20,10 +21,23 @@ const N: usize = 33;
 
 /// What a run ends with: the state, the Newton iterations per step, and per step the
 /// active pairs and `kappa` (as bits), then the times the exact pair Hessians were
-/// written and the fallbacks to the projected ones so far.
+/// written and the fallbacks to the projected ones so far, then the friction pairs.
 type Outcome = (SpringSystem, Vec<usize>, Vec<(usize, u64)>);
 
-fn run(threads: usize, steps: usize, exact_hessian: bool, solver: LinearSolverChoice) -> Outcome {
+/// How a run is set up besides its threads.
+#[derive(Clone, Copy)]
+struct Setup {
+    exact_hessian: bool,
+    mu: f64,
+    solver: LinearSolverChoice,
+}
+
+fn run(threads: usize, steps: usize, setup: Setup) -> Outcome {
+    let Setup {
+        exact_hessian,
+        mu,
+        solver,
+    } = setup;
     let s = 0.01;
     let (u, w) = (
         DVec3::new(0.995_004, 0.0, 0.099_833_4),
@@ -48,6 +62,7 @@ fn run(threads: usize, steps: usize, exact_hessian: bool, solver: LinearSolverCh
         dhat: 2e-3,
         thickness: 1e-3,
         exact_hessian,
+        mu,
         ..SelfContactSettings::default()
     };
     let stats = model
@@ -68,6 +83,7 @@ fn run(threads: usize, steps: usize, exact_hessian: bool, solver: LinearSolverCh
             stats.exact_hessians() as usize,
             stats.projected_after_exact(),
         ));
+        contact.push((stats.friction_pairs(), 0));
         widened += report.pattern_pairs_added;
         // No direct solver is left being set up once a step returns.
         if solver == LinearSolverChoice::Direct {
@@ -88,21 +104,33 @@ fn run(threads: usize, steps: usize, exact_hessian: bool, solver: LinearSolverCh
 #[test]
 fn self_contact_steps_alike_on_one_two_and_three_threads() {
     let steps = 1;
-    for exact in [false, true] {
-        let one = run(1, steps, exact, LinearSolverChoice::Auto);
+    for (exact, mu) in [(false, 0.0), (true, 0.0), (true, 0.3)] {
+        let setup = Setup {
+            exact_hessian: exact,
+            mu,
+            solver: LinearSolverChoice::Auto,
+        };
+        let one = run(1, steps, setup);
         assert!(
             one.1.iter().all(|&k| k > 0),
             "a step without Newton iterations: {:?}",
             one.1
         );
         assert!(
-            one.2.iter().step_by(2).all(|&(pairs, _)| pairs > 256),
+            one.2.iter().step_by(3).all(|&(pairs, _)| pairs > 256),
             "too few pairs within dhat to split the term's loops: {:?}",
             one.2
         );
-        let written = one.2.last().map_or(0, |&(written, _)| written);
+        let written = one.2[one.2.len() - 2].0;
         assert_eq!(written > 0, exact, "exact blocks written {written} times");
-        compare_threads(&one, steps, exact, LinearSolverChoice::Auto);
+        // With friction, more pairs than one chunk of its loops from the first step.
+        let friction = one.2.iter().skip(2).step_by(3).map(|p| p.0);
+        assert!(
+            friction.clone().all(|f| (f > 256) == (mu > 0.0)),
+            "friction pairs {:?}",
+            friction.collect::<Vec<_>>()
+        );
+        compare_threads(&one, steps, setup);
     }
 }
 
@@ -110,13 +138,18 @@ fn self_contact_steps_alike_on_one_two_and_three_threads() {
 fn self_contact_on_the_direct_solver_steps_alike_on_one_two_and_three_threads() {
     // The pattern widens within the step (asserted in `run`), so on two and three
     // threads the widened pattern's direct solver is set up by a job on the pool.
-    let one = run(1, 1, false, LinearSolverChoice::Direct);
-    compare_threads(&one, 1, false, LinearSolverChoice::Direct);
+    let setup = Setup {
+        exact_hessian: false,
+        mu: 0.0,
+        solver: LinearSolverChoice::Direct,
+    };
+    let one = run(1, 1, setup);
+    compare_threads(&one, 1, setup);
 }
 
-fn compare_threads(one: &Outcome, steps: usize, exact: bool, solver: LinearSolverChoice) {
+fn compare_threads(one: &Outcome, steps: usize, setup: Setup) {
     for threads in [2, 3] {
-        let other = run(threads, steps, exact, solver);
+        let other = run(threads, steps, setup);
         assert_eq!(other.1, one.1, "{threads} threads: Newton iterations");
         assert_eq!(
             other.2, one.2,
