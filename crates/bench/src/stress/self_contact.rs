@@ -1,7 +1,8 @@
 //! Self-contact stress cases: a free sheet thrown down onto a sheet pinned along its
 //! border, both one triangle mesh with self-contact (the IPC barrier between its own
 //! vertices, triangles and edges, the line search capped by continuous collision
-//! detection), at every stiffness x time step x drop speed. After every accepted step the
+//! detection), at every stiffness x time step x drop speed, without and with friction
+//! between the sheets. After every accepted step the
 //! mesh is checked for triangles passing through each other by the exact check of
 //! [`sinew_exact`], which shares no code with the solver; any intersection,
 //! a non-finite value or a refused step fails the case.
@@ -36,27 +37,31 @@ pub struct SelfContactCase {
     pub dt: f64,
     /// Initial downward speed of the free sheet, m/s.
     pub speed: f64,
+    /// Friction coefficient between the sheets (`SelfContactSettings::mu`).
+    pub mu: f64,
     /// Steps taken.
     pub steps: usize,
 }
 
 impl SelfContactCase {
-    /// A label for messages: `2x6x6 k=1e4 dt=1/60 v=5`.
+    /// A label for messages: `2x6x6 k=1e4 dt=1/60 v=5 mu=0.5`.
     #[must_use]
     pub fn label(&self) -> String {
         format!(
-            "2x{0}x{0} k={1:.0e} dt={2} v={3}",
+            "2x{0}x{0} k={1:.0e} dt={2} v={3} mu={4}",
             self.grid,
             self.stiffness,
             super::cloth::dt_label(self.dt),
-            self.speed
+            self.speed,
+            self.mu
         )
     }
 }
 
-/// The cases: stiffness x time step x drop speed. Quick: 5 x 5 sheets, stiffness 1e2 and
-/// 1e4, dt 1/60 and 1/4, speed 0 and 5 m/s, 8 steps (8 cases). Full: 8 x 8 sheets,
-/// stiffness 1e1, 1e3, 1e5, dt 1/240, 1/60, 1/4, speed 0, 2, 10 m/s, 30 steps (27 cases).
+/// The cases: stiffness x time step x drop speed x friction. Quick: 5 x 5 sheets,
+/// stiffness 1e2 and 1e4, dt 1/60 and 1/4, speed 0 and 5 m/s, `mu` 0 and 0.5, 8 steps (16
+/// cases). Full: 8 x 8 sheets, stiffness 1e1, 1e3, 1e5, dt 1/240, 1/60, 1/4, speed 0, 2,
+/// 10 m/s, `mu` 0 and 0.5, 30 steps (54 cases).
 #[must_use]
 pub fn self_contact_cases(quick: bool) -> Vec<SelfContactCase> {
     let (grid, stiffnesses, dts, speeds, steps): (usize, &[f64], &[f64], &[f64], usize) = if quick {
@@ -74,13 +79,16 @@ pub fn self_contact_cases(quick: bool) -> Vec<SelfContactCase> {
     for &stiffness in stiffnesses {
         for &dt in dts {
             for &speed in speeds {
-                cases.push(SelfContactCase {
-                    grid,
-                    stiffness,
-                    dt,
-                    speed,
-                    steps,
-                });
+                for mu in [0.0, 0.5] {
+                    cases.push(SelfContactCase {
+                        grid,
+                        stiffness,
+                        dt,
+                        speed,
+                        mu,
+                        steps,
+                    });
+                }
             }
         }
     }
@@ -209,6 +217,7 @@ pub fn run_self_contact_case(case: &SelfContactCase) -> SelfContactOutcome {
     let contact = SelfContactSettings {
         dhat: SELF_DHAT,
         thickness: SELF_THICKNESS,
+        mu: case.mu,
         ..SelfContactSettings::default()
     };
     let stats = match model.enable_self_contact(&mut integrator, contact) {
@@ -330,6 +339,7 @@ mod tests {
             stiffness: 1e3,
             dt: 1.0 / 60.0,
             speed: 2.0,
+            mu: 0.5,
             steps: 4,
         };
         let out = run_self_contact_case(&case);
