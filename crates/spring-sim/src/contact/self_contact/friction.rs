@@ -2,8 +2,9 @@
 //!
 //! At the start of a step every vertex-triangle and edge-edge pair within `dhat` is
 //! lagged: the weights `w` of its closest points (a point and its projection on the
-//! triangle, or the two edges' closest points; from the region the barrier found), so
-//! that `z(x) = sum_k w_k x_k` is the vector between the two closest points, its unit
+//! triangle, or the two edges' closest points; [`RegionForm`]'s `c` in the region the
+//! barrier found), so that `z(x) = sum_k w_k x_k` is the vector between the two closest
+//! points, its unit
 //! normal `n = z / |z|`, a tangent basis `T` across it, and the normal force the barrier
 //! exerts there, `lambda = -kappa m b'(d - xi)` (`m` the edge pair's mollifier, 1 for a
 //! vertex-triangle pair). Through the step the pair's friction energy is the collider
@@ -21,60 +22,10 @@
 //! weights sum to one), so a rigid translation of the pair moves nothing: only the two
 //! primitives' motion relative to each other is resisted. Derivations: docs/contact.md.
 
+use super::closed::RegionForm;
 use super::distance::{Closest, PairKind};
 use crate::contact::friction::FrictionContact;
 use sinew_math::{DMat3, DVec3};
-
-/// The weights of a pair's closest points in the region `closest` at the pair's
-/// positions `p` (indices into the pair): `sum_k w_k p_k` is the vector from the closest
-/// point of the pair's second part to that of its first (of the triangle to the point, or
-/// of one edge to the other, up to a common sign, which friction does not see). `None`
-/// when a parameter is not finite (a degenerate edge or triangle).
-#[must_use]
-pub fn closest_point_weights(closest: Closest, p: &[DVec3; 4]) -> Option<[f64; 4]> {
-    let mut w = [0.0; 4];
-    match closest {
-        Closest::PointPoint([i, j]) => {
-            w[i] = 1.0;
-            w[j] = -1.0;
-        }
-        Closest::PointEdge([q, a, b]) => {
-            let e = p[b] - p[a];
-            let t = ((p[q] - p[a]).dot(e) / e.length_squared()).clamp(0.0, 1.0);
-            w[q] = 1.0;
-            w[a] = -(1.0 - t);
-            w[b] = -t;
-        }
-        Closest::PointPlane([q, a, b, c]) => {
-            // The barycentric coordinates of the point's projection on the plane.
-            let (e1, e2, r) = (p[b] - p[a], p[c] - p[a], p[q] - p[a]);
-            let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
-            let (r1, r2) = (r.dot(e1), r.dot(e2));
-            let det = d11 * d22 - d12 * d12;
-            let beta = (d22 * r1 - d12 * r2) / det;
-            let gamma = (d11 * r2 - d12 * r1) / det;
-            w[q] = 1.0;
-            w[a] = -(1.0 - beta - gamma);
-            w[b] = -beta;
-            w[c] = -gamma;
-        }
-        Closest::LineLine([a0, a1, b0, b1]) => {
-            // The parameters of the lines' closest points: `a0 + s da` and `b0 + t db`
-            // with the joining vector across both directions.
-            let (da, db, r) = (p[a1] - p[a0], p[b1] - p[b0], p[a0] - p[b0]);
-            let (aa, ab, bb) = (da.dot(da), da.dot(db), db.dot(db));
-            let (ar, br) = (da.dot(r), db.dot(r));
-            let det = aa * bb - ab * ab;
-            let s = ((ab * br - ar * bb) / det).clamp(0.0, 1.0);
-            let t = ((aa * br - ab * ar) / det).clamp(0.0, 1.0);
-            w[a0] = 1.0 - s;
-            w[a1] = s;
-            w[b0] = -(1.0 - t);
-            w[b1] = -t;
-        }
-    }
-    w.iter().all(|v| v.is_finite()).then_some(w)
-}
 
 /// One lagged friction pair: its particles, the weights of its closest points and the
 /// friction of the relative displacement `z(x) = sum_k w_k x_k` (see the module
@@ -97,7 +48,8 @@ impl FrictionPair {
     /// lie in region `closest`, with the largest friction force `max_force` (`mu lambda`,
     /// `lambda` the barrier's normal force there) and the smoothing displacement
     /// `epsilon` (`eps_v h`), its displacement measured from `x_ref`: `None` when the
-    /// weights or the normal are not finite, or there is no force.
+    /// weights or the normal are not finite (a degenerate edge or triangle), or there is
+    /// no force.
     #[must_use]
     pub fn lagged(
         kind: PairKind,
@@ -108,11 +60,15 @@ impl FrictionPair {
         max_force: f64,
         epsilon: f64,
     ) -> Option<Self> {
-        let p = particles.map(|i| x_n[i]);
-        let weights = closest_point_weights(closest, &p)?;
-        let z = weighted(&weights, &p);
-        let normal = z.normalize_or_zero();
-        if normal == DVec3::ZERO || !(max_force.is_finite() && max_force > 0.0) {
+        // The form's `r` is computed along the normal in the point-plane and line-line
+        // regions, so the normal does not carry the in-plane parameters' round-off.
+        let form = RegionForm::new(&particles.map(|i| x_n[i]), closest);
+        let weights = form.c;
+        let normal = form.r.normalize_or_zero();
+        if weights.iter().any(|w| !w.is_finite())
+            || normal == DVec3::ZERO
+            || !(max_force.is_finite() && max_force > 0.0)
+        {
             return None;
         }
         let (t1, t2) = normal.any_orthonormal_pair();
@@ -181,7 +137,7 @@ mod tests {
     }
 
     #[test]
-    fn the_weights_give_the_vector_between_the_closest_points_in_every_region() {
+    fn a_lagged_pairs_weights_give_the_vector_between_the_closest_points_in_every_region() {
         let v = DVec3::new;
         // Each case: a pair, and the region its closest points must lie in.
         let cases: [(PairKind, [DVec3; 4]); 6] = [
@@ -250,8 +206,13 @@ mod tests {
         for (kind, p) in cases {
             let closest = pair_closest(kind, &p);
             regions.push(std::mem::discriminant(&closest));
-            let w = closest_point_weights(closest, &p).unwrap();
-            let z = weighted(&w, &p);
+            let pair =
+                FrictionPair::lagged(kind, [0, 1, 2, 3], closest, &p, &p, 1.0, 1e-5).unwrap();
+            let (w, z) = (pair.weights, pair.relative(&p));
+            assert!(
+                (pair.contact.normal - z.normalize()).length() <= 1e-14,
+                "{closest:?}"
+            );
             // Its length is the pair's distance, and each side's weights sum to one.
             let d = squared_distance(kind, &p).sqrt();
             assert!(
