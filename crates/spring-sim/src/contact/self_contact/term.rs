@@ -307,7 +307,20 @@ pub struct SelfContactTerm {
     places: Mutex<KeptPlaces>,
     /// The friction pairs lagged at the step's start (empty without friction).
     friction: Vec<FrictionPair>,
+    /// The friction pairs' Hessian blocks (the storage kept from iteration to iteration)
+    /// and the places of their coupling blocks on the pattern of the kept revision.
+    friction_scatter: Mutex<FrictionScatter>,
     stats: Arc<SelfContactStats>,
+}
+
+/// See [`SelfContactTerm::friction_scatter`].
+#[derive(Debug, Default)]
+struct FrictionScatter {
+    /// The [`HessianPattern::revision`] `places` were found on (`None`: none kept, as
+    /// after the pairs are lagged again).
+    revision: Option<u64>,
+    places: Vec<[PairPlace; 6]>,
+    blocks: Vec<PairBlocks>,
 }
 
 impl SelfContactTerm {
@@ -391,6 +404,7 @@ impl SelfContactTerm {
             checked_start: Mutex::new((Vec::new(), None)),
             places: Mutex::new(KeptPlaces::default()),
             friction: Vec::new(),
+            friction_scatter: Mutex::new(FrictionScatter::default()),
             stats: Arc::new(SelfContactStats::default()),
         };
         term.check_state(x, system.fixed())?;
@@ -980,6 +994,10 @@ impl SelfContactTerm {
             .friction_pairs
             .store(friction.len() as u64, Ordering::Relaxed);
         self.friction = friction;
+        self.friction_scatter
+            .get_mut()
+            .unwrap_or_else(PoisonError::into_inner)
+            .revision = None;
     }
 
     /// The friction of the pair `c`, whose closest points at the step's start lie in
@@ -1827,20 +1845,41 @@ impl Term for SelfContactTerm {
             return;
         }
         // Each pair's `w w^T (x) H`, positive semidefinite as it is (see
-        // `super::friction`), scattered as the barrier's pairs are.
-        let mut blocks = Vec::new();
-        spread::fill(
-            &mut blocks,
-            self.friction.len(),
-            PairBlocks::default(),
-            |i| {
-                let pair = &self.friction[i];
-                friction_blocks(&pair.weights, &pair.hessian(x))
-            },
-        );
+        // `super::friction`), scattered as the barrier's pairs are: by parts of the
+        // matrix, with the places of the pairs' blocks looked up once per step and
+        // pattern (the lagged pairs are the step's), not at every Newton iteration.
+        let n = self.friction.len();
+        let mut kept = self
+            .friction_scatter
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let kept = &mut *kept;
+        spread::fill(&mut kept.blocks, n, PairBlocks::default(), |i| {
+            let pair = &self.friction[i];
+            friction_blocks(&pair.weights, &pair.hessian(x))
+        });
         let mut missing = Vec::new();
-        for (pair, h) in self.friction.iter().zip(&blocks) {
-            scatter(h, pair.kind, pair.particles, sink, &mut missing);
+        if let Some((pattern, values)) = sink.values_mut() {
+            if kept.revision != Some(pattern.revision) || kept.places.len() != n {
+                let friction = &self.friction;
+                spread::fill(&mut kept.places, n, [PairPlace::Skip; 6], |k| {
+                    let v = friction[k].particles;
+                    PAIR_BLOCKS.map(|(a, b)| PairPlace::find(pattern, v[a], v[b]))
+                });
+                kept.revision = Some(pattern.revision);
+            }
+            scatter_in_parts(
+                pattern,
+                values,
+                &self.friction,
+                &kept.blocks,
+                &kept.places,
+                &mut missing,
+            );
+        } else {
+            for (pair, h) in self.friction.iter().zip(&kept.blocks) {
+                scatter(h, pair.kind, pair.particles, sink, &mut missing);
+            }
         }
         if !missing.is_empty() {
             self.stats.note_missing(missing.into_iter());
@@ -2126,6 +2165,35 @@ fn kept_blocks(kind: PairKind, has: [bool; 6]) -> [bool; 6] {
     within.map(|w| keep_within && w)
 }
 
+/// A pair whose Hessian blocks [`scatter_in_parts`] adds: a barrier pair's derivatives
+/// or a friction pair.
+trait Scattered {
+    /// Whether the pair has blocks to add.
+    fn present(&self) -> bool;
+    /// Its kind and four particles.
+    fn pair(&self) -> (PairKind, [usize; 4]);
+}
+
+impl Scattered for PairDerivatives {
+    fn present(&self) -> bool {
+        self.present
+    }
+
+    fn pair(&self) -> (PairKind, [usize; 4]) {
+        (self.kind, self.particles)
+    }
+}
+
+impl Scattered for FrictionPair {
+    fn present(&self) -> bool {
+        true
+    }
+
+    fn pair(&self) -> (PairKind, [usize; 4]) {
+        (self.kind, self.particles)
+    }
+}
+
 /// [`scatter`] of every present pair, in the pairs' order, straight into the values of
 /// `pattern`, split into parts of consecutive block columns (one per thread of the
 /// caller's pool): each part adds, pair after pair, the blocks that fall in its columns
@@ -2133,10 +2201,10 @@ fn kept_blocks(kind: PairKind, has: [bool; 6]) -> [bool; 6] {
 /// value gets the same additions in the same order as from the sequential scatter, so
 /// the same bits for any number of parts; the parts share no value, so they run side by
 /// side. The scatter on one thread was 8% of a resting stack's step.
-fn scatter_in_parts(
+fn scatter_in_parts<P: Scattered + Sync>(
     pattern: &HessianPattern,
     values: &mut [f64],
-    pairs: &[PairDerivatives],
+    pairs: &[P],
     hessians: &[PairBlocks],
     places: &[[PairPlace; 6]],
     missing: &mut Vec<[usize; 2]>,
@@ -2160,17 +2228,18 @@ fn scatter_in_parts(
     }
     spread::each(parts, |(columns, base, part, mut missing)| {
         let pairs = pairs.iter().zip(hessians).zip(places);
-        for ((e, h), place) in pairs.filter(|((e, _), _)| e.present) {
+        for ((e, h), place) in pairs.filter(|((e, _), _)| e.present()) {
+            let (kind, particles) = e.pair();
             if let Some(missing) = missing.as_deref_mut() {
                 missing.extend(
                     PAIR_BLOCKS
                         .iter()
                         .zip(place)
                         .filter(|&(_, p)| *p == PairPlace::Missing)
-                        .map(|(&(a, b), _)| [e.particles[a], e.particles[b]]),
+                        .map(|(&(a, b), _)| [particles[a], particles[b]]),
                 );
             }
-            for (k, &i) in e.particles.iter().enumerate() {
+            for (k, &i) in particles.iter().enumerate() {
                 let f = pattern.free_index[i];
                 if columns.contains(&f) {
                     for (slot, v) in pattern.diag_slots[f].iter().zip(h.diagonal[k]) {
@@ -2178,7 +2247,7 @@ fn scatter_in_parts(
                     }
                 }
             }
-            let keep = kept_blocks(e.kind, place.map(|p| p != PairPlace::Missing));
+            let keep = kept_blocks(kind, place.map(|p| p != PairPlace::Missing));
             for (n, p) in place.iter().enumerate() {
                 let PairPlace::At { col, k, transposed } = *p else {
                     continue;
