@@ -4,10 +4,9 @@
 //! lagged: the weights `w` of its closest points (a point and its projection on the
 //! triangle, or the two edges' closest points; [`RegionForm`]'s `c` in the region the
 //! barrier found), so that `z(x) = sum_k w_k x_k` is the vector between the two closest
-//! points, its unit
-//! normal `n = z / |z|`, a tangent basis `T` across it, and the normal force the barrier
-//! exerts there, `lambda = -kappa m b'(d - xi)` (`m` the edge pair's mollifier, 1 for a
-//! vertex-triangle pair). Through the step the pair's friction energy is the collider
+//! points, its unit normal `n = z / |z|`, a tangent basis `T` across it, and the normal
+//! force the barrier exerts there, `lambda = -kappa m b'(d - xi)` (`m` the edge pair's
+//! mollifier, 1 for a vertex-triangle pair). Through the step the pair's friction energy is the collider
 //! friction's ([`crate::contact::friction`]) on the relative displacement of the two
 //! closest points,
 //!
@@ -50,6 +49,10 @@ impl FrictionPair {
     /// `epsilon` (`eps_v h`), its displacement measured from `x_ref`: `None` when the
     /// weights or the normal are not finite (a degenerate edge or triangle), or there is
     /// no force.
+    ///
+    /// # Panics
+    /// If a particle is out of the range of `x_n` or `x_ref` (the term passes its own
+    /// pairs and the step's states).
     #[must_use]
     pub fn lagged(
         kind: PairKind,
@@ -89,6 +92,9 @@ impl FrictionPair {
     }
 
     /// `z = sum_k w_k v_k` of per-particle vectors `v` (positions or directions).
+    ///
+    /// # Panics
+    /// If a particle is out of the range of `v`.
     #[must_use]
     pub fn relative(&self, v: &[DVec3]) -> DVec3 {
         weighted(&self.weights, &self.particles.map(|i| v[i]))
