@@ -75,7 +75,9 @@ pub use model::{
     ClothGrid, Energies, MAX_TIME_STEP, MIN_TIME_STEP, Material, ModelError, Particle, Rope,
     SettingsError, Spring, SpringSpec, SpringSystem, Topology, check_time_step,
 };
-pub use newton::{BackwardEuler, InitialGuess, NewtonSettings, newton_matrix_triplets};
+pub use newton::{
+    BackwardEuler, InitialGuess, MAX_FRICTION_LAGS, NewtonSettings, newton_matrix_triplets,
+};
 pub use pattern::HessianPattern;
 pub use pins::{
     PIN_SPLIT_DEPTH, PinDriver, PinnedMotion, PinnedStepper, pinned_move_fraction, step_to_targets,

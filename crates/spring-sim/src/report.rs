@@ -262,6 +262,10 @@ pub struct StepReport {
     /// one of its pieces) because their blocks had stayed zero for several steps (pairs
     /// in contact earlier that have separated); a pair that comes back is added again.
     pub pattern_pairs_dropped: usize,
+    /// Rounds in which friction was lagged again at a solve's minimizer and the step
+    /// minimized again (`NewtonSettings::friction_lags`; 0 with the default of one lag
+    /// per step); their Newton iterations are in `iterations`.
+    pub friction_relags: usize,
 }
 
 impl StepReport {
@@ -282,6 +286,7 @@ impl StepReport {
         self.contact_projection_fallbacks += part.contact_projection_fallbacks;
         self.pattern_pairs_added += part.pattern_pairs_added;
         self.pattern_pairs_dropped += part.pattern_pairs_dropped;
+        self.friction_relags += part.friction_relags;
     }
 
     /// An empty report for `integrator`.
@@ -318,6 +323,7 @@ impl StepReport {
             rejected_splits: 0,
             pattern_pairs_added: 0,
             pattern_pairs_dropped: 0,
+            friction_relags: 0,
         }
     }
 

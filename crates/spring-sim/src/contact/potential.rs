@@ -228,40 +228,72 @@ impl ContactPotential {
             }
             _ => kappa,
         };
-        self.friction.clear();
-        if self.settings.mu > 0.0 {
-            for collider in &self.colliders {
-                let shape = collider.at(start);
-                if box_distance(&shape, &free_box(positions, fixed, None))
-                    >= self.settings.dhat + self.settings.thickness
-                {
-                    continue;
-                }
-                for (i, &x) in positions.iter().enumerate() {
-                    if fixed[i] {
-                        continue;
-                    }
-                    let lagged = FrictionContact::lagged_posed(
-                        collider,
-                        &shape,
-                        x,
-                        start,
-                        h,
-                        kappa.kappa,
-                        &self.settings,
-                    );
-                    if let Some(mut contact) = lagged {
-                        // The lag point stays x_n (normal, force, basis); the displacement
-                        // is measured from the scheme's reference point.
-                        contact.start = step.anchor[i];
-                        self.friction.push((i, contact));
-                    }
-                }
-            }
-        }
+        self.lag_friction(positions, step.anchor, fixed, start, h, kappa.kappa);
         self.step_start = start;
         self.clock = step.end;
         self.posed = self.colliders.iter().map(|c| c.at(self.clock)).collect();
+    }
+
+    /// Lags the friction of every free particle at `positions` within `dhat` of a
+    /// collider posed at time `t` (see [`FrictionContact::lagged`]) with stiffness
+    /// `kappa`, each contact's displacement over a step of `h` measured from its
+    /// particle's `anchor`; none when `mu` is 0.
+    fn lag_friction(
+        &mut self,
+        positions: &[DVec3],
+        anchor: &[DVec3],
+        fixed: &[bool],
+        t: f64,
+        h: f64,
+        kappa: f64,
+    ) {
+        self.friction.clear();
+        if self.settings.mu == 0.0 {
+            return;
+        }
+        for collider in &self.colliders {
+            let shape = collider.at(t);
+            if box_distance(&shape, &free_box(positions, fixed, None))
+                >= self.settings.dhat + self.settings.thickness
+            {
+                continue;
+            }
+            for (i, &x) in positions.iter().enumerate() {
+                if fixed[i] {
+                    continue;
+                }
+                let lagged =
+                    FrictionContact::lagged_posed(collider, &shape, x, t, h, kappa, &self.settings);
+                if let Some(mut contact) = lagged {
+                    // The lag point (normal, force, basis) is `positions`; the
+                    // displacement is measured from the scheme's reference point.
+                    contact.start = anchor[i];
+                    self.friction.push((i, contact));
+                }
+            }
+        }
+    }
+
+    /// Lags the friction again at the end state `positions` of the current step's
+    /// minimizer, against the colliders posed at the step's end (their surface
+    /// velocities taken there), with the current `kappa`: the contacts within `dhat` at
+    /// `positions` and their normal forces, normals and bases, the displacements still
+    /// measured from `anchor` over `h` (as [`Self::begin`] was given). Returns whether any
+    /// particle is in friction (see [`crate::NewtonSettings::friction_lags`]).
+    pub fn relag_friction(
+        &mut self,
+        positions: &[DVec3],
+        anchor: &[DVec3],
+        fixed: &[bool],
+        h: f64,
+    ) -> bool {
+        let kappa = self.kappa();
+        if kappa == 0.0 {
+            self.friction.clear();
+            return false;
+        }
+        self.lag_friction(positions, anchor, fixed, self.clock, h, kappa);
+        !self.friction.is_empty()
     }
 
     /// IPC's balancing stiffness at `x` (colliders posed at `t`): the `kappa` that

@@ -188,6 +188,31 @@ impl Term for ContactTerm {
         self.stats.publish(&self.potential);
     }
 
+    fn relag_friction(&mut self, step: &StepContext<'_>, x: &[DVec3]) -> bool {
+        let s = step.system;
+        let timing = step.timing;
+        // The same end state, step and reference point as `begin_step`'s.
+        let (h, anchor) = if timing.midpoint {
+            (timing.length, s.positions())
+        } else {
+            (step.h, step.x_ref)
+        };
+        let midpoint_end: Vec<DVec3>;
+        let end = if timing.midpoint {
+            midpoint_end = x
+                .iter()
+                .zip(s.positions())
+                .map(|(z, x0)| 2.0 * *z - *x0)
+                .collect();
+            midpoint_end.as_slice()
+        } else {
+            x
+        };
+        let any = self.potential.relag_friction(end, anchor, s.fixed(), h);
+        self.stats.publish(&self.potential);
+        any
+    }
+
     fn prepare_start(&self, step: &StepContext<'_>, x: &mut [DVec3]) {
         let (x_n, fixed) = (step.system.positions(), step.system.fixed());
         let midpoint = step.timing.midpoint;

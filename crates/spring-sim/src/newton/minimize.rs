@@ -65,15 +65,21 @@ impl BackwardEuler {
     /// hands the step over once: the parallel passes inside (assembly, PCG, the line
     /// search) are then started from one of the pool's own threads, without a hand-off
     /// between threads and a wait to be woken at every one of them.
+    ///
+    /// `from_minimizer`: `self.x` is the minimizer of an earlier round of the same step
+    /// (friction lagged again, see [`crate::NewtonSettings::friction_lags`]), so a
+    /// residual within the tolerance there ends the minimization with no iteration; a
+    /// step's first guess always gets at least one.
     pub(super) fn minimize(
         &mut self,
         system: &SpringSystem,
         h: f64,
+        from_minimizer: bool,
     ) -> Result<StepReport, ModelError> {
         #[cfg(feature = "parallel")]
         if let Some(pool) = self.pcg.pool().cloned() {
             return pool.install(|| {
-                let report = self.minimize_here(system, h);
+                let report = self.minimize_here(system, h, from_minimizer);
                 // A direct solver still being set up (an iteration that widened the
                 // pattern and ended without a direct solve) is taken on the pool, so
                 // none is left pending once the minimization returns.
@@ -82,11 +88,16 @@ impl BackwardEuler {
                 settled.map(|()| report)
             });
         }
-        self.minimize_here(system, h)
+        self.minimize_here(system, h, from_minimizer)
     }
 
     /// [`Self::minimize`] on the current thread.
-    fn minimize_here(&mut self, system: &SpringSystem, h: f64) -> Result<StepReport, ModelError> {
+    fn minimize_here(
+        &mut self,
+        system: &SpringSystem,
+        h: f64,
+        from_minimizer: bool,
+    ) -> Result<StepReport, ModelError> {
         // Transient couplings idle for long enough leave the pattern (see `couplings`);
         // the direct solver's set-up runs beside the first iteration's work.
         let dropped = self.narrow_if_due(system)?;
@@ -179,9 +190,12 @@ impl BackwardEuler {
             // correct it, and a settled cloth would freeze at rest short of equilibrium.
             // At least one Newton iteration runs unless the residual is already at the
             // round-off floor of the gradient's evaluation, so the error from the exact
-            // step shrinks with the tolerance (docs/spring-sim.md, "Stopping test").
+            // step shrinks with the tolerance (docs/spring-sim.md, "Stopping test"). A
+            // round started at an earlier round's minimizer has had its iterations.
             if residual <= tol_abs
-                && (report.iterations > 0 || residual <= roundoff_floor(system, &step, h))
+                && (report.iterations > 0
+                    || from_minimizer
+                    || residual <= roundoff_floor(system, &step, h))
             {
                 report.stop = StepStop::Converged;
                 break;

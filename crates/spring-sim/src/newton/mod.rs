@@ -33,7 +33,7 @@ mod minimize;
 mod settings;
 mod solver_choice;
 
-pub use settings::{InitialGuess, NewtonSettings};
+pub use settings::{InitialGuess, MAX_FRICTION_LAGS, NewtonSettings};
 
 use crate::linear::{
     DirectSolver, LinearSolverChoice, LinearSolverKind, PcgOutcome, PcgSolver, SolverCosts,
@@ -1096,9 +1096,54 @@ impl BackwardEuler {
             }
         }
         self.potential.prepare_start(&step, &mut self.x);
-        let mut report = self.minimize(system, h_eff)?;
+        let mut report = self.minimize(system, h_eff, false)?;
+        for _ in 1..self.settings.friction_lags {
+            if !matches!(report.stop, StepStop::Converged | StepStop::RoundOff)
+                || !self.relag_friction(system, h_eff, scheme)
+            {
+                break;
+            }
+            let mut round = self.minimize(system, h_eff, true)?;
+            let iterations = round.iterations;
+            round.add_work(&report);
+            round.friction_relags += 1;
+            report = round;
+            if iterations == 0 {
+                break;
+            }
+        }
         report.integrator = kind;
         Ok((report, h_eff))
+    }
+
+    /// Lags the terms' friction again at the minimizer in `self.x` and chooses where
+    /// the next round's minimization starts: there, or at x_n when `g` with the new lag
+    /// is higher at the minimizer than at x_n or the straight path from x_n to it is not
+    /// admissible (the first guess's test, so every round, like the first, ends with
+    /// `g(x_{n+1}) <= g(x_n)` for its own function: the energy inequality's ground).
+    /// Returns whether any term holds friction (with none there is nothing to redo).
+    fn relag_friction(&mut self, system: &SpringSystem, h_eff: f64, scheme: Scheme<'_>) -> bool {
+        let step = StepContext::new(system, h_eff, &self.y, &self.x_ref).with_timing(self.timing);
+        if !self.potential.relag_friction(&step, &self.x) {
+            return false;
+        }
+        let positions = system.positions();
+        for ((d, x), p) in self.dx_particles.iter_mut().zip(&self.x).zip(positions) {
+            *d = *x - *p;
+        }
+        if !start_is_acceptable(
+            &self.potential,
+            &self.pcg,
+            &mut self.change_partials,
+            &step,
+            positions,
+            &self.dx_particles,
+            matches!(scheme, Scheme::BackwardEuler),
+        ) {
+            start_at(&mut self.x, positions, &self.y, system.fixed());
+            self.potential.prepare_start(&step, &mut self.x);
+        }
+        true
     }
 
     /// Writes the minimizer in `self.x` to `system` as the end of a step of `scheme`

@@ -111,6 +111,19 @@ pub struct NewtonSettings {
     /// counted in [`crate::StepReport::swept_passes`] (docs/contact.md, "A kinematic
     /// collider passing the cloth within a step").
     pub max_split_depth: usize,
+    /// How many times a step lags friction (contact with colliders, and between the
+    /// cloth's own primitives), at most [`MAX_FRICTION_LAGS`] (default 1). Friction is
+    /// lagged at the step's start: its normal forces, normals and tangent bases, and the
+    /// contacts it acts on, are those of `x_n`, so a contact that closes during the step
+    /// carries no friction in it. With `k > 1`, a converged solve is followed by up to
+    /// `k - 1` more rounds: the friction is lagged again at the solve's minimizer and the
+    /// step minimized again from there (IPC's lagged iterations). A round ends the step
+    /// when its minimizer already meets the tolerance with the new lag (no Newton
+    /// iteration), when no term holds friction, or when its solve does not converge.
+    /// Each round's minimization is a slice of its own in
+    /// [`crate::BackwardEuler::step_objective_traces`]; [`crate::StepReport::friction_relags`]
+    /// counts the rounds a step ran (docs/contact.md, "Lagging friction again").
+    pub friction_lags: usize,
 }
 
 impl Default for NewtonSettings {
@@ -130,6 +143,7 @@ impl Default for NewtonSettings {
             record_objective: false,
             threads: 0,
             max_split_depth: 6,
+            friction_lags: 1,
         }
     }
 }
@@ -175,9 +189,20 @@ impl NewtonSettings {
                 "must be at most 20 (pieces of h / 2^20)",
             ));
         }
+        if !(1..=MAX_FRICTION_LAGS).contains(&self.friction_lags) {
+            return Err(SettingsError::new(
+                "NewtonSettings",
+                "friction_lags",
+                "must be between 1 (friction lagged at the step's start only) and 16",
+            ));
+        }
         Ok(())
     }
 }
+
+/// The largest [`NewtonSettings::friction_lags`] accepted: each round is a minimization,
+/// and IPC's examples converge their lagged friction in a few.
+pub const MAX_FRICTION_LAGS: usize = 16;
 
 /// The largest [`NewtonSettings::max_split_depth`] accepted: a million pieces per step
 /// is already far past any use.

@@ -142,6 +142,19 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
         let _ = step;
     }
 
+    /// Called after a converged minimization when the Newton settings ask for friction to
+    /// be lagged again ([`crate::NewtonSettings::friction_lags`]), with its minimizer `x`:
+    /// lags the term's friction anew there (the contacts within reach at `x`, their
+    /// normal forces, normals, tangent bases and weights at `x`), its displacements still
+    /// measured from the step's reference point, so the next minimization's friction is
+    /// that of the contacts the step ended in. Returns whether the term now holds lagged
+    /// friction (with none, minimizing again changes nothing). The term's other state is
+    /// left as it is. Nothing (and `false`) by default.
+    fn relag_friction(&mut self, step: &StepContext<'_>, x: &[DVec3]) -> bool {
+        let _ = (step, x);
+        false
+    }
+
     /// Called once per step after the first iterate is chosen, to move it where the term
     /// admits it (a contact term carries particles that a moving collider would run
     /// over along with the collider's rigid motion). Most terms leave it alone.
@@ -452,6 +465,15 @@ impl Potential {
         for t in &mut self.terms {
             t.begin_step(step);
         }
+    }
+
+    /// [`Term::relag_friction`] on every term: whether any now holds lagged friction.
+    pub fn relag_friction(&mut self, step: &StepContext<'_>, x: &[DVec3]) -> bool {
+        let mut any = false;
+        for t in &mut self.terms {
+            any |= t.relag_friction(step, x);
+        }
+        any
     }
 
     /// [`Term::abandon_step`] on every term.

@@ -48,6 +48,79 @@ fn a_particle_settles_on_the_ground_within_dhat() {
     assert_eq!(pairs, 1);
 }
 
+/// A particle 1 cm above the ground moving at (1, -1, 0) m/s reaches it within one step
+/// of 1/60 s, friction `mu` 0.3 and `lags` lags a step: the step's report and the
+/// particle's velocity after it (every state above the ground).
+fn land(lags: usize) -> (sinew_spring_sim::StepReport, DVec3) {
+    land_with(Integrator::BackwardEuler, lags)
+}
+
+/// [`land`] with the implicit integrator `scheme`.
+fn land_with(
+    scheme: fn(NewtonSettings) -> Integrator,
+    lags: usize,
+) -> (sinew_spring_sim::StepReport, DVec3) {
+    let particle = Particle {
+        velocity: DVec3::new(1.0, -1.0, 0.0),
+        ..Particle::at_rest(DVec3::new(0.0, 0.01, 0.0), 5e-4)
+    };
+    let system = SpringSystem::new(&[particle], &[], contact_material()).unwrap();
+    let settings = NewtonSettings {
+        friction_lags: lags,
+        ..NewtonSettings::default()
+    };
+    let mut sim = Simulation::new(system, scheme(settings)).unwrap();
+    let contact = ContactSettings {
+        mu: 0.3,
+        ..ContactSettings::default()
+    };
+    sim.set_contact(vec![Collider::ground(0.0)], contact)
+        .unwrap();
+    let report = sim.step(H).unwrap();
+    assert!(report.residual <= report.tolerance, "{report:?}");
+    let y = sim.system().positions()[0].y;
+    assert!(y > 0.0 && y < contact.dhat, "landed at {y}");
+    (report, sim.system().velocities()[0])
+}
+
+#[test]
+fn friction_lagged_again_acts_in_the_step_a_particle_lands() {
+    // Lagged at the step's start only, the particle is not in contact there: the landing
+    // step has no friction and the tangential velocity is kept.
+    let (once, v) = land(1);
+    assert_eq!(once.friction_relags, 0);
+    assert!((v.x - 1.0).abs() <= 1e-12, "{v}");
+    // Lagged again at the minimizer, friction acts in the landing step with the normal
+    // force the step ends with. Backward Euler's normal balance gives that force's
+    // impulse, `lambda h / m = v_y' - v_y + g h`, and the particle slides throughout, so
+    // Coulomb's law takes `mu` times it from the tangential velocity. The flat ground's
+    // normal does not depend on the friction, so the second round's normal force is
+    // already the last one's.
+    let (again, v) = land(4);
+    assert!(again.friction_relags >= 1, "{again:?}");
+    let impulse = v.y - (-1.0) + G * H;
+    let expected = 1.0 - 0.3 * impulse;
+    println!("landing: v {v}, normal impulse per mass {impulse}, v_x expected {expected}");
+    assert!(impulse > 0.3, "{impulse}");
+    assert!((v.x - expected).abs() <= 1e-6, "{} vs {expected}", v.x);
+    assert!(v.z.abs() <= 1e-12, "{v}");
+}
+
+#[test]
+fn friction_lagged_again_acts_in_the_landing_step_of_the_midpoint() {
+    // The midpoint lags friction over its end state (docs/contact.md), and its forces act
+    // at the midpoint for the whole step: `m (v' - v)/h` is the barrier's normal force
+    // there less gravity, and Coulomb's `-mu lambda` along the slide, so the same law
+    // holds with the midpoint's own velocities. (BDF2's first step is this step.)
+    let (_, once) = land_with(Integrator::ImplicitMidpoint, 1);
+    assert!((once.x - 1.0).abs() <= 1e-12, "{once}");
+    let (again, v) = land_with(Integrator::ImplicitMidpoint, 4);
+    assert!(again.friction_relags >= 1, "{again:?}");
+    let expected = 1.0 - 0.3 * (v.y - (-1.0) + G * H);
+    println!("midpoint landing: v {v}, v_x expected {expected}");
+    assert!((v.x - expected).abs() <= 1e-6, "{} vs {expected}", v.x);
+}
+
 #[test]
 fn friction_holds_a_sheet_on_an_incline_when_mu_exceeds_tan_theta() {
     let theta = 30f64.to_radians();

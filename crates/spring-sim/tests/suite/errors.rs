@@ -77,6 +77,22 @@ fn every_bad_setting_is_named_with_its_settings_and_field() {
             "max_split_depth",
         ),
         (
+            newton(NewtonSettings {
+                friction_lags: 0,
+                ..NewtonSettings::default()
+            }),
+            "NewtonSettings",
+            "friction_lags",
+        ),
+        (
+            Integrator::ImplicitMidpoint(NewtonSettings {
+                friction_lags: sinew_spring_sim::MAX_FRICTION_LAGS + 1,
+                ..NewtonSettings::default()
+            }),
+            "NewtonSettings",
+            "friction_lags",
+        ),
+        (
             auto(AutoSettings {
                 max_substeps: 0,
                 ..AutoSettings::default()

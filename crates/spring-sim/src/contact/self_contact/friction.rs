@@ -43,29 +43,30 @@ pub struct FrictionPair {
 }
 
 impl FrictionPair {
-    /// The pair of `kind` on `particles` whose closest points at the step's start `x_n`
-    /// lie in region `closest`, with the largest friction force `max_force` (`mu lambda`,
+    /// The pair of `kind` on `particles` whose closest points at the lag point `x_lag`
+    /// (the step's start, or where a round of the step ended when friction is lagged
+    /// again) lie in region `closest`, with the largest friction force `max_force` (`mu lambda`,
     /// `lambda` the barrier's normal force there) and the smoothing displacement
     /// `epsilon` (`eps_v h`), its displacement measured from `x_ref`: `None` when the
     /// weights or the normal are not finite (a degenerate edge or triangle), or there is
     /// no force.
     ///
     /// # Panics
-    /// If a particle is out of the range of `x_n` or `x_ref` (the term passes its own
+    /// If a particle is out of the range of `x_lag` or `x_ref` (the term passes its own
     /// pairs and the step's states).
     #[must_use]
     pub fn lagged(
         kind: PairKind,
         particles: [usize; 4],
         closest: Closest,
-        x_n: &[DVec3],
+        x_lag: &[DVec3],
         x_ref: &[DVec3],
         max_force: f64,
         epsilon: f64,
     ) -> Option<Self> {
         // The form's `r` is computed along the normal in the point-plane and line-line
         // regions, so the normal does not carry the in-plane parameters' round-off.
-        let form = RegionForm::new(&particles.map(|i| x_n[i]), closest);
+        let form = RegionForm::new(&particles.map(|i| x_lag[i]), closest);
         let weights = form.c;
         let normal = form.r.normalize_or_zero();
         if weights.iter().any(|w| !w.is_finite())

@@ -955,15 +955,16 @@ impl SelfContactTerm {
         }
     }
 
-    /// Lags the friction of every pair within `dhat` at the step's start (see
-    /// [`super::friction`]), in the pairs' order: the active set's pairs and regions when
-    /// it was collected at this state with these fixed flags (a step starts where the
-    /// last one ended), else the broad phase's. Nothing without friction or stiffness.
-    fn lag_friction(&mut self, step: &StepContext<'_>) {
+    /// Lags the friction of every pair within `dhat` at `x` (the step's start, or a
+    /// round's minimizer; see [`super::friction`]), in the pairs' order: the active set's
+    /// pairs and regions when it was collected at `x` with these fixed flags (a step
+    /// starts where the last one ended; a minimization ends where its last active set
+    /// was collected), else the broad phase's. Nothing without friction or stiffness.
+    fn lag_friction(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
         let mut friction = std::mem::take(&mut self.friction);
         friction.clear();
         let kappa = self.kappa();
-        let (x, fixed) = (step.system.positions(), step.system.fixed());
+        let fixed = step.system.fixed();
         if self.settings.mu > 0.0 && kappa > 0.0 {
             let near: Vec<(Candidate, Closest)> =
                 if self.active_at.as_slice() == x && self.near_fixed.as_slice() == fixed {
@@ -986,7 +987,7 @@ impl SelfContactTerm {
                 };
             let mut lagged = Vec::new();
             spread::fill(&mut lagged, near.len(), None, |i| {
-                self.lag_pair(kappa, near[i].0, near[i].1, step)
+                self.lag_pair(kappa, near[i].0, near[i].1, step, x)
             });
             friction.extend(lagged.into_iter().flatten());
         }
@@ -1000,7 +1001,7 @@ impl SelfContactTerm {
             .revision = None;
     }
 
-    /// The friction of the pair `c`, whose closest points at the step's start lie in
+    /// The friction of the pair `c`, whose closest points at the lag point `x` lie in
     /// `closest`: the barrier's normal force there, `-kappa m b'(gap)`, times `mu`
     /// (`None` when the pair's particles are all fixed or it exerts no force).
     fn lag_pair(
@@ -1009,8 +1010,9 @@ impl SelfContactTerm {
         c: Candidate,
         closest: Closest,
         step: &StepContext<'_>,
+        x: &[DVec3],
     ) -> Option<FrictionPair> {
-        let (x, fixed) = (step.system.positions(), step.system.fixed());
+        let fixed = step.system.fixed();
         let q = self.placed(c, x);
         if q.v.iter().all(|&i| fixed[i]) {
             return None;
@@ -1677,7 +1679,12 @@ impl Term for SelfContactTerm {
             k.update(min, dhat);
         }
         self.publish(min);
-        self.lag_friction(step);
+        self.lag_friction(step, x);
+    }
+
+    fn relag_friction(&mut self, step: &StepContext<'_>, x: &[DVec3]) -> bool {
+        self.lag_friction(step, x);
+        !self.friction.is_empty()
     }
 
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
