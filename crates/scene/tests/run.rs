@@ -196,3 +196,32 @@ fn friction_between_sheets_holds_or_lets_slide_as_mu_says() {
     assert_eq!(travel[1].0, "slides");
     assert!(travel[1].1 > 0.2 && travel[1].1 < 0.3, "{travel:?}");
 }
+
+/// A mesh cloth task's `friction_lags` reaches Newton's settings: the committed incline
+/// scene validates with three lags a step, and a task with none is refused at validation,
+/// naming the setting.
+#[test]
+fn a_mesh_cloths_friction_lags_are_checked() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes/cloth-sheet-incline.ron");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let with = |lags: usize| {
+        let edited = text.replacen(
+            "self_contact: (dhat: 2e-3, thickness: 1e-3, mu: 0.2),",
+            &format!(
+                "self_contact: (dhat: 2e-3, thickness: 1e-3, mu: 0.2), friction_lags: {lags},"
+            ),
+            1,
+        );
+        assert_ne!(edited, text, "the sliding task is in the scene");
+        Scene::from_text(&path, &edited)
+    };
+    with(3).unwrap_or_else(|e| panic!("{e}"));
+    match with(0) {
+        Err(SceneError::Invalid { message, .. }) => {
+            assert!(message.contains("friction_lags"), "{message}");
+        }
+        Err(e) => panic!("refused for another reason: {e}"),
+        Ok(_) => panic!("a task lagging friction no time a step was accepted"),
+    }
+}

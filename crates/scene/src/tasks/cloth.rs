@@ -164,7 +164,8 @@ impl ClothTask {
                 n.max_iterations,
                 MAX_ITERATIONS,
             )?;
-            Ok(n.max_iterations)
+            // Each lag of friction after the first may run another minimization.
+            Ok(n.max_iterations.saturating_mul(n.friction_lags))
         };
         let per_step = match &self.integrator {
             Integrator::BackwardEuler(n)

@@ -58,6 +58,11 @@ pub struct MeshClothTask {
     /// `NewtonSettings::max_split_depth`; 0 turns splitting off, for a fixed cost per step).
     #[serde(default = "max_split_depth")]
     pub max_split_depth: usize,
+    /// How many times a step lags friction (default 1, at the step's start;
+    /// `NewtonSettings::friction_lags`: more lags it again where each round ended and
+    /// minimizes again, so friction also acts in the step a contact begins).
+    #[serde(default = "friction_lags")]
+    pub friction_lags: usize,
     /// Self-contact settings (`dhat`, thickness, ...; defaults: sinew-spring-sim's).
     #[serde(default)]
     pub self_contact: SelfContactSettings,
@@ -91,6 +96,10 @@ fn tolerance() -> f64 {
 
 fn max_split_depth() -> usize {
     NewtonSettings::default().max_split_depth
+}
+
+fn friction_lags() -> usize {
+    NewtonSettings::default().friction_lags
 }
 
 fn x_axis() -> DVec3 {
@@ -340,12 +349,13 @@ impl MeshClothTask {
     }
 
     /// Newton's settings for the task: the library's defaults with the task's cap,
-    /// tolerance and split depth.
+    /// tolerance, split depth and friction lags.
     fn newton_settings(&self) -> NewtonSettings {
         NewtonSettings {
             max_iterations: self.max_iterations,
             tolerance: self.tolerance,
             max_split_depth: self.max_split_depth,
+            friction_lags: self.friction_lags,
             ..NewtonSettings::default()
         }
     }
@@ -369,7 +379,10 @@ impl MeshClothTask {
             return Err(format!("dt = {}, must be finite and > 0", self.dt));
         }
         sinew_spring_sim::check_time_step(self.dt).map_err(|e| format!("dt: {e}"))?;
-        let work = a.positions.len() as f64 * self.steps as f64 * self.max_iterations as f64;
+        // Each lag of friction after the first may run another minimization.
+        let work = a.positions.len() as f64
+            * self.steps as f64
+            * self.max_iterations.saturating_mul(self.friction_lags) as f64;
         if work > MAX_PARTICLE_STEPS {
             return Err(format!(
                 "steps = {} of {} vertices at up to {} Newton iterations asks for {work:.2e} \
@@ -377,7 +390,7 @@ impl MeshClothTask {
                  \"Limits\")",
                 self.steps,
                 a.positions.len(),
-                self.max_iterations
+                self.max_iterations.saturating_mul(self.friction_lags)
             ));
         }
         self.self_contact
