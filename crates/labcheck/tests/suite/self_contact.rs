@@ -13,7 +13,9 @@
 //! every vertex along z (up to a third of the spacing). It collapses under gravity at a
 //! step of 1/30 to 1/4 s, folding onto itself on the ground, which is where
 //! self-contact acts. Half the cases have friction between the sheet's own primitives
-//! (`mu` 0.4), which is part of the potential the iterates descend.
+//! (`mu` 0.4), which is part of the potential the iterates descend; half of those lag it
+//! again where each round of a step ended (`friction_lags` 3), each round's iterates
+//! descending their own potential.
 
 use proptest::prelude::*;
 use sinew_exact::intersecting_pairs;
@@ -39,6 +41,10 @@ static STEPS_SPLIT: AtomicUsize = AtomicUsize::new(0);
 /// step's last minimization).
 static STEPS_WITH_MU: AtomicUsize = AtomicUsize::new(0);
 static STEPS_WITH_FRICTION: AtomicUsize = AtomicUsize::new(0);
+/// Accepted steps of the cases that lag friction again (`friction_lags` 3), and of those
+/// the steps that ran at least one round with friction lagged again.
+static STEPS_WITH_LAGS: AtomicUsize = AtomicUsize::new(0);
+static STEPS_RELAGGED: AtomicUsize = AtomicUsize::new(0);
 
 const SPACING: f64 = 0.03;
 const DHAT: f64 = 2e-3;
@@ -74,6 +80,17 @@ fn case() -> impl Strategy<Value = Case> {
                 steps: 8,
             })
         })
+}
+
+/// How many times a step of case `c` lags friction: three times (lagged again where each
+/// round ended) in half the cases with friction, those whose first crumple draw is
+/// positive, so the strategy draws what it drew before and a seed gives the same cases.
+fn friction_lags(c: &Case) -> usize {
+    if c.mu > 0.0 && c.crumple[0] > 0.0 {
+        3
+    } else {
+        1
+    }
 }
 
 /// The hanging sheet's positions: grid row `i` at height `5 mm + i s cos(lean)`, leaning
@@ -121,7 +138,12 @@ proptest! {
         }
         .build(&mesh)
         .expect("a valid cloth");
-        let newton = NewtonSettings { record_objective: true, max_iterations: 100, ..NewtonSettings::default() };
+        let newton = NewtonSettings {
+            record_objective: true,
+            max_iterations: 100,
+            friction_lags: friction_lags(&c),
+            ..NewtonSettings::default()
+        };
         let mut integrator = model.backward_euler(newton).expect("backward Euler");
         let ground = ContactPotential::new(vec![Collider::ground(0.0)], ContactSettings::default(), 0.0)
             .expect("ground contact");
@@ -192,6 +214,14 @@ proptest! {
             if stats.friction_pairs() > 0 {
                 STEPS_WITH_FRICTION.fetch_add(1, Ordering::Relaxed);
             }
+            if friction_lags(&c) > 1 {
+                STEPS_WITH_LAGS.fetch_add(1, Ordering::Relaxed);
+                if report.friction_relags > 0 {
+                    STEPS_RELAGGED.fetch_add(1, Ordering::Relaxed);
+                }
+            } else {
+                prop_assert_eq!(report.friction_relags, 0, "step {}: lagged again", step);
+            }
             prop_assert!(c.mu > 0.0 || stats.friction_pairs() == 0, "step {step}: friction without mu");
             if stats.min_gap() < DHAT {
                 STEPS_IN_CONTACT.fetch_add(1, Ordering::Relaxed);
@@ -201,11 +231,13 @@ proptest! {
         let (steps, contact) = (STEPS.load(Ordering::Relaxed), STEPS_IN_CONTACT.load(Ordering::Relaxed));
         if std::env::var_os("SINEW_CONTACT_COUNTS").is_some() {
             eprintln!(
-                "steps {steps}, self-contact acting in {contact}, the ground's kappa grew in {}, split {}, with mu {}, with friction {}",
+                "steps {steps}, self-contact acting in {contact}, the ground's kappa grew in {}, split {}, with mu {}, with friction {}, lagging again {}, lagged again {}",
                 KAPPA_GREW.load(Ordering::Relaxed),
                 STEPS_SPLIT.load(Ordering::Relaxed),
                 STEPS_WITH_MU.load(Ordering::Relaxed),
-                STEPS_WITH_FRICTION.load(Ordering::Relaxed)
+                STEPS_WITH_FRICTION.load(Ordering::Relaxed),
+                STEPS_WITH_LAGS.load(Ordering::Relaxed),
+                STEPS_RELAGGED.load(Ordering::Relaxed)
             );
         }
         if steps >= 30 {
@@ -219,6 +251,11 @@ proptest! {
         let (with_mu, friction) = (STEPS_WITH_MU.load(Ordering::Relaxed), STEPS_WITH_FRICTION.load(Ordering::Relaxed));
         if with_mu >= 30 {
             prop_assert!(8 * friction >= with_mu, "friction acted in only {friction} of {with_mu} steps with mu");
+        }
+        // And friction lagged again ran its rounds in some of the steps that ask for them.
+        let (with_lags, relagged) = (STEPS_WITH_LAGS.load(Ordering::Relaxed), STEPS_RELAGGED.load(Ordering::Relaxed));
+        if with_lags >= 30 {
+            prop_assert!(16 * relagged >= with_lags, "friction was lagged again in only {relagged} of {with_lags} steps");
         }
     }
 }
