@@ -240,8 +240,11 @@ proptest! {
                 STEPS_RELAGGED.load(Ordering::Relaxed)
             );
         }
+        // An eighth: the share is about 0.4 in long runs (699 of 1 616 steps over 200
+        // cases) but fell to 0.22 over the first 40 cases of one seed (137 of 624 steps,
+        // its shrinking's cases counted too), which a quarter failed.
         if steps >= 30 {
-            prop_assert!(4 * contact >= steps, "self-contact acted in only {contact} of {steps} steps");
+            prop_assert!(8 * contact >= steps, "self-contact acted in only {contact} of {steps} steps");
             let grew = KAPPA_GREW.load(Ordering::Relaxed);
             prop_assert!(2 * grew <= steps, "g was checked in only {} of {steps} steps", steps - grew);
         }
