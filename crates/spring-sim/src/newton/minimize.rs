@@ -69,7 +69,8 @@ impl BackwardEuler {
     /// `from_minimizer`: `self.x` is the minimizer of an earlier round of the same step
     /// (friction lagged again, see [`crate::NewtonSettings::friction_lags`]), so a
     /// residual within the tolerance there ends the minimization with no iteration; a
-    /// step's first guess always gets at least one.
+    /// step's first guess, and a round that starts again from x_n, always get at least
+    /// one.
     pub(super) fn minimize(
         &mut self,
         system: &SpringSystem,

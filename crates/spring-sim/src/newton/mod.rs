@@ -1098,12 +1098,13 @@ impl BackwardEuler {
         self.potential.prepare_start(&step, &mut self.x);
         let mut report = self.minimize(system, h_eff, false)?;
         for _ in 1..self.settings.friction_lags {
-            if !matches!(report.stop, StepStop::Converged | StepStop::RoundOff)
-                || !self.relag_friction(system, h_eff, scheme)
-            {
+            if !matches!(report.stop, StepStop::Converged | StepStop::RoundOff) {
                 break;
             }
-            let mut round = self.minimize(system, h_eff, true)?;
+            let Some(at_minimizer) = self.relag_friction(system, h_eff, scheme) else {
+                break;
+            };
+            let mut round = self.minimize(system, h_eff, at_minimizer)?;
             let iterations = round.iterations;
             round.add_work(&report);
             round.friction_relags += 1;
@@ -1117,33 +1118,48 @@ impl BackwardEuler {
     }
 
     /// Lags the terms' friction again at the minimizer in `self.x` and chooses where
-    /// the next round's minimization starts: there, or at x_n when `g` with the new lag
-    /// is higher at the minimizer than at x_n or the straight path from x_n to it is not
-    /// admissible (the first guess's test, so every round, like the first, ends with
-    /// `g(x_{n+1}) <= g(x_n)` for its own function: the energy inequality's ground).
-    /// Returns whether any term holds friction (with none there is nothing to redo).
-    fn relag_friction(&mut self, system: &SpringSystem, h_eff: f64, scheme: Scheme<'_>) -> bool {
+    /// the next round's minimization starts: there, or, for backward Euler, at x_n when
+    /// `g` with the new lag is higher at the minimizer than at x_n, so every round, like
+    /// the first, ends with `g(x_{n+1}) <= g(x_n)` for its own function (the energy
+    /// inequality's ground). Unlike a first guess the minimizer needs no test of the
+    /// straight path from x_n: it was reached by admissible iterates, each move capped
+    /// by the terms' largest safe step (a landing sheet's straight path from x_n, which
+    /// that cap cuts short of its contacts, would never pass). Returns whether the round
+    /// starts at the minimizer (`true`) or at x_n (`false`, which then gets at least one
+    /// iteration, as a step's first guess does), or `None` when no term holds friction
+    /// (there is nothing to redo).
+    fn relag_friction(
+        &mut self,
+        system: &SpringSystem,
+        h_eff: f64,
+        scheme: Scheme<'_>,
+    ) -> Option<bool> {
         let step = StepContext::new(system, h_eff, &self.y, &self.x_ref).with_timing(self.timing);
         if !self.potential.relag_friction(&step, &self.x) {
-            return false;
+            return None;
+        }
+        if !matches!(scheme, Scheme::BackwardEuler) {
+            return Some(true);
         }
         let positions = system.positions();
         for ((d, x), p) in self.dx_particles.iter_mut().zip(&self.x).zip(positions) {
             *d = *x - *p;
         }
-        if !start_is_acceptable(
+        let change = change_on_pool(
             &self.potential,
             &self.pcg,
             &mut self.change_partials,
             &step,
             positions,
             &self.dx_particles,
-            matches!(scheme, Scheme::BackwardEuler),
-        ) {
-            start_at(&mut self.x, positions, &self.y, system.fixed());
-            self.potential.prepare_start(&step, &mut self.x);
+        );
+        // A NaN counts as higher, as in the first guess's test.
+        if change <= 0.0 {
+            return Some(true);
         }
-        true
+        start_at(&mut self.x, positions, &self.y, system.fixed());
+        self.potential.prepare_start(&step, &mut self.x);
+        Some(false)
     }
 
     /// Writes the minimizer in `self.x` to `system` as the end of a step of `scheme`

@@ -60,6 +60,15 @@ fn land_with(
     scheme: fn(NewtonSettings) -> Integrator,
     lags: usize,
 ) -> (sinew_spring_sim::StepReport, DVec3) {
+    land_on(scheme, lags, 0.3)
+}
+
+/// [`land_with`] with friction `mu`.
+fn land_on(
+    scheme: fn(NewtonSettings) -> Integrator,
+    lags: usize,
+    mu: f64,
+) -> (sinew_spring_sim::StepReport, DVec3) {
     let particle = Particle {
         velocity: DVec3::new(1.0, -1.0, 0.0),
         ..Particle::at_rest(DVec3::new(0.0, 0.01, 0.0), 5e-4)
@@ -71,7 +80,7 @@ fn land_with(
     };
     let mut sim = Simulation::new(system, scheme(settings)).unwrap();
     let contact = ContactSettings {
-        mu: 0.3,
+        mu,
         ..ContactSettings::default()
     };
     sim.set_contact(vec![Collider::ground(0.0)], contact)
@@ -104,6 +113,22 @@ fn friction_lagged_again_acts_in_the_step_a_particle_lands() {
     assert!(impulse > 0.3, "{impulse}");
     assert!((v.x - expected).abs() <= 1e-6, "{} vs {expected}", v.x);
     assert!(v.z.abs() <= 1e-12, "{v}");
+}
+
+#[test]
+fn friction_lagged_again_can_stop_a_landing_particle() {
+    // With `mu` 5 Coulomb's share of the normal impulse is more than the tangential
+    // velocity: friction lagged again holds the particle where it lands (static friction,
+    // smoothed below `eps_v`). With the new lag `g` is higher at the first round's
+    // minimizer than at x_n (that round slid 1.7 cm along the ground), so the second
+    // round starts again from x_n.
+    let (_, once) = land_on(Integrator::BackwardEuler, 1, 5.0);
+    assert!((once.x - 1.0).abs() <= 1e-12, "{once}");
+    let (again, v) = land_on(Integrator::BackwardEuler, 4, 5.0);
+    assert!(again.friction_relags >= 1, "{again:?}");
+    println!("mu 5 landing: v {v}");
+    let eps_v = ContactSettings::default().eps_v;
+    assert!(v.x.abs() < eps_v, "{v}");
 }
 
 #[test]
