@@ -121,6 +121,19 @@ impl ContactTerm {
     }
 }
 
+/// The step over the end state the contact potential constrains, and the point its
+/// velocities (and friction's displacements) are measured from: backward Euler and BDF2
+/// minimize over the end state with the effective step and measure velocities from
+/// `x_ref`; the midpoint's end state moves as a backward Euler step of the real length
+/// from x_n (docs/contact.md).
+fn end_state_step<'a>(step: &StepContext<'a>) -> (f64, &'a [DVec3]) {
+    if step.timing.midpoint {
+        (step.timing.length, step.system.positions())
+    } else {
+        (step.h, step.x_ref)
+    }
+}
+
 impl Term for ContactTerm {
     fn name(&self) -> &'static str {
         "contact"
@@ -142,14 +155,7 @@ impl Term for ContactTerm {
     fn begin_step(&mut self, step: &StepContext<'_>) {
         let s = step.system;
         let timing = step.timing;
-        // Over the end state: backward Euler and BDF2 minimize over it with the
-        // effective step and measure velocities from x_ref; the midpoint's end state
-        // moves as a backward Euler step of the real length from x_n (docs/contact.md).
-        let (h, anchor) = if timing.midpoint {
-            (timing.length, s.positions())
-        } else {
-            (step.h, step.x_ref)
-        };
+        let (h, anchor) = end_state_step(step);
         // The balancing start of kappa weighs the barrier against the elastic forces at
         // the step's start: gravity and the springs (bending and other added terms are
         // left out: the balance only picks a starting stiffness). The inertia term is
@@ -190,15 +196,9 @@ impl Term for ContactTerm {
 
     fn relag_friction(&mut self, step: &StepContext<'_>, x: &[DVec3]) -> bool {
         let s = step.system;
-        let timing = step.timing;
-        // The same end state, step and reference point as `begin_step`'s.
-        let (h, anchor) = if timing.midpoint {
-            (timing.length, s.positions())
-        } else {
-            (step.h, step.x_ref)
-        };
+        let (h, anchor) = end_state_step(step);
         let midpoint_end: Vec<DVec3>;
-        let end = if timing.midpoint {
+        let end = if step.timing.midpoint {
             midpoint_end = x
                 .iter()
                 .zip(s.positions())

@@ -2,7 +2,7 @@
 
 use sinew_spring_sim::contact::{Collider, ContactSettings, Shape};
 use sinew_spring_sim::{
-    ClothGrid, DVec3, Integrator, Material, Particle, Simulation, SpringSystem,
+    ClothGrid, DVec3, Integrator, Material, Particle, Simulation, SpringSystem, StepReport,
 };
 
 /// The threads a solver asked for `threads` runs on: those, or the calling thread alone
@@ -201,4 +201,31 @@ pub fn static_force(system: &SpringSystem) -> f64 {
         .filter(|(_, fixed)| !**fixed)
         .map(|(f, _)| f.abs().max_element())
         .fold(0.0, f64::max)
+}
+
+/// Checks a body that lands within one step of `h` moving at (1, -1, 0) m/s with
+/// friction `mu`, given the reports and velocities (`v`: a particle's, or a sheet's
+/// momentum over its mass) after that step with friction lagged once (`once`) and again
+/// (`again`). Lagged at the step's start only, nothing is in contact there: the step
+/// has no friction and the tangential velocity stays 1 (to `kept`). Lagged again at the
+/// minimizer, friction acts with the normal forces the step ends with, whose impulse
+/// per mass is `v'_y - v_y + g h` (backward Euler's normal balance; a sheet's springs'
+/// forces cancel in it), and the body slides throughout, so Coulomb's law takes `mu`
+/// times that impulse from the tangential velocity (to 1e-6, the rounds' tolerance).
+pub fn assert_coulomb_landing(
+    mu: f64,
+    h: f64,
+    once: (&StepReport, DVec3),
+    again: (&StepReport, DVec3),
+    kept: f64,
+) {
+    assert_eq!(once.0.friction_relags, 0);
+    assert!((once.1.x - 1.0).abs() <= kept, "{}", once.1);
+    let (report, v) = again;
+    assert!(report.friction_relags >= 1, "{report:?}");
+    let impulse = v.y - (-1.0) + G * h;
+    let expected = 1.0 - mu * impulse;
+    println!("landing: v {v}, normal impulse per mass {impulse}, v_x expected {expected}");
+    assert!(impulse > 0.3, "{impulse}");
+    assert!((v.x - expected).abs() <= 1e-6, "{} vs {expected}", v.x);
 }

@@ -5,6 +5,7 @@
 //! `g (sin theta - mu cos theta)`; without friction it slides at `g sin theta`. Every
 //! accepted state is checked by brute force to keep every pair's gap positive.
 
+use crate::common::assert_coulomb_landing;
 use crate::sheets::{self, grid};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::ContactError;
@@ -154,23 +155,9 @@ fn land(lags: usize) -> (sinew_spring_sim::StepReport, DVec3) {
 
 #[test]
 fn friction_lagged_again_acts_in_the_step_a_sheet_lands_on_a_sheet() {
-    // Lagged at the step's start only, no pair is within reach there: the landing step
-    // has no friction and the tangential velocity is kept.
-    let (once, v) = land(1);
-    assert_eq!(once.friction_relags, 0);
-    assert!((v.x - 1.0).abs() <= 1e-7, "{v}");
-    // Lagged again at the minimizer, friction acts in the landing step with the normal
-    // forces the step ends with; their impulse per mass is `v_y' - v_y + g h` (backward
-    // Euler's normal balance of the whole sheet, whose springs' forces cancel), and
-    // the sheet slides throughout, so Coulomb's law takes `mu` times it from the
-    // tangential velocity.
+    let (once, v_once) = land(1);
     let (again, v) = land(4);
-    assert!(again.friction_relags >= 1, "{again:?}");
-    let impulse = v.y - (-1.0) + G * H;
-    let expected = 1.0 - 0.3 * impulse;
-    println!("landing: v {v}, normal impulse per mass {impulse}, v_x expected {expected}");
-    assert!(impulse > 0.3, "{impulse}");
-    assert!((v.x - expected).abs() <= 1e-6, "{} vs {expected}", v.x);
+    assert_coulomb_landing(0.3, H, (&once, v_once), (&again, v), 1e-7);
 }
 
 /// The mean acceleration over steps `a..b` (of `h`) of a run's speeds.
