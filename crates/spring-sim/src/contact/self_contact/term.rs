@@ -310,6 +310,10 @@ pub struct SelfContactTerm {
     /// The friction pairs' Hessian blocks (the storage kept from iteration to iteration)
     /// and the places of their coupling blocks on the pattern of the kept revision.
     friction_scatter: Mutex<FrictionScatter>,
+    /// The friction pairs' values (energies or changes) and gradients of the last
+    /// evaluation, one per pair: storage kept so that an evaluation, several per line
+    /// search, does not allocate lists of tens of thousands of entries.
+    friction_values: Mutex<(Vec<f64>, Vec<DVec3>)>,
     stats: Arc<SelfContactStats>,
 }
 
@@ -405,6 +409,7 @@ impl SelfContactTerm {
             places: Mutex::new(KeptPlaces::default()),
             friction: Vec::new(),
             friction_scatter: Mutex::new(FrictionScatter::default()),
+            friction_values: Mutex::new((Vec::new(), Vec::new())),
             stats: Arc::new(SelfContactStats::default()),
         };
         term.check_state(x, system.fixed())?;
@@ -1039,21 +1044,27 @@ impl SelfContactTerm {
 
     /// The friction pairs' energy at `x`, summed in their order.
     fn friction_energy(&self, x: &[DVec3]) -> f64 {
-        let mut energies = Vec::new();
-        spread::fill(&mut energies, self.friction.len(), 0.0, |i| {
-            self.friction[i].energy(x)
+        self.friction_sum(|pair| pair.energy(x))
+    }
+
+    /// `sum_i value(pair i)` over the friction pairs, in their order, each value
+    /// computed on the pool into the kept storage.
+    fn friction_sum(&self, value: impl Fn(&FrictionPair) -> f64 + Sync + Send) -> f64 {
+        let mut kept = self
+            .friction_values
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let values = &mut kept.0;
+        spread::fill(values, self.friction.len(), 0.0, |i| {
+            value(&self.friction[i])
         });
-        energies.into_iter().sum()
+        values.iter().sum()
     }
 
     /// The friction pairs' energy change from `x` to `x + alpha dx`, summed in their
     /// order.
     fn friction_change(&self, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
-        let mut changes = Vec::new();
-        spread::fill(&mut changes, self.friction.len(), 0.0, |i| {
-            self.friction[i].energy_change(x, dx, alpha)
-        });
-        changes.into_iter().sum()
+        self.friction_sum(|pair| pair.energy_change(x, dx, alpha))
     }
 
     /// The largest safe fraction of the step `x -> x + dx` (see [`additive_ccd`]) over
@@ -1829,11 +1840,15 @@ impl Term for SelfContactTerm {
         if self.friction.is_empty() {
             return;
         }
-        let mut pair_gradients = Vec::new();
-        spread::fill(&mut pair_gradients, self.friction.len(), DVec3::ZERO, |i| {
+        let mut kept = self
+            .friction_values
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let pair_gradients = &mut kept.1;
+        spread::fill(pair_gradients, self.friction.len(), DVec3::ZERO, |i| {
             self.friction[i].gradient(x)
         });
-        for (pair, g) in self.friction.iter().zip(pair_gradients) {
+        for (pair, &g) in self.friction.iter().zip(pair_gradients.iter()) {
             for (&i, &w) in pair.particles.iter().zip(&pair.weights) {
                 gradient[i] += w * g;
             }
