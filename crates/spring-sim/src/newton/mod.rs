@@ -1072,14 +1072,7 @@ impl BackwardEuler {
                 // The same test as the first guess's, on the straight path from x_n
                 // to the pieces' end.
                 let positions = system.positions();
-                for ((d, (p, x)), f) in self
-                    .dx_particles
-                    .iter_mut()
-                    .zip(split_end.iter().zip(positions))
-                    .zip(fixed)
-                {
-                    *d = if *f { DVec3::ZERO } else { *p - *x };
-                }
+                straight_path(&mut self.dx_particles, positions, split_end, fixed);
                 if start_is_acceptable(
                     &self.potential,
                     &self.pcg,
@@ -1142,9 +1135,10 @@ impl BackwardEuler {
             return Some(true);
         }
         let positions = system.positions();
-        for ((d, x), p) in self.dx_particles.iter_mut().zip(&self.x).zip(positions) {
-            *d = *x - *p;
-        }
+        // Zero at the pinned particles, which the minimizer holds at their prescribed
+        // end (`x_n` itself for backward Euler): the Newton direction that this buffer
+        // holds next is written at the free particles only.
+        straight_path(&mut self.dx_particles, positions, &self.x, system.fixed());
         let change = change_on_pool(
             &self.potential,
             &self.pcg,
@@ -1567,6 +1561,13 @@ fn start_is_acceptable(
     let admissible = potential.max_step(step, x, dx, 1.0) >= 1.0;
     let no_higher = !check_change || change_on_pool(potential, pcg, partials, step, x, dx) <= 0.0;
     no_higher && admissible
+}
+
+/// `to - from` at every free particle into `path`, zero at the fixed ones.
+fn straight_path(path: &mut [DVec3], from: &[DVec3], to: &[DVec3], fixed: &[bool]) {
+    for ((d, (t, f0)), f) in path.iter_mut().zip(to.iter().zip(from)).zip(fixed) {
+        *d = if *f { DVec3::ZERO } else { *t - *f0 };
+    }
 }
 
 /// Copies `from` into `x`, then puts the pinned particles at their evaluation point
