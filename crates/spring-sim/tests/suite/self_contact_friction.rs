@@ -201,9 +201,12 @@ fn a_sheet_slides_on_a_sheet_with_coulomb_acceleration_when_mu_is_below_tan_thet
         "{decel} vs {friction}"
     );
     // At h = 1/60 the difference is 3.5% short of `mu g cos theta` (1.6398): the sheet
-    // slides 1.4% faster than Coulomb's `g (sin - mu cos)`. Not from the lag: lagged
-    // again at each step's minimizer (four lags a step) it is 1.6402. It comes with the
-    // two meshes' parallel edges (next check; docs/contact.md).
+    // slides 1.4% faster than Coulomb's `g (sin - mu cos)`. Not from friction: the
+    // normal forces it lags are those of the turned sheets below (2.4972 against 2.4979
+    // summed over the run), and the barrier's own push along the slope at the steps' end
+    // states, which backward Euler applies over each whole step, is 2.7% of the friction
+    // force over the measured steps, nearly all of it in the two steps that end with every
+    // vertex of a row beside a lower edge at once (docs/contact.md, "Aligned meshes").
     let (free, decel) = run(H, 24);
     println!("h 1/60: free {free} (g sin {sliding}), friction {decel} (mu g cos {friction})");
     assert!(
@@ -216,15 +219,19 @@ fn a_sheet_slides_on_a_sheet_with_coulomb_acceleration_when_mu_is_below_tan_thet
     );
     // Turned 0.3 rad against the lower sheet, so that no edge of one is parallel to an
     // edge of the other, the sheet slides at Coulomb's acceleration at h = 1/60 as well
-    // (measured 3.2039 against 3.2059).
-    let (held, _) = slide_on(0.3, theta, mu, 25, H);
-    let measured = acceleration(&held, 8, 24, H);
+    // (measured 3.2039 against 3.2059); so it does turned 0.01 rad (3.2015), where the
+    // nearly parallel edge pairs are still inside the mollifier's range (`m` about 0.2)
+    // but the rows' vertices pass the lower edges 1.5 mm apart instead of at once.
     let coulomb = sliding - friction;
-    println!("h 1/60, turned 0.3 rad: {measured} (g (sin - mu cos) {coulomb})");
-    assert!(
-        (measured - coulomb).abs() <= 3e-3 * coulomb,
-        "{measured} vs {coulomb}"
-    );
+    for turn in [0.3, 0.01] {
+        let (held, _) = slide_on(turn, theta, mu, 25, H);
+        let measured = acceleration(&held, 8, 24, H);
+        println!("h 1/60, turned {turn} rad: {measured} (g (sin - mu cos) {coulomb})");
+        assert!(
+            (measured - coulomb).abs() <= 3e-3 * coulomb,
+            "turned {turn}: {measured} vs {coulomb}"
+        );
+    }
 }
 
 #[test]
