@@ -669,6 +669,35 @@ fn mutated_scenes_give_a_located_error_or_validate_and_run_in_bounded_time() {
     assert_eq!(located_errors + valid, count);
 }
 
+/// Every broken scene that is meant to fail when it is read and checked (`expect-exit:
+/// 2`) does, with an error that says where by the rule the mutants are judged by: a
+/// mutation that changes nothing leaves the original's error, so an unlocated one would
+/// fail deep runs only when they happen to draw that scene.
+#[test]
+fn every_broken_scene_fails_to_load_with_a_located_error() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/bad");
+    let mut located_errors = 0;
+    for path in scene_files().into_iter().filter(|p| p.starts_with(&dir)) {
+        let bytes = std::fs::read(&path).expect("a scene file");
+        let meant_to_fail = String::from_utf8_lossy(&bytes).contains("expect-exit: 2");
+        match load(&path, bytes) {
+            Err(e) => {
+                assert!(
+                    located(&e),
+                    "{}: error without a location: {e}",
+                    path.display()
+                );
+                located_errors += 1;
+            }
+            Ok(_) => assert!(!meant_to_fail, "{} was read and checked", path.display()),
+        }
+    }
+    assert!(
+        located_errors >= 25,
+        "{located_errors} broken scenes failed to load"
+    );
+}
+
 #[test]
 fn number_spans_find_every_literal_and_no_name() {
     let text = "Chain(bones: 7, length: 0.15, root: (-1.5e-3, 2E+4, 1_000), w2: 3)";

@@ -370,11 +370,11 @@ impl MeshClothTask {
                 self.tolerance
             ));
         }
-        // The library's own check of its settings names the field (a split depth past
-        // its limit).
+        // The library's own check of its settings (a split depth past its limit), its
+        // error told with the task's field, which has the setting's name.
         self.newton_settings()
             .validate()
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| format!("{}: {}", e.field, e.reason))?;
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(format!("dt = {}, must be finite and > 0", self.dt));
         }
