@@ -402,9 +402,9 @@ fn head(s: &mut String, columns: &[(&str, Align)]) {
 /// dropped onto a cylinder).
 const OGC_US_PER_VERTEX_STEP: f64 = 0.21e6 / 246_000.0;
 
-/// The mesh goals' cost per vertex and step next to OGC's published CPU figure (the
-/// workloads ask for it to be reported); nothing for a smoke run, whose scenes are not the
-/// workloads, or when no goal ran on a mesh.
+/// The mesh goals' cost per vertex and step next to OGC's published CPU figure, the
+/// reference the self-contact goals are compared with; nothing for a smoke run, whose
+/// scenes are not the workloads, or when no goal ran on a mesh.
 fn per_vertex(s: &mut String, quick: bool, goals: &[GoalResult]) {
     let rows: Vec<(&GoalResult, usize)> = goals
         .iter()
