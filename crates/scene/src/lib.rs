@@ -10,7 +10,9 @@
 //!
 //! ```
 //! use sinew_scene::{RunOptions, Scene};
-//! # let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/fk-tree.ron");
+//!
+//! // The repository's scenes/fk-tree.ron (a doctest runs in its crate's folder).
+//! let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/fk-tree.ron");
 //! let scene = Scene::from_file(path)?;
 //! let results = scene.run(&RunOptions::default());
 //! assert!(results.ok() && results.tasks.len() == scene.tasks.len());

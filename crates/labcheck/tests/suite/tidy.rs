@@ -12,7 +12,9 @@
 //!   link that climbs above the repository root;
 //! - docs naming repository files that do not exist: a relative path to a `.rs`, `.md`,
 //!   `.ron` or `.toml` file, in backticks, in a Markdown link, or written plainly under
-//!   `crates/`, `docs/`, `scenes/` or `xtask/`.
+//!   `crates/`, `docs/`, `scenes/` or `xtask/`;
+//! - a Rust example of the README that is not, line for line, a doctest of some crate
+//!   (its own test, `every_readme_example_is_a_doctest`).
 //!
 //! In Rust files only comments are read (code may build any string it likes); in RON and
 //! TOML files only comments; Markdown is read whole, except fenced code blocks for the
@@ -395,5 +397,107 @@ fn every_rule_finds_what_it_is_for() {
             line: 2,
             message: fixture("cites an issue number (\"{I} 7\"): say what is meant instead"),
         }]
+    );
+}
+
+/// The README's Rust examples (fenced as `rust`), each as its non-blank lines.
+fn readme_examples(text: &str) -> Vec<Vec<String>> {
+    let mut examples = Vec::new();
+    let mut current: Option<Vec<String>> = None;
+    for line in text.lines() {
+        let fence = line.trim_start().strip_prefix("```");
+        match (&mut current, fence) {
+            (None, Some(info)) if info.trim() == "rust" => current = Some(Vec::new()),
+            (Some(_), Some(_)) => examples.extend(current.take()),
+            (Some(lines), None) if !line.trim().is_empty() => lines.push(line.trim_end().into()),
+            _ => {}
+        }
+    }
+    examples
+}
+
+/// The examples in a Rust file's documentation comments (`//!` and `///`) that rustdoc
+/// compiles and runs (a fence with no language, `rust` or `should_panic`; not `ignore`,
+/// `no_run`, `compile_fail` or another language), each as the lines a reader of the
+/// rendered page sees: hidden lines (`#` alone or followed by a space) and blank lines
+/// left out.
+fn doc_examples(text: &str) -> Vec<Vec<String>> {
+    let mut examples = Vec::new();
+    let mut current: Option<(bool, Vec<String>)> = None;
+    for line in text.lines() {
+        let trimmed = line.trim_start();
+        let Some(doc) = trimmed
+            .strip_prefix("//!")
+            .or_else(|| trimmed.strip_prefix("///"))
+        else {
+            current = None;
+            continue;
+        };
+        let doc = doc.strip_prefix(' ').unwrap_or(doc);
+        if let Some(info) = doc.trim_start().strip_prefix("```") {
+            match current.take() {
+                Some((true, lines)) => examples.push(lines),
+                Some((false, _)) => {}
+                None => {
+                    let runs = info
+                        .split(',')
+                        .map(str::trim)
+                        .all(|a| matches!(a, "" | "rust" | "should_panic"));
+                    current = Some((runs, Vec::new()));
+                }
+            }
+            continue;
+        }
+        if let Some((_, lines)) = &mut current {
+            let visible = doc.trim();
+            if !(visible.is_empty() || visible == "#" || visible.starts_with("# ")) {
+                lines.push(doc.trim_end().into());
+            }
+        }
+    }
+    examples
+}
+
+/// The README says each of its examples is a doctest of its crate, so that `cargo test
+/// --doc --workspace` checks that it compiles and holds: each must read, line for line,
+/// as an example of some crate's documentation that rustdoc runs (blank lines and the
+/// doctest's hidden lines aside).
+#[test]
+fn every_readme_example_is_a_doctest() {
+    let root = repo_root();
+    let readme = fs::read_to_string(root.join("README.md")).expect("README.md");
+    let examples = readme_examples(&readme);
+    assert!(
+        examples.len() >= 4,
+        "{} examples in README.md",
+        examples.len()
+    );
+    let mut files = Vec::new();
+    walk(&root, &root.join("crates"), &mut files);
+    let mut doctests = Vec::new();
+    for file in files.iter().filter(|f| kind_of(f) == Kind::Rust) {
+        let text = fs::read_to_string(root.join(file)).expect("a source file");
+        doctests.extend(doc_examples(&text));
+    }
+    let missing: Vec<String> = examples
+        .iter()
+        .filter(|e| !doctests.contains(e))
+        .map(|e| e.first().cloned().unwrap_or_default())
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "README examples that are no crate's doctest (first lines): {missing:#?}"
+    );
+}
+
+#[test]
+fn readme_and_doc_examples_are_read_as_they_render() {
+    let readme = "text\n```rust\nuse a::b;\n\nlet x = 1;\n```\n```sh\ncargo test\n```\n";
+    assert_eq!(readme_examples(readme), [["use a::b;", "let x = 1;"]]);
+    let source = "//! ```\n//! use a::b;\n//!\n//! # let hidden = 0;\n//! #\n//! let x = 1;\n//! ```\n\
+                  /// ```ignore\n/// not run\n/// ```\n    /// ```rust,should_panic\n    ///     indented();\n    /// ```\n";
+    assert_eq!(
+        doc_examples(source),
+        [vec!["use a::b;", "let x = 1;"], vec!["    indented();"]]
     );
 }
