@@ -220,7 +220,7 @@ fn a_sheet_slides_on_a_sheet_with_coulomb_acceleration_when_mu_is_below_tan_thet
     // Turned 0.3 rad against the lower sheet, so that no edge of one is parallel to an
     // edge of the other, the sheet slides at Coulomb's acceleration at h = 1/60 as well
     // (measured 3.2039 against 3.2059); so it does turned 0.01 rad (3.2015), where the
-    // nearly parallel edge pairs are still inside the mollifier's range (`m` about 0.2)
+    // nearly parallel edge pairs are still inside the mollifier's range (`m` 0.16 to 0.19)
     // but the rows' vertices pass the lower edges 1.5 mm apart instead of at once.
     let coulomb = sliding - friction;
     for turn in [0.3, 0.01] {
