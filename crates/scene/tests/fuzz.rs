@@ -487,8 +487,13 @@ fn load(path: &Path, bytes: Vec<u8>) -> Result<Scene, SceneError> {
     Scene::from_bytes(path, &bytes)
 }
 
+/// The repository's `scenes/` folder.
+fn scenes_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes")
+}
+
 fn scene_files() -> Vec<PathBuf> {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let root = scenes_dir();
     let mut files = Vec::new();
     for dir in [root.clone(), root.join("long"), root.join("bad")] {
         for entry in std::fs::read_dir(&dir).expect("the scenes directory") {
@@ -675,7 +680,7 @@ fn mutated_scenes_give_a_located_error_or_validate_and_run_in_bounded_time() {
 /// fail deep runs only when they happen to draw that scene.
 #[test]
 fn every_broken_scene_fails_to_load_with_a_located_error() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/bad");
+    let dir = scenes_dir().join("bad");
     let mut located_errors = 0;
     for path in scene_files().into_iter().filter(|p| p.starts_with(&dir)) {
         let bytes = std::fs::read(&path).expect("a scene file");
@@ -710,7 +715,7 @@ fn number_spans_find_every_literal_and_no_name() {
 
 #[test]
 fn size_counts_the_cloth_particles_of_every_task() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let root = scenes_dir();
     let read = |name: &str, from: &str, to: &str| {
         let path = root.join(name);
         let text = std::fs::read_to_string(&path)
