@@ -57,9 +57,7 @@
 use sinew_exact::intersecting_pairs;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::{SelfContactSettings, SelfContactStats};
-use sinew_spring_sim::contact::{
-    Collider, ContactPotential, ContactSettings, ContactTerm, signed_distance,
-};
+use sinew_spring_sim::contact::{Collider, ContactSettings, signed_distance};
 use sinew_spring_sim::{
     BackwardEuler, Bending, ClothGrid, Integrator, LinearSolverChoice, Material, MeshCloth,
     NewtonSettings, PinDriver, PinnedMotion, Simulation, SpringSystem, StepReport, TriangleMesh,
@@ -331,9 +329,9 @@ impl Running {
                     .backward_euler(settings)
                     .expect("the integrator is valid");
                 if !w.colliders.is_empty() {
-                    let potential = ContactPotential::new(w.colliders.clone(), contact, 0.0)
+                    model
+                        .enable_contact(&mut integrator, w.colliders.clone(), contact)
                         .expect("the contact settings are valid");
-                    integrator.add_term(Box::new(ContactTerm::new(potential)));
                 }
                 let self_contact = model
                     .enable_self_contact(

@@ -51,9 +51,7 @@
 //!
 //! ```
 //! use sinew_spring_sim::contact::self_contact::SelfContactSettings;
-//! use sinew_spring_sim::contact::{
-//!     Collider, ContactPotential, ContactSettings, ContactTerm, signed_distance,
-//! };
+//! use sinew_spring_sim::contact::{Collider, ContactSettings, signed_distance};
 //! use sinew_spring_sim::{Bending, ClothGrid, DVec3, Material, MeshCloth, NewtonSettings};
 //! use sinew_spring_sim::TriangleMesh;
 //!
@@ -75,8 +73,7 @@
 //! let ball = Collider::sphere(DVec3::new(0.0, 0.1, 0.0), 0.1);
 //! let colliders = vec![ball, Collider::ground(0.0)];
 //! let contact = ContactSettings { dhat: 1e-3, mu: 0.3, ..ContactSettings::default() };
-//! let potential = ContactPotential::new(colliders.clone(), contact, 0.0)?;
-//! integrator.add_term(Box::new(ContactTerm::new(potential)));
+//! model.enable_contact(&mut integrator, colliders.clone(), contact)?;
 //! let own = SelfContactSettings { dhat: 1e-3, thickness: 5e-4, ..Default::default() };
 //! let stats = model.enable_self_contact(&mut integrator, own)?;
 //! let mut system = model.system.clone();

@@ -5,14 +5,17 @@
 //! energy of [`crate::potential::DihedralBending`].
 //!
 //! Also here: [`ClothGrid::triangles`], the triangles of the grid cloth, so every cloth has
-//! a surface, and [`MeshClothModel::enable_self_contact`], the cloth's contact with
-//! itself ([`crate::contact::self_contact`]).
+//! a surface, [`MeshClothModel::enable_contact`], the cloth's contact with rigid
+//! colliders ([`crate::contact`]), and [`MeshClothModel::enable_self_contact`], the
+//! cloth's contact with itself ([`crate::contact::self_contact`]).
 //!
 //! Derivations (the lumped masses, the hinge weight, the dihedral angle's derivatives):
 //! docs/bending.md.
 
-use crate::contact::ContactError;
 use crate::contact::self_contact::{SelfContactSettings, SelfContactStats, enable_self_contact};
+use crate::contact::{
+    Collider, ContactError, ContactPotential, ContactSettings, ContactStats, ContactTerm,
+};
 use crate::model::{ClothGrid, Material, ModelError, Particle, SpringSpec, SpringSystem};
 use crate::newton::{BackwardEuler, NewtonSettings};
 use crate::potential::{DihedralBending, Hinge};
@@ -364,6 +367,39 @@ impl MeshClothModel {
             integrator.add_coupled_term(&self.system, Box::new(term.clone()), &pairs)?;
         }
         Ok(integrator)
+    }
+
+    /// Adds contact with rigid `colliders` to `integrator` (built for this model, e.g. by
+    /// [`Self::backward_euler`]): IPC's barrier and lagged friction against each collider,
+    /// with the line search capped by the time of impact, so no accepted state has a
+    /// particle inside a collider (docs/contact.md). Kinematic colliders are posed at the
+    /// integrator's time ([`BackwardEuler::time`]). Returns the term's statistics. Checked as
+    /// [`crate::Simulation::set_contact`] checks them: the colliders (the error names the
+    /// collider), the settings (the error names the setting), `dhat` against the rounding
+    /// of the model's positions, and the model's current state (a free particle within
+    /// the thickness of a collider: the error names the particle and the collider). Add
+    /// it once: a second call adds a second barrier.
+    pub fn enable_contact(
+        &self,
+        integrator: &mut BackwardEuler,
+        colliders: Vec<Collider>,
+        settings: ContactSettings,
+    ) -> Result<Arc<ContactStats>, ContactError> {
+        let x = self.system.positions();
+        let time = integrator.time();
+        let potential = ContactPotential::new(colliders, settings, time)?;
+        crate::contact::check_contact_distance("dhat", settings.dhat, x)?;
+        crate::contact::check_start_outside(
+            potential.colliders(),
+            settings.thickness,
+            time,
+            x,
+            self.system.fixed(),
+        )?;
+        let term = ContactTerm::new(potential);
+        let stats = term.stats();
+        integrator.add_term(Box::new(term));
+        Ok(stats)
     }
 
     /// Adds self-contact of the cloth with itself to `integrator` (built for this model,

@@ -22,7 +22,7 @@ use sinew_exact::intersecting_pairs;
 use sinew_labcheck::config;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
-use sinew_spring_sim::contact::{Collider, ContactPotential, ContactSettings, ContactTerm};
+use sinew_spring_sim::contact::{Collider, ContactSettings};
 use sinew_spring_sim::{
     Bending, ClothGrid, Material, MeshCloth, NewtonSettings, StepStop, TriangleMesh,
 };
@@ -145,11 +145,9 @@ proptest! {
             ..NewtonSettings::default()
         };
         let mut integrator = model.backward_euler(newton).expect("backward Euler");
-        let ground = ContactPotential::new(vec![Collider::ground(0.0)], ContactSettings::default(), 0.0)
+        let ground_stats = model
+            .enable_contact(&mut integrator, vec![Collider::ground(0.0)], ContactSettings::default())
             .expect("ground contact");
-        let ground = ContactTerm::new(ground);
-        let ground_stats = ground.stats();
-        integrator.add_term(Box::new(ground));
         let settings = SelfContactSettings { dhat: DHAT, thickness: THICKNESS, mu: c.mu, ..SelfContactSettings::default() };
         let stats = model.enable_self_contact(&mut integrator, settings).expect("a valid start");
         let mut system = model.system.clone();

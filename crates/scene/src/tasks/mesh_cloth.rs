@@ -18,8 +18,7 @@ use sinew_spring_sim::contact::collider::validate_colliders;
 use sinew_spring_sim::contact::self_contact::distance::squared_distance;
 use sinew_spring_sim::contact::self_contact::{Primitives, SelfContactSettings, candidates};
 use sinew_spring_sim::contact::{
-    Collider, ContactPotential, ContactSettings, ContactTerm, check_contact_distance,
-    check_start_outside, signed_distance,
+    Collider, ContactSettings, check_contact_distance, check_start_outside, signed_distance,
 };
 use sinew_spring_sim::{
     Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinDriver, PinnedMotion, TriangleMesh,
@@ -470,9 +469,9 @@ impl TaskSpec for MeshClothTask {
             .backward_euler(newton)
             .map_err(|e| format!("integrator: {e}"))?;
         if !self.colliders.is_empty() {
-            let potential = ContactPotential::new(self.colliders.clone(), self.contact, 0.0)
+            model
+                .enable_contact(&mut integrator, self.colliders.clone(), self.contact)
                 .map_err(|e| format!("contact: {e}"))?;
-            integrator.add_term(Box::new(ContactTerm::new(potential)));
         }
         let stats = model
             .enable_self_contact(&mut integrator, self.self_contact)

@@ -465,3 +465,155 @@ fn a_contact_term_added_by_hand_refuses_a_start_inside_a_collider() {
     }
     assert_eq!(system.positions(), &positions[..]);
 }
+
+/// A mesh cloth's colliders added in one call are checked as `Simulation::set_contact`
+/// checks them: the colliders (named), the settings (named), `dhat` against the
+/// positions' rounding, and a free particle starting inside a collider (named, at the
+/// integrator's time, so a kinematic collider is posed there); a pinned vertex inside is
+/// not refused. What is accepted keeps the guarantee over a drop onto the ground.
+#[test]
+fn a_mesh_cloths_colliders_are_checked_where_they_are_added() {
+    use sinew_spring_sim::TriangleMesh;
+    // A 4 x 4 sheet, 0.3 wide, flat at height 0.05 near the origin.
+    let (positions, triangles) =
+        crate::sheets::grid(4, DVec3::new(0.0, 0.05, 0.0), DVec3::X, DVec3::Z, 0.1, 0);
+    let mesh = TriangleMesh::new(positions, triangles).unwrap();
+    let model = crate::sheets::cloth(Vec::new()).build(&mesh).unwrap();
+    let add = |colliders: Vec<Collider>, settings: ContactSettings, time: f64| {
+        let mut integrator = model.backward_euler(Default::default()).unwrap();
+        integrator.set_time(time);
+        model
+            .enable_contact(&mut integrator, colliders, settings)
+            .map(|_| integrator)
+    };
+    let settings = ContactSettings::default();
+    let ground = Collider::ground(0.0);
+
+    let bad_sphere = Collider::sphere(DVec3::new(5.0, 0.0, 0.0), -1.0);
+    let err = add(vec![ground, bad_sphere], settings, 0.0).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            ContactError::BadCollider {
+                collider: Some(1),
+                field: "radius",
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+    for (name, bad) in [
+        (
+            "dhat",
+            ContactSettings {
+                dhat: -1e-3,
+                ..settings
+            },
+        ),
+        (
+            "mu",
+            ContactSettings {
+                mu: f64::NAN,
+                ..settings
+            },
+        ),
+        (
+            "thickness",
+            ContactSettings {
+                thickness: f64::INFINITY,
+                ..settings
+            },
+        ),
+    ] {
+        let err = add(vec![ground], bad, 0.0).unwrap_err();
+        assert!(
+            matches!(err, ContactError::BadSetting { name: n, .. } if n == name),
+            "{name}: {err:?}"
+        );
+    }
+    // Largest coordinate 0.3: dhat 1e-12 is below its rounding (3e-10 allowed at least).
+    let err = add(
+        vec![ground],
+        ContactSettings {
+            dhat: 1e-12,
+            ..settings
+        },
+        0.0,
+    )
+    .unwrap_err();
+    assert!(
+        matches!(err, ContactError::BelowResolution { name: "dhat", .. }),
+        "{err:?}"
+    );
+    // The ground at 0.06 holds every vertex: refused, naming vertex 0 (0.01 inside).
+    let err = add(vec![Collider::ground(0.06)], settings, 0.0).unwrap_err();
+    match err {
+        ContactError::StartsInside {
+            particle: 0,
+            collider: 0,
+            distance,
+        } => {
+            assert!((distance + 0.01).abs() < 1e-15, "{distance}");
+        }
+        other => panic!("{other:?}"),
+    }
+    // Within the thickness of the ground (0.05 < 0.08): refused.
+    let thick = ContactSettings {
+        thickness: 0.08,
+        ..settings
+    };
+    let err = add(vec![ground], thick, 0.0).unwrap_err();
+    assert!(matches!(err, ContactError::StartsInside { .. }), "{err:?}");
+    // A sphere of radius 0.05 moving along x at 1 per second from (-1, 0.05, 0): far at
+    // time 0, over vertex 0 (the origin's corner) at time 1.
+    let moving = Collider {
+        motion: Motion {
+            linear_velocity: DVec3::X,
+            angular_velocity: DVec3::ZERO,
+        },
+        ..Collider::sphere(DVec3::new(-1.0, 0.05, 0.0), 0.05)
+    };
+    add(vec![moving], settings, 0.0).unwrap();
+    let err = add(vec![moving], settings, 1.0).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            ContactError::StartsInside {
+                particle: 0,
+                collider: 0,
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+    // A pinned vertex inside is not checked: it never moves.
+    let pinned = crate::sheets::cloth(vec![0]).build(&mesh).unwrap();
+    let mut integrator = pinned.backward_euler(Default::default()).unwrap();
+    pinned
+        .enable_contact(
+            &mut integrator,
+            vec![Collider::sphere(DVec3::new(0.0, 0.05, 0.0), 0.02)],
+            settings,
+        )
+        .unwrap();
+
+    // Accepted, with friction: the sheet falls onto the ground and no vertex is ever
+    // below it; the statistics returned are the term's (kappa chosen, and a lagged
+    // friction contact per vertex once the sheet lies within dhat of the ground).
+    let mut integrator = model.backward_euler(Default::default()).unwrap();
+    let rough = ContactSettings {
+        mu: 0.3,
+        ..settings
+    };
+    let stats = model
+        .enable_contact(&mut integrator, vec![ground], rough)
+        .unwrap();
+    assert_eq!(stats.kappa(), 0.0, "no step yet");
+    let mut system = model.system.clone();
+    for _ in 0..30 {
+        integrator.step(&mut system, 1.0 / 60.0).unwrap();
+        assert!(system.positions().iter().all(|x| x.y > 0.0));
+    }
+    assert!(stats.kappa() > 0.0);
+    assert_eq!(stats.friction_contacts(), system.len());
+}
