@@ -266,6 +266,10 @@ pub struct StepReport {
     /// minimized again (`NewtonSettings::friction_lags`; 0 with the default of one lag
     /// per step); their Newton iterations are in `iterations`.
     pub friction_relags: usize,
+    /// Of those rounds, the ones that started again from the step's start `x_n` instead
+    /// of the last round's minimizer, because backward Euler's `g` with the new lag was
+    /// higher at the minimizer than at `x_n` (docs/contact.md).
+    pub friction_restarts: usize,
 }
 
 impl StepReport {
@@ -287,6 +291,7 @@ impl StepReport {
         self.pattern_pairs_added += part.pattern_pairs_added;
         self.pattern_pairs_dropped += part.pattern_pairs_dropped;
         self.friction_relags += part.friction_relags;
+        self.friction_restarts += part.friction_restarts;
     }
 
     /// An empty report for `integrator`.
@@ -324,6 +329,7 @@ impl StepReport {
             pattern_pairs_added: 0,
             pattern_pairs_dropped: 0,
             friction_relags: 0,
+            friction_restarts: 0,
         }
     }
 

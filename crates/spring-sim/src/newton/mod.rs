@@ -1101,6 +1101,7 @@ impl BackwardEuler {
             let iterations = round.iterations;
             round.add_work(&report);
             round.friction_relags += 1;
+            round.friction_restarts += usize::from(!at_minimizer);
             report = round;
             if iterations == 0 {
                 break;

@@ -115,6 +115,7 @@ fn friction_lagged_again_can_stop_a_landing_particle() {
     assert!((once.x - 1.0).abs() <= 1e-12, "{once}");
     let (again, v) = land_on(Integrator::BackwardEuler, 4, 5.0);
     assert!(again.friction_relags >= 1, "{again:?}");
+    assert!(again.friction_restarts >= 1, "{again:?}");
     println!("mu 5 landing: v {v}");
     let eps_v = ContactSettings::default().eps_v;
     assert!(v.x.abs() < eps_v, "{v}");
@@ -130,6 +131,10 @@ fn friction_lagged_again_acts_in_the_landing_step_of_the_midpoint() {
     assert!((once.x - 1.0).abs() <= 1e-12, "{once}");
     let (again, v) = land_with(Integrator::ImplicitMidpoint, 4);
     assert!(again.friction_relags >= 1, "{again:?}");
+    assert_eq!(
+        again.friction_restarts, 0,
+        "the midpoint's rounds start at the minimizer"
+    );
     let expected = 1.0 - 0.3 * (v.y - (-1.0) + G * H);
     println!("midpoint landing: v {v}, v_x expected {expected}");
     assert!((v.x - expected).abs() <= 1e-6, "{} vs {expected}", v.x);
