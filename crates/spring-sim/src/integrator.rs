@@ -826,16 +826,14 @@ impl Simulation {
     /// collider after each step ([`crate::contact::projection`]): **not guaranteed**.
     /// With `auto`, every step from then on is implicit (BDF2, or backward Euler when
     /// settling; `AutoReason::Contact`), so the guarantee holds. The flawed reference
-    /// method has no contact: an error. Contact can be set once.
+    /// method has no contact: an error. Contact can be set once ([`ContactError::AddedTwice`]).
     pub fn set_contact(
         &mut self,
         colliders: Vec<Collider>,
         settings: ContactSettings,
     ) -> Result<(), ContactError> {
         if self.contact.is_some() {
-            return Err(ContactError::Unsupported {
-                what: "setting contact twice",
-            });
+            return Err(ContactError::AddedTwice { what: "contact" });
         }
         crate::contact::collider::validate_colliders(&colliders)?;
         settings.validate()?;

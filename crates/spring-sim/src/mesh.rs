@@ -377,14 +377,16 @@ impl MeshClothModel {
     /// [`crate::Simulation::set_contact`] checks them: the colliders (the error names the
     /// collider), the settings (the error names the setting), `dhat` against the rounding
     /// of the model's positions, and the model's current state (a free particle within
-    /// the thickness of a collider: the error names the particle and the collider). Add
-    /// it once: a second call adds a second barrier.
+    /// the thickness of a collider: the error names the particle and the collider). One
+    /// contact term holds every collider: an integrator that has one already refuses a
+    /// second ([`ContactError::AddedTwice`]).
     pub fn enable_contact(
         &self,
         integrator: &mut BackwardEuler,
         colliders: Vec<Collider>,
         settings: ContactSettings,
     ) -> Result<Arc<ContactStats>, ContactError> {
+        crate::contact::refuse_second(integrator, "contact")?;
         let x = self.system.positions();
         let time = integrator.time();
         let potential = ContactPotential::new(colliders, settings, time)?;
@@ -408,6 +410,8 @@ impl MeshClothModel {
     /// continuous collision detection ([`crate::contact::self_contact`]). Returns the
     /// term's statistics. The settings are checked (the error names the setting), and so
     /// is the current state (two primitives within the thickness: the error names them).
+    /// An integrator that has self-contact already refuses a second
+    /// ([`ContactError::AddedTwice`]).
     pub fn enable_self_contact(
         &self,
         integrator: &mut BackwardEuler,

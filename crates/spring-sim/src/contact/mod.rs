@@ -97,6 +97,13 @@ pub enum ContactError {
         /// The positions' largest coordinate (absolute value).
         scale: f64,
     },
+    /// Contact of one kind ("contact" with colliders, or "self-contact") was added to an
+    /// integrator that has it already: one term holds every collider (and every pair of
+    /// the cloth), and a second would add a second barrier.
+    AddedTwice {
+        /// The kind of contact.
+        what: &'static str,
+    },
     /// A contact distance above the diagonal of the positions' bounding box
     /// ([`check_contact_distance`]).
     BeyondExtent {
@@ -166,6 +173,11 @@ impl fmt::Display for ContactError {
                  surface, less the thickness, is {distance:e}): contact needs every free \
                  particle outside every collider at the start"
             ),
+            Self::AddedTwice { what } => write!(
+                f,
+                "{what} was added to this integrator already (one term holds all of it; a \
+                 second would add a second barrier)"
+            ),
             Self::Unsupported { what } => write!(
                 f,
                 "contact is not supported for {what} (backward Euler, BDF2 and implicit midpoint have the guaranteed barrier; the explicit integrators a projection)"
@@ -175,6 +187,23 @@ impl fmt::Display for ContactError {
 }
 
 impl std::error::Error for ContactError {}
+
+/// [`ContactError::AddedTwice`] when `integrator` holds the term named `what` already
+/// (its [`crate::potential::Term::name`]).
+pub(crate) fn refuse_second(
+    integrator: &crate::BackwardEuler,
+    what: &'static str,
+) -> Result<(), ContactError> {
+    if integrator
+        .potential()
+        .terms()
+        .iter()
+        .any(|t| t.name() == what)
+    {
+        return Err(ContactError::AddedTwice { what });
+    }
+    Ok(())
+}
 
 /// A value as written in a message: plain between 1e-4 and 1e6 (and 0), else in
 /// scientific notation, so a huge or tiny setting does not print 300 digits.

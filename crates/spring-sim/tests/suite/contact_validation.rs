@@ -617,3 +617,52 @@ fn a_mesh_cloths_colliders_are_checked_where_they_are_added() {
     assert!(stats.kappa() > 0.0);
     assert_eq!(stats.friction_contacts(), system.len());
 }
+
+/// Contact of each kind is added once: a second call (which would add a second barrier)
+/// is refused naming the kind, for a mesh cloth's colliders and self-contact and for a
+/// simulation's colliders; one of each kind goes together.
+#[test]
+fn contact_of_one_kind_is_added_once() {
+    use sinew_spring_sim::contact::self_contact::{SelfContactSettings, enable_self_contact};
+    use sinew_spring_sim::{Integrator, Simulation, TriangleMesh};
+    let (positions, triangles) =
+        crate::sheets::grid(4, DVec3::new(0.0, 0.05, 0.0), DVec3::X, DVec3::Z, 0.1, 0);
+    let mesh = TriangleMesh::new(positions, triangles).unwrap();
+    let model = crate::sheets::cloth(Vec::new()).build(&mesh).unwrap();
+    let mut integrator = model.backward_euler(Default::default()).unwrap();
+    let ground = vec![Collider::ground(0.0)];
+    let settings = ContactSettings::default();
+    let own = SelfContactSettings::default();
+    model
+        .enable_contact(&mut integrator, ground.clone(), settings)
+        .unwrap();
+    model.enable_self_contact(&mut integrator, own).unwrap();
+    let err = model
+        .enable_contact(&mut integrator, ground.clone(), settings)
+        .unwrap_err();
+    assert_eq!(err, ContactError::AddedTwice { what: "contact" });
+    assert!(message(err).starts_with("contact was added to this integrator already"));
+    let err = model.enable_self_contact(&mut integrator, own).unwrap_err();
+    assert_eq!(
+        err,
+        ContactError::AddedTwice {
+            what: "self-contact"
+        }
+    );
+    let err =
+        enable_self_contact(&mut integrator, &model.system, &model.triangles, own).unwrap_err();
+    assert_eq!(
+        err,
+        ContactError::AddedTwice {
+            what: "self-contact"
+        }
+    );
+    // The integrator still steps with one term of each.
+    let mut system = model.system.clone();
+    integrator.step(&mut system, 1.0 / 60.0).unwrap();
+
+    let mut sim = Simulation::new(model.system.clone(), Integrator::default()).unwrap();
+    sim.set_contact(ground.clone(), settings).unwrap();
+    let err = sim.set_contact(ground, settings).unwrap_err();
+    assert_eq!(err, ContactError::AddedTwice { what: "contact" });
+}

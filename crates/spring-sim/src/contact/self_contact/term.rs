@@ -2349,13 +2349,16 @@ fn scatter(
 }
 
 /// Adds self-contact of the cloth `system` with surface `triangles` to `integrator`
-/// (see [`SelfContactTerm::new`] for the checks) and returns the term's statistics.
+/// (see [`SelfContactTerm::new`] for the checks) and returns the term's statistics. An
+/// integrator that has a self-contact term already refuses a second
+/// ([`ContactError::AddedTwice`]).
 pub fn enable_self_contact(
     integrator: &mut BackwardEuler,
     system: &SpringSystem,
     triangles: &[[usize; 3]],
     settings: SelfContactSettings,
 ) -> Result<Arc<SelfContactStats>, ContactError> {
+    crate::contact::refuse_second(integrator, "self-contact")?;
     let term = SelfContactTerm::new(system, triangles, settings)?;
     let stats = term.stats();
     integrator.add_term(Box::new(term));
