@@ -466,6 +466,13 @@ fn a_contact_term_added_by_hand_refuses_a_start_inside_a_collider() {
     assert_eq!(system.positions(), &positions[..]);
 }
 
+/// A 4 x 4 mesh sheet, 0.3 wide, flat at height 0.05 from the origin along x and z.
+fn low_sheet() -> sinew_spring_sim::TriangleMesh {
+    let (positions, triangles) =
+        crate::sheets::grid(4, DVec3::new(0.0, 0.05, 0.0), DVec3::X, DVec3::Z, 0.1, 0);
+    sinew_spring_sim::TriangleMesh::new(positions, triangles).unwrap()
+}
+
 /// A mesh cloth's colliders added in one call are checked as `Simulation::set_contact`
 /// checks them: the colliders (named), the settings (named), `dhat` against the
 /// positions' rounding, and a free particle starting inside a collider (named, at the
@@ -473,11 +480,7 @@ fn a_contact_term_added_by_hand_refuses_a_start_inside_a_collider() {
 /// not refused. What is accepted keeps the guarantee over a drop onto the ground.
 #[test]
 fn a_mesh_cloths_colliders_are_checked_where_they_are_added() {
-    use sinew_spring_sim::TriangleMesh;
-    // A 4 x 4 sheet, 0.3 wide, flat at height 0.05 near the origin.
-    let (positions, triangles) =
-        crate::sheets::grid(4, DVec3::new(0.0, 0.05, 0.0), DVec3::X, DVec3::Z, 0.1, 0);
-    let mesh = TriangleMesh::new(positions, triangles).unwrap();
+    let mesh = low_sheet();
     let model = crate::sheets::cloth(Vec::new()).build(&mesh).unwrap();
     let add = |colliders: Vec<Collider>, settings: ContactSettings, time: f64| {
         let mut integrator = model.backward_euler(Default::default()).unwrap();
@@ -624,11 +627,10 @@ fn a_mesh_cloths_colliders_are_checked_where_they_are_added() {
 #[test]
 fn contact_of_one_kind_is_added_once() {
     use sinew_spring_sim::contact::self_contact::{SelfContactSettings, enable_self_contact};
-    use sinew_spring_sim::{Integrator, Simulation, TriangleMesh};
-    let (positions, triangles) =
-        crate::sheets::grid(4, DVec3::new(0.0, 0.05, 0.0), DVec3::X, DVec3::Z, 0.1, 0);
-    let mesh = TriangleMesh::new(positions, triangles).unwrap();
-    let model = crate::sheets::cloth(Vec::new()).build(&mesh).unwrap();
+    use sinew_spring_sim::{Integrator, Simulation};
+    let model = crate::sheets::cloth(Vec::new())
+        .build(&low_sheet())
+        .unwrap();
     let mut integrator = model.backward_euler(Default::default()).unwrap();
     let ground = vec![Collider::ground(0.0)];
     let settings = ContactSettings::default();
