@@ -373,13 +373,15 @@ impl MeshClothModel {
     /// [`Self::backward_euler`]): IPC's barrier and lagged friction against each collider,
     /// with the line search capped by the time of impact, so no accepted state has a
     /// particle inside a collider (docs/contact.md). Kinematic colliders are posed at the
-    /// integrator's time ([`BackwardEuler::time`]). Returns the term's statistics. Checked as
-    /// [`crate::Simulation::set_contact`] checks them: the colliders (the error names the
-    /// collider), the settings (the error names the setting), `dhat` against the rounding
-    /// of the model's positions, and the model's current state (a free particle within
-    /// the thickness of a collider: the error names the particle and the collider). One
-    /// contact term holds every collider: an integrator that has one already refuses a
-    /// second ([`ContactError::AddedTwice`]).
+    /// integrator's time ([`BackwardEuler::time`]). Returns the term's statistics.
+    ///
+    /// Checked as [`crate::Simulation::set_contact`] checks them: the colliders (the
+    /// error names the collider), the settings (the error names the setting), `dhat`
+    /// against the rounding and the extent of the model's positions
+    /// ([`crate::contact::check_contact_distance`]), and the model's current state (a free
+    /// particle within the thickness of a collider: the error names the particle and the
+    /// collider). One contact term holds every collider: an integrator that has one
+    /// already refuses a second ([`ContactError::AddedTwice`]).
     pub fn enable_contact(
         &self,
         integrator: &mut BackwardEuler,

@@ -475,9 +475,10 @@ fn low_sheet() -> sinew_spring_sim::TriangleMesh {
 
 /// A mesh cloth's colliders added in one call are checked as `Simulation::set_contact`
 /// checks them: the colliders (named), the settings (named), `dhat` against the
-/// positions' rounding, and a free particle starting inside a collider (named, at the
-/// integrator's time, so a kinematic collider is posed there); a pinned vertex inside is
-/// not refused. What is accepted keeps the guarantee over a drop onto the ground.
+/// positions' rounding and their extent, and a free particle starting inside a collider
+/// (named, at the integrator's time, so a kinematic collider is posed there); a pinned
+/// vertex inside is not refused. What is accepted keeps the guarantee over a drop onto
+/// the ground.
 #[test]
 fn a_mesh_cloths_colliders_are_checked_where_they_are_added() {
     let mesh = low_sheet();
@@ -546,6 +547,20 @@ fn a_mesh_cloths_colliders_are_checked_where_they_are_added() {
     .unwrap_err();
     assert!(
         matches!(err, ContactError::BelowResolution { name: "dhat", .. }),
+        "{err:?}"
+    );
+    // Above the diagonal of the sheet's box (0.3 x 0 x 0.3): a force field, refused.
+    let err = add(
+        vec![ground],
+        ContactSettings {
+            dhat: 1.0,
+            ..settings
+        },
+        0.0,
+    )
+    .unwrap_err();
+    assert!(
+        matches!(err, ContactError::BeyondExtent { name: "dhat", .. }),
         "{err:?}"
     );
     // The ground at 0.06 holds every vertex: refused, naming vertex 0 (0.01 inside).
