@@ -50,6 +50,8 @@ pub struct ContactPotential {
     kappa_before: Option<AdaptiveKappa>,
     /// The barrier pairs of the last iterate given to [`Self::update_kappa`].
     active: ActivePairs,
+    /// The smallest distance (less the thickness) among them, `+inf` when none.
+    active_min: f64,
 }
 
 /// The particle-collider pairs within `dhat` at one iterate, with the barrier's
@@ -120,6 +122,7 @@ impl ContactPotential {
             friction: Vec::new(),
             kappa_before: None,
             active: ActivePairs::default(),
+            active_min: f64::INFINITY,
         })
     }
 
@@ -165,6 +168,20 @@ impl ContactPotential {
     #[must_use]
     pub fn friction_contacts(&self) -> usize {
         self.friction.len()
+    }
+
+    /// The number of particle-collider pairs within `dhat` (distance less the thickness
+    /// in `(0, dhat)`) at the last iterate given to [`Self::update_kappa`] (a Newton
+    /// iteration's start).
+    #[must_use]
+    pub fn active_pairs(&self) -> usize {
+        self.active.pairs.len()
+    }
+
+    /// The smallest distance (less the thickness) among those pairs, `+inf` when none.
+    #[must_use]
+    pub fn active_min_distance(&self) -> f64 {
+        self.active_min
     }
 
     /// Starts a step of length `h` from `positions` (the state at the step's start) at
@@ -423,6 +440,7 @@ impl ContactPotential {
         });
         self.active = active;
         let d = if min < dhat { min } else { f64::INFINITY };
+        self.active_min = d;
         self.kappa.as_mut().is_some_and(|k| k.update(d, dhat))
     }
 

@@ -27,10 +27,23 @@ use std::sync::{Arc, Mutex, PoisonError};
 const LINE_SEARCH_HORIZON: f64 = 1024.0;
 
 /// Numbers a contact term publishes for reports while it is owned by an integrator.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct ContactStats {
     kappa: AtomicU64,
     friction_contacts: AtomicU64,
+    active_pairs: AtomicU64,
+    min_distance: AtomicU64,
+}
+
+impl Default for ContactStats {
+    fn default() -> Self {
+        Self {
+            kappa: AtomicU64::new(0),
+            friction_contacts: AtomicU64::new(0),
+            active_pairs: AtomicU64::new(0),
+            min_distance: AtomicU64::new(f64::INFINITY.to_bits()),
+        }
+    }
 }
 
 impl ContactStats {
@@ -46,10 +59,28 @@ impl ContactStats {
         self.friction_contacts.load(Ordering::Relaxed) as usize
     }
 
+    /// The number of particle-collider pairs within `dhat` at the last Newton
+    /// iteration's start (0 before the first step).
+    #[must_use]
+    pub fn active_pairs(&self) -> usize {
+        self.active_pairs.load(Ordering::Relaxed) as usize
+    }
+
+    /// The smallest distance (less the thickness) among them, `+inf` when none (and
+    /// before the first step).
+    #[must_use]
+    pub fn min_distance(&self) -> f64 {
+        f64::from_bits(self.min_distance.load(Ordering::Relaxed))
+    }
+
     fn publish(&self, p: &ContactPotential) {
         self.kappa.store(p.kappa().to_bits(), Ordering::Relaxed);
         self.friction_contacts
             .store(p.friction_contacts() as u64, Ordering::Relaxed);
+        self.active_pairs
+            .store(p.active_pairs() as u64, Ordering::Relaxed);
+        self.min_distance
+            .store(p.active_min_distance().to_bits(), Ordering::Relaxed);
     }
 }
 
@@ -243,7 +274,9 @@ impl Term for ContactTerm {
 
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
         let fixed = step.system.fixed();
-        let grew = if step.timing.midpoint {
+        // Whether kappa grew does not matter here: the active pairs changed anyway, and
+        // the statistics are published either way.
+        let _grew = if step.timing.midpoint {
             let x_n = step.system.positions();
             let mut scratch = self
                 .end_state
@@ -256,9 +289,7 @@ impl Term for ContactTerm {
         } else {
             self.potential.update_kappa(x, fixed)
         };
-        if grew {
-            self.stats.publish(&self.potential);
-        }
+        self.stats.publish(&self.potential);
     }
 
     fn energy(&self, step: &StepContext<'_>, x: &[DVec3]) -> f64 {

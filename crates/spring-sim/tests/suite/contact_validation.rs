@@ -627,13 +627,28 @@ fn a_mesh_cloths_colliders_are_checked_where_they_are_added() {
         .enable_contact(&mut integrator, vec![ground], rough)
         .unwrap();
     assert_eq!(stats.kappa(), 0.0, "no step yet");
+    assert_eq!(
+        (stats.active_pairs(), stats.min_distance()),
+        (0, f64::INFINITY)
+    );
     let mut system = model.system.clone();
-    for _ in 0..30 {
+    for step in 0..30 {
         integrator.step(&mut system, 1.0 / 60.0).unwrap();
         assert!(system.positions().iter().all(|x| x.y > 0.0));
+        if step == 0 {
+            // Still 5 cm up after the first step (a fall of g h^2 = 2.7 mm).
+            assert_eq!(
+                (stats.active_pairs(), stats.min_distance()),
+                (0, f64::INFINITY)
+            );
+        }
     }
     assert!(stats.kappa() > 0.0);
     assert_eq!(stats.friction_contacts(), system.len());
+    // Resting within dhat: every vertex is a pair at the last iteration's start.
+    assert_eq!(stats.active_pairs(), system.len());
+    let d = stats.min_distance();
+    assert!(d > 0.0 && d < settings.dhat, "{d}");
 }
 
 /// Contact of each kind is added once: a second call (which would add a second barrier)
