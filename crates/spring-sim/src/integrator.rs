@@ -835,12 +835,9 @@ impl Simulation {
         if self.contact.is_some() {
             return Err(ContactError::AddedTwice { what: "contact" });
         }
-        crate::contact::collider::validate_colliders(&colliders)?;
-        settings.validate()?;
-        crate::contact::check_contact_distance("dhat", settings.dhat, self.system.positions())?;
-        crate::contact::check_start_outside(
+        crate::contact::check_contact_setup(
             &colliders,
-            settings.thickness,
+            &settings,
             self.time,
             self.system.positions(),
             self.system.fixed(),

@@ -389,18 +389,15 @@ impl MeshClothModel {
         settings: ContactSettings,
     ) -> Result<Arc<ContactStats>, ContactError> {
         crate::contact::refuse_second(integrator, "contact")?;
-        let x = self.system.positions();
         let time = integrator.time();
-        let potential = ContactPotential::new(colliders, settings, time)?;
-        crate::contact::check_contact_distance("dhat", settings.dhat, x)?;
-        crate::contact::check_start_outside(
-            potential.colliders(),
-            settings.thickness,
+        crate::contact::check_contact_setup(
+            &colliders,
+            &settings,
             time,
-            x,
+            self.system.positions(),
             self.system.fixed(),
         )?;
-        let term = ContactTerm::new(potential);
+        let term = ContactTerm::new(ContactPotential::new(colliders, settings, time)?);
         let stats = term.stats();
         integrator.add_term(Box::new(term));
         Ok(stats)

@@ -388,6 +388,23 @@ pub fn check_start_outside(
     }
 }
 
+/// Every check made where colliders are added to a stepper, in order: the colliders
+/// (the error names the collider), the settings (the error names the setting), `dhat`
+/// against the positions ([`check_contact_distance`]) and the start
+/// ([`check_start_outside`] at time `t`).
+pub(crate) fn check_contact_setup(
+    colliders: &[Collider],
+    settings: &ContactSettings,
+    t: f64,
+    positions: &[sinew_math::DVec3],
+    fixed: &[bool],
+) -> Result<(), ContactError> {
+    collider::validate_colliders(colliders)?;
+    settings.validate()?;
+    check_contact_distance("dhat", settings.dhat, positions)?;
+    check_start_outside(colliders, settings.thickness, t, positions, fixed)
+}
+
 /// [`check_start_outside`] for a stepper: the same check, refused as
 /// [`StepError::StartsInside`](crate::StepError::StartsInside) so that a step from an
 /// inadmissible start fails before anything is written.

@@ -274,9 +274,8 @@ impl Term for ContactTerm {
 
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
         let fixed = step.system.fixed();
-        // Whether kappa grew does not matter here: the active pairs changed anyway, and
-        // the statistics are published either way.
-        let _grew = if step.timing.midpoint {
+        // Published every iteration whether or not kappa grew: the active pairs change.
+        if step.timing.midpoint {
             let x_n = step.system.positions();
             let mut scratch = self
                 .end_state
@@ -285,10 +284,10 @@ impl Term for ContactTerm {
             let w = &mut scratch.0;
             w.clear();
             w.extend(x.iter().zip(x_n).map(|(z, x0)| 2.0 * *z - *x0));
-            self.potential.update_kappa(w, fixed)
+            self.potential.update_kappa(w, fixed);
         } else {
-            self.potential.update_kappa(x, fixed)
-        };
+            self.potential.update_kappa(x, fixed);
+        }
         self.stats.publish(&self.potential);
     }
 
