@@ -8,7 +8,7 @@
 //! step and says why in the [`StepReport`]. The rules are in docs/integrators.md.
 
 use crate::contact::{
-    Collider, ContactError, ContactPotential, ContactSettings, ContactStats, ContactTerm,
+    Collider, ContactError, ContactPotential, ContactSettings, ContactStats, ContactTerm, Drive,
     project_particle, signed_distance,
 };
 use crate::explicit::{SymplecticEuler, VelocityVerlet};
@@ -437,6 +437,18 @@ impl AutoStepper {
         match newton {
             Some(newton) => newton.add_term(Box::new(term)),
             None => self.pending_contact = Some(term),
+        }
+    }
+
+    /// The contact term: in the workspace that takes every step, or still waiting for it.
+    fn contact_term_mut(&mut self) -> Option<&mut ContactTerm> {
+        if let Some(term) = self.pending_contact.as_mut() {
+            return Some(term);
+        }
+        match (&mut self.settle, &mut self.bdf2) {
+            (Some(be), _) => be.term_mut::<ContactTerm>(),
+            (None, Some(b)) => b.newton_mut().term_mut::<ContactTerm>(),
+            (None, None) => None,
         }
     }
 
@@ -888,6 +900,42 @@ impl Simulation {
             scratch: Vec::new(),
         });
         Ok(())
+    }
+
+    /// Drives collider `index` from the current time on ([`Drive`]): its pose now is
+    /// kept and its motion changes, for this and every later step until it is driven
+    /// again. A collider on an animated body is driven before each step with
+    /// [`Drive::To`] its pose at the step's end. The guarantee of the implicit
+    /// integrators holds for a driven collider as for any other: the barrier and the
+    /// time-of-impact cap see it where its new motion puts it.
+    ///
+    /// # Errors
+    /// [`ContactError::NoSuchCollider`] for an index out of range (a count of 0 without
+    /// contact) and the errors of [`Collider::driven`] naming the index; nothing
+    /// changes then.
+    pub fn drive_collider(&mut self, index: usize, drive: &Drive) -> Result<(), ContactError> {
+        let time = self.time;
+        let Some(contact) = &mut self.contact else {
+            return Err(ContactError::NoSuchCollider { index, count: 0 });
+        };
+        // The list is left as it was on an error, and the term (the same colliders at
+        // the same time) then takes the same drive without one.
+        crate::contact::collider::drive_in_list(&mut contact.colliders, index, time, drive)?;
+        if let Some(term) = self.contact_term_mut() {
+            term.drive_collider(index, time, drive)?;
+        }
+        Ok(())
+    }
+
+    /// The implicit integrators' contact term, wherever it is held.
+    fn contact_term_mut(&mut self) -> Option<&mut ContactTerm> {
+        match &mut self.stepper {
+            Stepper::BackwardEuler(be) => be.term_mut::<ContactTerm>(),
+            Stepper::Bdf2(b) => b.newton_mut().term_mut::<ContactTerm>(),
+            Stepper::Midpoint(m) => m.newton_mut().term_mut::<ContactTerm>(),
+            Stepper::Auto(a) => a.contact_term_mut(),
+            Stepper::SymplecticEuler(_) | Stepper::Bounded(_) | Stepper::Flawed(_) => None,
+        }
     }
 
     /// The colliders, if contact is set.

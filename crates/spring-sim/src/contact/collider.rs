@@ -4,10 +4,17 @@
 //! A kinematic collider follows a prescribed rigid motion: its reference point (the
 //! half-space's point, the sphere's centre, the capsule's midpoint) moves at a constant
 //! linear velocity, and the collider turns about that point at a constant angular
-//! velocity. The shape as written is the pose at time 0; [`Collider::at`] gives the pose
-//! at any time, exactly (no interpolation error), and [`Collider::surface_velocity`] the
-//! velocity of the collider's material point at a place, which friction and the explicit
-//! projection need.
+//! velocity. The shape as written is the pose at the collider's `pose_time` (0 unless
+//! set); [`Collider::at`] gives the pose at any time, exactly (no interpolation error),
+//! and [`Collider::surface_velocity`] the velocity of the collider's material point at a
+//! place, which friction and the explicit projection need.
+//!
+//! A collider steered as the run goes (a capsule on an animated limb) changes its motion
+//! between steps: [`Collider::rebased`] keeps its pose at a time and gives it a new
+//! motion from there, and [`Collider::moving_to`] the constant motion that carries its
+//! pose at one time onto a target pose at a later one ([`Drive`] names the two, for the
+//! integrators' `drive_collider`). The motion is piecewise constant, and the pose
+//! continuous, in time.
 
 use super::ContactError;
 use sinew_math::{DQuat, DVec3};
@@ -89,17 +96,45 @@ impl Motion {
     };
 }
 
-/// A collider: a shape in its pose at time 0 and its motion.
+/// A collider: a shape in its pose at `pose_time` and its motion.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct Collider {
-    /// The shape at time 0.
+    /// The shape at `pose_time`.
     pub shape: Shape,
     /// Its motion (default: static).
     #[cfg_attr(feature = "serde", serde(default))]
     pub motion: Motion,
+    /// The time at which the collider is posed as `shape` (default 0); its motion runs
+    /// from there, forwards and backwards alike.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub pose_time: f64,
 }
+
+/// How a collider is steered from the current time on (the integrators'
+/// `drive_collider`): its pose now is kept, its motion changes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Drive {
+    /// Move on with this motion ([`Collider::rebased`]); [`Motion::STATIC`] stops it.
+    Motion(Motion),
+    /// Reach `target` after `duration` seconds in one constant motion
+    /// ([`Collider::moving_to`]), and keep that motion afterwards until driven again.
+    /// Driving a collider before each step to where an animation puts it at the
+    /// step's end makes the collider follow the animation, straight from pose to pose
+    /// within each step.
+    To {
+        /// The pose to reach: the collider's own kind and size.
+        target: Shape,
+        /// Seconds from now, positive and finite.
+        duration: f64,
+    },
+}
+
+/// Relative tolerance of [`Collider::moving_to`] on a target's radius and axis length:
+/// a rigid motion keeps both, and a pose computed by a chain of transforms (a limb from
+/// forward kinematics) keeps them to round-off.
+pub const TARGET_SIZE_TOLERANCE: f64 = 1e-9;
 
 impl Collider {
     /// A static collider.
@@ -108,6 +143,7 @@ impl Collider {
         Self {
             shape,
             motion: Motion::STATIC,
+            pose_time: 0.0,
         }
     }
 
@@ -213,25 +249,29 @@ impl Collider {
         if !self.motion.angular_velocity.is_finite() {
             return bad("angular_velocity", finite);
         }
+        if !self.pose_time.is_finite() {
+            return bad("pose_time", finite);
+        }
         Ok(())
     }
 
-    /// The rotation the collider has turned through from time 0 to `t`.
+    /// The rotation the collider has turned through from `pose_time` to `t`.
     #[must_use]
     pub fn rotation_at(&self, t: f64) -> DQuat {
-        DQuat::from_scaled_axis(self.motion.angular_velocity * t)
+        DQuat::from_scaled_axis(self.motion.angular_velocity * (t - self.pose_time))
     }
 
     /// The reference point at time `t`.
     #[must_use]
     pub fn reference_point_at(&self, t: f64) -> DVec3 {
-        self.shape.reference_point() + self.motion.linear_velocity * t
+        self.shape.reference_point() + self.motion.linear_velocity * (t - self.pose_time)
     }
 
-    /// The shape in its pose at time `t` (exact for the prescribed motion).
+    /// The shape in its pose at time `t` (exact for the prescribed motion; at
+    /// `pose_time` it is `shape` itself, bit for bit).
     #[must_use]
     pub fn at(&self, t: f64) -> Shape {
-        if self.is_static() {
+        if self.is_static() || t == self.pose_time {
             return self.shape;
         }
         let r0 = self.shape.reference_point();
@@ -263,6 +303,145 @@ impl Collider {
                 .angular_velocity
                 .cross(point - self.reference_point_at(t))
     }
+
+    /// The collider in its pose at `time`, moving on from there with `motion`: the pose
+    /// is continuous at `time` (the new `shape` is [`Self::at`]`(time)`, so the two
+    /// agree there bit for bit) and the velocities change there.
+    #[must_use]
+    pub fn rebased(&self, time: f64, motion: Motion) -> Self {
+        Self {
+            shape: self.at(time),
+            motion,
+            pose_time: time,
+        }
+    }
+
+    /// The collider moving from its pose at `start` onto `target` at `end`, in one
+    /// constant motion: the reference point at constant velocity, and a constant turn
+    /// about it by the shortest rotation that takes the capsule's axis (from `a` to `b`)
+    /// or the half-space's normal onto the target's. A turn that two poses do not
+    /// determine (a sphere's spin, a capsule's about its own axis, a half-space's about
+    /// its normal) is taken as none; give it with [`Self::rebased`]. The pose reached at
+    /// `end` is the target to round-off, with the collider's own radius and axis length.
+    ///
+    /// # Errors
+    /// [`ContactError::BadCollider`] (field `"target"`, or `"start"` / `"end"`) when the
+    /// times are not finite or `end` is not after `start`, when the target is not finite,
+    /// is another kind of shape, or differs from the collider in radius or axis length by
+    /// more than [`TARGET_SIZE_TOLERANCE`] relative (a rigid motion keeps both), or when
+    /// a half-space target's normal is not of unit length.
+    pub fn moving_to(&self, start: f64, target: &Shape, end: f64) -> Result<Self, ContactError> {
+        let bad = |field, reason| {
+            Err(ContactError::BadCollider {
+                collider: None,
+                shape: self.shape.kind(),
+                field,
+                reason,
+            })
+        };
+        if !start.is_finite() {
+            return bad("start", "is not finite");
+        }
+        if !(end.is_finite() && end > start) {
+            return bad("end", "is not finite and after the start");
+        }
+        let probe = Self::fixed(*target);
+        if probe.validate().is_err() {
+            return bad(
+                "target",
+                "is not a valid shape (finite, unit normal, positive radius)",
+            );
+        }
+        let now = self.at(start);
+        let size_differs = |mine: f64, theirs: f64, scale: f64| {
+            (mine - theirs).abs() > TARGET_SIZE_TOLERANCE * scale
+        };
+        // The turn as an axis (unit) times an angle: the shortest rotation from one
+        // direction to the other, by atan2 so that small and near-half turns keep their
+        // precision.
+        let turn = |from: DVec3, to: DVec3| -> DVec3 {
+            let (from, to) = (from.normalize(), to.normalize());
+            let axis = from.cross(to);
+            let sin = axis.length();
+            let cos = from.dot(to);
+            if sin == 0.0 {
+                return if cos > 0.0 {
+                    DVec3::ZERO
+                } else {
+                    from.any_orthonormal_vector() * std::f64::consts::PI
+                };
+            }
+            axis / sin * sin.atan2(cos)
+        };
+        let angular = match (now, *target) {
+            (Shape::HalfSpace { normal, .. }, Shape::HalfSpace { normal: to, .. }) => {
+                turn(normal, to)
+            }
+            (Shape::Sphere { radius, .. }, Shape::Sphere { radius: r, .. }) => {
+                if size_differs(radius, r, radius) {
+                    return bad("target", "has another radius than the collider");
+                }
+                DVec3::ZERO
+            }
+            (
+                Shape::Capsule { a, b, radius },
+                Shape::Capsule {
+                    a: ta,
+                    b: tb,
+                    radius: r,
+                },
+            ) => {
+                if size_differs(radius, r, radius) {
+                    return bad("target", "has another radius than the collider");
+                }
+                let (length, target_length) = ((b - a).length(), (tb - ta).length());
+                if size_differs(length, target_length, length.max(radius)) {
+                    return bad("target", "has another axis length than the collider");
+                }
+                if length == 0.0 || target_length == 0.0 {
+                    DVec3::ZERO
+                } else {
+                    turn(b - a, tb - ta)
+                }
+            }
+            _ => return bad("target", "is another kind of shape than the collider"),
+        };
+        let duration = end - start;
+        let motion = Motion {
+            linear_velocity: (target.reference_point() - now.reference_point()) / duration,
+            angular_velocity: angular / duration,
+        };
+        Ok(Self {
+            shape: now,
+            motion,
+            pose_time: start,
+        })
+    }
+
+    /// The collider driven at `time` by `drive` ([`Self::rebased`] or
+    /// [`Self::moving_to`] from `time`).
+    ///
+    /// # Errors
+    /// As [`Self::moving_to`]; a motion that is not finite is refused as
+    /// [`Self::validate`] refuses it.
+    pub fn driven(&self, time: f64, drive: &Drive) -> Result<Self, ContactError> {
+        let driven = match *drive {
+            Drive::Motion(motion) => self.rebased(time, motion),
+            Drive::To { target, duration } => {
+                if !(duration.is_finite() && duration > 0.0) {
+                    return Err(ContactError::BadCollider {
+                        collider: None,
+                        shape: self.shape.kind(),
+                        field: "duration",
+                        reason: "is not positive and finite",
+                    });
+                }
+                self.moving_to(time, &target, time + duration)?
+            }
+        };
+        driven.validate()?;
+        Ok(driven)
+    }
 }
 
 /// Whether turning about the reference point with angular velocity `omega` maps the
@@ -278,20 +457,44 @@ pub(crate) fn spin_keeps_surface(shape: &Shape, omega: DVec3) -> bool {
 /// Validates a list of colliders; the error names the index of the first bad one.
 pub fn validate_colliders(colliders: &[Collider]) -> Result<(), ContactError> {
     for (i, c) in colliders.iter().enumerate() {
-        c.validate().map_err(|e| match e {
-            ContactError::BadCollider {
-                shape,
-                field,
-                reason,
-                ..
-            } => ContactError::BadCollider {
-                collider: Some(i),
-                shape,
-                field,
-                reason,
-            },
-            other => other,
-        })?;
+        c.validate().map_err(|e| naming_index(e, i))?;
     }
     Ok(())
+}
+
+/// Drives collider `index` of `colliders` at `time` ([`Collider::driven`]) and returns
+/// the driven collider; on error (naming the index) the list is unchanged.
+pub(crate) fn drive_in_list(
+    colliders: &mut [Collider],
+    index: usize,
+    time: f64,
+    drive: &Drive,
+) -> Result<Collider, ContactError> {
+    let count = colliders.len();
+    let collider = colliders
+        .get_mut(index)
+        .ok_or(ContactError::NoSuchCollider { index, count })?;
+    let driven = collider
+        .driven(time, drive)
+        .map_err(|e| naming_index(e, index))?;
+    *collider = driven;
+    Ok(driven)
+}
+
+/// `error` with the collider's index in it, when it is about one collider.
+fn naming_index(error: ContactError, index: usize) -> ContactError {
+    match error {
+        ContactError::BadCollider {
+            shape,
+            field,
+            reason,
+            ..
+        } => ContactError::BadCollider {
+            collider: Some(index),
+            shape,
+            field,
+            reason,
+        },
+        other => other,
+    }
 }

@@ -39,7 +39,7 @@ pub mod term;
 pub mod toi;
 
 pub use barrier::{AdaptiveKappa, KappaSettings, PointBarrier, point_barrier};
-pub use collider::{Collider, Motion, Shape};
+pub use collider::{Collider, Drive, Motion, Shape};
 pub use distance::{SignedDistance, signed_distance};
 pub use friction::FrictionContact;
 pub use potential::{ContactPotential, ContactStep, swept_allowance};
@@ -60,7 +60,8 @@ pub enum ContactError {
         /// The collider's shape: "half-space", "sphere" or "capsule".
         shape: &'static str,
         /// The field: "point", "normal", "center", "radius", "a", "b",
-        /// "linear_velocity" or "angular_velocity".
+        /// "linear_velocity", "angular_velocity" or "pose_time"; when a collider is
+        /// driven ([`Drive`]), "target", "duration", "start" or "end".
         field: &'static str,
         /// What is wrong with it.
         reason: &'static str,
@@ -113,6 +114,13 @@ pub enum ContactError {
         value: f64,
         /// The diagonal of the positions' bounding box.
         extent: f64,
+    },
+    /// A collider was driven ([`Drive`]) by an index that is not in the list.
+    NoSuchCollider {
+        /// The index given.
+        index: usize,
+        /// The number of colliders (0 without contact).
+        count: usize,
     },
     /// A free particle starts inside or on a collider ([`check_start_outside`]).
     StartsInside {
@@ -172,6 +180,10 @@ impl fmt::Display for ContactError {
                 "particle {particle} starts inside collider {collider} (its distance to the \
                  surface, less the thickness, is {distance:e}): contact needs every free \
                  particle outside every collider at the start"
+            ),
+            Self::NoSuchCollider { index, count } => write!(
+                f,
+                "there is no collider {index} to drive (there are {count})"
             ),
             Self::AddedTwice { what } => write!(
                 f,

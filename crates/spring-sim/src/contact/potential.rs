@@ -23,7 +23,7 @@ use super::barrier::{
     barrier_first_derivative, barrier_second_derivative, minimum_kappa, point_barrier_gradient,
     point_barrier_projected_hessian,
 };
-use super::collider::{Collider, Shape, validate_colliders};
+use super::collider::{Collider, Drive, Shape, drive_in_list, validate_colliders};
 use super::distance::{distance_change, distance_to, signed_distance};
 use super::friction::FrictionContact;
 use super::toi::{time_of_impact, time_of_impact_from};
@@ -136,6 +136,26 @@ impl ContactPotential {
     #[must_use]
     pub fn settings(&self) -> &ContactSettings {
         &self.settings
+    }
+
+    /// Drives collider `index` from `time` on ([`Collider::driven`]: its pose at `time`
+    /// kept, its motion changed) and returns it. Call it between steps, with the time
+    /// the next step starts at; that step poses the collider along its new motion.
+    ///
+    /// # Errors
+    /// [`ContactError::NoSuchCollider`] for an index out of range, and the errors of
+    /// [`Collider::driven`] naming the index; the potential is then unchanged.
+    pub fn drive_collider(
+        &mut self,
+        index: usize,
+        time: f64,
+        drive: &Drive,
+    ) -> Result<Collider, ContactError> {
+        let driven = drive_in_list(&mut self.colliders, index, time, drive)?;
+        self.posed[index] = driven.at(self.clock);
+        // Pairs collected against the old pose are stale.
+        self.active.x.clear();
+        Ok(driven)
     }
 
     /// The current barrier stiffness (0 before the first step).

@@ -14,7 +14,7 @@
 //! `w`, with a line-search direction `dz` moving `w` by `2 dz`, the gradient times 2 and
 //! the Hessian times 4 (the chain rule). Derivation: docs/contact.md.
 
-use super::{ContactPotential, ContactStep};
+use super::{Collider, ContactError, ContactPotential, ContactStep, Drive};
 use crate::potential::{Gravity, HessianSink, Springs, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
 use crate::{SpringSystem, StepError};
@@ -118,6 +118,20 @@ impl ContactTerm {
     #[must_use]
     pub fn potential(&self) -> &ContactPotential {
         &self.potential
+    }
+
+    /// Drives collider `index` from `time` on: [`ContactPotential::drive_collider`].
+    /// An integrator's own `drive_collider` passes its time.
+    ///
+    /// # Errors
+    /// As [`ContactPotential::drive_collider`].
+    pub fn drive_collider(
+        &mut self,
+        index: usize,
+        time: f64,
+        drive: &Drive,
+    ) -> Result<Collider, ContactError> {
+        self.potential.drive_collider(index, time, drive)
     }
 }
 

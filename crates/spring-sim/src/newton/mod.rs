@@ -35,6 +35,7 @@ mod solver_choice;
 
 pub use settings::{InitialGuess, MAX_FRICTION_LAGS, NewtonSettings};
 
+use crate::contact::{Collider, ContactError, ContactTerm, Drive};
 use crate::linear::{
     DirectSolver, LinearSolverChoice, LinearSolverKind, PcgOutcome, PcgSolver, SolverCosts,
 };
@@ -327,6 +328,31 @@ impl BackwardEuler {
     #[must_use]
     pub fn potential(&self) -> &Potential {
         &self.potential
+    }
+
+    /// The first term of type `T` in the incremental potential, to change between steps
+    /// ([`Potential::term_mut`]).
+    pub fn term_mut<T: Term>(&mut self) -> Option<&mut T> {
+        self.potential.term_mut::<T>()
+    }
+
+    /// Drives collider `index` of the contact term from the time the next step starts
+    /// at ([`Self::time`]) on: [`ContactTerm::drive_collider`].
+    ///
+    /// # Errors
+    /// [`ContactError::NoSuchCollider`] (with a count of 0 when there is no contact
+    /// term), and the errors of [`Collider::driven`] naming the index; nothing changes
+    /// then.
+    pub fn drive_collider(
+        &mut self,
+        index: usize,
+        drive: &Drive,
+    ) -> Result<Collider, ContactError> {
+        let time = self.time;
+        match self.potential.term_mut::<ContactTerm>() {
+            Some(term) => term.drive_collider(index, time, drive),
+            None => Err(ContactError::NoSuchCollider { index, count: 0 }),
+        }
     }
 
     /// Adds a term to the incremental potential (a contact barrier, friction). A term

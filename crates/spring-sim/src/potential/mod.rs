@@ -450,6 +450,26 @@ impl Potential {
         &self.terms
     }
 
+    /// The first term of type `T`, if any.
+    #[must_use]
+    pub fn term<T: Term>(&self) -> Option<&T> {
+        self.terms.iter().find_map(|t| {
+            let any: &dyn Any = t.as_ref();
+            any.downcast_ref::<T>()
+        })
+    }
+
+    /// The first term of type `T`, if any, to change between steps (a contact term's
+    /// colliders are driven this way). What the potential learned of the terms when
+    /// they were added (which are springs, damping, pointwise) depends on their types
+    /// only, so it stays true.
+    pub fn term_mut<T: Term>(&mut self) -> Option<&mut T> {
+        self.terms.iter_mut().find_map(|t| {
+            let any: &mut dyn Any = t.as_mut();
+            any.downcast_mut::<T>()
+        })
+    }
+
     /// [`Term::check_start`] on every term, in order; the first refusal.
     ///
     /// # Errors

@@ -8,6 +8,7 @@ mod assembly;
 mod auto_choice;
 mod backward_euler;
 mod bending;
+mod contact_drive;
 mod contact_dynamics;
 mod contact_kernels;
 mod contact_potential;
