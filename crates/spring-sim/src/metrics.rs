@@ -54,12 +54,14 @@ pub fn run(sim: &mut Simulation, dt: f64, steps: usize) -> Result<RunMetrics, St
 /// [`run`], calling `observe(step_index, report, sim)` after every step that succeeded
 /// (for pictures, per-step plots and checks of the state, or of the pieces the step
 /// recorded: [`Simulation::piece_ends`]). The observer runs outside the timed part, so
-/// it cannot change `time_per_step_ms_median`, and it only reads.
+/// it cannot change `time_per_step_ms_median`. It may also steer the next step (drive
+/// a collider to where an animation puts it at that step's end:
+/// [`Simulation::drive_collider`]); what it changes applies from the next step on.
 pub fn run_observed(
     sim: &mut Simulation,
     dt: f64,
     steps: usize,
-    mut observe: impl FnMut(usize, &StepReport, &Simulation),
+    mut observe: impl FnMut(usize, &StepReport, &mut Simulation),
 ) -> Result<RunMetrics, StepError> {
     crate::model::check_time_step(dt)?;
     let start = sim.system().energies();

@@ -2,6 +2,7 @@
 //! springs) stepped by an integrator of sinew-spring-sim, with the run's energies,
 //! iterations and timing.
 
+use super::limbs::Limbs;
 use super::{RunContext, TaskOutput, TaskSpec, max_distance, non_negative};
 use crate::limits::{
     MAX_GRID_SIZE, MAX_ITERATIONS, MAX_PARTICLE_STEPS, MAX_PARTICLES, MAX_STEPS, at_most,
@@ -12,7 +13,7 @@ use crate::results::{
 use serde::Deserialize;
 use sinew_math::DVec3;
 use sinew_spring_sim::StabilityBound;
-use sinew_spring_sim::contact::{Collider, ContactSettings, Shape, signed_distance};
+use sinew_spring_sim::contact::{Collider, ContactSettings, Drive, Shape, signed_distance};
 use sinew_spring_sim::{AutoSettings, NewtonSettings};
 use sinew_spring_sim::{
     ClothGrid, Integrator, Material, Particle, Simulation, SpringSpec, SpringSystem, run,
@@ -53,6 +54,9 @@ pub struct ClothTask {
 pub struct ContactSpec {
     /// The colliders.
     pub colliders: Vec<Collider>,
+    /// Capsules on an animated skeleton, after `colliders` in the list (default: none).
+    #[serde(default)]
+    pub limbs: Option<super::limbs::LimbsSpec>,
     /// `dhat`, thickness, `mu`, `eps_v`, the time-of-impact fraction (defaults:
     /// sinew-spring-sim's).
     #[serde(default)]
@@ -116,7 +120,7 @@ const MAX_FRAMES: usize = 100;
 const MAX_TRACK_FRAMES: usize = 300;
 
 impl ClothTask {
-    fn build(&self) -> Result<Simulation, String> {
+    fn build(&self) -> Result<(Simulation, Option<Limbs>), String> {
         // The size is checked before the system is built: a grid's particles are
         // allocated by the build.
         let particles = match &self.system {
@@ -144,11 +148,21 @@ impl ClothTask {
         self.check_work(&system)?;
         let mut sim =
             Simulation::new(system, self.integrator).map_err(|e| format!("integrator: {e}"))?;
+        let mut limbs = None;
         if let Some(contact) = &self.contact {
-            sim.set_contact(contact.colliders.clone(), contact.settings)
+            let mut colliders = contact.colliders.clone();
+            if let Some(spec) = &contact.limbs {
+                let mut built = spec.build().map_err(|e| format!("contact: limbs: {e}"))?;
+                let shapes = built
+                    .shapes_at(0.0)
+                    .map_err(|e| format!("contact: limbs: {e}"))?;
+                colliders.extend(shapes.into_iter().map(Collider::fixed));
+                limbs = Some(built);
+            }
+            sim.set_contact(colliders, contact.settings)
                 .map_err(|e| format!("contact: {e}"))?;
         }
-        Ok(sim)
+        Ok((sim, limbs))
     }
 }
 
@@ -208,6 +222,28 @@ impl ClothTask {
     }
 }
 
+/// Drives the limbs' capsules (the colliders from `first` on) to the animation's pose at
+/// the end of the next step of `dt`.
+fn drive_limbs(
+    sim: &mut Simulation,
+    limbs: &mut Limbs,
+    first: usize,
+    dt: f64,
+) -> Result<(), String> {
+    let shapes = limbs.shapes_at(sim.time() + dt)?;
+    for (k, target) in shapes.into_iter().enumerate() {
+        sim.drive_collider(
+            first + k,
+            &Drive::To {
+                target,
+                duration: dt,
+            },
+        )
+        .map_err(|e| format!("contact: limbs: capsules[{k}]: {e}"))?;
+    }
+    Ok(())
+}
+
 impl TaskSpec for ClothTask {
     fn validate(&self) -> Result<(), String> {
         self.build()?;
@@ -219,7 +255,7 @@ impl TaskSpec for ClothTask {
     }
 
     fn run(&self, ctx: &RunContext) -> Result<TaskOutput, String> {
-        let mut sim = self.build()?;
+        let (mut sim, mut limbs) = self.build()?;
         let start = sim.system().clone();
         let one_second = self.steps_to_one_second();
         let mut at_one_second: Option<Vec<DVec3>> = None;
@@ -259,8 +295,14 @@ impl TaskSpec for ClothTask {
         let mut iterations = Vec::with_capacity(self.steps);
         let dt = self.dt;
         // Contact metrics, from distances computed here after every step (independent
-        // of the integrator's own bookkeeping).
+        // of the integrator's own bookkeeping). The limbs' capsules, last in the list,
+        // are posed by the animation itself, not by the library's driven colliders.
         let colliders: Vec<Collider> = sim.colliders().to_vec();
+        let fixed_motion = colliders.len() - limbs.as_ref().map_or(0, Limbs::len);
+        let mut drive_error: Option<String> = None;
+        if let Some(limbs) = &mut limbs {
+            drive_limbs(&mut sim, limbs, fixed_motion, dt)?;
+        }
         let contact_settings = sim.contact_settings().copied();
         let mut min_distance = f64::INFINITY;
         let mut penetrations = 0usize;
@@ -273,7 +315,7 @@ impl TaskSpec for ClothTask {
         // (one piece for a step taken whole): the implicit integrators and `auto` record
         // the pieces' end states for this check; the explicit ones promise nothing, and
         // their steps' straight paths are checked whole.
-        let moving = colliders.iter().any(Collider::moves_surface);
+        let moving = colliders.iter().any(Collider::moves_surface) || limbs.is_some();
         if moving {
             let _ = sim.record_piece_ends(true);
         }
@@ -300,15 +342,29 @@ impl TaskSpec for ClothTask {
             ));
             energy.push((time, e.total()));
             iterations.push((time, report.iterations as f64));
+            // The colliders at the step's end: those of constant motion where it puts
+            // them, the limbs where the animation does.
+            let mut posed: Vec<Shape> = colliders[..fixed_motion]
+                .iter()
+                .map(|c| c.at(time))
+                .collect();
+            if let Some(limbs) = &mut limbs {
+                match limbs.shapes_at(sim.time()) {
+                    Ok(shapes) => posed.extend(shapes),
+                    Err(e) => {
+                        drive_error.get_or_insert(e);
+                    }
+                }
+            }
+            let system = sim.system();
             if let Some(settings) = &contact_settings {
                 let mut pairs = 0;
-                for c in &colliders {
-                    let shape = c.at(time);
+                for shape in &posed {
                     for (x, fixed) in system.positions().iter().zip(system.fixed()) {
                         if *fixed {
                             continue;
                         }
-                        let d = signed_distance(&shape, *x, settings.thickness).distance;
+                        let d = signed_distance(shape, *x, settings.thickness).distance;
                         min_distance = min_distance.min(d);
                         penetrations += usize::from(d <= 0.0);
                         pairs += usize::from(d < settings.dhat);
@@ -321,8 +377,10 @@ impl TaskSpec for ClothTask {
                     Some(record) => record.iter().collect(),
                     None => vec![(time, system.positions())],
                 };
+                // The motions of the step just taken (a limb is driven for the next
+                // one below).
                 let paths = super::deepest_swept_path(
-                    &colliders,
+                    sim.colliders(),
                     settings.thickness,
                     (time - dt, &previous),
                     pieces.iter().copied(),
@@ -336,17 +394,26 @@ impl TaskSpec for ClothTask {
             let last = step + 1 == self.steps;
             if ctx.keep_frames && ((step + 1) % frame_every == 0 || last) {
                 frames.push(system.positions().to_vec());
-                frame_colliders.push(colliders.iter().map(|c| c.at(time)).collect::<Vec<_>>());
+                frame_colliders.push(posed.clone());
             }
             if ctx.keep_frames && ((step + 1) % track_every == 0 || last) {
                 track.push(ClothFrame {
                     positions: system.positions().to_vec(),
-                    colliders: colliders.iter().map(|c| c.at(time)).collect(),
+                    colliders: posed,
                 });
                 track_steps.push(step + 1);
             }
+            if let Some(limbs) = &mut limbs
+                && !last
+                && let Err(e) = drive_limbs(sim, limbs, fixed_motion, dt)
+            {
+                drive_error.get_or_insert(e);
+            }
         })
         .map_err(|e| e.to_string())?;
+        if let Some(e) = drive_error {
+            return Err(e);
+        }
         drop(progress);
         let pictures = if ctx.keep_frames {
             Pictures::Cloth(ClothPictures {

@@ -9,6 +9,7 @@ pub mod curve;
 pub mod fk;
 pub mod full_body;
 pub mod ik;
+pub mod limbs;
 pub mod mesh_cloth;
 pub mod two_bone;
 
