@@ -5,7 +5,8 @@
 //! Every collider is placed entirely below the sheet's plane, at a random gap from it, so
 //! the start is admissible (every particle outside every collider) by construction; a
 //! collider's motion (rising, sliding, turning) may then carry it into the sheet, which
-//! is what the property is about.
+//! is what the property is about. During the run a collider may be driven: given a new
+//! motion from the start of a step on.
 
 use super::{SplitMix64, direction, log_uniform};
 use proptest::prelude::*;
@@ -76,6 +77,22 @@ pub struct ContactCase {
     pub mu: f64,
     /// The colliders.
     pub colliders: Vec<ColliderSpec>,
+    /// Colliders given a new motion during the run, from the start of a step on (the
+    /// pose kept, the velocities changed: `Simulation::drive_collider`).
+    pub drives: Vec<DriveSpec>,
+}
+
+/// A collider driven before a step: from then on it moves with a new motion.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DriveSpec {
+    /// The step it is driven before (none when past the case's last step).
+    pub step: usize,
+    /// The collider, modulo the number of colliders.
+    pub collider: usize,
+    /// The new linear velocity, m/s.
+    pub linear_velocity: DVec3,
+    /// The new angular velocity, rad/s, about the collider's reference point.
+    pub angular_velocity: DVec3,
 }
 
 /// The sheet's plane, y = this.
@@ -210,9 +227,21 @@ pub fn collider_spec() -> impl Strategy<Value = ColliderSpec> {
         )
 }
 
+/// A drive: before one of the first six steps, one collider takes a new motion (at rest
+/// half the time, as [`collider_spec`]'s).
+pub fn drive_spec() -> impl Strategy<Value = DriveSpec> {
+    (0usize..6, 0usize..3, motion()).prop_map(|(step, collider, (v, w))| DriveSpec {
+        step,
+        collider,
+        linear_velocity: v,
+        angular_velocity: w,
+    })
+}
+
 /// A whole case: sheets of 2 x 2 to 6 x 6 particles, spacing 2 cm to 20 cm, stiffness
 /// 10 to 1e6 N/m, steps 1/600 s to 1/4 s, one to six steps, a downward throw up to 5 m/s
-/// with per-particle jitter up to 2 m/s, friction 0 to 0.5, one to three colliders.
+/// with per-particle jitter up to 2 m/s, friction 0 to 0.5, one to three colliders, and
+/// none to three drives that change a collider's motion during the run.
 pub fn contact_case() -> impl Strategy<Value = ContactCase> {
     (
         2usize..=6,
@@ -224,7 +253,10 @@ pub fn contact_case() -> impl Strategy<Value = ContactCase> {
         (direction(), 0.0f64..=5.0),
         (0.0f64..=2.0, any::<u64>()),
         prop_oneof![Just(0.0), 0.0f64..=0.5],
-        prop::collection::vec(collider_spec(), 1..=3),
+        (
+            prop::collection::vec(collider_spec(), 1..=3),
+            prop::collection::vec(drive_spec(), 0..=3),
+        ),
     )
         .prop_map(
             |(
@@ -237,7 +269,7 @@ pub fn contact_case() -> impl Strategy<Value = ContactCase> {
                 (dir, speed),
                 (jitter, seed),
                 mu,
-                colliders,
+                (colliders, drives),
             )| {
                 // Thrown downwards (towards the colliders) or sideways, never away.
                 let velocity = speed * DVec3::new(dir.x, -dir.y.abs(), dir.z);
@@ -253,6 +285,7 @@ pub fn contact_case() -> impl Strategy<Value = ContactCase> {
                     seed,
                     mu,
                     colliders,
+                    drives,
                 }
             },
         )

@@ -3,16 +3,17 @@
 //! free particle is inside or on any collider, with the distances computed here from the
 //! colliders' fields and prescribed motion (not by the crate's `signed_distance`), nor
 //! after any piece of a step split in pieces, and no particle's straight path over a
-//! piece goes deeper than the allowance into a moving collider; the
-//! incremental potential never increases over a step's Newton iterations while the
-//! barrier stiffness is unchanged; no NaN; a refused step is a named error, counted, and
-//! rare. The properties are described in docs/labcheck.md.
+//! piece goes deeper than the allowance into a moving collider (colliders may be driven,
+//! given a new motion, between steps: the test follows them from its own record of their
+//! poses); the incremental potential never increases over a step's Newton iterations
+//! while the barrier stiffness is unchanged; no NaN; a refused step is a named error,
+//! counted, and rare. The properties are described in docs/labcheck.md.
 
 use proptest::prelude::*;
 use sinew_labcheck::config;
 use sinew_labcheck::strategies::contact::{AREAL_DENSITY, GRAVITY, contact_case};
 use sinew_math::{DQuat, DVec3};
-use sinew_spring_sim::contact::{Collider, Shape};
+use sinew_spring_sim::contact::{Collider, Drive, Motion, Shape};
 use sinew_spring_sim::{Integrator, NewtonSettings, Simulation, StepError, StepStop};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -27,6 +28,8 @@ static STEPS_IN_CONTACT: AtomicUsize = AtomicUsize::new(0);
 static STEPS_KAPPA_GREW: AtomicUsize = AtomicUsize::new(0);
 /// Accepted steps with a moving collider, whose pieces' paths were checked.
 static STEPS_PATHS_CHECKED: AtomicUsize = AtomicUsize::new(0);
+/// Drives: colliders given a new motion before a step.
+static STEPS_DRIVEN: AtomicUsize = AtomicUsize::new(0);
 /// Accepted steps split in pieces (each piece's end state and path checked).
 static STEPS_SPLIT: AtomicUsize = AtomicUsize::new(0);
 /// Stretches of one function's iterates checked for descent (every minimization of every
@@ -35,30 +38,50 @@ static SLICES_CHECKED: AtomicUsize = AtomicUsize::new(0);
 /// Samples along each particle's straight path from one accepted state to the next.
 const PATH_SAMPLES: usize = 64;
 
-/// The distance from `x` to the collider `c` at time `t`, from its fields alone: the
-/// pose follows `r(t) = r_0 + v t` and a turn by `omega t` about `r(t)`; the half-space's
-/// distance is the height above its plane, the sphere's the distance to the centre
-/// minus the radius, the capsule's the distance to the nearest point of its axis
-/// segment minus the radius.
-fn independent_distance(c: &Collider, t: f64, x: DVec3) -> f64 {
+/// The pose of the collider `c` at time `t`, from its fields alone: the reference point
+/// (the half-space's point, the sphere's centre, the capsule's midpoint) follows
+/// `r(t) = r_0 + v (t - t_0)` and the shape turns by `omega (t - t_0)` about it, `t_0`
+/// being the time `c.shape` is the pose at. (The half-space's normal is turned, not
+/// renormalised: the distance divides by its length.)
+fn independent_pose(c: &Collider, t: f64) -> Shape {
+    let elapsed = t - c.pose_time;
     let turn = DQuat::from_axis_angle(
         c.motion
             .angular_velocity
             .try_normalize()
             .unwrap_or(DVec3::Y),
-        c.motion.angular_velocity.length() * t,
+        c.motion.angular_velocity.length() * elapsed,
     );
-    let shift = c.motion.linear_velocity * t;
+    let shift = c.motion.linear_velocity * elapsed;
     match c.shape {
-        Shape::HalfSpace { point, normal } => {
-            let n = turn * normal;
-            (x - (point + shift)).dot(n) / n.length()
-        }
-        Shape::Sphere { center, radius } => (x - (center + shift)).length() - radius,
+        Shape::HalfSpace { point, normal } => Shape::HalfSpace {
+            point: point + shift,
+            normal: turn * normal,
+        },
+        Shape::Sphere { center, radius } => Shape::Sphere {
+            center: center + shift,
+            radius,
+        },
         Shape::Capsule { a, b, radius } => {
             let mid = 0.5 * (a + b);
-            let a = mid + shift + turn * (a - mid);
-            let b = mid + shift + turn * (b - mid);
+            Shape::Capsule {
+                a: mid + shift + turn * (a - mid),
+                b: mid + shift + turn * (b - mid),
+                radius,
+            }
+        }
+    }
+}
+
+/// The distance from `x` to the collider `c` at time `t`, from its fields alone
+/// ([`independent_pose`]): the half-space's distance is the height above its plane, the
+/// sphere's the distance to the centre minus the radius, the capsule's the distance to
+/// the nearest point of its axis segment minus the radius.
+fn independent_distance(c: &Collider, t: f64, x: DVec3) -> f64 {
+    match independent_pose(c, t) {
+        Shape::HalfSpace { point, normal } => (x - point).dot(normal) / normal.length(),
+        Shape::Sphere { center, radius } => (x - center).length() - radius,
+        Shape::Capsule { a, b, radius } => {
             let ab = b - a;
             let len2 = ab.length_squared();
             let s = if len2 > 0.0 {
@@ -102,7 +125,26 @@ proptest! {
             .map_err(|e| TestCaseError::fail(e.to_string()))?;
         let mass = AREAL_DENSITY * case.spacing * case.spacing;
         let mut kappa = expected_initial_kappa(mass, contact.dhat, case.h);
+        // The colliders as this test knows them: each drive re-poses one here, from its
+        // own fields ([`independent_pose`]), where the library is told to drive it.
+        let mut colliders = colliders;
         for n in 0..case.steps {
+            for drive in case.drives.iter().filter(|d| d.step == n) {
+                let ci = drive.collider % colliders.len();
+                let motion = Motion {
+                    linear_velocity: drive.linear_velocity,
+                    angular_velocity: drive.angular_velocity,
+                };
+                let t = sim.time();
+                colliders[ci] = Collider {
+                    shape: independent_pose(&colliders[ci], t),
+                    motion,
+                    pose_time: t,
+                };
+                sim.drive_collider(ci, &Drive::Motion(motion))
+                    .map_err(|e| TestCaseError::fail(format!("step {n}: drive refused: {e}")))?;
+                STEPS_DRIVEN.fetch_add(1, Ordering::Relaxed);
+            }
             let before = sim.system().positions().to_vec();
             let result = sim.step(case.h);
             STEPS_TAKEN.fetch_add(1, Ordering::Relaxed);
@@ -229,8 +271,9 @@ proptest! {
         let in_contact = STEPS_IN_CONTACT.load(Ordering::Relaxed);
         if std::env::var_os("SINEW_CONTACT_COUNTS").is_some() {
             eprintln!(
-                "steps {taken}, refused {refused}, in contact {in_contact}, kappa grew {}, with a moving collider {}, split {}, slices of g checked {}",
+                "steps {taken}, refused {refused}, in contact {in_contact}, kappa grew {}, drives {}, with a moving collider {}, split {}, slices of g checked {}",
                 STEPS_KAPPA_GREW.load(Ordering::Relaxed),
+                STEPS_DRIVEN.load(Ordering::Relaxed),
                 STEPS_PATHS_CHECKED.load(Ordering::Relaxed),
                 STEPS_SPLIT.load(Ordering::Relaxed),
                 SLICES_CHECKED.load(Ordering::Relaxed)
@@ -240,6 +283,11 @@ proptest! {
         prop_assert!(
             taken < 50 || 5 * in_contact >= taken - refused,
             "only {in_contact} of {taken} steps reached the contact distance"
+        );
+        // The drives are exercised: some by the time 50 steps were seen.
+        prop_assert!(
+            taken < 50 || STEPS_DRIVEN.load(Ordering::Relaxed) > 0,
+            "no collider driven in {taken} steps"
         );
         // Refusals must stay the exception: at most one step in ten, once enough steps
         // were seen for a rate to mean something.
