@@ -6,6 +6,7 @@
 //! other by the exact check of [`sinew_exact`], which shares no code with the
 //! solver; any intersection fails the task.
 
+use super::limbs::{Limbs, LimbsSpec};
 use super::{RunContext, TaskOutput, TaskSpec};
 use crate::limits::{
     MAX_GRID_SIZE, MAX_ITERATIONS, MAX_PARTICLE_STEPS, MAX_PARTICLES, MAX_STEPS, at_most,
@@ -18,7 +19,8 @@ use sinew_spring_sim::contact::collider::validate_colliders;
 use sinew_spring_sim::contact::self_contact::distance::squared_distance;
 use sinew_spring_sim::contact::self_contact::{Primitives, SelfContactSettings, candidates};
 use sinew_spring_sim::contact::{
-    Collider, ContactSettings, check_contact_distance, check_start_outside, signed_distance,
+    Collider, ContactSettings, Drive, Shape, check_contact_distance, check_start_outside,
+    signed_distance,
 };
 use sinew_spring_sim::{
     Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinDriver, PinnedMotion, TriangleMesh,
@@ -68,6 +70,10 @@ pub struct MeshClothTask {
     /// Rigid colliders (default none).
     #[serde(default)]
     pub colliders: Vec<Collider>,
+    /// Capsules on an animated skeleton, after `colliders` in the list (default none;
+    /// as in a `Cloth` task's `contact`).
+    #[serde(default)]
+    pub limbs: Option<LimbsSpec>,
     /// Collider contact settings (defaults: sinew-spring-sim's).
     #[serde(default)]
     pub contact: ContactSettings,
@@ -359,6 +365,19 @@ impl MeshClothTask {
         }
     }
 
+    /// The colliders with the limbs' capsules appended (posed at time 0, static until
+    /// driven), and the limbs' animation.
+    fn all_colliders(&self) -> Result<(Vec<Collider>, Option<Limbs>), String> {
+        let mut colliders = self.colliders.clone();
+        let Some(spec) = &self.limbs else {
+            return Ok((colliders, None));
+        };
+        let mut limbs = spec.build().map_err(|e| format!("limbs: {e}"))?;
+        let shapes = limbs.shapes_at(0.0).map_err(|e| format!("limbs: {e}"))?;
+        colliders.extend(shapes.into_iter().map(Collider::fixed));
+        Ok((colliders, Some(limbs)))
+    }
+
     fn check(&self) -> Result<Assembled, String> {
         let a = self.assemble()?;
         at_most("steps", self.steps, MAX_STEPS)?;
@@ -399,8 +418,9 @@ impl MeshClothTask {
         // contact is added (so validation alone finds it).
         check_contact_distance("dhat", self.self_contact.dhat, &a.positions)
             .map_err(|e| format!("self_contact: {e}"))?;
-        if !self.colliders.is_empty() {
-            validate_colliders(&self.colliders).map_err(|e| format!("colliders: {e}"))?;
+        let (colliders, _) = self.all_colliders()?;
+        if !colliders.is_empty() {
+            validate_colliders(&colliders).map_err(|e| format!("colliders: {e}"))?;
             self.contact
                 .validate()
                 .map_err(|e| format!("contact: {e}"))?;
@@ -413,7 +433,7 @@ impl MeshClothTask {
                 }
             }
             check_start_outside(
-                &self.colliders,
+                &colliders,
                 self.contact.thickness,
                 0.0,
                 &a.positions,
@@ -468,9 +488,16 @@ impl TaskSpec for MeshClothTask {
         let mut integrator = model
             .backward_euler(newton)
             .map_err(|e| format!("integrator: {e}"))?;
-        if !self.colliders.is_empty() {
+        // The colliders as the run goes: the limbs' capsules (after the first
+        // `fixed_motion`) are driven before every step, and this copy takes each driven
+        // collider the library returns (its pose within the step, for the pieces'
+        // checks); at each step's end they are also checked against the animation's
+        // own pose.
+        let (mut colliders, mut limbs) = self.all_colliders()?;
+        let fixed_motion = self.colliders.len();
+        if !colliders.is_empty() {
             model
-                .enable_contact(&mut integrator, self.colliders.clone(), self.contact)
+                .enable_contact(&mut integrator, colliders.clone(), self.contact)
                 .map_err(|e| format!("contact: {e}"))?;
         }
         let stats = model
@@ -498,11 +525,13 @@ impl TaskSpec for MeshClothTask {
         let frame_every = self.steps.div_ceil(MAX_FRAMES).max(1);
         let mut frames: Vec<ClothFrame> = Vec::new();
         let mut frame_steps: Vec<usize> = Vec::new();
-        let shapes = |t: f64| -> Vec<_> { self.colliders.iter().map(|c| c.at(t)).collect() };
+        let shapes = |colliders: &[Collider], t: f64| -> Vec<_> {
+            colliders.iter().map(|c| c.at(t)).collect()
+        };
         if ctx.keep_frames {
             frames.push(ClothFrame {
                 positions: system.positions().to_vec(),
-                colliders: shapes(0.0),
+                colliders: shapes(&colliders, 0.0),
             });
             frame_steps.push(0);
         }
@@ -529,6 +558,18 @@ impl TaskSpec for MeshClothTask {
         integrator.record_piece_ends(true);
         let mut progress = ctx.progress(&self.name, self.steps);
         for step in 0..self.steps {
+            if let Some(limbs) = &mut limbs {
+                let targets = limbs.shapes_at(integrator.time() + self.dt)?;
+                for (k, target) in targets.into_iter().enumerate() {
+                    let drive = Drive::To {
+                        target,
+                        duration: self.dt,
+                    };
+                    colliders[fixed_motion + k] = integrator
+                        .drive_collider(fixed_motion + k, &drive)
+                        .map_err(|e| format!("step {step}: limbs: capsules[{k}]: {e}"))?;
+                }
+            }
             let started = Instant::now();
             let report = match &mut pins {
                 Some(driver) => driver.step(&mut integrator, &mut system, self.dt),
@@ -560,23 +601,32 @@ impl TaskSpec for MeshClothTask {
             }
             let time = (step + 1) as f64 * self.dt;
             // Every piece's end state (the step's own end is the last piece's).
-            for (end, y) in pieces.iter() {
-                for c in &self.colliders {
-                    let shape = c.at(end);
-                    for (p, pinned) in y.iter().zip(system.fixed()) {
-                        if *pinned {
-                            continue;
-                        }
-                        let d = signed_distance(&shape, *p, self.contact.thickness).distance;
-                        min_collider_distance =
-                            Some(min_collider_distance.map_or(d, |m: f64| m.min(d)));
-                        penetrations += usize::from(d <= 0.0);
+            let mut outside = |shape: &Shape, y: &[DVec3]| {
+                for (p, pinned) in y.iter().zip(system.fixed()) {
+                    if *pinned {
+                        continue;
                     }
+                    let d = signed_distance(shape, *p, self.contact.thickness).distance;
+                    min_collider_distance =
+                        Some(min_collider_distance.map_or(d, |m: f64| m.min(d)));
+                    penetrations += usize::from(d <= 0.0);
+                }
+            };
+            for (end, y) in pieces.iter() {
+                for c in &colliders {
+                    outside(&c.at(end), y);
+                }
+            }
+            // The limbs where the animation puts them at the step's end, from forward
+            // kinematics here, not from the library's driven colliders.
+            if let Some(limbs) = &mut limbs {
+                for shape in limbs.shapes_at(integrator.time())? {
+                    outside(&shape, x);
                 }
             }
             swept_passes += report.swept_passes;
             let paths = super::deepest_swept_path(
-                &self.colliders,
+                &colliders,
                 self.contact.thickness,
                 (time - self.dt, &previous),
                 pieces.iter(),
@@ -600,7 +650,7 @@ impl TaskSpec for MeshClothTask {
             if ctx.keep_frames && ((step + 1) % frame_every == 0 || step + 1 == self.steps) {
                 frames.push(ClothFrame {
                     positions: x.to_vec(),
-                    colliders: shapes(time),
+                    colliders: shapes(&colliders, time),
                 });
                 frame_steps.push(step + 1);
             }
