@@ -913,6 +913,42 @@ impl Simulation {
     /// [`ContactError::NoSuchCollider`] for an index out of range (a count of 0 without
     /// contact) and the errors of [`Collider::driven`] naming the index; nothing
     /// changes then.
+    ///
+    /// ```
+    /// use sinew_spring_sim::contact::{Collider, ContactSettings, Drive, Shape, signed_distance};
+    /// use sinew_spring_sim::{ClothGrid, DVec3, Integrator, Material, NewtonSettings};
+    /// use sinew_spring_sim::{Simulation, SpringSystem};
+    ///
+    /// // A forearm: a capsule from the elbow to the wrist, turning up about the elbow by
+    /// // 0.6 rad a second (an animation's pose at time t).
+    /// let forearm = |t: f64| {
+    ///     let elbow = DVec3::new(-0.25, -0.035, 0.0);
+    ///     let wrist = elbow + 0.45 * DVec3::new((0.6 * t).cos(), (0.6 * t).sin(), 0.0);
+    ///     Shape::Capsule { a: elbow, b: wrist, radius: 0.03 }
+    /// };
+    /// // A 9 x 9 sheet, 0.4 m wide, lying 5 mm above it.
+    /// let material = Material { stiffness: 1000.0, damping: 0.1, gravity: DVec3::new(0.0, -9.81, 0.0) };
+    /// let origin = DVec3::new(-0.2, 0.0, -0.2);
+    /// let grid = ClothGrid { size: 9, spacing: 0.05, origin, mass: 5e-4, material, fixed: vec![] };
+    /// let newton = Integrator::BackwardEuler(NewtonSettings::default());
+    /// let mut sim = Simulation::new(SpringSystem::cloth(&grid)?, newton)?;
+    /// let grip = ContactSettings { mu: 0.5, ..ContactSettings::default() };
+    /// sim.set_contact(vec![Collider::fixed(forearm(0.0))], grip)?;
+    /// let h = 1.0 / 60.0;
+    /// for _ in 0..60 {
+    ///     // Where the animation puts the forearm at the step's end.
+    ///     let target = forearm(sim.time() + h);
+    ///     sim.drive_collider(0, &Drive::To { target, duration: h })?;
+    ///     sim.step(h)?;
+    ///     for x in sim.system().positions() {
+    ///         assert!(signed_distance(&target, *x, 0.0).distance > 0.0);
+    ///     }
+    /// }
+    /// // Carried: the sheet lies on the forearm, risen with it.
+    /// let top = sim.system().positions().iter().map(|x| x.y).fold(f64::MIN, f64::max);
+    /// assert!(top > 0.1, "highest particle at {top}");
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
     pub fn drive_collider(&mut self, index: usize, drive: &Drive) -> Result<(), ContactError> {
         let time = self.time;
         let Some(contact) = &mut self.contact else {

@@ -19,8 +19,9 @@
 //! there:
 //!
 //! - [`contact`]: contact with rigid colliders after IPC (half-space, sphere, capsule,
-//!   static or kinematic): signed distances, the log barrier, the time of impact,
-//!   lagged smoothed friction, and a projection for the explicit integrators;
+//!   static, kinematic, or driven step by step along an animation:
+//!   [`Simulation::drive_collider`]): signed distances, the log barrier, the time of
+//!   impact, lagged smoothed friction, and a projection for the explicit integrators;
 //! - [`potential`]: the incremental potential as a sum of terms (inertia, gravity,
 //!   springs, axial damping), each written once with its energy, change along a
 //!   direction, gradient, PSD-projected Hessian blocks and largest safe step, and the
