@@ -954,11 +954,12 @@ impl Simulation {
         let Some(contact) = &mut self.contact else {
             return Err(ContactError::NoSuchCollider { index, count: 0 });
         };
-        // The list is left as it was on an error, and the term (the same colliders at
-        // the same time) then takes the same drive without one.
-        crate::contact::collider::drive_in_list(&mut contact.colliders, index, time, drive)?;
+        // Driven once (the list is left as it was on an error); the term holds the same
+        // colliders and takes the driven one as it is.
+        let driven =
+            crate::contact::collider::drive_in_list(&mut contact.colliders, index, time, drive)?;
         if let Some(term) = self.contact_term_mut() {
-            term.drive_collider(index, time, drive)?;
+            term.put_driven(index, driven);
         }
         Ok(())
     }

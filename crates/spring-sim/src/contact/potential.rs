@@ -152,10 +152,18 @@ impl ContactPotential {
         drive: &Drive,
     ) -> Result<Collider, ContactError> {
         let driven = drive_in_list(&mut self.colliders, index, time, drive)?;
+        self.put_driven(index, driven);
+        Ok(driven)
+    }
+
+    /// Puts `driven` (collider `index` driven already, [`Collider::driven`]) in place of
+    /// collider `index`, which must exist: for a caller that drove its own copy of the
+    /// list.
+    pub(crate) fn put_driven(&mut self, index: usize, driven: Collider) {
+        self.colliders[index] = driven;
         self.posed[index] = driven.at(self.clock);
         // Pairs collected against the old pose are stale.
         self.active.x.clear();
-        Ok(driven)
     }
 
     /// The current barrier stiffness (0 before the first step).

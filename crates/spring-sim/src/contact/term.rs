@@ -133,6 +133,11 @@ impl ContactTerm {
     ) -> Result<Collider, ContactError> {
         self.potential.drive_collider(index, time, drive)
     }
+
+    /// [`ContactPotential::put_driven`].
+    pub(crate) fn put_driven(&mut self, index: usize, driven: Collider) {
+        self.potential.put_driven(index, driven);
+    }
 }
 
 impl ContactTerm {

@@ -450,15 +450,6 @@ impl Potential {
         &self.terms
     }
 
-    /// The first term of type `T`, if any.
-    #[must_use]
-    pub fn term<T: Term>(&self) -> Option<&T> {
-        self.terms.iter().find_map(|t| {
-            let any: &dyn Any = t.as_ref();
-            any.downcast_ref::<T>()
-        })
-    }
-
     /// The first term of type `T`, if any, to change between steps (a contact term's
     /// colliders are driven this way). What the potential learned of the terms when
     /// they were added (which are springs, damping, pointwise) depends on their types
