@@ -223,15 +223,15 @@ impl ClothTask {
 }
 
 /// Drives the limbs' capsules (the colliders from `first` on) to the animation's pose at
-/// the end of the next step of `dt`.
+/// the end of the next step of `dt`, and returns those poses.
 fn drive_limbs(
     sim: &mut Simulation,
     limbs: &mut Limbs,
     first: usize,
     dt: f64,
-) -> Result<(), String> {
+) -> Result<Vec<Shape>, String> {
     let shapes = limbs.shapes_at(sim.time() + dt)?;
-    for (k, target) in shapes.into_iter().enumerate() {
+    for (k, &target) in shapes.iter().enumerate() {
         sim.drive_collider(
             first + k,
             &Drive::To {
@@ -241,7 +241,7 @@ fn drive_limbs(
         )
         .map_err(|e| format!("contact: limbs: capsules[{k}]: {e}"))?;
     }
-    Ok(())
+    Ok(shapes)
 }
 
 impl TaskSpec for ClothTask {
@@ -296,13 +296,17 @@ impl TaskSpec for ClothTask {
         let dt = self.dt;
         // Contact metrics, from distances computed here after every step (independent
         // of the integrator's own bookkeeping). The limbs' capsules, last in the list,
-        // are posed by the animation itself, not by the library's driven colliders.
+        // are posed by the animation itself (the targets of the step's drive, from
+        // forward kinematics), not by the library's driven colliders.
         let colliders: Vec<Collider> = sim.colliders().to_vec();
         let fixed_motion = colliders.len() - limbs.as_ref().map_or(0, Limbs::len);
         let mut drive_error: Option<String> = None;
-        if let Some(limbs) = &mut limbs {
-            drive_limbs(&mut sim, limbs, fixed_motion, dt)?;
-        }
+        let mut targets = match &mut limbs {
+            Some(limbs) => drive_limbs(&mut sim, limbs, fixed_motion, dt)?,
+            None => Vec::new(),
+        };
+        // The colliders at a step's end, one buffer for the run.
+        let mut posed: Vec<Shape> = Vec::with_capacity(colliders.len());
         let contact_settings = sim.contact_settings().copied();
         let mut min_distance = f64::INFINITY;
         let mut penetrations = 0usize;
@@ -344,18 +348,9 @@ impl TaskSpec for ClothTask {
             iterations.push((time, report.iterations as f64));
             // The colliders at the step's end: those of constant motion where it puts
             // them, the limbs where the animation does.
-            let mut posed: Vec<Shape> = colliders[..fixed_motion]
-                .iter()
-                .map(|c| c.at(time))
-                .collect();
-            if let Some(limbs) = &mut limbs {
-                match limbs.shapes_at(sim.time()) {
-                    Ok(shapes) => posed.extend(shapes),
-                    Err(e) => {
-                        drive_error.get_or_insert(e);
-                    }
-                }
-            }
+            posed.clear();
+            posed.extend(colliders[..fixed_motion].iter().map(|c| c.at(time)));
+            posed.extend_from_slice(&targets);
             let system = sim.system();
             if let Some(settings) = &contact_settings {
                 let mut pairs = 0;
@@ -399,15 +394,19 @@ impl TaskSpec for ClothTask {
             if ctx.keep_frames && ((step + 1) % track_every == 0 || last) {
                 track.push(ClothFrame {
                     positions: system.positions().to_vec(),
-                    colliders: posed,
+                    colliders: posed.clone(),
                 });
                 track_steps.push(step + 1);
             }
             if let Some(limbs) = &mut limbs
                 && !last
-                && let Err(e) = drive_limbs(sim, limbs, fixed_motion, dt)
             {
-                drive_error.get_or_insert(e);
+                match drive_limbs(sim, limbs, fixed_motion, dt) {
+                    Ok(next) => targets = next,
+                    Err(e) => {
+                        drive_error.get_or_insert(e);
+                    }
+                }
             }
         })
         .map_err(|e| e.to_string())?;

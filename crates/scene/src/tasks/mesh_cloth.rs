@@ -557,10 +557,12 @@ impl TaskSpec for MeshClothTask {
         // whole): the integrator records the pieces' end states for these checks.
         integrator.record_piece_ends(true);
         let mut progress = ctx.progress(&self.name, self.steps);
+        // The limbs' poses at the current step's end (the targets of its drives).
+        let mut targets: Vec<Shape> = Vec::new();
         for step in 0..self.steps {
             if let Some(limbs) = &mut limbs {
-                let targets = limbs.shapes_at(integrator.time() + self.dt)?;
-                for (k, target) in targets.into_iter().enumerate() {
+                targets = limbs.shapes_at(integrator.time() + self.dt)?;
+                for (k, &target) in targets.iter().enumerate() {
                     let drive = Drive::To {
                         target,
                         duration: self.dt,
@@ -617,12 +619,10 @@ impl TaskSpec for MeshClothTask {
                     outside(&c.at(end), y);
                 }
             }
-            // The limbs where the animation puts them at the step's end, from forward
-            // kinematics here, not from the library's driven colliders.
-            if let Some(limbs) = &mut limbs {
-                for shape in limbs.shapes_at(integrator.time())? {
-                    outside(&shape, x);
-                }
+            // The limbs where the animation puts them at the step's end (the drives'
+            // targets, from forward kinematics here), not the library's driven colliders.
+            for shape in &targets {
+                outside(shape, x);
             }
             swept_passes += report.swept_passes;
             let paths = super::deepest_swept_path(
