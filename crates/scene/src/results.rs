@@ -245,6 +245,9 @@ pub struct ContactMetrics {
     /// a collider whose surface moves, sampled by the runner (positive: inside); `None`
     /// without such a collider.
     pub max_path_depth: Option<f64>,
+    /// With limbs that reach: the largest distance between the reaching chain's
+    /// effector and its target after a solve, over the run; `None` otherwise.
+    pub reach_error_max: Option<f64>,
 }
 
 /// A `MeshCloth` task's metrics: the work, the self-contact statistics, and the checks
@@ -289,6 +292,9 @@ pub struct MeshClothMetrics {
     /// The deepest any vertex's straight path between two consecutive states went into a
     /// collider whose surface moves (positive: inside); `None` without such a collider.
     pub max_path_depth: Option<f64>,
+    /// With limbs that reach: the largest distance between the reaching chain's
+    /// effector and its target after a solve, over the run; `None` otherwise.
+    pub reach_error_max: Option<f64>,
     /// The self-contact barrier stiffness at the end.
     pub kappa: f64,
 }

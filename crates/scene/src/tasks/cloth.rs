@@ -152,7 +152,9 @@ impl ClothTask {
         if let Some(contact) = &self.contact {
             let mut colliders = contact.colliders.clone();
             if let Some(spec) = &contact.limbs {
-                let mut built = spec.build().map_err(|e| format!("contact: limbs: {e}"))?;
+                let mut built = spec
+                    .build(self.steps.saturating_add(1))
+                    .map_err(|e| format!("contact: limbs: {e}"))?;
                 let shapes = built
                     .shapes_at(0.0)
                     .map_err(|e| format!("contact: limbs: {e}"))?;
@@ -483,6 +485,7 @@ impl TaskSpec for ClothTask {
             kappa: sim.contact_kappa(),
             swept_passes,
             max_path_depth,
+            reach_error_max: limbs.as_ref().and_then(Limbs::reach_error_max),
         });
         let out = ClothMetrics {
             run: metrics.clone(),

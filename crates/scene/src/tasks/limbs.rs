@@ -8,10 +8,20 @@
 //! the fraction of the interval elapsed; before the first key the first pose holds,
 //! after the last the last. Each capsule runs from one joint's position to another's
 //! (forward kinematics of the interpolated pose) with a radius.
+//!
+//! A reach puts inverse kinematics on top: a chain of the skeleton reaches for a target
+//! keyed in time (linear between keys, held outside them). The pose at time `t` is the
+//! chain's solve for the target at `t`, started from the key pose at `t` (not from the
+//! previous call's answer), so the animation stays a function of time: asking for the
+//! same `t` twice gives the same capsules, whatever was asked in between.
 
-use crate::limits::{MAX_JOINTS, at_most};
+use super::ik::ChainSpec;
+use crate::limits::{MAX_JOINTS, at_most, check_solve_work};
 use crate::spec::{JointRotation, SkeletonSpec, build_pose};
 use serde::Deserialize;
+use sinew_ik::SolverOptions;
+use sinew_math::DVec3;
+use sinew_skeleton::ik::{Chain, EffectorGoal, IkProblem, IkSolver, IkState, SolveSettings};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton};
 use sinew_spring_sim::contact::Shape;
 
@@ -29,6 +39,35 @@ pub struct LimbsSpec {
     pub keys: Vec<KeyPose>,
     /// The capsules, each along two joints (at least one).
     pub capsules: Vec<LimbCapsule>,
+    /// A chain that reaches for a keyed target on top of the key poses (default: none).
+    #[serde(default)]
+    pub reach: Option<ReachSpec>,
+}
+
+/// A chain of the skeleton solved by inverse kinematics for a target keyed in time.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReachSpec {
+    /// The chain's base and effector joints.
+    pub chain: ChainSpec,
+    /// The solver and its options, from the library's registry: `Ccd(...)` or
+    /// `Fabrik(...)`.
+    pub solver: SolverOptions,
+    /// Iteration cap and tolerance of each solve (default 100 and 1e-6).
+    #[serde(default)]
+    pub settings: SolveSettings,
+    /// Where the effector should be, at strictly increasing times (at least one).
+    pub targets: Vec<KeyTarget>,
+}
+
+/// A target of a reach at a time.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeyTarget {
+    /// Seconds from the start of the run.
+    pub time: f64,
+    /// Where the effector should be (world frame).
+    pub position: DVec3,
 }
 
 /// A key pose: joint rotations (as in an `Fk` task's `pose`) at a time.
@@ -60,14 +99,111 @@ pub struct Limbs {
     skeleton: Skeleton,
     keys: Vec<(f64, Pose)>,
     capsules: Vec<(usize, usize, f64)>,
+    reach: Option<Reach>,
     pose: Pose,
     global: GlobalPose,
 }
 
+/// A built [`ReachSpec`].
+struct Reach {
+    chain: Chain,
+    solver: Box<dyn IkSolver>,
+    settings: SolveSettings,
+    targets: Vec<(f64, DVec3)>,
+    /// The largest effector-to-target distance after a solve, so far.
+    error_max: Option<f64>,
+}
+
+impl std::fmt::Debug for Reach {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Reach")
+            .field("chain", &self.chain)
+            .field("solver", &self.solver.name())
+            .field("settings", &self.settings)
+            .field("targets", &self.targets)
+            .field("error_max", &self.error_max)
+            .finish()
+    }
+}
+
+/// Checks that keyed times are finite and strictly increasing; `what` names the list.
+fn check_times(what: &str, times: impl Iterator<Item = f64>) -> Result<(), String> {
+    let mut previous: Option<f64> = None;
+    for (k, time) in times.enumerate() {
+        if !time.is_finite() {
+            return Err(format!("{what}[{k}]: time = {time} is not finite"));
+        }
+        if let Some(previous) = previous
+            && time <= previous
+        {
+            return Err(format!(
+                "{what}[{k}]: time = {time} is not after the previous key's ({previous})"
+            ));
+        }
+        previous = Some(time);
+    }
+    Ok(())
+}
+
+impl ReachSpec {
+    /// Builds the reach on `skeleton` for `solves` solves, or says which item is wrong
+    /// (prefixed `reach: `).
+    fn build(&self, skeleton: &Skeleton, solves: usize) -> Result<Reach, String> {
+        let err = |e: String| format!("reach: {e}");
+        let chain = Chain::new(skeleton, self.chain.base, self.chain.effector)
+            .map_err(|e| err(format!("chain: {e}")))?;
+        let solver = self
+            .solver
+            .build()
+            .map_err(|e| err(format!("solver: {e}")))?;
+        self.settings
+            .validate()
+            .map_err(|e| err(format!("settings: {e}")))?;
+        check_solve_work(
+            solves,
+            self.settings.max_iterations,
+            1,
+            chain.joints().len(),
+        )
+        .map_err(err)?;
+        at_most("targets", self.targets.len(), MAX_KEYS).map_err(err)?;
+        if self.targets.is_empty() {
+            return Err(err("targets: none given (at least one is needed)".into()));
+        }
+        check_times("targets", self.targets.iter().map(|t| t.time)).map_err(err)?;
+        if let Some(k) = self.targets.iter().position(|t| !t.position.is_finite()) {
+            return Err(err(format!(
+                "targets[{k}]: position = {} is not finite",
+                self.targets[k].position
+            )));
+        }
+        Ok(Reach {
+            chain,
+            solver,
+            settings: self.settings,
+            targets: self.targets.iter().map(|t| (t.time, t.position)).collect(),
+            error_max: None,
+        })
+    }
+}
+
+impl Reach {
+    /// The target at `t`: linear between keys, the nearest key's outside them.
+    fn target_at(&self, t: f64) -> DVec3 {
+        let next = self.targets.partition_point(|(time, _)| *time <= t);
+        if next == 0 || next == self.targets.len() {
+            return self.targets[next.min(self.targets.len() - 1)].1;
+        }
+        let ((t0, p0), (t1, p1)) = (self.targets[next - 1], self.targets[next]);
+        p0.lerp(p1, (t - t0) / (t1 - t0))
+    }
+}
+
 impl LimbsSpec {
-    /// Builds the animation, or says which item is wrong (`keys[2]: ...`,
-    /// `capsules[0]: ...`).
-    pub fn build(&self) -> Result<Limbs, String> {
+    /// Builds the animation for a run that asks for its capsules `solves` times (each
+    /// may run the reach's solver once), or says which item is wrong (`keys[2]: ...`,
+    /// `capsules[0]: ...`, `reach: targets[1]: ...`).
+    pub fn build(&self, solves: usize) -> Result<Limbs, String> {
         let skeleton = self.skeleton.build()?;
         at_most("keys", self.keys.len(), MAX_KEYS)?;
         at_most("capsules", self.capsules.len(), MAX_KEYS)?;
@@ -82,19 +218,9 @@ impl LimbsSpec {
         if self.capsules.is_empty() {
             return Err("capsules: none given (at least one capsule is needed)".into());
         }
+        check_times("keys", self.keys.iter().map(|k| k.time))?;
         let mut keys = Vec::with_capacity(self.keys.len());
         for (k, key) in self.keys.iter().enumerate() {
-            if !key.time.is_finite() {
-                return Err(format!("keys[{k}]: time = {} is not finite", key.time));
-            }
-            if let Some((previous, _)) = keys.last()
-                && key.time <= *previous
-            {
-                return Err(format!(
-                    "keys[{k}]: time = {} is not after the previous key's ({previous})",
-                    key.time
-                ));
-            }
             let pose = build_pose(&skeleton, &key.pose).map_err(|e| format!("keys[{k}]: {e}"))?;
             keys.push((key.time, pose));
         }
@@ -116,11 +242,17 @@ impl LimbsSpec {
             }
             capsules.push((capsule.from, capsule.to, capsule.radius));
         }
+        let reach = self
+            .reach
+            .as_ref()
+            .map(|r| r.build(&skeleton, solves))
+            .transpose()?;
         let pose = skeleton.rest_pose();
         Ok(Limbs {
             skeleton,
             keys,
             capsules,
+            reach,
             pose,
             global: GlobalPose::default(),
         })
@@ -140,13 +272,36 @@ impl Limbs {
         self.capsules.is_empty()
     }
 
+    /// The largest distance between the reach's effector and its target after a solve,
+    /// over the calls so far (`None` without a reach or before the first call).
+    #[must_use]
+    pub fn reach_error_max(&self) -> Option<f64> {
+        self.reach.as_ref().and_then(|r| r.error_max)
+    }
+
     /// The capsules posed at time `t`, in the scene's order.
     ///
     /// # Errors
-    /// Forward kinematics' refusal of the interpolated pose (not expected: it has the
-    /// skeleton's size and unit rotations), as text.
+    /// Forward kinematics' or the reach solver's refusal, as text (not expected: the
+    /// pose has the skeleton's size and unit rotations, and the targets were checked).
     pub fn shapes_at(&mut self, t: f64) -> Result<Vec<Shape>, String> {
         self.pose_at(t);
+        if let Some(reach) = &mut self.reach {
+            let goals = [EffectorGoal::at(reach.chain.effector(), reach.target_at(t))];
+            let problem = IkProblem::new(&self.skeleton, &reach.chain, &goals, reach.settings);
+            let report = reach
+                .solver
+                .solve(
+                    &problem,
+                    &mut IkState::new(&mut self.pose, &mut self.global),
+                )
+                .map_err(|e| format!("limbs at t = {t}: reach: {e}"))?;
+            reach.error_max = Some(
+                reach
+                    .error_max
+                    .map_or(report.error, |m| m.max(report.error)),
+            );
+        }
         self.skeleton
             .forward_kinematics(&self.pose, &mut self.global)
             .map_err(|e| format!("limbs at t = {t}: {e}"))?;
@@ -190,13 +345,24 @@ mod tests {
     use super::*;
     use sinew_math::{DQuat, DVec3};
 
+    /// Parses limbs as a scene file does (an option's value without `Some`).
+    fn spec(text: &str) -> LimbsSpec {
+        ron::Options::default()
+            .with_default_extension(
+                ron::extensions::Extensions::IMPLICIT_SOME
+                    | ron::extensions::Extensions::UNWRAP_VARIANT_NEWTYPES,
+            )
+            .from_str(text)
+            .unwrap()
+    }
+
     /// A one-bone arm along +x from the origin, turned about +z by 0 degrees at t = 1
     /// and 90 degrees at t = 3.
     fn arm() -> Limbs {
         let text = "(skeleton: Chain(bones: 1, length: 0.5), \
                     keys: [(time: 1.0), (time: 3.0, pose: [(joint: 0, axis: (0.0, 0.0, 1.0), degrees: 90.0)])], \
                     capsules: [(from: 0, to: 1, radius: 0.1)])";
-        ron::from_str::<LimbsSpec>(text).unwrap().build().unwrap()
+        spec(text).build(10).unwrap()
     }
 
     fn tip(limbs: &mut Limbs, t: f64) -> DVec3 {
@@ -229,14 +395,99 @@ mod tests {
         }
     }
 
+    /// A two-bone arm (shoulder at the origin, 0.3 + 0.3 along +x), its shoulder keyed to
+    /// turn 30 degrees about +y between t = 0 and 2, and its elbow-to-wrist chain (one
+    /// bone) or shoulder-to-wrist chain reaching for `targets`.
+    fn reaching_arm(base: usize, targets: &str) -> Limbs {
+        let text = format!(
+            "(skeleton: Chain(bones: 2, length: 0.3), \
+             keys: [(time: 0.0), (time: 2.0, pose: [(joint: 0, axis: (0.0, 1.0, 0.0), degrees: 30.0)])], \
+             capsules: [(from: 0, to: 1, radius: 0.05), (from: 1, to: 2, radius: 0.04)], \
+             reach: (chain: (base: {base}, effector: 2), solver: Fabrik(), \
+                     settings: (max_iterations: 200, tolerance: 1e-9), targets: {targets}))"
+        );
+        spec(&text).build(10).unwrap()
+    }
+
+    fn ends(shapes: &[Shape]) -> Vec<(DVec3, DVec3)> {
+        shapes
+            .iter()
+            .map(|s| match *s {
+                Shape::Capsule { a, b, .. } => (a, b),
+                other => panic!("{other:?}"),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_reach_puts_the_effector_on_the_target_keyed_in_time() {
+        let mut limbs = reaching_arm(
+            0,
+            "[(time: 0.5, position: (0.3, 0.3, 0.0)), (time: 1.5, position: (0.2, 0.1, 0.3))]",
+        );
+        assert_eq!(limbs.reach_error_max(), None);
+        for t in [-1.0, 0.5, 0.8, 1.0, 1.5, 4.0] {
+            // The target as the scene keys it: held outside the keys, linear between.
+            let s = ((t - 0.5) / 1.0_f64).clamp(0.0, 1.0);
+            let target = DVec3::new(0.3, 0.3, 0.0) * (1.0 - s) + DVec3::new(0.2, 0.1, 0.3) * s;
+            let e = ends(&limbs.shapes_at(t).unwrap());
+            assert_eq!(e[0].0, DVec3::ZERO, "the chain's base does not move");
+            assert_eq!(e[0].1, e[1].0, "the capsules meet at the elbow");
+            assert!(
+                (e[1].1 - target).length() < 1e-9,
+                "t = {t}: {:?} against {target}",
+                e[1].1
+            );
+            for (a, b) in e {
+                assert!(
+                    ((b - a).length() - 0.3).abs() < 1e-14,
+                    "a bone changed length"
+                );
+            }
+        }
+        assert!(limbs.reach_error_max().unwrap() < 1e-9);
+        // A function of time: the same t gives the same capsules to the bit, whatever was
+        // asked before.
+        let at_one = limbs.shapes_at(1.0).unwrap();
+        limbs.shapes_at(-1.0).unwrap();
+        assert_eq!(limbs.shapes_at(1.0).unwrap(), at_one);
+    }
+
+    #[test]
+    fn a_target_out_of_reach_straightens_the_chain_towards_it() {
+        let mut limbs = reaching_arm(0, "[(time: 0.0, position: (0.0, 2.0, 0.0))]");
+        let e = ends(&limbs.shapes_at(1.0).unwrap());
+        assert!(
+            (e[1].1 - DVec3::new(0.0, 0.6, 0.0)).length() < 1e-12,
+            "{e:?}"
+        );
+        // The least possible error: distance - reach.
+        assert!((limbs.reach_error_max().unwrap() - 1.4).abs() < 1e-12);
+    }
+
+    #[test]
+    fn joints_outside_the_reaching_chain_follow_the_keys() {
+        // Only the forearm reaches: the upper arm turns as keyed (15 degrees at t = 1),
+        // and the wrist goes as near the target as a forearm from that elbow can.
+        let target = DVec3::new(0.4, 0.3, 0.0);
+        let mut limbs = reaching_arm(1, "[(time: 0.0, position: (0.4, 0.3, 0.0))]");
+        let e = ends(&limbs.shapes_at(1.0).unwrap());
+        let elbow =
+            sinew_math::DQuat::from_rotation_y(15f64.to_radians()) * DVec3::new(0.3, 0.0, 0.0);
+        assert!((e[0].1 - elbow).length() < 1e-15, "{e:?}");
+        let wrist = elbow + (target - elbow).normalize() * 0.3;
+        assert!(
+            (e[1].1 - wrist).length() < 1e-9,
+            "{:?} against {wrist}",
+            e[1].1
+        );
+        let least = (target - elbow).length() - 0.3;
+        assert!((limbs.reach_error_max().unwrap() - least).abs() < 1e-9);
+    }
+
     #[test]
     fn bad_limbs_are_named() {
-        let err = |text: &str| {
-            ron::from_str::<LimbsSpec>(text)
-                .unwrap()
-                .build()
-                .unwrap_err()
-        };
+        let err = |text: &str| spec(text).build(10).unwrap_err();
         let skeleton = "skeleton: Chain(bones: 1, length: 0.5)";
         assert_eq!(
             err(&format!(
@@ -265,6 +516,52 @@ mod tests {
                 "({skeleton}, keys: [(time: 0.0, pose: [(joint: 4, axis: (0.0, 0.0, 1.0), degrees: 1.0)])], capsules: [(from: 0, to: 1, radius: 0.1)])"
             ))
             .starts_with("keys[0]: pose[0]: joint 4 is out of range")
+        );
+        let reach = |fields: &str| {
+            err(&format!(
+                "({skeleton}, keys: [(time: 0.0)], capsules: [(from: 0, to: 1, radius: 0.1)], \
+                 reach: ({fields}))"
+            ))
+        };
+        let solver = "solver: Fabrik()";
+        assert!(
+            reach(&format!("chain: (base: 0, effector: 3), {solver}, targets: [(time: 0.0, position: (1.0, 0.0, 0.0))]"))
+                .starts_with("reach: chain: "),
+        );
+        assert_eq!(
+            reach(&format!(
+                "chain: (base: 0, effector: 1), {solver}, targets: []"
+            )),
+            "reach: targets: none given (at least one is needed)"
+        );
+        assert_eq!(
+            reach(&format!(
+                "chain: (base: 0, effector: 1), {solver}, targets: [(time: 1.0, position: (1.0, 0.0, 0.0)), (time: 1.0, position: (1.0, 0.0, 0.0))]"
+            )),
+            "reach: targets[1]: time = 1 is not after the previous key's (1)"
+        );
+        assert_eq!(
+            reach(&format!(
+                "chain: (base: 0, effector: 1), {solver}, targets: [(time: 0.0, position: (1.0, NaN, 0.0))]"
+            )),
+            "reach: targets[0]: position = [1, NaN, 0] is not finite"
+        );
+        assert!(
+            reach(&format!("chain: (base: 0, effector: 1), {solver}, settings: (max_iterations: 100, tolerance: -1.0), targets: [(time: 0.0, position: (1.0, 0.0, 0.0))]"))
+                .starts_with("reach: settings: "),
+        );
+        // The work of every solve the run may ask for is bounded like an Ik task's.
+        let text = format!(
+            "({skeleton}, keys: [(time: 0.0)], capsules: [(from: 0, to: 1, radius: 0.1)], \
+             reach: (chain: (base: 0, effector: 1), {solver}, settings: (max_iterations: 10000, tolerance: 1e-6), \
+                     targets: [(time: 0.0, position: (1.0, 0.0, 0.0))]))"
+        );
+        let spec = spec(&text);
+        assert!(spec.build(1000).is_ok());
+        assert!(
+            spec.build(1_000_000)
+                .unwrap_err()
+                .starts_with("reach: settings: max_iterations = 10000 over 1000000 frames"),
         );
     }
 }

@@ -372,7 +372,9 @@ impl MeshClothTask {
         let Some(spec) = &self.limbs else {
             return Ok((colliders, None));
         };
-        let mut limbs = spec.build().map_err(|e| format!("limbs: {e}"))?;
+        let mut limbs = spec
+            .build(self.steps.saturating_add(1))
+            .map_err(|e| format!("limbs: {e}"))?;
         let shapes = limbs.shapes_at(0.0).map_err(|e| format!("limbs: {e}"))?;
         colliders.extend(shapes.into_iter().map(Collider::fixed));
         Ok((colliders, Some(limbs)))
@@ -713,6 +715,7 @@ impl TaskSpec for MeshClothTask {
             penetrations,
             swept_passes,
             max_path_depth,
+            reach_error_max: limbs.as_ref().and_then(Limbs::reach_error_max),
             kappa: stats.kappa(),
         };
         let headline = format!(
