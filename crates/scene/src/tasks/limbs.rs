@@ -7,10 +7,11 @@
 //! rotation is the spherical interpolation (shortest arc) of the two keys' rotations at
 //! the fraction of the interval elapsed; before the first key the first pose holds,
 //! after the last the last. Each capsule runs from one joint's position to another's
-//! (forward kinematics of the interpolated pose) with a radius.
+//! (forward kinematics of the interpolated pose) with a radius. A key may also move the
+//! whole skeleton (root motion): that translation is linear between keys.
 //!
 //! A reach puts inverse kinematics on top: a chain of the skeleton reaches for a target
-//! keyed in time (linear between keys, held outside them). The pose at time `t` is the
+//! keyed in time (linear between keys, held outside them), optionally with a pole. The pose at time `t` is the
 //! chain's solve for the target at `t`, started from the key pose at `t` (not from the
 //! previous call's answer), so the animation stays a function of time: asking for the
 //! same `t` twice gives the same capsules, whatever was asked in between.
@@ -68,6 +69,10 @@ pub struct KeyTarget {
     pub time: f64,
     /// Where the effector should be (world frame).
     pub position: DVec3,
+    /// A point the chain's bend plane should turn towards (world frame; default none).
+    /// Either every target has one or none has.
+    #[serde(default)]
+    pub pole: Option<DVec3>,
 }
 
 /// A key pose: joint rotations (as in an `Fk` task's `pose`) at a time.
@@ -79,6 +84,10 @@ pub struct KeyPose {
     /// Rotations of the joints that are not at rest (default: the rest pose).
     #[serde(default)]
     pub pose: Vec<JointRotation>,
+    /// A translation of the whole skeleton from where its joints' offsets put it (root
+    /// motion, scene units; default none).
+    #[serde(default)]
+    pub root: DVec3,
 }
 
 /// A capsule from joint `from` to joint `to` (forward kinematics positions).
@@ -97,7 +106,7 @@ pub struct LimbCapsule {
 #[derive(Debug)]
 pub struct Limbs {
     skeleton: Skeleton,
-    keys: Vec<(f64, Pose)>,
+    keys: Vec<(f64, Pose, DVec3)>,
     capsules: Vec<(usize, usize, f64)>,
     reach: Option<Reach>,
     pose: Pose,
@@ -109,7 +118,7 @@ struct Reach {
     chain: Chain,
     solver: Box<dyn IkSolver>,
     settings: SolveSettings,
-    targets: Vec<(f64, DVec3)>,
+    targets: Vec<KeyedGoal>,
     /// The largest effector-to-target distance after a solve, so far.
     error_max: Option<f64>,
 }
@@ -124,6 +133,14 @@ impl std::fmt::Debug for Reach {
             .field("error_max", &self.error_max)
             .finish()
     }
+}
+
+/// A reach's target at a time, with its pole if the targets have poles.
+#[derive(Clone, Copy, Debug)]
+struct KeyedGoal {
+    time: f64,
+    position: DVec3,
+    pole: Option<DVec3>,
 }
 
 /// Checks that keyed times are finite and strictly increasing; `what` names the list.
@@ -177,25 +194,57 @@ impl ReachSpec {
                 self.targets[k].position
             )));
         }
+        let poles = self.targets[0].pole.is_some();
+        for (k, target) in self.targets.iter().enumerate() {
+            match target.pole {
+                Some(pole) if !pole.is_finite() => {
+                    return Err(err(format!("targets[{k}]: pole = {pole} is not finite")));
+                }
+                // Between a target with a pole and one without, the pole is undefined.
+                Some(_) if !poles => {
+                    return Err(err(format!(
+                        "targets[{k}]: pole given, but targets[0] has none (either every target has a pole or none has)"
+                    )));
+                }
+                None if poles => {
+                    return Err(err(format!(
+                        "targets[{k}]: no pole, but targets[0] has one (either every target has a pole or none has)"
+                    )));
+                }
+                _ => {}
+            }
+        }
         Ok(Reach {
             chain,
             solver,
             settings: self.settings,
-            targets: self.targets.iter().map(|t| (t.time, t.position)).collect(),
+            targets: self
+                .targets
+                .iter()
+                .map(|t| KeyedGoal {
+                    time: t.time,
+                    position: t.position,
+                    pole: t.pole,
+                })
+                .collect(),
             error_max: None,
         })
     }
 }
 
 impl Reach {
-    /// The target at `t`: linear between keys, the nearest key's outside them.
-    fn target_at(&self, t: f64) -> DVec3 {
-        let next = self.targets.partition_point(|(time, _)| *time <= t);
+    /// The target and its pole at `t`: linear between keys, the nearest key's outside
+    /// them.
+    fn target_at(&self, t: f64) -> (DVec3, Option<DVec3>) {
+        let next = self.targets.partition_point(|g| g.time <= t);
         if next == 0 || next == self.targets.len() {
-            return self.targets[next.min(self.targets.len() - 1)].1;
+            let held = self.targets[next.min(self.targets.len() - 1)];
+            return (held.position, held.pole);
         }
-        let ((t0, p0), (t1, p1)) = (self.targets[next - 1], self.targets[next]);
-        p0.lerp(p1, (t - t0) / (t1 - t0))
+        let (g0, g1) = (self.targets[next - 1], self.targets[next]);
+        let s = (t - g0.time) / (g1.time - g0.time);
+        let pole = g0.pole.zip(g1.pole).map(|(a, b)| a.lerp(b, s));
+        (g0.position.lerp(g1.position, s), pole)
     }
 }
 
@@ -221,8 +270,11 @@ impl LimbsSpec {
         check_times("keys", self.keys.iter().map(|k| k.time))?;
         let mut keys = Vec::with_capacity(self.keys.len());
         for (k, key) in self.keys.iter().enumerate() {
+            if !key.root.is_finite() {
+                return Err(format!("keys[{k}]: root = {} is not finite", key.root));
+            }
             let pose = build_pose(&skeleton, &key.pose).map_err(|e| format!("keys[{k}]: {e}"))?;
-            keys.push((key.time, pose));
+            keys.push((key.time, pose, key.root));
         }
         let mut capsules = Vec::with_capacity(self.capsules.len());
         for (c, capsule) in self.capsules.iter().enumerate() {
@@ -285,9 +337,14 @@ impl Limbs {
     /// Forward kinematics' or the reach solver's refusal, as text (not expected: the
     /// pose has the skeleton's size and unit rotations, and the targets were checked).
     pub fn shapes_at(&mut self, t: f64) -> Result<Vec<Shape>, String> {
-        self.pose_at(t);
+        let root = self.pose_at(t);
         if let Some(reach) = &mut self.reach {
-            let goals = [EffectorGoal::at(reach.chain.effector(), reach.target_at(t))];
+            // The skeleton's frame is the world's moved by `root`: the goal in that frame.
+            let (target, pole) = reach.target_at(t);
+            let goals = [EffectorGoal {
+                pole: pole.map(|p| p - root),
+                ..EffectorGoal::at(reach.chain.effector(), target - root)
+            }];
             let problem = IkProblem::new(&self.skeleton, &reach.chain, &goals, reach.settings);
             let report = reach
                 .solver
@@ -310,23 +367,23 @@ impl Limbs {
             .capsules
             .iter()
             .map(|&(from, to, radius)| Shape::Capsule {
-                a: x[from],
-                b: x[to],
+                a: x[from] + root,
+                b: x[to] + root,
                 radius,
             })
             .collect())
     }
 
-    /// Sets `self.pose` to the animation's pose at `t`.
-    fn pose_at(&mut self, t: f64) {
+    /// Sets `self.pose` to the animation's pose at `t` and returns its root translation.
+    fn pose_at(&mut self, t: f64) -> DVec3 {
         // The first key after t; before the first or after the last, that key's pose.
-        let next = self.keys.partition_point(|(time, _)| *time <= t);
+        let next = self.keys.partition_point(|(time, _, _)| *time <= t);
         if next == 0 || next == self.keys.len() {
-            let held = &self.keys[next.min(self.keys.len() - 1)].1;
+            let (_, held, root) = &self.keys[next.min(self.keys.len() - 1)];
             self.pose.rotations.clone_from(&held.rotations);
-            return;
+            return *root;
         }
-        let ((t0, p0), (t1, p1)) = (&self.keys[next - 1], &self.keys[next]);
+        let ((t0, p0, r0), (t1, p1, r1)) = (&self.keys[next - 1], &self.keys[next]);
         let s = (t - t0) / (t1 - t0);
         for ((q, a), b) in self
             .pose
@@ -337,6 +394,7 @@ impl Limbs {
         {
             *q = a.slerp(*b, s).normalize();
         }
+        r0.lerp(*r1, s)
     }
 }
 
@@ -486,6 +544,76 @@ mod tests {
     }
 
     #[test]
+    fn root_motion_carries_the_whole_skeleton_and_the_reach_follows_it() {
+        // The one-bone arm of `arm`, its root moved 1 m along +x and 0.5 m along +z
+        // between t = 1 and 3 while it turns.
+        let text = "(skeleton: Chain(bones: 1, length: 0.5), \
+                    keys: [(time: 1.0), (time: 3.0, root: (1.0, 0.0, 0.5), pose: [(joint: 0, axis: (0.0, 0.0, 1.0), degrees: 90.0)])], \
+                    capsules: [(from: 0, to: 1, radius: 0.1)])";
+        let mut limbs = spec(text).build(10).unwrap();
+        for (t, root, degrees) in [
+            (0.0, DVec3::ZERO, 0.0_f64),
+            (2.0, DVec3::new(0.5, 0.0, 0.25), 45.0),
+            (5.0, DVec3::new(1.0, 0.0, 0.5), 90.0),
+        ] {
+            let e = ends(&limbs.shapes_at(t).unwrap());
+            let tip =
+                root + DQuat::from_rotation_z(degrees.to_radians()) * DVec3::new(0.5, 0.0, 0.0);
+            assert!((e[0].0 - root).length() < 1e-15, "t = {t}: {e:?}");
+            assert!(
+                (e[0].1 - tip).length() < 1e-15,
+                "t = {t}: {e:?} against {tip}"
+            );
+        }
+        // A two-bone arm walking 0.4 m along +x while its wrist reaches for a point fixed
+        // in the world: the base goes with the root, the wrist stays on the point.
+        let text = "(skeleton: Chain(bones: 2, length: 0.3), \
+                    keys: [(time: 0.0, pose: [(joint: 1, axis: (0.0, 1.0, 0.0), degrees: 10.0)]), \
+                           (time: 1.0, root: (0.4, 0.0, 0.0), pose: [(joint: 1, axis: (0.0, 1.0, 0.0), degrees: 10.0)])], \
+                    capsules: [(from: 0, to: 1, radius: 0.05), (from: 1, to: 2, radius: 0.04)], \
+                    reach: (chain: (base: 0, effector: 2), solver: Fabrik(), \
+                            settings: (max_iterations: 200, tolerance: 1e-9), \
+                            targets: [(time: 0.0, position: (0.45, 0.1, 0.0))]))";
+        let mut limbs = spec(text).build(10).unwrap();
+        for t in [0.0, 0.25, 0.5, 1.0] {
+            let e = ends(&limbs.shapes_at(t).unwrap());
+            assert!(
+                (e[0].0 - DVec3::new(0.4 * t, 0.0, 0.0)).length() < 1e-15,
+                "t = {t}: {e:?}"
+            );
+            let target = DVec3::new(0.45, 0.1, 0.0);
+            assert!((e[1].1 - target).length() < 1e-9, "t = {t}: {e:?}");
+        }
+        assert!(limbs.reach_error_max().unwrap() <= 1e-9);
+    }
+
+    #[test]
+    fn a_pole_keyed_with_the_target_chooses_the_side_the_elbow_bends_to() {
+        // A straight two-bone arm along +x reaching for a point 0.4 m ahead: which way
+        // the elbow goes is the pole's choice.
+        let elbow_z = |pole_z: f64| {
+            let text = format!(
+                "(skeleton: Chain(bones: 2, length: 0.3), keys: [(time: 0.0)], \
+                 capsules: [(from: 0, to: 1, radius: 0.05)], \
+                 reach: (chain: (base: 0, effector: 2), solver: Fabrik(), \
+                         settings: (max_iterations: 200, tolerance: 1e-9), \
+                         targets: [(time: 0.0, position: (0.4, 0.0, 0.0), pole: (0.2, 0.0, {pole_z:?})), \
+                                   (time: 1.0, position: (0.4, 0.0, 0.0), pole: (0.2, 0.0, {pole_z:?}))]))"
+            );
+            let mut limbs = spec(&text).build(10).unwrap();
+            let e = ends(&limbs.shapes_at(0.5).unwrap());
+            assert!(limbs.reach_error_max().unwrap() <= 1e-9);
+            // The bend is in the plane of the arm's base, target and pole: y = 0.
+            assert!(e[0].1.y.abs() < 1e-9, "{e:?}");
+            e[0].1.z
+        };
+        // The elbow of a 0.3 + 0.3 arm reaching 0.4 m: sqrt(0.09 - 0.04) from the line.
+        let offset = 0.05_f64.sqrt();
+        assert!((elbow_z(0.5) - offset).abs() < 1e-9);
+        assert!((elbow_z(-0.5) + offset).abs() < 1e-9);
+    }
+
+    #[test]
     fn bad_limbs_are_named() {
         let err = |text: &str| spec(text).build(10).unwrap_err();
         let skeleton = "skeleton: Chain(bones: 1, length: 0.5)";
@@ -549,6 +677,24 @@ mod tests {
         assert!(
             reach(&format!("chain: (base: 0, effector: 1), {solver}, settings: (max_iterations: 100, tolerance: -1.0), targets: [(time: 0.0, position: (1.0, 0.0, 0.0))]"))
                 .starts_with("reach: settings: "),
+        );
+        assert_eq!(
+            reach(&format!(
+                "chain: (base: 0, effector: 1), {solver}, targets: [(time: 0.0, position: (1.0, 0.0, 0.0)), (time: 1.0, position: (1.0, 0.0, 0.0), pole: (0.0, 1.0, 0.0))]"
+            )),
+            "reach: targets[1]: pole given, but targets[0] has none (either every target has a pole or none has)"
+        );
+        assert_eq!(
+            reach(&format!(
+                "chain: (base: 0, effector: 1), {solver}, targets: [(time: 0.0, position: (1.0, 0.0, 0.0), pole: (0.0, inf, 0.0))]"
+            )),
+            "reach: targets[0]: pole = [0, inf, 0] is not finite"
+        );
+        assert_eq!(
+            err(&format!(
+                "({skeleton}, keys: [(time: 0.0, root: (0.0, NaN, 0.0))], capsules: [(from: 0, to: 1, radius: 0.1)])"
+            )),
+            "keys[0]: root = [0, NaN, 0] is not finite"
         );
         // The work of every solve the run may ask for is bounded like an Ik task's.
         let text = format!(
