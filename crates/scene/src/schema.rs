@@ -202,6 +202,7 @@ impl Scene {
             match task {
                 Task::FullBody(t) => t.base_dir = dir.to_path_buf(),
                 Task::MeshCloth(t) => t.base_dir = dir.to_path_buf(),
+                Task::Cloth(t) => t.base_dir = dir.to_path_buf(),
                 _ => {}
             }
         }

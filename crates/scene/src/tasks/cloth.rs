@@ -46,6 +46,10 @@ pub struct ClothTask {
     /// integrators: a projection, not guaranteed).
     #[serde(default)]
     pub contact: Option<ContactSpec>,
+    /// The directory relative paths (a limbs clip) are read from: the scene file's own,
+    /// set when the scene is loaded (not a scene field).
+    #[serde(skip)]
+    pub base_dir: std::path::PathBuf,
 }
 
 /// The colliders of a `Cloth` task and the contact settings.
@@ -153,7 +157,7 @@ impl ClothTask {
             let mut colliders = contact.colliders.clone();
             if let Some(spec) = &contact.limbs {
                 let mut built = spec
-                    .build(self.steps.saturating_add(1))
+                    .build(self.steps.saturating_add(1), &self.base_dir)
                     .map_err(|e| format!("contact: limbs: {e}"))?;
                 let shapes = built
                     .shapes_at(0.0)

@@ -16,7 +16,6 @@
 //! previous call's answer), so the animation stays a function of time: asking for the
 //! same `t` twice gives the same capsules, whatever was asked in between.
 
-use super::ik::ChainSpec;
 use crate::limits::{MAX_JOINTS, at_most, check_solve_work};
 use crate::spec::{JointRotation, SkeletonSpec, build_pose};
 use serde::Deserialize;
@@ -25,19 +24,29 @@ use sinew_math::DVec3;
 use sinew_skeleton::ik::{Chain, EffectorGoal, IkProblem, IkSolver, IkState, SolveSettings};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton};
 use sinew_spring_sim::contact::Shape;
+use sinew_spring_sim::contact::collider::TARGET_SIZE_TOLERANCE;
+use std::path::Path;
 
 /// The most key poses and capsules a scene may give (each key holds a pose of the
 /// whole skeleton).
 pub const MAX_KEYS: usize = 100_000;
 
-/// An animated skeleton carrying capsule colliders, in a scene.
+/// An animated skeleton carrying capsule colliders, in a scene: a skeleton with key
+/// poses, or a motion clip read from a file.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LimbsSpec {
-    /// The skeleton (its rest pose is every rotation the identity).
-    pub skeleton: SkeletonSpec,
-    /// Key poses, at strictly increasing times (at least one).
+    /// The skeleton (its rest pose is every rotation the identity); with `keys`, unless
+    /// `clip` gives both.
+    #[serde(default)]
+    pub skeleton: Option<SkeletonSpec>,
+    /// Key poses, at strictly increasing times (at least one, with `skeleton`).
+    #[serde(default)]
     pub keys: Vec<KeyPose>,
+    /// A BVH file whose skeleton and frames are the skeleton and the key poses (instead
+    /// of `skeleton` and `keys`).
+    #[serde(default)]
+    pub clip: Option<LimbClip>,
     /// The capsules, each along two joints (at least one).
     pub capsules: Vec<LimbCapsule>,
     /// A chain that reaches for a keyed target on top of the key poses (default: none).
@@ -45,12 +54,64 @@ pub struct LimbsSpec {
     pub reach: Option<ReachSpec>,
 }
 
+/// A motion clip as the limbs' animation: the file's skeleton, and each of its frames a
+/// key pose (its joints' rotations and the root's translation).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LimbClip {
+    /// The BVH file, relative to the scene file's directory.
+    pub file: String,
+    /// The time of the file's first frame, seconds (default 0); frame `k` is at
+    /// `start + k * frame_time`.
+    #[serde(default)]
+    pub start: f64,
+    /// Use only the first this many frames (default: all of them).
+    #[serde(default)]
+    pub frames: Option<usize>,
+}
+
+/// A joint, by its index or, in a skeleton whose joints have names (a clip's), by name.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(untagged)]
+pub enum JointRef {
+    /// The joint's index.
+    Index(usize),
+    /// The joint's name.
+    Name(String),
+}
+
+impl JointRef {
+    /// The joint's index in `skeleton`, or what is wrong (`field` names the item).
+    fn resolve(&self, skeleton: &Skeleton, field: &str) -> Result<usize, String> {
+        match self {
+            Self::Index(j) if *j < skeleton.len() => Ok(*j),
+            Self::Index(j) => Err(format!(
+                "{field} = {j} is out of range (the skeleton has {} joints)",
+                skeleton.len()
+            )),
+            Self::Name(name) => skeleton
+                .joint_by_name(name)
+                .ok_or_else(|| format!("{field} = {name:?}: no joint has that name")),
+        }
+    }
+}
+
+/// A reach's chain: its base joint and the effector below it.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReachChain {
+    /// The base joint (its position does not move).
+    pub base: JointRef,
+    /// The effector joint.
+    pub effector: JointRef,
+}
+
 /// A chain of the skeleton solved by inverse kinematics for a target keyed in time.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ReachSpec {
     /// The chain's base and effector joints.
-    pub chain: ChainSpec,
+    pub chain: ReachChain,
     /// The solver and its options, from the library's registry: `Ccd(...)` or
     /// `Fabrik(...)`.
     pub solver: SolverOptions,
@@ -95,9 +156,9 @@ pub struct KeyPose {
 #[serde(deny_unknown_fields)]
 pub struct LimbCapsule {
     /// The joint at the capsule's end `a`.
-    pub from: usize,
+    pub from: JointRef,
     /// The joint at its end `b`.
-    pub to: usize,
+    pub to: JointRef,
     /// Its radius, positive and finite.
     pub radius: f64,
 }
@@ -106,12 +167,17 @@ pub struct LimbCapsule {
 #[derive(Debug)]
 pub struct Limbs {
     skeleton: Skeleton,
-    keys: Vec<(f64, Pose, DVec3)>,
+    keys: Vec<Key>,
     capsules: Vec<(usize, usize, f64)>,
+    /// Each capsule's length in the first key pose: a drive cannot stretch a collider.
+    lengths: Vec<f64>,
     reach: Option<Reach>,
     pose: Pose,
     global: GlobalPose,
 }
+
+/// A key pose as built: its time, the joints' rotations and the root's translation.
+type Key = (f64, Pose, DVec3);
 
 /// A built [`ReachSpec`].
 struct Reach {
@@ -167,8 +233,17 @@ impl ReachSpec {
     /// (prefixed `reach: `).
     fn build(&self, skeleton: &Skeleton, solves: usize) -> Result<Reach, String> {
         let err = |e: String| format!("reach: {e}");
-        let chain = Chain::new(skeleton, self.chain.base, self.chain.effector)
-            .map_err(|e| err(format!("chain: {e}")))?;
+        let base = self
+            .chain
+            .base
+            .resolve(skeleton, "chain: base")
+            .map_err(err)?;
+        let effector = self
+            .chain
+            .effector
+            .resolve(skeleton, "chain: effector")
+            .map_err(err)?;
+        let chain = Chain::new(skeleton, base, effector).map_err(|e| err(format!("chain: {e}")))?;
         let solver = self
             .solver
             .build()
@@ -252,10 +327,82 @@ impl LimbsSpec {
     /// Builds the animation for a run that asks for its capsules `solves` times (each
     /// may run the reach's solver once), or says which item is wrong (`keys[2]: ...`,
     /// `capsules[0]: ...`, `reach: targets[1]: ...`).
-    pub fn build(&self, solves: usize) -> Result<Limbs, String> {
-        let skeleton = self.skeleton.build()?;
-        at_most("keys", self.keys.len(), MAX_KEYS)?;
+    pub fn build(&self, solves: usize, base_dir: &Path) -> Result<Limbs, String> {
+        let (skeleton, keys) = match (&self.clip, &self.skeleton) {
+            (Some(_), Some(_)) => {
+                return Err(
+                    "clip: given with a skeleton (give a clip, or a skeleton with keys)".into(),
+                );
+            }
+            (Some(_), None) if !self.keys.is_empty() => {
+                return Err("clip: given with keys (a clip's frames are its key poses)".into());
+            }
+            (Some(clip), None) => clip.read(base_dir)?,
+            (None, None) => {
+                return Err("skeleton: none given (give a skeleton with keys, or a clip)".into());
+            }
+            (None, Some(skeleton)) => {
+                let skeleton = skeleton.build()?;
+                let keys = self.keys(&skeleton)?;
+                (skeleton, keys)
+            }
+        };
         at_most("capsules", self.capsules.len(), MAX_KEYS)?;
+        if self.capsules.is_empty() {
+            return Err("capsules: none given (at least one capsule is needed)".into());
+        }
+        let mut capsules = Vec::with_capacity(self.capsules.len());
+        for (c, capsule) in self.capsules.iter().enumerate() {
+            let from = capsule
+                .from
+                .resolve(&skeleton, "from")
+                .map_err(|e| format!("capsules[{c}]: {e}"))?;
+            let to = capsule
+                .to
+                .resolve(&skeleton, "to")
+                .map_err(|e| format!("capsules[{c}]: {e}"))?;
+            if !(capsule.radius.is_finite() && capsule.radius > 0.0) {
+                return Err(format!(
+                    "capsules[{c}]: radius = {} is not positive and finite",
+                    capsule.radius
+                ));
+            }
+            capsules.push((from, to, capsule.radius));
+        }
+        let reach = self
+            .reach
+            .as_ref()
+            .map(|r| r.build(&skeleton, solves))
+            .transpose()?;
+        let pose = skeleton.rest_pose();
+        let mut limbs = Limbs {
+            skeleton,
+            keys,
+            capsules,
+            lengths: Vec::new(),
+            reach,
+            pose,
+            global: GlobalPose::default(),
+        };
+        let first = limbs.keys[0].0;
+        let root = limbs.pose_at(first);
+        limbs.lengths = limbs
+            .place(root)
+            .map_err(|e| format!("keys[0]: {e}"))?
+            .iter()
+            .map(|shape| match *shape {
+                Shape::Capsule { a, b, .. } => (b - a).length(),
+                _ => 0.0,
+            })
+            .collect();
+        Ok(limbs)
+    }
+}
+
+impl LimbsSpec {
+    /// The key poses given in the scene, checked against `skeleton`.
+    fn keys(&self, skeleton: &Skeleton) -> Result<Vec<Key>, String> {
+        at_most("keys", self.keys.len(), MAX_KEYS)?;
         at_most(
             "keys x joints",
             self.keys.len().saturating_mul(skeleton.len()),
@@ -264,50 +411,57 @@ impl LimbsSpec {
         if self.keys.is_empty() {
             return Err("keys: none given (at least one key pose is needed)".into());
         }
-        if self.capsules.is_empty() {
-            return Err("capsules: none given (at least one capsule is needed)".into());
-        }
         check_times("keys", self.keys.iter().map(|k| k.time))?;
         let mut keys = Vec::with_capacity(self.keys.len());
         for (k, key) in self.keys.iter().enumerate() {
             if !key.root.is_finite() {
                 return Err(format!("keys[{k}]: root = {} is not finite", key.root));
             }
-            let pose = build_pose(&skeleton, &key.pose).map_err(|e| format!("keys[{k}]: {e}"))?;
+            let pose = build_pose(skeleton, &key.pose).map_err(|e| format!("keys[{k}]: {e}"))?;
             keys.push((key.time, pose, key.root));
         }
-        let mut capsules = Vec::with_capacity(self.capsules.len());
-        for (c, capsule) in self.capsules.iter().enumerate() {
-            for (field, joint) in [("from", capsule.from), ("to", capsule.to)] {
-                if joint >= skeleton.len() {
-                    return Err(format!(
-                        "capsules[{c}]: {field} = {joint} is out of range (the skeleton has {} joints)",
-                        skeleton.len()
-                    ));
-                }
-            }
-            if !(capsule.radius.is_finite() && capsule.radius > 0.0) {
-                return Err(format!(
-                    "capsules[{c}]: radius = {} is not positive and finite",
-                    capsule.radius
-                ));
-            }
-            capsules.push((capsule.from, capsule.to, capsule.radius));
+        Ok(keys)
+    }
+}
+
+impl LimbClip {
+    /// The file's skeleton and its frames as key poses.
+    fn read(&self, base_dir: &Path) -> Result<(Skeleton, Vec<Key>), String> {
+        let path = base_dir.join(&self.file);
+        let text = std::fs::read_to_string(&path)
+            .map_err(|e| format!("clip: file {}: {e}", path.display()))?;
+        let bvh = sinew_io::parse_bvh(&text)
+            .map_err(|e| format!("clip: file {}: {e}", path.display()))?;
+        let available = bvh.frames.len();
+        let count = self.frames.unwrap_or(available);
+        if count == 0 || count > available {
+            return Err(format!(
+                "clip: frames = {count}, must be 1..={available} (the file's frames)"
+            ));
         }
-        let reach = self
-            .reach
-            .as_ref()
-            .map(|r| r.build(&skeleton, solves))
-            .transpose()?;
-        let pose = skeleton.rest_pose();
-        Ok(Limbs {
-            skeleton,
-            keys,
-            capsules,
-            reach,
-            pose,
-            global: GlobalPose::default(),
-        })
+        if !self.start.is_finite() {
+            return Err(format!("clip: start = {} is not finite", self.start));
+        }
+        at_most(
+            "clip: frames x joints",
+            count.saturating_mul(bvh.skeleton.len()),
+            MAX_JOINTS,
+        )?;
+        let keys: Vec<_> = bvh.frames[..count]
+            .iter()
+            .enumerate()
+            .map(|(k, f)| {
+                (
+                    self.start + k as f64 * bvh.frame_time,
+                    f.pose.clone(),
+                    f.root_translation,
+                )
+            })
+            .collect();
+        // A frame time of 0 (or one too small to tell frames apart at `start`) leaves no
+        // interval to interpolate over.
+        check_times("clip: frame", keys.iter().map(|k| k.0))?;
+        Ok((bvh.skeleton, keys))
     }
 }
 
@@ -359,9 +513,34 @@ impl Limbs {
                     .map_or(report.error, |m| m.max(report.error)),
             );
         }
+        let shapes = self
+            .place(root)
+            .map_err(|e| format!("limbs at t = {t}: {e}"))?;
+        // A capsule across a joint that turns (from the hips to the neck, say) changes
+        // length; the library's drive refuses that, and here the scene is named.
+        for (k, (shape, &first)) in shapes.iter().zip(&self.lengths).enumerate() {
+            if let Shape::Capsule { a, b, radius } = *shape {
+                let length = (b - a).length();
+                if (length - first).abs() > TARGET_SIZE_TOLERANCE * first.max(radius) {
+                    let (from, to, _) = self.capsules[k];
+                    return Err(format!(
+                        "limbs at t = {t}: capsules[{k}]: {} and {} are {length} apart, \
+                         {first} in the first key pose: a capsule must keep its length (put \
+                         it on one bone)",
+                        self.skeleton.label(from),
+                        self.skeleton.label(to)
+                    ));
+                }
+            }
+        }
+        Ok(shapes)
+    }
+
+    /// The capsules on the current pose moved by `root` (forward kinematics).
+    fn place(&mut self, root: DVec3) -> Result<Vec<Shape>, String> {
         self.skeleton
             .forward_kinematics(&self.pose, &mut self.global)
-            .map_err(|e| format!("limbs at t = {t}: {e}"))?;
+            .map_err(|e| e.to_string())?;
         let x = &self.global.positions;
         Ok(self
             .capsules
@@ -420,7 +599,7 @@ mod tests {
         let text = "(skeleton: Chain(bones: 1, length: 0.5), \
                     keys: [(time: 1.0), (time: 3.0, pose: [(joint: 0, axis: (0.0, 0.0, 1.0), degrees: 90.0)])], \
                     capsules: [(from: 0, to: 1, radius: 0.1)])";
-        spec(text).build(10).unwrap()
+        spec(text).build(10, Path::new("")).unwrap()
     }
 
     fn tip(limbs: &mut Limbs, t: f64) -> DVec3 {
@@ -464,7 +643,7 @@ mod tests {
              reach: (chain: (base: {base}, effector: 2), solver: Fabrik(), \
                      settings: (max_iterations: 200, tolerance: 1e-9), targets: {targets}))"
         );
-        spec(&text).build(10).unwrap()
+        spec(&text).build(10, Path::new("")).unwrap()
     }
 
     fn ends(shapes: &[Shape]) -> Vec<(DVec3, DVec3)> {
@@ -550,7 +729,7 @@ mod tests {
         let text = "(skeleton: Chain(bones: 1, length: 0.5), \
                     keys: [(time: 1.0), (time: 3.0, root: (1.0, 0.0, 0.5), pose: [(joint: 0, axis: (0.0, 0.0, 1.0), degrees: 90.0)])], \
                     capsules: [(from: 0, to: 1, radius: 0.1)])";
-        let mut limbs = spec(text).build(10).unwrap();
+        let mut limbs = spec(text).build(10, Path::new("")).unwrap();
         for (t, root, degrees) in [
             (0.0, DVec3::ZERO, 0.0_f64),
             (2.0, DVec3::new(0.5, 0.0, 0.25), 45.0),
@@ -574,7 +753,7 @@ mod tests {
                     reach: (chain: (base: 0, effector: 2), solver: Fabrik(), \
                             settings: (max_iterations: 200, tolerance: 1e-9), \
                             targets: [(time: 0.0, position: (0.45, 0.1, 0.0))]))";
-        let mut limbs = spec(text).build(10).unwrap();
+        let mut limbs = spec(text).build(10, Path::new("")).unwrap();
         for t in [0.0, 0.25, 0.5, 1.0] {
             let e = ends(&limbs.shapes_at(t).unwrap());
             assert!(
@@ -600,7 +779,7 @@ mod tests {
                          targets: [(time: 0.0, position: (0.4, 0.0, 0.0), pole: (0.2, 0.0, {pole_z:?})), \
                                    (time: 1.0, position: (0.4, 0.0, 0.0), pole: (0.2, 0.0, {pole_z:?}))]))"
             );
-            let mut limbs = spec(&text).build(10).unwrap();
+            let mut limbs = spec(&text).build(10, Path::new("")).unwrap();
             let e = ends(&limbs.shapes_at(0.5).unwrap());
             assert!(limbs.reach_error_max().unwrap() <= 1e-9);
             // The bend is in the plane of the arm's base, target and pole: y = 0.
@@ -613,9 +792,60 @@ mod tests {
         assert!((elbow_z(-0.5) + offset).abs() < 1e-9);
     }
 
+    /// The repository's `scenes/data` directory.
+    fn data_dir() -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/data")
+    }
+
+    #[test]
+    fn a_clip_poses_the_capsules_as_its_frames_do() {
+        let text = "(clip: (file: \"squat.bvh\", start: 0.5, frames: 20), \
+                    capsules: [(from: \"LeftUpLeg\", to: \"LeftLeg\", radius: 0.07), (from: 0, to: \"Spine\", radius: 0.12)])";
+        let mut limbs = spec(text).build(10, &data_dir()).unwrap();
+        // The file read again by the io crate, its joints placed by the frames' own
+        // positions (forward kinematics plus the root's translation).
+        let bvh =
+            sinew_io::parse_bvh(&std::fs::read_to_string(data_dir().join("squat.bvh")).unwrap())
+                .unwrap();
+        let joint = |name: &str| bvh.skeleton.joint_by_name(name).unwrap();
+        let (hips, spine, up_leg, leg) = (
+            joint("Hips"),
+            joint("Spine"),
+            joint("LeftUpLeg"),
+            joint("LeftLeg"),
+        );
+        assert_eq!(hips, 0);
+        let at = |k: usize| bvh.frames[k].joint_positions(&bvh.skeleton).unwrap();
+        let close = |a: DVec3, b: DVec3| (a - b).length() < 1e-14;
+        for k in [0, 7, 19] {
+            let x = at(k);
+            let e = ends(&limbs.shapes_at(0.5 + k as f64 * bvh.frame_time).unwrap());
+            assert!(
+                close(e[0].0, x[up_leg]) && close(e[0].1, x[leg]),
+                "frame {k}: {e:?}"
+            );
+            assert!(
+                close(e[1].0, x[hips]) && close(e[1].1, x[spine]),
+                "frame {k}: {e:?}"
+            );
+        }
+        // Before `start` the first frame holds; after the last frame used, the last.
+        assert!(close(
+            ends(&limbs.shapes_at(0.0).unwrap())[1].0,
+            at(0)[hips]
+        ));
+        assert!(close(
+            ends(&limbs.shapes_at(9.0).unwrap())[1].0,
+            at(19)[hips]
+        ));
+        // Half-way between two frames the root is half-way (it translates linearly).
+        let half = ends(&limbs.shapes_at(0.5 + 3.5 * bvh.frame_time).unwrap())[1].0;
+        assert!(close(half, (at(3)[hips] + at(4)[hips]) / 2.0), "{half}");
+    }
+
     #[test]
     fn bad_limbs_are_named() {
-        let err = |text: &str| spec(text).build(10).unwrap_err();
+        let err = |text: &str| spec(text).build(10, Path::new("")).unwrap_err();
         let skeleton = "skeleton: Chain(bones: 1, length: 0.5)";
         assert_eq!(
             err(&format!(
@@ -696,6 +926,57 @@ mod tests {
             )),
             "keys[0]: root = [0, NaN, 0] is not finite"
         );
+        let dir = data_dir();
+        let clip_err = |text: &str| spec(text).build(10, &dir).unwrap_err();
+        let capsule = "capsules: [(from: \"Hips\", to: \"Chest\", radius: 0.1)]";
+        assert_eq!(
+            clip_err(&format!(
+                "(clip: (file: \"squat.bvh\"), {skeleton}, {capsule})"
+            )),
+            "clip: given with a skeleton (give a clip, or a skeleton with keys)"
+        );
+        assert_eq!(
+            clip_err(&format!(
+                "(clip: (file: \"squat.bvh\"), keys: [(time: 0.0)], {capsule})"
+            )),
+            "clip: given with keys (a clip's frames are its key poses)"
+        );
+        assert_eq!(
+            clip_err(&format!("(keys: [(time: 0.0)], {capsule})")),
+            "skeleton: none given (give a skeleton with keys, or a clip)"
+        );
+        assert!(
+            clip_err(&format!("(clip: (file: \"missing.bvh\"), {capsule})"))
+                .starts_with("clip: file ")
+        );
+        assert_eq!(
+            clip_err(&format!(
+                "(clip: (file: \"squat.bvh\", frames: 0), {capsule})"
+            )),
+            "clip: frames = 0, must be 1..=61 (the file's frames)"
+        );
+        assert_eq!(
+            clip_err(
+                "(clip: (file: \"squat.bvh\"), capsules: [(from: \"Hips\", to: \"Tail\", radius: 0.1)])"
+            ),
+            "capsules[0]: to = \"Tail\": no joint has that name"
+        );
+        assert_eq!(
+            clip_err("(clip: (file: \"squat.bvh\"), capsules: [(from: 0, to: 99, radius: 0.1)])"),
+            "capsules[0]: to = 99 is out of range (the skeleton has 26 joints)"
+        );
+        // A capsule over the bending spine changes length as the clip squats: named at
+        // the first time it differs.
+        let mut limbs = spec("(clip: (file: \"squat.bvh\"), capsules: [(from: \"Hips\", to: \"Neck\", radius: 0.1)])")
+            .build(10, &dir)
+            .unwrap();
+        limbs.shapes_at(0.0).unwrap();
+        let e = limbs.shapes_at(1.0).unwrap_err();
+        assert!(
+            e.starts_with("limbs at t = 1: capsules[0]: joint 0 \"Hips\" and joint 3 \"Neck\" are ")
+                && e.ends_with("apart, 0.5 in the first key pose: a capsule must keep its length (put it on one bone)"),
+            "{e}"
+        );
         // The work of every solve the run may ask for is bounded like an Ik task's.
         let text = format!(
             "({skeleton}, keys: [(time: 0.0)], capsules: [(from: 0, to: 1, radius: 0.1)], \
@@ -703,9 +984,9 @@ mod tests {
                      targets: [(time: 0.0, position: (1.0, 0.0, 0.0))]))"
         );
         let spec = spec(&text);
-        assert!(spec.build(1000).is_ok());
+        assert!(spec.build(1000, Path::new("")).is_ok());
         assert!(
-            spec.build(1_000_000)
+            spec.build(1_000_000, Path::new(""))
                 .unwrap_err()
                 .starts_with("reach: settings: max_iterations = 10000 over 1000000 frames"),
         );

@@ -373,7 +373,7 @@ impl MeshClothTask {
             return Ok((colliders, None));
         };
         let mut limbs = spec
-            .build(self.steps.saturating_add(1))
+            .build(self.steps.saturating_add(1), &self.base_dir)
             .map_err(|e| format!("limbs: {e}"))?;
         let shapes = limbs.shapes_at(0.0).map_err(|e| format!("limbs: {e}"))?;
         colliders.extend(shapes.into_iter().map(Collider::fixed));
