@@ -783,7 +783,7 @@ mod tests {
 
     #[test]
     fn the_baseline_is_named_by_its_given_name_or_file_name_never_its_directory() {
-        let binary = Path::new("/work/builds/xtask-main");
+        let binary = Path::new("/opt/builds/xtask-main");
         assert_eq!(baseline_label(binary, None), "xtask-main");
         assert_eq!(
             baseline_label(binary, Some("main's xtask at 286d580")),
