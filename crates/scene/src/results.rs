@@ -248,6 +248,9 @@ pub struct ContactMetrics {
     /// With limbs that reach: the largest distance between the reaching chain's
     /// effector and its target after a solve, over the run; `None` otherwise.
     pub reach_error_max: Option<f64>,
+    /// With limbs that hold particles: the largest distance between a held particle and
+    /// where its joint's frame puts it, after every step; `None` otherwise.
+    pub attach_error_max: Option<f64>,
 }
 
 /// A `MeshCloth` task's metrics: the work, the self-contact statistics, and the checks

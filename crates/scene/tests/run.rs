@@ -425,3 +425,128 @@ fn a_shawl_on_a_squatting_clip_goes_down_and_up_with_the_body() {
     let (down, up) = ((start - bottom) / weight, (end - bottom) / weight);
     assert!(down > 0.25 && up > 0.25, "down {down}, up {up}");
 }
+
+/// A 7 x 7 cape (0.24 m) whose row `j = 6` the chest of scenes/data/squat.bvh holds, 2 cm
+/// behind the torso's capsule, the rest of it reaching back horizontally; `integrator`
+/// and `extra` (more task fields) as given.
+fn cape_scene(integrator: &str, system: &str, attach: &str) -> String {
+    format!(
+        "Scene(description: \"cape\", tasks: [Cloth(
+            name: \"cape\",
+            system: {system},
+            integrator: {integrator},
+            dt: 0.03333333333333333,
+            steps: 24,
+            contact: (colliders: [], limbs: (
+                clip: (file: \"data/squat.bvh\", start: 0.2),
+                capsules: [
+                    (from: \"Spine\", to: \"Chest\", radius: 0.12),
+                    (from: \"Chest\", to: \"Neck\", radius: 0.13),
+                    (from: \"Hips\", to: \"Spine\", radius: 0.12),
+                ],
+                attach: {attach},
+            ), settings: (dhat: 1e-3, mu: 0.3)),
+        )])"
+    )
+}
+
+const CAPE_GRID: &str = "Grid(size: 7, spacing: 0.04, origin: (-0.12, 1.42, -0.39), mass: 3e-4,
+    material: (stiffness: 1000.0, damping: 0.1, gravity: (0.0, -9.81, 0.0)), fixed: [])";
+const CAPE_ROW: &str =
+    "[(joint: \"Chest\", particles: [(0, 6), (1, 6), (2, 6), (3, 6), (4, 6), (5, 6), (6, 6)])]";
+
+/// Loads scene text as a file in scenes/ (so a clip is read from scenes/data).
+fn scene_in_scenes(text: &str) -> Result<Scene, SceneError> {
+    Scene::from_text(
+        concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/test.ron"),
+        text,
+    )
+}
+
+#[test]
+fn a_cape_held_by_a_squatting_clip_goes_where_the_chest_takes_it() {
+    let scene = scene_in_scenes(&cape_scene("backward_euler()", CAPE_GRID, CAPE_ROW)).unwrap();
+    let results = scene.run(&RunOptions {
+        keep_frames: true,
+        ..RunOptions::default()
+    });
+    let t = &results.tasks[0];
+    assert!(t.ok, "{:?} {:?}", t.error, t.failures);
+    let TaskMetrics::Cloth(m) = &t.metrics else {
+        panic!("{:?}", t.metrics)
+    };
+    let c = m.contact.as_ref().unwrap();
+    assert_eq!(c.penetrations, 0);
+    // The held row ends where the chest's frame puts it, to round-off (the runner's
+    // check, from forward kinematics, not from the library's pinned motion).
+    let held = c.attach_error_max.expect("held particles are checked");
+    assert!(held < 1e-12, "{held:e}");
+    // And the chest took it down with the squat (0.8 s in: the hips 0.25 m lower).
+    let Pictures::Cloth(p) = &t.pictures else {
+        panic!("no pictures")
+    };
+    let row: Vec<usize> = (0..7).map(|i| i * 7 + 6).collect();
+    let (first, last) = (
+        &p.frames[0].positions,
+        &p.frames[p.frames.len() - 1].positions,
+    );
+    for &k in &row {
+        assert!(
+            first[k].y - last[k].y > 0.15,
+            "particle {k}: {} -> {}",
+            first[k],
+            last[k]
+        );
+    }
+}
+
+#[test]
+fn bad_attachments_are_named() {
+    let err = |text: String| match scene_in_scenes(&text) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("accepted: {text}"),
+    };
+    let e = err(cape_scene(
+        "backward_euler()",
+        CAPE_GRID,
+        "[(joint: \"Chest\", particles: [(7, 0)])]",
+    ));
+    assert!(
+        e.ends_with("contact: limbs: attach[0]: particle (7, 0) is outside the 7 x 7 grid"),
+        "{e}"
+    );
+    let e = err(cape_scene(
+        "backward_euler()",
+        CAPE_GRID,
+        "[(joint: \"Chest\", particles: [(0, 6)]), (joint: 0, particles: [(0, 6)])]",
+    ));
+    assert!(
+        e.ends_with("contact: limbs: attach[1]: particle (0, 6) is held twice"),
+        "{e}"
+    );
+    let e = err(cape_scene(
+        "backward_euler()",
+        CAPE_GRID,
+        "[(joint: \"Tail\", particles: [(0, 6)])]",
+    ));
+    assert!(
+        e.ends_with("contact: limbs: attach[0]: joint = \"Tail\": no joint has that name"),
+        "{e}"
+    );
+    let explicit = "Explicit(particles: [(position: (0.0, 1.42, -0.4), velocity: (0.0, 0.0, 0.0), mass: 1e-3, fixed: false)], springs: [])";
+    let e = err(cape_scene(
+        "backward_euler()",
+        explicit,
+        "[(joint: \"Chest\", particles: [(0, 0)])]",
+    ));
+    assert!(e.ends_with("contact: limbs: attach[0]: needs a Grid system (its particles are given by grid coordinates)"), "{e}");
+    // Moving pins need an implicit integrator: the run says so.
+    let scene = scene_in_scenes(&cape_scene("verlet()", CAPE_GRID, CAPE_ROW)).unwrap();
+    let t = &scene.run(&RunOptions::default()).tasks[0];
+    assert!(!t.ok);
+    let e = t.error.as_deref().unwrap_or_default();
+    assert!(
+        e.starts_with("contact: limbs: attach: ") && e.contains("implicit integrator"),
+        "{e}"
+    );
+}

@@ -11,14 +11,14 @@ use crate::results::{
     ClothFrame, ClothMetrics, ClothPictures, ContactMetrics, Csv, Pictures, TaskMetrics,
 };
 use serde::Deserialize;
-use sinew_math::DVec3;
-use sinew_spring_sim::StabilityBound;
+use sinew_math::{DQuat, DVec3};
 use sinew_spring_sim::contact::{Collider, ContactSettings, Drive, Shape, signed_distance};
 use sinew_spring_sim::{AutoSettings, NewtonSettings};
 use sinew_spring_sim::{
     ClothGrid, Integrator, Material, Particle, Simulation, SpringSpec, SpringSystem, run,
     run_observed,
 };
+use sinew_spring_sim::{PinnedMotion, StabilityBound};
 
 /// Scene fields of a `Cloth` task.
 #[derive(Debug, Deserialize)]
@@ -124,7 +124,37 @@ const MAX_FRAMES: usize = 100;
 const MAX_TRACK_FRAMES: usize = 300;
 
 impl ClothTask {
-    fn build(&self) -> Result<(Simulation, Option<Limbs>), String> {
+    /// The grid particles the limbs hold (`contact: limbs: attach`), checked against a
+    /// grid of `size` particles on a side.
+    fn attached(&self, size: Option<usize>) -> Result<Vec<(usize, usize)>, String> {
+        let Some(limbs) = self.contact.as_ref().and_then(|c| c.limbs.as_ref()) else {
+            return Ok(Vec::new());
+        };
+        let mut all = Vec::new();
+        for (k, a) in limbs.attach.iter().enumerate() {
+            let Some(n) = size else {
+                return Err(format!(
+                    "contact: limbs: attach[{k}]: needs a Grid system (its particles are given by grid coordinates)"
+                ));
+            };
+            for &(i, j) in &a.particles {
+                if i >= n || j >= n {
+                    return Err(format!(
+                        "contact: limbs: attach[{k}]: particle ({i}, {j}) is outside the {n} x {n} grid"
+                    ));
+                }
+                if all.contains(&(i, j)) {
+                    return Err(format!(
+                        "contact: limbs: attach[{k}]: particle ({i}, {j}) is held twice"
+                    ));
+                }
+                all.push((i, j));
+            }
+        }
+        Ok(all)
+    }
+
+    fn build(&self) -> Result<(Simulation, Option<Limbs>, Vec<Held>), String> {
         // The size is checked before the system is built: a grid's particles are
         // allocated by the build.
         let particles = match &self.system {
@@ -136,7 +166,22 @@ impl ClothTask {
         };
         at_most("system: particles", particles, MAX_PARTICLES)?;
         at_most("steps", self.steps, MAX_STEPS)?;
+        let size = match &self.system {
+            SystemSpec::Grid(grid) => Some(grid.size),
+            SystemSpec::Explicit { .. } => None,
+        };
+        let attached = self.attached(size)?;
         let system = match &self.system {
+            // Held particles are pinned: the grid's `fixed` with them added.
+            SystemSpec::Grid(grid) if !attached.is_empty() => {
+                let mut grid = grid.clone();
+                for p in &attached {
+                    if !grid.fixed.contains(p) {
+                        grid.fixed.push(*p);
+                    }
+                }
+                SpringSystem::cloth(&grid)
+            }
             SystemSpec::Grid(grid) => SpringSystem::cloth(grid),
             SystemSpec::Explicit {
                 particles,
@@ -153,6 +198,7 @@ impl ClothTask {
         let mut sim =
             Simulation::new(system, self.integrator).map_err(|e| format!("integrator: {e}"))?;
         let mut limbs = None;
+        let mut held = Vec::new();
         if let Some(contact) = &self.contact {
             let mut colliders = contact.colliders.clone();
             if let Some(spec) = &contact.limbs {
@@ -163,12 +209,27 @@ impl ClothTask {
                     .shapes_at(0.0)
                     .map_err(|e| format!("contact: limbs: {e}"))?;
                 colliders.extend(shapes.into_iter().map(Collider::fixed));
+                let n = size.unwrap_or(0);
+                for (joint, particles) in built.attachments() {
+                    let (x, r) = built.joint_frame(*joint);
+                    let particles: Vec<usize> = particles.iter().map(|&(i, j)| i * n + j).collect();
+                    let local = particles
+                        .iter()
+                        .map(|&p| r.inverse() * (sim.system().positions()[p] - x))
+                        .collect();
+                    held.push(Held {
+                        joint: *joint,
+                        particles,
+                        local,
+                        frame: (x, r),
+                    });
+                }
                 limbs = Some(built);
             }
             sim.set_contact(colliders, contact.settings)
                 .map_err(|e| format!("contact: {e}"))?;
         }
-        Ok((sim, limbs))
+        Ok((sim, limbs, held))
     }
 }
 
@@ -228,15 +289,59 @@ impl ClothTask {
     }
 }
 
+/// The most a held particle may drift from its joint's frame over a run, m.
+const ATTACH_TOLERANCE: f64 = 1e-9;
+
+/// Grid particles held by a joint: carried rigidly with its frame.
+#[derive(Debug)]
+struct Held {
+    joint: usize,
+    particles: Vec<usize>,
+    /// Each particle in the joint's frame at the start.
+    local: Vec<DVec3>,
+    /// The joint's position and rotation at the end of the step driven last.
+    frame: (DVec3, DQuat),
+}
+
+impl Held {
+    /// Where the frame `(x, r)` puts the particles.
+    fn targets(&self, (x, r): (DVec3, DQuat)) -> impl Iterator<Item = DVec3> + '_ {
+        self.local.iter().map(move |&l| x + r * l)
+    }
+}
+
 /// Drives the limbs' capsules (the colliders from `first` on) to the animation's pose at
-/// the end of the next step of `dt`, and returns those poses.
+/// the end of the next step of `dt`, moves the held particles along the rigid motion of
+/// their joint's frame over the step, and returns the capsules' poses.
 fn drive_limbs(
     sim: &mut Simulation,
     limbs: &mut Limbs,
+    held: &mut [Held],
     first: usize,
     dt: f64,
 ) -> Result<Vec<Shape>, String> {
     let shapes = limbs.shapes_at(sim.time() + dt)?;
+    if !held.is_empty() {
+        let motions = held
+            .iter_mut()
+            .map(|h| {
+                let ((x0, r0), (x1, r1)) = (h.frame, limbs.joint_frame(h.joint));
+                h.frame = (x1, r1);
+                // The step's turn about the joint's start position, and its move:
+                // x1 + r1 l = x0 + (r1 r0^-1)(x0 + r0 l - x0) + (x1 - x0).
+                let (axis, angle) = (r1 * r0.inverse()).normalize().to_axis_angle();
+                PinnedMotion {
+                    particles: h.particles.clone(),
+                    point: x0,
+                    axis,
+                    angular_speed: angle / dt,
+                    velocity: (x1 - x0) / dt,
+                }
+            })
+            .collect();
+        sim.set_pinned_motion(motions)
+            .map_err(|e| format!("contact: limbs: attach: {e}"))?;
+    }
     for (k, &target) in shapes.iter().enumerate() {
         sim.drive_collider(
             first + k,
@@ -261,7 +366,7 @@ impl TaskSpec for ClothTask {
     }
 
     fn run(&self, ctx: &RunContext) -> Result<TaskOutput, String> {
-        let (mut sim, mut limbs) = self.build()?;
+        let (mut sim, mut limbs, mut held) = self.build()?;
         let start = sim.system().clone();
         let one_second = self.steps_to_one_second();
         let mut at_one_second: Option<Vec<DVec3>> = None;
@@ -308,7 +413,7 @@ impl TaskSpec for ClothTask {
         let fixed_motion = colliders.len() - limbs.as_ref().map_or(0, Limbs::len);
         let mut drive_error: Option<String> = None;
         let mut targets = match &mut limbs {
-            Some(limbs) => drive_limbs(&mut sim, limbs, fixed_motion, dt)?,
+            Some(limbs) => drive_limbs(&mut sim, limbs, &mut held, fixed_motion, dt)?,
             None => Vec::new(),
         };
         // The colliders at a step's end, one buffer for the run.
@@ -319,6 +424,7 @@ impl TaskSpec for ClothTask {
         let mut contact_pairs_max = 0usize;
         let mut swept_passes = 0usize;
         let mut max_path_depth: Option<f64> = None;
+        let mut attach_error_max: Option<f64> = None;
         let mut previous = sim.system().positions().to_vec();
         let mut progress = ctx.progress(&self.name, self.steps);
         // The paths a moving collider must not cross are those of each piece of a step
@@ -392,6 +498,14 @@ impl TaskSpec for ClothTask {
                     previous.copy_from_slice(system.positions());
                 }
             }
+            // The held particles against their joint's frame at the step's end (the
+            // animation's, not the library's pinned motion).
+            for h in &held {
+                for (&p, target) in h.particles.iter().zip(h.targets(h.frame)) {
+                    let e = system.positions()[p].distance(target);
+                    attach_error_max = Some(attach_error_max.map_or(e, |m: f64| m.max(e)));
+                }
+            }
             let last = step + 1 == self.steps;
             if ctx.keep_frames && ((step + 1) % frame_every == 0 || last) {
                 frames.push(system.positions().to_vec());
@@ -407,7 +521,7 @@ impl TaskSpec for ClothTask {
             if let Some(limbs) = &mut limbs
                 && !last
             {
-                match drive_limbs(sim, limbs, fixed_motion, dt) {
+                match drive_limbs(sim, limbs, &mut held, fixed_motion, dt) {
                     Ok(next) => targets = next,
                     Err(e) => {
                         drive_error.get_or_insert(e);
@@ -463,6 +577,15 @@ impl TaskSpec for ClothTask {
                 "{penetrations} particle-collider pairs at distance <= 0 over the run"
             ));
         }
+        // The pinned motion over a step is the joint's rigid motion, so a held particle
+        // ends where the frame puts it up to round-off, accumulated over the steps.
+        if let Some(e) = attach_error_max
+            && e > ATTACH_TOLERANCE
+        {
+            failures.push(format!(
+                "a held particle ended {e:.3e} from where its joint's frame puts it (more than {ATTACH_TOLERANCE:e})"
+            ));
+        }
         if swept_passes > 0 {
             failures.push(format!(
                 "{swept_passes} piece(s) kept with a particle passed by a moving collider"
@@ -490,6 +613,7 @@ impl TaskSpec for ClothTask {
             swept_passes,
             max_path_depth,
             reach_error_max: limbs.as_ref().and_then(Limbs::reach_error_max),
+            attach_error_max,
         });
         let out = ClothMetrics {
             run: metrics.clone(),

@@ -15,12 +15,17 @@
 //! chain's solve for the target at `t`, started from the key pose at `t` (not from the
 //! previous call's answer), so the animation stays a function of time: asking for the
 //! same `t` twice gives the same capsules, whatever was asked in between.
+//!
+//! The animation is key poses on a given skeleton, or a BVH clip (its skeleton, each
+//! frame a key pose); joints are named by index or by name. Attachments name grid
+//! particles a joint holds; the cloth runner carries them with the joint's frame
+//! ([`Limbs::joint_frame`]).
 
 use crate::limits::{MAX_JOINTS, at_most, check_solve_work};
 use crate::spec::{JointRotation, SkeletonSpec, build_pose};
 use serde::Deserialize;
 use sinew_ik::SolverOptions;
-use sinew_math::DVec3;
+use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{Chain, EffectorGoal, IkProblem, IkSolver, IkState, SolveSettings};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton};
 use sinew_spring_sim::contact::Shape;
@@ -52,6 +57,21 @@ pub struct LimbsSpec {
     /// A chain that reaches for a keyed target on top of the key poses (default: none).
     #[serde(default)]
     pub reach: Option<ReachSpec>,
+    /// Particles of a grid cloth held by joints (default: none): pinned, and carried
+    /// rigidly with the joint's frame (a cape's top edge on the shoulders).
+    #[serde(default)]
+    pub attach: Vec<Attachment>,
+}
+
+/// Particles of a grid cloth carried by a joint.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Attachment {
+    /// The joint whose frame carries them (an index or a name).
+    pub joint: JointRef,
+    /// The particles, by grid coordinates `(i, j)` as in the grid's `fixed` (at least
+    /// one); they are pinned.
+    pub particles: Vec<(usize, usize)>,
 }
 
 /// A motion clip as the limbs' animation: the file's skeleton, and each of its frames a
@@ -172,8 +192,12 @@ pub struct Limbs {
     /// Each capsule's length in the first key pose: a drive cannot stretch a collider.
     lengths: Vec<f64>,
     reach: Option<Reach>,
+    /// The attachments' joints and grid particles.
+    attach: Vec<(usize, Vec<(usize, usize)>)>,
     pose: Pose,
     global: GlobalPose,
+    /// The root translation of the last pose.
+    root: DVec3,
 }
 
 /// A key pose as built: its time, the joints' rotations and the root's translation.
@@ -374,6 +398,17 @@ impl LimbsSpec {
             .as_ref()
             .map(|r| r.build(&skeleton, solves))
             .transpose()?;
+        let mut attach = Vec::with_capacity(self.attach.len());
+        for (k, a) in self.attach.iter().enumerate() {
+            let joint = a
+                .joint
+                .resolve(&skeleton, "joint")
+                .map_err(|e| format!("attach[{k}]: {e}"))?;
+            if a.particles.is_empty() {
+                return Err(format!("attach[{k}]: particles: none given (at least one)"));
+            }
+            attach.push((joint, a.particles.clone()));
+        }
         let pose = skeleton.rest_pose();
         let mut limbs = Limbs {
             skeleton,
@@ -381,8 +416,10 @@ impl LimbsSpec {
             capsules,
             lengths: Vec::new(),
             reach,
+            attach,
             pose,
             global: GlobalPose::default(),
+            root: DVec3::ZERO,
         };
         let first = limbs.keys[0].0;
         let root = limbs.pose_at(first);
@@ -536,8 +573,25 @@ impl Limbs {
         Ok(shapes)
     }
 
+    /// The attachments: each joint with the grid particles it carries.
+    #[must_use]
+    pub fn attachments(&self) -> &[(usize, Vec<(usize, usize)>)] {
+        &self.attach
+    }
+
+    /// A joint's global position and rotation in the pose of the last
+    /// [`Limbs::shapes_at`] (root motion included).
+    #[must_use]
+    pub fn joint_frame(&self, joint: usize) -> (DVec3, DQuat) {
+        (
+            self.global.positions[joint] + self.root,
+            self.global.rotations[joint],
+        )
+    }
+
     /// The capsules on the current pose moved by `root` (forward kinematics).
     fn place(&mut self, root: DVec3) -> Result<Vec<Shape>, String> {
+        self.root = root;
         self.skeleton
             .forward_kinematics(&self.pose, &mut self.global)
             .map_err(|e| e.to_string())?;
@@ -580,7 +634,6 @@ impl Limbs {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use sinew_math::{DQuat, DVec3};
 
     /// Parses limbs as a scene file does (an option's value without `Some`).
     fn spec(text: &str) -> LimbsSpec {

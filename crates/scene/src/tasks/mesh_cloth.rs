@@ -372,6 +372,12 @@ impl MeshClothTask {
         let Some(spec) = &self.limbs else {
             return Ok((colliders, None));
         };
+        if !spec.attach.is_empty() {
+            return Err(
+                "limbs: attach: a MeshCloth task holds vertices with moving_pins (attach is a Cloth task's)"
+                    .into(),
+            );
+        }
         let mut limbs = spec
             .build(self.steps.saturating_add(1), &self.base_dir)
             .map_err(|e| format!("limbs: {e}"))?;
