@@ -131,19 +131,22 @@ impl ClothTask {
             return Ok(Vec::new());
         };
         let mut all = Vec::new();
+        // Marks of the particles held so far (a grid has at most MAX_GRID_SIZE squared).
+        let mut held = Vec::new();
         for (k, a) in limbs.attach.iter().enumerate() {
             let Some(n) = size else {
                 return Err(format!(
                     "contact: limbs: attach[{k}]: needs a Grid system (its particles are given by grid coordinates)"
                 ));
             };
+            held.resize(n * n, false);
             for &(i, j) in &a.particles {
                 if i >= n || j >= n {
                     return Err(format!(
                         "contact: limbs: attach[{k}]: particle ({i}, {j}) is outside the {n} x {n} grid"
                     ));
                 }
-                if all.contains(&(i, j)) {
+                if std::mem::replace(&mut held[i * n + j], true) {
                     return Err(format!(
                         "contact: limbs: attach[{k}]: particle ({i}, {j}) is held twice"
                     ));
@@ -175,11 +178,7 @@ impl ClothTask {
             // Held particles are pinned: the grid's `fixed` with them added.
             SystemSpec::Grid(grid) if !attached.is_empty() => {
                 let mut grid = grid.clone();
-                for p in &attached {
-                    if !grid.fixed.contains(p) {
-                        grid.fixed.push(*p);
-                    }
-                }
+                grid.fixed.extend_from_slice(&attached);
                 SpringSystem::cloth(&grid)
             }
             SystemSpec::Grid(grid) => SpringSystem::cloth(grid),

@@ -11,10 +11,11 @@
 //! whole skeleton (root motion): that translation is linear between keys.
 //!
 //! A reach puts inverse kinematics on top: a chain of the skeleton reaches for a target
-//! keyed in time (linear between keys, held outside them), optionally with a pole. The pose at time `t` is the
-//! chain's solve for the target at `t`, started from the key pose at `t` (not from the
-//! previous call's answer), so the animation stays a function of time: asking for the
-//! same `t` twice gives the same capsules, whatever was asked in between.
+//! keyed in time (linear between keys, held outside them), optionally with a pole. The
+//! pose at time `t` is the chain's solve for the target at `t`, started from the key pose
+//! at `t` (not from the previous call's answer), so the animation stays a function of
+//! time: asking for the same `t` twice gives the same capsules, whatever was asked in
+//! between.
 //!
 //! The animation is key poses on a given skeleton, or a BVH clip (its skeleton, each
 //! frame a key pose); joints are named by index or by name. Attachments name grid
