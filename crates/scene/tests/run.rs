@@ -232,6 +232,35 @@ fn a_mesh_cloths_friction_lags_are_checked() {
 /// the animation's own capsules. None, while the sheet rests on the rising forearm
 /// (within `dhat` of it), and the mesh sheet is carried up. (With the drives kept from
 /// the integrator the capsule rises into the sheet: penetrations.)
+/// A scene of two tasks, a `Cloth` and a `MeshCloth` 9 x 9 sheet (spacing 2 cm) 2 mm
+/// above a forearm of radius 4 cm along +x at the origin, on the `limbs` given, for
+/// `steps` steps of 1/60 s.
+fn sheets_on_limbs(limbs: &str, steps: usize) -> String {
+    format!(
+        "Scene(description: \"limbs\", tasks: [
+            Cloth(
+                name: \"grid\",
+                system: Grid(size: 9, spacing: 0.02, origin: (-0.08, 0.042, -0.08), mass: 8e-5,
+                    material: (stiffness: 1000.0, damping: 0.1, gravity: (0.0, -9.81, 0.0)), fixed: []),
+                integrator: backward_euler(),
+                dt: 0.016666666666666666,
+                steps: {steps},
+                contact: (colliders: [], {limbs}, settings: (dhat: 1e-3, mu: 0.5)),
+            ),
+            MeshCloth(
+                name: \"mesh\",
+                sheets: [Grid(size: 9, spacing: 0.02, origin: (-0.08, 0.042, -0.08))],
+                material: (stiffness: 1000.0, damping: 0.1, gravity: (0.0, -9.81, 0.0)),
+                dt: 0.016666666666666666,
+                steps: {steps},
+                self_contact: (dhat: 1e-3, thickness: 5e-4),
+                {limbs},
+                contact: (dhat: 1e-3, mu: 0.5),
+            ),
+        ])"
+    )
+}
+
 #[test]
 fn a_sheet_on_an_animated_forearm_is_carried_without_a_penetration() {
     let limbs = "limbs: (
@@ -243,29 +272,7 @@ fn a_sheet_on_an_animated_forearm_is_carried_without_a_penetration() {
         keys: [(time: 0.2), (time: 0.5, pose: [(joint: 1, axis: (0.0, 0.0, 1.0), degrees: 20.0)])],
         capsules: [(from: 0, to: 1, radius: 0.04), (from: 1, to: 2, radius: 0.04)],
     )";
-    let text = format!(
-        "Scene(description: \"limbs\", tasks: [
-            Cloth(
-                name: \"grid\",
-                system: Grid(size: 9, spacing: 0.02, origin: (-0.08, 0.042, -0.08), mass: 8e-5,
-                    material: (stiffness: 1000.0, damping: 0.1, gravity: (0.0, -9.81, 0.0)), fixed: []),
-                integrator: backward_euler(),
-                dt: 0.016666666666666666,
-                steps: 30,
-                contact: (colliders: [], {limbs}, settings: (dhat: 1e-3, mu: 0.5)),
-            ),
-            MeshCloth(
-                name: \"mesh\",
-                sheets: [Grid(size: 9, spacing: 0.02, origin: (-0.08, 0.042, -0.08))],
-                material: (stiffness: 1000.0, damping: 0.1, gravity: (0.0, -9.81, 0.0)),
-                dt: 0.016666666666666666,
-                steps: 30,
-                self_contact: (dhat: 1e-3, thickness: 5e-4),
-                {limbs},
-                contact: (dhat: 1e-3, mu: 0.5),
-            ),
-        ])"
-    );
+    let text = sheets_on_limbs(limbs, 30);
     let results = scene(&text).run(&RunOptions::default());
     for t in &results.tasks {
         assert!(t.ok, "{}: {:?}", t.name, t.error);
@@ -313,29 +320,7 @@ fn a_sheet_on_an_arm_posed_by_inverse_kinematics_is_carried_without_a_penetratio
         x2 = wrist.0 - 0.03,
         z = wrist.1
     );
-    let text = format!(
-        "Scene(description: \"reach\", tasks: [
-            Cloth(
-                name: \"grid\",
-                system: Grid(size: 9, spacing: 0.02, origin: (-0.08, 0.042, -0.08), mass: 8e-5,
-                    material: (stiffness: 1000.0, damping: 0.1, gravity: (0.0, -9.81, 0.0)), fixed: []),
-                integrator: backward_euler(),
-                dt: 0.016666666666666666,
-                steps: 36,
-                contact: (colliders: [], {limbs}, settings: (dhat: 1e-3, mu: 0.5)),
-            ),
-            MeshCloth(
-                name: \"mesh\",
-                sheets: [Grid(size: 9, spacing: 0.02, origin: (-0.08, 0.042, -0.08))],
-                material: (stiffness: 1000.0, damping: 0.1, gravity: (0.0, -9.81, 0.0)),
-                dt: 0.016666666666666666,
-                steps: 36,
-                self_contact: (dhat: 1e-3, thickness: 5e-4),
-                {limbs},
-                contact: (dhat: 1e-3, mu: 0.5),
-            ),
-        ])"
-    );
+    let text = sheets_on_limbs(&limbs, 36);
     // The same arm without the reach: the rest pose throughout.
     let reach_at = text.find("        reach: (").unwrap();
     let reach_end = reach_at + text[reach_at..].find("]),\n").unwrap() + 4;
@@ -427,8 +412,8 @@ fn a_shawl_on_a_squatting_clip_goes_down_and_up_with_the_body() {
 }
 
 /// A 7 x 7 cape (0.24 m) whose row `j = 6` the chest of scenes/data/squat.bvh holds, 2 cm
-/// behind the torso's capsule, the rest of it reaching back horizontally; `integrator`
-/// and `extra` (more task fields) as given.
+/// behind the torso's capsule, the rest of it reaching back horizontally (with
+/// `CAPE_GRID` and `CAPE_ROW`); the integrator, the system and the attachments as given.
 fn cape_scene(integrator: &str, system: &str, attach: &str) -> String {
     format!(
         "Scene(description: \"cape\", tasks: [Cloth(
