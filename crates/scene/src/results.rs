@@ -298,6 +298,9 @@ pub struct MeshClothMetrics {
     /// With limbs that reach: the largest distance between the reaching chain's
     /// effector and its target after a solve, over the run; `None` otherwise.
     pub reach_error_max: Option<f64>,
+    /// With limbs that hold vertices: the largest distance between a held vertex and
+    /// where its joint's frame puts it, after every step; `None` otherwise.
+    pub attach_error_max: Option<f64>,
     /// The self-contact barrier stiffness at the end.
     pub kappa: f64,
 }

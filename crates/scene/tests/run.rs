@@ -276,20 +276,25 @@ fn a_sheet_on_an_animated_forearm_is_carried_without_a_penetration() {
     let results = scene(&text).run(&RunOptions::default());
     for t in &results.tasks {
         assert!(t.ok, "{}: {:?}", t.name, t.error);
-        let (penetrations, min_distance) = match &t.metrics {
+        let (penetrations, min_distance, path) = match &t.metrics {
             TaskMetrics::Cloth(m) => {
                 let c = m.contact.as_ref().expect("contact metrics");
-                (c.penetrations, c.min_distance)
+                (c.penetrations, c.min_distance, c.max_path_depth)
             }
             TaskMetrics::MeshCloth(m) => {
                 assert_eq!(m.intersections, 0, "{}", t.name);
                 // Carried: the forearm's middle under the sheet rose about 7 cm.
                 assert!(m.free_mean_displacement > 0.03, "{m:?}");
-                (m.penetrations, m.min_distance)
+                (m.penetrations, m.min_distance, m.max_path_depth)
             }
             other => panic!("{}: {other:?}", t.name),
         };
         assert_eq!(penetrations, 0, "{}", t.name);
+        // The forearm holds still until 0.2 s while the sheet drapes around it, then
+        // turns: every step's path starts where the step before ended, and stays within
+        // the allowance `min(dhat, r/2)` = 1 mm of the capsules.
+        let path = path.expect("the forearm moves");
+        assert!(path <= 1e-3, "{}: max_path_depth {path:e}", t.name);
         let d = min_distance.expect("the sheet reached the forearm");
         assert!(d > 0.0 && d < 1e-3, "{}: min_distance {d:e}", t.name);
     }
@@ -448,40 +453,83 @@ fn scene_in_scenes(text: &str) -> Result<Scene, SceneError> {
     )
 }
 
+/// The cape of `cape_scene` as a `MeshCloth` task (self-contact on) with the
+/// attachments and more task fields (`extra`) as given.
+fn mesh_cape_scene(attach: &str, extra: &str) -> String {
+    format!(
+        "Scene(description: \"cape\", tasks: [MeshCloth(
+            name: \"mesh-cape\",
+            sheets: [Grid(size: 7, spacing: 0.04, origin: (-0.12, 1.42, -0.39))],
+            material: (stiffness: 1000.0, damping: 0.1, gravity: (0.0, -9.81, 0.0)),
+            dt: 0.03333333333333333,
+            steps: 24,
+            self_contact: (dhat: 1e-3, thickness: 5e-4),
+            limbs: (
+                clip: (file: \"data/squat.bvh\", start: 0.2),
+                capsules: [
+                    (from: \"Spine\", to: \"Chest\", radius: 0.12),
+                    (from: \"Chest\", to: \"Neck\", radius: 0.13),
+                    (from: \"Hips\", to: \"Spine\", radius: 0.12),
+                ],
+                attach: {attach},
+            ),
+            contact: (dhat: 1e-3, mu: 0.3),
+            {extra}
+        )])"
+    )
+}
+
 #[test]
 fn a_cape_held_by_a_squatting_clip_goes_where_the_chest_takes_it() {
-    let scene = scene_in_scenes(&cape_scene("backward_euler()", CAPE_GRID, CAPE_ROW)).unwrap();
-    let results = scene.run(&RunOptions {
-        keep_frames: true,
-        ..RunOptions::default()
-    });
-    let t = &results.tasks[0];
-    assert!(t.ok, "{:?} {:?}", t.error, t.failures);
-    let TaskMetrics::Cloth(m) = &t.metrics else {
-        panic!("{:?}", t.metrics)
-    };
-    let c = m.contact.as_ref().unwrap();
-    assert_eq!(c.penetrations, 0);
-    // The held row ends where the chest's frame puts it, to round-off (the runner's
-    // check, from forward kinematics, not from the library's pinned motion).
-    let held = c.attach_error_max.expect("held particles are checked");
-    assert!(held < 1e-12, "{held:e}");
-    // And the chest took it down with the squat (0.8 s in: the hips 0.25 m lower).
-    let Pictures::Cloth(p) = &t.pictures else {
-        panic!("no pictures")
-    };
-    let row: Vec<usize> = (0..7).map(|i| i * 7 + 6).collect();
-    let (first, last) = (
-        &p.frames[0].positions,
-        &p.frames[p.frames.len() - 1].positions,
-    );
-    for &k in &row {
-        assert!(
-            first[k].y - last[k].y > 0.15,
-            "particle {k}: {} -> {}",
-            first[k],
-            last[k]
+    for text in [
+        cape_scene("backward_euler()", CAPE_GRID, CAPE_ROW),
+        mesh_cape_scene(CAPE_ROW, ""),
+    ] {
+        let scene = scene_in_scenes(&text).unwrap();
+        let results = scene.run(&RunOptions {
+            keep_frames: true,
+            ..RunOptions::default()
+        });
+        let t = &results.tasks[0];
+        assert!(t.ok, "{}: {:?} {:?}", t.name, t.error, t.failures);
+        let (penetrations, held, path) = match &t.metrics {
+            TaskMetrics::Cloth(m) => {
+                let c = m.contact.as_ref().unwrap();
+                (c.penetrations, c.attach_error_max, c.max_path_depth)
+            }
+            TaskMetrics::MeshCloth(m) => {
+                assert_eq!(m.intersections, 0);
+                (m.penetrations, m.attach_error_max, m.max_path_depth)
+            }
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(penetrations, 0, "{}", t.name);
+        // The capsules hold still for the first 0.2 s, then move: each step's path
+        // starts where the last step ended (not where the last moving step did), and
+        // stays within the allowance `min(dhat, r/2)` = 1 mm of every capsule.
+        let path = path.expect("the capsules move");
+        assert!(path <= 1e-3, "{}: max_path_depth {path:e}", t.name);
+        // The held row ends where the chest's frame puts it, to round-off (the runner's
+        // check, from forward kinematics, not from the library's pinned motion).
+        let held = held.expect("held particles are checked");
+        assert!(held < 1e-12, "{}: {held:e}", t.name);
+        // And the chest took it down with the squat (0.8 s in: the hips 0.25 m lower).
+        let Pictures::Cloth(p) = &t.pictures else {
+            panic!("no pictures")
+        };
+        let (first, last) = (
+            &p.frames[0].positions,
+            &p.frames[p.frames.len() - 1].positions,
         );
+        for k in (0..7).map(|i| i * 7 + 6) {
+            assert!(
+                first[k].y - last[k].y > 0.15,
+                "{}: particle {k}: {} -> {}",
+                t.name,
+                first[k],
+                last[k]
+            );
+        }
     }
 }
 
@@ -525,6 +573,39 @@ fn bad_attachments_are_named() {
         "[(joint: \"Chest\", particles: [(0, 0)])]",
     ));
     assert!(e.ends_with("contact: limbs: attach[0]: needs a Grid system (its particles are given by grid coordinates)"), "{e}");
+    // A mesh cloth: the sheet must exist and be a grid, and its pins move one way.
+    let e = err(mesh_cape_scene(
+        "[(joint: \"Chest\", sheet: 1, particles: [(0, 6)])]",
+        "",
+    ));
+    assert!(
+        e.ends_with("limbs: attach[0]: sheet = 1 does not exist (there are 1)"),
+        "{e}"
+    );
+    let e = err(mesh_cape_scene(
+        CAPE_ROW,
+        "moving_pins: [(sheet: 0, rows: [0], velocity: (0.0, 0.1, 0.0))],",
+    ));
+    assert!(e.ends_with("limbs: attach: given with moving_pins (pins move either with a joint or along a motion, in one task not both)"), "{e}");
+    let e = err(mesh_cape_scene(
+        "[(joint: \"Chest\", particles: [(0, 6), (0, 6)])]",
+        "",
+    ));
+    assert!(
+        e.ends_with("limbs: attach[0]: particle (0, 6) is held twice"),
+        "{e}"
+    );
+    let e = err(cape_scene(
+        "backward_euler()",
+        CAPE_GRID,
+        "[(joint: \"Chest\", sheet: 1, particles: [(0, 6)])]",
+    ));
+    assert!(
+        e.ends_with(
+            "contact: limbs: attach[0]: sheet = 1, but a Cloth task has one grid (sheet 0)"
+        ),
+        "{e}"
+    );
     // Moving pins need an implicit integrator: the run says so.
     let scene = scene_in_scenes(&cape_scene("verlet()", CAPE_GRID, CAPE_ROW)).unwrap();
     let t = &scene.run(&RunOptions::default()).tasks[0];

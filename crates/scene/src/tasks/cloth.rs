@@ -2,7 +2,7 @@
 //! springs) stepped by an integrator of sinew-spring-sim, with the run's energies,
 //! iterations and timing.
 
-use super::limbs::Limbs;
+use super::limbs::{ATTACH_TOLERANCE, Held, Limbs};
 use super::{RunContext, TaskOutput, TaskSpec, max_distance, non_negative};
 use crate::limits::{
     MAX_GRID_SIZE, MAX_ITERATIONS, MAX_PARTICLE_STEPS, MAX_PARTICLES, MAX_STEPS, at_most,
@@ -11,14 +11,14 @@ use crate::results::{
     ClothFrame, ClothMetrics, ClothPictures, ContactMetrics, Csv, Pictures, TaskMetrics,
 };
 use serde::Deserialize;
-use sinew_math::{DQuat, DVec3};
+use sinew_math::DVec3;
+use sinew_spring_sim::StabilityBound;
 use sinew_spring_sim::contact::{Collider, ContactSettings, Drive, Shape, signed_distance};
 use sinew_spring_sim::{AutoSettings, NewtonSettings};
 use sinew_spring_sim::{
     ClothGrid, Integrator, Material, Particle, Simulation, SpringSpec, SpringSystem, run,
     run_observed,
 };
-use sinew_spring_sim::{PinnedMotion, StabilityBound};
 
 /// Scene fields of a `Cloth` task.
 #[derive(Debug, Deserialize)]
@@ -139,6 +139,12 @@ impl ClothTask {
                     "contact: limbs: attach[{k}]: needs a Grid system (its particles are given by grid coordinates)"
                 ));
             };
+            if a.sheet != 0 {
+                return Err(format!(
+                    "contact: limbs: attach[{k}]: sheet = {}, but a Cloth task has one grid (sheet 0)",
+                    a.sheet
+                ));
+            }
             held.resize(n * n, false);
             for &(i, j) in &a.particles {
                 if i >= n || j >= n {
@@ -209,19 +215,14 @@ impl ClothTask {
                     .map_err(|e| format!("contact: limbs: {e}"))?;
                 colliders.extend(shapes.into_iter().map(Collider::fixed));
                 let n = size.unwrap_or(0);
-                for (joint, particles) in built.attachments() {
-                    let (x, r) = built.joint_frame(*joint);
-                    let particles: Vec<usize> = particles.iter().map(|&(i, j)| i * n + j).collect();
-                    let local = particles
-                        .iter()
-                        .map(|&p| r.inverse() * (sim.system().positions()[p] - x))
-                        .collect();
-                    held.push(Held {
-                        joint: *joint,
+                for (&joint, a) in built.held_joints().iter().zip(&spec.attach) {
+                    let particles = a.particles.iter().map(|&(i, j)| i * n + j).collect();
+                    held.push(Held::new(
+                        &built,
+                        joint,
                         particles,
-                        local,
-                        frame: (x, r),
-                    });
+                        sim.system().positions(),
+                    ));
                 }
                 limbs = Some(built);
             }
@@ -288,27 +289,6 @@ impl ClothTask {
     }
 }
 
-/// The most a held particle may drift from its joint's frame over a run, m.
-const ATTACH_TOLERANCE: f64 = 1e-9;
-
-/// Grid particles held by a joint: carried rigidly with its frame.
-#[derive(Debug)]
-struct Held {
-    joint: usize,
-    particles: Vec<usize>,
-    /// Each particle in the joint's frame at the start.
-    local: Vec<DVec3>,
-    /// The joint's position and rotation at the end of the step driven last.
-    frame: (DVec3, DQuat),
-}
-
-impl Held {
-    /// Where the frame `(x, r)` puts the particles.
-    fn targets(&self, (x, r): (DVec3, DQuat)) -> impl Iterator<Item = DVec3> + '_ {
-        self.local.iter().map(move |&l| x + r * l)
-    }
-}
-
 /// Drives the limbs' capsules (the colliders from `first` on) to the animation's pose at
 /// the end of the next step of `dt`, moves the held particles along the rigid motion of
 /// their joint's frame over the step, and returns the capsules' poses.
@@ -321,23 +301,7 @@ fn drive_limbs(
 ) -> Result<Vec<Shape>, String> {
     let shapes = limbs.shapes_at(sim.time() + dt)?;
     if !held.is_empty() {
-        let motions = held
-            .iter_mut()
-            .map(|h| {
-                let ((x0, r0), (x1, r1)) = (h.frame, limbs.joint_frame(h.joint));
-                h.frame = (x1, r1);
-                // The step's turn about the joint's start position, and its move:
-                // x1 + r1 l = x0 + (r1 r0^-1)(x0 + r0 l - x0) + (x1 - x0).
-                let (axis, angle) = (r1 * r0.inverse()).normalize().to_axis_angle();
-                PinnedMotion {
-                    particles: h.particles.clone(),
-                    point: x0,
-                    axis,
-                    angular_speed: angle / dt,
-                    velocity: (x1 - x0) / dt,
-                }
-            })
-            .collect();
+        let motions = held.iter_mut().map(|h| h.step_motion(limbs, dt)).collect();
         sim.set_pinned_motion(motions)
             .map_err(|e| format!("contact: limbs: attach: {e}"))?;
     }
@@ -423,6 +387,9 @@ impl TaskSpec for ClothTask {
         let mut contact_pairs_max = 0usize;
         let mut swept_passes = 0usize;
         let mut max_path_depth: Option<f64> = None;
+        // The most a piece's path went beyond a collider's allowance, over the steps an
+        // implicit integrator took (those that record their pieces and promise it).
+        let mut path_excess: Option<f64> = None;
         let mut attach_error_max: Option<f64> = None;
         let mut previous = sim.system().positions().to_vec();
         let mut progress = ctx.progress(&self.name, self.steps);
@@ -479,6 +446,7 @@ impl TaskSpec for ClothTask {
                 contact_pairs_max = contact_pairs_max.max(pairs);
                 swept_passes += report.swept_passes;
                 // Without a record (the explicit integrators) the step is one piece.
+                let recorded = sim.piece_ends().is_some();
                 let pieces: Vec<(f64, &[DVec3])> = match sim.piece_ends() {
                     Some(record) => record.iter().collect(),
                     None => vec![(time, system.positions())],
@@ -487,23 +455,26 @@ impl TaskSpec for ClothTask {
                 // one below).
                 let paths = super::deepest_swept_path(
                     sim.colliders(),
-                    settings.thickness,
+                    (settings.thickness, settings.dhat),
                     (time - dt, &previous),
                     pieces.iter().copied(),
                     system.fixed(),
                 );
                 if let Some(d) = paths {
-                    max_path_depth = Some(max_path_depth.map_or(d, |m| m.max(d)));
-                    previous.copy_from_slice(system.positions());
+                    max_path_depth = Some(max_path_depth.map_or(d.depth, |m| m.max(d.depth)));
+                    if recorded {
+                        path_excess = Some(path_excess.map_or(d.excess, |m| m.max(d.excess)));
+                    }
                 }
             }
+            // Every step's end starts the next step's paths, whether or not a collider
+            // moved in this one (a limb held still, then moving).
+            previous.copy_from_slice(system.positions());
             // The held particles against their joint's frame at the step's end (the
             // animation's, not the library's pinned motion).
             for h in &held {
-                for (&p, target) in h.particles.iter().zip(h.targets(h.frame)) {
-                    let e = system.positions()[p].distance(target);
-                    attach_error_max = Some(attach_error_max.map_or(e, |m: f64| m.max(e)));
-                }
+                let e = h.error(system.positions());
+                attach_error_max = Some(attach_error_max.map_or(e, |m: f64| m.max(e)));
             }
             let last = step + 1 == self.steps;
             if ctx.keep_frames && ((step + 1) % frame_every == 0 || last) {
@@ -574,6 +545,13 @@ impl TaskSpec for ClothTask {
         if penetrations > 0 {
             failures.push(format!(
                 "{penetrations} particle-collider pairs at distance <= 0 over the run"
+            ));
+        }
+        if let Some(e) = path_excess
+            && e > 0.0
+        {
+            failures.push(format!(
+                "a particle's straight path over a piece of a step went {e:.3e} deeper into a moving collider than its allowance min(dhat, r/2)"
             ));
         }
         // The pinned motion over a step is the joint's rigid motion, so a held particle

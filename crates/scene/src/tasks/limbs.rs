@@ -29,6 +29,7 @@ use sinew_ik::SolverOptions;
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{Chain, EffectorGoal, IkProblem, IkSolver, IkState, SolveSettings};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton};
+use sinew_spring_sim::PinnedMotion;
 use sinew_spring_sim::contact::Shape;
 use sinew_spring_sim::contact::collider::TARGET_SIZE_TOLERANCE;
 use std::path::Path;
@@ -70,9 +71,78 @@ pub struct LimbsSpec {
 pub struct Attachment {
     /// The joint whose frame carries them (an index or a name).
     pub joint: JointRef,
+    /// The grid sheet they are on (a `MeshCloth` task's `sheets` index; default 0, the
+    /// only grid of a `Cloth` task).
+    #[serde(default)]
+    pub sheet: usize,
     /// The particles, by grid coordinates `(i, j)` as in the grid's `fixed` (at least
     /// one); they are pinned.
     pub particles: Vec<(usize, usize)>,
+}
+
+/// The most a held particle may drift from its joint's frame over a run, m (the runners
+/// fail a task beyond it).
+pub(crate) const ATTACH_TOLERANCE: f64 = 1e-9;
+
+/// Particles held by a joint, as a runner carries them: their place in the joint's
+/// frame at the start, and the frame at the end of the step driven last.
+#[derive(Debug)]
+pub(crate) struct Held {
+    joint: usize,
+    particles: Vec<usize>,
+    local: Vec<DVec3>,
+    frame: (DVec3, DQuat),
+}
+
+impl Held {
+    /// Particles `particles` (indices into `positions`) held by `joint`, whose frame is
+    /// the one of `limbs`' last pose.
+    pub(crate) fn new(
+        limbs: &Limbs,
+        joint: usize,
+        particles: Vec<usize>,
+        positions: &[DVec3],
+    ) -> Self {
+        let (x, r) = limbs.joint_frame(joint);
+        let local = particles
+            .iter()
+            .map(|&p| r.inverse() * (positions[p] - x))
+            .collect();
+        Self {
+            joint,
+            particles,
+            local,
+            frame: (x, r),
+        }
+    }
+
+    /// The rigid motion that carries the particles over the next step of `dt`, from the
+    /// frame of the last step's end to the frame of `limbs`' last pose (which becomes
+    /// the frame of this step's end): the turn about the joint's start position, and
+    /// its move, so `x1 + r1 l = x0 + (r1 r0^-1)(x0 + r0 l - x0) + (x1 - x0)`.
+    pub(crate) fn step_motion(&mut self, limbs: &Limbs, dt: f64) -> PinnedMotion {
+        let ((x0, r0), (x1, r1)) = (self.frame, limbs.joint_frame(self.joint));
+        self.frame = (x1, r1);
+        let (axis, angle) = (r1 * r0.inverse()).normalize().to_axis_angle();
+        PinnedMotion {
+            particles: self.particles.clone(),
+            point: x0,
+            axis,
+            angular_speed: angle / dt,
+            velocity: (x1 - x0) / dt,
+        }
+    }
+
+    /// The largest distance of a held particle in `positions` from where the frame of
+    /// the step's end puts it.
+    pub(crate) fn error(&self, positions: &[DVec3]) -> f64 {
+        let (x, r) = self.frame;
+        self.particles
+            .iter()
+            .zip(&self.local)
+            .map(|(&p, &l)| positions[p].distance(x + r * l))
+            .fold(0.0, f64::max)
+    }
 }
 
 /// A motion clip as the limbs' animation: the file's skeleton, and each of its frames a
@@ -193,8 +263,8 @@ pub struct Limbs {
     /// Each capsule's length in the first key pose: a drive cannot stretch a collider.
     lengths: Vec<f64>,
     reach: Option<Reach>,
-    /// The attachments' joints and grid particles.
-    attach: Vec<(usize, Vec<(usize, usize)>)>,
+    /// The attachments' joints, in the scene's order.
+    attach: Vec<usize>,
     pose: Pose,
     global: GlobalPose,
     /// The root translation of the last pose.
@@ -408,7 +478,7 @@ impl LimbsSpec {
             if a.particles.is_empty() {
                 return Err(format!("attach[{k}]: particles: none given (at least one)"));
             }
-            attach.push((joint, a.particles.clone()));
+            attach.push(joint);
         }
         let pose = skeleton.rest_pose();
         let mut limbs = Limbs {
@@ -574,9 +644,9 @@ impl Limbs {
         Ok(shapes)
     }
 
-    /// The attachments: each joint with the grid particles it carries.
+    /// The joint of each attachment, in the scene's order.
     #[must_use]
-    pub fn attachments(&self) -> &[(usize, Vec<(usize, usize)>)] {
+    pub fn held_joints(&self) -> &[usize] {
         &self.attach
     }
 

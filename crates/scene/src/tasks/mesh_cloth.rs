@@ -6,7 +6,7 @@
 //! other by the exact check of [`sinew_exact`], which shares no code with the
 //! solver; any intersection fails the task.
 
-use super::limbs::{Limbs, LimbsSpec};
+use super::limbs::{ATTACH_TOLERANCE, Held, Limbs, LimbsSpec};
 use super::{RunContext, TaskOutput, TaskSpec};
 use crate::limits::{
     MAX_GRID_SIZE, MAX_ITERATIONS, MAX_PARTICLE_STEPS, MAX_PARTICLES, MAX_STEPS, at_most,
@@ -203,6 +203,8 @@ struct Assembled {
     velocities: Vec<DVec3>,
     /// The moving pins' motions (their vertices are in `fixed` too).
     motions: Vec<PinnedMotion>,
+    /// The vertices each of the limbs' attachments holds (in `fixed` too).
+    held: Vec<Vec<usize>>,
 }
 
 impl MeshClothTask {
@@ -213,6 +215,7 @@ impl MeshClothTask {
             fixed: Vec::new(),
             velocities: Vec::new(),
             motions: Vec::new(),
+            held: Vec::new(),
         };
         // Per sheet: its first vertex and, for a grid, its size.
         let mut sheets: Vec<(usize, Option<usize>)> = Vec::new();
@@ -350,7 +353,66 @@ impl MeshClothTask {
                 .map_err(|e| format!("moving_pins[{k}]: {e}"))?;
             a.motions.push(motion);
         }
+        self.assemble_held(&mut a, &sheets)?;
         Ok(a)
+    }
+
+    /// The vertices the limbs' attachments hold, by sheet and grid coordinates; they
+    /// are pinned.
+    fn assemble_held(
+        &self,
+        a: &mut Assembled,
+        sheets: &[(usize, Option<usize>)],
+    ) -> Result<(), String> {
+        let Some(limbs) = &self.limbs else {
+            return Ok(());
+        };
+        if !limbs.attach.is_empty() && !self.moving_pins.is_empty() {
+            return Err(
+                "limbs: attach: given with moving_pins (pins move either with a joint or along a motion, in one task not both)"
+                    .into(),
+            );
+        }
+        // Marks of the vertices held so far, and of the pinned ones.
+        let mut held = vec![false; a.positions.len()];
+        let mut pinned = vec![false; a.positions.len()];
+        for &v in &a.fixed {
+            pinned[v] = true;
+        }
+        for (k, at) in limbs.attach.iter().enumerate() {
+            let err = |e: String| format!("limbs: attach[{k}]: {e}");
+            let Some(&(offset, size)) = sheets.get(at.sheet) else {
+                return Err(err(format!(
+                    "sheet = {} does not exist (there are {})",
+                    at.sheet,
+                    sheets.len()
+                )));
+            };
+            let Some(n) = size else {
+                return Err(err(format!(
+                    "sheet = {} is not a Grid (particles are given by grid coordinates)",
+                    at.sheet
+                )));
+            };
+            let mut vertices = Vec::with_capacity(at.particles.len());
+            for &(i, j) in &at.particles {
+                if i >= n || j >= n {
+                    return Err(err(format!(
+                        "particle ({i}, {j}) is outside the {n} x {n} grid"
+                    )));
+                }
+                let v = offset + i * n + j;
+                if std::mem::replace(&mut held[v], true) {
+                    return Err(err(format!("particle ({i}, {j}) is held twice")));
+                }
+                if !std::mem::replace(&mut pinned[v], true) {
+                    a.fixed.push(v);
+                }
+                vertices.push(v);
+            }
+            a.held.push(vertices);
+        }
+        Ok(())
     }
 
     /// Newton's settings for the task: the library's defaults with the task's cap,
@@ -372,12 +434,6 @@ impl MeshClothTask {
         let Some(spec) = &self.limbs else {
             return Ok((colliders, None));
         };
-        if !spec.attach.is_empty() {
-            return Err(
-                "limbs: attach: a MeshCloth task holds vertices with moving_pins (attach is a Cloth task's)"
-                    .into(),
-            );
-        }
         let mut limbs = spec
             .build(self.steps.saturating_add(1), &self.base_dir)
             .map_err(|e| format!("limbs: {e}"))?;
@@ -521,6 +577,18 @@ impl TaskSpec for MeshClothTask {
         } else {
             Some(PinDriver::new(&system, a.motions).map_err(|e| format!("moving_pins: {e}"))?)
         };
+        // The vertices the limbs hold, carried with their joints' frames: a driver of
+        // the step's rigid motions before every step.
+        let mut held: Vec<Held> = match &limbs {
+            Some(limbs) => limbs
+                .held_joints()
+                .iter()
+                .zip(a.held)
+                .map(|(&joint, vertices)| Held::new(limbs, joint, vertices, system.positions()))
+                .collect(),
+            None => Vec::new(),
+        };
+        let mut attach_error_max: Option<f64> = None;
         let prims = Primitives::new(&triangles);
         let reach = self.self_contact.dhat + self.self_contact.thickness;
         let no_skip = vec![false; system.len()];
@@ -559,6 +627,8 @@ impl TaskSpec for MeshClothTask {
         let mut penetrations = 0usize;
         let mut swept_passes = 0usize;
         let mut max_path_depth: Option<f64> = None;
+        // The most a piece's path went beyond a collider's allowance.
+        let mut path_excess: Option<f64> = None;
         let mut previous = system.positions().to_vec();
         // The guarantees hold at every piece's end state, and the paths a moving
         // collider must not cross are those of each piece (one piece for a step taken
@@ -579,6 +649,16 @@ impl TaskSpec for MeshClothTask {
                         .drive_collider(fixed_motion + k, &drive)
                         .map_err(|e| format!("step {step}: limbs: capsules[{k}]: {e}"))?;
                 }
+                if !held.is_empty() {
+                    let motions = held
+                        .iter_mut()
+                        .map(|h| h.step_motion(limbs, self.dt))
+                        .collect();
+                    pins = Some(
+                        PinDriver::new(&system, motions)
+                            .map_err(|e| format!("step {step}: limbs: attach: {e}"))?,
+                    );
+                }
             }
             let started = Instant::now();
             let report = match &mut pins {
@@ -593,6 +673,12 @@ impl TaskSpec for MeshClothTask {
             pairs_max = pairs_max.max(stats.active_pairs());
             friction_pairs_max = friction_pairs_max.max(stats.friction_pairs());
             let x = system.positions();
+            // The held vertices against their joints' frames at the step's end (the
+            // animation's, from forward kinematics, not the library's pinned motion).
+            for h in &held {
+                let e = h.error(x);
+                attach_error_max = Some(attach_error_max.map_or(e, |m: f64| m.max(e)));
+            }
             if x.iter().any(|p| !p.is_finite()) {
                 return Err(format!("step {step}: a non-finite position"));
             }
@@ -635,15 +721,18 @@ impl TaskSpec for MeshClothTask {
             swept_passes += report.swept_passes;
             let paths = super::deepest_swept_path(
                 &colliders,
-                self.contact.thickness,
+                (self.contact.thickness, self.contact.dhat),
                 (time - self.dt, &previous),
                 pieces.iter(),
                 system.fixed(),
             );
             if let Some(d) = paths {
-                max_path_depth = Some(max_path_depth.map_or(d, |m| m.max(d)));
-                previous.copy_from_slice(x);
+                max_path_depth = Some(max_path_depth.map_or(d.depth, |m| m.max(d.depth)));
+                path_excess = Some(path_excess.map_or(d.excess, |m| m.max(d.excess)));
             }
+            // Every step's end starts the next step's paths, whether or not a collider
+            // moved in this one (a limb held still, then moving).
+            previous.copy_from_slice(x);
             csv.push_str(&format!(
                 "{},{time},{},{},{},{},{}\n",
                 step + 1,
@@ -699,6 +788,20 @@ impl TaskSpec for MeshClothTask {
                 "{penetrations} vertex-collider pairs at distance <= 0 over the run"
             ));
         }
+        if let Some(e) = path_excess
+            && e > 0.0
+        {
+            failures.push(format!(
+                "a vertex's straight path over a piece of a step went {e:.3e} deeper into a moving collider than its allowance min(dhat, r/2)"
+            ));
+        }
+        if let Some(e) = attach_error_max
+            && e > ATTACH_TOLERANCE
+        {
+            failures.push(format!(
+                "a held vertex ended {e:.3e} from where its joint's frame puts it (more than {ATTACH_TOLERANCE:e})"
+            ));
+        }
         if swept_passes > 0 {
             failures.push(format!(
                 "{swept_passes} piece(s) kept with a vertex passed by a moving collider"
@@ -722,6 +825,7 @@ impl TaskSpec for MeshClothTask {
             swept_passes,
             max_path_depth,
             reach_error_max: limbs.as_ref().and_then(Limbs::reach_error_max),
+            attach_error_max,
             kappa: stats.kappa(),
         };
         let headline = format!(

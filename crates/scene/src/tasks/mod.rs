@@ -147,18 +147,19 @@ const PATH_SAMPLES: usize = 64;
 /// moves, over a step from `before` at `t0` through the end states of its `pieces` (each
 /// its end time and positions; the step's own end alone for a step taken whole), the
 /// collider posed at the same times, sampled at `PATH_SAMPLES - 1` inner points of each
-/// piece and at its end (positive: inside); `None` when no collider's surface moves.
-/// The runner's own check of what the implicit integrators promise for every piece of a
-/// step: no deeper than `min(dhat, r/2)` (docs/contact.md, "A kinematic collider passing
-/// the cloth within a step").
+/// piece and at its end (positive: inside), and the most that depth exceeds the
+/// collider's own allowance `min(dhat, r/2)` (`dhat` for a half-space); `None` when no
+/// collider's surface moves. The runner's own check of what the implicit integrators
+/// promise for every piece of a step: no deeper than the allowance (docs/contact.md, "A
+/// kinematic collider passing the cloth within a step").
 pub fn deepest_swept_path<'a>(
     colliders: &[sinew_spring_sim::contact::Collider],
-    thickness: f64,
+    (thickness, dhat): (f64, f64),
     (t0, before): (f64, &'a [sinew_math::DVec3]),
     pieces: impl Iterator<Item = (f64, &'a [sinew_math::DVec3])> + Clone,
     fixed: &[bool],
-) -> Option<f64> {
-    let mut deepest: Option<f64> = None;
+) -> Option<SweptDepth> {
+    let mut deepest: Option<SweptDepth> = None;
     for c in colliders.iter().filter(|c| c.moves_surface()) {
         let mut depth = f64::NEG_INFINITY;
         let (mut start, mut from) = (t0, before);
@@ -180,9 +181,27 @@ pub fn deepest_swept_path<'a>(
             }
             (start, from) = (end, to);
         }
-        deepest = Some(deepest.map_or(depth, |m| m.max(depth)));
+        let excess = depth - sinew_spring_sim::contact::swept_allowance(&c.shape, dhat);
+        deepest = Some(match deepest {
+            None => SweptDepth { depth, excess },
+            Some(m) => SweptDepth {
+                depth: m.depth.max(depth),
+                excess: m.excess.max(excess),
+            },
+        });
     }
     deepest
+}
+
+/// What [`deepest_swept_path`] measures over a step.
+#[derive(Clone, Copy, Debug)]
+pub struct SweptDepth {
+    /// The deepest any free particle's path went into a moving collider (positive:
+    /// inside).
+    pub depth: f64,
+    /// The most a path's depth into a collider exceeded that collider's allowance
+    /// (positive: beyond it, which the implicit integrators promise never happens).
+    pub excess: f64,
 }
 
 /// The median of `values` (sorted in place); NaN for an empty slice.
