@@ -420,6 +420,7 @@ fn a_shawl_on_a_squatting_clip_goes_down_and_up_with_the_body() {
 /// behind the torso's capsule, the rest of it reaching back horizontally (with
 /// `CAPE_GRID` and `CAPE_ROW`); the integrator, the system and the attachments as given.
 fn cape_scene(integrator: &str, system: &str, attach: &str) -> String {
+    let limbs = cape_limbs(attach);
     format!(
         "Scene(description: \"cape\", tasks: [Cloth(
             name: \"cape\",
@@ -427,16 +428,23 @@ fn cape_scene(integrator: &str, system: &str, attach: &str) -> String {
             integrator: {integrator},
             dt: 0.03333333333333333,
             steps: 24,
-            contact: (colliders: [], limbs: (
-                clip: (file: \"data/squat.bvh\", start: 0.2),
-                capsules: [
-                    (from: \"Spine\", to: \"Chest\", radius: 0.12),
-                    (from: \"Chest\", to: \"Neck\", radius: 0.13),
-                    (from: \"Hips\", to: \"Spine\", radius: 0.12),
-                ],
-                attach: {attach},
-            ), settings: (dhat: 1e-3, mu: 0.3)),
+            contact: (colliders: [], {limbs}, settings: (dhat: 1e-3, mu: 0.3)),
         )])"
+    )
+}
+
+/// The squatting clip's torso as capsules, holding the cape by `attach`.
+fn cape_limbs(attach: &str) -> String {
+    format!(
+        "limbs: (
+            clip: (file: \"data/squat.bvh\", start: 0.2),
+            capsules: [
+                (from: \"Spine\", to: \"Chest\", radius: 0.12),
+                (from: \"Chest\", to: \"Neck\", radius: 0.13),
+                (from: \"Hips\", to: \"Spine\", radius: 0.12),
+            ],
+            attach: {attach},
+        )"
     )
 }
 
@@ -456,6 +464,7 @@ fn scene_in_scenes(text: &str) -> Result<Scene, SceneError> {
 /// The cape of `cape_scene` as a `MeshCloth` task (self-contact on) with the
 /// attachments and more task fields (`extra`) as given.
 fn mesh_cape_scene(attach: &str, extra: &str) -> String {
+    let limbs = cape_limbs(attach);
     format!(
         "Scene(description: \"cape\", tasks: [MeshCloth(
             name: \"mesh-cape\",
@@ -464,15 +473,7 @@ fn mesh_cape_scene(attach: &str, extra: &str) -> String {
             dt: 0.03333333333333333,
             steps: 24,
             self_contact: (dhat: 1e-3, thickness: 5e-4),
-            limbs: (
-                clip: (file: \"data/squat.bvh\", start: 0.2),
-                capsules: [
-                    (from: \"Spine\", to: \"Chest\", radius: 0.12),
-                    (from: \"Chest\", to: \"Neck\", radius: 0.13),
-                    (from: \"Hips\", to: \"Spine\", radius: 0.12),
-                ],
-                attach: {attach},
-            ),
+            {limbs},
             contact: (dhat: 1e-3, mu: 0.3),
             {extra}
         )])"
@@ -535,77 +536,56 @@ fn a_cape_held_by_a_squatting_clip_goes_where_the_chest_takes_it() {
 
 #[test]
 fn bad_attachments_are_named() {
-    let err = |text: String| match scene_in_scenes(&text) {
-        Err(e) => e.to_string(),
-        Ok(_) => panic!("accepted: {text}"),
-    };
-    let e = err(cape_scene(
-        "backward_euler()",
-        CAPE_GRID,
-        "[(joint: \"Chest\", particles: [(7, 0)])]",
-    ));
-    assert!(
-        e.ends_with("contact: limbs: attach[0]: particle (7, 0) is outside the 7 x 7 grid"),
-        "{e}"
-    );
-    let e = err(cape_scene(
-        "backward_euler()",
-        CAPE_GRID,
-        "[(joint: \"Chest\", particles: [(0, 6)]), (joint: 0, particles: [(0, 6)])]",
-    ));
-    assert!(
-        e.ends_with("contact: limbs: attach[1]: particle (0, 6) is held twice"),
-        "{e}"
-    );
-    let e = err(cape_scene(
-        "backward_euler()",
-        CAPE_GRID,
-        "[(joint: \"Tail\", particles: [(0, 6)])]",
-    ));
-    assert!(
-        e.ends_with("contact: limbs: attach[0]: joint = \"Tail\": no joint has that name"),
-        "{e}"
-    );
+    let grid = |attach: &str| cape_scene("backward_euler()", CAPE_GRID, attach);
     let explicit = "Explicit(particles: [(position: (0.0, 1.42, -0.4), velocity: (0.0, 0.0, 0.0), mass: 1e-3, fixed: false)], springs: [])";
-    let e = err(cape_scene(
-        "backward_euler()",
-        explicit,
-        "[(joint: \"Chest\", particles: [(0, 0)])]",
-    ));
-    assert!(e.ends_with("contact: limbs: attach[0]: needs a Grid system (its particles are given by grid coordinates)"), "{e}");
-    // A mesh cloth: the sheet must exist and be a grid, and its pins move one way.
-    let e = err(mesh_cape_scene(
-        "[(joint: \"Chest\", sheet: 1, particles: [(0, 6)])]",
-        "",
-    ));
-    assert!(
-        e.ends_with("limbs: attach[0]: sheet = 1 does not exist (there are 1)"),
-        "{e}"
-    );
-    let e = err(mesh_cape_scene(
-        CAPE_ROW,
-        "moving_pins: [(sheet: 0, rows: [0], velocity: (0.0, 0.1, 0.0))],",
-    ));
-    assert!(e.ends_with("limbs: attach: given with moving_pins (pins move either with a joint or along a motion, in one task not both)"), "{e}");
-    let e = err(mesh_cape_scene(
-        "[(joint: \"Chest\", particles: [(0, 6), (0, 6)])]",
-        "",
-    ));
-    assert!(
-        e.ends_with("limbs: attach[0]: particle (0, 6) is held twice"),
-        "{e}"
-    );
-    let e = err(cape_scene(
-        "backward_euler()",
-        CAPE_GRID,
-        "[(joint: \"Chest\", sheet: 1, particles: [(0, 6)])]",
-    ));
-    assert!(
-        e.ends_with(
-            "contact: limbs: attach[0]: sheet = 1, but a Cloth task has one grid (sheet 0)"
+    let cases = [
+        (
+            grid("[(joint: \"Chest\", particles: [(7, 0)])]"),
+            "contact: limbs: attach[0]: particle (7, 0) is outside the 7 x 7 grid",
         ),
-        "{e}"
-    );
+        (
+            grid("[(joint: \"Chest\", particles: [(0, 6)]), (joint: 0, particles: [(0, 6)])]"),
+            "contact: limbs: attach[1]: particle (0, 6) is held twice",
+        ),
+        (
+            grid("[(joint: \"Tail\", particles: [(0, 6)])]"),
+            "contact: limbs: attach[0]: joint = \"Tail\": no joint has that name",
+        ),
+        (
+            cape_scene(
+                "backward_euler()",
+                explicit,
+                "[(joint: \"Chest\", particles: [(0, 0)])]",
+            ),
+            "contact: limbs: attach[0]: needs a Grid system (its particles are given by grid coordinates)",
+        ),
+        (
+            grid("[(joint: \"Chest\", sheet: 1, particles: [(0, 6)])]"),
+            "contact: limbs: attach[0]: sheet = 1, but a Cloth task has one grid (sheet 0)",
+        ),
+        // A mesh cloth: the sheet must exist and be a grid, and its pins move one way.
+        (
+            mesh_cape_scene("[(joint: \"Chest\", sheet: 1, particles: [(0, 6)])]", ""),
+            "limbs: attach[0]: sheet = 1 does not exist (there are 1)",
+        ),
+        (
+            mesh_cape_scene(
+                CAPE_ROW,
+                "moving_pins: [(sheet: 0, rows: [0], velocity: (0.0, 0.1, 0.0))],",
+            ),
+            "limbs: attach: given with moving_pins (pins move either with a joint or along a motion, in one task not both)",
+        ),
+        (
+            mesh_cape_scene("[(joint: \"Chest\", particles: [(0, 6), (0, 6)])]", ""),
+            "limbs: attach[0]: particle (0, 6) is held twice",
+        ),
+    ];
+    for (text, expected) in cases {
+        match scene_in_scenes(&text) {
+            Err(e) => assert!(e.to_string().ends_with(expected), "{e}"),
+            Ok(_) => panic!("accepted: {text}"),
+        }
+    }
     // Moving pins need an implicit integrator: the run says so.
     let scene = scene_in_scenes(&cape_scene("verlet()", CAPE_GRID, CAPE_ROW)).unwrap();
     let t = &scene.run(&RunOptions::default()).tasks[0];
