@@ -124,41 +124,47 @@ const MAX_FRAMES: usize = 100;
 const MAX_TRACK_FRAMES: usize = 300;
 
 impl ClothTask {
-    /// The grid particles the limbs hold (`contact: limbs: attach`), checked against a
-    /// grid of `size` particles on a side.
-    fn attached(&self, size: Option<usize>) -> Result<Vec<(usize, usize)>, String> {
+    /// The particles each of the limbs' attachments holds (`contact: limbs: attach`),
+    /// by index, checked against the system's particles before it is built (`grid`: its
+    /// size when it is a grid).
+    fn attached(&self, grid: Option<usize>) -> Result<Vec<Vec<usize>>, String> {
         let Some(limbs) = self.contact.as_ref().and_then(|c| c.limbs.as_ref()) else {
             return Ok(Vec::new());
         };
-        let mut all = Vec::new();
-        // Marks of the particles held so far (a grid has at most MAX_GRID_SIZE squared).
-        let mut held = Vec::new();
+        if limbs.attach.is_empty() {
+            return Ok(Vec::new());
+        }
+        // The particles' start positions, as the system will place them.
+        let start: Vec<DVec3> = match &self.system {
+            SystemSpec::Grid(g) => (0..g.size * g.size)
+                .map(|v| {
+                    let (i, j) = (v / g.size, v % g.size);
+                    g.origin + g.spacing * DVec3::new(i as f64, 0.0, j as f64)
+                })
+                .collect(),
+            SystemSpec::Explicit { particles, .. } => {
+                particles.iter().map(|p| p.position).collect()
+            }
+        };
+        let count = start.len();
+        let mut all = Vec::with_capacity(limbs.attach.len());
+        // Marks of the particles held so far.
+        let mut held = vec![false; count];
         for (k, a) in limbs.attach.iter().enumerate() {
-            let Some(n) = size else {
-                return Err(format!(
-                    "contact: limbs: attach[{k}]: needs a Grid system (its particles are given by grid coordinates)"
-                ));
-            };
+            let err = |e: String| format!("contact: limbs: attach[{k}]: {e}");
             if a.sheet != 0 {
-                return Err(format!(
-                    "contact: limbs: attach[{k}]: sheet = {}, but a Cloth task has one grid (sheet 0)",
+                return Err(err(format!(
+                    "sheet = {}, but a Cloth task has one system (sheet 0)",
                     a.sheet
-                ));
+                )));
             }
-            held.resize(n * n, false);
-            for &(i, j) in &a.particles {
-                if i >= n || j >= n {
-                    return Err(format!(
-                        "contact: limbs: attach[{k}]: particle ({i}, {j}) is outside the {n} x {n} grid"
-                    ));
+            let indices = a.indices(grid, &start).map_err(err)?;
+            for &v in &indices {
+                if std::mem::replace(&mut held[v], true) {
+                    return Err(err(format!("{} is held twice", a.name(v, grid))));
                 }
-                if std::mem::replace(&mut held[i * n + j], true) {
-                    return Err(format!(
-                        "contact: limbs: attach[{k}]: particle ({i}, {j}) is held twice"
-                    ));
-                }
-                all.push((i, j));
             }
+            all.push(indices);
         }
         Ok(all)
     }
@@ -180,14 +186,28 @@ impl ClothTask {
             SystemSpec::Explicit { .. } => None,
         };
         let attached = self.attached(size)?;
+        // Held particles are pinned: added to the grid's `fixed`, or fixed among the
+        // explicit particles.
         let system = match &self.system {
-            // Held particles are pinned: the grid's `fixed` with them added.
             SystemSpec::Grid(grid) if !attached.is_empty() => {
+                let n = grid.size;
                 let mut grid = grid.clone();
-                grid.fixed.extend_from_slice(&attached);
+                grid.fixed
+                    .extend(attached.iter().flatten().map(|&v| (v / n, v % n)));
                 SpringSystem::cloth(&grid)
             }
             SystemSpec::Grid(grid) => SpringSystem::cloth(grid),
+            SystemSpec::Explicit {
+                particles,
+                springs,
+                material,
+            } if !attached.is_empty() => {
+                let mut particles = particles.clone();
+                for &v in attached.iter().flatten() {
+                    particles[v].fixed = true;
+                }
+                SpringSystem::new(&particles, springs, *material)
+            }
             SystemSpec::Explicit {
                 particles,
                 springs,
@@ -214,13 +234,11 @@ impl ClothTask {
                     .shapes_at(0.0)
                     .map_err(|e| format!("contact: limbs: {e}"))?;
                 colliders.extend(shapes.into_iter().map(Collider::fixed));
-                let n = size.unwrap_or(0);
-                for (&joint, a) in built.held_joints().iter().zip(&spec.attach) {
-                    let particles = a.particles.iter().map(|&(i, j)| i * n + j).collect();
+                for (&joint, particles) in built.held_joints().iter().zip(&attached) {
                     held.push(Held::new(
                         &built,
                         joint,
-                        particles,
+                        particles.clone(),
                         sim.system().positions(),
                     ));
                 }

@@ -75,9 +75,112 @@ pub struct Attachment {
     /// only grid of a `Cloth` task).
     #[serde(default)]
     pub sheet: usize,
-    /// The particles, by grid coordinates `(i, j)` as in the grid's `fixed` (at least
-    /// one); they are pinned.
+    /// The particles of a grid, by grid coordinates `(i, j)` as in the grid's `fixed`;
+    /// they are pinned. Give these or `vertices`.
+    #[serde(default)]
     pub particles: Vec<(usize, usize)>,
+    /// The particles by index in their sheet (a grid's `i * size + j`, an explicit
+    /// system's particle, an OBJ sheet's vertex in the order the reader gives, which is
+    /// not the file's); they are pinned.
+    #[serde(default)]
+    pub vertices: Vec<usize>,
+    /// Every particle of the sheet whose start position is within `radius` of `point`
+    /// (how to pick the vertices of a mesh read from a file); they are pinned.
+    #[serde(default)]
+    pub near: Option<Near>,
+}
+
+/// A ball around a point, choosing the particles that start inside it.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Near {
+    /// The ball's centre (scene units, the world frame).
+    pub point: DVec3,
+    /// Its radius, positive and finite.
+    pub radius: f64,
+}
+
+impl Attachment {
+    /// The held particles' indices in their sheet, whose particles start at `start`
+    /// (`grid`: its size when it is a grid), in the order given (`near`: in index
+    /// order), or what is wrong. Exactly one of `particles`, `vertices` and `near` is
+    /// given.
+    pub(crate) fn indices(
+        &self,
+        grid: Option<usize>,
+        start: &[DVec3],
+    ) -> Result<Vec<usize>, String> {
+        let count = start.len();
+        let given = [
+            !self.particles.is_empty(),
+            !self.vertices.is_empty(),
+            self.near.is_some(),
+        ];
+        match given.iter().filter(|&&g| g).count() {
+            0 => return Err("particles, vertices, near: none given (give one)".into()),
+            1 => {}
+            _ => {
+                return Err(
+                    "particles, vertices, near: more than one given (grid coordinates, indices or a ball, one of them)"
+                        .into(),
+                );
+            }
+        }
+        if let Some(Near { point, radius }) = self.near {
+            if !point.is_finite() {
+                return Err(format!("near: point = {point} is not finite"));
+            }
+            if !(radius.is_finite() && radius > 0.0) {
+                return Err(format!(
+                    "near: radius = {radius} is not positive and finite"
+                ));
+            }
+            let inside: Vec<usize> = (0..count)
+                .filter(|&v| start[v].distance(point) <= radius)
+                .collect();
+            if inside.is_empty() {
+                return Err(format!(
+                    "near: no particle starts within {radius} of {point}"
+                ));
+            }
+            return Ok(inside);
+        }
+        if self.particles.is_empty() {
+            return self
+                .vertices
+                .iter()
+                .map(|&v| {
+                    if v < count {
+                        Ok(v)
+                    } else {
+                        Err(format!("vertex {v} does not exist (there are {count})"))
+                    }
+                })
+                .collect();
+        }
+        let Some(n) = grid else {
+            return Err("particles: grid coordinates need a Grid (give vertices or near)".into());
+        };
+        self.particles
+            .iter()
+            .map(|&(i, j)| {
+                if i < n && j < n {
+                    Ok(i * n + j)
+                } else {
+                    Err(format!("particle ({i}, {j}) is outside the {n} x {n} grid"))
+                }
+            })
+            .collect()
+    }
+
+    /// How a held particle of index `v` in its sheet is named in errors: by its grid
+    /// coordinates when it was given by them.
+    pub(crate) fn name(&self, v: usize, grid: Option<usize>) -> String {
+        match grid {
+            Some(n) if !self.particles.is_empty() => format!("particle ({}, {})", v / n, v % n),
+            _ => format!("vertex {v}"),
+        }
+    }
 }
 
 /// The most a held particle may drift from its joint's frame over a run, m (the runners
@@ -475,9 +578,6 @@ impl LimbsSpec {
                 .joint
                 .resolve(&skeleton, "joint")
                 .map_err(|e| format!("attach[{k}]: {e}"))?;
-            if a.particles.is_empty() {
-                return Err(format!("attach[{k}]: particles: none given (at least one)"));
-            }
             attach.push(joint);
         }
         let pose = skeleton.rest_pose();

@@ -381,34 +381,27 @@ impl MeshClothTask {
         }
         for (k, at) in limbs.attach.iter().enumerate() {
             let err = |e: String| format!("limbs: attach[{k}]: {e}");
-            let Some(&(offset, size)) = sheets.get(at.sheet) else {
+            let Some(&(offset, grid)) = sheets.get(at.sheet) else {
                 return Err(err(format!(
                     "sheet = {} does not exist (there are {})",
                     at.sheet,
                     sheets.len()
                 )));
             };
-            let Some(n) = size else {
-                return Err(err(format!(
-                    "sheet = {} is not a Grid (particles are given by grid coordinates)",
-                    at.sheet
-                )));
-            };
-            let mut vertices = Vec::with_capacity(at.particles.len());
-            for &(i, j) in &at.particles {
-                if i >= n || j >= n {
-                    return Err(err(format!(
-                        "particle ({i}, {j}) is outside the {n} x {n} grid"
-                    )));
+            // The sheet's vertices run to the next sheet's first (or the end).
+            let end = sheets
+                .get(at.sheet + 1)
+                .map_or(a.positions.len(), |&(next, _)| next);
+            let mut vertices = at.indices(grid, &a.positions[offset..end]).map_err(err)?;
+            for v in &mut vertices {
+                let local = *v;
+                *v += offset;
+                if std::mem::replace(&mut held[*v], true) {
+                    return Err(err(format!("{} is held twice", at.name(local, grid))));
                 }
-                let v = offset + i * n + j;
-                if std::mem::replace(&mut held[v], true) {
-                    return Err(err(format!("particle ({i}, {j}) is held twice")));
+                if !std::mem::replace(&mut pinned[*v], true) {
+                    a.fixed.push(*v);
                 }
-                if !std::mem::replace(&mut pinned[v], true) {
-                    a.fixed.push(v);
-                }
-                vertices.push(v);
             }
             a.held.push(vertices);
         }
