@@ -207,9 +207,10 @@ impl Held {
         positions: &[DVec3],
     ) -> Self {
         let (x, r) = limbs.joint_frame(joint);
+        let to_local = r.inverse();
         let local = particles
             .iter()
-            .map(|&p| r.inverse() * (positions[p] - x))
+            .map(|&p| to_local * (positions[p] - x))
             .collect();
         Self {
             joint,
@@ -317,7 +318,7 @@ pub struct ReachSpec {
 }
 
 /// A target of a reach at a time.
-#[derive(Debug, Deserialize)]
+#[derive(Clone, Copy, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct KeyTarget {
     /// Seconds from the start of the run.
@@ -382,7 +383,7 @@ struct Reach {
     chain: Chain,
     solver: Box<dyn IkSolver>,
     settings: SolveSettings,
-    targets: Vec<KeyedGoal>,
+    targets: Vec<KeyTarget>,
     /// The largest effector-to-target distance after a solve, so far.
     error_max: Option<f64>,
 }
@@ -399,12 +400,17 @@ impl std::fmt::Debug for Reach {
     }
 }
 
-/// A reach's target at a time, with its pole if the targets have poles.
-#[derive(Clone, Copy, Debug)]
-struct KeyedGoal {
-    time: f64,
-    position: DVec3,
-    pole: Option<DVec3>,
+/// Where `t` falls among `keys` at strictly increasing times (`time` reads one; at
+/// least one key): `(k, k, 0)` before the first key or from the last on (that key
+/// holds), else `(k, k + 1, s)` with `s` the fraction of the interval elapsed.
+fn bracket<T>(keys: &[T], time: impl Fn(&T) -> f64, t: f64) -> (usize, usize, f64) {
+    let next = keys.partition_point(|k| time(k) <= t);
+    if next == 0 || next == keys.len() {
+        let held = next.min(keys.len() - 1);
+        return (held, held, 0.0);
+    }
+    let (t0, t1) = (time(&keys[next - 1]), time(&keys[next]));
+    (next - 1, next, (t - t0) / (t1 - t0))
 }
 
 /// Checks that keyed times are finite and strictly increasing; `what` names the list.
@@ -491,15 +497,7 @@ impl ReachSpec {
             chain,
             solver,
             settings: self.settings,
-            targets: self
-                .targets
-                .iter()
-                .map(|t| KeyedGoal {
-                    time: t.time,
-                    position: t.position,
-                    pole: t.pole,
-                })
-                .collect(),
+            targets: self.targets.clone(),
             error_max: None,
         })
     }
@@ -509,13 +507,11 @@ impl Reach {
     /// The target and its pole at `t`: linear between keys, the nearest key's outside
     /// them.
     fn target_at(&self, t: f64) -> (DVec3, Option<DVec3>) {
-        let next = self.targets.partition_point(|g| g.time <= t);
-        if next == 0 || next == self.targets.len() {
-            let held = self.targets[next.min(self.targets.len() - 1)];
-            return (held.position, held.pole);
+        let (k0, k1, s) = bracket(&self.targets, |g| g.time, t);
+        let (g0, g1) = (self.targets[k0], self.targets[k1]);
+        if k0 == k1 {
+            return (g0.position, g0.pole);
         }
-        let (g0, g1) = (self.targets[next - 1], self.targets[next]);
-        let s = (t - g0.time) / (g1.time - g0.time);
         let pole = g0.pole.zip(g1.pole).map(|(a, b)| a.lerp(b, s));
         (g0.position.lerp(g1.position, s), pole)
     }
@@ -780,15 +776,12 @@ impl Limbs {
 
     /// Sets `self.pose` to the animation's pose at `t` and returns its root translation.
     fn pose_at(&mut self, t: f64) -> DVec3 {
-        // The first key after t; before the first or after the last, that key's pose.
-        let next = self.keys.partition_point(|(time, _, _)| *time <= t);
-        if next == 0 || next == self.keys.len() {
-            let (_, held, root) = &self.keys[next.min(self.keys.len() - 1)];
-            self.pose.rotations.clone_from(&held.rotations);
-            return *root;
+        let (k0, k1, s) = bracket(&self.keys, |key| key.0, t);
+        let ((_, p0, r0), (_, p1, r1)) = (&self.keys[k0], &self.keys[k1]);
+        if k0 == k1 {
+            self.pose.rotations.clone_from(&p0.rotations);
+            return *r0;
         }
-        let ((t0, p0, r0), (t1, p1, r1)) = (&self.keys[next - 1], &self.keys[next]);
-        let s = (t - t0) / (t1 - t0);
         for ((q, a), b) in self
             .pose
             .rotations
