@@ -2,7 +2,7 @@
 //! springs) stepped by an integrator of sinew-spring-sim, with the run's energies,
 //! iterations and timing.
 
-use super::limbs::{ATTACH_TOLERANCE, Held, Limbs};
+use super::limbs::{Held, Limbs};
 use super::{RunContext, TaskOutput, TaskSpec, max_distance, non_negative};
 use crate::limits::{
     MAX_GRID_SIZE, MAX_ITERATIONS, MAX_PARTICLE_STEPS, MAX_PARTICLES, MAX_STEPS, at_most,
@@ -125,31 +125,16 @@ const MAX_TRACK_FRAMES: usize = 300;
 
 impl ClothTask {
     /// The particles each of the limbs' attachments holds (`contact: limbs: attach`),
-    /// by index, checked against the system's particles before it is built (`grid`: its
-    /// size when it is a grid).
-    fn attached(&self, grid: Option<usize>) -> Result<Vec<Vec<usize>>, String> {
+    /// by index, checked against the system's particles at their `start` positions
+    /// (`grid`: its size when it is a grid).
+    fn attached(&self, grid: Option<usize>, start: &[DVec3]) -> Result<Vec<Vec<usize>>, String> {
         let Some(limbs) = self.contact.as_ref().and_then(|c| c.limbs.as_ref()) else {
             return Ok(Vec::new());
-        };
-        if limbs.attach.is_empty() {
-            return Ok(Vec::new());
-        }
-        // The particles' start positions, as the system will place them.
-        let start: Vec<DVec3> = match &self.system {
-            SystemSpec::Grid(g) => (0..g.size * g.size)
-                .map(|v| {
-                    let (i, j) = (v / g.size, v % g.size);
-                    g.origin + g.spacing * DVec3::new(i as f64, 0.0, j as f64)
-                })
-                .collect(),
-            SystemSpec::Explicit { particles, .. } => {
-                particles.iter().map(|p| p.position).collect()
-            }
         };
         let count = start.len();
         let mut all = Vec::with_capacity(limbs.attach.len());
         // Marks of the particles held so far.
-        let mut held = vec![false; count];
+        let mut held = vec![false; if limbs.attach.is_empty() { 0 } else { count }];
         for (k, a) in limbs.attach.iter().enumerate() {
             let err = |e: String| format!("contact: limbs: attach[{k}]: {e}");
             if a.sheet != 0 {
@@ -158,7 +143,7 @@ impl ClothTask {
                     a.sheet
                 )));
             }
-            let indices = a.indices(grid, &start).map_err(err)?;
+            let indices = a.indices(grid, start).map_err(err)?;
             for &v in &indices {
                 if std::mem::replace(&mut held[v], true) {
                     return Err(err(format!("{} is held twice", a.name(v, grid))));
@@ -167,6 +152,36 @@ impl ClothTask {
             all.push(indices);
         }
         Ok(all)
+    }
+
+    /// The system of the scene with the particles `pinned` (indices) fixed as well.
+    fn system(&self, pinned: &[usize]) -> Result<SpringSystem, String> {
+        match &self.system {
+            SystemSpec::Grid(grid) if pinned.is_empty() => SpringSystem::cloth(grid),
+            SystemSpec::Grid(grid) => {
+                let n = grid.size;
+                let mut grid = grid.clone();
+                grid.fixed.extend(pinned.iter().map(|&v| (v / n, v % n)));
+                SpringSystem::cloth(&grid)
+            }
+            SystemSpec::Explicit {
+                particles,
+                springs,
+                material,
+            } if pinned.is_empty() => SpringSystem::new(particles, springs, *material),
+            SystemSpec::Explicit {
+                particles,
+                springs,
+                material,
+            } => {
+                let mut particles = particles.clone();
+                for &v in pinned {
+                    particles[v].fixed = true;
+                }
+                SpringSystem::new(&particles, springs, *material)
+            }
+        }
+        .map_err(|e| format!("system: {e}"))
     }
 
     fn build(&self) -> Result<(Simulation, Option<Limbs>, Vec<Held>), String> {
@@ -185,36 +200,15 @@ impl ClothTask {
             SystemSpec::Grid(grid) => Some(grid.size),
             SystemSpec::Explicit { .. } => None,
         };
-        let attached = self.attached(size)?;
-        // Held particles are pinned: added to the grid's `fixed`, or fixed among the
-        // explicit particles.
-        let system = match &self.system {
-            SystemSpec::Grid(grid) if !attached.is_empty() => {
-                let n = grid.size;
-                let mut grid = grid.clone();
-                grid.fixed
-                    .extend(attached.iter().flatten().map(|&v| (v / n, v % n)));
-                SpringSystem::cloth(&grid)
-            }
-            SystemSpec::Grid(grid) => SpringSystem::cloth(grid),
-            SystemSpec::Explicit {
-                particles,
-                springs,
-                material,
-            } if !attached.is_empty() => {
-                let mut particles = particles.clone();
-                for &v in attached.iter().flatten() {
-                    particles[v].fixed = true;
-                }
-                SpringSystem::new(&particles, springs, *material)
-            }
-            SystemSpec::Explicit {
-                particles,
-                springs,
-                material,
-            } => SpringSystem::new(particles, springs, *material),
-        }
-        .map_err(|e| format!("system: {e}"))?;
+        let system = self.system(&[])?;
+        // The held particles are chosen among the built system's particles, and pinned:
+        // the system is built again with them fixed.
+        let attached = self.attached(size, system.positions())?;
+        let system = if attached.is_empty() {
+            system
+        } else {
+            self.system(&attached.concat())?
+        };
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(format!("dt = {}, must be finite and > 0", self.dt));
         }
@@ -464,8 +458,9 @@ impl TaskSpec for ClothTask {
                 contact_pairs_max = contact_pairs_max.max(pairs);
                 swept_passes += report.swept_passes;
                 // Without a record (the explicit integrators) the step is one piece.
-                let recorded = sim.piece_ends().is_some();
-                let pieces: Vec<(f64, &[DVec3])> = match sim.piece_ends() {
+                let record = sim.piece_ends();
+                let recorded = record.is_some();
+                let pieces: Vec<(f64, &[DVec3])> = match record {
                     Some(record) => record.iter().collect(),
                     None => vec![(time, system.positions())],
                 };
@@ -565,22 +560,7 @@ impl TaskSpec for ClothTask {
                 "{penetrations} particle-collider pairs at distance <= 0 over the run"
             ));
         }
-        if let Some(e) = path_excess
-            && e > 0.0
-        {
-            failures.push(format!(
-                "a particle's straight path over a piece of a step went {e:.3e} deeper into a moving collider than its allowance min(dhat, r/2)"
-            ));
-        }
-        // The pinned motion over a step is the joint's rigid motion, so a held particle
-        // ends where the frame puts it up to round-off, accumulated over the steps.
-        if let Some(e) = attach_error_max
-            && e > ATTACH_TOLERANCE
-        {
-            failures.push(format!(
-                "a held particle ended {e:.3e} from where its joint's frame puts it (more than {ATTACH_TOLERANCE:e})"
-            ));
-        }
+        super::moving_body_failures("particle", path_excess, attach_error_max, &mut failures);
         if swept_passes > 0 {
             failures.push(format!(
                 "{swept_passes} piece(s) kept with a particle passed by a moving collider"

@@ -6,7 +6,7 @@
 //! other by the exact check of [`sinew_exact`], which shares no code with the
 //! solver; any intersection fails the task.
 
-use super::limbs::{ATTACH_TOLERANCE, Held, Limbs, LimbsSpec};
+use super::limbs::{Held, Limbs, LimbsSpec};
 use super::{RunContext, TaskOutput, TaskSpec};
 use crate::limits::{
     MAX_GRID_SIZE, MAX_ITERATIONS, MAX_PARTICLE_STEPS, MAX_PARTICLES, MAX_STEPS, at_most,
@@ -781,20 +781,7 @@ impl TaskSpec for MeshClothTask {
                 "{penetrations} vertex-collider pairs at distance <= 0 over the run"
             ));
         }
-        if let Some(e) = path_excess
-            && e > 0.0
-        {
-            failures.push(format!(
-                "a vertex's straight path over a piece of a step went {e:.3e} deeper into a moving collider than its allowance min(dhat, r/2)"
-            ));
-        }
-        if let Some(e) = attach_error_max
-            && e > ATTACH_TOLERANCE
-        {
-            failures.push(format!(
-                "a held vertex ended {e:.3e} from where its joint's frame puts it (more than {ATTACH_TOLERANCE:e})"
-            ));
-        }
+        super::moving_body_failures("vertex", path_excess, attach_error_max, &mut failures);
         if swept_passes > 0 {
             failures.push(format!(
                 "{swept_passes} piece(s) kept with a vertex passed by a moving collider"

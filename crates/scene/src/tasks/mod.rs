@@ -193,6 +193,35 @@ pub fn deepest_swept_path<'a>(
     deepest
 }
 
+/// Adds the failures of the checks both cloth runners make on moving bodies: a piece's
+/// straight path deeper into a moving collider than its allowance (`path_excess` > 0,
+/// which the implicit integrators promise never happens) and a held `item` (a particle,
+/// a vertex) farther from where its joint's frame puts it than the limbs'
+/// `ATTACH_TOLERANCE`, 1e-9 (the pinned motion over a step is the joint's rigid motion,
+/// so only round-off accumulates).
+pub fn moving_body_failures(
+    item: &str,
+    path_excess: Option<f64>,
+    attach_error_max: Option<f64>,
+    failures: &mut Vec<String>,
+) {
+    if let Some(e) = path_excess
+        && e > 0.0
+    {
+        failures.push(format!(
+            "a {item}'s straight path over a piece of a step went {e:.3e} deeper into a moving collider than its allowance min(dhat, r/2)"
+        ));
+    }
+    let tolerance = limbs::ATTACH_TOLERANCE;
+    if let Some(e) = attach_error_max
+        && e > tolerance
+    {
+        failures.push(format!(
+            "a held {item} ended {e:.3e} from where its joint's frame puts it (more than {tolerance:e})"
+        ));
+    }
+}
+
 /// What [`deepest_swept_path`] measures over a step.
 #[derive(Clone, Copy, Debug)]
 pub struct SweptDepth {
