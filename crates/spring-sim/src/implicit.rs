@@ -67,8 +67,10 @@ impl ImplicitMidpoint {
         &self.newton
     }
 
-    /// The Newton workspace, to add terms (contact) and set the step's time.
-    pub(crate) fn newton_mut(&mut self) -> &mut BackwardEuler {
+    /// The Newton workspace, to add terms before stepping (contact, self-contact,
+    /// bending: [`crate::MeshClothModel::enable_self_contact`] and the like take it). Its
+    /// own `step` would take a backward Euler step: step this integrator instead.
+    pub fn newton_mut(&mut self) -> &mut BackwardEuler {
         &mut self.newton
     }
 }
@@ -160,8 +162,10 @@ impl Bdf2 {
         &self.newton
     }
 
-    /// The Newton workspace, for the solver-cost counts `auto` reads.
-    pub(crate) fn newton_mut(&mut self) -> &mut BackwardEuler {
+    /// The Newton workspace, to add terms before stepping (contact, self-contact,
+    /// bending: [`crate::MeshClothModel::enable_self_contact`] and the like take it). Its
+    /// own `step` would take a backward Euler step: step this integrator instead.
+    pub fn newton_mut(&mut self) -> &mut BackwardEuler {
         &mut self.newton
     }
 }

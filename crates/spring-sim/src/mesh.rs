@@ -16,6 +16,7 @@ use crate::contact::self_contact::{SelfContactSettings, SelfContactStats, enable
 use crate::contact::{
     Collider, ContactError, ContactPotential, ContactSettings, ContactStats, ContactTerm,
 };
+use crate::implicit::{Bdf2, ImplicitMidpoint};
 use crate::model::{ClothGrid, Material, ModelError, Particle, SpringSpec, SpringSystem};
 use crate::newton::{BackwardEuler, NewtonSettings};
 use crate::potential::{DihedralBending, Hinge};
@@ -362,11 +363,38 @@ impl MeshClothModel {
     /// bending, the bending term (with the Hessian pattern widened for its hinge pairs).
     pub fn backward_euler(&self, settings: NewtonSettings) -> Result<BackwardEuler, ModelError> {
         let mut integrator = BackwardEuler::new(&self.system, settings)?;
+        self.add_bending(&mut integrator)?;
+        Ok(integrator)
+    }
+
+    /// BDF2 for this cloth, with the bending term as [`Self::backward_euler`] adds it.
+    /// Contact and self-contact are added to its workspace ([`Bdf2::newton_mut`]).
+    pub fn bdf2(&self, settings: NewtonSettings) -> Result<Bdf2, ModelError> {
+        let mut integrator = Bdf2::new(&self.system, settings)?;
+        self.add_bending(integrator.newton_mut())?;
+        Ok(integrator)
+    }
+
+    /// The implicit midpoint for this cloth, with the bending term as
+    /// [`Self::backward_euler`] adds it. Contact and self-contact are added to its
+    /// workspace ([`ImplicitMidpoint::newton_mut`]); both act on the end-of-step state.
+    pub fn implicit_midpoint(
+        &self,
+        settings: NewtonSettings,
+    ) -> Result<ImplicitMidpoint, ModelError> {
+        let mut integrator = ImplicitMidpoint::new(&self.system, settings)?;
+        self.add_bending(integrator.newton_mut())?;
+        Ok(integrator)
+    }
+
+    /// Adds the dihedral bending term, if the material has one, with the Hessian pattern
+    /// widened for its hinge pairs.
+    fn add_bending(&self, integrator: &mut BackwardEuler) -> Result<(), ModelError> {
         if let Some(term) = &self.bending {
             let pairs = term.coupled_pairs();
             integrator.add_coupled_term(&self.system, Box::new(term.clone()), &pairs)?;
         }
-        Ok(integrator)
+        Ok(())
     }
 
     /// Adds contact with rigid `colliders` to `integrator` (built for this model, e.g. by

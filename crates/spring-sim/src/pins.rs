@@ -156,6 +156,8 @@ fn check_members(
 pub trait PinnedStepper {
     /// The Newton workspace (its terms check the pinned move).
     fn newton(&self) -> &BackwardEuler;
+    /// The Newton workspace, to add terms before stepping (contact, self-contact).
+    fn newton_mut(&mut self) -> &mut BackwardEuler;
     /// Marks the start of a step taken as several calls to [`Self::take_step`] (pieces of
     /// the pinned motion): the step's records ([`BackwardEuler::piece_ends`],
     /// [`BackwardEuler::step_objective_traces`]) span the calls. Nothing by default.
@@ -178,6 +180,9 @@ impl PinnedStepper for BackwardEuler {
     fn newton(&self) -> &BackwardEuler {
         self
     }
+    fn newton_mut(&mut self) -> &mut BackwardEuler {
+        self
+    }
     fn begin_joined_step(&mut self) {
         BackwardEuler::begin_joined_step(self);
     }
@@ -196,6 +201,9 @@ impl PinnedStepper for Bdf2 {
     fn newton(&self) -> &BackwardEuler {
         Bdf2::newton(self)
     }
+    fn newton_mut(&mut self) -> &mut BackwardEuler {
+        Bdf2::newton_mut(self)
+    }
     fn begin_joined_step(&mut self) {
         self.newton_mut().begin_joined_step();
     }
@@ -213,6 +221,9 @@ impl PinnedStepper for Bdf2 {
 impl PinnedStepper for ImplicitMidpoint {
     fn newton(&self) -> &BackwardEuler {
         ImplicitMidpoint::newton(self)
+    }
+    fn newton_mut(&mut self) -> &mut BackwardEuler {
+        ImplicitMidpoint::newton_mut(self)
     }
     fn begin_joined_step(&mut self) {
         self.newton_mut().begin_joined_step();

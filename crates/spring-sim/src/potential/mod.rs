@@ -22,6 +22,7 @@
 
 mod bending;
 mod damping;
+mod end_state;
 mod fused;
 mod gravity;
 mod inertia;
@@ -37,6 +38,7 @@ pub use bending::{
     dihedral_angle_hessian,
 };
 pub use damping::AxialDamping;
+pub use end_state::AtEndOfStep;
 pub use gravity::Gravity;
 pub use inertia::Inertia;
 pub(crate) use sink::PairPlace;

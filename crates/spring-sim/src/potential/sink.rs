@@ -374,6 +374,53 @@ impl<'a> HessianSink<'a> {
         }
     }
 
+    /// Adds `scale` times what `add` adds to a sink of the same kind: `add` fills a
+    /// zeroed sink of its own (same pattern, fixed flags or vector), which is then added
+    /// here scaled (row sums by `|scale|`). For a term written over other unknowns than
+    /// the minimization's, whose Hessian is its own times a constant (the chain rule of a
+    /// linear map, as the implicit midpoint's end state `2 z - x_n`), whatever way the
+    /// term adds its blocks (one by one, or by parts of the matrix).
+    pub(crate) fn add_scaled(&mut self, scale: f64, add: impl FnOnce(&mut HessianSink<'_>)) {
+        match &mut self.target {
+            Target::Values { pattern, values } => {
+                let mut own = vec![0.0; values.len()];
+                add(&mut HessianSink::values(pattern, &mut own));
+                for (v, o) in values.iter_mut().zip(&own) {
+                    *v += scale * o;
+                }
+            }
+            Target::RowSums { fixed, rows } => {
+                let mut own = vec![DVec3::ZERO; rows.len()];
+                add(&mut HessianSink::row_sums(fixed, &mut own));
+                for (r, o) in rows.iter_mut().zip(&own) {
+                    *r += scale.abs() * *o;
+                }
+            }
+            Target::Product { fixed, z, out } => {
+                let mut own = vec![DVec3::ZERO; out.len()];
+                add(&mut HessianSink::product(fixed, z, &mut own));
+                for (r, o) in out.iter_mut().zip(&own) {
+                    *r += scale * *o;
+                }
+            }
+            Target::Diagonal {
+                pattern,
+                blocks,
+                coupled,
+            } => {
+                let mut own = vec![SymBlock([0.0; 6]); blocks.len()];
+                let mut inner = HessianSink::diagonal(pattern, &mut own);
+                add(&mut inner);
+                *coupled |= inner.coupled();
+                for (b, o) in blocks.iter_mut().zip(&own) {
+                    for (sum, v) in b.0.iter_mut().zip(o.0) {
+                        *sum += scale * v;
+                    }
+                }
+            }
+        }
+    }
+
     /// The pattern and the values of a sink that accumulates matrix values (`None` for
     /// the other targets), for a term that adds its blocks by parts of the matrix.
     pub(crate) fn values_mut(&mut self) -> Option<(&HessianPattern, &mut [f64])> {

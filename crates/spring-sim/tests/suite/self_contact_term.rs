@@ -10,7 +10,7 @@ use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::{
     SelfContactSettings, SelfContactTerm, additive_ccd, candidates,
 };
-use sinew_spring_sim::potential::{HessianSink, StepContext, Term};
+use sinew_spring_sim::potential::{AtEndOfStep, HessianSink, StepContext, StepTiming, Term};
 use sinew_spring_sim::spring::Curvature;
 use sinew_spring_sim::{ClothGrid, HessianPattern, SpringSystem, StepError, TriangleMesh};
 
@@ -834,4 +834,132 @@ fn the_exact_form_is_the_hessian_of_mollified_edge_pairs_too() {
         differs |= projected != hz;
     }
     assert!(differs, "the exact and projected forms never differed");
+}
+
+#[test]
+fn at_the_midpoint_the_term_is_evaluated_at_the_end_state() {
+    // The implicit midpoint's unknowns are the step's midpoint z; its end state is
+    // w = 2 z - x_n. Wrapped, the term's energy at z is the plain term's at w (a backward
+    // Euler step of the real length from x_n), its gradient twice the plain one at w and
+    // the central differences of its own energy in z, its Hessian four times the plain
+    // one (as values on a pattern, as row sums and as a product), and its cap along dz
+    // the plain cap along 2 dz.
+    let (system, triangles) = two_sheets();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        mu: 0.3,
+        ..SelfContactSettings::default()
+    };
+    let x0 = system.positions().to_vec();
+    let (h_e, length) = (1.0 / 120.0, 1.0 / 60.0);
+    let timing = StepTiming {
+        start: 0.0,
+        length,
+        midpoint: true,
+    };
+    let step = StepContext::new(&system, h_e, &x0, &x0).with_timing(timing);
+    let ends = StepContext::new(&system, length, &x0, &x0);
+    let mut wrapped =
+        AtEndOfStep::new(SelfContactTerm::new(&system, &triangles, settings).unwrap());
+    wrapped.begin_step(&step);
+    let mut plain = begun(&system, &triangles, settings, &ends);
+    let mut rng = Rng(11);
+    // A midpoint whose end state is crumpled (every gap between 0.5 and 2.5 mm), that
+    // end state computed as the scheme computes it.
+    let z: Vec<DVec3> = x0
+        .iter()
+        .map(|p| *p + 1e-4 * DVec3::new(rng.signed(), rng.signed(), rng.signed()))
+        .collect();
+    let w: Vec<DVec3> = z.iter().zip(&x0).map(|(z, x)| 2.0 * *z - *x).collect();
+    // Friction lagged where the midpoint's iterate says (the wrapped term maps it).
+    assert!(wrapped.relag_friction(&step, &z));
+    assert!(plain.relag_friction(&ends, &w));
+    wrapped.update_active_set(&step, &z);
+    plain.update_active_set(&ends, &w);
+    let e = wrapped.energy(&step, &z);
+    assert!(e > 0.0 && e.is_finite(), "{e}");
+    assert_eq!(e, plain.energy(&ends, &w));
+    let mut g = vec![DVec3::ZERO; z.len()];
+    wrapped.add_gradient(&step, &z, &mut g);
+    let mut g_end = vec![DVec3::ZERO; z.len()];
+    plain.add_gradient(&ends, &w, &mut g_end);
+    let scale = g.iter().map(|v| v.abs().max_element()).fold(0.0, f64::max);
+    let d = 1e-9;
+    for i in 1..z.len() {
+        assert_eq!(g[i], 2.0 * g_end[i], "particle {i}");
+        for c in 0..3 {
+            let (mut zp, mut zm) = (z.clone(), z.clone());
+            zp[i][c] += d;
+            zm[i][c] -= d;
+            let fd = (wrapped.energy(&step, &zp) - wrapped.energy(&step, &zm)) / (2.0 * d);
+            assert!(
+                (fd - g[i][c]).abs() <= 1e-5 * scale,
+                "particle {i} coordinate {c}: {} vs {fd}",
+                g[i][c]
+            );
+        }
+    }
+    // The Hessian, three ways.
+    let pattern = HessianPattern::with_pairs(
+        &system,
+        &(0..z.len())
+            .flat_map(|i| (i + 1..z.len()).map(move |j| [i, j]))
+            .collect::<Vec<_>>(),
+    );
+    let fixed = system.fixed().to_vec();
+    let v: Vec<DVec3> = (0..z.len())
+        .map(|_| DVec3::new(rng.signed(), rng.signed(), rng.signed()))
+        .collect();
+    let hessian = |term: &dyn Term, s: &StepContext, at: &[DVec3]| {
+        let mut values = vec![0.0; pattern.nnz()];
+        term.add_hessian(
+            s,
+            at,
+            Curvature::Clamped,
+            &mut HessianSink::values(&pattern, &mut values),
+        );
+        let mut rows = vec![DVec3::ZERO; at.len()];
+        term.add_hessian(
+            s,
+            at,
+            Curvature::Clamped,
+            &mut HessianSink::row_sums(&fixed, &mut rows),
+        );
+        let mut product = vec![DVec3::ZERO; at.len()];
+        term.add_hessian(
+            s,
+            at,
+            Curvature::Clamped,
+            &mut HessianSink::product(&fixed, &v, &mut product),
+        );
+        (values, rows, product)
+    };
+    let (values, rows, product) = hessian(&wrapped, &step, &z);
+    let (values_end, rows_end, product_end) = hessian(&plain, &ends, &w);
+    assert!(values_end.iter().any(|&x| x != 0.0));
+    for (a, b) in values.iter().zip(&values_end) {
+        assert_eq!(*a, 4.0 * b);
+    }
+    for (a, b) in rows
+        .iter()
+        .zip(&rows_end)
+        .chain(product.iter().zip(&product_end))
+    {
+        assert_eq!(*a, 4.0 * *b);
+    }
+    // The cap: the end state moves along 2 dz by the same fraction. The top sheet pushed
+    // down through the lower one stops short of it.
+    let dz: Vec<DVec3> = (0..z.len())
+        .map(|i| {
+            if i >= 9 {
+                DVec3::new(0.0, -2e-3, 0.0)
+            } else {
+                DVec3::ZERO
+            }
+        })
+        .collect();
+    let dw: Vec<DVec3> = dz.iter().map(|d| 2.0 * *d).collect();
+    let cap = wrapped.max_step(&step, &z, &dz, 1.0);
+    assert!(cap > 0.0 && cap < 1.0, "{cap}");
+    assert_eq!(cap, plain.max_step(&ends, &w, &dw, 1.0));
 }

@@ -16,8 +16,9 @@
 //! - [`friction`]: lagged, smoothed Coulomb friction between the pairs within `dhat`.
 //! - [`psd12`]: the positive semidefinite projection of a pair's 12x12 Hessian.
 //! - `spread`: the term's per-pair loops on the integrator's thread pool.
-//! - [`term`]: [`SelfContactTerm`], the barrier as a term of backward Euler's
-//!   minimization, and [`enable_self_contact`].
+//! - [`term`]: [`SelfContactTerm`], the barrier as a term of the implicit minimization
+//!   over the end-of-step positions, and [`enable_self_contact`] (which adds it for every
+//!   implicit scheme).
 //!
 //! Derivations: docs/contact.md.
 

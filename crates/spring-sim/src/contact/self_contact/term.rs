@@ -1,5 +1,7 @@
 //! [`SelfContactTerm`]: the self-contact barrier of a triangle-mesh cloth as a term of the
-//! backward Euler minimization ([`crate::potential::Term`]), and [`enable_self_contact`].
+//! minimization over the end-of-step positions ([`crate::potential::Term`]; backward Euler's
+//! and BDF2's unknowns), and [`enable_self_contact`], which adds it wrapped in
+//! [`AtEndOfStep`] so the implicit midpoint evaluates it at its end state too.
 //!
 //! The energy is `sum_pairs kappa m_k b(d_k - xi)` over every vertex-triangle and
 //! edge-edge pair that shares no vertex, with `d_k` the pair's distance, `xi` the
@@ -78,7 +80,7 @@ use crate::contact::barrier::{
 use crate::model::SpringSystem;
 use crate::newton::BackwardEuler;
 use crate::pattern::HessianPattern;
-use crate::potential::{HessianSink, PairPlace, StepContext, SymBlock, Term};
+use crate::potential::{AtEndOfStep, HessianSink, PairPlace, StepContext, SymBlock, Term};
 use crate::report::StepError;
 use crate::spring::Curvature;
 use sinew_math::{DMat3, DVec3};
@@ -251,7 +253,9 @@ impl SelfContactStats {
     }
 }
 
-/// The self-contact term (see the module documentation).
+/// The self-contact term (see the module documentation). Its positions are the
+/// end-of-step positions: added by hand to an implicit midpoint, whose unknowns are the
+/// step's midpoint, it must be wrapped in [`AtEndOfStep`] ([`enable_self_contact`] does).
 #[derive(Debug)]
 pub struct SelfContactTerm {
     prims: Primitives,
@@ -2348,10 +2352,11 @@ fn scatter(
     }
 }
 
-/// Adds self-contact of the cloth `system` with surface `triangles` to `integrator`
-/// (see [`SelfContactTerm::new`] for the checks) and returns the term's statistics. An
-/// integrator that has a self-contact term already refuses a second
-/// ([`ContactError::AddedTwice`]).
+/// Adds self-contact of the cloth `system` with surface `triangles` to `integrator`, the
+/// workspace of any implicit scheme ([`crate::Bdf2::newton_mut`],
+/// [`crate::ImplicitMidpoint::newton_mut`]; see [`SelfContactTerm::new`] for the
+/// checks), and returns the term's statistics. An integrator that has a self-contact
+/// term already refuses a second ([`ContactError::AddedTwice`]).
 pub fn enable_self_contact(
     integrator: &mut BackwardEuler,
     system: &SpringSystem,
@@ -2361,7 +2366,9 @@ pub fn enable_self_contact(
     crate::contact::refuse_second(integrator, "self-contact")?;
     let term = SelfContactTerm::new(system, triangles, settings)?;
     let stats = term.stats();
-    integrator.add_term(Box::new(term));
+    // Wrapped so the implicit midpoint (and BDF2's starting midpoint steps) evaluate it
+    // at the end state.
+    integrator.add_term(Box::new(AtEndOfStep::new(term)));
     Ok(stats)
 }
 
