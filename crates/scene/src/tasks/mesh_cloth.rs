@@ -23,7 +23,8 @@ use sinew_spring_sim::contact::{
     signed_distance,
 };
 use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinDriver, PinnedMotion, TriangleMesh,
+    Bending, ClothGrid, Material, MeshCloth, MeshClothModel, NewtonSettings, PinDriver,
+    PinnedMotion, PinnedStepper, TriangleMesh,
 };
 use std::path::PathBuf;
 use std::time::Instant;
@@ -45,6 +46,10 @@ pub struct MeshClothTask {
     /// Bending (default none).
     #[serde(default)]
     pub bending: Option<Bending>,
+    /// The implicit scheme (default `backward_euler`; `bdf2`, `implicit_midpoint`): the
+    /// same Newton settings (the fields below), contact and self-contact in each.
+    #[serde(default)]
+    pub integrator: MeshScheme,
     /// Time step, s.
     pub dt: f64,
     /// Number of steps.
@@ -85,6 +90,47 @@ pub struct MeshClothTask {
     /// The directory OBJ paths are relative to (the scene file's; set by the reader).
     #[serde(skip)]
     pub base_dir: PathBuf,
+}
+
+/// The implicit scheme of a `MeshCloth` task (its Newton settings are the task's own
+/// fields). Contact and self-contact act on the end-of-step state in each
+/// (docs/contact.md); the midpoint gains energy on crumpling cloth (docs/integrators.md).
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum MeshScheme {
+    /// Backward Euler: first order, damps every mode.
+    #[default]
+    BackwardEuler,
+    /// BDF2: second order, damps the unresolved modes.
+    Bdf2,
+    /// The implicit midpoint: second order, no numerical damping.
+    #[serde(alias = "midpoint")]
+    ImplicitMidpoint,
+}
+
+impl MeshScheme {
+    /// The integrator of this scheme for `model`, with its bending term.
+    fn build(
+        self,
+        model: &MeshClothModel,
+        newton: NewtonSettings,
+    ) -> Result<Box<dyn PinnedStepper>, String> {
+        let built: Result<Box<dyn PinnedStepper>, _> = match self {
+            Self::BackwardEuler => model.backward_euler(newton).map(|i| Box::new(i) as _),
+            Self::Bdf2 => model.bdf2(newton).map(|i| Box::new(i) as _),
+            Self::ImplicitMidpoint => model.implicit_midpoint(newton).map(|i| Box::new(i) as _),
+        };
+        built.map_err(|e| format!("integrator: {e}"))
+    }
+
+    /// The scheme's name in pictures and reports.
+    fn label(self) -> &'static str {
+        match self {
+            Self::BackwardEuler => "backward Euler",
+            Self::Bdf2 => "BDF2",
+            Self::ImplicitMidpoint => "implicit midpoint",
+        }
+    }
 }
 
 fn areal_density() -> f64 {
@@ -542,9 +588,7 @@ impl TaskSpec for MeshClothTask {
         .build(&mesh)
         .map_err(|e| format!("cloth: {e}"))?;
         let newton = self.newton_settings();
-        let mut integrator = model
-            .backward_euler(newton)
-            .map_err(|e| format!("integrator: {e}"))?;
+        let mut integrator = self.integrator.build(&model, newton)?;
         // The colliders as the run goes: the limbs' capsules (after the first
         // `fixed_motion`) are driven before every step, and this copy takes each driven
         // collider the library returns (its pose within the step, for the pieces'
@@ -554,11 +598,11 @@ impl TaskSpec for MeshClothTask {
         let fixed_motion = self.colliders.len();
         if !colliders.is_empty() {
             model
-                .enable_contact(&mut integrator, colliders.clone(), self.contact)
+                .enable_contact(integrator.newton_mut(), colliders.clone(), self.contact)
                 .map_err(|e| format!("contact: {e}"))?;
         }
         let stats = model
-            .enable_self_contact(&mut integrator, self.self_contact)
+            .enable_self_contact(integrator.newton_mut(), self.self_contact)
             .map_err(|e| format!("self_contact: {e}"))?;
         let mut system = model.system.clone();
         let start = system.positions().to_vec();
@@ -626,7 +670,7 @@ impl TaskSpec for MeshClothTask {
         // The guarantees hold at every piece's end state, and the paths a moving
         // collider must not cross are those of each piece (one piece for a step taken
         // whole): the integrator records the pieces' end states for these checks.
-        integrator.record_piece_ends(true);
+        integrator.newton_mut().record_piece_ends(true);
         let mut progress = ctx.progress(&self.name, self.steps);
         // The limbs' poses at the current step's end (the targets of its drives).
         let mut targets: Vec<Shape> = Vec::new();
@@ -639,6 +683,7 @@ impl TaskSpec for MeshClothTask {
                         duration: self.dt,
                     };
                     colliders[fixed_motion + k] = integrator
+                        .newton_mut()
                         .drive_collider(fixed_motion + k, &drive)
                         .map_err(|e| format!("step {step}: limbs: capsules[{k}]: {e}"))?;
                 }
@@ -655,8 +700,8 @@ impl TaskSpec for MeshClothTask {
             }
             let started = Instant::now();
             let report = match &mut pins {
-                Some(driver) => driver.step(&mut integrator, &mut system, self.dt),
-                None => integrator.step(&mut system, self.dt),
+                Some(driver) => driver.step(&mut *integrator, &mut system, self.dt),
+                None => integrator.take_step(&mut system, self.dt),
             }
             .map_err(|e| format!("step {step}: {e}"))?;
             step_ms.push(1e3 * started.elapsed().as_secs_f64());
@@ -675,7 +720,7 @@ impl TaskSpec for MeshClothTask {
             if x.iter().any(|p| !p.is_finite()) {
                 return Err(format!("step {step}: a non-finite position"));
             }
-            let pieces = integrator.piece_ends().expect("recording");
+            let pieces = integrator.newton().piece_ends().expect("recording");
             let mut meeting = Vec::new();
             for (_, y) in pieces.iter().take(pieces.len().saturating_sub(1)) {
                 meeting.extend(intersecting_pairs(y, &triangles));
@@ -820,7 +865,7 @@ impl TaskSpec for MeshClothTask {
         );
         let pictures = if ctx.keep_frames {
             Pictures::Cloth(ClothPictures {
-                integrator: "backward Euler with self-contact".into(),
+                integrator: format!("{} with self-contact", self.integrator.label()),
                 springs,
                 fixed,
                 track: frames.clone(),

@@ -2,7 +2,8 @@
 
 use sinew_spring_sim::contact::{Collider, ContactSettings, Shape};
 use sinew_spring_sim::{
-    ClothGrid, DVec3, Integrator, Material, Particle, Simulation, SpringSystem, StepReport,
+    ClothGrid, DVec3, Integrator, Material, MeshClothModel, NewtonSettings, Particle,
+    PinnedStepper, Simulation, SpringSystem, StepReport,
 };
 
 /// The threads a solver asked for `threads` runs on: those, or the calling thread alone
@@ -228,4 +229,26 @@ pub fn assert_coulomb_landing(
     println!("landing: v {v}, normal impulse per mass {impulse}, v_x expected {expected}");
     assert!(impulse > 0.3, "{impulse}");
     assert!((v.x - expected).abs() <= 1e-6, "{} vs {expected}", v.x);
+}
+
+/// The implicit schemes a mesh cloth's terms (contact, self-contact, bending) act in.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Scheme {
+    BackwardEuler,
+    Bdf2,
+    Midpoint,
+}
+
+/// Every [`Scheme`].
+pub const SCHEMES: [Scheme; 3] = [Scheme::BackwardEuler, Scheme::Bdf2, Scheme::Midpoint];
+
+impl Scheme {
+    /// The scheme's integrator for `model` (with its bending term).
+    pub fn build(self, model: &MeshClothModel, newton: NewtonSettings) -> Box<dyn PinnedStepper> {
+        match self {
+            Self::BackwardEuler => Box::new(model.backward_euler(newton).unwrap()),
+            Self::Bdf2 => Box::new(model.bdf2(newton).unwrap()),
+            Self::Midpoint => Box::new(model.implicit_midpoint(newton).unwrap()),
+        }
+    }
 }

@@ -8,6 +8,7 @@
 //! every Newton iterate never increases within a step; and the smallest gap over all
 //! such pairs, by brute force, stays positive.
 
+use crate::common::{SCHEMES, Scheme};
 use crate::sheets::{self, grid};
 use sinew_exact::{intersecting_pairs, triangles_meet};
 use sinew_math::DVec3;
@@ -106,15 +107,6 @@ struct Run {
     settings: SelfContactSettings,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Scheme {
-    BackwardEuler,
-    Bdf2,
-    Midpoint,
-}
-
-const SCHEMES: [Scheme; 3] = [Scheme::BackwardEuler, Scheme::Bdf2, Scheme::Midpoint];
-
 fn build(
     positions: Vec<DVec3>,
     triangles: Vec<[usize; 3]>,
@@ -147,11 +139,7 @@ fn build_with(
         record_objective: true,
         ..NewtonSettings::default()
     };
-    let mut integrator: Box<dyn PinnedStepper> = match scheme {
-        Scheme::BackwardEuler => Box::new(model.backward_euler(newton).unwrap()),
-        Scheme::Bdf2 => Box::new(model.bdf2(newton).unwrap()),
-        Scheme::Midpoint => Box::new(model.implicit_midpoint(newton).unwrap()),
-    };
+    let mut integrator = scheme.build(&model, newton);
     let workspace = integrator.newton_mut();
     if !colliders.is_empty() {
         let contact = ContactPotential::new(colliders, ContactSettings::default(), 0.0).unwrap();
