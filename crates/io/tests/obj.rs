@@ -3,7 +3,7 @@
 //! with dihedral bending under backward Euler: a hanging flap settles while its energy
 //! falls, and a folded sheet without gravity unbends.
 
-use sinew_io::obj::{ObjError, parse_obj};
+use sinew_io::obj::{ObjError, parse_obj, parse_obj_numbered};
 use sinew_math::{DQuat, DVec3};
 use sinew_spring_sim::potential::dihedral_angle;
 use sinew_spring_sim::{Bending, Material, MeshCloth, NewtonSettings, TriangleMesh};
@@ -25,7 +25,7 @@ fn quads_are_triangulated_and_indices_kept() {
 #[test]
 fn objects_sharing_vertices_stay_connected() {
     // Two groups using vertices 2 and 3 each: tobj gives each group its own copy; the
-    // reader welds them back.
+    // reader makes them one again by their numbers in the file.
     let text = "v 0 0 0\nv 1 0 0\nv 1 0 1\nv 0 0 1\nv 2 0 1\n\
                 g left\nf 1 2 3\nf 1 3 4\n\
                 g right\nf 2 5 3\n";
@@ -37,6 +37,72 @@ fn objects_sharing_vertices_stay_connected() {
         2,
         "the groups meet at edges (0,2) and (1,2)"
     );
+}
+
+#[test]
+fn vertices_keep_the_files_numbering() {
+    // The shipped sheet's faces use its vertices out of the `v` lines' order (`tobj`
+    // alone numbers them by first use: its vertex 10 came out in the middle of a row).
+    // Every vertex of the mesh is the file's `v` statement of the same index, read here
+    // from the text directly.
+    let text = include_str!("../../../scenes/data/sheet.obj");
+    let lines: Vec<DVec3> = text
+        .lines()
+        .filter_map(|l| {
+            let mut w = l.split_whitespace();
+            (w.next() == Some("v")).then(|| {
+                let c: Vec<f64> = w.map(|x| x.parse().unwrap()).collect();
+                DVec3::new(c[0], c[1], c[2])
+            })
+        })
+        .collect();
+    let read = parse_obj_numbered(text).unwrap();
+    assert_eq!(read.file_vertex_count, lines.len());
+    assert_eq!(read.file_vertices, (0..lines.len()).collect::<Vec<_>>());
+    assert_eq!(read.mesh.positions, lines);
+    // The same triangles as `tobj`'s own numbering gave, up to the renumbering: each
+    // triangle's corners, as points, are a face's corners in the file.
+    let tri_points = |m: &sinew_io::TriangleMesh| -> Vec<[[u64; 3]; 3]> {
+        let mut t: Vec<_> = m
+            .triangles
+            .iter()
+            .map(|t| t.map(|v| m.positions[v].to_array().map(f64::to_bits)))
+            .collect();
+        t.sort_unstable();
+        t
+    };
+    assert_eq!(
+        tri_points(&read.mesh),
+        tri_points(&parse_obj(text).unwrap())
+    );
+}
+
+#[test]
+fn two_vertices_at_one_place_stay_two_and_loose_ones_are_left_out() {
+    // Objects a and b meet at the origin through two distinct file vertices (a seam):
+    // two vertices, not welded. Vertex 7 is used by no face; vertex 6 has a weight.
+    let text = "v 0 0 0\nv 1 0 0\nv 0 1 0 0 0 1\nv 0 0 0\nv -1 0 0\nv 0 -1 0\n\
+                v 0 0 2 2\nv 5 5 5\n\
+                g a\nf 1 2 3\nf 1 3 7\ng b\nf 4 5 6\n";
+    let read = parse_obj_numbered(text).unwrap();
+    assert_eq!(read.file_vertex_count, 8);
+    assert_eq!(read.file_vertices, vec![0, 1, 2, 3, 4, 5, 6]);
+    assert_eq!(read.mesh.positions[0], read.mesh.positions[3]);
+    assert_eq!(read.mesh.positions[6], DVec3::new(0.0, 0.0, 1.0));
+    assert_eq!(read.mesh.triangles, vec![[0, 1, 2], [0, 2, 6], [3, 4, 5]]);
+    assert_eq!(read.vertex(6), Ok(6));
+    assert_eq!(
+        read.vertex(7),
+        Err("vertex 7 is used by no face".to_string())
+    );
+    assert!(read.vertex(8).unwrap_err().contains("does not exist"));
+    // A weight of zero, or one that does not parse, is `tobj`'s error as before.
+    for bad in [
+        "v 1 0 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n",
+        "v 1 0 0 x\nv 0 1 0\nv 0 0 1\nf 1 2 3\n",
+    ] {
+        assert!(matches!(parse_obj(bad), Err(ObjError::Parse(_))), "{bad}");
+    }
 }
 
 #[test]

@@ -531,8 +531,8 @@ fn mesh_cape_sheet(sheet: &str, attach: &str, extra: &str) -> String {
 fn a_cape_held_by_a_squatting_clip_goes_where_the_chest_takes_it() {
     let grid_row: Vec<usize> = (0..7).map(|i| i * 7 + 6).collect();
     // scenes/data/sheet.obj, scaled to 0.24 m and placed as the grid: the vertices
-    // within 5 cm of its back edge's middle held (chosen by position, since the reader
-    // numbers a file's vertices in its own order).
+    // within 5 cm of its back edge's middle held, chosen by position (by number:
+    // `an_obj_sheets_pins_and_held_vertices_are_the_files`).
     let (centre, radius) = (DVec3::new(0.0, 1.42, -0.15), 0.05);
     let obj = mesh_cape_sheet(
         "Obj(path: \"data/sheet.obj\", scale: 0.24, offset: (-0.12, 1.42, -0.39))",
@@ -685,7 +685,7 @@ fn bad_attachments_are_named() {
                 "[(joint: \"Chest\", vertices: [121])]",
                 "",
             ),
-            "limbs: attach[0]: vertex 121 does not exist (there are 121)",
+            "limbs: attach[0]: vertex 121 does not exist (the file has 121 vertices)",
         ),
         (
             mesh_cape_scene("[(joint: \"Chest\", particles: [(0, 6), (0, 6)])]", ""),
@@ -707,4 +707,105 @@ fn bad_attachments_are_named() {
         e.starts_with("contact: limbs: attach: ") && e.contains("implicit integrator"),
         "{e}"
     );
+}
+
+/// The `v` statements of scenes/data/sheet.obj, in the file's order.
+fn sheet_obj_vertices() -> Vec<DVec3> {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../scenes/data/sheet.obj"
+    ))
+    .unwrap();
+    text.lines()
+        .filter_map(|l| {
+            let mut w = l.split_whitespace();
+            (w.next() == Some("v")).then(|| {
+                let c: Vec<f64> = w.map(|x| x.parse().unwrap()).collect();
+                DVec3::new(c[0], c[1], c[2])
+            })
+        })
+        .collect()
+}
+
+/// An OBJ sheet's `fixed` and an attachment's `vertices` name the file's vertices (the
+/// indices of its `v` statements): the two vertices a sheet hanging under gravity keeps
+/// still are where the file's vertices 0 and 10 are; and a cape held by the file's
+/// vertices within 5 cm of its back edge's middle, given by number, runs bit for bit as
+/// the same cape held by the ball `near`.
+#[test]
+fn an_obj_sheets_pins_and_held_vertices_are_the_files() {
+    let file = sheet_obj_vertices();
+    let scene = scene_in_scenes(
+        "Scene(description: \"pins\", tasks: [MeshCloth(
+            name: \"hung\",
+            sheets: [Obj(path: \"data/sheet.obj\", scale: 0.3, fixed: [0, 10])],
+            material: (stiffness: 500.0, damping: 0.1, gravity: (0.0, -9.81, 0.0)),
+            dt: 0.016666666666666666,
+            steps: 10,
+            self_contact: (dhat: 2e-3, thickness: 1e-3),
+        )])",
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let results = scene.run(&RunOptions {
+        keep_frames: true,
+        ..RunOptions::default()
+    });
+    let t = &results.tasks[0];
+    assert!(t.ok, "{:?} {:?}", t.error, t.failures);
+    let Pictures::Cloth(p) = &t.pictures else {
+        panic!("no pictures")
+    };
+    let (first, last) = (
+        &p.frames[0].positions,
+        &p.frames[p.frames.len() - 1].positions,
+    );
+    let still: Vec<DVec3> = (0..first.len())
+        .filter(|&k| first[k] == last[k])
+        .map(|k| first[k])
+        .collect();
+    assert_eq!(still, vec![0.3 * file[0], 0.3 * file[10]]);
+    // A vertex the file does not have is an error naming it.
+    let err = scene_in_scenes(
+        "Scene(description: \"pins\", tasks: [MeshCloth(
+            name: \"hung\",
+            sheets: [Obj(path: \"data/sheet.obj\", fixed: [121])],
+            dt: 0.016666666666666666,
+            steps: 1,
+        )])",
+    )
+    .map(|s| s.run(&RunOptions::default()));
+    let message = match err {
+        Err(e) => e.to_string(),
+        Ok(r) => format!("{:?}", r.tasks[0].error),
+    };
+    assert!(
+        message.contains("fixed: vertex 121 does not exist"),
+        "{message}"
+    );
+
+    // The cape: by number and by the ball.
+    let (scale, offset) = (0.24, DVec3::new(-0.12, 1.42, -0.39));
+    let (centre, radius) = (DVec3::new(0.0, 1.42, -0.15), 0.05);
+    let held: Vec<String> = (0..file.len())
+        .filter(|&v| (scale * file[v] + offset).distance(centre) <= radius)
+        .map(|v| v.to_string())
+        .collect();
+    assert!(held.len() >= 3, "{held:?}");
+    let sheet = "Obj(path: \"data/sheet.obj\", scale: 0.24, offset: (-0.12, 1.42, -0.39))";
+    let by_number = format!("[(joint: \"Chest\", vertices: [{}])]", held.join(", "));
+    let by_ball = "[(joint: \"Chest\", near: (point: (0.0, 1.42, -0.15), radius: 0.05))]";
+    let run = |attach: &str| {
+        let text = mesh_cape_sheet(sheet, attach, "").replace("steps: 24", "steps: 8");
+        let results = scene_in_scenes(&text).unwrap().run(&RunOptions {
+            keep_frames: true,
+            ..RunOptions::default()
+        });
+        let t = &results.tasks[0];
+        assert!(t.ok, "{attach}: {:?} {:?}", t.error, t.failures);
+        let Pictures::Cloth(p) = &t.pictures else {
+            panic!("no pictures")
+        };
+        p.frames[p.frames.len() - 1].positions.clone()
+    };
+    assert_eq!(run(&by_number), run(by_ball));
 }

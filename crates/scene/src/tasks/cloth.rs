@@ -143,7 +143,7 @@ impl ClothTask {
                     a.sheet
                 )));
             }
-            let indices = a.indices(grid, start).map_err(err)?;
+            let indices = a.indices(grid, start, None).map_err(err)?;
             for &v in &indices {
                 if std::mem::replace(&mut held[v], true) {
                     return Err(err(format!("{} is held twice", a.name(v, grid))));

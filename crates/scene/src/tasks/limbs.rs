@@ -26,6 +26,7 @@ use crate::limits::{MAX_JOINTS, at_most, check_solve_work};
 use crate::spec::{JointRotation, SkeletonSpec, build_pose};
 use serde::Deserialize;
 use sinew_ik::SolverOptions;
+use sinew_io::obj::NumberedObj;
 use sinew_math::{DQuat, DVec3};
 use sinew_skeleton::ik::{Chain, EffectorGoal, IkProblem, IkSolver, IkState, SolveSettings};
 use sinew_skeleton::{GlobalPose, Pose, Skeleton};
@@ -80,8 +81,8 @@ pub struct Attachment {
     #[serde(default)]
     pub particles: Vec<(usize, usize)>,
     /// The particles by index in their sheet (a grid's `i * size + j`, an explicit
-    /// system's particle, an OBJ sheet's vertex in the order the reader gives, which is
-    /// not the file's); they are pinned.
+    /// system's particle, an OBJ sheet's vertex by its `v` statement's index in the file,
+    /// from 0); they are pinned.
     #[serde(default)]
     pub vertices: Vec<usize>,
     /// Every particle of the sheet whose start position is within `radius` of `point`
@@ -109,6 +110,7 @@ impl Attachment {
         &self,
         grid: Option<usize>,
         start: &[DVec3],
+        file: Option<&NumberedObj>,
     ) -> Result<Vec<usize>, String> {
         let count = start.len();
         let given = [
@@ -149,12 +151,11 @@ impl Attachment {
             return self
                 .vertices
                 .iter()
-                .map(|&v| {
-                    if v < count {
-                        Ok(v)
-                    } else {
-                        Err(format!("vertex {v} does not exist (there are {count})"))
-                    }
+                .map(|&v| match file {
+                    // An OBJ sheet's vertices are named by the file's numbering.
+                    Some(file) => file.vertex(v),
+                    None if v < count => Ok(v),
+                    None => Err(format!("vertex {v} does not exist (there are {count})")),
                 })
                 .collect();
         }

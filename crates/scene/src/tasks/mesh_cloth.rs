@@ -14,6 +14,7 @@ use crate::limits::{
 use crate::results::{ClothFrame, ClothPictures, Csv, MeshClothMetrics, Pictures, TaskMetrics};
 use serde::Deserialize;
 use sinew_exact::intersecting_pairs;
+use sinew_io::obj::{NumberedObj, parse_obj_numbered};
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::collider::validate_colliders;
 use sinew_spring_sim::contact::self_contact::distance::squared_distance;
@@ -208,7 +209,7 @@ pub enum SheetSpec {
         /// Translation, m.
         #[serde(default)]
         offset: DVec3,
-        /// Vertices to pin (indices in the file's order).
+        /// Vertices to pin, by their `v` statements' indices in the file (from 0).
         #[serde(default)]
         fixed: Vec<usize>,
         /// Initial velocity of every vertex, m/s.
@@ -263,8 +264,10 @@ impl MeshClothTask {
             motions: Vec::new(),
             held: Vec::new(),
         };
-        // Per sheet: its first vertex and, for a grid, its size.
+        // Per sheet: its first vertex and, for a grid, its size; for an OBJ sheet, the
+        // file's numbering of its vertices (its mesh taken out).
         let mut sheets: Vec<(usize, Option<usize>)> = Vec::new();
+        let mut files: Vec<Option<NumberedObj>> = Vec::new();
         if self.sheets.is_empty() {
             return Err("sheets: at least one sheet is needed".into());
         }
@@ -277,6 +280,7 @@ impl MeshClothTask {
                     SheetSpec::Obj { .. } => None,
                 },
             ));
+            files.push(None);
             match sheet {
                 SheetSpec::Grid {
                     size,
@@ -340,20 +344,23 @@ impl MeshClothTask {
                     let file = self.base_dir.join(path);
                     let text = std::fs::read_to_string(&file)
                         .map_err(|e| format!("sheets[{k}]: {}: {e}", file.display()))?;
-                    let mesh = sinew_io::obj::parse_obj(&text)
+                    let mut read = parse_obj_numbered(&text)
                         .map_err(|e| format!("sheets[{k}]: {}: {e}", file.display()))?;
+                    let mesh = std::mem::take(&mut read.mesh);
                     let len = mesh.positions.len();
-                    if let Some(&v) = fixed.iter().find(|&&v| v >= len) {
-                        return Err(format!(
-                            "sheets[{k}]: fixed vertex {v} does not exist (the mesh has {len})"
-                        ));
+                    // Pinned by the file's numbering.
+                    for &v in fixed {
+                        let at = read
+                            .vertex(v)
+                            .map_err(|e| format!("sheets[{k}]: fixed: {e}"))?;
+                        a.fixed.push(at + offset);
                     }
                     a.positions
                         .extend(mesh.positions.iter().map(|p| *scale * *p + *shift));
                     a.velocities.extend(std::iter::repeat_n(*velocity, len));
-                    a.fixed.extend(fixed.iter().map(|v| v + offset));
                     a.triangles
                         .extend(mesh.triangles.iter().map(|t| t.map(|v| v + offset)));
+                    files[k] = Some(read);
                 }
             }
         }
@@ -399,7 +406,7 @@ impl MeshClothTask {
                 .map_err(|e| format!("moving_pins[{k}]: {e}"))?;
             a.motions.push(motion);
         }
-        self.assemble_held(&mut a, &sheets)?;
+        self.assemble_held(&mut a, &sheets, &files)?;
         Ok(a)
     }
 
@@ -409,6 +416,7 @@ impl MeshClothTask {
         &self,
         a: &mut Assembled,
         sheets: &[(usize, Option<usize>)],
+        files: &[Option<NumberedObj>],
     ) -> Result<(), String> {
         let Some(limbs) = &self.limbs else {
             return Ok(());
@@ -438,9 +446,13 @@ impl MeshClothTask {
             let end = sheets
                 .get(at.sheet + 1)
                 .map_or(a.positions.len(), |&(next, _)| next);
-            let mut vertices = at.indices(grid, &a.positions[offset..end]).map_err(err)?;
+            let file = files[at.sheet].as_ref();
+            let mut vertices = at
+                .indices(grid, &a.positions[offset..end], file)
+                .map_err(err)?;
             for v in &mut vertices {
-                let local = *v;
+                // Named as given: an OBJ sheet's vertex by the file's numbering.
+                let local = file.map_or(*v, |f| f.file_vertices[*v]);
                 *v += offset;
                 if std::mem::replace(&mut held[*v], true) {
                     return Err(err(format!("{} is held twice", at.name(local, grid))));
