@@ -38,26 +38,15 @@ fn min_gap_between(x: &[DVec3], triangles: &[[usize; 3]], top: usize, thickness:
     min.sqrt() - thickness
 }
 
-/// A 4 x 4 sheet (spacing 5 cm) lying 1.5 mm above a pinned 14 x 14 sheet (the same
+/// A 4 x 4 sheet (spacing 5 cm) lying 1.5 mm above a pinned `n x n` sheet (the same
 /// spacing), turned by `turn` about their normal (at 0 its edges are parallel to the
 /// lower sheet's and its vertices over the lower triangles' insides), `dhat` 2 mm and
 /// thickness 1 mm, gravity `G` tilted by `theta` towards +x, friction `mu` between the
-/// sheets, lagged once a step; `steps` backward Euler steps of `h`, every one converged
+/// sheets, lagged once a step; `steps` steps of `h` in `scheme`, every one converged
 /// and every accepted state's gaps positive. The top sheet's mean velocity along x after
-/// each step, and the term's statistics.
-fn slide_on(
-    turn: f64,
-    theta: f64,
-    mu: f64,
-    steps: usize,
-    h: f64,
-) -> (Vec<f64>, Arc<SelfContactStats>) {
-    slide_in(Scheme::BackwardEuler, 14, turn, theta, mu, steps, h)
-}
-
-/// [`slide_on`] in `scheme`; the speeds are the end-of-step velocities, or for the
-/// midpoint its step-mean velocities (the one its friction sees; its end-of-step
-/// velocity rings about it, the scheme adding no damping).
+/// each step (for the midpoint its step-mean velocity, the one its friction sees: its
+/// end-of-step velocity rings about it, the scheme adding no damping), and the term's
+/// statistics.
 fn slide_in(
     scheme: Scheme,
     n: usize,
@@ -118,9 +107,10 @@ fn slide_in(
     (speeds, stats)
 }
 
-/// [`slide_on`] with the top sheet's edges parallel to the lower sheet's.
+/// [`slide_in`] in backward Euler on a 14 x 14 sheet, the top sheet's edges parallel to
+/// the lower sheet's.
 fn slide(theta: f64, mu: f64, steps: usize, h: f64) -> (Vec<f64>, Arc<SelfContactStats>) {
-    slide_on(0.0, theta, mu, steps, h)
+    slide_in(Scheme::BackwardEuler, 14, 0.0, theta, mu, steps, h)
 }
 
 /// A 2 x 2 sheet (spacing 5 cm) 1 cm above a pinned 2 x 2 sheet of spacing 1 m, over
@@ -245,7 +235,7 @@ fn a_sheet_slides_on_a_sheet_with_coulomb_acceleration_when_mu_is_below_tan_thet
     // but the rows' vertices pass the lower edges 1.5 mm apart instead of at once.
     let coulomb = sliding - friction;
     for turn in [0.3, 0.01] {
-        let (held, _) = slide_on(turn, theta, mu, 25, H);
+        let (held, _) = slide_in(Scheme::BackwardEuler, 14, turn, theta, mu, 25, H);
         let measured = acceleration(&held, 8, 24, H);
         println!("h 1/60, turned {turn} rad: {measured} (g (sin - mu cos) {coulomb})");
         assert!(

@@ -118,6 +118,28 @@ fn assert_gradient_as_fresh(
     assert_eq!(g, g_fresh);
 }
 
+/// Checks the gradient `g` at `x` against central differences (step 1e-9) of `energy`
+/// at every coordinate of every particle but the first (pinned in these sheets), to 1e-5
+/// of the gradient's largest entry; returns that entry.
+fn assert_central_differences(g: &[DVec3], x: &[DVec3], energy: impl Fn(&[DVec3]) -> f64) -> f64 {
+    let h = 1e-9;
+    let scale = g.iter().map(|v| v.abs().max_element()).fold(0.0, f64::max);
+    for i in 1..x.len() {
+        for c in 0..3 {
+            let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
+            xp[i][c] += h;
+            xm[i][c] -= h;
+            let fd = (energy(&xp) - energy(&xm)) / (2.0 * h);
+            assert!(
+                (fd - g[i][c]).abs() <= 1e-5 * scale,
+                "particle {i} coordinate {c}: {} vs {fd}",
+                g[i][c]
+            );
+        }
+    }
+    scale
+}
+
 #[test]
 fn the_term_is_one_consistent_function() {
     let (system, triangles) = two_sheets();
@@ -141,21 +163,7 @@ fn the_term_is_one_consistent_function() {
     // The gradient against central differences (every free coordinate).
     let mut g = vec![DVec3::ZERO; x.len()];
     term.add_gradient(&step, &x, &mut g);
-    let h = 1e-9;
-    let scale = g.iter().map(|v| v.abs().max_element()).fold(0.0, f64::max);
-    for i in 1..x.len() {
-        for c in 0..3 {
-            let (mut xp, mut xm) = (x.clone(), x.clone());
-            xp[i][c] += h;
-            xm[i][c] -= h;
-            let fd = (term.energy(&step, &xp) - term.energy(&step, &xm)) / (2.0 * h);
-            assert!(
-                (fd - g[i][c]).abs() <= 1e-5 * scale,
-                "particle {i} coordinate {c}: {} vs {fd}",
-                g[i][c]
-            );
-        }
-    }
+    let scale = assert_central_differences(&g, &x, |at| term.energy(&step, at));
     // The same gradient through the active set collected at x.
     term.update_active_set(&step, &x);
     let mut g2 = vec![DVec3::ZERO; x.len()];
@@ -883,22 +891,10 @@ fn at_the_midpoint_the_term_is_evaluated_at_the_end_state() {
     wrapped.add_gradient(&step, &z, &mut g);
     let mut g_end = vec![DVec3::ZERO; z.len()];
     plain.add_gradient(&ends, &w, &mut g_end);
-    let scale = g.iter().map(|v| v.abs().max_element()).fold(0.0, f64::max);
-    let d = 1e-9;
     for i in 1..z.len() {
         assert_eq!(g[i], 2.0 * g_end[i], "particle {i}");
-        for c in 0..3 {
-            let (mut zp, mut zm) = (z.clone(), z.clone());
-            zp[i][c] += d;
-            zm[i][c] -= d;
-            let fd = (wrapped.energy(&step, &zp) - wrapped.energy(&step, &zm)) / (2.0 * d);
-            assert!(
-                (fd - g[i][c]).abs() <= 1e-5 * scale,
-                "particle {i} coordinate {c}: {} vs {fd}",
-                g[i][c]
-            );
-        }
     }
+    assert_central_differences(&g, &z, |at| wrapped.energy(&step, at));
     // The Hessian, three ways.
     let pattern = HessianPattern::with_pairs(
         &system,
