@@ -15,6 +15,7 @@
 //! the Hessian times 4 (the chain rule). Derivation: docs/contact.md.
 
 use super::{Collider, ContactError, ContactPotential, ContactStep, Drive};
+use crate::potential::end_state::{end_state, end_step, to_end_state, to_midpoint};
 use crate::potential::{Gravity, HessianSink, Springs, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
 use crate::{SpringSystem, StepError};
@@ -155,14 +156,12 @@ impl ContactTerm {
         if !step.timing.midpoint {
             return f(x, dx.unwrap_or(&[]), 1.0);
         }
-        let x_n = step.system.positions();
         let mut scratch = self
             .end_state
             .lock()
             .unwrap_or_else(PoisonError::into_inner);
         let (w, dw) = &mut *scratch;
-        w.clear();
-        w.extend(x.iter().zip(x_n).map(|(z, x0)| 2.0 * *z - *x0));
+        end_state(step.system, x, w);
         dw.clear();
         if let Some(dx) = dx {
             dw.extend(dx.iter().map(|d| 2.0 * *d));
@@ -177,11 +176,8 @@ impl ContactTerm {
 /// `x_ref`; the midpoint's end state moves as a backward Euler step of the real length
 /// from x_n (docs/contact.md).
 fn end_state_step<'a>(step: &StepContext<'a>) -> (f64, &'a [DVec3]) {
-    if step.timing.midpoint {
-        (step.timing.length, step.system.positions())
-    } else {
-        (step.h, step.x_ref)
-    }
+    let ends = end_step(step);
+    (ends.h, ends.x_ref)
 }
 
 impl Term for ContactTerm {
@@ -247,13 +243,9 @@ impl Term for ContactTerm {
     fn relag_friction(&mut self, step: &StepContext<'_>, x: &[DVec3]) -> bool {
         let s = step.system;
         let (h, anchor) = end_state_step(step);
-        let midpoint_end: Vec<DVec3>;
+        let mut midpoint_end = Vec::new();
         let end = if step.timing.midpoint {
-            midpoint_end = x
-                .iter()
-                .zip(s.positions())
-                .map(|(z, x0)| 2.0 * *z - *x0)
-                .collect();
+            end_state(s, x, &mut midpoint_end);
             midpoint_end.as_slice()
         } else {
             x
@@ -268,9 +260,7 @@ impl Term for ContactTerm {
         let midpoint = step.timing.midpoint;
         // The carry acts on the end state; the midpoint's is 2 z - x_n.
         if midpoint {
-            for (z, x0) in x.iter_mut().zip(x_n) {
-                *z = 2.0 * *z - *x0;
-            }
+            to_end_state(x_n, x);
         }
         if self.potential.prepare_start(x_n, fixed, x).is_err() {
             // The guess, partly carried, is not admissible: start from x_n carried
@@ -280,9 +270,7 @@ impl Term for ContactTerm {
             let _ = self.potential.prepare_start(x_n, fixed, x);
         }
         if midpoint {
-            for (w, x0) in x.iter_mut().zip(x_n) {
-                *w = 0.5 * (*w + *x0);
-            }
+            to_midpoint(x_n, x);
         }
     }
 
@@ -295,14 +283,12 @@ impl Term for ContactTerm {
         let fixed = step.system.fixed();
         // Published every iteration whether or not kappa grew: the active pairs change.
         if step.timing.midpoint {
-            let x_n = step.system.positions();
             let mut scratch = self
                 .end_state
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner);
             let w = &mut scratch.0;
-            w.clear();
-            w.extend(x.iter().zip(x_n).map(|(z, x0)| 2.0 * *z - *x0));
+            end_state(step.system, x, w);
             self.potential.update_kappa(w, fixed);
         } else {
             self.potential.update_kappa(x, fixed);

@@ -56,7 +56,7 @@ impl<T: Term> AtEndOfStep<T> {
         if !step.timing.midpoint {
             return f(step, x, dx.unwrap_or(&[]), 1.0);
         }
-        let ends = end_context(step);
+        let ends = end_step(step);
         let mut scratch = self.scratch.lock().unwrap_or_else(PoisonError::into_inner);
         let (w, dw) = &mut *scratch;
         end_state(step.system, x, w);
@@ -77,7 +77,7 @@ impl<T: Term> AtEndOfStep<T> {
         if !step.timing.midpoint {
             return f(&mut self.inner, step, x);
         }
-        let ends = end_context(step);
+        let ends = end_step(step);
         let scratch = self
             .scratch
             .get_mut()
@@ -88,7 +88,7 @@ impl<T: Term> AtEndOfStep<T> {
 }
 
 /// The midpoint's end state `w = 2 z - x_n` of the iterate `z`, into `w`.
-fn end_state(system: &SpringSystem, z: &[DVec3], w: &mut Vec<DVec3>) {
+pub(crate) fn end_state(system: &SpringSystem, z: &[DVec3], w: &mut Vec<DVec3>) {
     w.clear();
     w.extend(
         z.iter()
@@ -97,9 +97,27 @@ fn end_state(system: &SpringSystem, z: &[DVec3], w: &mut Vec<DVec3>) {
     );
 }
 
-/// The step a term over the end state sees in a midpoint step: a backward Euler step of
+/// Replaces the midpoint `z` in `x` by its end state `2 z - x_n`.
+pub(crate) fn to_end_state(x_n: &[DVec3], x: &mut [DVec3]) {
+    for (z, x0) in x.iter_mut().zip(x_n) {
+        *z = 2.0 * *z - *x0;
+    }
+}
+
+/// Replaces the end state `w` in `x` by its midpoint `(w + x_n)/2`.
+pub(crate) fn to_midpoint(x_n: &[DVec3], x: &mut [DVec3]) {
+    for (w, x0) in x.iter_mut().zip(x_n) {
+        *w = 0.5 * (*w + *x0);
+    }
+}
+
+/// The step a term over the end state sees: the step itself for backward Euler and BDF2
+/// (whose unknowns are the end state), and in a midpoint step a backward Euler step of
 /// the real length from `x_n` (the prediction is the caller's, unused by such terms).
-fn end_context<'a>(step: &StepContext<'a>) -> StepContext<'a> {
+pub(crate) fn end_step<'a>(step: &StepContext<'a>) -> StepContext<'a> {
+    if !step.timing.midpoint {
+        return *step;
+    }
     StepContext {
         h: step.timing.length,
         x_ref: step.system.positions(),
@@ -121,11 +139,7 @@ impl<T: Term> Term for AtEndOfStep<T> {
     }
 
     fn begin_step(&mut self, step: &StepContext<'_>) {
-        if step.timing.midpoint {
-            self.inner.begin_step(&end_context(step));
-        } else {
-            self.inner.begin_step(step);
-        }
+        self.inner.begin_step(&end_step(step));
     }
 
     fn relag_friction(&mut self, step: &StepContext<'_>, x: &[DVec3]) -> bool {
@@ -138,11 +152,9 @@ impl<T: Term> Term for AtEndOfStep<T> {
             return;
         }
         let x_n = step.system.positions();
-        let mut w: Vec<DVec3> = x.iter().zip(x_n).map(|(z, x0)| 2.0 * *z - *x0).collect();
-        self.inner.prepare_start(&end_context(step), &mut w);
-        for ((z, w), x0) in x.iter_mut().zip(&w).zip(x_n) {
-            *z = 0.5 * (*w + *x0);
-        }
+        to_end_state(x_n, x);
+        self.inner.prepare_start(&end_step(step), x);
+        to_midpoint(x_n, x);
     }
 
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {

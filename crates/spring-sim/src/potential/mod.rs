@@ -22,7 +22,7 @@
 
 mod bending;
 mod damping;
-mod end_state;
+pub(crate) mod end_state;
 mod fused;
 mod gravity;
 mod inertia;
