@@ -1,5 +1,6 @@
-//! The self-contact guarantee of sinew-spring-sim's backward Euler, checked
-//! independently on random crumpled sheets dropped onto the ground with large steps: no
+//! The self-contact guarantee of sinew-spring-sim's backward Euler and BDF2 (half the
+//! cases each; BDF2's first step is an implicit midpoint step, whose barrier acts on its
+//! end state), checked independently on random crumpled sheets dropped onto the ground with large steps: no
 //! two triangles that share no vertex ever meet (the exact check of
 //! `sinew_exact`, robust's orientation predicates, no code shared with the
 //! solver) and no vertex is on or under the ground, after every step and after every
@@ -24,7 +25,7 @@ use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::contact::{Collider, ContactSettings};
 use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, StepStop, TriangleMesh,
+    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinnedStepper, StepStop, TriangleMesh,
 };
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -93,6 +94,22 @@ fn friction_lags(c: &Case) -> usize {
     }
 }
 
+/// The implicit scheme of case `c`, from its second crumple draw (so the strategy draws
+/// what it drew before): backward Euler for a negative draw, else BDF2.
+///
+/// Not the implicit midpoint throughout: it adds no damping and gains energy on
+/// crumpling cloth (docs/integrators.md). With a quarter of the cases in it, 24 midpoint
+/// cases kept every check here, and the next (7 x 7, `h` = 1/4 s, stiffness 1e4, `mu`
+/// 0.4) did not finish its fifth step in two minutes in the dev profile, its Newton
+/// solves splitting the step again and again.
+fn scheme(c: &Case) -> &'static str {
+    if c.crumple[1] < 0.0 {
+        "backward Euler"
+    } else {
+        "BDF2"
+    }
+}
+
 /// The hanging sheet's positions: grid row `i` at height `5 mm + i s cos(lean)`, leaning
 /// `i s sin(lean)` towards +z, column `j` along x, and the crumple along z.
 fn hanging(c: &Case) -> Vec<DVec3> {
@@ -144,22 +161,26 @@ proptest! {
             friction_lags: friction_lags(&c),
             ..NewtonSettings::default()
         };
-        let mut integrator = model.backward_euler(newton).expect("backward Euler");
+        let mut integrator: Box<dyn PinnedStepper> = match scheme(&c) {
+            "backward Euler" => Box::new(model.backward_euler(newton).expect("backward Euler")),
+            _ => Box::new(model.bdf2(newton).expect("BDF2")),
+        };
         let ground_stats = model
-            .enable_contact(&mut integrator, vec![Collider::ground(0.0)], ContactSettings::default())
+            .enable_contact(integrator.newton_mut(), vec![Collider::ground(0.0)], ContactSettings::default())
             .expect("ground contact");
         let settings = SelfContactSettings { dhat: DHAT, thickness: THICKNESS, mu: c.mu, ..SelfContactSettings::default() };
-        let stats = model.enable_self_contact(&mut integrator, settings).expect("a valid start");
+        let stats = model.enable_self_contact(integrator.newton_mut(), settings).expect("a valid start");
         let mut system = model.system.clone();
         prop_assert!(intersecting_pairs(system.positions(), &triangles).is_empty(), "the start intersects");
         // A step split in pieces keeps the guarantee at every piece's end, which the
         // step does not return: the integrator records them for this check.
-        integrator.record_piece_ends(true);
+        integrator.newton_mut().record_piece_ends(true);
         for step in 0..c.steps {
             let kappa_before = ground_stats.kappa();
-            let report = integrator.step(&mut system, c.h)
-                .map_err(|e| TestCaseError::fail(format!("step {step} refused: {e}")))?;
-            let pieces = integrator.piece_ends().expect("recording");
+            let report = integrator.take_step(&mut system, c.h)
+                .map_err(|e| TestCaseError::fail(format!("{}, step {step} refused: {e}", scheme(&c))))?;
+            let newton = integrator.newton();
+            let pieces = newton.piece_ends().expect("recording");
             prop_assert_eq!(pieces.len(), report.pieces, "step {}: pieces recorded", step);
             if report.pieces > 1 {
                 STEPS_SPLIT.fetch_add(1, Ordering::Relaxed);
@@ -175,7 +196,7 @@ proptest! {
             let bad = intersecting_pairs(system.positions(), &triangles);
             prop_assert!(bad.is_empty(), "step {step}: triangles {bad:?} meet");
             prop_assert!(system.positions().iter().all(|p| p.y > 0.0), "step {step}: a vertex on or under the ground");
-            let trace = integrator.objective_trace();
+            let trace = newton.objective_trace();
             prop_assert!(!trace.is_empty() && trace.iter().all(|g| g.is_finite()));
             // The ground's barrier stiffness may grow between iterates (it doubles when a
             // particle stays close), and that changes the function g: the iterates only
@@ -197,7 +218,7 @@ proptest! {
             // Every minimization of every step, cut by the library where the ground's
             // stiffness changed the function: a split step's abandoned attempts and
             // pieces too, and the steps in which the stiffness grew.
-            for (m, w) in integrator.step_objective_traces().enumerate() {
+            for (m, w) in newton.step_objective_traces().enumerate() {
                 for (k, w) in w.windows(2).enumerate() {
                     prop_assert!(
                         w[1] <= w[0] + 1e-12 * w[0].abs().max(f64::MIN_POSITIVE),
