@@ -15,13 +15,13 @@
 //! the Hessian times 4 (the chain rule). Derivation: docs/contact.md.
 
 use super::{Collider, ContactError, ContactPotential, ContactStep, Drive};
-use crate::potential::end_state::{end_state, end_step, to_end_state, to_midpoint};
+use crate::potential::end_state::{EndStates, end_step, in_end_state};
 use crate::potential::{Gravity, HessianSink, Springs, StepContext, SymBlock, Term};
 use crate::spring::Curvature;
 use crate::{SpringSystem, StepError};
 use sinew_math::DVec3;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, PoisonError};
 
 /// The longest step the line search may try, in Newton steps (it doubles an accepted
 /// full step at most 10 times).
@@ -90,8 +90,8 @@ impl ContactStats {
 pub struct ContactTerm {
     potential: ContactPotential,
     stats: Arc<ContactStats>,
-    /// Scratch for the midpoint's end state and its direction (unused otherwise).
-    end_state: Mutex<(Vec<DVec3>, Vec<DVec3>)>,
+    /// The end states the potential is evaluated at (the midpoint's `2 z - x_n`).
+    ends: EndStates,
     /// Scratch for the other terms' gradient at the step's start.
     other_gradient: Vec<DVec3>,
 }
@@ -104,7 +104,7 @@ impl ContactTerm {
         Self {
             potential,
             stats: Arc::new(ContactStats::default()),
-            end_state: Mutex::new((Vec::new(), Vec::new())),
+            ends: EndStates::default(),
             other_gradient: Vec::new(),
         }
     }
@@ -141,45 +141,6 @@ impl ContactTerm {
     }
 }
 
-impl ContactTerm {
-    /// Runs `f` on the end-of-step positions of the iterate `x` and the direction they
-    /// move along for a direction `dx` of the unknowns (zero when `dx` is `None`), with
-    /// the chain rule's factor `dw/dz`: `x` itself and 1, or for the midpoint
-    /// `2 x - x_n` and 2.
-    fn at_end<R>(
-        &self,
-        step: &StepContext<'_>,
-        x: &[DVec3],
-        dx: Option<&[DVec3]>,
-        f: impl FnOnce(&[DVec3], &[DVec3], f64) -> R,
-    ) -> R {
-        if !step.timing.midpoint {
-            return f(x, dx.unwrap_or(&[]), 1.0);
-        }
-        let mut scratch = self
-            .end_state
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        let (w, dw) = &mut *scratch;
-        end_state(step.system, x, w);
-        dw.clear();
-        if let Some(dx) = dx {
-            dw.extend(dx.iter().map(|d| 2.0 * *d));
-        }
-        f(w, dw, 2.0)
-    }
-}
-
-/// The step over the end state the contact potential constrains, and the point its
-/// velocities (and friction's displacements) are measured from: backward Euler and BDF2
-/// minimize over the end state with the effective step and measure velocities from
-/// `x_ref`; the midpoint's end state moves as a backward Euler step of the real length
-/// from x_n (docs/contact.md).
-fn end_state_step<'a>(step: &StepContext<'a>) -> (f64, &'a [DVec3]) {
-    let ends = end_step(step);
-    (ends.h, ends.x_ref)
-}
-
 impl Term for ContactTerm {
     fn name(&self) -> &'static str {
         "contact"
@@ -201,7 +162,13 @@ impl Term for ContactTerm {
     fn begin_step(&mut self, step: &StepContext<'_>) {
         let s = step.system;
         let timing = step.timing;
-        let (h, anchor) = end_state_step(step);
+        // The step over the end state the potential constrains, and the point its
+        // velocities (and friction's displacements) are measured from: backward Euler
+        // and BDF2 minimize over the end state with the effective step and measure from
+        // `x_ref`; the midpoint's end state moves as a backward Euler step of the real
+        // length from x_n (docs/contact.md).
+        let ends = end_step(step);
+        let (h, anchor) = (ends.h, ends.x_ref);
         // The balancing start of kappa weighs the barrier against the elastic forces at
         // the step's start: gravity and the springs (bending and other added terms are
         // left out: the balance only picks a starting stiffness). The inertia term is
@@ -241,37 +208,26 @@ impl Term for ContactTerm {
     }
 
     fn relag_friction(&mut self, step: &StepContext<'_>, x: &[DVec3]) -> bool {
-        let s = step.system;
-        let (h, anchor) = end_state_step(step);
-        let mut midpoint_end = Vec::new();
-        let end = if step.timing.midpoint {
-            end_state(s, x, &mut midpoint_end);
-            midpoint_end.as_slice()
-        } else {
-            x
-        };
-        let any = self.potential.relag_friction(end, anchor, s.fixed(), h);
+        let (potential, fixed) = (&mut self.potential, step.system.fixed());
+        let any = self.ends.at_mut(step, x, |ends, w| {
+            potential.relag_friction(w, ends.x_ref, fixed, ends.h)
+        });
         self.stats.publish(&self.potential);
         any
     }
 
     fn prepare_start(&self, step: &StepContext<'_>, x: &mut [DVec3]) {
         let (x_n, fixed) = (step.system.positions(), step.system.fixed());
-        let midpoint = step.timing.midpoint;
         // The carry acts on the end state; the midpoint's is 2 z - x_n.
-        if midpoint {
-            to_end_state(x_n, x);
-        }
-        if self.potential.prepare_start(x_n, fixed, x).is_err() {
-            // The guess, partly carried, is not admissible: start from x_n carried
-            // instead, the state `Simulation::step` checked before the step (it refuses
-            // the step when even that is inside a collider).
-            x.copy_from_slice(x_n);
-            let _ = self.potential.prepare_start(x_n, fixed, x);
-        }
-        if midpoint {
-            to_midpoint(x_n, x);
-        }
+        in_end_state(step, x, |_, x| {
+            if self.potential.prepare_start(x_n, fixed, x).is_err() {
+                // The guess, partly carried, is not admissible: start from x_n carried
+                // instead, the state `Simulation::step` checked before the step (it
+                // refuses the step when even that is inside a collider).
+                x.copy_from_slice(x_n);
+                let _ = self.potential.prepare_start(x_n, fixed, x);
+            }
+        });
     }
 
     fn abandon_step(&mut self) {
@@ -282,35 +238,27 @@ impl Term for ContactTerm {
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
         let fixed = step.system.fixed();
         // Published every iteration whether or not kappa grew: the active pairs change.
-        if step.timing.midpoint {
-            let mut scratch = self
-                .end_state
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner);
-            let w = &mut scratch.0;
-            end_state(step.system, x, w);
-            self.potential.update_kappa(w, fixed);
-        } else {
-            self.potential.update_kappa(x, fixed);
-        }
+        let potential = &mut self.potential;
+        self.ends
+            .at_mut(step, x, |_, w| potential.update_kappa(w, fixed));
         self.stats.publish(&self.potential);
     }
 
     fn energy(&self, step: &StepContext<'_>, x: &[DVec3]) -> f64 {
-        self.at_end(step, x, None, |w, _, _| {
+        self.ends.at(step, x, None, |_, w, _, _| {
             self.potential.energy(w, step.system.fixed())
         })
     }
 
     fn energy_change(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
-        self.at_end(step, x, Some(dx), |w, dw, _| {
+        self.ends.at(step, x, Some(dx), |_, w, dw, _| {
             self.potential
                 .energy_change(w, dw, alpha, step.system.fixed())
         })
     }
 
     fn add_gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
-        self.at_end(step, x, None, |w, _, scale| {
+        self.ends.at(step, x, None, |_, w, _, scale| {
             self.potential
                 .add_gradient_scaled(w, step.system.fixed(), scale, gradient);
         });
@@ -323,7 +271,7 @@ impl Term for ContactTerm {
         _curvature: Curvature,
         sink: &mut HessianSink<'_>,
     ) {
-        self.at_end(step, x, None, |w, _, scale| {
+        self.ends.at(step, x, None, |_, w, _, scale| {
             let s2 = scale * scale;
             self.potential
                 .for_each_hessian_block(w, step.system.fixed(), |i, block| {
@@ -343,7 +291,7 @@ impl Term for ContactTerm {
         // cap is computed over that whole range whatever the reach (a pass over the
         // particles, cheap); nothing near within it: no cap. The
         // end state moves along its own direction by the same fraction alpha.
-        let alpha = self.at_end(step, x, Some(dx), |w, dw, _| {
+        let alpha = self.ends.at(step, x, Some(dx), |_, w, dw, _| {
             self.potential
                 .max_step(w, dw, step.system.fixed(), LINE_SEARCH_HORIZON)
         });
@@ -363,7 +311,7 @@ impl Term for ContactTerm {
 
     fn first_swept_pass(&self, step: &StepContext<'_>, x: &[DVec3]) -> Option<(usize, usize)> {
         // The path that matters is the end state's, from x_n.
-        self.at_end(step, x, None, |w, _, _| {
+        self.ends.at(step, x, None, |_, w, _, _| {
             self.potential
                 .first_swept_pass(step.system.positions(), w, step.system.fixed())
         })

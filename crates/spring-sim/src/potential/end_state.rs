@@ -23,8 +23,7 @@ use std::sync::{Mutex, PoisonError};
 #[derive(Debug)]
 pub struct AtEndOfStep<T> {
     inner: T,
-    /// The end state and its direction, reused from call to call.
-    scratch: Mutex<(Vec<DVec3>, Vec<DVec3>)>,
+    ends: EndStates,
 }
 
 impl<T: Term> AtEndOfStep<T> {
@@ -33,7 +32,7 @@ impl<T: Term> AtEndOfStep<T> {
     pub fn new(inner: T) -> Self {
         Self {
             inner,
-            scratch: Mutex::new((Vec::new(), Vec::new())),
+            ends: EndStates::default(),
         }
     }
 
@@ -42,11 +41,30 @@ impl<T: Term> AtEndOfStep<T> {
     pub fn inner(&self) -> &T {
         &self.inner
     }
+}
 
-    /// Runs `f` with the context the wrapped term sees, the end state of the iterate `x`,
-    /// the end state's direction for `dx` (empty when `None`) and the chain rule's factor
-    /// `dw/dz` (1, or 2 for the midpoint).
-    fn at_end<R>(
+/// The end states of a term over the end-of-step positions: what it sees of a step and
+/// of an iterate, and the storage for them, reused from call to call (every Newton
+/// iteration and line-search trial asks).
+#[derive(Debug, Default)]
+pub(crate) struct EndStates {
+    scratch: Mutex<EndScratch>,
+}
+
+/// An iterate's end state, its direction, and a gradient there.
+#[derive(Debug, Default)]
+struct EndScratch {
+    w: Vec<DVec3>,
+    dw: Vec<DVec3>,
+    gradient: Vec<DVec3>,
+}
+
+impl EndStates {
+    /// Runs `f` with the step a term over the end state sees ([`end_step`]), the end
+    /// state of the iterate `x`, the end state's direction for `dx` (empty when `None`)
+    /// and the chain rule's factor `dw/dz`: `x` itself and 1, or for the midpoint
+    /// `2 x - x_n` and 2.
+    pub(crate) fn at<R>(
         &self,
         step: &StepContext<'_>,
         x: &[DVec3],
@@ -56,34 +74,60 @@ impl<T: Term> AtEndOfStep<T> {
         if !step.timing.midpoint {
             return f(step, x, dx.unwrap_or(&[]), 1.0);
         }
-        let ends = end_step(step);
         let mut scratch = self.scratch.lock().unwrap_or_else(PoisonError::into_inner);
-        let (w, dw) = &mut *scratch;
-        end_state(step.system, x, w);
-        dw.clear();
+        let s = &mut *scratch;
+        end_state(step.system, x, &mut s.w);
+        s.dw.clear();
         if let Some(dx) = dx {
-            dw.extend(dx.iter().map(|d| 2.0 * *d));
+            s.dw.extend(dx.iter().map(|d| 2.0 * *d));
         }
-        f(&ends, w, dw, 2.0)
+        f(&end_step(step), &s.w, &s.dw, 2.0)
     }
 
-    /// [`Self::at_end`] for the hooks that take the term mutably.
-    fn at_end_mut<R>(
+    /// [`Self::at`] for the hooks that take the term mutably (no direction).
+    pub(crate) fn at_mut<R>(
         &mut self,
         step: &StepContext<'_>,
         x: &[DVec3],
-        f: impl FnOnce(&mut T, &StepContext<'_>, &[DVec3]) -> R,
+        f: impl FnOnce(&StepContext<'_>, &[DVec3]) -> R,
     ) -> R {
         if !step.timing.midpoint {
-            return f(&mut self.inner, step, x);
+            return f(step, x);
         }
-        let ends = end_step(step);
-        let scratch = self
+        let s = self
             .scratch
             .get_mut()
             .unwrap_or_else(PoisonError::into_inner);
-        end_state(step.system, x, &mut scratch.0);
-        f(&mut self.inner, &ends, &scratch.0)
+        end_state(step.system, x, &mut s.w);
+        f(&end_step(step), &s.w)
+    }
+
+    /// Adds to `gradient` the gradient in the unknowns of a term that `add` adds to a
+    /// gradient over the end state: the term's own for backward Euler and BDF2, twice
+    /// its gradient at the end state (collected in a zeroed vector of the scratch) for
+    /// the midpoint.
+    pub(crate) fn add_gradient(
+        &self,
+        step: &StepContext<'_>,
+        x: &[DVec3],
+        gradient: &mut [DVec3],
+        add: impl FnOnce(&StepContext<'_>, &[DVec3], &mut [DVec3]),
+    ) {
+        if !step.timing.midpoint {
+            add(step, x, gradient);
+            return;
+        }
+        let mut scratch = self.scratch.lock().unwrap_or_else(PoisonError::into_inner);
+        let EndScratch {
+            w, gradient: own, ..
+        } = &mut *scratch;
+        end_state(step.system, x, w);
+        own.clear();
+        own.resize(gradient.len(), DVec3::ZERO);
+        add(&end_step(step), w, own);
+        for (g, o) in gradient.iter_mut().zip(own.iter()) {
+            *g += 2.0 * *o;
+        }
     }
 }
 
@@ -97,15 +141,23 @@ pub(crate) fn end_state(system: &SpringSystem, z: &[DVec3], w: &mut Vec<DVec3>) 
     );
 }
 
-/// Replaces the midpoint `z` in `x` by its end state `2 z - x_n`.
-pub(crate) fn to_end_state(x_n: &[DVec3], x: &mut [DVec3]) {
+/// Runs `f` on the end state of the iterate `x`, in place, with the step a term over
+/// the end state sees, and leaves in `x` the iterate of the end state `f` leaves (for
+/// the midpoint: `x` replaced by `2 x - x_n`, then by `(w + x_n)/2`).
+pub(crate) fn in_end_state(
+    step: &StepContext<'_>,
+    x: &mut [DVec3],
+    f: impl FnOnce(&StepContext<'_>, &mut [DVec3]),
+) {
+    if !step.timing.midpoint {
+        f(step, x);
+        return;
+    }
+    let x_n = step.system.positions();
     for (z, x0) in x.iter_mut().zip(x_n) {
         *z = 2.0 * *z - *x0;
     }
-}
-
-/// Replaces the end state `w` in `x` by its midpoint `(w + x_n)/2`.
-pub(crate) fn to_midpoint(x_n: &[DVec3], x: &mut [DVec3]) {
+    f(&end_step(step), x);
     for (w, x0) in x.iter_mut().zip(x_n) {
         *w = 0.5 * (*w + *x0);
     }
@@ -143,48 +195,34 @@ impl<T: Term> Term for AtEndOfStep<T> {
     }
 
     fn relag_friction(&mut self, step: &StepContext<'_>, x: &[DVec3]) -> bool {
-        self.at_end_mut(step, x, |t, s, w| t.relag_friction(s, w))
+        let inner = &mut self.inner;
+        self.ends.at_mut(step, x, |s, w| inner.relag_friction(s, w))
     }
 
     fn prepare_start(&self, step: &StepContext<'_>, x: &mut [DVec3]) {
-        if !step.timing.midpoint {
-            self.inner.prepare_start(step, x);
-            return;
-        }
-        let x_n = step.system.positions();
-        to_end_state(x_n, x);
-        self.inner.prepare_start(&end_step(step), x);
-        to_midpoint(x_n, x);
+        in_end_state(step, x, |s, w| self.inner.prepare_start(s, w));
     }
 
     fn update_active_set(&mut self, step: &StepContext<'_>, x: &[DVec3]) {
-        self.at_end_mut(step, x, |t, s, w| t.update_active_set(s, w));
+        let inner = &mut self.inner;
+        self.ends
+            .at_mut(step, x, |s, w| inner.update_active_set(s, w));
     }
 
     fn energy(&self, step: &StepContext<'_>, x: &[DVec3]) -> f64 {
-        self.at_end(step, x, None, |s, w, _, _| self.inner.energy(s, w))
+        self.ends
+            .at(step, x, None, |s, w, _, _| self.inner.energy(s, w))
     }
 
     fn energy_change(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], alpha: f64) -> f64 {
-        if !step.timing.midpoint {
-            return self.inner.energy_change(step, x, dx, alpha);
-        }
-        self.at_end(step, x, Some(dx), |s, w, dw, _| {
+        self.ends.at(step, x, Some(dx), |s, w, dw, _| {
             self.inner.energy_change(s, w, dw, alpha)
         })
     }
 
     fn add_gradient(&self, step: &StepContext<'_>, x: &[DVec3], gradient: &mut [DVec3]) {
-        if !step.timing.midpoint {
-            self.inner.add_gradient(step, x, gradient);
-            return;
-        }
-        self.at_end(step, x, None, |s, w, _, scale| {
-            let mut own = vec![DVec3::ZERO; gradient.len()];
-            self.inner.add_gradient(s, w, &mut own);
-            for (g, o) in gradient.iter_mut().zip(&own) {
-                *g += scale * *o;
-            }
+        self.ends.add_gradient(step, x, gradient, |s, w, g| {
+            self.inner.add_gradient(s, w, g);
         });
     }
 
@@ -199,7 +237,7 @@ impl<T: Term> Term for AtEndOfStep<T> {
             self.inner.add_hessian(step, x, curvature, sink);
             return;
         }
-        self.at_end(step, x, None, |s, w, _, scale| {
+        self.ends.at(step, x, None, |s, w, _, scale| {
             sink.add_scaled(scale * scale, |own| {
                 self.inner.add_hessian(s, w, curvature, own);
             });
@@ -215,11 +253,8 @@ impl<T: Term> Term for AtEndOfStep<T> {
     }
 
     fn max_step(&self, step: &StepContext<'_>, x: &[DVec3], dx: &[DVec3], reach: f64) -> f64 {
-        if !step.timing.midpoint {
-            return self.inner.max_step(step, x, dx, reach);
-        }
         // The end state moves along its own direction by the same fraction alpha.
-        self.at_end(step, x, Some(dx), |s, w, dw, _| {
+        self.ends.at(step, x, Some(dx), |s, w, dw, _| {
             self.inner.max_step(s, w, dw, reach)
         })
     }
@@ -233,7 +268,7 @@ impl<T: Term> Term for AtEndOfStep<T> {
     }
 
     fn first_swept_pass(&self, step: &StepContext<'_>, x: &[DVec3]) -> Option<(usize, usize)> {
-        self.at_end(step, x, None, |s, w, _, _| {
+        self.ends.at(step, x, None, |s, w, _, _| {
             self.inner.first_swept_pass(s, w)
         })
     }
