@@ -296,10 +296,10 @@ fn bdf2_and_the_midpoint_hold_or_slide_a_sheet_on_a_sheet_as_coulomb_says() {
         );
         // Settling onto the barrier from its 0.5 mm start gap, which these schemes damp
         // less than backward Euler, the sheet slips in its first steps (measured: up to
-        // 0.14 m/s for BDF2 at step 5, 0.073 m/s for the midpoint at step 4, against
-        // 1.2e-3 for backward Euler; lagging friction four times a step does not change
-        // that), then holds from step 9 on like backward Euler (4.7e-4 m/s, the creep of
-        // the smoothed friction).
+        // 0.14 m/s for BDF2 in its fifth step, 0.073 m/s for the midpoint in its fourth,
+        // against 1.2e-3 for backward Euler; lagging friction four times a step does not
+        // change that), then holds from its tenth step on like backward Euler (4.7e-4
+        // m/s, the creep of the smoothed friction).
         let (speeds, _) = slide_in(scheme, 14, 0.3, theta, 0.8, 30, H);
         for (step, s) in speeds.iter().enumerate().skip(9) {
             assert!(s.abs() < eps_v, "{scheme:?} step {step}: creeping at {s}");
