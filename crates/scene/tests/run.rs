@@ -200,9 +200,10 @@ fn friction_between_sheets_holds_or_lets_slide_as_mu_says() {
 
 /// The incline scene in the two second-order schemes (`integrator: bdf2` and
 /// `implicit_midpoint`): self-contact and its friction act on the end-of-step state in
-/// each, so the held sheet stays within a centimetre (it slips while it settles onto the
-/// barrier, which these schemes damp less than backward Euler: 7.3 mm for BDF2, 3.8 mm
-/// for the midpoint, 1.2 mm for backward Euler), the sliding one travels about
+/// each, so the held sheet stays within a few millimetres (it slips while it settles
+/// onto the barrier, which these schemes damp less than backward Euler: 2.2 mm for BDF2,
+/// 7.3 mm when its first step was an undamped midpoint step, 3.8 mm for the midpoint,
+/// 1.2 mm for backward Euler), the sliding one travels about
 /// Coulomb's quarter metre (0.23 m in both; 0.26 m over 0.4 s from rest, 0.39 m without
 /// friction), and no triangles meet.
 #[test]
@@ -231,7 +232,8 @@ fn the_incline_holds_or_slides_in_bdf2_and_the_midpoint() {
                 m.free_mean_displacement
             })
             .collect();
-        assert!(travel[0] < 1e-2, "{scheme}: {travel:?}");
+        let held = if scheme == "bdf2" { 5e-3 } else { 1e-2 };
+        assert!(travel[0] < held, "{scheme}: {travel:?}");
         assert!(travel[1] > 0.2 && travel[1] < 0.3, "{scheme}: {travel:?}");
     }
 }

@@ -9,7 +9,8 @@
 //! - BDF2 with `2h/3` and `y = (4x_n - x_{n-1})/3 + 2h/3 (4v_n - v_{n-1})/3`,
 //!   `v' = (x' - (4x_n - x_{n-1})/3)/(2h/3)`; second order, damps the stiff modes
 //!   (L-stable) but far less than backward Euler. Its first step, and any step after
-//!   the step length or the state changed from outside, is a midpoint step.
+//!   the step length or the state changed from outside, is a backward Euler step (so
+//!   the method stays second order: one step's local error is `O(h^2)`).
 
 use crate::model::{ModelError, SpringSystem};
 use crate::newton::{BackwardEuler, NewtonSettings, Scheme};
@@ -121,7 +122,7 @@ impl Bdf2 {
     }
 
     /// Advances `system` by `h`: BDF2 when the last step had the same length, else a
-    /// midpoint step that starts the history (reported as BDF2 either way).
+    /// backward Euler step that starts the history (reported as BDF2 either way).
     pub fn step(&mut self, system: &mut SpringSystem, h: f64) -> Result<StepReport, StepError> {
         // Checked before the history buffers are touched (the Newton step checks again).
         self.newton.check_topology(system)?;
@@ -137,19 +138,22 @@ impl Bdf2 {
                 },
             )?
         } else {
-            self.newton.step_scheme(system, h, Scheme::Midpoint)?
+            // Backward Euler, not the midpoint: a state not at equilibrium (a cloth
+            // released inside the contact distance, a compressed sheet) is damped instead
+            // of thrown, which the undamped midpoint does (docs/integrators.md, "BDF2").
+            self.newton.step_scheme(system, h, Scheme::BackwardEuler)?
         };
-        // The starting midpoint step is part of the BDF2 integrator.
+        // The starting step is part of the BDF2 integrator.
         report.integrator = crate::report::IntegratorKind::Bdf2;
         std::mem::swap(&mut self.prev_x, &mut self.start_x);
         std::mem::swap(&mut self.prev_v, &mut self.start_v);
-        // A step split in pieces ended with a midpoint piece shorter than h: the state
+        // A step split in pieces ended with a piece shorter than h: the state
         // before it is not one step of h back, so the history restarts.
         self.prev_h = (report.pieces == 1).then_some(h);
         Ok(report)
     }
 
-    /// Forgets the history (the next step is a midpoint step); call after changing the
+    /// Forgets the history (the next step is a backward Euler step); call after changing the
     /// state by hand.
     pub fn reset_history(&mut self) {
         self.prev_h = None;

@@ -621,10 +621,10 @@ impl AutoStepper {
             self.current = Some(IntegratorKind::VelocityVerlet);
             report
         } else if reason == AutoReason::ExplicitUnstable {
-            // Backward Euler, not BDF2: after Verlet the BDF2 history is stale and BDF2
-            // restarts with an undamped midpoint step, which from a state this far from
-            // equilibrium took Newton hundreds of iterations and split pieces where
-            // backward Euler's damped step takes tens (docs/integrators.md, `auto`).
+            // Backward Euler, not BDF2: a descent with an energy inequality, from a state
+            // this far from equilibrium (when BDF2 restarted with an undamped midpoint
+            // step there, Newton took hundreds of iterations and split pieces where
+            // backward Euler's damped step takes tens: docs/integrators.md, `auto`).
             if self.fallback.is_none() {
                 let mut be = Box::new(BackwardEuler::new(system, self.settings.newton)?);
                 be.set_time(self.time);

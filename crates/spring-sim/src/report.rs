@@ -47,8 +47,8 @@ pub enum AutoReason {
     /// than half the energy scale in one step (the bound, taken at the step's start, no
     /// longer held as springs shortened within the step): the step was redone from its
     /// start by backward Euler (first order and damping, but a descent on the step's
-    /// incremental potential that Newton solves in a few iterations from such a state;
-    /// BDF2 would restart with an undamped midpoint step).
+    /// incremental potential that Newton solves in a few iterations from such a state,
+    /// with an energy inequality that BDF2's steps after its first lack).
     ExplicitUnstable,
 }
 

@@ -1,6 +1,5 @@
 //! The self-contact guarantee of sinew-spring-sim's backward Euler and BDF2 (half the
-//! cases each; BDF2's first step is an implicit midpoint step, whose barrier acts on its
-//! end state), checked independently on random crumpled sheets dropped onto the ground with large steps: no
+//! cases each; BDF2's first step is a backward Euler step), checked independently on random crumpled sheets dropped onto the ground with large steps: no
 //! two triangles that share no vertex ever meet (the exact check of
 //! `sinew_exact`, robust's orientation predicates, no code shared with the
 //! solver) and no vertex is on or under the ground, after every step and after every

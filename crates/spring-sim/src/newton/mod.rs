@@ -67,6 +67,20 @@ pub(crate) enum Scheme<'a> {
     },
 }
 
+impl Scheme<'_> {
+    /// The scheme of the pieces a split step of this scheme is taken in: the midpoint's
+    /// are midpoint steps; BDF2's are backward Euler steps, its own starting step (a
+    /// BDF2 step of `h/2` would need a history at spacing `h/2`, which a step of `h`
+    /// does not have, and a split step is a hard one, where backward Euler's damping
+    /// is wanted: docs/integrators.md, "BDF2").
+    fn piece(self) -> Scheme<'static> {
+        match self {
+            Scheme::Midpoint => Scheme::Midpoint,
+            Scheme::BackwardEuler | Scheme::Bdf2 { .. } => Scheme::BackwardEuler,
+        }
+    }
+}
+
 /// The backward Euler integrator: Newton on the incremental potential, with its
 /// workspace (pattern, factorization, buffers) built once for a topology.
 ///
@@ -751,12 +765,7 @@ impl BackwardEuler {
         // The attempt is abandoned: the terms forget what its solve adapted (contact's
         // barrier stiffness), so the pieces run as if asked for one by one.
         self.potential.abandon_step();
-        // BDF2's pieces are midpoint steps, its own starting step: a BDF2 step of h/2
-        // would need a history at spacing h/2, which a step of h does not have.
-        let piece = match scheme {
-            Scheme::BackwardEuler => Scheme::BackwardEuler,
-            Scheme::Midpoint | Scheme::Bdf2 { .. } => Scheme::Midpoint,
-        };
+        let piece = scheme.piece();
         // Backward Euler promises its energy inequality for the step asked for (below),
         // not for each piece: it is checked once, for the whole step, with the start
         // state and the abandoned iterate kept to fall back on.
@@ -881,10 +890,7 @@ impl BackwardEuler {
         depth: usize,
         start: f64,
     ) -> Result<StepReport, StepError> {
-        let piece = match scheme {
-            Scheme::BackwardEuler => Scheme::BackwardEuler,
-            Scheme::Midpoint | Scheme::Bdf2 { .. } => Scheme::Midpoint,
-        };
+        let piece = scheme.piece();
         let skipped = StepReport::new(match scheme {
             Scheme::BackwardEuler => IntegratorKind::BackwardEuler,
             Scheme::Midpoint => IntegratorKind::ImplicitMidpoint,

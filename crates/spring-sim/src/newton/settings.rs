@@ -100,8 +100,8 @@ pub struct NewtonSettings {
     /// [`crate::StepReport::unconverged_pieces`] how many pieces at the deepest split
     /// still stopped far from converged (their stop is the step's `stop`). A step that
     /// converges at once is never split and costs nothing more. Implicit midpoint is
-    /// split into midpoint steps; a BDF2 step into midpoint steps (its own starting
-    /// step), after which BDF2 restarts its history. Steps with kinematic colliders are
+    /// split into midpoint steps; a BDF2 step into backward Euler steps (its own
+    /// starting step), after which BDF2 restarts its history. Steps with kinematic colliders are
     /// split too: each piece is given its own start time, from which the contact term
     /// poses the colliders, and an abandoned solve's barrier stiffness is rewound. A
     /// solve whose end state leaves a particle passed by a kinematic collider (its

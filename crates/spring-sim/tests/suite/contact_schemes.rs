@@ -143,7 +143,12 @@ fn friction_holds_a_sheet_when_mu_exceeds_tan_theta() {
         } else {
             speeds.clone()
         };
-        let worst = seen[5..].iter().fold(0.0f64, |m, s| m.max(s.abs()));
+        // Backward Euler and BDF2 (whose first step is a backward Euler step) hold from
+        // the first step; the midpoint's sheet, released half the contact distance
+        // inside the barrier, bounces off it and slips while the normal force dips
+        // (BDF2's did too when it started with a midpoint step: 21 mm/s).
+        let settled = if name == "implicit midpoint" { 5 } else { 0 };
+        let worst = seen[settled..].iter().fold(0.0f64, |m, s| m.max(s.abs()));
         println!("{name}: fastest creep {worst}");
         assert!(worst < eps_v, "{name}: creeping at {worst}");
     }

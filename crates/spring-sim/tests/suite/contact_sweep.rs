@@ -196,9 +196,9 @@ fn a_sphere_rising_through_a_sheet_within_a_step_lifts_it() {
                 );
             }
             let end = sweep.end;
-            // The middle particle is above the sphere: carried on it (backward Euler),
-            // or thrown ahead of it by the barrier's rebound (the less dissipative BDF2
-            // and midpoint), never left behind.
+            // The middle particle is above the sphere: carried on it (backward Euler, and
+            // BDF2, whose start and pieces are backward Euler steps), or thrown ahead of
+            // it by the barrier's rebound (the undamped midpoint), never left behind.
             let top = -0.11 + speed * steps as f64 * H + 0.1;
             let y = end[MIDDLE].y;
             println!(

@@ -277,9 +277,8 @@ fn bad_friction_settings_are_errors_naming_them() {
 /// (below). The acceleration is taken over steps 12 to 44 on a 24 x 24 lower sheet (the 14 x 14
 /// one is left after about 30 steps): over shorter windows it moves by some 0.3% either
 /// way in every scheme as the rows pass the lower edges (backward Euler 3.1974 to 3.2063
-/// over windows of 12 to 16 steps), and BDF2 settles onto the barrier more slowly (3.1900
-/// over steps 8 to 24). Measured over 12 to 44: backward Euler 3.2007, BDF2 3.1973,
-/// midpoint 3.2068, against 3.2059.
+/// over windows of 12 to 16 steps). Measured over 12 to 44: backward Euler 3.2007, BDF2
+/// 3.2106, midpoint 3.2068, against 3.2059.
 #[test]
 fn bdf2_and_the_midpoint_hold_or_slide_a_sheet_on_a_sheet_as_coulomb_says() {
     let theta = 30f64.to_radians();
@@ -295,13 +294,16 @@ fn bdf2_and_the_midpoint_hold_or_slide_a_sheet_on_a_sheet_as_coulomb_says() {
             "{scheme:?}: {measured} vs {coulomb}"
         );
         // Settling onto the barrier from its 0.5 mm start gap, which these schemes damp
-        // less than backward Euler, the sheet slips in its first steps (measured: up to
-        // 0.14 m/s for BDF2 in its fifth step, 0.073 m/s for the midpoint in its fourth,
-        // against 1.2e-3 for backward Euler; lagging friction four times a step does not
-        // change that), then holds from its tenth step on like backward Euler (4.7e-4
-        // m/s, the creep of the smoothed friction).
+        // less than backward Euler, the sheet slips in its first steps while it bounces
+        // on the barrier, which is conservative, and the normal force, and with it
+        // friction, dips (measured: up to 0.039 m/s for BDF2 in its fourth step, 0.073 m/s
+        // for the midpoint in its fourth, against 1.2e-3 for backward Euler). BDF2 holds
+        // from its fifth step on like backward Euler (4.7e-4 m/s, the creep of the smoothed friction),
+        // the midpoint from its tenth. When BDF2 started with an undamped midpoint step
+        // its slip reached 0.14 m/s and it held from its tenth step.
         let (speeds, _) = slide_in(scheme, 14, 0.3, theta, 0.8, 30, H);
-        for (step, s) in speeds.iter().enumerate().skip(9) {
+        let settled = if scheme == Scheme::Bdf2 { 4 } else { 9 };
+        for (step, s) in speeds.iter().enumerate().skip(settled) {
             assert!(s.abs() < eps_v, "{scheme:?} step {step}: creeping at {s}");
         }
     }

@@ -163,7 +163,7 @@ fn a_split_midpoint_step_is_its_pieces_taken_by_hand() {
     assert_eq!(split_system.velocities(), by_hand_system.velocities());
 }
 
-/// BDF2 splits into midpoint steps (its starting step) and converges.
+/// BDF2 splits into backward Euler steps (its starting step) and converges.
 #[test]
 fn a_bdf2_step_left_at_the_cap_converges_in_pieces() {
     let (k, h) = (1e7, 1.0 / 4.0);

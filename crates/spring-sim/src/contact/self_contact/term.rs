@@ -2366,8 +2366,8 @@ pub fn enable_self_contact(
     crate::contact::refuse_second(integrator, "self-contact")?;
     let term = SelfContactTerm::new(system, triangles, settings)?;
     let stats = term.stats();
-    // Wrapped so the implicit midpoint (and BDF2's starting midpoint steps) evaluate it
-    // at the end state.
+    // Wrapped so the implicit midpoint evaluates it at the end state (the wrapper passes
+    // straight through for backward Euler and BDF2).
     integrator.add_term(Box::new(AtEndOfStep::new(term)));
     Ok(stats)
 }
