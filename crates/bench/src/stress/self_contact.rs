@@ -2,7 +2,7 @@
 //! border, both one triangle mesh with self-contact (the IPC barrier between its own
 //! vertices, triangles and edges, the line search capped by continuous collision
 //! detection), at every stiffness x time step x drop speed, without and with friction
-//! between the sheets. After every accepted step the
+//! between the sheets, by backward Euler and by BDF2. After every accepted step the
 //! mesh is checked for triangles passing through each other by the exact check of
 //! [`sinew_exact`], which shares no code with the solver; any intersection,
 //! a non-finite value or a refused step fails the case.
@@ -13,7 +13,7 @@ use sinew_exact::intersecting_pairs;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, StepStop, TriangleMesh,
+    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinnedStepper, StepStop, TriangleMesh,
 };
 use std::time::Instant;
 
@@ -26,9 +26,26 @@ pub const SELF_DHAT: f64 = 2e-3;
 /// The cloth's thickness, m.
 pub const SELF_THICKNESS: f64 = 1e-3;
 
+/// The implicit scheme a self-contact case is stepped by.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SelfContactScheme {
+    /// Backward Euler.
+    BackwardEuler,
+    /// BDF2 (its first step, and the pieces of a split step, backward Euler steps).
+    Bdf2,
+}
+
+impl SelfContactScheme {
+    /// Every scheme, in table order.
+    pub const ALL: [Self; 2] = [Self::BackwardEuler, Self::Bdf2];
+}
+
 /// One self-contact case.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct SelfContactCase {
+    /// The implicit scheme.
+    pub scheme: SelfContactScheme,
     /// Particles per side of each sheet.
     pub grid: usize,
     /// Stiffness of every spring, N/m.
@@ -44,24 +61,30 @@ pub struct SelfContactCase {
 }
 
 impl SelfContactCase {
-    /// A label for messages: `2x6x6 k=1e4 dt=1/60 v=5 mu=0.5`.
+    /// A label for messages: `2x6x6 k=1e4 dt=1/60 v=5 mu=0.5`, with ` bdf2` after it
+    /// for BDF2.
     #[must_use]
     pub fn label(&self) -> String {
         format!(
-            "2x{0}x{0} k={1:.0e} dt={2} v={3} mu={4}",
+            "2x{0}x{0} k={1:.0e} dt={2} v={3} mu={4}{5}",
             self.grid,
             self.stiffness,
             super::cloth::dt_label(self.dt),
             self.speed,
-            self.mu
+            self.mu,
+            match self.scheme {
+                SelfContactScheme::BackwardEuler => "",
+                SelfContactScheme::Bdf2 => " bdf2",
+            }
         )
     }
 }
 
-/// The cases: stiffness x time step x drop speed x friction. Quick: 5 x 5 sheets,
-/// stiffness 1e2 and 1e4, dt 1/60 and 1/4, speed 0 and 5 m/s, `mu` 0 and 0.5, 8 steps (16
-/// cases). Full: 8 x 8 sheets, stiffness 1e1, 1e3, 1e5, dt 1/240, 1/60, 1/4, speed 0, 2,
-/// 10 m/s, `mu` 0 and 0.5, 30 steps (54 cases).
+/// The cases: scheme x stiffness x time step x drop speed x friction, backward Euler's
+/// first. Quick: 5 x 5 sheets, stiffness 1e2 and 1e4, dt 1/60 and 1/4, speed 0 and 5 m/s,
+/// `mu` 0 and 0.5, 8 steps (16 cases a scheme, 32 in all). Full: 8 x 8 sheets, stiffness
+/// 1e1, 1e3, 1e5, dt 1/240, 1/60, 1/4, speed 0, 2, 10 m/s, `mu` 0 and 0.5, 30 steps (54
+/// cases a scheme, 108 in all).
 #[must_use]
 pub fn self_contact_cases(quick: bool) -> Vec<SelfContactCase> {
     let (grid, stiffnesses, dts, speeds, steps): (usize, &[f64], &[f64], &[f64], usize) = if quick {
@@ -76,18 +99,21 @@ pub fn self_contact_cases(quick: bool) -> Vec<SelfContactCase> {
         )
     };
     let mut cases = Vec::new();
-    for &stiffness in stiffnesses {
-        for &dt in dts {
-            for &speed in speeds {
-                for mu in [0.0, 0.5] {
-                    cases.push(SelfContactCase {
-                        grid,
-                        stiffness,
-                        dt,
-                        speed,
-                        mu,
-                        steps,
-                    });
+    for scheme in SelfContactScheme::ALL {
+        for &stiffness in stiffnesses {
+            for &dt in dts {
+                for &speed in speeds {
+                    for mu in [0.0, 0.5] {
+                        cases.push(SelfContactCase {
+                            scheme,
+                            grid,
+                            stiffness,
+                            dt,
+                            speed,
+                            mu,
+                            steps,
+                        });
+                    }
                 }
             }
         }
@@ -206,7 +232,15 @@ pub fn run_self_contact_case(case: &SelfContactCase) -> SelfContactOutcome {
         max_iterations: 100,
         ..NewtonSettings::default()
     };
-    let mut integrator = match model.backward_euler(settings) {
+    let built: Result<Box<dyn PinnedStepper>, _> = match case.scheme {
+        SelfContactScheme::BackwardEuler => model
+            .backward_euler(settings)
+            .map(|i| Box::new(i) as Box<dyn PinnedStepper>),
+        SelfContactScheme::Bdf2 => model
+            .bdf2(settings)
+            .map(|i| Box::new(i) as Box<dyn PinnedStepper>),
+    };
+    let mut integrator = match built {
         Ok(i) => i,
         Err(e) => {
             out.failures
@@ -220,7 +254,7 @@ pub fn run_self_contact_case(case: &SelfContactCase) -> SelfContactOutcome {
         mu: case.mu,
         ..SelfContactSettings::default()
     };
-    let stats = match model.enable_self_contact(&mut integrator, contact) {
+    let stats = match model.enable_self_contact(integrator.newton_mut(), contact) {
         Ok(s) => s,
         Err(e) => {
             out.failures
@@ -245,9 +279,9 @@ pub fn run_self_contact_case(case: &SelfContactCase) -> SelfContactOutcome {
     }
     // The guarantee holds at the end of every piece of a split step, which the step
     // does not return: the integrator records them for the exact check.
-    integrator.record_piece_ends(true);
+    integrator.newton_mut().record_piece_ends(true);
     for step in 0..case.steps {
-        let report = match integrator.step(&mut system, case.dt) {
+        let report = match integrator.take_step(&mut system, case.dt) {
             Ok(r) => r,
             Err(e) => {
                 out.failures.push(format!("step {step} refused: {e}"));
@@ -274,7 +308,7 @@ pub fn run_self_contact_case(case: &SelfContactCase) -> SelfContactOutcome {
         out.far
             .note(step, &report, residual_floor(&system, case.dt, &report));
         // Every piece's end state: the step's own is the last.
-        let pieces = integrator.piece_ends().expect("recording");
+        let pieces = integrator.newton().piece_ends().expect("recording");
         if pieces.len() != report.pieces {
             out.failures.push(format!(
                 "step {step}: {} pieces recorded, {} reported",
@@ -334,15 +368,22 @@ mod tests {
 
     #[test]
     fn a_quick_case_runs_without_intersections_and_comes_into_contact() {
-        let case = SelfContactCase {
-            grid: 4,
-            stiffness: 1e3,
-            dt: 1.0 / 60.0,
-            speed: 2.0,
-            mu: 0.5,
-            steps: 4,
-        };
-        let out = run_self_contact_case(&case);
+        for scheme in SelfContactScheme::ALL {
+            let case = SelfContactCase {
+                scheme,
+                grid: 4,
+                stiffness: 1e3,
+                dt: 1.0 / 60.0,
+                speed: 2.0,
+                mu: 0.5,
+                steps: 4,
+            };
+            quick_case(&case);
+        }
+    }
+
+    fn quick_case(case: &SelfContactCase) {
+        let out = run_self_contact_case(case);
         assert!(out.failures.is_empty(), "{:?}", out.failures);
         assert_eq!(out.steps_run, 4);
         assert_eq!(out.intersections, 0);
