@@ -7,12 +7,14 @@
 //! or chosen from the stability bound of [`crate::stability`]; `auto` picks among them per
 //! step and says why in the [`StepReport`]. The rules are in docs/integrators.md.
 
+use crate::contact::self_contact::{SelfContactSettings, SelfContactStats, enable_self_contact};
 use crate::contact::{
     Collider, ContactError, ContactPotential, ContactSettings, ContactStats, ContactTerm, Drive,
     project_particle, signed_distance,
 };
 use crate::explicit::{SymplecticEuler, VelocityVerlet};
 use crate::implicit::{Bdf2, ImplicitMidpoint};
+use crate::mesh::MeshClothModel;
 use crate::model::{ModelError, SettingsError, SpringSystem};
 use crate::newton::{BackwardEuler, NewtonSettings};
 use crate::pins::{PIN_SPLIT_DEPTH, PinDriver, PinnedMotion, PinnedStepper, step_to_targets};
@@ -770,6 +772,108 @@ impl Simulation {
             contact: None,
             pins: None,
         })
+    }
+
+    /// A simulation of a mesh cloth ([`crate::MeshCloth::build`]): its system stepped by
+    /// `integrator`, with the dihedral bending term (for [`crate::Bending::Dihedral`]) in
+    /// the integrator's potential, as [`MeshClothModel::backward_euler`] adds it. Add
+    /// self-contact with [`Self::set_self_contact`] and the model's triangles.
+    ///
+    /// The dihedral term is a term of the implicit integrators' potential: with the
+    /// explicit integrators, `auto` or the flawed reference method it is an error naming
+    /// the integrator (bending springs, [`crate::Bending::Springs`], run in every
+    /// integrator).
+    ///
+    /// ```
+    /// use sinew_spring_sim::contact::self_contact::SelfContactSettings;
+    /// use sinew_spring_sim::{Bending, ClothGrid, DVec3, Integrator, Material, MeshCloth};
+    /// use sinew_spring_sim::{NewtonSettings, Simulation, TriangleMesh};
+    ///
+    /// // An 8 x 8 sheet held along one edge, with dihedral bending and self-contact.
+    /// let grid = ClothGrid { size: 8, spacing: 0.05, ..ClothGrid::lab() };
+    /// let (positions, triangles) = grid.sheet(DVec3::X, DVec3::Z, 0);
+    /// let mesh = TriangleMesh::new(positions, triangles)?;
+    /// let cloth = MeshCloth {
+    ///     areal_density: 0.2,
+    ///     material: Material::earth(),
+    ///     bending: Bending::Dihedral { stiffness: 1e-3 },
+    ///     fixed: (0..8).collect(),
+    /// };
+    /// let model = cloth.build(&mesh)?;
+    /// let mut sim =
+    ///     Simulation::from_mesh_cloth(&model, Integrator::Bdf2(NewtonSettings::default()))?;
+    /// let settings = SelfContactSettings { dhat: 1e-3, ..SelfContactSettings::default() };
+    /// let stats = sim.set_self_contact(&model.triangles, settings)?;
+    /// for _ in 0..10 {
+    ///     let report = sim.step(1.0 / 60.0)?;
+    ///     assert!(report.residual <= report.tolerance);
+    /// }
+    /// assert!(sinew_exact::intersecting_pairs(sim.system().positions(), &model.triangles).is_empty());
+    /// assert!(stats.min_gap() > 0.0);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn from_mesh_cloth(
+        model: &MeshClothModel,
+        integrator: Integrator,
+    ) -> Result<Self, ModelError> {
+        let mut sim = Self::new(model.system.clone(), integrator)?;
+        if model.bending.is_some() {
+            let auto = matches!(sim.stepper, Stepper::Auto(_));
+            let Some(newton) = sim.newton_workspace_mut() else {
+                return Err(ModelError::BadParameter {
+                    name: "integrator",
+                    reason: if auto {
+                        "auto has no place for the dihedral bending term (its explicit steps take springs only): choose backward Euler, BDF2 or implicit midpoint, or bending springs"
+                    } else {
+                        "the explicit integrators have no place for the dihedral bending term (they take springs only): choose backward Euler, BDF2 or implicit midpoint, or bending springs"
+                    },
+                });
+            };
+            model.add_bending(newton)?;
+        }
+        Ok(sim)
+    }
+
+    /// Adds self-contact of the cloth with itself, its surface the given `triangles`
+    /// (a mesh cloth's [`MeshClothModel::triangles`], a grid's
+    /// [`crate::ClothGrid::triangles`]): IPC's barrier between every vertex and triangle
+    /// and every two edges that share no vertex, with the line search capped by
+    /// continuous collision detection, so no accepted state (and no piece's end state)
+    /// has two triangles passing through each other
+    /// ([`crate::contact::self_contact::enable_self_contact`], docs/contact.md). Returns
+    /// the term's statistics. Backward Euler, BDF2 and implicit midpoint only: other
+    /// integrators are [`ContactError::SelfContactUnsupported`]. The settings, the
+    /// triangles and the current state are checked (the error names the setting, the
+    /// triangle or the two primitives); a second call is [`ContactError::AddedTwice`].
+    pub fn set_self_contact(
+        &mut self,
+        triangles: &[[usize; 3]],
+        settings: SelfContactSettings,
+    ) -> Result<Arc<SelfContactStats>, ContactError> {
+        let integrator = self.integrator_name();
+        let newton = match &mut self.stepper {
+            Stepper::BackwardEuler(be) => &mut **be,
+            Stepper::Bdf2(b) => b.newton_mut(),
+            Stepper::Midpoint(m) => m.newton_mut(),
+            _ => return Err(ContactError::SelfContactUnsupported { integrator }),
+        };
+        enable_self_contact(newton, &self.system, triangles, settings)
+    }
+
+    /// The integrator's name, for messages.
+    fn integrator_name(&self) -> &'static str {
+        match &self.stepper {
+            Stepper::BackwardEuler(_) => "backward Euler",
+            Stepper::SymplecticEuler(_) => "symplectic Euler",
+            Stepper::Flawed(_) => "the flawed reference method",
+            Stepper::Bdf2(_) => "BDF2",
+            Stepper::Midpoint(_) => "implicit midpoint",
+            Stepper::Bounded(b) => match b.method {
+                ExplicitMethod::Verlet(_) => "velocity Verlet",
+                ExplicitMethod::SymplecticEuler(_) => "symplectic Euler (bounded)",
+            },
+            Stepper::Auto(_) => "auto",
+        }
     }
 
     /// The implicit stepper, for moving pins (`None` for the explicit integrators and

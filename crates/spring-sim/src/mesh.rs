@@ -389,7 +389,7 @@ impl MeshClothModel {
 
     /// Adds the dihedral bending term, if the material has one, with the Hessian pattern
     /// widened for its hinge pairs.
-    fn add_bending(&self, integrator: &mut BackwardEuler) -> Result<(), ModelError> {
+    pub(crate) fn add_bending(&self, integrator: &mut BackwardEuler) -> Result<(), ModelError> {
         if let Some(term) = &self.bending {
             let pairs = term.coupled_pairs();
             integrator.add_coupled_term(&self.system, Box::new(term.clone()), &pairs)?;

@@ -71,6 +71,12 @@ pub enum ContactError {
         /// What is not supported (an integrator's name, or the request).
         what: &'static str,
     },
+    /// Self-contact was asked of an integrator without a Newton workspace to hold its
+    /// barrier (the explicit integrators, `auto`, the flawed reference method).
+    SelfContactUnsupported {
+        /// The integrator's name.
+        integrator: &'static str,
+    },
     /// Self-contact was given a bad mesh or state: a triangle refers to a particle that
     /// does not exist, or two primitives start closer than the thickness.
     BadMesh {
@@ -193,6 +199,12 @@ impl fmt::Display for ContactError {
             Self::Unsupported { what } => write!(
                 f,
                 "contact is not supported for {what} (backward Euler, BDF2 and implicit midpoint have the guaranteed barrier; the explicit integrators a projection)"
+            ),
+            Self::SelfContactUnsupported { integrator } => write!(
+                f,
+                "self-contact is not supported for {integrator}: its barrier is a term of the \
+                 implicit integrators' potential (backward Euler, BDF2, implicit midpoint), \
+                 and no projection keeps triangles from passing through each other"
             ),
         }
     }

@@ -36,6 +36,7 @@ mod self_contact_pattern;
 mod self_contact_term;
 mod self_contact_threads;
 mod sheets;
+mod simulation_mesh;
 mod splitting;
 mod spring_kernels;
 mod terms;

@@ -1,0 +1,183 @@
+//! A mesh cloth through the high-level `Simulation`: `from_mesh_cloth` adds the dihedral
+//! bending term as the model's own integrators do (the same steps, bit for bit), and
+//! `set_self_contact` adds self-contact to backward Euler, BDF2 and the implicit midpoint
+//! (the same steps as the term added by hand, and no two triangles meeting after any
+//! step, by the exact check); the integrators without a place for these are errors that
+//! name them.
+
+use crate::common::{SCHEMES, Scheme};
+use crate::sheets;
+use sinew_exact::intersecting_pairs;
+use sinew_math::DVec3;
+use sinew_spring_sim::contact::ContactError;
+use sinew_spring_sim::contact::self_contact::SelfContactSettings;
+use sinew_spring_sim::{
+    AutoSettings, Bending, Integrator, MeshClothModel, ModelError, NewtonSettings, Simulation,
+    SpringSystem, TriangleMesh,
+};
+
+const H: f64 = 1.0 / 60.0;
+
+impl Scheme {
+    /// The scheme as a `Simulation`'s integrator.
+    fn integrator(self) -> Integrator {
+        let s = NewtonSettings::default();
+        match self {
+            Self::BackwardEuler => Integrator::BackwardEuler(s),
+            Self::Bdf2 => Integrator::Bdf2(s),
+            Self::Midpoint => Integrator::ImplicitMidpoint(s),
+        }
+    }
+}
+
+/// The positions and velocities as bits.
+fn bits(system: &SpringSystem) -> Vec<u64> {
+    system
+        .positions()
+        .iter()
+        .chain(system.velocities())
+        .flat_map(|v| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()])
+        .collect()
+}
+
+/// A 6 x 6 sheet held along one edge, with dihedral bending.
+fn bending_sheet() -> MeshClothModel {
+    let (x, t) = sheets::grid(6, DVec3::ZERO, DVec3::X, DVec3::Z, 0.05, 0);
+    let mut cloth = sheets::cloth((0..6).collect());
+    cloth.bending = Bending::Dihedral { stiffness: 1e-2 };
+    cloth.build(&TriangleMesh::new(x, t).unwrap()).unwrap()
+}
+
+/// The sheet dropped onto a sheet pinned along its border (6 x 6 each).
+fn dropped_sheets() -> MeshClothModel {
+    let (x, t, fixed) = sheets::dropped(6, 0.05);
+    sheets::cloth(fixed)
+        .build(&TriangleMesh::new(x, t).unwrap())
+        .unwrap()
+}
+
+#[test]
+fn a_mesh_cloths_simulation_steps_as_its_own_integrators_with_bending() {
+    let model = bending_sheet();
+    for scheme in SCHEMES {
+        let mut sim = Simulation::from_mesh_cloth(&model, scheme.integrator()).unwrap();
+        let mut by_hand = scheme.build(&model, NewtonSettings::default());
+        let mut system = model.system.clone();
+        for step in 0..20 {
+            sim.step(H).unwrap();
+            by_hand.take_step(&mut system, H).unwrap();
+            assert_eq!(bits(sim.system()), bits(&system), "{scheme:?} step {step}");
+        }
+        // The bending term acts: the same sheet without it ends elsewhere.
+        let mut plain = Simulation::new(model.system.clone(), scheme.integrator()).unwrap();
+        for _ in 0..20 {
+            plain.step(H).unwrap();
+        }
+        assert_ne!(bits(plain.system()), bits(sim.system()), "{scheme:?}");
+    }
+}
+
+#[test]
+fn dihedral_bending_needs_an_implicit_integrator() {
+    let model = bending_sheet();
+    for integrator in [
+        Integrator::VelocityVerlet { substeps: None },
+        Integrator::SymplecticEuler { substeps: 4 },
+        Integrator::Auto(AutoSettings::default()),
+    ] {
+        match Simulation::from_mesh_cloth(&model, integrator) {
+            Err(ModelError::BadParameter { name, reason }) => {
+                assert_eq!(name, "integrator", "{integrator:?}");
+                assert!(reason.contains("dihedral bending"), "{reason}");
+            }
+            other => panic!("{integrator:?}: {other:?}"),
+        }
+    }
+    // Bending springs are springs: every integrator takes them.
+    let (x, t) = sheets::grid(6, DVec3::ZERO, DVec3::X, DVec3::Z, 0.05, 0);
+    let mut cloth = sheets::cloth((0..6).collect());
+    cloth.bending = Bending::Springs { stiffness: 10.0 };
+    let springs = cloth.build(&TriangleMesh::new(x, t).unwrap()).unwrap();
+    let mut sim =
+        Simulation::from_mesh_cloth(&springs, Integrator::VelocityVerlet { substeps: None })
+            .unwrap();
+    sim.step(H).unwrap();
+}
+
+#[test]
+fn self_contact_through_a_simulation_is_the_term_added_by_hand() {
+    let model = dropped_sheets();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 1e-3,
+        mu: 0.3,
+        ..SelfContactSettings::default()
+    };
+    for scheme in SCHEMES {
+        let mut sim = Simulation::from_mesh_cloth(&model, scheme.integrator()).unwrap();
+        let stats = sim.set_self_contact(&model.triangles, settings).unwrap();
+        let mut by_hand = scheme.build(&model, NewtonSettings::default());
+        model
+            .enable_self_contact(by_hand.newton_mut(), settings)
+            .unwrap();
+        let mut system = model.system.clone();
+        let mut touched = false;
+        for step in 0..30 {
+            let report = sim.step(H).unwrap();
+            assert!(
+                report.residual <= report.tolerance,
+                "{scheme:?} step {step}"
+            );
+            by_hand.take_step(&mut system, H).unwrap();
+            assert_eq!(bits(sim.system()), bits(&system), "{scheme:?} step {step}");
+            let meeting = intersecting_pairs(sim.system().positions(), &model.triangles);
+            assert!(meeting.is_empty(), "{scheme:?} step {step}: {meeting:?}");
+            touched |= stats.active_pairs() > 0;
+        }
+        assert!(touched, "{scheme:?}: the sheets never came within dhat");
+        assert!(stats.min_gap() > 0.0, "{scheme:?}");
+    }
+}
+
+#[test]
+fn self_contact_needs_an_implicit_integrator_and_is_added_once() {
+    let model = dropped_sheets();
+    let settings = SelfContactSettings::default();
+    for (integrator, name) in [
+        (
+            Integrator::VelocityVerlet { substeps: None },
+            "velocity Verlet",
+        ),
+        (
+            Integrator::SymplecticEuler { substeps: 4 },
+            "symplectic Euler",
+        ),
+        (Integrator::Auto(AutoSettings::default()), "auto"),
+    ] {
+        let mut sim = Simulation::from_mesh_cloth(&model, integrator).unwrap();
+        let err = sim
+            .set_self_contact(&model.triangles, settings)
+            .unwrap_err();
+        assert!(
+            matches!(err, ContactError::SelfContactUnsupported { integrator } if integrator == name),
+            "{err}"
+        );
+        assert!(err.to_string().contains(name), "{err}");
+    }
+    let mut sim =
+        Simulation::from_mesh_cloth(&model, Integrator::BackwardEuler(NewtonSettings::default()))
+            .unwrap();
+    // A triangle naming a particle the cloth lacks.
+    let mut bad = model.triangles.clone();
+    bad[3][1] = model.system.len();
+    let err = sim.set_self_contact(&bad, settings).unwrap_err();
+    assert!(
+        matches!(&err, ContactError::BadMesh { item, .. } if item.starts_with("triangle 3 ")),
+        "{err}"
+    );
+    sim.set_self_contact(&model.triangles, settings).unwrap();
+    let err = sim
+        .set_self_contact(&model.triangles, settings)
+        .unwrap_err();
+    assert!(matches!(err, ContactError::AddedTwice { .. }), "{err}");
+}
