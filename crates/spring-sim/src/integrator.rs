@@ -7,6 +7,7 @@
 //! or chosen from the stability bound of [`crate::stability`]; `auto` picks among them per
 //! step and says why in the [`StepReport`]. The rules are in docs/integrators.md.
 
+use crate::contact::self_contact::term::self_contact_term;
 use crate::contact::self_contact::{SelfContactSettings, SelfContactStats, enable_self_contact};
 use crate::contact::{
     Collider, ContactError, ContactPotential, ContactSettings, ContactStats, ContactTerm, Drive,
@@ -18,6 +19,7 @@ use crate::mesh::MeshClothModel;
 use crate::model::{ModelError, SettingsError, SpringSystem};
 use crate::newton::{BackwardEuler, NewtonSettings};
 use crate::pins::{PIN_SPLIT_DEPTH, PinDriver, PinnedMotion, PinnedStepper, step_to_targets};
+use crate::potential::Term;
 use crate::reference::flawed_report_method::FlawedReportMethod;
 use crate::report::{AutoReason, IntegratorKind, PieceEnds, StepError, StepReport};
 use crate::stability::{StabilityBound, StabilityMonitor};
@@ -339,11 +341,12 @@ struct AutoStepper {
     substep_time: Timing,
     /// Seconds per implicit step (`tune_by_timing`).
     implicit_time: Timing,
-    /// Whether contact is set: then every step is implicit (BDF2, or backward Euler when
-    /// settling), the integrators with the guaranteed barrier.
+    /// Whether contact or self-contact is set: then every step is implicit (BDF2, or
+    /// backward Euler when settling), the integrators with the guaranteed barriers.
     contact: bool,
-    /// The contact term, until BDF2 (built at its first step) takes it.
-    pending_contact: Option<ContactTerm>,
+    /// The contact and self-contact terms, until BDF2 (built at its first step) takes
+    /// them.
+    pending_terms: Vec<Box<dyn Term>>,
     /// The time the next step starts at, for the implicit integrators' terms.
     time: f64,
     /// Backward Euler, which redoes a step whose Verlet attempt ran away (built at the
@@ -382,7 +385,7 @@ impl AutoStepper {
             substep_time: Timing::default(),
             implicit_time: Timing::default(),
             contact: false,
-            pending_contact: None,
+            pending_terms: Vec::new(),
             time: 0.0,
             fallback: None,
             pieces: None,
@@ -427,31 +430,53 @@ impl AutoStepper {
         }
     }
 
-    /// Adds the contact term to the implicit integrator that will take every step from
-    /// now on: backward Euler when settling, else BDF2 (now, or when it is built).
-    fn set_contact(&mut self, term: ContactTerm) {
-        self.contact = true;
-        let newton = match (&mut self.settle, &mut self.bdf2) {
+    /// The workspace of the implicit integrator that takes every step once contact is
+    /// set: backward Euler when settling, else BDF2 (`None` before BDF2 is built).
+    fn contact_workspace_mut(&mut self) -> Option<&mut BackwardEuler> {
+        match (&mut self.settle, &mut self.bdf2) {
             (Some(be), _) => Some(&mut **be),
             (None, Some(b)) => Some(b.newton_mut()),
             (None, None) => None,
-        };
-        match newton {
-            Some(newton) => newton.add_term(Box::new(term)),
-            None => self.pending_contact = Some(term),
         }
+    }
+
+    /// Adds a contact or self-contact term to the implicit integrator that will take
+    /// every step from now on: backward Euler when settling, else BDF2 (now, or when it
+    /// is built). A second term of the same kind is [`ContactError::AddedTwice`].
+    fn add_contact_term(
+        &mut self,
+        term: Box<dyn Term>,
+        what: &'static str,
+    ) -> Result<(), ContactError> {
+        if self.pending_terms.iter().any(|t| t.name() == what) {
+            return Err(ContactError::AddedTwice { what });
+        }
+        match self.contact_workspace_mut() {
+            Some(newton) => {
+                crate::contact::refuse_second(newton, what)?;
+                newton.add_term(term);
+            }
+            None => self.pending_terms.push(term),
+        }
+        self.contact = true;
+        Ok(())
     }
 
     /// The contact term: in the workspace that takes every step, or still waiting for it.
     fn contact_term_mut(&mut self) -> Option<&mut ContactTerm> {
-        if let Some(term) = self.pending_contact.as_mut() {
-            return Some(term);
+        let is_contact = |t: &dyn Term| {
+            let any: &dyn std::any::Any = t;
+            any.is::<ContactTerm>()
+        };
+        if let Some(k) = self
+            .pending_terms
+            .iter()
+            .position(|t| is_contact(t.as_ref()))
+        {
+            let any: &mut dyn std::any::Any = self.pending_terms[k].as_mut();
+            return any.downcast_mut::<ContactTerm>();
         }
-        match (&mut self.settle, &mut self.bdf2) {
-            (Some(be), _) => be.term_mut::<ContactTerm>(),
-            (None, Some(b)) => b.newton_mut().term_mut::<ContactTerm>(),
-            (None, None) => None,
-        }
+        self.contact_workspace_mut()?.term_mut::<ContactTerm>()
     }
 
     /// Sets the time the next step starts at.
@@ -650,8 +675,8 @@ impl AutoStepper {
                 let mut bdf2 = Box::new(Bdf2::new(system, self.settings.newton)?);
                 bdf2.newton_mut().set_time(self.time);
                 bdf2.newton_mut().record_piece_ends(self.pieces.is_some());
-                if let Some(term) = self.pending_contact.take() {
-                    bdf2.newton_mut().add_term(Box::new(term));
+                for term in self.pending_terms.drain(..) {
+                    bdf2.newton_mut().add_term(term);
                 }
                 self.bdf2 = Some(bdf2);
             }
@@ -841,8 +866,10 @@ impl Simulation {
     /// continuous collision detection, so no accepted state (and no piece's end state)
     /// has two triangles passing through each other
     /// ([`crate::contact::self_contact::enable_self_contact`], docs/contact.md). Returns
-    /// the term's statistics. Backward Euler, BDF2 and implicit midpoint only: other
-    /// integrators are [`ContactError::SelfContactUnsupported`]. The settings, the
+    /// the term's statistics. Backward Euler, BDF2 and implicit midpoint; with `auto`,
+    /// every step from then on is implicit (BDF2, or backward Euler when settling;
+    /// `AutoReason::Contact`), as with colliders. The explicit integrators and the flawed
+    /// reference method are [`ContactError::SelfContactUnsupported`]. The settings, the
     /// triangles and the current state are checked (the error names the setting, the
     /// triangle or the two primitives); a second call is [`ContactError::AddedTwice`].
     pub fn set_self_contact(
@@ -855,6 +882,13 @@ impl Simulation {
             Stepper::BackwardEuler(be) => &mut **be,
             Stepper::Bdf2(b) => b.newton_mut(),
             Stepper::Midpoint(m) => m.newton_mut(),
+            Stepper::Auto(a) => {
+                // Every step is implicit from now on (AutoReason::Contact), as with
+                // colliders.
+                let (term, stats) = self_contact_term(&self.system, triangles, settings)?;
+                a.add_contact_term(term, "self-contact")?;
+                return Ok(stats);
+            }
             _ => return Err(ContactError::SelfContactUnsupported { integrator }),
         };
         enable_self_contact(newton, &self.system, triangles, settings)
@@ -972,7 +1006,7 @@ impl Simulation {
                 // Every step is implicit from now on (AutoReason::Contact): the explicit
                 // projection is not guaranteed, the barrier is.
                 let (t, stats) = term(self.time)?;
-                a.set_contact(t);
+                a.add_contact_term(Box::new(t), "contact")?;
                 self.contact = Some(Contact {
                     colliders,
                     settings,

@@ -39,9 +39,10 @@ pub enum AutoReason {
     ImplicitCheaper,
     /// The bound asks for more substeps than `AutoSettings::max_substeps`: BDF2.
     SubstepCap,
-    /// The simulation has contact with colliders: BDF2, whose barrier keeps every
-    /// particle outside every collider (the explicit integrators' projection is not
-    /// guaranteed).
+    /// The simulation has contact with colliders or self-contact: BDF2, whose barriers
+    /// keep every particle outside every collider and the cloth's triangles apart (the
+    /// explicit integrators' projection is not guaranteed, and has nothing for
+    /// self-contact).
     Contact,
     /// Velocity Verlet was tried at the bound's substep count and its energy rose by more
     /// than half the energy scale in one step (the bound, taken at the step's start, no

@@ -72,7 +72,7 @@ pub enum ContactError {
         what: &'static str,
     },
     /// Self-contact was asked of an integrator without a Newton workspace to hold its
-    /// barrier (the explicit integrators, `auto`, the flawed reference method).
+    /// barrier (the explicit integrators, the flawed reference method).
     SelfContactUnsupported {
         /// The integrator's name.
         integrator: &'static str,

@@ -2,8 +2,9 @@
 //! bending term as the model's own integrators do (the same steps, bit for bit), and
 //! `set_self_contact` adds self-contact to backward Euler, BDF2 and the implicit midpoint
 //! (the same steps as the term added by hand, and no two triangles meeting after any
-//! step, by the exact check); the integrators without a place for these are errors that
-//! name them.
+//! step, by the exact check), and `auto` then steps implicitly (as BDF2 does, or backward
+//! Euler when settling); the integrators without a place for these are errors that name
+//! them.
 
 use crate::common::{SCHEMES, Scheme};
 use crate::sheets;
@@ -12,8 +13,8 @@ use sinew_math::DVec3;
 use sinew_spring_sim::contact::ContactError;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::{
-    AutoSettings, Bending, Integrator, MeshClothModel, ModelError, NewtonSettings, Simulation,
-    SpringSystem, TriangleMesh,
+    AutoReason, AutoSettings, Bending, Integrator, IntegratorKind, MeshClothModel, ModelError,
+    NewtonSettings, Simulation, SpringSystem, TriangleMesh,
 };
 
 const H: f64 = 1.0 / 60.0;
@@ -152,7 +153,6 @@ fn self_contact_needs_an_implicit_integrator_and_is_added_once() {
             Integrator::SymplecticEuler { substeps: 4 },
             "symplectic Euler",
         ),
-        (Integrator::Auto(AutoSettings::default()), "auto"),
     ] {
         let mut sim = Simulation::from_mesh_cloth(&model, integrator).unwrap();
         let err = sim
@@ -180,4 +180,73 @@ fn self_contact_needs_an_implicit_integrator_and_is_added_once() {
         .set_self_contact(&model.triangles, settings)
         .unwrap_err();
     assert!(matches!(err, ContactError::AddedTwice { .. }), "{err}");
+}
+
+/// With self-contact `auto` takes every step implicitly: BDF2 with its Newton settings
+/// for the reason `Contact` (the same steps as BDF2 asked for, bit for bit), or backward
+/// Euler when asked to settle (as backward Euler asked for); no two triangles meet after
+/// any step. A second self-contact is refused.
+#[test]
+fn auto_with_self_contact_steps_implicitly() {
+    let model = dropped_sheets();
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 1e-3,
+        ..SelfContactSettings::default()
+    };
+    for settle in [false, true] {
+        let auto = AutoSettings {
+            settle,
+            ..AutoSettings::default()
+        };
+        let (same, kind, reason) = if settle {
+            (
+                Integrator::BackwardEuler(auto.newton),
+                IntegratorKind::BackwardEuler,
+                AutoReason::Settle,
+            )
+        } else {
+            (
+                Integrator::Bdf2(auto.newton),
+                IntegratorKind::Bdf2,
+                AutoReason::Contact,
+            )
+        };
+        let mut sim = Simulation::from_mesh_cloth(&model, Integrator::Auto(auto)).unwrap();
+        let stats = sim.set_self_contact(&model.triangles, settings).unwrap();
+        let err = sim
+            .set_self_contact(&model.triangles, settings)
+            .unwrap_err();
+        assert!(matches!(err, ContactError::AddedTwice { .. }), "{err}");
+        let mut reference = Simulation::from_mesh_cloth(&model, same).unwrap();
+        reference
+            .set_self_contact(&model.triangles, settings)
+            .unwrap();
+        let mut touched = false;
+        for step in 0..30 {
+            let report = sim.step(H).unwrap();
+            assert_eq!(report.integrator, kind, "settle {settle}, step {step}");
+            assert_eq!(
+                report.auto_reason,
+                Some(reason),
+                "settle {settle}, step {step}"
+            );
+            reference.step(H).unwrap();
+            assert_eq!(
+                bits(sim.system()),
+                bits(reference.system()),
+                "settle {settle}, step {step}"
+            );
+            let meeting = intersecting_pairs(sim.system().positions(), &model.triangles);
+            assert!(
+                meeting.is_empty(),
+                "settle {settle}, step {step}: {meeting:?}"
+            );
+            touched |= stats.active_pairs() > 0;
+        }
+        assert!(
+            touched,
+            "settle {settle}: the sheets never came within dhat"
+        );
+    }
 }

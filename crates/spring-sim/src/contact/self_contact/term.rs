@@ -2364,12 +2364,24 @@ pub fn enable_self_contact(
     settings: SelfContactSettings,
 ) -> Result<Arc<SelfContactStats>, ContactError> {
     crate::contact::refuse_second(integrator, "self-contact")?;
+    let (term, stats) = self_contact_term(system, triangles, settings)?;
+    integrator.add_term(term);
+    Ok(stats)
+}
+
+/// The self-contact term for `system` with surface `triangles`, checked as
+/// [`SelfContactTerm::new`] checks it, ready for an implicit workspace, and its
+/// statistics.
+pub(crate) fn self_contact_term(
+    system: &SpringSystem,
+    triangles: &[[usize; 3]],
+    settings: SelfContactSettings,
+) -> Result<(Box<dyn Term>, Arc<SelfContactStats>), ContactError> {
     let term = SelfContactTerm::new(system, triangles, settings)?;
     let stats = term.stats();
     // Wrapped so the implicit midpoint evaluates it at the end state (the wrapper passes
     // straight through for backward Euler and BDF2).
-    integrator.add_term(Box::new(AtEndOfStep::new(term)));
-    Ok(stats)
+    Ok((Box::new(AtEndOfStep::new(term)), stats))
 }
 
 #[cfg(test)]
