@@ -1,5 +1,5 @@
-//! The contact guarantee of sinew-spring-sim's backward Euler (IPC barrier, line search
-//! capped by the time of impact), checked independently: after every accepted step no
+//! The contact guarantee of sinew-spring-sim's backward Euler and BDF2 (IPC barrier, line
+//! search capped by the time of impact; half the cases each), checked independently: after every accepted step no
 //! free particle is inside or on any collider, with the distances computed here from the
 //! colliders' fields and prescribed motion (not by the crate's `signed_distance`), nor
 //! after any piece of a step split in pieces, and no particle's straight path over a
@@ -14,7 +14,7 @@ use sinew_labcheck::config;
 use sinew_labcheck::strategies::contact::{AREAL_DENSITY, GRAVITY, contact_case};
 use sinew_math::{DQuat, DVec3};
 use sinew_spring_sim::contact::{Collider, Drive, Motion, Shape};
-use sinew_spring_sim::{Integrator, NewtonSettings, Simulation, StepError, StepStop};
+use sinew_spring_sim::{NewtonSettings, Simulation, StepError, StepStop};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Steps taken and steps refused over all cases of the run (the refusal rate is checked
@@ -35,6 +35,8 @@ static STEPS_SPLIT: AtomicUsize = AtomicUsize::new(0);
 /// Stretches of one function's iterates checked for descent (every minimization of every
 /// step, cut where the barrier stiffness changed).
 static SLICES_CHECKED: AtomicUsize = AtomicUsize::new(0);
+/// Accepted steps by scheme: backward Euler, BDF2.
+static STEPS_BY_SCHEME: [AtomicUsize; 2] = [const { AtomicUsize::new(0) }; 2];
 /// Samples along each particle's straight path from one accepted state to the next.
 const PATH_SAMPLES: usize = 64;
 
@@ -116,7 +118,8 @@ proptest! {
             max_iterations: 100,
             ..NewtonSettings::default()
         };
-        let mut sim = Simulation::new(system, Integrator::BackwardEuler(settings))
+        let integrator = case.integrator(settings);
+        let mut sim = Simulation::new(system, integrator)
             .map_err(|e| TestCaseError::fail(e.to_string()))?;
         let contact = case.settings();
         sim.set_contact(colliders.clone(), contact)
@@ -159,6 +162,7 @@ proptest! {
                 }
                 Err(e) => return Err(TestCaseError::fail(format!("step {n} refused: {e}"))),
             };
+            STEPS_BY_SCHEME[(case.seed % 2) as usize].fetch_add(1, Ordering::Relaxed);
             prop_assert!(report.stop != StepStop::NonFinite, "step {n}: non-finite");
             prop_assert!(report.residual.is_finite(), "step {n}: residual {}", report.residual);
             prop_assert!(sim.system().positions().iter().all(|x| x.is_finite()), "step {n}: NaN position");
@@ -239,7 +243,7 @@ proptest! {
             // and a larger kappa is another function.
             let after = sim.contact_kappa().expect("contact is set");
             prop_assert!(after.is_finite() && after > 0.0);
-            let be = sim.backward_euler().expect("backward Euler");
+            let be = sim.newton_workspace().expect("an implicit integrator");
             let trace = be.objective_trace();
             prop_assert!(!trace.is_empty() && trace.iter().all(|g| g.is_finite()));
             if (after - kappa).abs() <= 1e-12 * kappa {
@@ -271,12 +275,13 @@ proptest! {
         let in_contact = STEPS_IN_CONTACT.load(Ordering::Relaxed);
         if std::env::var_os("SINEW_CONTACT_COUNTS").is_some() {
             eprintln!(
-                "steps {taken}, refused {refused}, in contact {in_contact}, kappa grew {}, drives {}, with a moving collider {}, split {}, slices of g checked {}",
+                "steps {taken}, refused {refused}, in contact {in_contact}, kappa grew {}, drives {}, with a moving collider {}, split {}, slices of g checked {}, accepted by backward Euler and BDF2 {:?}",
                 STEPS_KAPPA_GREW.load(Ordering::Relaxed),
                 STEPS_DRIVEN.load(Ordering::Relaxed),
                 STEPS_PATHS_CHECKED.load(Ordering::Relaxed),
                 STEPS_SPLIT.load(Ordering::Relaxed),
-                SLICES_CHECKED.load(Ordering::Relaxed)
+                SLICES_CHECKED.load(Ordering::Relaxed),
+                STEPS_BY_SCHEME.each_ref().map(|c| c.load(Ordering::Relaxed))
             );
         }
         // Not vacuous: at least one accepted step in five ends with the barrier acting.
