@@ -294,13 +294,14 @@ fn bdf2_and_the_midpoint_hold_or_slide_a_sheet_on_a_sheet_as_coulomb_says() {
             "{scheme:?}: {measured} vs {coulomb}"
         );
         // Settling onto the barrier from its 0.5 mm start gap, which these schemes damp
-        // less than backward Euler, the sheet slips in its first steps while it bounces
-        // on the barrier, which is conservative, and the normal force, and with it
-        // friction, dips (measured: up to 0.039 m/s for BDF2 in its fourth step, 0.073 m/s
-        // for the midpoint in its fourth, against 1.2e-3 for backward Euler). BDF2 holds
-        // from its fifth step on like backward Euler (4.7e-4 m/s, the creep of the smoothed friction),
-        // the midpoint from its tenth. When BDF2 started with an undamped midpoint step
-        // its slip reached 0.14 m/s and it held from its tenth step.
+        // less than backward Euler, the sheet slips in its first steps (measured: up to
+        // 0.039 m/s for BDF2 in its fourth step, 0.073 m/s for the midpoint in its
+        // fourth, against 1.2e-3 for backward Euler; not traced here, but on the collider
+        // incline BDF2's sheet after a midpoint start was traced bouncing off the barrier
+        // while the normal force, and with it friction, dipped). BDF2 holds from its
+        // fifth step on like backward Euler (4.7e-4 m/s, the creep of the smoothed
+        // friction), the midpoint from its tenth. When BDF2 started with an undamped
+        // midpoint step its slip reached 0.14 m/s and it held from its tenth step.
         let (speeds, _) = slide_in(scheme, 14, 0.3, theta, 0.8, 30, H);
         let settled = if scheme == Scheme::Bdf2 { 4 } else { 9 };
         for (step, s) in speeds.iter().enumerate().skip(settled) {
