@@ -843,15 +843,10 @@ impl Simulation {
     ) -> Result<Self, ModelError> {
         let mut sim = Self::new(model.system.clone(), integrator)?;
         if model.bending.is_some() {
-            let auto = matches!(sim.stepper, Stepper::Auto(_));
             let Some(newton) = sim.newton_workspace_mut() else {
                 return Err(ModelError::BadParameter {
                     name: "integrator",
-                    reason: if auto {
-                        "auto has no place for the dihedral bending term (its explicit steps take springs only): choose backward Euler, BDF2 or implicit midpoint, or bending springs"
-                    } else {
-                        "the explicit integrators have no place for the dihedral bending term (they take springs only): choose backward Euler, BDF2 or implicit midpoint, or bending springs"
-                    },
+                    reason: "the explicit integrators and auto (whose explicit steps take springs only) have no place for the dihedral bending term: choose backward Euler, BDF2 or implicit midpoint, or bending springs",
                 });
             };
             model.add_bending(newton)?;

@@ -17,8 +17,10 @@ use crate::contact::{
     Collider, ContactError, ContactPotential, ContactSettings, ContactStats, ContactTerm,
 };
 use crate::implicit::{Bdf2, ImplicitMidpoint};
+use crate::integrator::Integrator;
 use crate::model::{ClothGrid, Material, ModelError, Particle, SpringSpec, SpringSystem};
 use crate::newton::{BackwardEuler, NewtonSettings};
+use crate::pins::PinnedStepper;
 use crate::potential::{DihedralBending, Hinge};
 use sinew_math::DVec3;
 use std::collections::HashMap;
@@ -385,6 +387,29 @@ impl MeshClothModel {
         let mut integrator = ImplicitMidpoint::new(&self.system, settings)?;
         self.add_bending(integrator.newton_mut())?;
         Ok(integrator)
+    }
+
+    /// The implicit integrator `integrator` names (backward Euler, BDF2 or the implicit
+    /// midpoint, with its Newton settings) for this cloth, with the bending term as
+    /// [`Self::backward_euler`] adds it, behind [`PinnedStepper`] (to step, and to add
+    /// contact and self-contact to its workspace, [`PinnedStepper::newton_mut`]). The
+    /// explicit integrators, `auto` and the flawed reference method are an error naming
+    /// the integrator field.
+    pub fn implicit_stepper(
+        &self,
+        integrator: Integrator,
+    ) -> Result<Box<dyn PinnedStepper>, ModelError> {
+        Ok(match integrator {
+            Integrator::BackwardEuler(s) => Box::new(self.backward_euler(s)?),
+            Integrator::Bdf2(s) => Box::new(self.bdf2(s)?),
+            Integrator::ImplicitMidpoint(s) => Box::new(self.implicit_midpoint(s)?),
+            _ => {
+                return Err(ModelError::BadParameter {
+                    name: "integrator",
+                    reason: "a mesh cloth's stepper is implicit: backward Euler, BDF2 or implicit midpoint",
+                });
+            }
+        })
     }
 
     /// Adds the dihedral bending term, if the material has one, with the Hessian pattern

@@ -13,7 +13,7 @@ use sinew_exact::intersecting_pairs;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinnedStepper, StepStop, TriangleMesh,
+    Bending, ClothGrid, Integrator, Material, MeshCloth, NewtonSettings, StepStop, TriangleMesh,
 };
 use std::time::Instant;
 
@@ -39,6 +39,14 @@ pub enum SelfContactScheme {
 impl SelfContactScheme {
     /// Every scheme, in table order.
     pub const ALL: [Self; 2] = [Self::BackwardEuler, Self::Bdf2];
+
+    /// The scheme with `settings`.
+    fn integrator(self, settings: NewtonSettings) -> Integrator {
+        match self {
+            Self::BackwardEuler => Integrator::BackwardEuler(settings),
+            Self::Bdf2 => Integrator::Bdf2(settings),
+        }
+    }
 }
 
 /// One self-contact case.
@@ -232,15 +240,7 @@ pub fn run_self_contact_case(case: &SelfContactCase) -> SelfContactOutcome {
         max_iterations: 100,
         ..NewtonSettings::default()
     };
-    let built: Result<Box<dyn PinnedStepper>, _> = match case.scheme {
-        SelfContactScheme::BackwardEuler => model
-            .backward_euler(settings)
-            .map(|i| Box::new(i) as Box<dyn PinnedStepper>),
-        SelfContactScheme::Bdf2 => model
-            .bdf2(settings)
-            .map(|i| Box::new(i) as Box<dyn PinnedStepper>),
-    };
-    let mut integrator = match built {
+    let mut integrator = match model.implicit_stepper(case.scheme.integrator(settings)) {
         Ok(i) => i,
         Err(e) => {
             out.failures

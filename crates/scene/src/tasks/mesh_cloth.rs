@@ -24,7 +24,7 @@ use sinew_spring_sim::contact::{
     signed_distance,
 };
 use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, MeshClothModel, NewtonSettings, PinDriver,
+    Bending, ClothGrid, Integrator, Material, MeshCloth, MeshClothModel, NewtonSettings, PinDriver,
     PinnedMotion, PinnedStepper, TriangleMesh,
 };
 use std::path::PathBuf;
@@ -116,12 +116,14 @@ impl MeshScheme {
         model: &MeshClothModel,
         newton: NewtonSettings,
     ) -> Result<Box<dyn PinnedStepper>, String> {
-        let built: Result<Box<dyn PinnedStepper>, _> = match self {
-            Self::BackwardEuler => model.backward_euler(newton).map(|i| Box::new(i) as _),
-            Self::Bdf2 => model.bdf2(newton).map(|i| Box::new(i) as _),
-            Self::ImplicitMidpoint => model.implicit_midpoint(newton).map(|i| Box::new(i) as _),
+        let integrator = match self {
+            Self::BackwardEuler => Integrator::BackwardEuler(newton),
+            Self::Bdf2 => Integrator::Bdf2(newton),
+            Self::ImplicitMidpoint => Integrator::ImplicitMidpoint(newton),
         };
-        built.map_err(|e| format!("integrator: {e}"))
+        model
+            .implicit_stepper(integrator)
+            .map_err(|e| format!("integrator: {e}"))
     }
 
     /// The scheme's name in pictures and reports.

@@ -243,12 +243,24 @@ pub enum Scheme {
 pub const SCHEMES: [Scheme; 3] = [Scheme::BackwardEuler, Scheme::Bdf2, Scheme::Midpoint];
 
 impl Scheme {
+    /// The scheme with `newton` as an integrator.
+    pub fn integrator_with(self, newton: NewtonSettings) -> Integrator {
+        match self {
+            Self::BackwardEuler => Integrator::BackwardEuler(newton),
+            Self::Bdf2 => Integrator::Bdf2(newton),
+            Self::Midpoint => Integrator::ImplicitMidpoint(newton),
+        }
+    }
+
+    /// The scheme with the default Newton settings.
+    pub fn integrator(self) -> Integrator {
+        self.integrator_with(NewtonSettings::default())
+    }
+
     /// The scheme's integrator for `model` (with its bending term).
     pub fn build(self, model: &MeshClothModel, newton: NewtonSettings) -> Box<dyn PinnedStepper> {
-        match self {
-            Self::BackwardEuler => Box::new(model.backward_euler(newton).unwrap()),
-            Self::Bdf2 => Box::new(model.bdf2(newton).unwrap()),
-            Self::Midpoint => Box::new(model.implicit_midpoint(newton).unwrap()),
-        }
+        model
+            .implicit_stepper(self.integrator_with(newton))
+            .unwrap()
     }
 }

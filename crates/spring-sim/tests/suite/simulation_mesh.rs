@@ -6,7 +6,7 @@
 //! Euler when settling); the integrators without a place for these are errors that name
 //! them.
 
-use crate::common::{SCHEMES, Scheme};
+use crate::common::SCHEMES;
 use crate::sheets;
 use sinew_exact::intersecting_pairs;
 use sinew_math::DVec3;
@@ -18,18 +18,6 @@ use sinew_spring_sim::{
 };
 
 const H: f64 = 1.0 / 60.0;
-
-impl Scheme {
-    /// The scheme as a `Simulation`'s integrator.
-    fn integrator(self) -> Integrator {
-        let s = NewtonSettings::default();
-        match self {
-            Self::BackwardEuler => Integrator::BackwardEuler(s),
-            Self::Bdf2 => Integrator::Bdf2(s),
-            Self::Midpoint => Integrator::ImplicitMidpoint(s),
-        }
-    }
-}
 
 /// The positions and velocities as bits.
 fn bits(system: &SpringSystem) -> Vec<u64> {
@@ -253,5 +241,24 @@ fn auto_with_self_contact_steps_implicitly() {
             touched,
             "settle {settle}: the sheets never came within dhat"
         );
+    }
+}
+
+/// `MeshClothModel::implicit_stepper` builds the implicit schemes (the tests above step
+/// them against `Simulation`) and refuses every other integrator, naming the field.
+#[test]
+fn a_mesh_cloths_implicit_stepper_refuses_the_others() {
+    let model = bending_sheet();
+    for integrator in [
+        Integrator::VelocityVerlet { substeps: None },
+        Integrator::SymplecticEuler { substeps: 4 },
+        Integrator::Auto(AutoSettings::default()),
+        Integrator::FlawedReportMethod,
+    ] {
+        match model.implicit_stepper(integrator) {
+            Err(ModelError::BadParameter { name, .. }) => assert_eq!(name, "integrator"),
+            Err(other) => panic!("{integrator:?}: {other}"),
+            Ok(_) => panic!("{integrator:?}: built"),
+        }
     }
 }
