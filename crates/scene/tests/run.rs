@@ -748,19 +748,8 @@ fn an_obj_sheets_pins_and_held_vertices_are_the_files() {
         )])",
     )
     .unwrap_or_else(|e| panic!("{e}"));
-    let results = scene.run(&RunOptions {
-        keep_frames: true,
-        ..RunOptions::default()
-    });
-    let t = &results.tasks[0];
-    assert!(t.ok, "{:?} {:?}", t.error, t.failures);
-    let Pictures::Cloth(p) = &t.pictures else {
-        panic!("no pictures")
-    };
-    let (first, last) = (
-        &p.frames[0].positions,
-        &p.frames[p.frames.len() - 1].positions,
-    );
+    let frames = cloth_frames(&scene);
+    let (first, last) = (&frames[0], &frames[frames.len() - 1]);
     let still: Vec<DVec3> = (0..first.len())
         .filter(|&k| first[k] == last[k])
         .map(|k| first[k])
@@ -798,16 +787,23 @@ fn an_obj_sheets_pins_and_held_vertices_are_the_files() {
     let by_ball = "[(joint: \"Chest\", near: (point: (0.0, 1.42, -0.15), radius: 0.05))]";
     let run = |attach: &str| {
         let text = mesh_cape_sheet(sheet, attach, "").replace("steps: 24", "steps: 8");
-        let results = scene_in_scenes(&text).unwrap().run(&RunOptions {
-            keep_frames: true,
-            ..RunOptions::default()
-        });
-        let t = &results.tasks[0];
-        assert!(t.ok, "{attach}: {:?} {:?}", t.error, t.failures);
-        let Pictures::Cloth(p) = &t.pictures else {
-            panic!("no pictures")
-        };
-        p.frames[p.frames.len() - 1].positions.clone()
+        let frames = cloth_frames(&scene_in_scenes(&text).unwrap());
+        frames[frames.len() - 1].clone()
     };
     assert_eq!(run(&by_number), run(by_ball));
+}
+
+/// The positions of every kept frame of `scene`'s first task, a cloth, run with frames
+/// kept; the task must succeed.
+fn cloth_frames(scene: &Scene) -> Vec<Vec<DVec3>> {
+    let results = scene.run(&RunOptions {
+        keep_frames: true,
+        ..RunOptions::default()
+    });
+    let t = &results.tasks[0];
+    assert!(t.ok, "{}: {:?} {:?}", t.name, t.error, t.failures);
+    let Pictures::Cloth(p) = &t.pictures else {
+        panic!("{}: no pictures", t.name)
+    };
+    p.frames.iter().map(|f| f.positions.clone()).collect()
 }
