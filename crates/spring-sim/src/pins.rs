@@ -491,6 +491,7 @@ fn merge(first: &StepReport, second: &StepReport) -> StepReport {
     if first.residual / first.tolerance > second.residual / second.tolerance {
         r.residual = first.residual;
         r.tolerance = first.tolerance;
+        r.effective_step = first.effective_step;
         r.stop = first.stop;
     }
     r.energy_before = first.energy_before;

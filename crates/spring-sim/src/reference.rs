@@ -123,6 +123,7 @@ pub mod flawed_report_method {
                 }
             }
             report.iterations = ITERATIONS;
+            report.effective_step = h;
             report.residual = self
                 .grad
                 .iter()

@@ -169,6 +169,13 @@ pub struct StepReport {
     pub residual: f64,
     /// The absolute tolerance `tol * m_min / h^2` the residual was held to.
     pub tolerance: f64,
+    /// Implicit steps: the effective step `h` of the solve whose `residual` and
+    /// `tolerance` are reported, the one whose inertia `m / h^2` the Newton matrix holds:
+    /// the length of the step (or of its piece, for a split step) for backward Euler,
+    /// two thirds of it for BDF2 (its starting step is backward Euler's), half of it for
+    /// the implicit midpoint. 0 for the explicit integrators.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub effective_step: f64,
     /// Step halvings in the line searches.
     pub backtracks: usize,
     /// Why the solve stopped.
@@ -303,6 +310,7 @@ impl StepReport {
             iterations: 0,
             residual: 0.0,
             tolerance: 0.0,
+            effective_step: 0.0,
             backtracks: 0,
             stop: StepStop::FixedWork,
             linear_solver: None,

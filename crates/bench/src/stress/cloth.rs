@@ -402,12 +402,19 @@ fn far_sentence(step: usize, report: &StepReport, ratio: f64, floor: f64) -> Str
 /// of the same order; the factor 16 is the one the property suite uses for a handful of
 /// rounded operations. A stall at or below this level is round-off, not a failure.
 ///
-/// `h` is the step's finest piece, `dt / 2^split_depth` (the report's depth): a piece's
-/// solve has the inertia `m/h^2` and the damping `c/h` of its own length, and spring-sim
-/// judges it by them, so a step split in pieces is judged by its finest piece's floor.
+/// `h` is the effective step of the solve whose residual the report gives
+/// (`StepReport::effective_step`: the step's or its piece's length for backward Euler,
+/// two thirds of it for BDF2, half for the midpoint): that solve's Newton matrix has the
+/// inertia `m/h^2` and the damping `c/h`, and spring-sim judges it by them. A report
+/// without one (an explicit step, never judged) falls back to the finest piece's length,
+/// `dt / 2^split_depth`.
 #[must_use]
 pub fn residual_floor(system: &SpringSystem, dt: f64, report: &StepReport) -> f64 {
-    let h = dt / f64::from(1u32 << report.split_depth.min(30));
+    let h = if report.effective_step > 0.0 {
+        report.effective_step
+    } else {
+        dt / f64::from(1u32 << report.split_depth.min(30))
+    };
     let mut rows: Vec<f64> = system.masses().iter().map(|m| m / (h * h)).collect();
     let damping = system.material().damping / h;
     for s in system.springs() {

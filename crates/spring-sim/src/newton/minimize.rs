@@ -116,6 +116,7 @@ impl BackwardEuler {
         let mut report = StepReport::new(IntegratorKind::BackwardEuler);
         report.linear_solver = Some(kind);
         report.tolerance = tol_abs;
+        report.effective_step = h;
         report.pattern_pairs_dropped = dropped;
         self.objective_trace.clear();
         if self.settings.record_objective {

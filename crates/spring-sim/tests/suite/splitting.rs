@@ -95,12 +95,19 @@ fn stress_grid_steps_left_at_the_cap_converge_in_pieces() {
         assert!(report.pieces > 1, "k {k:e} 1/{inv_dt}: {report:?}");
         assert!(report.pieces <= 1 << report.split_depth);
         assert_eq!((report.unconverged_pieces, report.rejected_splits), (0, 0));
-        // The tolerance is the one of the pieces' own step (tol m_min / h_piece^2).
+        // The tolerance is the one of the pieces' own step (tol m_min / h_piece^2), and
+        // the report names that piece's length.
         let shortest = h / f64::from(1u32 << report.split_depth);
         assert!(
             report.tolerance >= 1e-9 / (h * h)
                 && report.tolerance <= 1e-9 / (shortest * shortest) * (1.0 + 1e-12)
         );
+        let piece = report.effective_step;
+        assert!(
+            (0..=report.split_depth).any(|j| piece == h / f64::from(1u32 << j)),
+            "k {k:e} 1/{inv_dt}: {report:?}"
+        );
+        assert!((report.tolerance - 1e-9 / (piece * piece)).abs() <= 1e-12 * report.tolerance);
         assert!(inequality_excess(&before, &system) <= 1e-12);
         assert!(system.positions().iter().all(|x| x.is_finite()));
     }

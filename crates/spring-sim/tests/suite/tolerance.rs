@@ -289,3 +289,48 @@ fn particles_of_very_different_masses_are_each_held_to_their_own_position_tolera
     // The case is the one described: a uniform threshold could not have been met.
     assert!(heavy_force_above_uniform_threshold);
 }
+
+/// Each implicit scheme holds its residual to `tol m_min / h^2` at the effective step of
+/// its own solve, and reports that step: backward Euler `h`, BDF2 `h` on its starting
+/// (backward Euler) step and `2h/3` after it, the implicit midpoint `h/2`; a step whose
+/// length changes restarts BDF2's history; the explicit integrators report none.
+#[test]
+fn each_scheme_reports_the_effective_step_its_tolerance_is_held_at() {
+    let settings = NewtonSettings {
+        tolerance: 1e-9,
+        ..Default::default()
+    };
+    let h = 1.0 / 60.0;
+    // (integrator, effective steps of four steps of h, then one of h/2).
+    let cases = [
+        (Integrator::BackwardEuler(settings), [h, h, h, h, h / 2.0]),
+        (
+            Integrator::Bdf2(settings),
+            [h, 2.0 * h / 3.0, 2.0 * h / 3.0, 2.0 * h / 3.0, h / 2.0],
+        ),
+        (
+            Integrator::ImplicitMidpoint(settings),
+            [h / 2.0, h / 2.0, h / 2.0, h / 2.0, h / 4.0],
+        ),
+        (Integrator::VelocityVerlet { substeps: None }, [0.0; 5]),
+    ];
+    for (integrator, expected) in cases {
+        let system = SpringSystem::cloth(&ClothGrid::lab()).unwrap();
+        let m_min = system.min_free_mass();
+        let mut sim = Simulation::new(system, integrator).unwrap();
+        for (i, &h_eff) in expected.iter().enumerate() {
+            let report = sim.step(if i < 4 { h } else { h / 2.0 }).unwrap();
+            assert_eq!((report.pieces, report.split_depth), (1, 0));
+            assert_eq!(report.effective_step, h_eff, "{integrator:?} step {i}");
+            if h_eff > 0.0 {
+                let tol = 1e-9 * m_min / (h_eff * h_eff);
+                assert!(
+                    (report.tolerance - tol).abs() <= 1e-12 * tol,
+                    "{integrator:?} step {i}: {} vs {tol}",
+                    report.tolerance
+                );
+                assert!(report.residual <= report.tolerance);
+            }
+        }
+    }
+}
