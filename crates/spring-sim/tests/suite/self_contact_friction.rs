@@ -38,19 +38,13 @@ fn min_gap_between(x: &[DVec3], triangles: &[[usize; 3]], top: usize, thickness:
     min.sqrt() - thickness
 }
 
-/// [`slide_from`] with the top sheet released 1.5 mm above the lower one (a gap of 0.5
-/// mm, inside its resting gap of about 1.68 mm).
-fn slide_in(
-    scheme: Scheme,
-    n: usize,
-    turn: f64,
-    theta: f64,
-    mu: f64,
-    steps: usize,
-    h: f64,
-) -> (Vec<f64>, Arc<SelfContactStats>) {
-    slide_from(1.5e-3, scheme, n, turn, theta, mu, steps, h)
-}
+/// The height above the lower sheet the top sheet is released at: a gap of 0.5 mm once
+/// the thickness (1 mm) is taken off, inside its resting gap of about 1.68 mm.
+const RELEASED_AT: f64 = 1.5e-3;
+
+/// The height at which the top sheet rests on the lower one (the gap where the barrier
+/// carries the normal part of its weight, measured after backward Euler settled it).
+const RESTING_AT: f64 = 2.68e-3;
 
 /// A 4 x 4 sheet (spacing 5 cm) lying `height` above a pinned `n x n` sheet (the same
 /// spacing), turned by `turn` about their normal (at 0 its edges are parallel to the
@@ -62,7 +56,7 @@ fn slide_in(
 /// end-of-step velocity rings about it, the scheme adding no damping), and the term's
 /// statistics.
 #[allow(clippy::too_many_arguments)]
-fn slide_from(
+fn slide_in(
     height: f64,
     scheme: Scheme,
     n: usize,
@@ -126,7 +120,16 @@ fn slide_from(
 /// [`slide_in`] in backward Euler on a 14 x 14 sheet, the top sheet's edges parallel to
 /// the lower sheet's.
 fn slide(theta: f64, mu: f64, steps: usize, h: f64) -> (Vec<f64>, Arc<SelfContactStats>) {
-    slide_in(Scheme::BackwardEuler, 14, 0.0, theta, mu, steps, h)
+    slide_in(
+        RELEASED_AT,
+        Scheme::BackwardEuler,
+        14,
+        0.0,
+        theta,
+        mu,
+        steps,
+        h,
+    )
 }
 
 /// A 2 x 2 sheet (spacing 5 cm) 1 cm above a pinned 2 x 2 sheet of spacing 1 m, over
@@ -251,7 +254,16 @@ fn a_sheet_slides_on_a_sheet_with_coulomb_acceleration_when_mu_is_below_tan_thet
     // but the rows' vertices pass the lower edges 1.5 mm apart instead of at once.
     let coulomb = sliding - friction;
     for turn in [0.3, 0.01] {
-        let (held, _) = slide_in(Scheme::BackwardEuler, 14, turn, theta, mu, 25, H);
+        let (held, _) = slide_in(
+            RELEASED_AT,
+            Scheme::BackwardEuler,
+            14,
+            turn,
+            theta,
+            mu,
+            25,
+            H,
+        );
         let measured = acceleration(&held, 8, 24, H);
         println!("h 1/60, turned {turn} rad: {measured} (g (sin - mu cos) {coulomb})");
         assert!(
@@ -301,7 +313,7 @@ fn bdf2_and_the_midpoint_hold_or_slide_a_sheet_on_a_sheet_as_coulomb_says() {
     let coulomb = G * (theta.sin() - 0.2 * theta.cos());
     let eps_v = SelfContactSettings::default().eps_v;
     for scheme in [Scheme::Bdf2, Scheme::Midpoint] {
-        let (held, stats) = slide_in(scheme, 24, 0.3, theta, 0.2, 45, H);
+        let (held, stats) = slide_in(RELEASED_AT, scheme, 24, 0.3, theta, 0.2, 45, H);
         assert!(stats.friction_pairs() > 0, "{scheme:?}");
         let measured = acceleration(&held, 12, 44, H);
         println!("{scheme:?}: {measured} (g (sin - mu cos) {coulomb})");
@@ -323,14 +335,14 @@ fn bdf2_and_the_midpoint_hold_or_slide_a_sheet_on_a_sheet_as_coulomb_says() {
         // fifth step on like backward Euler (4.7e-4 m/s, the creep of the smoothed
         // friction), the midpoint from its tenth. When BDF2 started with an undamped
         // midpoint step its slip reached 0.14 m/s and it held from its tenth step.
-        let (speeds, _) = slide_in(scheme, 14, 0.3, theta, 0.8, 30, H);
+        let (speeds, _) = slide_in(RELEASED_AT, scheme, 14, 0.3, theta, 0.8, 30, H);
         let settled = if scheme == Scheme::Bdf2 { 4 } else { 9 };
         for (step, s) in speeds.iter().enumerate().skip(settled) {
             assert!(s.abs() < eps_v, "{scheme:?} step {step}: creeping at {s}");
         }
         // Released at its resting gap instead, with no barrier energy to throw it, the
         // sheet holds from its first step in both schemes.
-        let (speeds, _) = slide_from(2.68e-3, scheme, 14, 0.3, theta, 0.8, 30, H);
+        let (speeds, _) = slide_in(RESTING_AT, scheme, 14, 0.3, theta, 0.8, 30, H);
         for (step, s) in speeds.iter().enumerate() {
             assert!(
                 s.abs() < eps_v,
