@@ -172,8 +172,8 @@ pub struct StepReport {
     /// Implicit steps: the effective step `h` of the solve whose `residual` and
     /// `tolerance` are reported, the one whose inertia `m / h^2` the Newton matrix holds:
     /// the length of the step (or of its piece, for a split step) for backward Euler,
-    /// two thirds of it for BDF2 (its starting step is backward Euler's), half of it for
-    /// the implicit midpoint. 0 for the explicit integrators.
+    /// two thirds of it for BDF2 (whose starting step and pieces are backward Euler
+    /// steps), half of it for the implicit midpoint. 0 for the explicit integrators.
     #[cfg_attr(feature = "serde", serde(default))]
     pub effective_step: f64,
     /// Step halvings in the line searches.
