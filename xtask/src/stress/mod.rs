@@ -59,7 +59,7 @@ pub struct StressArgs {
     /// Cloth: only these initial states (rest, stretched, compressed, perturbed, far).
     #[arg(long, value_delimiter = ',', value_parser = cloth::InitialState::parse)]
     state: Vec<cloth::InitialState>,
-    /// Cloth: only these integrators (backward-euler, auto).
+    /// Cloth: only these integrators (backward-euler, auto, bdf2).
     #[arg(long, value_delimiter = ',', value_parser = cloth::ClothIntegrator::parse)]
     integrator: Vec<cloth::ClothIntegrator>,
     /// Cloth: steps per case instead of the default (20 on 11 x 11, 3 on 51 x 51, 10 on

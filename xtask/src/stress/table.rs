@@ -293,7 +293,7 @@ fn cloth_markdown(s: &mut String, results: &StressResults) {
     let _ = writeln!(s, "## Cloth\n");
     let _ = writeln!(
         s,
-        "The lab cloth (W4's springs, corners (0, 0) and (0, n-1) pinned, the sheet 2 wide, mass 1, gravity 0.3, no damping) stepped by the default backward Euler (`NewtonSettings::default()`: tolerance 1e-9 m/h^2, cap 50, raised to 200 where k h^2 / m >= 1e5, docs/stress.md) and by `auto` (its defaults, the same Newton settings for its BDF2 steps; the energy inequality is checked on backward Euler steps only). Cell: Newton iterations per step, max/mean; `rN`: N steps stopped (cap or stalled line search) at or below the round-off floor; `FN`: N steps stopped far from converged (reported); `EN`: N energy-inequality breaks; `DIVERGED`; `!`: the case failed.\n"
+        "The lab cloth (W4's springs, corners (0, 0) and (0, n-1) pinned, the sheet 2 wide, mass 1, gravity 0.3, no damping) stepped by the default backward Euler (`NewtonSettings::default()`: tolerance 1e-9 m/h^2, cap 50, raised to 200 where k h^2 / m >= 1e5, docs/stress.md), by `auto` (its defaults, the same Newton settings for its BDF2 steps) and by BDF2 (the same Newton settings); the energy inequality is checked on backward Euler steps only (BDF2's starting steps are not). Cell: Newton iterations per step, max/mean; `rN`: N steps stopped (cap or stalled line search) at or below the round-off floor; `FN`: N steps stopped far from converged (reported); `EN`: N energy-inequality breaks; `DIVERGED`; `!`: the case failed.\n"
     );
     for pair in grids(results) {
         let steps = steps_per_case(results, pair);
