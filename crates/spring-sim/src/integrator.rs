@@ -846,7 +846,7 @@ impl Simulation {
             let Some(newton) = sim.newton_workspace_mut() else {
                 return Err(ModelError::BadParameter {
                     name: "integrator",
-                    reason: "the explicit integrators and auto (whose explicit steps take springs only) have no place for the dihedral bending term: choose backward Euler, BDF2 or implicit midpoint, or bending springs",
+                    reason: "only backward Euler, BDF2 and implicit midpoint have a place for the dihedral bending term (the explicit integrators and auto's explicit steps take springs only, the flawed reference method its own springs): choose one of them, or bending springs",
                 });
             };
             model.add_bending(newton)?;
