@@ -37,6 +37,16 @@ fn bending_sheet() -> MeshClothModel {
     cloth.build(&TriangleMesh::new(x, t).unwrap()).unwrap()
 }
 
+/// Self-contact of the dropped sheets: `dhat` 2 mm, thickness 1 mm, friction `mu`.
+fn contact_settings(mu: f64) -> SelfContactSettings {
+    SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 1e-3,
+        mu,
+        ..SelfContactSettings::default()
+    }
+}
+
 /// The sheet dropped onto a sheet pinned along its border (6 x 6 each).
 fn dropped_sheets() -> MeshClothModel {
     let (x, t, fixed) = sheets::dropped(6, 0.05);
@@ -107,12 +117,7 @@ fn dihedral_bending_needs_an_implicit_integrator() {
 #[test]
 fn self_contact_through_a_simulation_is_the_term_added_by_hand() {
     let model = dropped_sheets();
-    let settings = SelfContactSettings {
-        dhat: 2e-3,
-        thickness: 1e-3,
-        mu: 0.3,
-        ..SelfContactSettings::default()
-    };
+    let settings = contact_settings(0.3);
     for scheme in SCHEMES {
         let mut sim = Simulation::from_mesh_cloth(&model, scheme.integrator()).unwrap();
         let stats = sim.set_self_contact(&model.triangles, settings).unwrap();
@@ -188,11 +193,8 @@ fn self_contact_needs_an_implicit_integrator_and_is_added_once() {
 #[test]
 fn auto_with_self_contact_steps_implicitly() {
     let model = dropped_sheets();
-    let settings = SelfContactSettings {
-        dhat: 2e-3,
-        thickness: 1e-3,
-        ..SelfContactSettings::default()
-    };
+    // Without friction.
+    let settings = contact_settings(0.0);
     for settle in [false, true] {
         let auto = AutoSettings {
             settle,
