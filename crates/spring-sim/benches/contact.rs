@@ -32,7 +32,7 @@
 //! (recomputed from the colliders' fields after every step), and for the self-contact
 //! workloads the triangle pairs passing through each other over the run (the exact check
 //! of `sinew-exact`, after every step, outside the timed step). Not a criterion
-//! benchmark: a table for docs/contact.md, run with
+//! benchmark: a table for docs/bench/contact.md, run with
 //! `cargo bench -p sinew-spring-sim --bench contact [-- ground|drape|rotating|twist|stack|
 //! stack-workload [steps] [--trace] [mu=..] [eps_v=..] [solver=direct|pcg|auto] [reuse=..] [tol=..]
 //! [exact=0|1] [threads=N] [cap=N] [split=N] [save=FILE] [against=FILE]]` (`--trace`: a line per step on stderr, with the step's intersecting triangle pairs for the self-contact workloads; `mu`, `eps_v`: the

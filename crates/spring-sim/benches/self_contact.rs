@@ -5,7 +5,7 @@
 //! every Newton iteration by the pairs contact coupled without slots). Prints, per `n`, the wall time
 //! per step and per vertex per step, the Newton iterations, and the active pairs at the
 //! end. Not a criterion
-//! benchmark: a table for docs/contact.md, run with
+//! benchmark: a table for docs/bench/contact.md, run with
 //! `cargo bench -p sinew-spring-sim --bench self_contact [-- n... [steps=N] [trace]]` (45
 //! steps unless `steps=` says otherwise). With `trace`, every Newton iteration prints a
 //! row to stderr: the step, the iteration, the pairs within `dhat`, `kappa`, the smallest

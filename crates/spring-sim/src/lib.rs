@@ -101,7 +101,8 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
-//! Derivations: docs/spring-sim.md. Measurements: docs/bench/spring-sim.md.
+//! Derivations: docs/spring-sim.md and, for contact, docs/contact.md. Measurements:
+//! docs/bench/spring-sim.md and docs/bench/contact.md.
 
 pub mod contact;
 mod explicit;

@@ -3,7 +3,7 @@
 //!
 //! faer's own supernodal factorization visits the supernodes one after the other and
 //! shares only each supernode's dense kernels between threads, which on cloth matrices
-//! (supernodes of a few dozen columns) costs more than it saves (docs/contact.md,
+//! (supernodes of a few dozen columns) costs more than it saves (docs/bench/contact.md,
 //! "faer's own threads for the factorization"). Two supernodes in disjoint subtrees of
 //! the supernodal elimination tree never read each other's columns, so the tree's lower
 //! part splits into two groups of whole subtrees, one per thread, and each thread then

@@ -7,7 +7,7 @@
 //! matrix with blocks of zeros: on the wound twist (a 50 x 50 sheet wrung into a rope)
 //! the pattern held 279 324 entries after 320 steps where the pairs in contact in the
 //! step before needed 188 046, and the factor 1.61 million values against 1.25 million
-//! (docs/contact.md, "A pattern that forgets the pairs that left"). A coupling whose
+//! (docs/bench/contact.md, "A pattern that forgets the pairs that left"). A coupling whose
 //! block was zero in every Newton matrix of [`IDLE_STEPS`] consecutive steps is idle;
 //! once idle pairs are many (see [`TransientCouplings::narrowing_due`]), the pattern is
 //! rebuilt without them. A pair that comes back is reported missing by its term and

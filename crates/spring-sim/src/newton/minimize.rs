@@ -262,7 +262,7 @@ impl BackwardEuler {
             // Once Newton is slow, the contact pairs' exact Hessians are tried first with
             // the softened springs (`Curvature::ExactContact`, for terms that have them
             // and are set to give them): the projection drops each pair's negative
-            // curvature, and the Newton step then converges only linearly (docs/contact.md,
+            // curvature, and the Newton step then converges only linearly (docs/bench/contact.md,
             // "The exact pair Hessian first"). That negative curvature is the barrier's,
             // which no `theta` removes, so a matrix with them that is not positive definite
             // is replaced at once by the one with their projections, at the same `theta`.
@@ -270,7 +270,7 @@ impl BackwardEuler {
             // eight on the wound twist), each a failed solve (a factorization, or PCG meeting
             // non-positive curvature) and an assembly for nothing, so the iteration after a
             // refusal skips the exact blocks and the one after that tries them again
-            // (docs/contact.md, "A refused exact matrix skips the next iteration's").
+            // (docs/bench/contact.md, "A refused exact matrix skips the next iteration's").
             let mut exact_contact =
                 exact_contact_differs && softening && !std::mem::take(&mut exact_refused_last);
             if softening {
@@ -318,7 +318,7 @@ impl BackwardEuler {
                 // Before Newton is slow too, the contact pairs' exact Hessians first, with
                 // the springs' clamped blocks (`ExactContact(1)`: `Softened(1)` is
                 // `Clamped` bit for bit, so the blocks the gradient's pass computed serve);
-                // their projections when that matrix is refused (docs/contact.md, "The
+                // their projections when that matrix is refused (docs/bench/contact.md, "The
                 // exact pair Hessian from the first iteration").
                 self.assemble_hessian_with(&step, Curvature::ExactContact(1.0), blocks_ready);
                 self.settle_direct()?;

@@ -117,7 +117,7 @@ pub struct SelfContactSettings {
     /// Whether the term gives its pairs' exact Hessians when the Newton matrix asks for
     /// them ([`Curvature::ExactContact`]); when false it always gives their projections
     /// (default true: fewer Newton iterations and less time on the stacked and twisted
-    /// sheets, docs/contact.md, "The exact pair Hessian first" and "The exact pair
+    /// sheets, docs/bench/contact.md, "The exact pair Hessian first" and "The exact pair
     /// Hessian from the first iteration").
     pub exact_hessian: bool,
 }
