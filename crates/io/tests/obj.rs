@@ -156,6 +156,50 @@ fn the_shipped_sheet_is_a_clean_cloth_mesh() {
     assert!(m.hinges().is_ok());
 }
 
+/// The shipped table: a closed box (every edge in exactly two triangles, so the surface
+/// has no border), its area the box's `2 (0.5 x 0.5) + 4 (0.5 x 0.05)`, every vertex on
+/// the box's surface, and every triangle wound with its normal pointing out of the box
+/// (away from its centre, along the face's axis), as docs/io.md says.
+#[test]
+fn the_shipped_table_is_a_closed_box_wound_outwards() {
+    let mesh = parse_obj(include_str!("../../../scenes/data/table.obj")).unwrap();
+    let m = TriangleMesh::new(mesh.positions, mesh.triangles).unwrap();
+    assert_eq!((m.positions().len(), m.triangles().len()), (242, 480));
+    let mut uses = std::collections::HashMap::new();
+    for &[a, b, c] in m.triangles() {
+        for (p, q) in [(a, b), (b, c), (c, a)] {
+            *uses.entry((p.min(q), p.max(q))).or_insert(0) += 1;
+        }
+    }
+    assert!(
+        uses.values().all(|&n| n == 2),
+        "an edge not in two triangles"
+    );
+    let area: f64 = (0..m.triangles().len()).map(|t| m.area(t)).sum();
+    assert!((area - (0.5 + 0.1)).abs() < 1e-12, "area {area}");
+    let (low, high) = (DVec3::new(-0.25, 0.35, -0.25), DVec3::new(0.25, 0.40, 0.25));
+    let centre = 0.5 * (low + high);
+    for p in m.positions() {
+        let on_a_face = (0..3).any(|k| p[k] == low[k] || p[k] == high[k]);
+        let within = (0..3).all(|k| p[k] >= low[k] && p[k] <= high[k]);
+        assert!(on_a_face && within, "{p}");
+    }
+    for &[a, b, c] in m.triangles() {
+        let x = m.positions();
+        let normal = (x[b] - x[a]).cross(x[c] - x[a]);
+        let out = (x[a] + x[b] + x[c]) / 3.0 - centre;
+        // The face's axis: the normal's largest component, which points away from the
+        // centre along it.
+        let k = (0..3)
+            .max_by(|&i, &j| normal[i].abs().total_cmp(&normal[j].abs()))
+            .unwrap();
+        assert!(
+            normal[k] * out[k] > 0.0,
+            "triangle {a} {b} {c} wound inwards"
+        );
+    }
+}
+
 /// An `n x n` sheet of side 1 in the xz plane, written as OBJ text with one quad per
 /// cell (the reader triangulates them).
 fn sheet_obj(n: usize) -> String {

@@ -343,7 +343,9 @@ pub struct MeshCloth {
     pub material: Material,
     /// The bending model.
     pub bending: Bending,
-    /// Vertices held in place.
+    /// Vertices held in place. A part of the mesh held whole is a fixed obstacle of any
+    /// shape (sharp edges included) for the rest: self-contact forms no pair of two held
+    /// primitives, so it costs only the pairs near the moving cloth.
     pub fixed: Vec<usize>,
 }
 

@@ -214,6 +214,10 @@ pub enum SheetSpec {
         /// Vertices to pin, by their `v` statements' indices in the file (from 0).
         #[serde(default)]
         fixed: Vec<usize>,
+        /// Pin every vertex: the mesh is a fixed obstacle (a table, a body in its pose)
+        /// that the other sheets touch through self-contact, sharp edges and all.
+        #[serde(default)]
+        pin_all: bool,
         /// Initial velocity of every vertex, m/s.
         #[serde(default)]
         velocity: DVec3,
@@ -254,6 +258,9 @@ struct Assembled {
     motions: Vec<PinnedMotion>,
     /// The vertices each of the limbs' attachments holds (in `fixed` too).
     held: Vec<Vec<usize>>,
+    /// The vertices of the sheets pinned whole (`pin_all`): obstacles, whose vertices the
+    /// pictures do not mark as pinned one by one.
+    obstacles: Vec<bool>,
 }
 
 impl MeshClothTask {
@@ -265,6 +272,7 @@ impl MeshClothTask {
             velocities: Vec::new(),
             motions: Vec::new(),
             held: Vec::new(),
+            obstacles: Vec::new(),
         };
         // Per sheet: its first vertex and, for a grid, its size; for an OBJ sheet, the
         // file's numbering of its vertices (its mesh taken out).
@@ -318,6 +326,7 @@ impl MeshClothTask {
                             ));
                         }
                     }
+                    a.obstacles.extend(std::iter::repeat_n(*pin_all, n * n));
                     for i in 0..n {
                         for j in 0..n {
                             a.positions
@@ -341,6 +350,7 @@ impl MeshClothTask {
                     scale,
                     offset: shift,
                     fixed,
+                    pin_all,
                     velocity,
                 } => {
                     let file = self.base_dir.join(path);
@@ -357,9 +367,15 @@ impl MeshClothTask {
                             .map_err(|e| format!("sheets[{k}]: fixed: {e}"))?;
                         a.fixed.push(at + offset);
                     }
+                    if *pin_all {
+                        // Every vertex once, `fixed` or not.
+                        a.fixed.retain(|&v| v < offset);
+                        a.fixed.extend(offset..offset + len);
+                    }
                     a.positions
                         .extend(mesh.positions.iter().map(|p| *scale * *p + *shift));
                     a.velocities.extend(std::iter::repeat_n(*velocity, len));
+                    a.obstacles.extend(std::iter::repeat_n(*pin_all, len));
                     a.triangles
                         .extend(mesh.triangles.iter().map(|t| t.map(|v| v + offset)));
                     files[k] = Some(read);
@@ -648,7 +664,10 @@ impl TaskSpec for MeshClothTask {
             .iter()
             .map(|s| (s.a, s.b, s.rest_length))
             .collect();
-        let fixed: Vec<usize> = (0..system.len()).filter(|&i| system.fixed()[i]).collect();
+        // The pinned vertices the pictures mark: not an obstacle's (every one of them).
+        let fixed: Vec<usize> = (0..system.len())
+            .filter(|&i| system.fixed()[i] && !a.obstacles[i])
+            .collect();
         let frame_every = self.steps.div_ceil(MAX_FRAMES).max(1);
         let mut frames: Vec<ClothFrame> = Vec::new();
         let mut frame_steps: Vec<usize> = Vec::new();
