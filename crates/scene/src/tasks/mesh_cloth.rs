@@ -224,15 +224,17 @@ pub enum SheetSpec {
     },
 }
 
-/// Rows of a grid sheet held and moved rigidly: at time `t` a vertex that started at `r`
-/// is at `point + R(axis, angular_speed t) (r - point) + velocity t`.
+/// Rows of a grid sheet, or a whole sheet, held and moved rigidly: at time `t` a vertex
+/// that started at `r` is at `point + R(axis, angular_speed t) (r - point) + velocity t`.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MovingPins {
-    /// The sheet (index in `sheets`; a `Grid`).
+    /// The sheet (index in `sheets`).
     pub sheet: usize,
-    /// The rows `i` of the grid whose vertices move (each row is the `size` vertices
-    /// `(i, 0..size)`).
+    /// The rows `i` of a grid sheet whose vertices move (each row is the `size` vertices
+    /// `(i, 0..size)`); none (the default) moves every vertex of the sheet, a grid's or an
+    /// OBJ sheet's: a moving obstacle when the sheet is pinned whole.
+    #[serde(default)]
     pub rows: Vec<usize>,
     /// A point on the rotation axis (default the origin).
     #[serde(default)]
@@ -391,27 +393,32 @@ impl MeshClothTask {
                     sheets.len()
                 ));
             };
-            let Some(n) = size else {
-                return Err(format!(
-                    "moving_pins[{k}]: sheet {} is not a Grid (rows are a grid's)",
-                    m.sheet
-                ));
-            };
-            if let Some(&row) = m.rows.iter().find(|&&r| r >= n) {
-                return Err(format!(
-                    "moving_pins[{k}]: row {row} does not exist (the grid has {n} rows)"
-                ));
-            }
-            let particles: Vec<usize> = m
-                .rows
-                .iter()
-                .flat_map(|&i| (0..n).map(move |j| offset + i * n + j))
-                .collect();
-            for &p in &particles {
-                if !a.fixed.contains(&p) {
-                    a.fixed.push(p);
+            let particles: Vec<usize> = if m.rows.is_empty() {
+                let end = sheets.get(m.sheet + 1).map_or(a.positions.len(), |s| s.0);
+                (offset..end).collect()
+            } else {
+                let Some(n) = size else {
+                    return Err(format!(
+                        "moving_pins[{k}]: sheet {} is not a Grid (rows are a grid's; \
+                         leave rows out to move the whole sheet)",
+                        m.sheet
+                    ));
+                };
+                if let Some(&row) = m.rows.iter().find(|&&r| r >= n) {
+                    return Err(format!(
+                        "moving_pins[{k}]: row {row} does not exist (the grid has {n} rows)"
+                    ));
                 }
+                m.rows
+                    .iter()
+                    .flat_map(|&i| (0..n).map(move |j| offset + i * n + j))
+                    .collect()
+            };
+            let mut pinned = vec![false; a.positions.len()];
+            for &p in &a.fixed {
+                pinned[p] = true;
             }
+            a.fixed.extend(particles.iter().filter(|&&p| !pinned[p]));
             let motion = PinnedMotion {
                 particles,
                 point: m.point,
