@@ -808,6 +808,25 @@ fn cloth_frames(scene: &Scene) -> Vec<Vec<DVec3>> {
     p.frames.iter().map(|f| f.positions.clone()).collect()
 }
 
+/// The triangles of a `MeshCloth` made of `scenes/data/<obj>` (its faces fanned, as the
+/// reader does) followed by an `n x n` grid sheet, read apart from the task: what the
+/// exact intersection check is given.
+fn obj_then_grid_triangles(obj: &str, n: usize) -> Vec<[usize; 3]> {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes/data")
+        .join(obj);
+    let mesh = sinew_io::obj::parse_obj(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let offset = mesh.positions.len();
+    let grid = sinew_spring_sim::ClothGrid {
+        size: n,
+        ..sinew_spring_sim::ClothGrid::lab()
+    };
+    mesh.triangles
+        .into_iter()
+        .chain(grid.triangles().into_iter().map(|t| t.map(|v| v + offset)))
+        .collect()
+}
+
 /// The distance from `x` to the axis-aligned box `[low, high]`, negative inside (minus
 /// the distance to its nearest face).
 fn box_signed_distance(x: DVec3, low: DVec3, high: DVec3) -> f64 {
@@ -847,25 +866,7 @@ fn a_tablecloth_drapes_over_a_pinned_mesh_table_and_never_enters_it() {
         }
     }
     assert!(closest > 1e-3, "a cloth vertex {closest} m from the table");
-    let triangles: Vec<[usize; 3]> = {
-        let mesh = sinew_io::obj::parse_obj(
-            &std::fs::read_to_string(
-                std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                    .join("../../scenes/data/table.obj"),
-            )
-            .unwrap(),
-        )
-        .unwrap();
-        let n = 21;
-        let grid = sinew_spring_sim::ClothGrid {
-            size: n,
-            ..sinew_spring_sim::ClothGrid::lab()
-        };
-        mesh.triangles
-            .into_iter()
-            .chain(grid.triangles().into_iter().map(|t| t.map(|v| v + table)))
-            .collect()
-    };
+    let triangles = obj_then_grid_triangles("table.obj", 21);
     let meeting = sinew_exact::intersecting_pairs(last, &triangles);
     assert!(meeting.is_empty(), "{meeting:?}");
     let cloth = |i: usize, j: usize| last[table + 21 * i + j];
@@ -925,24 +926,7 @@ fn a_sheet_on_a_moving_mesh_belt_is_carried_at_coulombs_acceleration() {
                 assert!((*x - (*r + DVec3::new(0.5 * t, 0.0, 0.0))).length() < 1e-12);
             }
         }
-        let triangles: Vec<[usize; 3]> = {
-            let mesh = sinew_io::obj::parse_obj(
-                &std::fs::read_to_string(concat!(
-                    env!("CARGO_MANIFEST_DIR"),
-                    "/../../scenes/data/sheet.obj"
-                ))
-                .unwrap(),
-            )
-            .unwrap();
-            let grid = sinew_spring_sim::ClothGrid {
-                size: 4,
-                ..sinew_spring_sim::ClothGrid::lab()
-            };
-            mesh.triangles
-                .into_iter()
-                .chain(grid.triangles().into_iter().map(|t| t.map(|v| v + belt)))
-                .collect()
-        };
+        let triangles = obj_then_grid_triangles("sheet.obj", 4);
         let last = &frames[frames.len() - 1];
         let meeting = sinew_exact::intersecting_pairs(last, &triangles);
         assert!(meeting.is_empty(), "{meeting:?}");
