@@ -911,8 +911,9 @@ fn belt_scene(mu: f64) -> String {
 /// (an OBJ sheet pinned whole and moved by `moving_pins` without rows) the sheet lying on
 /// it speeds up at `mu g` (0.8 x 9.81: 0.131 m/s a step) until it moves with the belt,
 /// then moves with it (static friction: within `eps_v`, 1 mm/s); without friction it stays
-/// within a centimetre of where it was while the belt slides 0.2 m under it. The belt's vertices are where the
-/// motion puts them in every frame (`r + v t`, exactly), and no triangles meet at the end.
+/// within a centimetre of where it was while the belt slides 0.2 m under it. The belt's
+/// vertices are where the motion puts them in every frame (`r + v t`, to 1e-12), and no
+/// triangles meet at the end.
 #[test]
 fn a_sheet_on_a_moving_mesh_belt_is_carried_at_coulombs_acceleration() {
     let belt = 121;
