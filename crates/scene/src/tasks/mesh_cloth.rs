@@ -1,5 +1,6 @@
 //! The `MeshCloth` task: one or more triangle-mesh sheets (square grids placed in space,
-//! or a mesh read from an OBJ file) built as one cloth, stepped by backward Euler with
+//! or a mesh read from an OBJ file; a sheet pinned whole, still or moved rigidly, is an
+//! obstacle for the others) built as one cloth, stepped by backward Euler with
 //! self-contact (the IPC barrier between the cloth's own vertices, triangles and edges,
 //! the line search capped by continuous collision detection) and, optionally, rigid
 //! colliders. After every step the mesh is checked for triangles passing through each
