@@ -939,9 +939,9 @@ fn a_sheet_on_a_moving_mesh_belt_is_carried_at_coulombs_acceleration() {
     };
     let carried = run(0.8);
     let v: Vec<f64> = carried.windows(2).map(|w| (w[1] - w[0]) / h).collect();
-    // Measured: 0.069 in the first step (the sheet settles onto the barrier in it, and
-    // friction is lagged from its start), then 0.126, 0.135 and 0.131 m/s more a step,
-    // 0.49986 in the fifth and 0.50000 from the sixth on.
+    // Measured: 0.069 in the first step (its friction is lagged from the release state;
+    // not checked, and not traced), then 0.126, 0.135 and 0.131 m/s more a step, 0.49986
+    // in the fifth and 0.50000 from the sixth on.
     let coulomb = 0.8 * 9.81 * h;
     for k in 1..4 {
         let dv = v[k] - v[k - 1];
