@@ -35,7 +35,7 @@ fn main() {
                 let p = [i, j, k];
                 if on_surface(p) {
                     index.insert(p, index.len() + 1);
-                    let x: Vec<f64> = (0..3).map(|a| LOW[a] + SPACING * p[a] as f64).collect();
+                    let x = [0, 1, 2].map(|a| LOW[a] + SPACING * p[a] as f64);
                     let _ = writeln!(out, "v {:.2} {:.2} {:.2}", x[0], x[1], x[2]);
                 }
             }

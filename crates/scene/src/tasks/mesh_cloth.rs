@@ -266,6 +266,27 @@ struct Assembled {
     obstacles: Vec<bool>,
 }
 
+impl Assembled {
+    /// Marks of the pinned vertices so far.
+    fn pinned_marks(&self) -> Vec<bool> {
+        let mut marks = vec![false; self.positions.len()];
+        for &v in &self.fixed {
+            marks[v] = true;
+        }
+        marks
+    }
+}
+
+/// The vertices of sheet `k` of `sheets` (each its first vertex and, for a grid, its
+/// size): from its first to the next sheet's first, or to `len` for the last.
+fn sheet_vertices(
+    sheets: &[(usize, Option<usize>)],
+    k: usize,
+    len: usize,
+) -> std::ops::Range<usize> {
+    sheets[k].0..sheets.get(k + 1).map_or(len, |&(next, _)| next)
+}
+
 impl MeshClothTask {
     fn assemble(&self) -> Result<Assembled, String> {
         let mut a = Assembled {
@@ -363,17 +384,17 @@ impl MeshClothTask {
                         .map_err(|e| format!("sheets[{k}]: {}: {e}", file.display()))?;
                     let mesh = std::mem::take(&mut read.mesh);
                     let len = mesh.positions.len();
-                    // Pinned by the file's numbering.
-                    for &v in fixed {
-                        let at = read
-                            .vertex(v)
-                            .map_err(|e| format!("sheets[{k}]: fixed: {e}"))?;
-                        a.fixed.push(at + offset);
-                    }
+                    // Pinned by the file's numbering (checked with `pin_all` too), or
+                    // every vertex once.
+                    let listed = fixed
+                        .iter()
+                        .map(|&v| read.vertex(v).map(|at| at + offset))
+                        .collect::<Result<Vec<usize>, _>>()
+                        .map_err(|e| format!("sheets[{k}]: fixed: {e}"))?;
                     if *pin_all {
-                        // Every vertex once, `fixed` or not.
-                        a.fixed.retain(|&v| v < offset);
                         a.fixed.extend(offset..offset + len);
+                    } else {
+                        a.fixed.extend(listed);
                     }
                     a.positions
                         .extend(mesh.positions.iter().map(|p| *scale * *p + *shift));
@@ -386,6 +407,7 @@ impl MeshClothTask {
             }
         }
         at_most("sheets: vertices", a.positions.len(), MAX_PARTICLES)?;
+        let mut pinned = a.pinned_marks();
         for (k, m) in self.moving_pins.iter().enumerate() {
             let Some(&(offset, size)) = sheets.get(m.sheet) else {
                 return Err(format!(
@@ -395,8 +417,7 @@ impl MeshClothTask {
                 ));
             };
             let particles: Vec<usize> = if m.rows.is_empty() {
-                let end = sheets.get(m.sheet + 1).map_or(a.positions.len(), |s| s.0);
-                (offset..end).collect()
+                sheet_vertices(&sheets, m.sheet, a.positions.len()).collect()
             } else {
                 let Some(n) = size else {
                     return Err(format!(
@@ -415,11 +436,11 @@ impl MeshClothTask {
                     .flat_map(|&i| (0..n).map(move |j| offset + i * n + j))
                     .collect()
             };
-            let mut pinned = vec![false; a.positions.len()];
-            for &p in &a.fixed {
-                pinned[p] = true;
+            for &p in &particles {
+                if !std::mem::replace(&mut pinned[p], true) {
+                    a.fixed.push(p);
+                }
             }
-            a.fixed.extend(particles.iter().filter(|&&p| !pinned[p]));
             let motion = PinnedMotion {
                 particles,
                 point: m.point,
@@ -455,10 +476,7 @@ impl MeshClothTask {
         }
         // Marks of the vertices held so far, and of the pinned ones.
         let mut held = vec![false; a.positions.len()];
-        let mut pinned = vec![false; a.positions.len()];
-        for &v in &a.fixed {
-            pinned[v] = true;
-        }
+        let mut pinned = a.pinned_marks();
         for (k, at) in limbs.attach.iter().enumerate() {
             let err = |e: String| format!("limbs: attach[{k}]: {e}");
             let Some(&(offset, grid)) = sheets.get(at.sheet) else {
@@ -468,14 +486,9 @@ impl MeshClothTask {
                     sheets.len()
                 )));
             };
-            // The sheet's vertices run to the next sheet's first (or the end).
-            let end = sheets
-                .get(at.sheet + 1)
-                .map_or(a.positions.len(), |&(next, _)| next);
             let file = files[at.sheet].as_ref();
-            let mut vertices = at
-                .indices(grid, &a.positions[offset..end], file)
-                .map_err(err)?;
+            let range = sheet_vertices(sheets, at.sheet, a.positions.len());
+            let mut vertices = at.indices(grid, &a.positions[range], file).map_err(err)?;
             for v in &mut vertices {
                 // Named as given: an OBJ sheet's vertex by the file's numbering.
                 let local = file.map_or(*v, |f| f.file_vertices[*v]);
