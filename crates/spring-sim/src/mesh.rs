@@ -345,7 +345,7 @@ pub struct MeshCloth {
     pub bending: Bending,
     /// Vertices held in place. A part of the mesh held whole is a fixed obstacle of any
     /// shape (sharp edges included) for the rest: self-contact forms no pair of two held
-    /// primitives, so it costs only the pairs near the moving cloth.
+    /// primitives (its broad phase still hashes them and rejects those pairs).
     pub fixed: Vec<usize>,
 }
 
