@@ -941,6 +941,10 @@ pub struct PcgSolver {
     partials3: Vec<[f64; 3]>,
     /// The row-ordered product's index, for systems above [`PARALLEL_MIN`].
     rows: Option<RowProduct>,
+    /// Whether a system of one chunk has a pool too, and whether it is in use (see
+    /// [`PcgSolver::use_small_pool`]).
+    small_too: bool,
+    small_active: bool,
     /// The threads (none: the calling thread only).
     #[cfg(feature = "parallel")]
     pool: Option<std::sync::Arc<rayon::ThreadPool>>,
@@ -1091,15 +1095,49 @@ impl PcgSolver {
             partials2: Vec::new(),
             partials3: Vec::new(),
             rows: (n > PARALLEL_MIN).then(|| RowProduct::new(pattern)),
+            small_too: false,
+            small_active: false,
             #[cfg(feature = "parallel")]
             pool: None,
         }
     }
 
+    /// Whether the solver takes a thread pool: its system is above [`PARALLEL_MIN`]
+    /// unknowns (its vector work is cut in chunks), or it was asked to take one
+    /// whatever its size ([`Self::use_small_pool`]).
+    #[cfg(feature = "parallel")]
+    fn spreads(&self) -> bool {
+        self.rows.is_some() || self.small_too
+    }
+
+    /// Whether a system of one chunk runs the integrator's passes on a pool of
+    /// `threads` threads (see [`Self::set_threads`]): `on` for a step whose terms have
+    /// work that grows with something other than the particles (self-contact's pairs),
+    /// off otherwise, where the hand-offs would cost more than they share. The pool is
+    /// built the first time it is asked for and kept; PCG's own solves stay on the
+    /// calling thread. Nothing for a system above [`PARALLEL_MIN`] unknowns, whose pool
+    /// is always in use. An error if the pool cannot be built, and the solver is then as
+    /// it was.
+    pub(crate) fn use_small_pool(&mut self, threads: usize, on: bool) -> Result<(), SolverError> {
+        if self.rows.is_some() {
+            return Ok(());
+        }
+        if on && !self.small_too {
+            self.small_too = true;
+            if let Err(error) = self.set_threads(threads) {
+                self.small_too = false;
+                return Err(error);
+            }
+        }
+        self.small_active = on;
+        Ok(())
+    }
+
     /// Spreads the work of systems above [`PARALLEL_MIN`] unknowns over `threads`
     /// threads (0: one per core). The result does not depend on it (see [`CHUNK`]). Without the
     /// `parallel` feature everything runs on the calling thread. An error if the thread
-    /// pool cannot be built.
+    /// pool cannot be built. A smaller system gets none unless
+    /// [`Self::use_small_pool`] asked for one.
     pub fn set_threads(&mut self, threads: usize) -> Result<(), SolverError> {
         #[cfg(feature = "parallel")]
         {
@@ -1108,7 +1146,7 @@ impl PcgSolver {
             } else {
                 threads
             };
-            self.pool = if count > 1 && self.rows.is_some() {
+            self.pool = if count > 1 && self.spreads() {
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(count)
                     .build()
@@ -1127,12 +1165,15 @@ impl PcgSolver {
     /// (a pattern widened during a run, possibly a few times a step, gets a new solver
     /// each time), when the two split their work alike (both above [`PARALLEL_MIN`]
     /// unknowns or both not, as for one system's patterns, which differ only in their
-    /// coupled pairs). False, and nothing changes, when they do not: then
-    /// [`PcgSolver::set_threads`] is the way.
+    /// coupled pairs); a small system's pool asked for by
+    /// [`PcgSolver::use_small_pool`] is shared too, in use or not as there. False, and nothing changes, when
+    /// they do not: then [`PcgSolver::set_threads`] is the way.
     pub fn share_threads(&mut self, previous: &PcgSolver) -> bool {
         if self.rows.is_some() != previous.rows.is_some() {
             return false;
         }
+        self.small_too = previous.small_too;
+        self.small_active = previous.small_active;
         #[cfg(feature = "parallel")]
         {
             self.pool = previous.pool.clone();
@@ -1148,17 +1189,23 @@ impl PcgSolver {
         self.rows.is_some()
     }
 
-    /// The thread pool, when the work is spread over more than one thread.
+    /// The thread pool, when the work is spread over more than one thread (for a system
+    /// of one chunk, the integrator's passes only, and only while in use, see
+    /// [`Self::use_small_pool`]).
     #[cfg(feature = "parallel")]
     pub(crate) fn pool(&self) -> Option<&std::sync::Arc<rayon::ThreadPool>> {
-        self.pool.as_ref()
+        self.pool
+            .as_ref()
+            .filter(|_| self.rows.is_some() || self.small_active)
     }
 
-    /// The threads the vector work runs on (1: the calling thread).
+    /// The threads of the solver's pool in use (1: the calling thread only). PCG's
+    /// vector work runs on them above [`PARALLEL_MIN`] unknowns; below, only the
+    /// integrator's passes that take [`Self::pool`], while it is in use.
     #[must_use]
     pub fn threads(&self) -> usize {
         #[cfg(feature = "parallel")]
-        if let Some(pool) = &self.pool {
+        if let Some(pool) = self.pool() {
             return pool.current_num_threads();
         }
         1
@@ -1176,7 +1223,7 @@ impl PcgSolver {
         max_iterations: usize,
     ) -> PcgOutcome {
         #[cfg(feature = "parallel")]
-        if let Some(pool) = self.pool.clone() {
+        if let Some(pool) = self.pool.clone().filter(|_| self.rows.is_some()) {
             return pool
                 .install(|| self.solve_on(true, pattern, values, b, x, rtol, max_iterations));
         }

@@ -271,8 +271,12 @@ impl BackwardEuler {
         Ok(())
     }
 
-    /// The threads PCG's work, the springs' part of the assembly and the line search run
-    /// on (1: the calling thread, as for systems too small to split).
+    /// The threads the step runs on (1: the calling thread, as for systems too small to
+    /// split): PCG's work, the springs' part of the assembly, the line search, the
+    /// terms' passes and the passes over the particles of systems above 6 144
+    /// unknowns, and of smaller systems, all but PCG's and the springs' part, while a
+    /// term wants them ([`crate::potential::Term::wants_threads`]: self-contact with
+    /// many pairs at the last step).
     #[must_use]
     pub fn threads(&self) -> usize {
         self.pcg.threads()
@@ -623,6 +627,12 @@ impl BackwardEuler {
         h: f64,
         scheme: Scheme<'_>,
     ) -> Result<StepReport, StepError> {
+        // A system too small for PCG's chunks runs this step on the pool when a term's
+        // work asks for it (self-contact with many pairs), asked afresh every step: the
+        // results are the same bits either way.
+        self.pcg
+            .use_small_pool(self.settings.threads, self.potential.wants_threads())
+            .map_err(crate::model::ModelError::from)?;
         #[cfg(feature = "parallel")]
         if let Some(pool) = self.pcg.pool().cloned() {
             return pool.install(|| self.step_scheme_here(system, h, scheme));

@@ -63,7 +63,10 @@ pub struct NewtonSettings {
     /// Threads for the PCG work, the springs' part of the assembly, the line search and
     /// the direct solver's factorization (two subtrees of its elimination tree side by
     /// side, then the separators above them by panels) of systems above 6 144 unknowns
-    /// (2 048 particles)
+    /// (2 048 free particles), and for the line search, the terms' passes and the passes
+    /// over the particles of smaller systems whose self-contact pairs, not their
+    /// particles, are most of a step's work (more than 512 pairs within reach at the last
+    /// step: sheets lying on each other, a small cloth on a finely meshed obstacle)
     /// (default 0: one per core; 1: the calling thread only). The results are bitwise
     /// the same for every value (fixed chunks, sums in chunk order, a factorization
     /// plan fixed by the matrix's structure); without the `parallel` feature it is

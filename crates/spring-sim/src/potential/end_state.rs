@@ -276,4 +276,8 @@ impl<T: Term> Term for AtEndOfStep<T> {
     fn does_work(&self) -> bool {
         self.inner.does_work()
     }
+
+    fn wants_threads(&self) -> bool {
+        self.inner.wants_threads()
+    }
 }

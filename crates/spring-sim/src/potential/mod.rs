@@ -253,6 +253,16 @@ pub trait Term: Any + std::fmt::Debug + Send + Sync {
     fn does_work(&self) -> bool {
         false
     }
+
+    /// Whether the term's passes are worth a thread pool at the next step whatever the
+    /// system's size: its work grows with something other than the particles
+    /// (self-contact: the pairs, many per vertex where sheets lie on each other or on an
+    /// obstacle held still). The integrator then runs the step on its pool even for a
+    /// system too small for PCG's chunks; asked before every step, so the answer may
+    /// change as the work does. `false` by default.
+    fn wants_threads(&self) -> bool {
+        false
+    }
 }
 
 /// The terms of one minimization, evaluated in order and summed.
@@ -715,6 +725,13 @@ impl Potential {
     #[must_use]
     pub fn does_work(&self) -> bool {
         self.terms.iter().any(|t| t.does_work())
+    }
+
+    /// Whether a term wants a thread pool whatever the system's size
+    /// ([`Term::wants_threads`]).
+    #[must_use]
+    pub fn wants_threads(&self) -> bool {
+        self.terms.iter().any(|t| t.wants_threads())
     }
 }
 

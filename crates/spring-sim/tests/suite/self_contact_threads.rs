@@ -167,3 +167,74 @@ fn compare_threads(one: &Outcome, steps: usize, setup: Setup) {
         );
     }
 }
+
+/// A small sheet dropped onto a larger one held whole (an obstacle: 900 pinned vertices
+/// and 144 free ones), far too few free particles for PCG's chunks: once more than 512
+/// pairs are within reach, self-contact asks for the integrator's pool anyway, and the
+/// next steps run on it. The run is the same to the bit on one, two and three threads,
+/// and the integrator reports the threads the last step ran on: one for the first step
+/// (no pair yet), the threads it was given for the others.
+fn obstacle_run(threads: usize) -> Outcome {
+    let (n, top) = (30, 12);
+    let (mut x, mut t) = sheets::grid(n, DVec3::ZERO, DVec3::X, DVec3::Z, 0.01, 0);
+    let (u, w) = (
+        DVec3::new(0.995_004, 0.0, 0.099_833_4),
+        DVec3::new(-0.099_833_4, 0.0, 0.995_004),
+    );
+    let (xt, tt) = sheets::grid(top, DVec3::new(0.1, 0.0016, 0.09), u, w, 0.008, x.len());
+    x.extend(xt);
+    t.extend(tt);
+    let mesh = TriangleMesh::new(x, t).unwrap();
+    let model = sheets::cloth((0..n * n).collect()).build(&mesh).unwrap();
+    let newton = NewtonSettings {
+        threads,
+        ..NewtonSettings::default()
+    };
+    let mut integrator = model.backward_euler(newton).unwrap();
+    // Without a term that asks for them, a system this small runs on the calling thread.
+    assert_eq!(integrator.threads(), 1);
+    let settings = SelfContactSettings {
+        dhat: 2e-3,
+        thickness: 1e-3,
+        mu: 0.3,
+        ..SelfContactSettings::default()
+    };
+    let stats = model
+        .enable_self_contact(&mut integrator, settings)
+        .unwrap();
+    let mut system = model.system.clone();
+    let (mut iterations, mut contact) = (Vec::new(), Vec::new());
+    for step in 0..3 {
+        let report = integrator.step(&mut system, H).unwrap();
+        iterations.push(report.iterations);
+        contact.push((stats.active_pairs(), stats.kappa().to_bits()));
+        contact.push((stats.friction_pairs(), 0));
+        let expected = match step {
+            0 => 1,
+            _ => crate::common::expected_threads(threads),
+        };
+        assert_eq!(integrator.threads(), expected, "step {step}");
+    }
+    (system, iterations, contact)
+}
+
+#[test]
+fn a_small_sheet_on_a_pinned_one_steps_alike_on_one_two_and_three_threads() {
+    let one = obstacle_run(1);
+    assert!(
+        one.2.iter().step_by(2).all(|&(pairs, _)| pairs > 512),
+        "too few pairs within dhat to split the term's loops: {:?}",
+        one.2
+    );
+    for threads in [2, 3] {
+        let other = obstacle_run(threads);
+        assert_eq!(other.1, one.1, "{threads} threads: Newton iterations");
+        assert_eq!(other.2, one.2, "{threads} threads: pairs and kappa");
+        assert_eq!(other.0.positions(), one.0.positions(), "{threads} threads");
+        assert_eq!(
+            other.0.velocities(),
+            one.0.velocities(),
+            "{threads} threads"
+        );
+    }
+}
