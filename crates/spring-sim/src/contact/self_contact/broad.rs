@@ -334,37 +334,53 @@ pub fn candidates(
 }
 
 /// [`candidates`] for the primitives' `boxes` and the hash's `cell`.
+///
+/// A primitive whose vertices are all skipped (a piece of an obstacle pinned whole)
+/// pairs only with primitives that have a free vertex, so the skipped primitives are
+/// hashed apart from the others and only free vertices and edges with a free vertex
+/// look them up: an obstacle meshed far more finely than the cloth costs its own
+/// hashing and its primitives' lookups among the free ones, not a lookup of every
+/// obstacle primitive among its neighbours, each then refused. A query's pairs from the
+/// two tables are sorted together, so the list is the same as with one table.
 fn candidates_of(prims: &Primitives, boxes: &Boxes, cell: DVec3, skip: &[bool]) -> Vec<Candidate> {
-    // The vertex-triangle pairs and the edge-edge pairs side by side, each hash built
-    // by one thread while the other builds its own (built one after the other, the two
-    // hashes were 5% of the twisted sheet's minimizing thread, the other thread idle),
-    // then the queries of both shared.
+    let all_skipped = |vertices: &[usize]| vertices.iter().all(|&w| skip[w]);
+    let any_skipped = skip.contains(&true);
+    let skipped_triangles: Vec<bool> = match any_skipped {
+        true => prims.triangles.iter().map(|t| all_skipped(t)).collect(),
+        false => Vec::new(),
+    };
+    let skipped_edges: Vec<bool> = match any_skipped {
+        true => prims.edges.iter().map(|e| all_skipped(e)).collect(),
+        false => Vec::new(),
+    };
+    // The vertex-triangle pairs and the edge-edge pairs side by side, each pair of
+    // tables built by one thread while the other builds its own (built one after the
+    // other, the two hashes were 5% of the twisted sheet's minimizing thread, the other
+    // thread idle), then the queries of both shared.
     let (mut out, mut edge_pairs) = crate::pool::join_if(
         crate::pool::shared(),
         || {
-            hashed_queries(
-                &boxes.triangle,
-                cell,
-                prims.vertices.len(),
-                |grid, range, part| {
-                    let mut found = Found::new(prims.triangles.len());
-                    for &v in &prims.vertices[range] {
-                        grid.query(&boxes.vertex[v], prims.triangles.len(), |t| {
-                            found.meet(t, v, || point_triangle_kept(prims, boxes, skip, v, t));
-                        });
-                        found.append(part, |t| Candidate::PointTriangle {
-                            vertex: v,
-                            triangle: t,
-                        });
-                    }
-                },
-            )
+            let tables = Tables::new(&boxes.triangle, &skipped_triangles, cell);
+            tables.queries(prims.vertices.len(), |tables, range, part| {
+                let mut found = Found::new(prims.triangles.len());
+                for &v in &prims.vertices[range] {
+                    tables.query(&boxes.vertex[v], !skip[v], |t| {
+                        found.meet(t, v, || point_triangle_kept(prims, boxes, skip, v, t));
+                    });
+                    found.append(part, |t| Candidate::PointTriangle {
+                        vertex: v,
+                        triangle: t,
+                    });
+                }
+            })
         },
         || {
-            hashed_queries(&boxes.edge, cell, prims.edges.len(), |grid, range, part| {
+            let tables = Tables::new(&boxes.edge, &skipped_edges, cell);
+            tables.queries(prims.edges.len(), |tables, range, part| {
                 let mut found = Found::new(prims.edges.len());
                 for a in range {
-                    grid.query(&boxes.edge[a], prims.edges.len(), |b| {
+                    let free = skipped_edges.get(a).is_none_or(|s| !s);
+                    tables.query(&boxes.edge[a], free, |b| {
                         if b > a {
                             found.meet(b, a, || edge_edge_kept(prims, boxes, skip, a, b));
                         }
@@ -378,21 +394,81 @@ fn candidates_of(prims: &Primitives, boxes: &Boxes, cell: DVec3, skip: &[bool]) 
     out
 }
 
-/// `hashed` hashed with `cell`, then what `scan(grid, range, part)` appends for the
-/// consecutive ranges of [`QUERIES_PER_TASK`] queries covering `0..queries`, in order
-/// (as tasks on the caller's pool when there is one, see `spread::concat_chunks`).
-fn hashed_queries(
-    hashed: &[Aabb],
-    cell: DVec3,
-    queries: usize,
-    scan: impl Fn(&Grid, std::ops::Range<usize>, &mut Vec<Candidate>) + Sync + Send,
-) -> Vec<Candidate> {
-    let grid = Grid::new(hashed, cell);
-    let mut out = Vec::new();
-    super::spread::concat_chunks(&mut out, queries, QUERIES_PER_TASK, |range, part| {
-        scan(&grid, range, part);
-    });
-    out
+/// The boxes of one kind of primitive hashed in two tables: those with a free vertex,
+/// and those whose vertices are all skipped (`skipped[i]`; none when `skipped` is
+/// empty). A query reports the boxes' own indices.
+struct Tables {
+    free: Subset,
+    skipped: Subset,
+}
+
+/// Some of the boxes hashed: `index[k]` is the `k`-th hashed box's own index (all of
+/// them, in order, when `index` is `None`).
+struct Subset {
+    grid: Grid,
+    index: Option<Vec<usize>>,
+    count: usize,
+}
+
+impl Subset {
+    fn new(all: &[Aabb], index: Option<Vec<usize>>, cell: DVec3) -> Self {
+        let (grid, count) = match &index {
+            Some(index) => {
+                let some: Vec<Aabb> = index.iter().map(|&i| all[i]).collect();
+                (Grid::new(&some, cell), index.len())
+            }
+            None => (Grid::new(all, cell), all.len()),
+        };
+        Self { grid, index, count }
+    }
+
+    fn query(&self, b: &Aabb, mut found: impl FnMut(usize)) {
+        match &self.index {
+            Some(index) => self.grid.query(b, self.count, |k| found(index[k])),
+            None => self.grid.query(b, self.count, found),
+        }
+    }
+}
+
+impl Tables {
+    fn new(boxes: &[Aabb], skipped: &[bool], cell: DVec3) -> Self {
+        let (free, skipped) = if skipped.contains(&true) {
+            let (held, free): (Vec<usize>, Vec<usize>) =
+                (0..boxes.len()).partition(|&i| skipped[i]);
+            (Some(free), held)
+        } else {
+            (None, Vec::new())
+        };
+        Self {
+            free: Subset::new(boxes, free, cell),
+            skipped: Subset::new(boxes, Some(skipped), cell),
+        }
+    }
+
+    /// Calls `found` with every box that may overlap `b` among those with a free
+    /// vertex, and among the skipped ones too when `free` (the querying primitive has a
+    /// free vertex; see [`Grid::query`] for repeats).
+    fn query(&self, b: &Aabb, free: bool, mut found: impl FnMut(usize)) {
+        self.free.query(b, &mut found);
+        if free && self.skipped.count > 0 {
+            self.skipped.query(b, found);
+        }
+    }
+
+    /// What `scan(self, range, part)` appends for the consecutive ranges of
+    /// [`QUERIES_PER_TASK`] queries covering `0..queries`, in order (as tasks on the
+    /// caller's pool when there is one, see `spread::concat_chunks`).
+    fn queries(
+        &self,
+        queries: usize,
+        scan: impl Fn(&Self, std::ops::Range<usize>, &mut Vec<Candidate>) + Sync + Send,
+    ) -> Vec<Candidate> {
+        let mut out = Vec::new();
+        super::spread::concat_chunks(&mut out, queries, QUERIES_PER_TASK, |range, part| {
+            scan(self, range, part);
+        });
+        out
+    }
 }
 
 /// The pairs of [`candidates`]`(prims, x, dx, margin, skip)` that have a vertex in
@@ -814,6 +890,48 @@ mod tests {
                     sweep.is_some()
                 );
             }
+        }
+    }
+
+    /// With the lower sheet held whole (an obstacle) and a row and a few scattered
+    /// vertices of the upper one held, the skipped primitives hash apart and only free
+    /// queries look them up: the list is still the brute-force one, on any pool, it
+    /// holds pairs of a free primitive with a skipped one of both kinds, and none of
+    /// two skipped ones.
+    #[test]
+    fn an_obstacle_held_whole_gives_the_brute_force_pairs() {
+        let (x, dx, triangles) = stacked_sheets();
+        let prims = Primitives::new(&triangles);
+        let mut skip = vec![false; x.len()];
+        for v in (0..576).chain(576..600).chain((600..x.len()).step_by(41)) {
+            skip[v] = true;
+        }
+        let skipped = |c: Candidate| pair_vertices(&prims, c);
+        for sweep in [None, Some(dx.as_slice())] {
+            let slow = candidates_brute_force(&prims, &x, sweep, 3e-3, &skip);
+            let fast = candidates(&prims, &x, sweep, 3e-3, &skip);
+            assert_eq!(fast, slow, "sweep {}", sweep.is_some());
+            #[cfg(feature = "parallel")]
+            for threads in [2, 3] {
+                let on_pool = super::super::spread::pool(threads)
+                    .install(|| candidates(&prims, &x, sweep, 3e-3, &skip));
+                assert_eq!(on_pool, slow, "{threads} threads");
+            }
+            // Pairs of a free primitive with one held whole, of both kinds.
+            let held = |v: &[usize]| v.iter().all(|&w| skip[w]);
+            let with_held = |kind: usize| {
+                fast.iter().any(|&c| {
+                    let v = skipped(c);
+                    let (first, second) = match c {
+                        Candidate::PointTriangle { .. } => v.split_at(3),
+                        Candidate::EdgeEdge { .. } => v.split_at(2),
+                    };
+                    let k = usize::from(matches!(c, Candidate::EdgeEdge { .. }));
+                    k == kind && held(first) != held(second)
+                })
+            };
+            assert!(with_held(0) && with_held(1), "sweep {}", sweep.is_some());
+            assert!(fast.iter().all(|&c| !held(&skipped(c))));
         }
     }
 
