@@ -11,21 +11,54 @@
 //! the box is a grid of 0.05 x 0.05 quads, wound so that their normals point out of the
 //! box (the reader fans each quad into two triangles). Its twelve edges are sharp, which
 //! no sphere or capsule collider has.
+//!
+//! An optional whole number `k` (default 1) divides the spacing: `table_obj 5` writes the
+//! same box with faces of 0.01 x 0.01 quads (51 x 6 x 51 lattice points), an obstacle
+//! meshed far more finely than the cloth dropped on it, for measuring what that costs
+//! (docs/bench/contact.md, "A small cloth on a finely meshed obstacle").
 
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
-/// Lattice points along x and z, and along y.
-const NXZ: usize = 11;
-const NY: usize = 2;
+/// Lattice intervals along x and z, and along y, at the spacing of 0.05.
+const INTERVALS_XZ: usize = 10;
+const INTERVALS_Y: usize = 1;
 const SPACING: f64 = 0.05;
 const LOW: [f64; 3] = [-0.25, 0.35, -0.25];
 
+/// A coordinate with six decimals, trailing zeros dropped down to two (`-0.25`, `0.40`,
+/// `0.025`).
+fn coordinate(v: f64) -> String {
+    let mut text = format!("{v:.6}");
+    while text.ends_with('0') && text.len() - text.find('.').map_or(0, |d| d) > 3 {
+        text.pop();
+    }
+    text
+}
+
 fn main() {
-    let n = [NXZ, NY, NXZ];
+    let k = match std::env::args().nth(1) {
+        None => 1,
+        Some(arg) => match arg.parse::<usize>() {
+            Ok(k) if (1..=50).contains(&k) => k,
+            _ => {
+                eprintln!(
+                    "table_obj: the spacing's divisor must be a whole number from 1 to 50, got {arg:?}"
+                );
+                std::process::exit(2);
+            }
+        },
+    };
+    let spacing = SPACING / k as f64;
+    let n = [
+        k * INTERVALS_XZ + 1,
+        k * INTERVALS_Y + 1,
+        k * INTERVALS_XZ + 1,
+    ];
     let on_surface = |p: [usize; 3]| (0..3).any(|axis| p[axis] == 0 || p[axis] == n[axis] - 1);
-    let mut out = String::from(
-        "# sinew: a closed box, 0.5 x 0.05 x 0.5, faces tessellated at 0.05 (see crates/io/examples/table_obj.rs)\no table\n",
+    let mut out = format!(
+        "# sinew: a closed box, 0.5 x 0.05 x 0.5, faces tessellated at {} (see crates/io/examples/table_obj.rs)\no table\n",
+        coordinate(spacing)
     );
     // OBJ indices from 1, by lattice point.
     let mut index: BTreeMap<[usize; 3], usize> = BTreeMap::new();
@@ -35,8 +68,8 @@ fn main() {
                 let p = [i, j, k];
                 if on_surface(p) {
                     index.insert(p, index.len() + 1);
-                    let x = [0, 1, 2].map(|a| LOW[a] + SPACING * p[a] as f64);
-                    let _ = writeln!(out, "v {:.2} {:.2} {:.2}", x[0], x[1], x[2]);
+                    let x = [0, 1, 2].map(|a| coordinate(LOW[a] + spacing * p[a] as f64));
+                    let _ = writeln!(out, "v {} {} {}", x[0], x[1], x[2]);
                 }
             }
         }

@@ -1637,7 +1637,7 @@ impl Term for SelfContactTerm {
 
     fn wants_threads(&self) -> bool {
         // A small sheet on a finely meshed obstacle has a few hundred free particles and
-        // thousands of pairs: 1.2 to 1.7 times faster on two threads, where the scenes
+        // thousands of pairs: 1.3 to 1.7 times faster on two threads, where the scenes
         // of at most 280 pairs were 5 to 15% slower (docs/bench/contact.md).
         self.stats.active_pairs() > WANTS_THREADS_PAIRS
     }
