@@ -10,6 +10,7 @@ mod contact;
 mod curves;
 mod ik;
 mod math;
+mod obstacle;
 mod self_contact;
 mod springs;
 mod tidy;
