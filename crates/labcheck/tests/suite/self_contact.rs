@@ -17,6 +17,7 @@
 //! again where each round of a step ended (`friction_lags` 3), each round's iterates
 //! descending their own potential.
 
+use crate::common::{SELF_CONTACT_DHAT, SELF_CONTACT_THICKNESS, check_descent};
 use proptest::prelude::*;
 use sinew_exact::intersecting_pairs;
 use sinew_labcheck::config;
@@ -47,8 +48,8 @@ static STEPS_WITH_LAGS: AtomicUsize = AtomicUsize::new(0);
 static STEPS_RELAGGED: AtomicUsize = AtomicUsize::new(0);
 
 const SPACING: f64 = 0.03;
-const DHAT: f64 = 2e-3;
-const THICKNESS: f64 = 1e-3;
+const DHAT: f64 = SELF_CONTACT_DHAT;
+const THICKNESS: f64 = SELF_CONTACT_THICKNESS;
 
 #[derive(Clone, Debug)]
 struct Case {
@@ -217,14 +218,7 @@ proptest! {
             // Every minimization of every step, cut by the library where the ground's
             // stiffness changed the function: a split step's abandoned attempts and
             // pieces too, and the steps in which the stiffness grew.
-            for (m, w) in newton.step_objective_traces().enumerate() {
-                for (k, w) in w.windows(2).enumerate() {
-                    prop_assert!(
-                        w[1] <= w[0] + 1e-12 * w[0].abs().max(f64::MIN_POSITIVE),
-                        "step {step}, slice {m}, iterate {k}: g rose from {} to {}", w[0], w[1]
-                    );
-                }
-            }
+            check_descent(newton, step)?;
             STEPS.fetch_add(1, Ordering::Relaxed);
             if c.mu > 0.0 {
                 STEPS_WITH_MU.fetch_add(1, Ordering::Relaxed);

@@ -1,6 +1,7 @@
-//! Helpers shared by the IK property files: forward kinematics into a fresh buffer, the
-//! solvers under test by name, and the full check of one solve against the
-//! `IkSolver` contract.
+//! Helpers shared by the property files: for IK, forward kinematics into a fresh buffer,
+//! the solvers under test by name, and the full check of one solve against the
+//! `IkSolver` contract; for self-contact, the contact distances and the descent check
+//! of a step's Newton iterates.
 
 #![allow(dead_code)]
 
@@ -139,4 +140,29 @@ pub fn solve_checked(
         pose,
         global,
     })
+}
+
+/// The self-contact properties' contact distance and thickness (m).
+pub const SELF_CONTACT_DHAT: f64 = 2e-3;
+pub const SELF_CONTACT_THICKNESS: f64 = 1e-3;
+
+/// `g` never rises over any slice of the last step's Newton iterates (every
+/// minimization of the step: a split step's abandoned attempts and pieces too, cut by
+/// the library where a stiffness changed the function), but for the round-off of
+/// evaluating `g` twice.
+pub fn check_descent(
+    newton: &sinew_spring_sim::BackwardEuler,
+    step: usize,
+) -> Result<(), TestCaseError> {
+    for (m, w) in newton.step_objective_traces().enumerate() {
+        for (k, w) in w.windows(2).enumerate() {
+            prop_assert!(
+                w[1] <= w[0] + 1e-12 * w[0].abs().max(f64::MIN_POSITIVE),
+                "step {step}, slice {m}, iterate {k}: g rose from {} to {}",
+                w[0],
+                w[1]
+            );
+        }
+    }
+    Ok(())
 }
