@@ -345,7 +345,8 @@ pub struct MeshCloth {
     pub bending: Bending,
     /// Vertices held in place. A part of the mesh held whole is a fixed obstacle of any
     /// shape (sharp edges included) for the rest: self-contact forms no pair of two held
-    /// primitives (its broad phase still hashes them and rejects those pairs).
+    /// primitives (its broad phase hashes them apart and looks them up only from the
+    /// free ones).
     pub fixed: Vec<usize>,
 }
 

@@ -343,15 +343,15 @@ pub fn candidates(
 /// obstacle primitive among its neighbours, each then refused. A query's pairs from the
 /// two tables are sorted together, so the list is the same as with one table.
 fn candidates_of(prims: &Primitives, boxes: &Boxes, cell: DVec3, skip: &[bool]) -> Vec<Candidate> {
+    // Which primitives have every vertex skipped (none to mark when no vertex is).
     let all_skipped = |vertices: &[usize]| vertices.iter().all(|&w| skip[w]);
-    let any_skipped = skip.contains(&true);
-    let skipped_triangles: Vec<bool> = match any_skipped {
-        true => prims.triangles.iter().map(|t| all_skipped(t)).collect(),
-        false => Vec::new(),
-    };
-    let skipped_edges: Vec<bool> = match any_skipped {
-        true => prims.edges.iter().map(|e| all_skipped(e)).collect(),
-        false => Vec::new(),
+    let (skipped_triangles, skipped_edges): (Vec<bool>, Vec<bool>) = if skip.contains(&true) {
+        (
+            prims.triangles.iter().map(|t| all_skipped(t)).collect(),
+            prims.edges.iter().map(|e| all_skipped(e)).collect(),
+        )
+    } else {
+        (Vec::new(), Vec::new())
     };
     // The vertex-triangle pairs and the edge-edge pairs side by side, each pair of
     // tables built by one thread while the other builds its own (built one after the
