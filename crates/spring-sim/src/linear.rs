@@ -1166,8 +1166,8 @@ impl PcgSolver {
     /// each time), when the two split their work alike (both above [`PARALLEL_MIN`]
     /// unknowns or both not, as for one system's patterns, which differ only in their
     /// coupled pairs); a small system's pool asked for by
-    /// [`PcgSolver::use_small_pool`] is shared too, in use or not as there. False, and nothing changes, when
-    /// they do not: then [`PcgSolver::set_threads`] is the way.
+    /// [`PcgSolver::use_small_pool`] is shared too, in use or not as there. False, and
+    /// nothing changes, when they do not: then [`PcgSolver::set_threads`] is the way.
     pub fn share_threads(&mut self, previous: &PcgSolver) -> bool {
         if self.rows.is_some() != previous.rows.is_some() {
             return false;
