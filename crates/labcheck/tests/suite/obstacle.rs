@@ -18,14 +18,16 @@
 //! Backward Euler or BDF2, stiffness 1e2 or 1e4, friction `mu` 0 or 0.4 between the
 //! primitives (the sheet's own and the sheet against the terrain).
 
-use crate::common::{SELF_CONTACT_DHAT, SELF_CONTACT_THICKNESS, check_descent};
+use crate::common::{
+    SELF_CONTACT_DHAT as DHAT, SELF_CONTACT_THICKNESS as THICKNESS, check_descent, check_step_ends,
+};
 use proptest::prelude::*;
 use sinew_exact::intersecting_pairs;
 use sinew_labcheck::config;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinnedStepper, StepStop, TriangleMesh,
+    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinnedStepper, TriangleMesh,
 };
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -36,8 +38,6 @@ static STEPS_IN_CONTACT: AtomicUsize = AtomicUsize::new(0);
 
 const SHEET_SPACING: f64 = 0.03;
 const TERRAIN_SPACING: f64 = 0.012;
-const DHAT: f64 = SELF_CONTACT_DHAT;
-const THICKNESS: f64 = SELF_CONTACT_THICKNESS;
 
 #[derive(Clone, Debug)]
 struct Case {
@@ -173,19 +173,11 @@ proptest! {
             let report = integrator.take_step(&mut system, c.h)
                 .map_err(|e| TestCaseError::fail(format!("step {step} refused: {e}")))?;
             let newton = integrator.newton();
-            let pieces = newton.piece_ends().expect("recording");
-            prop_assert_eq!(pieces.len(), report.pieces, "step {}: pieces recorded", step);
-            for (k, (_, y)) in pieces.iter().enumerate() {
-                let bad = intersecting_pairs(y, &triangles);
-                prop_assert!(bad.is_empty(), "step {step}, piece {k}: triangles {bad:?} meet");
-                prop_assert!(y[..terrain] == held[..], "step {step}, piece {k}: the terrain moved");
-            }
-            prop_assert!(report.stop != StepStop::NonFinite, "step {step}: non-finite");
-            prop_assert!(system.positions().iter().all(|x| x.is_finite()), "step {step}: NaN position");
-            prop_assert!(system.velocities().iter().all(|v| v.is_finite()), "step {step}: NaN velocity");
-            let bad = intersecting_pairs(system.positions(), &triangles);
-            prop_assert!(bad.is_empty(), "step {step}: triangles {bad:?} meet");
-            prop_assert!(system.positions()[..terrain] == held[..], "step {step}: the terrain moved");
+            // Every piece's end and the step's: no intersection, the terrain where it
+            // started, everything finite.
+            check_step_ends(newton, &report, &system, &triangles, step, |x| {
+                (x[..terrain] == held[..]).then_some(()).ok_or("the terrain moved")
+            })?;
             // Every minimization of the step (a split step's abandoned attempts and
             // pieces too): no collider here, so no stiffness changes within a step.
             for (m, w) in newton.step_objective_traces().enumerate() {

@@ -17,7 +17,9 @@
 //! again where each round of a step ended (`friction_lags` 3), each round's iterates
 //! descending their own potential.
 
-use crate::common::{SELF_CONTACT_DHAT, SELF_CONTACT_THICKNESS, check_descent};
+use crate::common::{
+    SELF_CONTACT_DHAT as DHAT, SELF_CONTACT_THICKNESS as THICKNESS, check_descent, check_step_ends,
+};
 use proptest::prelude::*;
 use sinew_exact::intersecting_pairs;
 use sinew_labcheck::config;
@@ -25,7 +27,7 @@ use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::contact::{Collider, ContactSettings};
 use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinnedStepper, StepStop, TriangleMesh,
+    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinnedStepper, TriangleMesh,
 };
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -48,8 +50,6 @@ static STEPS_WITH_LAGS: AtomicUsize = AtomicUsize::new(0);
 static STEPS_RELAGGED: AtomicUsize = AtomicUsize::new(0);
 
 const SPACING: f64 = 0.03;
-const DHAT: f64 = SELF_CONTACT_DHAT;
-const THICKNESS: f64 = SELF_CONTACT_THICKNESS;
 
 #[derive(Clone, Debug)]
 struct Case {
@@ -180,22 +180,14 @@ proptest! {
             let report = integrator.take_step(&mut system, c.h)
                 .map_err(|e| TestCaseError::fail(format!("{}, step {step} refused: {e}", scheme(&c))))?;
             let newton = integrator.newton();
-            let pieces = newton.piece_ends().expect("recording");
-            prop_assert_eq!(pieces.len(), report.pieces, "step {}: pieces recorded", step);
             if report.pieces > 1 {
                 STEPS_SPLIT.fetch_add(1, Ordering::Relaxed);
-                for (k, (_, x)) in pieces.iter().enumerate().take(pieces.len() - 1) {
-                    let bad = intersecting_pairs(x, &triangles);
-                    prop_assert!(bad.is_empty(), "step {step}, piece {k}: triangles {bad:?} meet");
-                    prop_assert!(x.iter().all(|p| p.y > 0.0), "step {step}, piece {k}: a vertex on or under the ground");
-                }
             }
-            prop_assert!(report.stop != StepStop::NonFinite, "step {step}: non-finite");
-            prop_assert!(system.positions().iter().all(|x| x.is_finite()), "step {step}: NaN position");
-            prop_assert!(system.velocities().iter().all(|v| v.is_finite()), "step {step}: NaN velocity");
-            let bad = intersecting_pairs(system.positions(), &triangles);
-            prop_assert!(bad.is_empty(), "step {step}: triangles {bad:?} meet");
-            prop_assert!(system.positions().iter().all(|p| p.y > 0.0), "step {step}: a vertex on or under the ground");
+            // Every piece's end and the step's: no intersection, every vertex above the
+            // ground, everything finite.
+            check_step_ends(newton, &report, &system, &triangles, step, |x| {
+                x.iter().all(|p| p.y > 0.0).then_some(()).ok_or("a vertex on or under the ground")
+            })?;
             let trace = newton.objective_trace();
             prop_assert!(!trace.is_empty() && trace.iter().all(|g| g.is_finite()));
             // The ground's barrier stiffness may grow between iterates (it doubles when a

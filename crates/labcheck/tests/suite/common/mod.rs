@@ -146,6 +146,50 @@ pub fn solve_checked(
 pub const SELF_CONTACT_DHAT: f64 = 2e-3;
 pub const SELF_CONTACT_THICKNESS: f64 = 1e-3;
 
+/// The guarantee at every state the last step ended at: each piece's end (recorded by
+/// `record_piece_ends`; the last piece's is the step's own end state, `system`'s) has
+/// no two of `triangles` meeting (the exact check) and passes `kept` (an `Err` naming
+/// what it broke); the step did not stop non-finite and the state is finite.
+pub fn check_step_ends(
+    newton: &sinew_spring_sim::BackwardEuler,
+    report: &sinew_spring_sim::StepReport,
+    system: &sinew_spring_sim::SpringSystem,
+    triangles: &[[usize; 3]],
+    step: usize,
+    kept: impl Fn(&[DVec3]) -> Result<(), &'static str>,
+) -> Result<(), TestCaseError> {
+    let pieces = newton.piece_ends().expect("recording");
+    prop_assert_eq!(
+        pieces.len(),
+        report.pieces,
+        "step {}: pieces recorded",
+        step
+    );
+    for (k, (_, x)) in pieces.iter().enumerate().take(pieces.len() - 1) {
+        let bad = sinew_exact::intersecting_pairs(x, triangles);
+        prop_assert!(
+            bad.is_empty(),
+            "step {step}, piece {k}: triangles {bad:?} meet"
+        );
+        kept(x)
+            .map_err(|broken| TestCaseError::fail(format!("step {step}, piece {k}: {broken}")))?;
+    }
+    prop_assert!(
+        report.stop != sinew_spring_sim::StepStop::NonFinite,
+        "step {step}: non-finite"
+    );
+    let x = system.positions();
+    prop_assert!(x.iter().all(|x| x.is_finite()), "step {step}: NaN position");
+    prop_assert!(
+        system.velocities().iter().all(|v| v.is_finite()),
+        "step {step}: NaN velocity"
+    );
+    let bad = sinew_exact::intersecting_pairs(x, triangles);
+    prop_assert!(bad.is_empty(), "step {step}: triangles {bad:?} meet");
+    kept(x).map_err(|broken| TestCaseError::fail(format!("step {step}: {broken}")))?;
+    Ok(())
+}
+
 /// `g` never rises over any slice of the last step's Newton iterates (every
 /// minimization of the step: a split step's abandoned attempts and pieces too, cut by
 /// the library where a stiffness changed the function), but for the round-off of
