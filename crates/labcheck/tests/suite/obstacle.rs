@@ -20,15 +20,14 @@
 
 use crate::common::{
     SELF_CONTACT_DHAT as DHAT, SELF_CONTACT_THICKNESS as THICKNESS, check_descent, check_step_ends,
+    sheet_cloth,
 };
 use proptest::prelude::*;
 use sinew_exact::intersecting_pairs;
 use sinew_labcheck::config;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
-use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinnedStepper, TriangleMesh,
-};
+use sinew_spring_sim::{ClothGrid, NewtonSettings, PinnedStepper, TriangleMesh};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Accepted steps over all cases, and those that ended with some pair within `dhat`
@@ -135,18 +134,7 @@ proptest! {
         let (x, triangles) = mesh(&c);
         let terrain = c.m * c.m;
         let mesh = TriangleMesh::new(x, triangles.clone()).expect("a valid mesh");
-        let model = MeshCloth {
-            areal_density: 0.2,
-            material: Material {
-                stiffness: c.stiffness,
-                damping: 0.1,
-                gravity: DVec3::new(0.0, -9.81, 0.0),
-            },
-            bending: Bending::None,
-            fixed: (0..terrain).collect(),
-        }
-        .build(&mesh)
-        .expect("a valid cloth");
+        let model = sheet_cloth(c.stiffness, (0..terrain).collect()).build(&mesh).expect("a valid cloth");
         let newton = NewtonSettings {
             record_objective: true,
             max_iterations: 100,

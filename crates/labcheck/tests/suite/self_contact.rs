@@ -19,6 +19,7 @@
 
 use crate::common::{
     SELF_CONTACT_DHAT as DHAT, SELF_CONTACT_THICKNESS as THICKNESS, check_descent, check_step_ends,
+    sheet_cloth,
 };
 use proptest::prelude::*;
 use sinew_exact::intersecting_pairs;
@@ -26,9 +27,7 @@ use sinew_labcheck::config;
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::contact::{Collider, ContactSettings};
-use sinew_spring_sim::{
-    Bending, ClothGrid, Material, MeshCloth, NewtonSettings, PinnedStepper, TriangleMesh,
-};
+use sinew_spring_sim::{ClothGrid, NewtonSettings, PinnedStepper, TriangleMesh};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Accepted steps over all cases, and those that ended with some pair within `dhat`
@@ -143,18 +142,7 @@ proptest! {
         let grid = ClothGrid { size: c.n, ..ClothGrid::lab() };
         let triangles = grid.triangles();
         let mesh = TriangleMesh::new(hanging(&c), triangles.clone()).expect("a valid mesh");
-        let model = MeshCloth {
-            areal_density: 0.2,
-            material: Material {
-                stiffness: c.stiffness,
-                damping: 0.1,
-                gravity: DVec3::new(0.0, -9.81, 0.0),
-            },
-            bending: Bending::None,
-            fixed: Vec::new(),
-        }
-        .build(&mesh)
-        .expect("a valid cloth");
+        let model = sheet_cloth(c.stiffness, Vec::new()).build(&mesh).expect("a valid cloth");
         let newton = NewtonSettings {
             record_objective: true,
             max_iterations: 100,

@@ -146,6 +146,21 @@ pub fn solve_checked(
 pub const SELF_CONTACT_DHAT: f64 = 2e-3;
 pub const SELF_CONTACT_THICKNESS: f64 = 1e-3;
 
+/// The self-contact properties' cloth: areal density 0.2 kg/m^2, springs of
+/// `stiffness`, damping 0.1, gravity 9.81 down, no bending, the vertices `fixed` held.
+pub fn sheet_cloth(stiffness: f64, fixed: Vec<usize>) -> sinew_spring_sim::MeshCloth {
+    sinew_spring_sim::MeshCloth {
+        areal_density: 0.2,
+        material: sinew_spring_sim::Material {
+            stiffness,
+            damping: 0.1,
+            gravity: DVec3::new(0.0, -9.81, 0.0),
+        },
+        bending: sinew_spring_sim::Bending::None,
+        fixed,
+    }
+}
+
 /// The guarantee at every state the last step ended at: each piece's end (recorded by
 /// `record_piece_ends`; the last piece's is the step's own end state, `system`'s) has
 /// no two of `triangles` meeting (the exact check) and passes `kept` (an `Err` naming
