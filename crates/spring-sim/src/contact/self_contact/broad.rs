@@ -493,68 +493,55 @@ pub fn candidates_touching(
     let mut out = Vec::new();
     // A vertex that moves against every triangle: its box hashed, each triangle's box
     // looking it up.
-    let vertices: Vec<usize> = prims
-        .vertices
-        .iter()
-        .copied()
-        .filter(|&v| moving[v])
-        .collect();
-    let (grid, mut found) = hash_some(&vertices, &boxes.vertex, cell);
+    let vertices = prims.vertices.iter().copied().filter(|&v| moving[v]);
+    let hashed = Subset::new(&boxes.vertex, Some(vertices.collect()), cell);
+    let mut found = Found::new(boxes.vertex.len());
     for (t, b) in boxes.triangle.iter().enumerate() {
-        grid.query(b, vertices.len(), |k| {
-            found.meet(k, t, || {
-                point_triangle_kept(prims, &boxes, skip, vertices[k], t)
-            });
+        hashed.query(b, |v| {
+            found.meet(v, t, || point_triangle_kept(prims, &boxes, skip, v, t));
         });
-        out.extend(found.kept.drain(..).map(|k| Candidate::PointTriangle {
-            vertex: vertices[k],
+        out.extend(found.kept.drain(..).map(|v| Candidate::PointTriangle {
+            vertex: v,
             triangle: t,
         }));
     }
     // A vertex that stands still against every triangle that moves.
-    let triangles: Vec<usize> = (0..prims.triangles.len())
+    let triangles = (0..prims.triangles.len())
         .filter(|&t| prims.triangles[t].iter().any(|&v| moving[v]))
         .collect();
-    let (grid, mut found) = hash_some(&triangles, &boxes.triangle, cell);
+    let hashed = Subset::new(&boxes.triangle, Some(triangles), cell);
+    let mut found = Found::new(prims.triangles.len());
     for &v in prims.vertices.iter().filter(|&&v| !moving[v]) {
-        grid.query(&boxes.vertex[v], triangles.len(), |k| {
-            found.meet(k, v, || {
-                point_triangle_kept(prims, &boxes, skip, v, triangles[k])
-            });
+        hashed.query(&boxes.vertex[v], |t| {
+            found.meet(t, v, || point_triangle_kept(prims, &boxes, skip, v, t));
         });
-        out.extend(found.kept.drain(..).map(|k| Candidate::PointTriangle {
+        out.extend(found.kept.drain(..).map(|t| Candidate::PointTriangle {
             vertex: v,
-            triangle: triangles[k],
+            triangle: t,
         }));
     }
     // Every edge against the edges that move (a pair of two moving edges is met from
     // both, and kept once).
-    let edges: Vec<usize> = (0..prims.edges.len())
+    let edges = (0..prims.edges.len())
         .filter(|&e| prims.edges[e].iter().any(|&v| moving[v]))
         .collect();
-    let (grid, mut found) = hash_some(&edges, &boxes.edge, cell);
+    let hashed = Subset::new(&boxes.edge, Some(edges), cell);
+    let mut found = Found::new(prims.edges.len());
     for (a, b) in boxes.edge.iter().enumerate() {
-        grid.query(b, edges.len(), |k| {
-            let (lo, hi) = (a.min(edges[k]), a.max(edges[k]));
-            found.meet(k, a, || {
+        hashed.query(b, |e| {
+            let (lo, hi) = (a.min(e), a.max(e));
+            found.meet(e, a, || {
                 lo != hi && edge_edge_kept(prims, &boxes, skip, lo, hi)
             });
         });
-        out.extend(found.kept.drain(..).map(|k| Candidate::EdgeEdge {
-            a: a.min(edges[k]),
-            b: a.max(edges[k]),
+        out.extend(found.kept.drain(..).map(|e| Candidate::EdgeEdge {
+            a: a.min(e),
+            b: a.max(e),
         }));
     }
     out.sort_unstable();
     out.dedup();
     out
-}
-
-/// The boxes `all[i]` for `i` in `index` hashed (a query's hits are positions in
-/// `index`), with a record of the boxes queries meet.
-fn hash_some(index: &[usize], all: &[Aabb], cell: DVec3) -> (Grid, Found) {
-    let some: Vec<Aabb> = index.iter().map(|&i| all[i]).collect();
-    (Grid::new(&some, cell), Found::new(index.len()))
 }
 
 /// One task's record of the boxes its queries met: a box is met once per shared cell
