@@ -383,6 +383,137 @@ impl RegionForm {
     }
 }
 
+/// IPC's mollifier of an edge pair below its threshold, in closed form. With
+/// `u = x_1 - x_0`, `w = x_3 - x_2` and `c = |u x w|^2`, the mollifier is `m = (2 - y) y`,
+/// `y = c / eps_x` (1 from `c = eps_x` on, see [`super::distance::mollifier_in`]). Its
+/// derivatives in `c` are `m' = 2 (1 - y) / eps_x` and `m'' = -2 / eps_x^2`; those of `c`
+/// in `u` and `w` are `2 w x (u x w)` and `2 (u x w) x u`, and its Hessian's blocks
+///
+/// `c_uu = 2 |w|^2 I - 2 w w^T`, `c_ww = 2 |u|^2 I - 2 u u^T`,
+/// `c_uw = 4 u w^T - 2 w u^T - 2 (u . w) I` (entry `(i, j)` is `d^2 c / du_i dw_j`),
+///
+/// vertex `k`'s coordinates entering `u` or `w` with the sign `-1, +1, -1, +1`
+/// (docs/self-contact.md, "The mollified pairs in closed form").
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Mollifier {
+    /// `m`.
+    pub(crate) value: f64,
+    /// `m'(c)`.
+    first: f64,
+    /// `m''(c)`.
+    second: f64,
+    u: DVec3,
+    w: DVec3,
+    /// `u x w`.
+    n: DVec3,
+}
+
+/// The sign with which vertex `k`'s coordinates enter `u` (`k` = 0, 1) or `w` (2, 3).
+const EDGE_SIGN: [f64; 4] = [-1.0, 1.0, -1.0, 1.0];
+
+impl Mollifier {
+    /// The mollifier of the edge pair `v` when it is below its threshold `eps_x` (the
+    /// same `c`, computed the same way, as [`super::distance::mollifier`]'s, so the two
+    /// agree on which pairs are mollified); `None` where it is identically 1.
+    #[must_use]
+    pub(crate) fn below(v: &[DVec3; 4], eps_x: f64) -> Option<Self> {
+        let (u, w) = (v[1] - v[0], v[3] - v[2]);
+        let n = u.cross(w);
+        let c = n.length_squared();
+        if c.is_nan() || c >= eps_x {
+            return None;
+        }
+        let y = c * (1.0 / eps_x);
+        Some(Self {
+            value: (2.0 - y) * y,
+            first: 2.0 * (1.0 - y) / eps_x,
+            second: -2.0 / (eps_x * eps_x),
+            u,
+            w,
+            n,
+        })
+    }
+
+    /// The gradient of `c` (vertex `k`'s coordinates at `3k..3k + 3`).
+    fn c_gradient(&self) -> [f64; 12] {
+        let (du, dw) = (2.0 * self.w.cross(self.n), 2.0 * self.n.cross(self.u));
+        std::array::from_fn(|i| {
+            let k = i / 3;
+            let d = if k < 2 { du } else { dw };
+            EDGE_SIGN[k] * d[i % 3]
+        })
+    }
+
+    /// The Hessian of `c` in the `(u, w)` blocks: `[c_uu, c_uw, c_ww]`.
+    fn c_blocks(&self) -> [[[f64; 3]; 3]; 3] {
+        let (u, w) = (self.u.to_array(), self.w.to_array());
+        let (uu, ww, uw) = (self.u.dot(self.u), self.w.dot(self.w), self.u.dot(self.w));
+        let delta = |i: usize, j: usize| if i == j { 1.0 } else { 0.0 };
+        [
+            std::array::from_fn(|i| {
+                std::array::from_fn(|j| 2.0 * ww * delta(i, j) - 2.0 * w[i] * w[j])
+            }),
+            std::array::from_fn(|i| {
+                std::array::from_fn(|j| {
+                    4.0 * u[i] * w[j] - 2.0 * w[i] * u[j] - 2.0 * uw * delta(i, j)
+                })
+            }),
+            std::array::from_fn(|i| {
+                std::array::from_fn(|j| 2.0 * uu * delta(i, j) - 2.0 * u[i] * u[j])
+            }),
+        ]
+    }
+
+    /// The gradient of `m phi(s)` for the pair whose squared distance has the form
+    /// `form`, with `phi` the barrier's value and `first = phi'(s)`:
+    /// `m phi' grad s + phi m' grad c`.
+    #[must_use]
+    pub(crate) fn gradient(&self, form: &RegionForm, phi: f64, first: f64) -> [f64; 12] {
+        let (gs, gc) = (form.gradient(), self.c_gradient());
+        let (a, b) = (self.value * first, phi * self.first);
+        std::array::from_fn(|i| a * gs[i] + b * gc[i])
+    }
+
+    /// The exact Hessian of `m phi(s)` (`second = phi''(s)`):
+    ///
+    /// `m (phi'' grad s grad s^T + phi' hess s) + phi (m'' grad c grad c^T + m' hess c)
+    ///  + phi' m' (grad s grad c^T + grad c grad s^T)`.
+    // Index loops over rows and columns read as the matrix formulas they implement.
+    #[allow(clippy::needless_range_loop)]
+    #[must_use]
+    pub(crate) fn hessian(&self, form: &RegionForm, phi: f64, first: f64, second: f64) -> Mat12 {
+        let mut h = form.hessian();
+        let (gs, gc) = (form.gradient(), self.c_gradient());
+        let blocks = self.c_blocks();
+        let (mss, ms, pcc, pc, cross) = (
+            self.value * second,
+            self.value * first,
+            phi * self.second,
+            phi * self.first,
+            first * self.first,
+        );
+        for i in 0..12 {
+            for l in 0..12 {
+                let (ki, kl) = (i / 3, l / 3);
+                // The (u, w) block the two vertices' coordinates fall in.
+                let hc = match (ki < 2, kl < 2) {
+                    (true, true) => blocks[0][i % 3][l % 3],
+                    (true, false) => blocks[1][i % 3][l % 3],
+                    (false, true) => blocks[1][l % 3][i % 3],
+                    (false, false) => blocks[2][i % 3][l % 3],
+                };
+                let hc = EDGE_SIGN[ki] * EDGE_SIGN[kl] * hc;
+                h[i][l] = mss * gs[i] * gs[l]
+                    + ms * h[i][l]
+                    + pcc * gc[i] * gc[l]
+                    + pc * hc
+                    + cross * (gs[i] * gc[l] + gc[i] * gs[l]);
+            }
+        }
+        h
+    }
+}
+
 /// [`RegionForm::span`]'s result: `K` (leading `n x n`), `c / |c|`, `r / |r|` and the
 /// orthonormalized `b_l`; all a pair's Hessian needs, so a caller that has the gradient
 /// now and may want the Hessian later keeps this instead of the region's form.
@@ -718,6 +849,99 @@ mod tests {
         assert!(compared > 1000, "only {compared} spans compared");
         // Every span size the regions give: point-point 3, point-edge 4, the rest 5.
         assert!(spans.iter().all(|&s| s > 0), "span sizes seen: {spans:?}");
+        assert!(
+            worst > 0.0,
+            "no round-off at all: the oracle is not independent"
+        );
+    }
+
+    /// The closed-form gradient and Hessian of a mollified edge pair's `m phi(s)` are the
+    /// dual numbers' (the distance and the mollifier over [`crate::contact::self_contact::Dual12`],
+    /// multiplied), to round-off of the largest entry: nearly parallel edge pairs in
+    /// every region the random states fall in, the mollifier from nearly 0 to nearly 1,
+    /// and barrier derivatives of both signs over four decades.
+    #[test]
+    fn a_mollified_pairs_closed_derivatives_are_the_dual_numbers() {
+        use super::super::distance::{
+            mollifier, mollifier_derivatives, squared_distance_derivatives,
+        };
+        let mut next = weyl();
+        let (mut compared, mut worst) = (0, 0.0f64);
+        let mut regions = [0; 4];
+        for n in 0..800 {
+            let p0 = DVec3::new(next(), next(), next());
+            let u = DVec3::new(next(), next(), next());
+            // The second edge nearly parallel to the first: turned off it by an angle
+            // from 1e-4 to 0.1 rad, placed near it (overlapping, beside or beyond its end).
+            let side = DVec3::new(next(), next(), next())
+                .cross(u)
+                .normalize_or_zero()
+                * u.length();
+            let angle = [1e-4, 1e-3, 1e-2, 0.1][n % 4] * (0.5 + next().abs());
+            let w = (u + angle * side) * (0.5 + next().abs());
+            let p2 = p0 + DVec3::new(next(), next(), next()) * 0.3 + u * (next() * 1.2);
+            let p = [p0, p0 + u, p2, p2 + w];
+            let closest = PairKind::EdgeEdge.closest(&p);
+            let form = RegionForm::new(&p, closest);
+            // A threshold above c, so the pair is mollified (m from about 0 to about 1).
+            let c = u.cross(w).length_squared();
+            let eps = c / [0.999, 0.5, 0.1, 1e-3][n % 4];
+            let Some(moll) = Mollifier::below(&p, eps) else {
+                panic!("pair {n}: c {c} below eps {eps}, yet not mollified");
+            };
+            assert_eq!(
+                moll.value.to_bits(),
+                mollifier(&p, eps).to_bits(),
+                "pair {n}"
+            );
+            if form.basis().is_none() {
+                continue;
+            }
+            let magnitude = [1e-2, 1.0, 1e2][n % 3];
+            let (phi, first, second) = (
+                next().abs() * magnitude,
+                next() * magnitude,
+                next() * 50.0 * magnitude,
+            );
+            let want = mollifier_derivatives(&p, eps)
+                * squared_distance_derivatives(PairKind::EdgeEdge, &p).chain(phi, first, second);
+            let gradient = moll.gradient(&form, phi, first);
+            let hessian = moll.hessian(&form, phi, first, second);
+            let g_scale = want.gradient.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (i, (&got, &w)) in gradient.iter().zip(&want.gradient).enumerate() {
+                let error = (got - w).abs() / g_scale.max(f64::MIN_POSITIVE);
+                assert!(error <= 1e-9, "pair {n}: gradient {i}: {got} against {w}");
+                worst = worst.max(error);
+            }
+            let h_scale = want
+                .hessian
+                .iter()
+                .flatten()
+                .fold(0.0f64, |m, v| m.max(v.abs()));
+            for (i, (row, want_row)) in hessian.iter().zip(&want.hessian).enumerate() {
+                for (l, (&got, &w)) in row.iter().zip(want_row).enumerate() {
+                    let error = (got - w).abs() / h_scale.max(f64::MIN_POSITIVE);
+                    assert!(
+                        error <= 1e-9,
+                        "pair {n}: Hessian ({i}, {l}): {got} against {w}"
+                    );
+                    worst = worst.max(error);
+                }
+            }
+            regions[match closest {
+                Closest::PointPoint(_) => 0,
+                Closest::PointEdge(_) => 1,
+                Closest::PointPlane(_) => 2,
+                Closest::LineLine(_) => 3,
+            }] += 1;
+            compared += 1;
+        }
+        assert!(compared > 600, "only {compared} pairs compared");
+        // Edge pairs have no point-plane region; every other one is seen.
+        assert!(
+            regions[0] > 0 && regions[1] > 0 && regions[3] > 0,
+            "regions seen: {regions:?}"
+        );
         assert!(
             worst > 0.0,
             "no round-off at all: the oracle is not independent"

@@ -62,7 +62,7 @@
 
 use super::broad::{Candidate, CandidateCache, Primitives, candidates, candidates_touching};
 use super::ccd::{additive_ccd_with_bound, approach_bound, clear_with_bound};
-use super::closed::{PAIR_BLOCKS, PairBlocks, RegionForm};
+use super::closed::{Mollifier, PAIR_BLOCKS, PairBlocks, RegionForm};
 use super::distance::{
     Closest, PairKind, SEPARATION_MARGIN, mollifier, mollifier_derivatives, mollifier_gradient,
     separation, squared_distance, squared_distance_derivatives, squared_distance_gradient,
@@ -780,12 +780,14 @@ impl SelfContactTerm {
         out.particles = v;
         out.present = false;
         out.closed = None;
+        // Mollified where the mollifier is below 1 (a value that rounds to 1 takes the
+        // unmollified form, as the energy's `m b` does not tell it from 1).
         let mollified = self
             .mollifier_threshold(c)
-            .is_some_and(|eps| mollifier(&p, eps) < 1.0);
-        let closest = || region.unwrap_or_else(|| kind.closest(&p));
-        if !mollified && let Some(present) = self.pair_derivatives_closed(kappa, closest(), &p, out)
-        {
+            .and_then(|eps| Mollifier::below(&p, eps).map(|m| (eps, m)))
+            .filter(|(_, m)| m.value < 1.0);
+        let closest = region.unwrap_or_else(|| kind.closest(&p));
+        if let Some(present) = self.pair_derivatives_closed(kappa, closest, &p, mollified, out) {
             out.present = present;
             return;
         }
@@ -813,11 +815,28 @@ impl SelfContactTerm {
             // The span built now from the gradient's inputs at the same state is the one
             // the gradient's pass found (the same function of the same numbers).
             let p = pair.particles.map(|i| x[i]);
-            if let Some(span) =
-                RegionForm::new(&p, closed.closest).span(closed.first, closed.second)
-            {
-                span.blocks_into(form == HessianForm::Projected, out);
-                return;
+            let region = RegionForm::new(&p, closed.closest);
+            match closed.mollified {
+                None => {
+                    if let Some(span) = region.span(closed.first, closed.second) {
+                        span.blocks_into(form == HessianForm::Projected, out);
+                        return;
+                    }
+                }
+                Some(m) => {
+                    // The mollifier's curvature is outside the distance's span: the full
+                    // matrix, projected by the 12x12 decomposition.
+                    if let Some(mollifier) = Mollifier::below(&p, m.eps_x) {
+                        let h = mollifier.hessian(&region, m.phi, closed.first, closed.second);
+                        if h.iter().flatten().all(|v| v.is_finite()) {
+                            *out = PairBlocks::from_matrix(&match form {
+                                HessianForm::Exact => h,
+                                HessianForm::Projected => project_psd12_pair(&h),
+                            });
+                            return;
+                        }
+                    }
+                }
             }
         }
         if pair.present
@@ -830,16 +849,18 @@ impl SelfContactTerm {
         }
     }
 
-    /// The closed-form derivatives of an unmollified pair into `out`'s gradient and span:
-    /// `Some(true)` when written, `Some(false)` when the pair is beyond `dhat` or not
-    /// admissible, `None` when the closed form declines a degenerate pair. With
+    /// The closed-form derivatives of a pair into `out`'s gradient and the inputs of its
+    /// Hessian: `Some(true)` when written, `Some(false)` when the pair is beyond `dhat`
+    /// or not admissible, `None` when the closed form declines a degenerate pair. With
     /// `E(s) = kappa b(sqrt(s) - xi)`, `E' = kappa b' / (2 d)` and
-    /// `E'' = kappa (b'' / (4 s) - b' / (4 s d))`, `d = sqrt(s)`.
+    /// `E'' = kappa (b'' / (4 s) - b' / (4 s d))`, `d = sqrt(s)`; a mollified edge pair
+    /// (`mollified`: its threshold and mollifier) has the energy `m E` instead.
     fn pair_derivatives_closed(
         &self,
         kappa: f64,
         closest: Closest,
         p: &[DVec3; 4],
+        mollified: Option<(f64, Mollifier)>,
         out: &mut PairDerivatives,
     ) -> Option<bool> {
         let form = RegionForm::new(p, closest);
@@ -863,15 +884,32 @@ impl SelfContactTerm {
         // for at this iterate, from the inputs kept here: most iterates whose gradient
         // ends the step never ask, and a slot without it is a third of the size. Where
         // the span is not certain from its inputs it is built here to decide.
+        // A mollified pair is declined by the same test: its Hessian needs the
+        // distance's in full, built from the same factors.
         if !form.spans_certainly(first, second) {
             form.span(first, second)?;
         }
-        out.closed = Some(ClosedInputs {
-            closest,
-            first,
-            second,
-        });
-        out.gradient = form.gradient().map(|v| first * v);
+        match mollified {
+            None => {
+                out.closed = Some(ClosedInputs {
+                    closest,
+                    first,
+                    second,
+                    mollified: None,
+                });
+                out.gradient = form.gradient().map(|v| first * v);
+            }
+            Some((eps_x, m)) => {
+                let phi = kappa * barrier(g, dhat);
+                out.closed = Some(ClosedInputs {
+                    closest,
+                    first,
+                    second,
+                    mollified: Some(MollifiedInputs { eps_x, phi }),
+                });
+                out.gradient = m.gradient(&form, phi, first);
+            }
+        }
         Some(true)
     }
 
@@ -2089,6 +2127,16 @@ struct ClosedInputs {
     closest: Closest,
     first: f64,
     second: f64,
+    /// A mollified edge pair's threshold and barrier value (`E = kappa b`), `None` for
+    /// the pairs without a mollifier.
+    mollified: Option<MollifiedInputs>,
+}
+
+/// What a mollified pair's Hessian needs besides [`ClosedInputs`]'s.
+#[derive(Clone, Copy, Debug)]
+struct MollifiedInputs {
+    eps_x: f64,
+    phi: f64,
 }
 
 impl Default for PairDerivatives {
