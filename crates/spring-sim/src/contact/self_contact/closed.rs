@@ -1,7 +1,9 @@
 //! Closed-form gradient and Hessian of a pair's squared distance, and the positive
 //! semidefinite projection of a function of it done in the few dimensions its Hessian
-//! spans. This is the hot path of [`super::SelfContactTerm`]; the dual numbers of
-//! [`super::dual`] stay as the test oracle and for mollified edge pairs.
+//! spans, and a mollified edge pair's derivatives by the product rule (`Mollifier`).
+//! This is the hot path of [`super::SelfContactTerm`]; the dual numbers of
+//! [`super::dual`] stay as the test oracle and for the degenerate pairs the closed
+//! form declines.
 //!
 //! In every region the closest points are an affine function of at most two free
 //! parameters `w` (the point-edge parameter, the triangle's barycentric pair, the two edge
@@ -393,7 +395,7 @@ impl RegionForm {
 /// `c_uw = 4 u w^T - 2 w u^T - 2 (u . w) I` (entry `(i, j)` is `d^2 c / du_i dw_j`),
 ///
 /// vertex `k`'s coordinates entering `u` or `w` with the sign `-1, +1, -1, +1`
-/// (docs/self-contact.md, "The mollified pairs in closed form").
+/// (docs/contact.md, "The mollified pairs in closed form").
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Mollifier {
     /// `m`.

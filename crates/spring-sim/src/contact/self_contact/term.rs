@@ -757,11 +757,10 @@ impl SelfContactTerm {
     /// beyond `dhat` or not admissible). The gradient, and whether the pair holds
     /// derivatives, do not depend on `form`, bit for bit.
     ///
-    /// Pairs without a mollifier (every vertex-triangle pair, and edge pairs far from
-    /// parallel, where the mollifier is identically 1) take the closed form of
-    /// [`RegionForm`]; mollified edge pairs, and the degenerate pairs the closed form
-    /// declines, take the dual numbers and the full 12x12 projection (or, in the exact
-    /// form, the dual numbers' Hessian). `region` is the
+    /// Pairs take the closed form of [`RegionForm`], mollified edge pairs (nearly
+    /// parallel edges) its product with the [`Mollifier`] and the full 12x12 projection;
+    /// the degenerate pairs the closed form declines take the dual numbers and the 12x12
+    /// projection (or, in the exact form, the dual numbers' Hessian). `region` is the
     /// region of the closest points at `x` when the caller has it (found by the same
     /// rules, so the same). The results are written in place: a pair's derivatives are
     /// over a kilobyte, and the lists of a few ten thousand pairs are refilled at every
@@ -799,9 +798,9 @@ impl SelfContactTerm {
 
     /// The Hessian in `form` of the pair whose derivatives at `x` are `pair` into `out`
     /// (every entry overwritten when `pair` is present, else left alone): a closed-form
-    /// pair's from its span, the dual numbers' pairs' (mollified edge pairs and the
-    /// degenerate pairs the closed form declines) computed again, the exact form being
-    /// their full Hessian, the mollifier's curvature included.
+    /// pair's from its span, a mollified pair's in full (the mollifier's curvature
+    /// included) from the inputs its gradient kept, the dual numbers' pairs' (the
+    /// degenerate pairs the closed form declines) computed again.
     fn pair_hessian(
         &self,
         kappa: f64,
@@ -2121,7 +2120,7 @@ struct PairDerivatives {
 
 /// What a closed-form pair's Hessian is built from at the state its gradient was:
 /// the region of its closest points and `phi'(s)`, `phi''(s)` (see
-/// [`RegionForm::span`]).
+/// [`RegionForm::span`]), and a mollified pair's threshold and `phi(s)`.
 #[derive(Clone, Copy, Debug)]
 struct ClosedInputs {
     closest: Closest,
