@@ -887,7 +887,7 @@ mod tests {
             let form = RegionForm::new(&p, closest);
             // A threshold above c, so the pair is mollified (m from about 0 to about 1).
             let c = u.cross(w).length_squared();
-            let eps = c / [0.999, 0.5, 0.1, 1e-3][n % 4];
+            let eps = c / [0.999, 0.5, 0.1, 1e-3][(n / 4) % 4];
             let Some(moll) = Mollifier::below(&p, eps) else {
                 panic!("pair {n}: c {c} below eps {eps}, yet not mollified");
             };

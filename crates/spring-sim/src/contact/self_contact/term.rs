@@ -888,27 +888,23 @@ impl SelfContactTerm {
         if !form.spans_certainly(first, second) {
             form.span(first, second)?;
         }
-        match mollified {
-            None => {
-                out.closed = Some(ClosedInputs {
-                    closest,
-                    first,
-                    second,
-                    mollified: None,
-                });
-                out.gradient = form.gradient().map(|v| first * v);
-            }
+        let (gradient, mollified) = match mollified {
+            None => (form.gradient().map(|v| first * v), None),
             Some((eps_x, m)) => {
                 let phi = kappa * barrier(g, dhat);
-                out.closed = Some(ClosedInputs {
-                    closest,
-                    first,
-                    second,
-                    mollified: Some(MollifiedInputs { eps_x, phi }),
-                });
-                out.gradient = m.gradient(&form, phi, first);
+                (
+                    m.gradient(&form, phi, first),
+                    Some(MollifiedInputs { eps_x, phi }),
+                )
             }
-        }
+        };
+        out.closed = Some(ClosedInputs {
+            closest,
+            first,
+            second,
+            mollified,
+        });
+        out.gradient = gradient;
         Some(true)
     }
 
