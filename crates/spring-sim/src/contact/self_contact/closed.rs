@@ -868,7 +868,10 @@ mod tests {
             mollifier, mollifier_derivatives, squared_distance_derivatives,
         };
         let mut next = weyl();
-        let (mut compared, mut worst) = (0, 0.0f64);
+        let mut compared = 0;
+        // The line-line form's round-off grows as 1 / sin^2 of the edges' angle (in both
+        // computations), so the tolerance does too: 1e-16 / angle^2, at least 1e-12.
+        let mut worst_by_angle = [0.0f64; 4];
         let mut regions = [0; 4];
         for n in 0..800 {
             let p0 = DVec3::new(next(), next(), next());
@@ -907,13 +910,17 @@ mod tests {
             );
             let want = mollifier_derivatives(&p, eps)
                 * squared_distance_derivatives(PairKind::EdgeEdge, &p).chain(phi, first, second);
+            let tolerance = (1e-16 / (angle * angle)).max(1e-12);
             let gradient = moll.gradient(&form, phi, first);
             let hessian = moll.hessian(&form, phi, first, second);
             let g_scale = want.gradient.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for (i, (&got, &w)) in gradient.iter().zip(&want.gradient).enumerate() {
                 let error = (got - w).abs() / g_scale.max(f64::MIN_POSITIVE);
-                assert!(error <= 1e-9, "pair {n}: gradient {i}: {got} against {w}");
-                worst = worst.max(error);
+                assert!(
+                    error <= tolerance,
+                    "pair {n}: gradient {i}: {got} against {w}"
+                );
+                worst_by_angle[n % 4] = worst_by_angle[n % 4].max(error);
             }
             let h_scale = want
                 .hessian
@@ -924,10 +931,10 @@ mod tests {
                 for (l, (&got, &w)) in row.iter().zip(want_row).enumerate() {
                     let error = (got - w).abs() / h_scale.max(f64::MIN_POSITIVE);
                     assert!(
-                        error <= 1e-9,
+                        error <= tolerance,
                         "pair {n}: Hessian ({i}, {l}): {got} against {w}"
                     );
-                    worst = worst.max(error);
+                    worst_by_angle[n % 4] = worst_by_angle[n % 4].max(error);
                 }
             }
             regions[match closest {
@@ -938,6 +945,7 @@ mod tests {
             }] += 1;
             compared += 1;
         }
+        let worst = worst_by_angle.iter().fold(0.0f64, |m, &w| m.max(w));
         assert!(compared > 600, "only {compared} pairs compared");
         // Edge pairs have no point-plane region; every other one is seen.
         assert!(
