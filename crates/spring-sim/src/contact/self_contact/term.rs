@@ -466,6 +466,15 @@ impl SelfContactTerm {
         }
     }
 
+    /// The mollifier of the pair `c` at the positions `p` when it is below 1 (a value that
+    /// rounds to 1 takes the unmollified form, as the energy's `m b` does not tell it
+    /// from 1): the same answer from the same positions, whichever pass asks.
+    fn mollifier_below_one(&self, c: Candidate, p: &[DVec3; 4]) -> Option<Mollifier> {
+        self.mollifier_threshold(c)
+            .and_then(|eps| Mollifier::below(p, eps))
+            .filter(|m| m.value < 1.0)
+    }
+
     /// A pair's gap (distance minus thickness) at `x`.
     fn gap(&self, c: Candidate, x: &[DVec3]) -> f64 {
         self.gap_of(&self.placed(c, x))
@@ -779,12 +788,7 @@ impl SelfContactTerm {
         out.particles = v;
         out.present = false;
         out.closed = None;
-        // Mollified where the mollifier is below 1 (a value that rounds to 1 takes the
-        // unmollified form, as the energy's `m b` does not tell it from 1).
-        let mollified = self
-            .mollifier_threshold(c)
-            .and_then(|eps| Mollifier::below(&p, eps).map(|m| (eps, m)))
-            .filter(|(_, m)| m.value < 1.0);
+        let mollified = self.mollifier_below_one(c, &p);
         let closest = region.unwrap_or_else(|| kind.closest(&p));
         if let Some(present) = self.pair_derivatives_closed(kappa, closest, &p, mollified, out) {
             out.present = present;
@@ -822,11 +826,12 @@ impl SelfContactTerm {
                         return;
                     }
                 }
-                Some(m) => {
+                Some(phi) => {
                     // The mollifier's curvature is outside the distance's span: the full
-                    // matrix, projected by the 12x12 decomposition.
-                    if let Some(mollifier) = Mollifier::below(&p, m.eps_x) {
-                        let h = mollifier.hessian(&region, m.phi, closed.first, closed.second);
+                    // matrix, projected by the 12x12 decomposition. The mollifier is the
+                    // one the gradient's pass found (the same positions).
+                    if let Some(mollifier) = self.mollifier_below_one(c, &p) {
+                        let h = mollifier.hessian(&region, phi, closed.first, closed.second);
                         if h.iter().flatten().all(|v| v.is_finite()) {
                             *out = PairBlocks::from_matrix(&match form {
                                 HessianForm::Exact => h,
@@ -853,13 +858,13 @@ impl SelfContactTerm {
     /// or not admissible, `None` when the closed form declines a degenerate pair. With
     /// `E(s) = kappa b(sqrt(s) - xi)`, `E' = kappa b' / (2 d)` and
     /// `E'' = kappa (b'' / (4 s) - b' / (4 s d))`, `d = sqrt(s)`; a mollified edge pair
-    /// (`mollified`: its threshold and mollifier) has the energy `m E` instead.
+    /// (`mollified`: its mollifier) has the energy `m E` instead.
     fn pair_derivatives_closed(
         &self,
         kappa: f64,
         closest: Closest,
         p: &[DVec3; 4],
-        mollified: Option<(f64, Mollifier)>,
+        mollified: Option<Mollifier>,
         out: &mut PairDerivatives,
     ) -> Option<bool> {
         let form = RegionForm::new(p, closest);
@@ -890,12 +895,9 @@ impl SelfContactTerm {
         }
         let (gradient, mollified) = match mollified {
             None => (form.gradient().map(|v| first * v), None),
-            Some((eps_x, m)) => {
+            Some(m) => {
                 let phi = kappa * barrier(g, dhat);
-                (
-                    m.gradient(&form, phi, first),
-                    Some(MollifiedInputs { eps_x, phi }),
-                )
+                (m.gradient(&form, phi, first), Some(phi))
             }
         };
         out.closed = Some(ClosedInputs {
@@ -2116,22 +2118,15 @@ struct PairDerivatives {
 
 /// What a closed-form pair's Hessian is built from at the state its gradient was:
 /// the region of its closest points and `phi'(s)`, `phi''(s)` (see
-/// [`RegionForm::span`]), and a mollified pair's threshold and `phi(s)`.
+/// [`RegionForm::span`]), and a mollified pair's `phi(s)`.
 #[derive(Clone, Copy, Debug)]
 struct ClosedInputs {
     closest: Closest,
     first: f64,
     second: f64,
-    /// A mollified edge pair's threshold and barrier value (`E = kappa b`), `None` for
-    /// the pairs without a mollifier.
-    mollified: Option<MollifiedInputs>,
-}
-
-/// What a mollified pair's Hessian needs besides [`ClosedInputs`]'s.
-#[derive(Clone, Copy, Debug)]
-struct MollifiedInputs {
-    eps_x: f64,
-    phi: f64,
+    /// A mollified edge pair's barrier value `phi(s) = kappa b` (its mollifier is found
+    /// again from the positions), `None` for the pairs without a mollifier.
+    mollified: Option<f64>,
 }
 
 impl Default for PairDerivatives {
