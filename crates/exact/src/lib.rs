@@ -47,6 +47,14 @@ fn o3(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
     orient3d(c3(a), c3(b), c3(c), c3(d))
 }
 
+/// The exact sign of `det[a - d, b - d, c - d]` (Shewchuk's `orient3d`: positive when
+/// `d` lies below the plane of `a, b, c`, seen with `a, b, c` counterclockwise), as a
+/// number of that sign (zero exactly when the four points are coplanar).
+#[must_use]
+pub fn orientation(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
+    o3(a, b, c, d)
+}
+
 /// The point with coordinate `axis` dropped (the plane's normal is not perpendicular to
 /// the remaining ones, so orientations are kept up to one common sign).
 fn c2(p: DVec3, axis: usize) -> Coord<f64> {
@@ -92,7 +100,8 @@ fn point_in_triangle_2d(p: DVec3, t: [DVec3; 3], axis: usize) -> bool {
 }
 
 /// Whether the closed segment `ab` meets the closed triangle `t`, exactly.
-fn segment_meets_triangle(a: DVec3, b: DVec3, t: [DVec3; 3]) -> bool {
+#[must_use]
+pub fn segment_meets_triangle(a: DVec3, b: DVec3, t: [DVec3; 3]) -> bool {
     let (oa, ob) = (o3(t[0], t[1], t[2], a), o3(t[0], t[1], t[2], b));
     if (oa > 0.0 && ob > 0.0) || (oa < 0.0 && ob < 0.0) {
         return false;

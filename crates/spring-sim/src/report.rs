@@ -430,8 +430,8 @@ pub enum StepError {
         distance: f64,
     },
     /// Two primitives of a self-contact mesh (a vertex and a triangle, or two edges)
-    /// are within the thickness of each other, or crossed, at the step's start (the
-    /// state was set by hand, through `SpringSystem::set_state` or `Simulation::system_mut`; an
+    /// are within the thickness of each other at the step's start (the state was set
+    /// by hand, through `SpringSystem::set_state` or `Simulation::system_mut`; an
     /// accepted state never is, and the self-contact term refuses such a state when it
     /// is built). The step was refused.
     SelfContactStart {
@@ -439,6 +439,14 @@ pub enum StepError {
         pair: String,
         /// Its distance less the thickness (`<= 0`, or NaN for a degenerate pair).
         gap: f64,
+    },
+    /// An edge of a self-contact mesh passes through a triangle it shares no vertex
+    /// with at the step's start, or within rounding of it (a state set by hand, as for
+    /// [`Self::SelfContactStart`]; the self-contact term refuses such a state when it is
+    /// built). The step was refused.
+    SelfContactCrossing {
+        /// The pair, as "edge [3, 4] and triangle 40 [7, 8, 9]".
+        pair: String,
     },
 }
 
@@ -484,6 +492,12 @@ impl std::fmt::Display for StepError {
                 "particle {particle} is inside collider {collider} at the step's start (its \
                  distance to the surface, less the thickness, is {distance:e}); the step was \
                  refused"
+            ),
+            Self::SelfContactCrossing { pair } => write!(
+                f,
+                "self-contact: {pair} pass through each other at the step's start: a \
+                 self-contact step needs a start in which the mesh does not cross itself; \
+                 the step was refused"
             ),
             Self::SelfContactStart { pair, gap } => write!(
                 f,

@@ -349,6 +349,127 @@ fn bad_input_is_an_error_naming_it() {
     );
 }
 
+/// A 3 x 3 sheet in the xz plane (spacing 0.1) and a 3 x 3 sheet standing in the xy
+/// plane at z = 0.15 through it, placed so that its edges along y and its diagonals
+/// pierce the flat sheet's triangles away from their edges: every vertex-triangle and
+/// edge-edge distance is over 5 mm, yet the two sheets pass through each other.
+fn crossed_sheets() -> (Vec<DVec3>, Vec<[usize; 3]>) {
+    sheets::stacked(
+        3,
+        0.1,
+        DVec3::new(0.03, -0.05, 0.15),
+        DVec3::X,
+        DVec3::Y,
+        0.1,
+    )
+}
+
+#[test]
+fn a_mesh_that_starts_through_itself_is_refused_naming_an_edge_and_a_triangle() {
+    let (x, t) = crossed_sheets();
+    // The premise: the start crosses, by the exact check, and no pair is within 5 mm.
+    assert!(!intersecting_pairs(&x, &t).is_empty());
+    assert!(min_gap(&x, &t, 0.0) > 0.005, "{}", min_gap(&x, &t, 0.0));
+    let settings = SelfContactSettings {
+        dhat: 1e-3,
+        ..SelfContactSettings::default()
+    };
+    // Free, and with the standing sheet held whole as an obstacle: refused either way.
+    for fixed in [Vec::new(), (9..18).collect()] {
+        let model = sheets::cloth(fixed)
+            .build(&TriangleMesh::new(x.clone(), t.clone()).unwrap())
+            .unwrap();
+        let mut be = model.backward_euler(NewtonSettings::default()).unwrap();
+        let err = model.enable_self_contact(&mut be, settings).unwrap_err();
+        let text = err.to_string();
+        assert!(
+            text.contains("edge [") && text.contains("and triangle"),
+            "{text}"
+        );
+        assert!(text.contains("pass through each other"), "{text}");
+    }
+    // Both sheets held whole: no pair has a free vertex, nothing to refuse.
+    let model = sheets::cloth((0..18).collect())
+        .build(&TriangleMesh::new(x, t).unwrap())
+        .unwrap();
+    let mut be = model.backward_euler(NewtonSettings::default()).unwrap();
+    model.enable_self_contact(&mut be, settings).unwrap();
+}
+
+/// A 2 x 2 sheet in the xz plane (two triangles, spacing 1) and a 2 x 2 sheet of spacing
+/// 0.1 standing in the xy plane at z = 0.3 through the inside of one of its triangles:
+/// only the small sheet's edges pass through a triangle (the large one's edges are far
+/// from it), every distance is over 4 cm.
+fn pierced_triangle() -> (Vec<DVec3>, Vec<[usize; 3]>) {
+    let (mut x, mut t) = grid(2, DVec3::ZERO, DVec3::X, DVec3::Z, 1.0, 0);
+    let (xs, ts) = grid(2, DVec3::new(0.1, -0.05, 0.3), DVec3::X, DVec3::Y, 0.1, 4);
+    x.extend(xs);
+    t.extend(ts);
+    (x, t)
+}
+
+#[test]
+fn a_step_from_a_state_set_through_itself_is_refused_and_writes_nothing() {
+    let (x, t) = pierced_triangle();
+    assert!(!intersecting_pairs(&x, &t).is_empty());
+    assert!(min_gap(&x, &t, 0.0) > 0.04, "{}", min_gap(&x, &t, 0.0));
+    // The small sheet first set 0.3 m up (clear of the large one), the term built
+    // there, then the crossing state set by hand.
+    let lift = |x: &[DVec3], sheet: std::ops::Range<usize>, dy: f64| -> Vec<DVec3> {
+        let mut x = x.to_vec();
+        for k in sheet {
+            x[k].y += dy;
+        }
+        x
+    };
+    let lifted = lift(&x, 4..8, 0.3);
+    let settings = SelfContactSettings {
+        dhat: 1e-3,
+        ..SelfContactSettings::default()
+    };
+    let Run {
+        mut system,
+        integrator: mut be,
+        ..
+    } = build(lifted.clone(), t.clone(), Vec::new(), Vec::new(), settings);
+    let v0 = system.velocities().to_vec();
+    system.set_state(&x, &v0).unwrap();
+    let err = be.take_step(&mut system, H).unwrap_err();
+    let StepError::SelfContactCrossing { pair } = &err else {
+        panic!("{err:?}");
+    };
+    assert!(
+        pair.starts_with("edge [") && pair.contains("and triangle"),
+        "{pair}"
+    );
+    assert!(err.to_string().contains("pass through each other"), "{err}");
+    assert_eq!(system.positions(), x.as_slice());
+    assert_eq!(system.velocities(), v0.as_slice());
+    // Back at the clear state the steps go on.
+    system.set_state(&lifted, &v0).unwrap();
+    for _ in 0..3 {
+        be.take_step(&mut system, H).unwrap();
+    }
+    // From an accepted state only the pairs with a moved vertex are checked again: the
+    // small sheet moved down through the large one (its edges moved), or the large one
+    // moved up onto it (its triangle moved, the edges through it not), both sheets
+    // having fallen alike.
+    let (x1, v1) = (system.positions().to_vec(), system.velocities().to_vec());
+    for (sheet, dy) in [(4..8, -0.3), (0..4, 0.3)] {
+        let x = lift(&x1, sheet, dy);
+        assert!(!intersecting_pairs(&x, &t).is_empty());
+        system.set_state(&x, &v1).unwrap();
+        let err = be.take_step(&mut system, H).unwrap_err();
+        assert!(
+            matches!(err, StepError::SelfContactCrossing { .. }),
+            "{err:?}"
+        );
+        assert_eq!(system.positions(), x.as_slice());
+    }
+    system.set_state(&x1, &v1).unwrap();
+    be.take_step(&mut system, H).unwrap();
+}
+
 #[test]
 fn a_step_from_a_state_set_with_a_pair_within_the_thickness_is_refused_naming_it() {
     // Two flat 5 x 5 sheets 4 mm apart (1 cm spacing, the top one shifted so no vertex

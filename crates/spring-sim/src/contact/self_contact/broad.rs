@@ -471,6 +471,51 @@ impl Tables {
     }
 }
 
+/// The pairs `(edge, triangle)` of an edge and a triangle sharing no vertex whose boxes
+/// at `x` overlap, in edge order then triangle order, leaving out pairs for which `skip`
+/// holds for every vertex of both (two fixed primitives), and, when `moved` is given
+/// (indexed by vertex), pairs with no vertex in it: the pairs in which an edge may pass
+/// through a triangle (see [`super::crossing`]). Runs on the calling thread: it serves
+/// the check of a start state, not the steps.
+#[must_use]
+pub fn edge_triangle_candidates(
+    prims: &Primitives,
+    x: &[DVec3],
+    skip: &[bool],
+    moved: Option<&[bool]>,
+) -> Vec<(usize, usize)> {
+    let Some((boxes, cell)) = boxes_and_cell(prims, x, None, 0.0) else {
+        return Vec::new();
+    };
+    let touches = |vertices: &[usize]| moved.is_none_or(|m| vertices.iter().any(|&v| m[v]));
+    // An edge that moved looks up every triangle; one that did not, the triangles that
+    // moved (hashed apart, and only when some did not).
+    let every = Subset::new(&boxes.triangle, None, cell);
+    let moved_triangles = moved.map(|_| {
+        let some = (0..prims.triangles.len()).filter(|&t| touches(&prims.triangles[t]));
+        Subset::new(&boxes.triangle, Some(some.collect()), cell)
+    });
+    let mut found = Found::new(prims.triangles.len());
+    let mut out = Vec::new();
+    for (e, &[a, b]) in prims.edges.iter().enumerate() {
+        let table = match &moved_triangles {
+            Some(table) if !touches(&[a, b]) => table,
+            _ => &every,
+        };
+        table.query(&boxes.edge[e], |t| {
+            found.meet(t, e, || {
+                let tri = prims.triangles[t];
+                let shares = tri.contains(&a) || tri.contains(&b);
+                let both_skipped = skip[a] && skip[b] && tri.iter().all(|&w| skip[w]);
+                !shares && !both_skipped && boxes.edge[e].overlaps(&boxes.triangle[t])
+            });
+        });
+        found.kept.sort_unstable();
+        out.extend(found.kept.drain(..).map(|t| (e, t)));
+    }
+    out
+}
+
 /// The pairs of [`candidates`]`(prims, x, dx, margin, skip)` that have a vertex in
 /// `moving` (indexed by vertex), in the same order, without hashing the whole mesh
 /// against itself: for a step that moves a few vertices (the pinned particles of a

@@ -13,6 +13,8 @@
 //!   projection of the barrier's Hessian in the few dimensions it spans (the hot path).
 //! - [`broad`]: the broad phase, a spatial hash over the primitives' (swept) boxes.
 //! - [`ccd`]: additive continuous collision detection over a linear step.
+//! - [`crossing`]: whether a state has an edge through a triangle (a start that passes
+//!   through itself, which the gaps cannot see).
 //! - [`friction`]: lagged, smoothed Coulomb friction between the pairs within `dhat`.
 //! - [`psd12`]: the positive semidefinite projection of a pair's 12x12 Hessian.
 //! - `spread`: the term's per-pair loops on the integrator's thread pool.
@@ -25,6 +27,7 @@
 pub mod broad;
 pub mod ccd;
 pub mod closed;
+pub mod crossing;
 pub mod distance;
 pub mod dual;
 pub mod friction;

@@ -63,6 +63,7 @@
 use super::broad::{Candidate, CandidateCache, Primitives, candidates, candidates_touching};
 use super::ccd::{additive_ccd_with_bound, approach_bound, clear_with_bound};
 use super::closed::{Mollifier, PAIR_BLOCKS, PairBlocks, RegionForm};
+use super::crossing::first_crossing;
 use super::distance::{
     Closest, PairKind, SEPARATION_MARGIN, mollifier, mollifier_derivatives, mollifier_gradient,
     separation, squared_distance, squared_distance_derivatives, squared_distance_gradient,
@@ -684,13 +685,32 @@ impl SelfContactTerm {
     /// `Err` naming the first pair (in the broad phase's order) whose gap at `x` is zero
     /// or negative.
     pub fn check_state(&self, x: &[DVec3], fixed: &[bool]) -> Result<(), ContactError> {
-        match self.gaps_at(x, fixed).1 {
-            Some((pair, _)) => Err(ContactError::BadMesh {
+        if let Some((pair, _)) = self.gaps_at(x, fixed).1 {
+            return Err(ContactError::BadMesh {
                 item: pair,
                 reason: "are within the thickness of each other (or touching)",
+            });
+        }
+        match self.crossing_at(x, fixed, None) {
+            Some(pair) => Err(ContactError::BadMesh {
+                item: pair,
+                reason: "pass through each other: the mesh crosses itself at the start, \
+                         which the barrier cannot undo",
             }),
             None => Ok(()),
         }
+    }
+
+    /// The first edge through a triangle sharing none of its vertices at `x` (pairs of
+    /// fixed primitives left out, and with `moved` those with no vertex in it), named;
+    /// see [`super::crossing`].
+    fn crossing_at(&self, x: &[DVec3], fixed: &[bool], moved: Option<&[bool]>) -> Option<String> {
+        first_crossing(&self.prims, x, fixed, moved).map(|(e, t)| {
+            format!(
+                "edge {:?} and triangle {t} {:?}",
+                self.prims.edges[e], self.prims.triangles[t]
+            )
+        })
     }
 
     /// The smallest gap at `x` over the pairs within `dhat` (`+inf` when none), and the
@@ -1690,16 +1710,30 @@ impl Term for SelfContactTerm {
         // A step starts where the last one ended: the last active set was collected at
         // this state, with the same pairs and the same gaps (the same functions of the
         // same numbers), so its answer is this check's.
-        let (min, touching) =
-            if self.active_at.as_slice() == x && self.near_fixed.as_slice() == fixed {
-                let (min, touching) = self.near_summary;
-                let name = |k: usize| (self.pair_name(self.near[k]), self.near_values[k].gap);
-                (min, touching.map(name))
-            } else {
-                self.gaps_at(x, fixed)
-            };
+        let continued = self.active_at.as_slice() == x && self.near_fixed.as_slice() == fixed;
+        let (min, touching) = if continued {
+            let (min, touching) = self.near_summary;
+            let name = |k: usize| (self.pair_name(self.near[k]), self.near_values[k].gap);
+            (min, touching.map(name))
+        } else {
+            self.gaps_at(x, fixed)
+        };
         if let Some((pair, gap)) = touching {
             return Err(StepError::SelfContactStart { pair, gap });
+        }
+        // A state the minimization visited crosses nothing (the cap's induction from a
+        // start checked when the term was built, or here); any other start may, and its
+        // gaps cannot tell. Only the pairs with a vertex moved since the last such state
+        // can have come to cross (a driven move of the pinned particles moves a few),
+        // when the fixed particles are the same (a pair of two fixed primitives, never
+        // checked, may have one freed).
+        if !continued {
+            let moved: Option<Vec<bool>> = (self.active_at.len() == x.len()
+                && self.near_fixed.as_slice() == fixed)
+                .then(|| x.iter().zip(&self.active_at).map(|(a, b)| a != b).collect());
+            if let Some(pair) = self.crossing_at(x, fixed, moved.as_deref()) {
+                return Err(StepError::SelfContactCrossing { pair });
+            }
         }
         let mut checked = self
             .checked_start
