@@ -429,6 +429,16 @@ pub enum StepError {
         /// Its distance to the collider's surface, less the thickness (`<= 0`).
         distance: f64,
     },
+    /// A kinematic collider posed at the step's start time has a coordinate that is not
+    /// finite or beyond [`crate::contact::MAX_COLLIDER_MAGNITUDE`] (it has run that far,
+    /// or the stepper's time was set to a value that is not finite or far off). The step
+    /// was refused.
+    ColliderOutOfRange {
+        /// The collider's index.
+        collider: usize,
+        /// The step's start time.
+        time: f64,
+    },
     /// Two primitives of a self-contact mesh (a vertex and a triangle, or two edges)
     /// are within the thickness of each other at the step's start (the state was set
     /// by hand, through `SpringSystem::set_state` or `Simulation::system_mut`; an
@@ -492,6 +502,11 @@ impl std::fmt::Display for StepError {
                 "particle {particle} is inside collider {collider} at the step's start (its \
                  distance to the surface, less the thickness, is {distance:e}); the step was \
                  refused"
+            ),
+            Self::ColliderOutOfRange { collider, time } => write!(
+                f,
+                "collider {collider} posed at the step's start time {time:e} is not finite or \
+                 beyond 1e50 in magnitude (MAX_COLLIDER_MAGNITUDE); the step was refused"
             ),
             Self::SelfContactCrossing { pair } => write!(
                 f,

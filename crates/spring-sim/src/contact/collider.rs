@@ -19,6 +19,14 @@
 use super::ContactError;
 use sinew_math::{DQuat, DVec3};
 
+/// The largest magnitude of a collider's coordinates (m), radius (m), speed (m/s),
+/// angular speed (rad/s) and pose time (s), and of its coordinates wherever it is posed
+/// for a step: far beyond any scene (1e50 m is 1e23 times the observable universe), and
+/// small enough that the products and squares of such quantities in the distances, the
+/// times of impact and the motion over a step stay finite in f64 (a sphere's centre at
+/// 1e200 made the distance to it overflow and read as inside).
+pub const MAX_COLLIDER_MAGNITUDE: f64 = 1e50;
+
 /// The geometry of a collider, in its pose at time 0 (or, from [`Collider::at`], at a
 /// given time).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -197,9 +205,10 @@ impl Collider {
             || !(omega == DVec3::ZERO || spin_keeps_surface(&self.shape, omega))
     }
 
-    /// Checks every field: all finite, radius positive, the half-space's normal of unit
-    /// length to within 1e-9. The error names the shape and the field; use
-    /// [`validate_colliders`] to have it name the collider's index too.
+    /// Checks every field: all finite and within [`MAX_COLLIDER_MAGNITUDE`], radius
+    /// positive, the half-space's normal of unit length to within 1e-9. The error names
+    /// the shape and the field; use [`validate_colliders`] to have it name the
+    /// collider's index too.
     pub fn validate(&self) -> Result<(), ContactError> {
         let shape = self.shape.kind();
         let bad = |field, reason| {
@@ -211,11 +220,29 @@ impl Collider {
             })
         };
         let finite = "is not finite";
+        let beyond = "is beyond 1e50 in magnitude (MAX_COLLIDER_MAGNITUDE, the range in \
+                      which the contact geometry's products and squares stay finite)";
+        let vector = |field, v: DVec3| {
+            if !v.is_finite() {
+                bad(field, finite)
+            } else if v.abs().max_element() > MAX_COLLIDER_MAGNITUDE {
+                bad(field, beyond)
+            } else {
+                Ok(())
+            }
+        };
+        let radius_ok = |radius: f64| {
+            if !(radius.is_finite() && radius > 0.0) {
+                bad("radius", "is not positive and finite")
+            } else if radius > MAX_COLLIDER_MAGNITUDE {
+                bad("radius", beyond)
+            } else {
+                Ok(())
+            }
+        };
         match self.shape {
             Shape::HalfSpace { point, normal } => {
-                if !point.is_finite() {
-                    return bad("point", finite);
-                }
+                vector("point", point)?;
                 if !normal.is_finite() {
                     return bad("normal", finite);
                 }
@@ -224,35 +251,37 @@ impl Collider {
                 }
             }
             Shape::Sphere { center, radius } => {
-                if !center.is_finite() {
-                    return bad("center", finite);
-                }
-                if !(radius.is_finite() && radius > 0.0) {
-                    return bad("radius", "is not positive and finite");
-                }
+                vector("center", center)?;
+                radius_ok(radius)?;
             }
             Shape::Capsule { a, b, radius } => {
-                if !a.is_finite() {
-                    return bad("a", finite);
-                }
-                if !b.is_finite() {
-                    return bad("b", finite);
-                }
-                if !(radius.is_finite() && radius > 0.0) {
-                    return bad("radius", "is not positive and finite");
-                }
+                vector("a", a)?;
+                vector("b", b)?;
+                radius_ok(radius)?;
             }
         }
-        if !self.motion.linear_velocity.is_finite() {
-            return bad("linear_velocity", finite);
-        }
-        if !self.motion.angular_velocity.is_finite() {
-            return bad("angular_velocity", finite);
-        }
+        vector("linear_velocity", self.motion.linear_velocity)?;
+        vector("angular_velocity", self.motion.angular_velocity)?;
         if !self.pose_time.is_finite() {
             return bad("pose_time", finite);
         }
+        if self.pose_time.abs() > MAX_COLLIDER_MAGNITUDE {
+            return bad("pose_time", beyond);
+        }
         Ok(())
+    }
+
+    /// Whether the collider posed at `t` ([`Self::at`]) has every coordinate finite and
+    /// within [`MAX_COLLIDER_MAGNITUDE`]: a kinematic collider run far enough, or posed
+    /// at a time that is not finite, has not.
+    #[must_use]
+    pub fn pose_in_range(&self, t: f64) -> bool {
+        let within = |v: DVec3| v.is_finite() && v.abs().max_element() <= MAX_COLLIDER_MAGNITUDE;
+        match self.at(t) {
+            Shape::HalfSpace { point, normal } => within(point) && normal.is_finite(),
+            Shape::Sphere { center, .. } => within(center),
+            Shape::Capsule { a, b, .. } => within(a) && within(b),
+        }
     }
 
     /// The rotation the collider has turned through from `pose_time` to `t`.

@@ -90,7 +90,7 @@ pub fn signed_distance(shape: &Shape, x: DVec3, thickness: f64) -> SignedDistanc
             let e = axis / len2.sqrt();
             let foot = a + t * axis;
             let w = x - foot;
-            let rho = w.length();
+            let rho = length(w);
             if rho > 0.0 && rho.is_finite() {
                 let n = w / rho;
                 let hessian = (DMat3::IDENTITY - outer(e) - outer(n)) * (1.0 / rho);
@@ -112,10 +112,22 @@ pub fn signed_distance(shape: &Shape, x: DVec3, thickness: f64) -> SignedDistanc
     }
 }
 
+/// `|w|`, also where `|w|^2` overflows (a point farther than about 1.3e154 from the
+/// centre read as at the centre, inside, before this was scaled).
+fn length(w: DVec3) -> f64 {
+    let rho = w.length();
+    if rho.is_infinite() && w.is_finite() {
+        let m = w.abs().max_element();
+        m * (w / m).length()
+    } else {
+        rho
+    }
+}
+
 /// Distance to a ball; `fallback` is the normal at the centre.
 fn ball(center: DVec3, radius: f64, x: DVec3, thickness: f64, fallback: DVec3) -> SignedDistance {
     let w = x - center;
-    let rho = w.length();
+    let rho = length(w);
     if rho > 0.0 && rho.is_finite() {
         let n = w / rho;
         SignedDistance {

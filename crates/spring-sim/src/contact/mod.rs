@@ -39,7 +39,7 @@ pub mod term;
 pub mod toi;
 
 pub use barrier::{AdaptiveKappa, KappaSettings, PointBarrier, point_barrier};
-pub use collider::{Collider, Drive, Motion, Shape};
+pub use collider::{Collider, Drive, MAX_COLLIDER_MAGNITUDE, Motion, Shape};
 pub use distance::{SignedDistance, signed_distance};
 pub use friction::FrictionContact;
 pub use potential::{ContactPotential, ContactStep, swept_allowance};
@@ -61,7 +61,8 @@ pub enum ContactError {
         shape: &'static str,
         /// The field: "point", "normal", "center", "radius", "a", "b",
         /// "linear_velocity", "angular_velocity" or "pose_time"; when a collider is
-        /// driven ([`Drive`]), "target", "duration", "start" or "end".
+        /// driven ([`Drive`]), "target", "duration", "start" or "end"; "pose" for its
+        /// pose at the integrator's time.
         field: &'static str,
         /// What is wrong with it.
         reason: &'static str,
@@ -425,6 +426,15 @@ pub(crate) fn check_contact_setup(
 ) -> Result<(), ContactError> {
     collider::validate_colliders(colliders)?;
     settings.validate()?;
+    if let Some(i) = colliders.iter().position(|c| !c.pose_in_range(t)) {
+        return Err(ContactError::BadCollider {
+            collider: Some(i),
+            shape: colliders[i].shape.kind(),
+            field: "pose",
+            reason: "at the integrator's time is not finite or beyond 1e50 in magnitude \
+                     (MAX_COLLIDER_MAGNITUDE)",
+        });
+    }
     check_contact_distance("dhat", settings.dhat, positions)?;
     check_start_outside(colliders, settings.thickness, t, positions, fixed)
 }
@@ -439,6 +449,9 @@ pub(crate) fn check_step_start(
     positions: &[sinew_math::DVec3],
     fixed: &[bool],
 ) -> Result<(), crate::StepError> {
+    if let Some(collider) = colliders.iter().position(|c| !c.pose_in_range(t)) {
+        return Err(crate::StepError::ColliderOutOfRange { collider, time: t });
+    }
     match first_inside(colliders, thickness, t, positions, fixed) {
         Some((particle, collider, distance)) => Err(crate::StepError::StartsInside {
             particle,

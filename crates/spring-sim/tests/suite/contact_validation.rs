@@ -4,7 +4,8 @@
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::collider::validate_colliders;
 use sinew_spring_sim::contact::{
-    Collider, ContactError, ContactSettings, Motion, Shape, project_particle,
+    Collider, ContactError, ContactSettings, MAX_COLLIDER_MAGNITUDE, Motion, Shape,
+    project_particle, signed_distance,
 };
 
 fn message(e: ContactError) -> String {
@@ -54,6 +55,32 @@ fn collider_errors_name_the_collider_and_field() {
             Collider::ground(0.0).moving(DVec3::ZERO, DVec3::INFINITY),
             "angular_velocity",
         ),
+        // Finite but beyond the range the contact geometry keeps finite.
+        (
+            Collider::sphere(DVec3::new(0.0, -1e200, 0.0), 1.0),
+            "center",
+        ),
+        (Collider::sphere(DVec3::ZERO, 2e50), "radius"),
+        (
+            Collider::capsule(DVec3::ZERO, DVec3::new(1e51, 0.0, 0.0), 1.0),
+            "b",
+        ),
+        (
+            Collider::sphere(DVec3::ZERO, 1.0).moving(DVec3::new(0.0, 0.0, 1e160), DVec3::ZERO),
+            "linear_velocity",
+        ),
+        (
+            Collider::capsule(DVec3::ZERO, DVec3::X, 1.0)
+                .moving(DVec3::ZERO, DVec3::new(0.0, 1e300, 0.0)),
+            "angular_velocity",
+        ),
+        (
+            Collider {
+                pose_time: 1e308,
+                ..Collider::sphere(DVec3::ZERO, 1.0).moving(DVec3::Z, DVec3::ZERO)
+            },
+            "pose_time",
+        ),
     ];
     for (c, field) in cases {
         let err = c.validate().unwrap_err();
@@ -92,6 +119,31 @@ fn collider_errors_name_the_collider_and_field() {
     );
     assert!(Collider::ground(1.0).is_static());
     assert_eq!(Collider::ground(1.0).motion, Motion::STATIC);
+    // At the limit itself: accepted.
+    let edge = Collider::sphere(DVec3::new(0.0, -MAX_COLLIDER_MAGNITUDE, 0.0), 1.0);
+    assert_eq!(edge.validate(), Ok(()));
+}
+
+#[test]
+fn the_distance_to_a_far_ball_is_its_distance_not_inside() {
+    // |x - c|^2 overflows beyond about 1.3e154: the distance is still |x - c| - r.
+    let x = DVec3::new(-0.1, 0.3, -0.1);
+    for far in [1e100, 1e160, 1e200, 1e300] {
+        let sphere = Shape::Sphere {
+            center: DVec3::new(0.0, -far, 0.0),
+            radius: 1.0,
+        };
+        let d = signed_distance(&sphere, x, 0.0);
+        assert!((d.distance / far - 1.0).abs() < 1e-15, "{far}: {d:?}");
+        assert!((d.normal - DVec3::Y).length() < 1e-15, "{far}: {d:?}");
+        let capsule = Shape::Capsule {
+            a: DVec3::new(0.0, -far, 0.0),
+            b: DVec3::new(0.0, -far, 1.0),
+            radius: 1.0,
+        };
+        let d = signed_distance(&capsule, x, 0.0);
+        assert!((d.distance / far - 1.0).abs() < 1e-15, "{far}: {d:?}");
+    }
 }
 
 #[test]
@@ -464,6 +516,25 @@ fn a_contact_term_added_by_hand_refuses_a_start_inside_a_collider() {
         other => panic!("{other:?}"),
     }
     assert_eq!(system.positions(), &positions[..]);
+    // The stepper's time set where the moving sphere's pose is not finite, or beyond
+    // the range: refused, naming the collider and the time, the system untouched.
+    for time in [f64::NAN, 1e300, -1e300] {
+        integrator.set_time(time);
+        let err = integrator.step(&mut system, 0.01).unwrap_err();
+        assert!(
+            matches!(err, StepError::ColliderOutOfRange { collider: 1, time: t } if t.to_bits() == time.to_bits()),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains("collider 1"), "{err}");
+        assert_eq!(system.positions(), &positions[..]);
+    }
+    // A static collider's pose does not depend on the time: with the ground alone, a
+    // time of 1e300 is no error.
+    let mut integrator = BackwardEuler::new(&system, NewtonSettings::default()).unwrap();
+    let contact = ContactPotential::new(vec![ground], ContactSettings::default(), 0.0).unwrap();
+    integrator.add_term(Box::new(ContactTerm::new(contact)));
+    integrator.set_time(1e300);
+    integrator.step(&mut system, 0.01).unwrap();
 }
 
 /// A 4 x 4 mesh sheet, 0.3 wide, flat at height 0.05 from the origin along x and z.
@@ -506,6 +577,23 @@ fn a_mesh_cloths_colliders_are_checked_where_they_are_added() {
         ),
         "{err:?}"
     );
+    // A moving sphere posed at an integrator time where it lies beyond the range.
+    let moving = Collider::sphere(DVec3::new(5.0, 0.0, 0.0), 1.0).moving(DVec3::Z, DVec3::ZERO);
+    for time in [f64::NAN, 1e60] {
+        let err = add(vec![ground, moving], settings, time).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                ContactError::BadCollider {
+                    collider: Some(1),
+                    field: "pose",
+                    ..
+                }
+            ),
+            "{err:?}"
+        );
+    }
+    add(vec![ground, moving], settings, 1e3).unwrap();
     for (name, bad) in [
         (
             "dhat",
