@@ -312,7 +312,13 @@ impl fmt::Display for ModelError {
                 "spring {spring}: rest length {value} is negative or not finite"
             ),
             Self::BadMaterial { field } => {
-                write!(f, "material: {field} is negative or not finite")
+                // A gravity is a vector: it can only fail by not being finite.
+                let reason = if *field == "gravity" {
+                    "is not finite (a component is NaN or infinite)"
+                } else {
+                    "is negative or not finite"
+                };
+                write!(f, "material: {field} {reason}")
             }
             Self::BadTimeStep { dt } if dt.is_finite() && *dt > 0.0 => write!(
                 f,

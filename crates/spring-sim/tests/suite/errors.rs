@@ -251,3 +251,29 @@ fn a_time_step_whose_square_is_not_normal_is_refused() {
         }
     }
 }
+
+#[test]
+fn a_bad_material_is_named_in_words_that_fit_the_field() {
+    let grid = ClothGrid::lab();
+    let with = |material: Material| {
+        SpringSystem::cloth(&ClothGrid {
+            material,
+            ..grid.clone()
+        })
+        .unwrap_err()
+        .to_string()
+    };
+    let gravity = with(Material {
+        gravity: DVec3::new(0.0, f64::NAN, 0.0),
+        ..grid.material
+    });
+    assert_eq!(
+        gravity,
+        "material: gravity is not finite (a component is NaN or infinite)"
+    );
+    let damping = with(Material {
+        damping: -1.0,
+        ..grid.material
+    });
+    assert_eq!(damping, "material: damping is negative or not finite");
+}
