@@ -138,7 +138,9 @@ pub enum StepStop {
     /// A fixed number of iterations or substeps, no convergence test (explicit
     /// integrators and the flawed reference).
     FixedWork,
-    /// A non-finite value appeared; the system was left as it was before the step.
+    /// A non-finite value appeared. Not the stop of a step returned `Ok`: a solve that
+    /// stops so is refused ([`StepError::NonFinite`]), and only the statistics of an
+    /// abandoned solve can carry it.
     NonFinite,
     /// The line search found the potential infinite (or NaN) at every step length it
     /// tried along the Newton direction, down to `2^-max_backtracks` of it: the forces
@@ -359,7 +361,10 @@ pub enum StepError {
     /// built at the first step that chooses it); the cause is this error's `source`.
     Solver(crate::linear::SolverError),
     /// A non-finite value appeared (an explicit integrator above its stability limit,
-    /// or the flawed reference method); names the first particle affected.
+    /// the flawed reference method, or an implicit solve whose gradient became NaN or
+    /// infinite); names the first particle affected. The step's solve is not kept; in a
+    /// step split into pieces, the pieces before the failing one stay written (the
+    /// stepper's time is not advanced).
     NonFinite {
         /// The integrator.
         integrator: IntegratorKind,
@@ -470,7 +475,8 @@ impl std::fmt::Display for StepError {
                 particle,
             } => write!(
                 f,
-                "{}: particle {particle} became non-finite; the step was undone",
+                "{}: particle {particle} became non-finite (its position, velocity or force); \
+                 the step's solve was not kept",
                 integrator.name()
             ),
             Self::Overflow {

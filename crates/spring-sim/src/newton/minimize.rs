@@ -525,7 +525,12 @@ impl BackwardEuler {
             for (c, v) in [g.x, g.y, g.z].into_iter().enumerate() {
                 grad[c] = v;
                 rhs[c] = -v;
-                max = max.max(v.abs() * scale);
+                // `f64::max` drops a NaN: a gradient of NaNs read as a residual of zero,
+                // a false convergence (a friction threshold whose square underflowed).
+                let a = v.abs() * scale;
+                if a > max || a.is_nan() {
+                    max = a;
+                }
                 sum += v * v;
             }
         }

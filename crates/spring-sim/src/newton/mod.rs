@@ -732,6 +732,17 @@ impl BackwardEuler {
                 iterations: attempt.iterations.saturating_sub(1),
             });
         }
+        if attempt.stop == StepStop::NonFinite {
+            // The gradient at the solve's iterate is not finite (forces beyond f64, or a
+            // term's NaN): that iterate is no state to keep, and a piece of it would not
+            // be either. Nothing of this attempt is committed.
+            self.potential.abandon_step();
+            let particle = first_non_finite(&self.pcg, &self.grad_particles).unwrap_or(0);
+            return Err(StepError::NonFinite {
+                integrator: attempt.integrator,
+                particle,
+            });
+        }
         let mut far = self.far_from_converged(system, &attempt, h_eff);
         let extra = self.extra_split_depth();
         let unsplittable = far && depth > 0 && split_cannot_help(system, h_eff, depth);

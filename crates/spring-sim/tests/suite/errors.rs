@@ -277,3 +277,61 @@ fn a_bad_material_is_named_in_words_that_fit_the_field() {
     });
     assert_eq!(damping, "material: damping is negative or not finite");
 }
+
+/// A term with no energy whose gradient is NaN at one particle: what a term whose
+/// arithmetic underflowed (a friction threshold of 1e-300) gave.
+#[derive(Debug)]
+struct NanGradient(usize);
+
+impl sinew_spring_sim::potential::Term for NanGradient {
+    fn name(&self) -> &'static str {
+        "nan-gradient"
+    }
+    fn energy(&self, _: &sinew_spring_sim::potential::StepContext<'_>, _: &[DVec3]) -> f64 {
+        0.0
+    }
+    fn energy_change(
+        &self,
+        _: &sinew_spring_sim::potential::StepContext<'_>,
+        _: &[DVec3],
+        _: &[DVec3],
+        _: f64,
+    ) -> f64 {
+        0.0
+    }
+    fn add_gradient(
+        &self,
+        _: &sinew_spring_sim::potential::StepContext<'_>,
+        _: &[DVec3],
+        gradient: &mut [DVec3],
+    ) {
+        gradient[self.0] = DVec3::NAN;
+    }
+    fn add_hessian(
+        &self,
+        _: &sinew_spring_sim::potential::StepContext<'_>,
+        _: &[DVec3],
+        _: sinew_spring_sim::spring::Curvature,
+        _: &mut sinew_spring_sim::potential::HessianSink<'_>,
+    ) {
+    }
+}
+
+#[test]
+fn a_solve_whose_gradient_is_nan_is_refused_not_reported_converged() {
+    // The NaN in one particle's gradient once vanished from the residual (`f64::max`
+    // drops it) and, with every other entry NaN too, the step read as converged.
+    let mut system = lab();
+    let particle = 60;
+    let mut be = BackwardEuler::new(&system, NewtonSettings::default()).unwrap();
+    be.add_term(Box::new(NanGradient(particle)));
+    let (x0, v0) = (system.positions().to_vec(), system.velocities().to_vec());
+    let err = be.step(&mut system, 1.0 / 60.0).unwrap_err();
+    assert!(
+        matches!(err, StepError::NonFinite { particle: p, .. } if p == particle),
+        "{err:?}"
+    );
+    assert_eq!(system.positions(), x0.as_slice());
+    assert_eq!(system.velocities(), v0.as_slice());
+    assert_eq!(be.time(), 0.0);
+}
