@@ -17,7 +17,8 @@
 //! does.
 //!
 //! `tobj`'s errors say what failed (a position that does not parse, a face index out of
-//! bounds) but not on which line.
+//! bounds) but not on which line; a face index out of range is found first here and named
+//! with its line and value ([`ObjError::FaceIndex`]).
 
 use crate::TriangleMesh;
 use sinew_math::DVec3;
@@ -37,6 +38,18 @@ pub enum ObjError {
         /// The vertex's index within that object.
         vertex: usize,
     },
+    /// A face statement refers to a vertex the file does not have (a positive index
+    /// beyond the file's `v` statements, a negative one reaching back before the first,
+    /// or 0).
+    FaceIndex {
+        /// The line of the `f` statement, from 1.
+        line: usize,
+        /// The index as written.
+        index: i64,
+        /// The `v` statements the index could refer to: all of the file's for a
+        /// positive index, those before the line for a negative one.
+        vertices: usize,
+    },
     /// A face refers to a vertex the object does not have.
     IndexOutOfRange {
         /// The object (or group) name.
@@ -54,6 +67,16 @@ impl fmt::Display for ObjError {
             Self::NonFiniteVertex { object, vertex } => write!(
                 f,
                 "OBJ object `{object}`: vertex {vertex} has a NaN or infinite coordinate"
+            ),
+            Self::FaceIndex {
+                line,
+                index,
+                vertices,
+            } => write!(
+                f,
+                "OBJ line {line}: face vertex index {index} is out of range ({vertices} \
+                 vertices it could refer to; indices count from 1, negative ones back from \
+                 the last vertex before the face)"
             ),
             Self::IndexOutOfRange { object, triangle } => write!(
                 f,
@@ -137,6 +160,7 @@ impl NumberedObj {
 /// ```
 pub fn parse_obj_numbered(text: &str) -> Result<NumberedObj, ObjError> {
     let (numbered, count) = with_vertex_numbers(text);
+    check_face_indices(text, count)?;
     // The struct update stays although every field is given today: `tobj` features that
     // another crate may turn on add fields.
     #[allow(clippy::needless_update)]
@@ -257,6 +281,39 @@ fn with_vertex_numbers(text: &str) -> (String, usize) {
         out.push('\n');
     }
     (out, count)
+}
+
+/// The first vertex reference of an `f` statement that is out of range, with its line:
+/// `tobj` refuses it too, but without the line or the index. A positive index is
+/// checked against all of the file's `v` statements (one that names a vertex given
+/// after the face, if `tobj` refuses it, keeps `tobj`'s message); a negative one counts
+/// back from the last `v` statement before the face. References that do not parse as
+/// integers are left for `tobj` to refuse.
+fn check_face_indices(text: &str, count: usize) -> Result<(), ObjError> {
+    let mut seen = 0usize;
+    for (k, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => seen += 1,
+            Some("f") => {
+                for word in words {
+                    let Some(Ok(index)) = word.split('/').next().map(str::parse::<i64>) else {
+                        continue;
+                    };
+                    let vertices = if index < 0 { seen } else { count };
+                    if index == 0 || index.unsigned_abs() > vertices as u64 {
+                        return Err(ObjError::FaceIndex {
+                            line: k + 1,
+                            index,
+                            vertices,
+                        });
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(())
 }
 
 /// `x/w y/w z/w` of `v x y z w`, each written so it parses back to the same number;

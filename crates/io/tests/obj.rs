@@ -109,10 +109,34 @@ fn two_vertices_at_one_place_stay_two_and_loose_ones_are_left_out() {
 #[test]
 fn bad_files_are_errors() {
     assert_eq!(parse_obj("v 0 0 0\nv 1 0 0\n"), Err(ObjError::NoTriangles));
-    assert!(matches!(
-        parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"),
-        Err(ObjError::Parse(_))
-    ));
+    // Face indices out of range name the line, the index and the vertices it could
+    // refer to: beyond the file's vertices, 0, or back before the first.
+    let three = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+    for (face, index, vertices) in [("f 1 2 9", 9, 3), ("f 0 1 2", 0, 3), ("f -1 -2 -9", -9, 3)] {
+        let e = parse_obj(&format!("{three}{face}\n")).unwrap_err();
+        assert_eq!(
+            e,
+            ObjError::FaceIndex {
+                line: 4,
+                index,
+                vertices
+            }
+        );
+        assert!(
+            e.to_string().starts_with("OBJ line 4: face vertex index"),
+            "{e}"
+        );
+    }
+    // A negative index counts only the vertices before the face.
+    assert_eq!(
+        parse_obj("v 0 0 0\nv 1 0 0\nf -1 -2 -3\nv 0 1 0\n").unwrap_err(),
+        ObjError::FaceIndex {
+            line: 3,
+            index: -3,
+            vertices: 2
+        }
+    );
+    assert!(parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -3\n").is_ok());
     assert!(matches!(
         parse_obj("v 0 zero 0\nf 1 1 1\n"),
         Err(ObjError::Parse(_))
