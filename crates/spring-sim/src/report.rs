@@ -138,9 +138,8 @@ pub enum StepStop {
     /// A fixed number of iterations or substeps, no convergence test (explicit
     /// integrators and the flawed reference).
     FixedWork,
-    /// A non-finite value appeared. Not the stop of a step returned `Ok`: a solve that
-    /// stops so is refused ([`StepError::NonFinite`]), and only the statistics of an
-    /// abandoned solve can carry it.
+    /// A non-finite value appeared in a solve's gradient. Never the stop of a step
+    /// returned `Ok`: a solve that stops so is refused ([`StepError::NonFinite`]).
     NonFinite,
     /// The line search found the potential infinite (or NaN) at every step length it
     /// tried along the Newton direction, down to `2^-max_backtracks` of it: the forces

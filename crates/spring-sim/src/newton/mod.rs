@@ -737,7 +737,12 @@ impl BackwardEuler {
             // term's NaN): that iterate is no state to keep, and a piece of it would not
             // be either. Nothing of this attempt is committed.
             self.potential.abandon_step();
-            let particle = first_non_finite(&self.pcg, &self.grad_particles).unwrap_or(0);
+            // The residual reads the free particles' entries only (a fixed particle's
+            // gradient is ignored by every caller).
+            let particle = (self.pattern.free_particles.iter())
+                .copied()
+                .find(|&p| !self.grad_particles[p].is_finite())
+                .unwrap_or(0);
             return Err(StepError::NonFinite {
                 integrator: attempt.integrator,
                 particle,
