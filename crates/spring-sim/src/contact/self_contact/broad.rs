@@ -476,7 +476,8 @@ impl Tables {
 /// holds for every vertex of both (two fixed primitives), and, when `moved` is given
 /// (indexed by vertex), pairs with no vertex in it: the pairs in which an edge may pass
 /// through a triangle (see [`super::crossing`]). Runs on the calling thread: it serves
-/// the check of a start state, not the steps.
+/// the check of a start state (at most once per step, and with `moved` over the few
+/// primitives a driven move touches), not the iterations.
 #[must_use]
 pub fn edge_triangle_candidates(
     prims: &Primitives,

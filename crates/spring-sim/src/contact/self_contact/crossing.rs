@@ -16,8 +16,12 @@
 //! The orientation signs come from floating point with Shewchuk's static error bound
 //! (the first filter of his `orient3d`): where the bound cannot decide a sign, the sign
 //! counts as zero, which reads as touching. So the test may refuse a state in which an
-//! edge passes within rounding of a triangle, never accept one in which it passes through.
-//! Derivation: docs/contact.md, "A start that passes through itself".
+//! edge passes within rounding of a triangle, and accepts none in which an edge passes
+//! through it across its plane. One case is left to the gaps alone: an edge with both
+//! ends within rounding of the triangle's plane (coplanar, as in a flat sheet, but
+//! possibly tilted by rounding), which the gap check refuses only when its distance is
+//! at most the thickness; with a thickness of zero, such an edge crossing the triangle
+//! at a distance of a few ulps would pass both. Derivation: docs/contact.md, "A start that passes through itself".
 
 use super::broad::{Primitives, edge_triangle_candidates};
 use sinew_math::DVec3;
