@@ -38,7 +38,7 @@ pub mod self_contact;
 pub mod term;
 pub mod toi;
 
-pub use barrier::{AdaptiveKappa, KappaSettings, PointBarrier, point_barrier};
+pub use barrier::{AdaptiveKappa, KappaSettings, MAX_KAPPA_RATIO, PointBarrier, point_barrier};
 pub use collider::{Collider, Drive, MAX_COLLIDER_MAGNITUDE, Motion, Shape};
 pub use distance::{SignedDistance, signed_distance};
 pub use friction::FrictionContact;
@@ -269,6 +269,9 @@ pub struct ContactSettings {
     /// rescaling does; with 0.1 a particle closed only a tenth of its distance per Newton
     /// iteration, and a sheet landing on a sphere took dozens of iterations per step).
     pub toi_fraction: f64,
+    /// The adaptive barrier stiffness rule's constants (default IPC's: `kappa_max = 100
+    /// kappa_min`, doubling below `0.01 dhat`).
+    pub kappa: KappaSettings,
 }
 
 impl Default for ContactSettings {
@@ -279,6 +282,7 @@ impl Default for ContactSettings {
             mu: 0.0,
             eps_v: 1e-3,
             toi_fraction: 0.9,
+            kappa: KappaSettings::default(),
         }
     }
 }
@@ -499,11 +503,12 @@ pub(crate) fn check_toi_fraction(fraction: f64) -> Result<(), ContactError> {
 
 impl ContactSettings {
     /// Checks every setting: `dhat > 0`, `thickness >= 0`, `0 <= mu <= MAX_MU`, `eps_v > 0`,
-    /// `0 < toi_fraction < 1`, all finite. The error names the setting.
+    /// `0 < toi_fraction < 1`, all finite, and the stiffness rule's constants
+    /// ([`KappaSettings::validate`]). The error names the setting.
     pub fn validate(&self) -> Result<(), ContactError> {
         check_gap_settings(self.dhat, self.thickness)?;
         check_friction_settings(self.mu, self.eps_v)?;
         check_toi_fraction(self.toi_fraction)?;
-        Ok(())
+        self.kappa.validate()
     }
 }

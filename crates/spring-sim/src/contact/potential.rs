@@ -19,8 +19,8 @@
 //! below 1% of `dhat` and still falling.
 
 use super::barrier::{
-    AdaptiveKappa, KappaSettings, balanced_kappa, barrier, barrier_change,
-    barrier_first_derivative, barrier_second_derivative, minimum_kappa, point_barrier_gradient,
+    AdaptiveKappa, balanced_kappa, barrier, barrier_change, barrier_first_derivative,
+    barrier_second_derivative, minimum_kappa, point_barrier_gradient,
     point_barrier_projected_hessian,
 };
 use super::collider::{Collider, Drive, Shape, drive_in_list, validate_colliders};
@@ -36,7 +36,6 @@ use sinew_math::{DMat3, DVec3};
 pub struct ContactPotential {
     colliders: Vec<Collider>,
     settings: ContactSettings,
-    kappa_settings: KappaSettings,
     kappa: Option<AdaptiveKappa>,
     /// The current step's end time (the start of the next step).
     clock: f64,
@@ -114,7 +113,6 @@ impl ContactPotential {
         Ok(Self {
             colliders,
             settings,
-            kappa_settings: KappaSettings::default(),
             kappa: None,
             clock: start_time,
             step_start: start_time,
@@ -259,7 +257,7 @@ impl ContactPotential {
                 .fold((0.0, 0usize), |(s, c), (m, _)| (s + m, c + 1));
             let mean = if count > 0 { sum / count as f64 } else { 1.0 };
             let kmin = minimum_kappa(self.settings.dhat, mean, step.gravity, h);
-            AdaptiveKappa::new(kmin, None, self.kappa_settings)
+            AdaptiveKappa::new(kmin, None, self.settings.kappa)
         });
         let start = step.start;
         let kappa = match step.other_gradient {

@@ -6,7 +6,7 @@
 use sinew_math::{DMat3, DVec3};
 use sinew_spring_sim::contact::barrier::{barrier_first_derivative, minimum_kappa};
 use sinew_spring_sim::contact::{
-    Collider, ContactPotential, ContactSettings, signed_distance, time_of_impact,
+    Collider, ContactPotential, ContactSettings, KappaSettings, signed_distance, time_of_impact,
 };
 
 fn setup() -> (ContactPotential, Vec<DVec3>, Vec<bool>, Vec<f64>) {
@@ -21,6 +21,7 @@ fn setup() -> (ContactPotential, Vec<DVec3>, Vec<bool>, Vec<f64>) {
         mu: 0.3,
         eps_v: 0.01,
         toi_fraction: 0.1,
+        kappa: KappaSettings::default(),
     };
     let mut p = ContactPotential::new(colliders, settings, 0.0).unwrap();
     // Particles: two near the ground, one near the sphere's top, one far, one fixed in
@@ -46,6 +47,47 @@ fn kappa_and_friction_are_set_at_the_first_step() {
     // Three free particles within dhat at the start: three friction contacts.
     assert_eq!(p.friction_contacts(), 3);
     assert!((p.time() - 0.01).abs() < 1e-18);
+}
+
+#[test]
+fn the_stiffness_rule_is_the_settings_one() {
+    // A particle a thousandth of `dhat` above the ground and falling: too close, so
+    // `kappa` grows by the settings' factor up to their ratio.
+    let rule = KappaSettings {
+        max_ratio: 5.0,
+        too_close: 0.5,
+        growth: 3.0,
+    };
+    let settings = ContactSettings {
+        dhat: 0.01,
+        kappa: rule,
+        ..ContactSettings::default()
+    };
+    let mut p = ContactPotential::new(vec![Collider::ground(0.0)], settings, 0.0).unwrap();
+    let fixed = [false];
+    p.begin_step(&[DVec3::new(0.0, 1.0, 0.0)], &fixed, &[0.1], 9.81, 0.01);
+    let kmin = minimum_kappa(0.01, 0.1, 9.81, 0.01);
+    assert_eq!(p.kappa(), kmin);
+    // At 0.4 dhat: below too_close = 0.5 dhat and falling (from +inf).
+    assert!(p.update_kappa(&[DVec3::new(0.0, 0.004, 0.0)], &fixed));
+    assert_eq!(p.kappa(), 3.0 * kmin);
+    // Still falling: 9 kmin is clamped to the ratio's 5 kmin.
+    assert!(p.update_kappa(&[DVec3::new(0.0, 0.002, 0.0)], &fixed));
+    assert_eq!(p.kappa(), 5.0 * kmin);
+    // With the default rule (0.01 dhat, 100 kmin) neither distance is too close.
+    let mut q = ContactPotential::new(
+        vec![Collider::ground(0.0)],
+        ContactSettings {
+            kappa: KappaSettings::default(),
+            ..settings
+        },
+        0.0,
+    )
+    .unwrap();
+    q.begin_step(&[DVec3::new(0.0, 1.0, 0.0)], &fixed, &[0.1], 9.81, 0.01);
+    assert!(!q.update_kappa(&[DVec3::new(0.0, 0.004, 0.0)], &fixed));
+    assert!(!q.update_kappa(&[DVec3::new(0.0, 0.002, 0.0)], &fixed));
+    assert_eq!(q.kappa(), kmin);
 }
 
 #[test]

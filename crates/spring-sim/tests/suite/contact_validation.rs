@@ -3,9 +3,10 @@
 
 use sinew_math::DVec3;
 use sinew_spring_sim::contact::collider::validate_colliders;
+use sinew_spring_sim::contact::self_contact::SelfContactSettings;
 use sinew_spring_sim::contact::{
-    Collider, ContactError, ContactSettings, MAX_COLLIDER_MAGNITUDE, Motion, Shape,
-    project_particle, signed_distance,
+    Collider, ContactError, ContactSettings, KappaSettings, MAX_COLLIDER_MAGNITUDE,
+    MAX_KAPPA_RATIO, Motion, Shape, project_particle, signed_distance,
 };
 
 fn message(e: ContactError) -> String {
@@ -211,6 +212,134 @@ fn settings_errors_name_the_setting() {
 }
 
 #[test]
+fn stiffness_rule_errors_name_the_setting_for_colliders_and_self_contact() {
+    let d = KappaSettings::default();
+    let accepted = [
+        d,
+        KappaSettings {
+            max_ratio: 1.0,
+            ..d
+        },
+        KappaSettings {
+            max_ratio: MAX_KAPPA_RATIO,
+            ..d
+        },
+        // With the ratio bounded, a huge growth only sends `kappa` straight to its bound.
+        KappaSettings { growth: 1e300, ..d },
+        KappaSettings { growth: 1.0, ..d },
+        KappaSettings {
+            too_close: 0.999,
+            ..d
+        },
+    ];
+    let refused = [
+        (
+            KappaSettings {
+                max_ratio: 0.5,
+                ..d
+            },
+            "kappa.max_ratio",
+        ),
+        (
+            KappaSettings {
+                max_ratio: 2.0 * MAX_KAPPA_RATIO,
+                ..d
+            },
+            "kappa.max_ratio",
+        ),
+        (
+            KappaSettings {
+                max_ratio: 1e300,
+                ..d
+            },
+            "kappa.max_ratio",
+        ),
+        (
+            KappaSettings {
+                max_ratio: f64::NAN,
+                ..d
+            },
+            "kappa.max_ratio",
+        ),
+        (KappaSettings { growth: 0.5, ..d }, "kappa.growth"),
+        (
+            KappaSettings {
+                growth: f64::INFINITY,
+                ..d
+            },
+            "kappa.growth",
+        ),
+        (
+            KappaSettings {
+                too_close: 0.0,
+                ..d
+            },
+            "kappa.too_close",
+        ),
+        (
+            KappaSettings {
+                too_close: 1.0,
+                ..d
+            },
+            "kappa.too_close",
+        ),
+        (
+            KappaSettings {
+                too_close: f64::NAN,
+                ..d
+            },
+            "kappa.too_close",
+        ),
+    ];
+    for kappa in accepted {
+        assert_eq!(kappa.validate(), Ok(()), "{kappa:?}");
+        let contact = ContactSettings {
+            kappa,
+            ..ContactSettings::default()
+        };
+        assert_eq!(contact.validate(), Ok(()), "{kappa:?}");
+        let own = SelfContactSettings {
+            kappa,
+            ..SelfContactSettings::default()
+        };
+        assert_eq!(own.validate(), Ok(()), "{kappa:?}");
+    }
+    for (kappa, name) in refused {
+        let contact = ContactSettings {
+            kappa,
+            ..ContactSettings::default()
+        };
+        let own = SelfContactSettings {
+            kappa,
+            ..SelfContactSettings::default()
+        };
+        for err in [
+            kappa.validate().unwrap_err(),
+            contact.validate().unwrap_err(),
+            own.validate().unwrap_err(),
+        ] {
+            assert!(
+                matches!(err, ContactError::BadSetting { name: n, .. } if n == name),
+                "{kappa:?}: {err:?}"
+            );
+            assert!(err.to_string().contains(name), "{err}");
+        }
+    }
+    // A contact potential is refused the rule as well.
+    let bad = ContactSettings {
+        kappa: KappaSettings { growth: 0.0, ..d },
+        ..ContactSettings::default()
+    };
+    assert!(matches!(
+        sinew_spring_sim::contact::ContactPotential::new(vec![Collider::ground(0.0)], bad, 0.0),
+        Err(ContactError::BadSetting {
+            name: "kappa.growth",
+            ..
+        })
+    ));
+}
+
+#[test]
 fn projection_pushes_out_and_applies_coulomb_friction() {
     let ground = Collider::ground(0.0);
     // Below the ground by 0.01 with thickness 0.002, falling at 2 and sliding at 3:
@@ -308,7 +437,6 @@ fn projection_pushes_out_and_applies_coulomb_friction() {
 #[test]
 fn a_contact_distance_below_the_rounding_of_the_positions_or_above_the_cloth_is_refused() {
     use sinew_spring_sim::contact::MIN_RELATIVE_DHAT;
-    use sinew_spring_sim::contact::self_contact::SelfContactSettings;
     use sinew_spring_sim::{Integrator, Simulation, TriangleMesh};
     // A sheet 1e4 from the origin: its largest coordinate is 1e4 + 0.3, so the smallest
     // dhat allowed is about 1e-5.

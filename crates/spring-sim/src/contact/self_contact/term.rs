@@ -154,25 +154,7 @@ impl SelfContactSettings {
                 "must be positive and finite",
             );
         }
-        let k = self.kappa;
-        if !(k.max_ratio.is_finite() && k.max_ratio >= 1.0) {
-            return bad(
-                "kappa.max_ratio",
-                k.max_ratio,
-                "must be at least 1 and finite",
-            );
-        }
-        if !(k.growth.is_finite() && k.growth >= 1.0) {
-            return bad("kappa.growth", k.growth, "must be at least 1 and finite");
-        }
-        if !(k.too_close.is_finite() && k.too_close > 0.0 && k.too_close < 1.0) {
-            return bad(
-                "kappa.too_close",
-                k.too_close,
-                "must lie strictly between 0 and 1",
-            );
-        }
-        Ok(())
+        self.kappa.validate()
     }
 }
 
