@@ -1,4 +1,4 @@
-//! Whether a mesh passes through itself at a given state: an edge through a triangle it
+//! Whether a mesh passes through itself at a given state: an edge meeting a triangle it
 //! shares no vertex with.
 //!
 //! The barrier and the line search's cap keep every state the minimization accepts free
@@ -7,21 +7,21 @@
 //! triangle's interior may be far from the triangle's vertices and edges, and its own
 //! vertices far from the triangle's plane. So a start state is checked here too.
 //!
-//! Two triangles sharing no vertex meet in one of two ways: one's edge meets the other's
-//! interior or boundary across its plane (found here), or both lie in one plane and
-//! overlap, when a vertex of one lies on the other or two of their edges meet: a zero
-//! distance, which the gap check refuses. So this test and the gap check together refuse
-//! every state in which two triangles sharing no vertex meet.
+//! Two closed triangles meet exactly when an edge of one meets the other, so testing
+//! every edge against every triangle sharing no vertex with it finds every meeting pair
+//! of triangles sharing no vertex. An edge meets a triangle either across the triangle's
+//! plane (an end on each side, or on it) or, both ends in the plane, inside it.
 //!
-//! The orientation signs come from floating point with Shewchuk's static error bound
-//! (the first filter of his `orient3d`): where the bound cannot decide a sign, the sign
-//! counts as zero, which reads as touching. So the test may refuse a state in which an
-//! edge passes within rounding of a triangle, and accepts none in which an edge passes
-//! through it across its plane. One case is left to the gaps alone: an edge with both
-//! ends within rounding of the triangle's plane (coplanar, as in a flat sheet, but
-//! possibly tilted by rounding), which the gap check refuses only when its distance is
-//! at most the thickness; with a thickness of zero, such an edge crossing the triangle
-//! at a distance of a few ulps would pass both. Derivation: docs/contact.md, "A start that passes through itself".
+//! The orientation signs come from floating point with Shewchuk's static error bounds
+//! (the first filters of his `orient3d` and `orient2d`): where a bound cannot decide a
+//! sign, the sign counts as zero, which reads as touching. An edge with both ends within
+//! rounding of the triangle's plane (coplanar, as in a flat sheet) is tested in the
+//! projection onto the coordinate plane the triangle faces most: a projection of two
+//! meeting sets meets, so only a meeting the projection rules out with decided signs (or
+//! with disjoint coordinate ranges, an exact comparison) is passed. So the test may
+//! refuse a state in which an edge passes within rounding of a triangle, and accepts none
+//! in which an edge meets one. Derivation: docs/contact.md, "A start that passes through
+//! itself".
 
 use super::broad::{Primitives, edge_triangle_candidates};
 use sinew_math::DVec3;
@@ -54,17 +54,86 @@ pub fn orientation_sign(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> i8 {
     }
 }
 
-/// Whether the closed segment `p q` may meet the closed triangle `t` across the
-/// triangle's plane: `false` only where the floating-point signs prove the two apart, or
-/// where the segment lies in the triangle's plane (its meeting the triangle there is a
-/// zero distance, see the module documentation).
+/// Shewchuk's bound on the rounding error of the 2D orientation determinant computed in
+/// floating point from the differences `a - c`, `b - c`, relative to its permanent:
+/// `(3 + 16 eps) eps` with `eps = 2^-53`.
+const ORIENT_2D_ERROR_BOUND: f64 = (3.0 + 16.0 * f64::EPSILON / 2.0) * f64::EPSILON / 2.0;
+
+/// The sign of `det[a - c, b - c]` for points in the plane: `1` (counterclockwise) or
+/// `-1` where floating point decides it, `0` where the determinant is within its error
+/// bound of zero (or not finite).
+fn orientation_sign_2d(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> i8 {
+    let left = (a[0] - c[0]) * (b[1] - c[1]);
+    let right = (a[1] - c[1]) * (b[0] - c[0]);
+    let det = left - right;
+    let bound = ORIENT_2D_ERROR_BOUND * (left.abs() + right.abs());
+    if det > bound {
+        1
+    } else if -det > bound {
+        -1
+    } else {
+        0
+    }
+}
+
+/// Whether three signs leave a point possibly in a closed triangle (or a line possibly
+/// through it): not both a decided `1` and a decided `-1`.
+fn not_both_sides(s: [i8; 3]) -> bool {
+    !(s.contains(&1) && s.contains(&-1))
+}
+
+/// Whether the closed segments `a b` and `c d` in the plane may meet: `false` only where
+/// their coordinate ranges are disjoint or decided signs put one segment strictly on one
+/// side of the other's line.
+fn segments_may_meet_2d(a: [f64; 2], b: [f64; 2], c: [f64; 2], d: [f64; 2]) -> bool {
+    for k in 0..2 {
+        if a[k].max(b[k]) < c[k].min(d[k]) || c[k].max(d[k]) < a[k].min(b[k]) {
+            return false;
+        }
+    }
+    let one_side = |s: i8, t: i8| s != 0 && s == t;
+    let (sc, sd) = (orientation_sign_2d(a, b, c), orientation_sign_2d(a, b, d));
+    let (sa, sb) = (orientation_sign_2d(c, d, a), orientation_sign_2d(c, d, b));
+    !(one_side(sc, sd) || one_side(sa, sb))
+}
+
+/// Whether the closed segment `p q`, both ends within rounding of the plane of `t`, may
+/// meet the closed triangle `t`, tested in the projection onto the coordinate plane
+/// normal to the axis the triangle's normal is largest along (any projection is sound;
+/// this one keeps the most of the triangle's area).
+fn coplanar_segment_may_meet_triangle(p: DVec3, q: DVec3, t: [DVec3; 3]) -> bool {
+    let n = (t[1] - t[0]).cross(t[2] - t[0]).abs();
+    let drop = if n.x >= n.y && n.x >= n.z {
+        0
+    } else if n.y >= n.z {
+        1
+    } else {
+        2
+    };
+    let flat = |v: DVec3| match drop {
+        0 => [v.y, v.z],
+        1 => [v.z, v.x],
+        _ => [v.x, v.y],
+    };
+    let (p, q, t) = (flat(p), flat(q), t.map(flat));
+    // The segment meets the triangle's boundary, or (meeting none of it) lies wholly
+    // inside or wholly outside, as its end p does.
+    (0..3).any(|k| segments_may_meet_2d(p, q, t[k], t[(k + 1) % 3]))
+        || not_both_sides([
+            orientation_sign_2d(t[0], t[1], p),
+            orientation_sign_2d(t[1], t[2], p),
+            orientation_sign_2d(t[2], t[0], p),
+        ])
+}
+
+/// Whether the closed segment `p q` may meet the closed triangle `t`: `false` only where
+/// floating-point signs with their error bounds prove the two apart.
 #[must_use]
-pub fn segment_may_cross_triangle(p: DVec3, q: DVec3, t: [DVec3; 3]) -> bool {
+pub fn segment_may_meet_triangle(p: DVec3, q: DVec3, t: [DVec3; 3]) -> bool {
     let sp = orientation_sign(t[0], t[1], t[2], p);
     let sq = orientation_sign(t[0], t[1], t[2], q);
     if sp == 0 && sq == 0 {
-        // In the plane, to rounding: left to the gaps.
-        return false;
+        return coplanar_segment_may_meet_triangle(p, q, t);
     }
     if sp == sq {
         // Both ends strictly on one side.
@@ -72,15 +141,14 @@ pub fn segment_may_cross_triangle(p: DVec3, q: DVec3, t: [DVec3; 3]) -> bool {
     }
     // The segment reaches the plane: it meets the triangle where its line passes inside
     // or on the triangle's three edges, all seen turning one way.
-    let s = [
+    not_both_sides([
         orientation_sign(p, q, t[0], t[1]),
         orientation_sign(p, q, t[1], t[2]),
         orientation_sign(p, q, t[2], t[0]),
-    ];
-    !(s.contains(&1) && s.contains(&-1))
+    ])
 }
 
-/// The first edge (in the primitives' order, then the triangle's) that may pass through a
+/// The first edge (in the primitives' order, then the triangle's) that may meet a
 /// triangle sharing none of its vertices at `x`, as `(edge, triangle)` indices into
 /// `prims`; pairs whose every vertex is `skip`ped (two fixed primitives) are left out.
 /// With `moved` (indexed by vertex), only pairs with a vertex in it are tested: from a
@@ -97,7 +165,7 @@ pub fn first_crossing(
         .into_iter()
         .find(|&(e, t)| {
             let [a, b] = prims.edges[e];
-            segment_may_cross_triangle(x[a], x[b], prims.triangles[t].map(|v| x[v]))
+            segment_may_meet_triangle(x[a], x[b], prims.triangles[t].map(|v| x[v]))
         })
 }
 
@@ -118,40 +186,40 @@ mod tests {
 
     #[test]
     fn a_segment_through_the_interior_crosses_and_one_beside_it_does_not() {
-        assert!(segment_may_cross_triangle(
+        assert!(segment_may_meet_triangle(
             v(0.2, 0.2, -1.0),
             v(0.2, 0.2, 1.0),
             T
         ));
-        assert!(segment_may_cross_triangle(
+        assert!(segment_may_meet_triangle(
             v(0.2, 0.2, 1.0),
             v(0.3, 0.1, -1e-9),
             T
         ));
         // Through the plane outside the triangle, beyond each edge.
-        assert!(!segment_may_cross_triangle(
+        assert!(!segment_may_meet_triangle(
             v(0.6, 0.6, -1.0),
             v(0.6, 0.6, 1.0),
             T
         ));
-        assert!(!segment_may_cross_triangle(
+        assert!(!segment_may_meet_triangle(
             v(-0.1, 0.2, -1.0),
             v(-0.1, 0.2, 1.0),
             T
         ));
-        assert!(!segment_may_cross_triangle(
+        assert!(!segment_may_meet_triangle(
             v(0.2, -0.1, -1.0),
             v(0.2, -0.1, 1.0),
             T
         ));
         // Both ends on one side, above the interior.
-        assert!(!segment_may_cross_triangle(
+        assert!(!segment_may_meet_triangle(
             v(0.2, 0.2, 1e-9),
             v(0.2, 0.2, 1.0),
             T
         ));
         // Stopping short of the plane.
-        assert!(!segment_may_cross_triangle(
+        assert!(!segment_may_meet_triangle(
             v(0.2, 0.2, -1.0),
             v(0.2, 0.2, -1e-12),
             T
@@ -159,47 +227,66 @@ mod tests {
     }
 
     #[test]
-    fn touching_counts_as_crossing_and_lying_in_the_plane_is_left_to_the_gaps() {
+    fn touching_counts_as_meeting() {
         // An end on the triangle's interior, its edge, its vertex.
-        assert!(segment_may_cross_triangle(
+        assert!(segment_may_meet_triangle(
             v(0.2, 0.2, 0.0),
             v(0.2, 0.2, 1.0),
             T
         ));
-        assert!(segment_may_cross_triangle(
+        assert!(segment_may_meet_triangle(
             v(0.5, 0.0, 0.0),
             v(0.5, 1.0, 1.0),
             T
         ));
-        assert!(segment_may_cross_triangle(
+        assert!(segment_may_meet_triangle(
             v(0.0, 0.0, 0.0),
             v(-1.0, -1.0, -1.0),
             T
         ));
         // Through the triangle's edge x + y = 1 exactly.
-        assert!(segment_may_cross_triangle(
+        assert!(segment_may_meet_triangle(
             v(0.5, 0.5, -1.0),
             v(0.5, 0.5, 1.0),
-            T
-        ));
-        // In the plane, crossing the triangle or not: the gaps' business.
-        assert!(!segment_may_cross_triangle(
-            v(-1.0, 0.2, 0.0),
-            v(2.0, 0.2, 0.0),
-            T
-        ));
-        assert!(!segment_may_cross_triangle(
-            v(2.0, 2.0, 0.0),
-            v(3.0, 2.0, 0.0),
             T
         ));
     }
 
     #[test]
+    fn in_the_plane_a_segment_meets_the_triangle_only_where_it_overlaps_it() {
+        let meets = |p, q| segment_may_meet_triangle(p, q, T);
+        // Across the triangle, wholly inside, from outside to inside, along an edge.
+        assert!(meets(v(-1.0, 0.2, 0.0), v(2.0, 0.2, 0.0)));
+        assert!(meets(v(0.1, 0.1, 0.0), v(0.2, 0.1, 0.0)));
+        assert!(meets(v(-1.0, -1.0, 0.0), v(0.1, 0.2, 0.0)));
+        assert!(meets(v(0.2, 0.0, 0.0), v(0.7, 0.0, 0.0)));
+        // Touching a vertex end to end, and an edge's line at its middle.
+        assert!(meets(v(1.0, 0.0, 0.0), v(2.0, 0.0, 0.0)));
+        assert!(meets(v(0.5, 0.5, 0.0), v(1.0, 1.0, 0.0)));
+        // Apart: beside it, on an edge's line beyond the edge (as the next edges along a
+        // flat sheet's row are), beyond the hypotenuse, and behind the right angle.
+        assert!(!meets(v(2.0, 2.0, 0.0), v(3.0, 2.0, 0.0)));
+        assert!(!meets(v(2.0, 0.0, 0.0), v(3.0, 0.0, 0.0)));
+        assert!(!meets(v(0.0, -2.0, 0.0), v(0.0, -1.0, 0.0)));
+        assert!(!meets(v(0.6, 0.6, 0.0), v(2.0, 0.6, 0.0)));
+        assert!(!meets(v(-0.1, -0.1, 0.0), v(-1.0, -0.5, 0.0)));
+        // The same in a plane the coordinates cannot hold exactly: the triangle and the
+        // segment turned about x by 0.3 rad (to rounding in the plane), the segment
+        // crossing the triangle and passing beside it.
+        let (c, s) = (0.3f64.cos(), 0.3f64.sin());
+        let turn = |p: DVec3| v(p.x, c * p.y - s * p.z, s * p.y + c * p.z);
+        let t = T.map(turn);
+        let inside = [v(-1.0, 0.2, 0.0), v(2.0, 0.2, 0.0)].map(turn);
+        let beside = [v(2.0, 2.0, 0.0), v(3.0, 2.0, 0.0)].map(turn);
+        assert!(segment_may_meet_triangle(inside[0], inside[1], t));
+        assert!(!segment_may_meet_triangle(beside[0], beside[1], t));
+    }
+
+    #[test]
     fn the_signs_agree_with_the_exact_predicates_wherever_they_decide() {
-        // Random points, and points nearly on the plane, against exact arithmetic: a
-        // decided sign is never wrong, and a segment the exact test says crosses (not in
-        // the plane) is never passed.
+        // Random points, and points nearly or exactly on the triangle's plane, against
+        // exact arithmetic: a decided sign is never wrong, and a segment the exact test
+        // says meets the triangle (across its plane or in it) is never passed.
         let mut state = 0x2545_F491_4F6C_DD1Du64;
         let mut unit = move || {
             state ^= state >> 12;
@@ -209,10 +296,13 @@ mod tests {
         };
         let mut point = |scale: f64| v(unit() - 0.5, unit() - 0.5, (unit() - 0.5) * scale);
         let (mut decided, mut undecided) = (0, 0);
+        let (mut in_plane_apart, mut in_plane_passed, mut in_plane_met) = (0, 0, 0);
         for k in 0..20_000 {
             let scale = [1.0, 1e-8, 1e-15, 0.0][k % 4];
             let t = [point(scale), point(scale), point(scale)];
-            let (p, q) = (point(1.0), point(scale));
+            // In the plane cases both ends are near it; otherwise one end is anywhere.
+            let p = if k % 8 == 3 { point(scale) } else { point(1.0) };
+            let q = point(scale);
             let sign = orientation_sign(t[0], t[1], t[2], q);
             let exact = sinew_exact::orientation(t[0], t[1], t[2], q);
             if sign == 0 {
@@ -221,14 +311,28 @@ mod tests {
                 decided += 1;
                 assert_eq!(f64::from(sign), exact.signum(), "case {k}");
             }
-            if sinew_exact::orientation(t[0], t[1], t[2], p) != 0.0 && exact != 0.0 {
-                let meets = sinew_exact::segment_meets_triangle(p, q, t);
+            let meets = sinew_exact::segment_meets_triangle(p, q, t);
+            let may = segment_may_meet_triangle(p, q, t);
+            if meets {
+                assert!(may, "case {k}");
+            }
+            if scale == 0.0 && k % 8 == 3 {
                 if meets {
-                    assert!(segment_may_cross_triangle(p, q, t), "case {k}");
+                    in_plane_met += 1;
+                } else {
+                    in_plane_apart += 1;
+                    in_plane_passed += usize::from(!may);
                 }
             }
         }
         // Most signs are decided, and the near-plane cases leave some undecided.
         assert!(decided > 10_000 && undecided > 0, "{decided} {undecided}");
+        // Segments in the plane meet the triangle in some cases; of those apart, the
+        // projection passes all.
+        assert!(in_plane_met > 100, "{in_plane_met}");
+        assert_eq!(
+            in_plane_passed, in_plane_apart,
+            "{in_plane_passed} of {in_plane_apart}"
+        );
     }
 }
