@@ -102,6 +102,11 @@ fn segments_may_meet_2d(a: [f64; 2], b: [f64; 2], c: [f64; 2], d: [f64; 2]) -> b
 /// normal to the axis the triangle's normal is largest along (any projection is sound;
 /// this one keeps the most of the triangle's area).
 fn coplanar_segment_may_meet_triangle(p: DVec3, q: DVec3, t: [DVec3; 3]) -> bool {
+    // A NaN reads as 0 in every sign (so it lands here), and the range comparisons below
+    // would drop it: a point that is not finite may meet anything.
+    if !(p.is_finite() && q.is_finite() && t.iter().all(|v| v.is_finite())) {
+        return true;
+    }
     let n = (t[1] - t[0]).cross(t[2] - t[0]).abs();
     let drop = if n.x >= n.y && n.x >= n.z {
         0
@@ -279,6 +284,8 @@ mod tests {
         let inside = [v(-1.0, 0.2, 0.0), v(2.0, 0.2, 0.0)].map(turn);
         let beside = [v(2.0, 2.0, 0.0), v(3.0, 2.0, 0.0)].map(turn);
         assert!(segment_may_meet_triangle(inside[0], inside[1], t));
+        // An end that is not finite may meet anything.
+        assert!(meets(v(3.0, 2.0, 0.0), v(f64::NAN, 2.0, 0.0)));
         assert!(!segment_may_meet_triangle(beside[0], beside[1], t));
     }
 
